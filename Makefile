@@ -1,0 +1,41 @@
+# cobot_calib_ros: two commands on a fresh clone, `make demo` and `make test`.
+SHELL := /bin/bash
+PYTHON ?= python3
+VENV := .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.stamps
+
+# Keep DDS traffic on this machine (ros2-from-pypi notes).
+export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
+export PYTHONDONTWRITEBYTECODE := 1
+
+.PHONY: setup demo test bench clean
+.DEFAULT_GOAL := demo
+
+setup: $(STAMP)/package
+
+$(STAMP)/deps: requirements.lock
+	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet --disable-pip-version-check -r requirements.lock
+	mkdir -p $(STAMP) && touch $@
+
+$(STAMP)/msgs: $(STAMP)/deps $(shell find msg_defs -type f)
+	tools/build_interfaces.sh $(VENV)
+	touch $@
+
+$(STAMP)/package: $(STAMP)/msgs setup.py setup.cfg package.xml $(wildcard config/*.yaml config/cells/*.yaml)
+	$(PY) -m pip install --quiet --disable-pip-version-check --no-deps --no-build-isolation -e .
+	$(PY) tools/install_ros_prefix.py $(VENV)
+	touch $@
+
+demo: setup
+	$(VENV)/bin/cobot-calib demo
+
+test: setup
+	$(PY) -m pytest -q test
+
+bench: setup
+	$(PY) bench/run_all.py
+
+clean:
+	rm -rf $(VENV) build *.egg-info bench-results.json

@@ -1,0 +1,1 @@
+"""The cobot-calib command line."""

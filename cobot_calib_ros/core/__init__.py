@@ -1,0 +1,1 @@
+"""Pure calibration math: numpy, scipy, pinocchio, OpenCV. Never imports rclpy or *_msgs."""

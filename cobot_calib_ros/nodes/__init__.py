@@ -1,0 +1,1 @@
+"""Thin rclpy node shells: translate messages, call core, publish."""

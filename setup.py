@@ -1,0 +1,30 @@
+from glob import glob
+
+from setuptools import find_packages, setup
+
+package_name = 'cobot_calib_ros'
+
+NODES = ['mock_robot', 'proximity_sensor', 'joint_state_monitor', 'user_frame_solver']
+
+setup(
+    name=package_name,
+    version='0.1.0',
+    packages=find_packages(exclude=['test', 'test.*']),
+    data_files=[
+        ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
+        ('share/' + package_name, ['package.xml']),
+        ('share/' + package_name + '/config', glob('config/*.yaml')),
+        ('share/' + package_name + '/config/cells', glob('config/cells/*.yaml')),
+    ],
+    install_requires=['setuptools'],
+    zip_safe=True,
+    maintainer='cobot_calib_ros maintainers',
+    maintainer_email='maintainers@cobot-calib.example.com',
+    description='Live calibration of a collaborative-robot cell on ROS 2.',
+    license='Apache-2.0',
+    tests_require=['pytest'],
+    entry_points={'console_scripts': [
+        *[f'{node} = cobot_calib_ros.nodes.{node}:main' for node in NODES],
+        'cobot-calib = cobot_calib_ros.cli.main:main',
+    ]},
+)
