@@ -1,12 +1,11 @@
 """Lay out the venv like a ROS install prefix (what colcon --symlink-install would do).
 
-pip's editable install puts console scripts in <venv>/bin and skips data_files. `ros2 run`
-looks for executables in <prefix>/lib/<package>/ and ament_index finds the package through
-share/ament_index. This writes a launcher per node there and symlinks share/<package> to the
-checkout's package.xml and config/.
+setup.cfg sends the console scripts to <prefix>/lib/<package>/, where `ros2 run` looks, but
+pip's editable install skips data_files: this registers the package in the ament index,
+symlinks share/<package> to the checkout's package.xml and config/, and links the
+cobot-calib CLI into <venv>/bin.
 Usage: python tools/install_ros_prefix.py VENV_DIR
 """
-from importlib.metadata import entry_points
 from pathlib import Path
 import sys
 
@@ -14,18 +13,12 @@ PACKAGE = 'cobot_calib_ros'
 REPO = Path(__file__).resolve().parent.parent
 
 
-def install_node_launchers(venv: Path) -> int:
-    lib_dir = venv / 'lib' / PACKAGE
-    lib_dir.mkdir(parents=True, exist_ok=True)
-    nodes = [ep for ep in entry_points(group='console_scripts')
-             if ep.value.startswith(f'{PACKAGE}.nodes.')]
-    for ep in nodes:
-        module, func = ep.value.split(':')
-        script = lib_dir / ep.name
-        script.write_text(f'#!{venv / "bin" / "python"}\nimport sys\n'
-                          f'from {module} import {func}\nsys.exit({func}())\n')
-        script.chmod(0o755)
-    return len(nodes)
+def link_cli(venv: Path) -> None:
+    """Put the CLI on the venv's PATH (setup.cfg sends every script to lib/<package>)."""
+    cli = venv / 'lib' / PACKAGE / 'cobot-calib'
+    if not cli.exists():
+        raise SystemExit(f'{cli} missing: did `pip install -e .` run with setup.cfg?')
+    link(cli, venv / 'bin' / 'cobot-calib')
 
 
 def link(target: Path, link_path: Path) -> None:
@@ -46,9 +39,10 @@ def install_share(venv: Path) -> None:
 
 def main() -> None:
     venv = Path(sys.argv[1]).resolve()
-    count = install_node_launchers(venv)
     install_share(venv)
-    print(f'{count} node executables in {venv / "lib" / PACKAGE}; share/{PACKAGE} linked')
+    link_cli(venv)
+    nodes = sorted(p.name for p in (venv / 'lib' / PACKAGE).iterdir() if p.name != 'cobot-calib')
+    print(f'ros2 run executables in lib/{PACKAGE}: {", ".join(nodes)}; share/{PACKAGE} linked')
 
 
 if __name__ == '__main__':

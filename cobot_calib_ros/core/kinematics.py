@@ -1,0 +1,388 @@
+"""Serial-arm kinematics: parametrised nominal models, vectorised FK, pinocchio IK.
+
+A :class:`Chain` is a serial chain of revolute joints. Joint ``i`` sits at a fixed placement
+(4, 4) in the previous joint frame and then turns by ``q_i`` about its local z axis:
+
+    T_base_tool = P_1 Rz(q_1) P_2 Rz(q_2) ... P_n Rz(q_n) @ flange @ tool
+
+Craig's modified DH link ``RotX(alpha) TransX(a) RotZ(theta + q) TransZ(d)`` has this form with
+``P = RotX(alpha) TransX(a) RotZ(theta) TransZ(d)`` (RotZ commutes with TransZ), and so does a
+URDF joint origin ``Trans(x, y, z) Rz(yaw) Ry(pitch) Rx(roll)`` with axis z. Transform names
+follow :mod:`cobot_calib_ros.core.frames`: ``T_a_b`` is the pose of ``b`` in ``a``. Lengths are
+metres, angles radians.
+
+A :class:`KinematicModel` maps a flat parameter vector (``kind='mdh'``: alpha, a, theta, d per
+joint; ``kind='origin'``: x, y, z, roll, pitch, yaw per joint) to a :class:`Chain`, so that a
+"true" robot can differ from the nominal one and identification can optimise the parameters.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import lru_cache
+import math
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+import pinocchio as pin
+
+Array = NDArray[np.float64]
+
+# Per kind: parameter field names, and the placement as a product of elementary motions
+# (motion 'r' rotation / 't' translation, local axis 0/1/2, index of the field giving its value).
+_FIELDS = {'mdh': ('alpha', 'a', 'theta', 'd'),
+           'origin': ('x', 'y', 'z', 'roll', 'pitch', 'yaw')}
+_MOTIONS = {'mdh': (('r', 0, 0), ('t', 0, 1), ('r', 2, 2), ('t', 2, 3)),
+            'origin': (('t', 0, 0), ('t', 1, 1), ('t', 2, 2), ('r', 2, 5), ('r', 1, 4),
+                       ('r', 0, 3))}
+
+
+def _identity() -> Array:
+    return np.eye(4)
+
+
+def _frozen(values: ArrayLike, shape: tuple[int, ...], what: str) -> Array:
+    """Read-only float copy of ``values``; ValueError unless it has ``shape``."""
+    a = np.array(values, dtype=float)
+    if a.shape != shape:
+        raise ValueError(f'{what}: expected shape {shape}, got {a.shape}')
+    a.setflags(write=False)
+    return a
+
+
+@dataclass(frozen=True, eq=False)
+class Chain:
+    """Serial revolute chain; arrays are copied and made read-only on construction.
+
+    Compares by identity (so it can key a cache); compare arrays explicitly if needed.
+    """
+
+    joint_names: tuple[str, ...]
+    placements: Array  # (n, 4, 4), previous joint frame (base for i = 0) -> joint i at q_i = 0
+    tool: Array = field(default_factory=_identity)  # (4, 4) T_flange_tool, tool centre point
+    lower: Array = field(default_factory=lambda: np.empty(0))  # (n,) [rad]; empty: -inf
+    upper: Array = field(default_factory=lambda: np.empty(0))  # (n,) [rad]; empty: +inf
+    flange: Array = field(default_factory=_identity)  # (4, 4) last joint frame -> flange
+
+    def __post_init__(self) -> None:
+        n = len(self.joint_names)
+        lower = np.full(n, -np.inf) if np.size(self.lower) == 0 else self.lower
+        upper = np.full(n, np.inf) if np.size(self.upper) == 0 else self.upper
+        object.__setattr__(self, 'joint_names', tuple(self.joint_names))
+        object.__setattr__(self, 'placements', _frozen(self.placements, (n, 4, 4), 'placements'))
+        object.__setattr__(self, 'tool', _frozen(self.tool, (4, 4), 'tool'))
+        object.__setattr__(self, 'lower', _frozen(lower, (n,), 'lower'))
+        object.__setattr__(self, 'upper', _frozen(upper, (n,), 'upper'))
+        object.__setattr__(self, 'flange', _frozen(self.flange, (4, 4), 'flange'))
+
+    @property
+    def dof(self) -> int:
+        return len(self.joint_names)
+
+
+def _as_batch(chain: Chain, q: ArrayLike) -> Array:
+    """(n,) or (m, n) joint angles [rad] -> (m, n); ValueError on a wrong shape."""
+    qa = np.asarray(q, dtype=float)
+    if qa.ndim not in (1, 2) or qa.shape[-1] != chain.dof:
+        raise ValueError(f'expected q of shape ({chain.dof},) or (m, {chain.dof}), '
+                         f'got {qa.shape}')
+    return qa.reshape(-1, chain.dof)
+
+
+def _right_mul(T: Array, M: Array) -> Array:
+    """(m, 4, 4) stack times one (4, 4), as a single (4m, 4) @ (4, 4) product."""
+    return (T.reshape(-1, 4) @ M).reshape(T.shape)
+
+
+def _turn_z(T: Array, angles: Array) -> None:
+    """In place: T[k] <- T[k] @ Rz(angles[k]) for a (m, 4, 4) stack, angles (m,) [rad]."""
+    c, s = np.cos(angles)[:, None], np.sin(angles)[:, None]
+    x, y = T[:, :, 0].copy(), T[:, :, 1]
+    T[:, :, 0] = c * x + s * y
+    T[:, :, 1] = c * y - s * x
+
+
+def fk(chain: Chain, q: ArrayLike) -> Array:
+    """Pose of the tool in base, T_base_tool.
+
+    q (n,) [rad] -> (4, 4); q (m, n) -> (m, 4, 4). Vectorised over configurations.
+    """
+    qb = _as_batch(chain, q)
+    T = np.broadcast_to(np.eye(4), (len(qb), 4, 4)).copy()
+    for i in range(chain.dof):
+        T = _right_mul(T, chain.placements[i])
+        _turn_z(T, qb[:, i])
+    T = _right_mul(T, chain.flange @ chain.tool)
+    return T[0] if np.ndim(q) == 1 else T
+
+
+# --- parametrised models -------------------------------------------------------------------
+
+def _motion(kind: str, axis: int, value: float) -> Array:
+    """(4, 4) elementary rotation ('r') or translation ('t') along a local axis [rad or m]."""
+    T = np.eye(4)
+    if kind == 't':
+        T[axis, 3] = value
+        return T
+    c, s = math.cos(value), math.sin(value)
+    j, k = (axis + 1) % 3, (axis + 2) % 3
+    T[j, j], T[j, k], T[k, j], T[k, k] = c, -s, s, c
+    return T
+
+
+def placement(kind: str, row: ArrayLike) -> Array:
+    """(4, 4) joint placement from one parameter row (alpha, a, theta, d) or (x..yaw)."""
+    r = np.asarray(row, dtype=float)
+    T = np.eye(4)
+    for motion, axis, idx in _MOTIONS[kind]:
+        T = T @ _motion(motion, axis, r[idx])
+    return T
+
+
+@dataclass(frozen=True, eq=False)
+class KinematicModel:
+    """Nominal kinematic model with a flat parameter vector (SI units: m, rad)."""
+
+    name: str                          # 'iiwa7', 'iiwa14', 'sawyer', 'ur10'
+    kind: str                          # 'mdh' or 'origin'
+    joint_names: tuple[str, ...]
+    nominal: Array                     # (n * 4,) for 'mdh', (n * 6,) for 'origin'
+    parameter_names: tuple[str, ...]   # 'alpha_1', 'a_1', ... or 'x_right_j0', ...
+    lower: Array                       # (n,) joint limits [rad]
+    upper: Array                       # (n,) joint limits [rad]
+    flange: Array = field(default_factory=_identity)  # fixed last joint frame -> flange
+
+    @property
+    def fields_per_joint(self) -> int:
+        return len(_FIELDS[self.kind])
+
+    def rows(self, params: ArrayLike | None = None) -> Array:
+        """Parameters as (n, 4) or (n, 6) rows; ValueError on a wrong size."""
+        p = self.nominal if params is None else np.asarray(params, dtype=float)
+        if p.shape != self.nominal.shape:
+            raise ValueError(f'expected {self.nominal.shape} parameters, got {p.shape}')
+        return p.reshape(len(self.joint_names), self.fields_per_joint)
+
+    def chain(self, params: ArrayLike | None = None, tool: ArrayLike | None = None) -> Chain:
+        """Chain for ``params`` (default nominal) with T_flange_tool ``tool`` (default I)."""
+        placements = np.stack([placement(self.kind, r) for r in self.rows(params)])
+        return Chain(self.joint_names, placements, _identity() if tool is None else tool,
+                     self.lower, self.upper, self.flange)
+
+
+def _model(name: str, kind: str, joint_names: tuple[str, ...], rows: ArrayLike,
+           limits: ArrayLike, flange: Array | None = None) -> KinematicModel:
+    """Assemble a model; rows (n, k) in m/rad, limits (n, 2) [rad]."""
+    r = np.asarray(rows, dtype=float)
+    lim = np.asarray(limits, dtype=float)
+    suffixes = [str(i + 1) for i in range(len(r))] if kind == 'mdh' else list(joint_names)
+    names = tuple(f'{f}_{s}' for s in suffixes for f in _FIELDS[kind])
+    return KinematicModel(name, kind, joint_names, r.ravel(), names, lim[:, 0], lim[:, 1],
+                          _identity() if flange is None else flange)
+
+
+def _iiwa(name: str, d1: float, d3: float) -> KinematicModel:
+    """KUKA LBR iiwa MDH [alpha, a, theta, d] (m, rad); the last d puts frame 7 at the flange."""
+    h = math.pi / 2
+    rows = [[0, 0, 0, d1], [-h, 0, 0, 0], [h, 0, 0, d3], [h, 0, 0, 0],
+            [-h, 0, 0, 0.400], [-h, 0, 0, 0], [h, 0, 0, 0.126]]
+    limits_deg = [170, 120, 170, 120, 170, 120, 175]
+    limits = [(-math.radians(v), math.radians(v)) for v in limits_deg]
+    names = tuple(f'joint_a{i}' for i in range(1, 8))
+    return _model(name, 'mdh', names, rows, limits)
+
+
+def iiwa7() -> KinematicModel:
+    """KUKA LBR iiwa 7 R800 (pybotics ``kuka_lbr_iiwa_7`` MDH, in m), flange frame at the end."""
+    return _iiwa('iiwa7', 0.340, 0.400)
+
+
+def iiwa14() -> KinematicModel:
+    """KUKA LBR iiwa 14 R820: as iiwa7 with d1 = 0.360 m, d3 = 0.420 m."""
+    return _iiwa('iiwa14', 0.360, 0.420)
+
+
+def ur10_pybotics() -> KinematicModel:
+    """UR10 MDH table of pybotics ``ur10()`` (mm there), in m; limits +-2 pi (UR +-360 deg)."""
+    h, pi = math.pi / 2, math.pi
+    rows_mm = [[0, 0, 0, 118], [h, 0, pi, 0], [0, 612.7, 0, 0], [0, 571.6, 0, 163.9],
+               [-h, 0, 0, 115.7], [h, 0, pi, 92.2]]
+    rows = np.array(rows_mm) * [1.0, 1e-3, 1.0, 1e-3]
+    names = tuple(f'joint_{i}' for i in range(1, 7))
+    return _model('ur10', 'mdh', names, rows, [(-2 * pi, 2 * pi)] * 6)
+
+
+_H = 1.57079632679  # pi/2 as rounded in the Sawyer URDF
+# name, xyz [m], rpy [rad], limits [rad]: sawyer_description/urdf/sawyer_base.urdf.xacro
+# (RethinkRobotics/sawyer_robot d1ef3d0), non-gazebo limits.
+_SAWYER = (
+    ('right_j0', (0.0, 0.0, 0.08), (0.0, 0.0, 0.0), (-3.0503, 3.0503)),
+    ('right_j1', (0.081, 0.05, 0.237), (-_H, _H, 0.0), (-3.8095, 2.2736)),
+    ('right_j2', (0.0, -0.14, 0.1425), (_H, 0.0, 0.0), (-3.0426, 3.0426)),
+    ('right_j3', (0.0, -0.042, 0.26), (-_H, 0.0, 0.0), (-3.0439, 3.0439)),
+    ('right_j4', (0.0, -0.125, -0.1265), (_H, 0.0, 0.0), (-2.9761, 2.9761)),
+    ('right_j5', (0.0, 0.031, 0.275), (-_H, 0.0, 0.0), (-2.9761, 2.9761)),
+    ('right_j6', (0.0, -0.11, 0.1053), (-_H, -0.17453, 3.1416), (-4.7124, 4.7124)),
+)
+_SAWYER_HAND = ((0.0, 0.0, 0.0245), (0.0, 0.0, 1.570796))  # fixed right_l6 -> right_hand
+
+
+def sawyer() -> KinematicModel:
+    """Rethink Sawyer arm from URDF joint origins; fk(tool=I) is right_hand in right_arm_base_link.
+
+    right_j6 limits are the real-robot +-4.7124 rad (the URDF's gazebo branch says +-3.14, which
+    would exclude the named 'neutral' pose, q6 = 3.3161).
+    """
+    names = tuple(j[0] for j in _SAWYER)
+    rows = [list(j[1]) + list(j[2]) for j in _SAWYER]
+    flange = placement('origin', list(_SAWYER_HAND[0]) + list(_SAWYER_HAND[1]))
+    return _model('sawyer', 'origin', names, rows, [j[3] for j in _SAWYER], flange)
+
+
+_MODELS = {'iiwa7': iiwa7, 'iiwa14': iiwa14, 'sawyer': sawyer, 'ur10': ur10_pybotics}
+
+
+def model_by_name(name: str) -> KinematicModel:
+    """One of 'iiwa7', 'iiwa14', 'sawyer', 'ur10'; ValueError otherwise."""
+    try:
+        return _MODELS[name]()
+    except KeyError:
+        raise ValueError(f'unknown robot model {name!r}; known: {sorted(_MODELS)}') from None
+
+
+def position_jacobian_wrt_params(model: KinematicModel, params: ArrayLike | None,
+                                 q_batch: ArrayLike, tool: ArrayLike | None = None) -> Array:
+    """Analytic d(tool position)/d(params), shape (m, 3, P) [m/m or m/rad].
+
+    q_batch (m, n) [rad]; params default nominal; tool T_flange_tool (default I), held fixed.
+    Reshape to (3 m, P) for a stacked least-squares Jacobian.
+    """
+    rows = model.rows(params)
+    chain = model.chain(params, tool)
+    q = _as_batch(chain, q_batch)
+    p_tool = fk(chain, q)[:, :3, 3]
+    J = np.empty((len(q), 3, rows.size))
+    T = np.broadcast_to(np.eye(4), (len(q), 4, 4)).copy()
+    k = model.fields_per_joint
+    for i, row in enumerate(rows):
+        for motion, axis, idx in _MOTIONS[model.kind]:
+            T = _right_mul(T, _motion(motion, axis, row[idx]))
+            u = T[:, :3, axis]  # motion axis in base, through the origin of T
+            J[:, :, i * k + idx] = u if motion == 't' else np.cross(u, p_tool - T[:, :3, 3])
+        _turn_z(T, q[:, i])
+    return J
+
+
+# --- pinocchio and inverse kinematics --------------------------------------------------------
+
+def to_pinocchio(chain: Chain) -> pin.Model:
+    """Pinocchio model of the chain: RZ joints, frames 'flange' and 'tool' on the last joint."""
+    model = pin.Model()
+    model.name = 'chain'
+    parent = 0
+    for i, name in enumerate(chain.joint_names):
+        parent = model.addJoint(parent, pin.JointModelRZ(), pin.SE3(chain.placements[i]), name)
+        model.addJointFrame(parent)
+    model.lowerPositionLimit = np.array(chain.lower)
+    model.upperPositionLimit = np.array(chain.upper)
+    last_frame = model.nframes - 1
+    flange = pin.Frame('flange', parent, last_frame, pin.SE3(chain.flange),
+                       pin.FrameType.OP_FRAME)
+    model.addFrame(flange, False)
+    tool = pin.Frame('tool', parent, last_frame, pin.SE3(chain.flange @ chain.tool),
+                     pin.FrameType.OP_FRAME)
+    model.addFrame(tool, False)
+    return model
+
+
+@lru_cache(maxsize=32)
+def _cached_pinocchio(chain: Chain) -> pin.Model:
+    """to_pinocchio, cached per Chain object (Chain compares and hashes by identity)."""
+    return to_pinocchio(chain)
+
+
+@dataclass(frozen=True)
+class IkResult:
+    """Inverse kinematics result; falsy on failure."""
+
+    q: Array                   # (n,) [rad], the last iterate (within limits) even on failure
+    success: bool
+    position_error: float      # [m]
+    orientation_error: float   # [rad]; nan when position_only
+    iterations: int
+    message: str = ''
+
+    def __bool__(self) -> bool:
+        return self.success
+
+
+@dataclass(frozen=True)
+class _Residual:
+    error: Array        # (6,) or (3,) task error
+    jacobian: Array     # d error / dq, (6, n) or (3, n)
+    position: float     # [m]
+    orientation: float  # [rad]
+
+
+def _residual(model: pin.Model, data: pin.Data, q: Array, frame: int, target: pin.SE3,
+              position_only: bool) -> _Residual:
+    """Task error and its Jacobian at q; LOCAL frame Jacobian, rotated for position only."""
+    pin.computeJointJacobians(model, data, q)  # also runs forward kinematics
+    current = pin.updateFramePlacement(model, data, frame)
+    J = pin.getFrameJacobian(model, data, frame, pin.LOCAL)
+    delta = target.actInv(current)  # T_target_tool, identity at the solution
+    position = float(np.linalg.norm(current.translation - target.translation))
+    if position_only:
+        error = current.translation - target.translation
+        return _Residual(error, current.rotation @ J[:3], position, math.nan)
+    J_error = pin.Jlog6(delta) @ J
+    return _Residual(pin.log6(delta).vector, J_error, position,
+                     float(np.linalg.norm(pin.log3(delta.rotation))))
+
+
+_STALL_ITERATIONS = 20  # give up after this many iterations without progress
+
+
+def _dls_step(res: _Residual, max_step: float) -> Array:
+    """Damped least-squares step dq [rad], damping ~ |error|^2, largest component <= max_step."""
+    J, e = res.jacobian, res.error
+    damping = float(e @ e) + 1e-12
+    dq = -J.T @ np.linalg.solve(J @ J.T + damping * np.eye(len(e)), e)
+    largest = float(np.max(np.abs(dq)))
+    return dq * (max_step / largest) if largest > max_step else dq
+
+
+def solve_ik(chain: Chain, T_base_tool_target: ArrayLike, q_seed: ArrayLike, *,
+             position_only: bool = False, tol: float = 1e-10,
+             max_iter: int = 200) -> IkResult:
+    """Joint angles [rad] putting the tool at T_base_tool_target (4, 4), from q_seed (n,).
+
+    Damped least squares on the SE(3) log error; each iterate is clipped to the joint limits,
+    so a returned solution respects them. Redundancy resolves towards the seed. Converged when
+    position error < tol [m] and, unless position_only, rotation error < tol [rad].
+    Unreachable or limit-blocked targets return success False with a message.
+    """
+    model = _cached_pinocchio(chain)
+    data = model.createData()
+    frame = model.getFrameId('tool')
+    target = pin.SE3(np.asarray(T_base_tool_target, dtype=float))
+    q = np.clip(_as_batch(chain, q_seed)[0], chain.lower, chain.upper)
+    best, stalled = math.inf, 0
+    for iteration in range(max_iter + 1):
+        res = _residual(model, data, q, frame, target, position_only)
+        if res.position < tol and (position_only or res.orientation < tol):
+            return IkResult(q, True, res.position, res.orientation, iteration, 'converged')
+        size = float(np.linalg.norm(res.error))
+        best, stalled = (size, 0) if size < best * (1.0 - 1e-6) else (best, stalled + 1)
+        if iteration == max_iter or stalled >= _STALL_ITERATIONS:
+            break
+        q = np.clip(q + _dls_step(res, 0.5), chain.lower, chain.upper)
+    return IkResult(q, False, res.position, res.orientation, iteration,
+                    _failure_message(chain, q, res, iteration))
+
+
+def _failure_message(chain: Chain, q: Array, res: _Residual, iterations: int) -> str:
+    at_limit = [n for n, v, lo, hi in zip(chain.joint_names, q, chain.lower, chain.upper)
+                if v <= lo or v >= hi]
+    limits = f'; joints at limits: {", ".join(at_limit)}' if at_limit else ''
+    return (f'no convergence after {iterations} iterations: position error {res.position:.3g} m, '
+            f'orientation error {res.orientation:.3g} rad{limits}')

@@ -1,0 +1,150 @@
+"""joint_state_monitor: buffers joint_states and serves hold-window captures."""
+from __future__ import annotations
+
+import threading
+import time
+
+from cobot_calib_msgs.srv import CaptureJoints
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+import rclpy
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import JointState
+
+from cobot_calib_ros.core.joint_buffer import hold_statistics, JointRingBuffer
+
+
+def _float(desc: str, lo: float, hi: float) -> ParameterDescriptor:
+    return ParameterDescriptor(description=desc, floating_point_range=[
+        FloatingPointRange(from_value=lo, to_value=hi)])
+
+
+class JointStateMonitor(Node):
+    def __init__(self, **kwargs) -> None:
+        super().__init__('joint_state_monitor', **kwargs)
+        p = self._declare_parameters()
+        self._rate = p['expected_rate_hz']
+        self._buffer = JointRingBuffer(p['joint_names'] or None,
+                                       int(p['buffer_duration'] * self._rate) + 1)
+        self._lock = threading.Lock()
+        self._new_sample = threading.Condition(self._lock)
+        self._gaps = 0
+        self._last_stamp = None
+        self.create_subscription(
+            JointState, 'joint_states', self._on_joint_state,
+            QoSProfile(depth=p['qos_depth'], reliability=ReliabilityPolicy.RELIABLE),
+            callback_group=MutuallyExclusiveCallbackGroup())
+        self.create_service(CaptureJoints, 'capture_joints', self._on_capture,
+                            callback_group=MutuallyExclusiveCallbackGroup())
+        self._diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        self.create_timer(1.0, self._publish_diagnostics)
+
+    def _declare_parameters(self) -> dict:
+        decls = {
+            'expected_rate_hz': (1000.0, _float('Nominal joint_states rate [Hz]', 1.0, 10000.0)),
+            'buffer_duration': (10.0, _float('Ring buffer length [s]', 1.0, 600.0)),
+            'capture_duration': (1.0, _float('Default hold window of capture_joints [s]',
+                                             0.01, 60.0)),
+            'min_sample_fraction': (0.5, _float(
+                'Refuse a capture with fewer than this fraction of the expected samples [1]',
+                0.0, 1.0)),
+            'max_joint_std': (1.0e-4, _float(
+                'Refuse a capture when a joint spreads more than this: moving [rad]', 0.0, 1.0)),
+            'qos_depth': (1000, ParameterDescriptor(
+                description='joint_states subscription queue depth [messages]',
+                integer_range=[IntegerRange(from_value=1, to_value=100000)])),
+            'joint_names': ([''], ParameterDescriptor(
+                description='Expected joint names; empty = take them from the first message')),
+        }
+        values = {}
+        for name, (default, desc) in decls.items():
+            values[name] = self.declare_parameter(name, default, desc).value
+        values['joint_names'] = [n for n in values['joint_names'] if n]
+        return values
+
+    def _on_joint_state(self, msg: JointState) -> None:
+        now = time.monotonic()
+        stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+        with self._lock:
+            why = self._buffer.add(now, list(msg.name), list(msg.position))
+            if why is None:
+                self._count_gap(stamp)
+                self._new_sample.notify_all()
+        if why is not None:
+            self.get_logger().warning(
+                f'dropped a malformed joint_states message ({why.value}); '
+                f'{sum(self._buffer.rejected.values())} dropped so far',
+                throttle_duration_sec=5.0)
+
+    def _count_gap(self, stamp: float) -> None:
+        """Missing samples inferred from header stamps (the publisher's nominal period)."""
+        if self._last_stamp is not None:
+            missing = round((stamp - self._last_stamp) * self._rate) - 1
+            self._gaps += max(0, missing)
+        self._last_stamp = stamp
+
+    def _on_capture(self, request, response):
+        duration = request.duration or self.get_parameter('capture_duration').value
+        if not 0.0 < duration <= self.get_parameter('buffer_duration').value:
+            response.error_code = CaptureJoints.Response.BAD_REQUEST
+            response.message = (f'duration {duration} s must be > 0 and within the buffer '
+                                f'({self.get_parameter("buffer_duration").value} s)')
+            return response
+        t0 = time.monotonic()
+        t1 = t0 + duration
+        with self._lock:
+            self._new_sample.wait_for(lambda: self._buffer.latest_time >= t1,
+                                      timeout=duration + 0.5)
+            times, positions = self._buffer.window(t0, t1)
+            names = list(self._buffer.joint_names or [])
+        capture = hold_statistics(
+            times, positions, duration, self._rate,
+            self.get_parameter('min_sample_fraction').value,
+            self.get_parameter('max_joint_std').value, names)
+        response.error_code = {'': CaptureJoints.Response.SUCCESS,
+                               'no_data': CaptureJoints.Response.NO_DATA,
+                               'moving': CaptureJoints.Response.MOVING}[capture.reason]
+        response.message = capture.message
+        response.name = names
+        response.position = capture.mean.tolist()
+        response.std = capture.std.tolist()
+        response.sample_count = capture.count
+        response.window = capture.span
+        if not capture.ok:
+            self.get_logger().warning(f'capture_joints refused: {capture.message}')
+        return response
+
+    def _publish_diagnostics(self) -> None:
+        with self._lock:
+            values = {'received': self._buffer.count, 'missing_by_stamp': self._gaps,
+                      **{f'dropped_{r.value}': n for r, n in self._buffer.rejected.items()}}
+        status = DiagnosticStatus(
+            level=DiagnosticStatus.OK, name=f'{self.get_name()}: joint_states',
+            message='ok', hardware_id='joint_states',
+            values=[KeyValue(key=k, value=str(v)) for k, v in values.items()])
+        if any(v for k, v in values.items() if k.startswith('dropped_')):
+            status.level, status.message = DiagnosticStatus.WARN, 'malformed messages dropped'
+        self._diag_pub.publish(DiagnosticArray(status=[status]))
+
+
+def main(args=None) -> None:
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = JointStateMonitor()
+        executor = MultiThreadedExecutor(num_threads=3)
+        executor.add_node(node)
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == '__main__':
+    main()

@@ -1,0 +1,125 @@
+"""proximity_sensor: probe voltage -> distance [m] with range checks, and window averages."""
+from __future__ import annotations
+
+from collections import deque
+import threading
+import time
+
+from cobot_calib_msgs.msg import ProbeVoltage, ProximityReading
+from cobot_calib_msgs.srv import AverageProximity
+import numpy as np
+from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
+import rclpy
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import qos_profile_sensor_data
+
+from cobot_calib_ros.core.probe import curve_from_lists, read_distance, ReadingStatus
+
+
+class ProximitySensor(Node):
+    def __init__(self, **kwargs) -> None:
+        super().__init__('proximity_sensor', **kwargs)
+        self._declare_parameters()
+        self._curve = curve_from_lists(self._p('calibration_distance'),
+                                       self._p('calibration_voltage'))
+        self._margin = self._p('saturation_margin')
+        self._lock = threading.Condition()
+        self._recent: deque = deque(maxlen=20000)   # (monotonic time, distance, status)
+        self._pub = self.create_publisher(ProximityReading, 'probe/distance',
+                                          qos_profile_sensor_data)
+        self.create_subscription(ProbeVoltage, 'probe/voltage', self._on_voltage,
+                                 qos_profile_sensor_data,
+                                 callback_group=MutuallyExclusiveCallbackGroup())
+        self.create_service(AverageProximity, 'probe/average', self._on_average,
+                            callback_group=MutuallyExclusiveCallbackGroup())
+        self.get_logger().info(
+            f'probe range {self._curve.min_range * 1e3:.2f}-{self._curve.max_range * 1e3:.2f} mm')
+
+    def _declare_parameters(self) -> None:
+        self.declare_parameter('calibration_distance', [0.0002, 0.0022], ParameterDescriptor(
+            description='Calibration table: gaps [m], increasing'))
+        self.declare_parameter('calibration_voltage', [-1.6, -17.6], ParameterDescriptor(
+            description='Calibration table: sensor output at those gaps [V]'))
+        self.declare_parameter('saturation_margin', 2.0e-6, ParameterDescriptor(
+            description='Readings this close to a range end count as saturated [m]',
+            floating_point_range=[FloatingPointRange(from_value=0.0, to_value=1e-3)]))
+        self.declare_parameter('average_duration', 0.2, ParameterDescriptor(
+            description='Default window of probe/average [s]',
+            floating_point_range=[FloatingPointRange(from_value=0.001, to_value=60.0)]))
+
+    def _p(self, name: str):
+        return self.get_parameter(name).value
+
+    def _on_voltage(self, msg: ProbeVoltage) -> None:
+        reading = read_distance(self._curve, msg.voltage, self._margin)
+        out = ProximityReading(header=msg.header, distance=reading.distance,
+                               voltage=msg.voltage, min_range=self._curve.min_range,
+                               max_range=self._curve.max_range, status=int(reading.status))
+        self._pub.publish(out)
+        with self._lock:
+            self._recent.append((time.monotonic(), reading.distance, reading.status))
+            self._lock.notify_all()
+        if reading.status == ReadingStatus.INVALID:
+            self.get_logger().warning('non-finite probe voltage dropped',
+                                      throttle_duration_sec=5.0)
+
+    def _on_average(self, request, response):
+        duration = request.duration or self._p('average_duration')
+        if not 0.0 < duration <= 60.0:
+            response.error_code = AverageProximity.Response.BAD_REQUEST
+            response.message = f'duration {duration} s must be in (0, 60]'
+            return response
+        t0 = time.monotonic()
+        t1 = t0 + duration
+        with self._lock:
+            self._lock.wait_for(lambda: self._recent and self._recent[-1][0] >= t1,
+                                timeout=duration + 0.5)
+            window = [(d, s) for t, d, s in self._recent if t0 <= t <= t1]
+        return self._fill_average(response, window, duration)
+
+    @staticmethod
+    def _fill_average(response, window, duration: float):
+        valid = np.array([d for d, s in window if s == ReadingStatus.OK])
+        rejected = [s for d, s in window if s != ReadingStatus.OK]
+        response.sample_count = int(valid.size)
+        response.rejected_count = len(rejected)
+        if not window:
+            response.error_code = AverageProximity.Response.NO_DATA
+            response.message = (f'no probe readings in {duration:.3f} s; '
+                                'is probe/voltage being published?')
+            return response
+        if rejected and len(rejected) >= len(window) / 2:
+            status = max(set(rejected), key=rejected.count)
+            response.reading_status = int(status)
+            response.error_code = AverageProximity.Response.OUT_OF_RANGE
+            side = 'closer than' if status == ReadingStatus.BELOW_RANGE else 'beyond'
+            response.message = (f'{len(rejected)} of {len(window)} readings out of range '
+                                f'({status.name}): the target is {side} the probe range; '
+                                'move the probe and measure again')
+            return response
+        response.distance = float(valid.mean())
+        response.std = float(valid.std(ddof=1)) if valid.size > 1 else 0.0
+        response.message = f'{valid.size} readings, {len(rejected)} rejected'
+        return response
+
+
+def main(args=None) -> None:
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = ProximitySensor()
+        executor = MultiThreadedExecutor(num_threads=2)
+        executor.add_node(node)
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == '__main__':
+    main()

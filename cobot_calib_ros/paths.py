@@ -1,0 +1,34 @@
+"""Where the package's config and the user's results live."""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+PACKAGE = 'cobot_calib_ros'
+
+
+def share_dir() -> Path:
+    """The package's share directory (ament index when sourced, else the source tree)."""
+    try:
+        from ament_index_python.packages import get_package_share_directory
+        return Path(get_package_share_directory(PACKAGE))
+    except (ImportError, LookupError, OSError, ValueError):
+        return Path(__file__).resolve().parent.parent
+
+
+def config_dir() -> Path:
+    return share_dir() / 'config'
+
+
+def cell_file(name_or_path: str = 'sawyer_close') -> Path:
+    """A cell YAML by path, or by name from config/cells/."""
+    path = Path(name_or_path)
+    if path.suffix in ('.yaml', '.yml') or path.exists():
+        return path.expanduser().resolve()
+    return config_dir() / 'cells' / f'{name_or_path}.yaml'
+
+
+def data_dir() -> Path:
+    """Results root: $COBOT_CALIB_DATA, else ~/.ros/cobot_calib."""
+    env = os.environ.get('COBOT_CALIB_DATA')
+    return Path(env).expanduser() if env else Path.home() / '.ros' / 'cobot_calib'
