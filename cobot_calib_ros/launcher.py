@@ -33,6 +33,7 @@ def _die_with_parent() -> None:
 class NodeSpec:
     name: str
     params: dict[str, str] = field(default_factory=dict)
+    namespace: str = ''
 
     def command(self) -> list[str]:
         cmd = [sys.executable, '-m', f'cobot_calib_ros.nodes.{self.name}', '--ros-args']
@@ -41,6 +42,8 @@ class NodeSpec:
             cmd += ['--params-file', str(params_file)]
         for key, value in self.params.items():
             cmd += ['-p', f'{key}:={value}']
+        if self.namespace:
+            cmd += ['-r', f'__ns:=/{self.namespace.strip("/")}']
         return cmd
 
 
@@ -54,8 +57,9 @@ class Suite:
     def start(self, specs: list[NodeSpec], env: dict[str, str] | None = None) -> None:
         self.log_dir.mkdir(parents=True, exist_ok=True)
         for spec in specs:
-            log = open(self.log_dir / f'{spec.name}.log', 'wb')
-            self.processes[spec.name] = subprocess.Popen(
+            key = f'{spec.namespace.strip("/")}.{spec.name}' if spec.namespace else spec.name
+            log = open(self.log_dir / f'{key.replace("/", ".")}.log', 'wb')
+            self.processes[key] = subprocess.Popen(
                 spec.command(), stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
                 env=env, preexec_fn=_die_with_parent)
             log.close()

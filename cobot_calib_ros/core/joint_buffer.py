@@ -29,6 +29,7 @@ class JointRingBuffer:
         self._positions: Array | None = None
         self._next = 0
         self.count = 0
+        self.latest_time = -math.inf
         self.rejected = {r: 0 for r in Rejection}
 
     def add(self, t: float, names: list[str], positions: list[float]) -> Rejection | None:
@@ -51,6 +52,7 @@ class JointRingBuffer:
         self._positions[self._next] = q
         self._next = (self._next + 1) % self._capacity
         self.count += 1
+        self.latest_time = max(self.latest_time, t)
         return None
 
     def _reject(self, reason: Rejection) -> Rejection:
@@ -64,10 +66,6 @@ class JointRingBuffer:
         mask = (self._times >= t0) & (self._times <= t1)
         order = np.argsort(self._times[mask])
         return self._times[mask][order], self._positions[mask][order]
-
-    @property
-    def latest_time(self) -> float:
-        return float(np.max(self._times)) if self.count else -math.inf
 
 
 @dataclass(frozen=True)
@@ -87,19 +85,20 @@ def hold_statistics(times: Array, positions: Array, duration: float, expected_ra
     """Mean and spread of a hold window; refuses too few samples or a moving arm."""
     count = len(times)
     span = float(times[-1] - times[0]) if count > 1 else 0.0
-    empty = np.full(positions.shape[1] if positions.ndim == 2 else 0, math.nan)
-    needed = max(2, int(min_fraction * expected_rate * duration))
-    if count < needed:
-        return HoldCapture(False, 'no_data', (
-            f'only {count} joint_states samples in {duration:.3f} s (need {needed}); '
-            'is the robot driver (mock_robot) publishing joint_states?'),
-            empty, empty, count, span)
-    mean = positions.mean(axis=0)
-    std = positions.std(axis=0, ddof=1)
-    worst = int(np.argmax(std))
-    if std[worst] > max_std:
+    width = positions.shape[1] if positions.ndim == 2 else 0
+    mean = positions.mean(axis=0) if count else np.full(width, math.nan)
+    std = positions.std(axis=0, ddof=1) if count > 1 else np.full(width, math.nan)
+    if count > 1 and np.max(std) > max_std:     # motion explains missing samples too
+        worst = int(np.argmax(std))
         return HoldCapture(False, 'moving', (
             f'the arm is moving: {joint_names[worst]} spread {std[worst]:.2e} rad > '
             f'{max_std:.1e} rad; wait until the motion ends, then capture again'),
             mean, std, count, span)
+    needed = max(2, int(min_fraction * expected_rate * duration))
+    if count < needed:
+        empty = np.full(width, math.nan)
+        return HoldCapture(False, 'no_data', (
+            f'only {count} joint_states samples in {duration:.3f} s (need {needed}); '
+            'is the robot driver (mock_robot) publishing joint_states?'),
+            empty, empty, count, span)
     return HoldCapture(True, '', f'{count} samples over {span:.3f} s', mean, std, count, span)

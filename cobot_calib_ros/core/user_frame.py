@@ -92,8 +92,9 @@ class FrameFit:
 class SurfaceModel:
     """Height correction in the user frame: dz(x, y) = sum_k c_k x^px_k y^py_k [m].
 
-    ``rms_before`` / ``rms_after`` are the RMS height residuals of the fitted points before and
-    after the correction [m] (in-sample). Falsy when not valid.
+    ``coefficients[k]`` is in m^(1 - px - py). ``rms_before`` / ``rms_after`` are the RMS height
+    residuals of the fitted points before and after the correction [m] (in-sample, so
+    optimistic). Falsy when not valid.
     """
 
     powers_x: tuple[int, ...] = ()
@@ -106,11 +107,11 @@ class SurfaceModel:
 
     def height(self, x: ArrayLike, y: ArrayLike) -> Array:
         """Correction dz [m] at user-frame x, y [m]; zero when not valid."""
-        terms = tuple(zip(self.powers_x, self.powers_y))
         if not self.valid:
             return np.zeros(np.shape(x))
-        return _design(np.asarray(x, dtype=float), np.asarray(y, dtype=float), terms) \
-            @ self.coefficients
+        terms = tuple(zip(self.powers_x, self.powers_y))
+        V = _design(np.asarray(x, dtype=float), np.asarray(y, dtype=float), terms)
+        return V @ self.coefficients
 
     def __bool__(self) -> bool:
         return self.valid
@@ -144,15 +145,17 @@ def fit_three_point(p_user: ArrayLike, p_base: ArrayLike, *, sigma_prior: float 
     The same triad is built from the user points, so R = [i j k]_base [i j k]_user^T and
     t = P1_base - R P1_user (with P1_user at the origin and P2_user on the x axis this is the
     paper's M with O = P1). Residuals cover all N points; the covariance propagates the point
-    noise through these formulas (it is larger than the rigid fit's).
+    noise through these formulas (it is larger than the rigid fit's), and the noise estimate
+    divides by the effective dof of these non-least-squares residuals.
     """
     pu, pb, failure = _prepare(p_user, p_base, n_plane=3)
     if failure is not None:
         return _failure('three_point', failure)
     T = _three_point_pose(pu, pb)
     residuals = apply(T, pu) - pb
-    sigma, note = _noise_sigma(residuals, 6, sigma_prior)
-    cov = _propagated_covariance(_three_point_pose, pu, pb, sigma)
+    J = _pose_jacobian(_three_point_pose, pu, pb)
+    sigma, note = _noise_sigma(residuals, _effective_dof(J, pu, T[:3, :3]), sigma_prior)
+    cov = _scaled(J @ J.T, sigma)
     return _assemble('three_point', T, T, residuals, (pu[:3], pb[:3]), cov, sigma, note)
 
 
@@ -169,7 +172,7 @@ def fit_five_point_lsq(p_user: ArrayLike, p_base: ArrayLike, *,
         return _failure('five_point_lsq', failure)
     M, completed = _affine_fit(pu, pb)
     residuals = apply(M, pu) - pb
-    sigma, note = _noise_sigma(residuals, 9 if completed else 12, sigma_prior)
+    sigma, note = _noise_sigma(residuals, residuals.size - (9 if completed else 12), sigma_prior)
     cov = _propagated_covariance(_affine_pose, pu, pb, sigma)
     s = _spread(pu)
     cond = s[0] / s[1] if completed else s[0] / s[2]
@@ -192,31 +195,32 @@ def fit_rigid(p_user: ArrayLike, p_base: ArrayLike, *, sigma_prior: float | None
 
 def fit_robust(p_user: ArrayLike, p_base: ArrayLike, *, threshold: float = ROBUST_THRESHOLD,
                k_sigma: float = ROBUST_K_SIGMA, sigma_prior: float | None = None) -> FrameFit:
-    """Rigid fit that rejects gross outliers (a marker touched wrong), one at a time.
+    """Rigid fit that rejects gross outliers (a marker touched wrong).
 
-    Each round fits the points without each candidate in turn and takes the point farthest
-    from the fit of the others (its leave-one-out residual). It is rejected if that exceeds
-    ``max(threshold [m], k_sigma * sigma)``, sigma being the noise of the other points (median
-    based, or ``sigma_prior`` [m]); rounds go on while at least 4 points remain. If another
-    point's removal would explain the data equally well (e.g. a corner's height error on the
-    paper's 5-point layout), the outlier cannot be located: DEGENERATE_POINTS naming both.
-    Residuals cover all points; rms, max and covariance only the inliers.
+    A point is an outlier if it lies farther than ``max(threshold [m], k_sigma * sigma)`` from
+    the fit of the others, sigma being their noise per coordinate (median based, or
+    ``sigma_prior`` [m]). Each round drops the point with the largest leave-one-out residual
+    while at least 4 points remain; then rejected points that fit the final inliers come back.
+    If swapping a rejected point for an inlier also gives a consistent set (e.g. a corner's
+    height error on the paper's 5-point layout), the outlier cannot be located: the result is
+    DEGENERATE_POINTS naming both. Residuals cover all points; rms, max and the covariance
+    only the inliers.
     """
     pu, pb, failure = _prepare(p_user, p_base)
     if failure is not None:
         return _failure('robust', failure)
-    keep = np.ones(len(pu), dtype=bool)
-    notes = [] if len(pu) >= 4 else [
-        'only 3 points: at least 4 are needed to name an outlier; plain rigid fit']
-    while keep.sum() >= 4:
-        verdict = _worst_point(pu, pb, keep, threshold, k_sigma, sigma_prior)
-        if isinstance(verdict, Failure):
-            return _failure('robust', verdict)
-        if verdict is None:
-            break
-        keep[verdict[0]] = False
-        notes.append(f'rejected point {verdict[0]}: {verdict[1] * 1e3:.3f} mm from the fit of '
-                     f'the others (limit {verdict[2] * 1e3:.3f} mm); re-touch it')
+    rule = _OutlierRule(threshold, k_sigma, sigma_prior)
+    if len(pu) < 4:
+        return _rigid_fit('robust', pu, pb, np.ones(len(pu), dtype=bool), sigma_prior,
+                          message='only 3 points: at least 4 are needed to name an outlier; '
+                          'plain rigid fit')
+    keep = _reinstate(pu, pb, _drop_outliers(pu, pb, rule), rule)
+    ambiguity = _ambiguity(pu, pb, keep, rule)
+    if ambiguity is not None:
+        return _failure('robust', ambiguity)
+    residual, limit = rule.check(pu, pb, keep)
+    notes = [f'rejected point {i}: {residual[i] * 1e3:.3f} mm off the fit of the inliers '
+             f'(limit {limit * 1e3:.3f} mm); re-touch it' for i in np.flatnonzero(~keep)]
     outliers = tuple(int(i) for i in np.flatnonzero(~keep))
     return _rigid_fit('robust', pu, pb, keep, sigma_prior, outliers, _join(*notes))
 
@@ -426,8 +430,8 @@ def _planar_affine_fit(pu: Array, pb: Array, normal: Array) -> Array:
     A = np.column_stack([(pu - c) @ E[:, :2], np.ones(len(pu))])
     g_a, g_b, g_0 = np.linalg.lstsq(A, pb, rcond=None)[0]
     normal_image = np.cross(g_a, g_b)
-    normal_image *= 0.5 * (np.linalg.norm(g_a) + np.linalg.norm(g_b)) \
-        / np.linalg.norm(normal_image)
+    mean_norm = 0.5 * (np.linalg.norm(g_a) + np.linalg.norm(g_b))
+    normal_image *= mean_norm / np.linalg.norm(normal_image)
     M3 = np.column_stack([g_a, g_b, normal_image]) @ E.T
     return make_transform(M3, g_0 - M3 @ c)
 
@@ -465,44 +469,91 @@ def _estimator(method: str) -> Estimator:
 # ----------------------------------------------------------------------------- robust
 
 
-def _worst_point(pu: Array, pb: Array, keep: Array, threshold: float, k_sigma: float,
-                 sigma_prior: float | None) -> tuple[int, float, float] | Failure | None:
-    """(index, leave-one-out error [m], limit [m]) of the point to reject, None, or ambiguity."""
-    candidates = sorted(_leave_one_out(pu, pb, keep), key=lambda c: -c[1])
-    if not candidates:
-        return None
-    index, error, sigma, rest_max = candidates[0]
-    limit = max(threshold, k_sigma * (sigma if sigma_prior is None else sigma_prior))
-    if error <= limit:
-        return None
-    rivals = [c[0] for c in candidates[1:] if c[1] > limit and c[3] <= limit]
-    if rivals and rest_max <= limit:
-        named = ' or '.join(str(i) for i in [index, *rivals])
-        return Failure(ErrorCode.DEGENERATE_POINTS, f'a gross error of about {error * 1e3:.2f} '
-                       f'mm is present, but the layout cannot tell which of points {named} is '
-                       'wrong (dropping either leaves a consistent fit); re-touch them, or add '
-                       'markers so that each point is checked by at least four others')
-    return index, error, limit
+@dataclass(frozen=True)
+class _OutlierRule:
+    threshold: float            # [m]
+    k_sigma: float
+    sigma_prior: float | None   # [m]
+
+    def check(self, pu: Array, pb: Array, keep: Array) -> tuple[Array, float]:
+        """Residual norms of all points under the fit of ``keep`` [m], and the limit [m]."""
+        r = np.linalg.norm(apply(_kabsch(pu[keep], pb[keep]), pu) - pb, axis=1)
+        sigma = _robust_sigma(r[keep]) if self.sigma_prior is None else self.sigma_prior
+        return r, max(self.threshold, self.k_sigma * sigma)
 
 
-def _leave_one_out(pu: Array, pb: Array, keep: Array
-                   ) -> list[tuple[int, float, float, float]]:
-    """Per kept point: (index, its error from the fit of the others, their sigma, their max)."""
-    out = []
+def _drop_outliers(pu: Array, pb: Array, rule: _OutlierRule) -> Array:
+    """Greedy: drop the worst point while it is beyond the limit; returns the inlier mask."""
+    keep = np.ones(len(pu), dtype=bool)
+    while keep.sum() >= 4:
+        worst = _worst_point(pu, pb, keep, rule)
+        if worst is None:
+            break
+        keep[worst] = False
+    return keep
+
+
+def _worst_point(pu: Array, pb: Array, keep: Array, rule: _OutlierRule) -> int | None:
+    """The kept point farthest from the fit of the others, if farther than the limit."""
+    worst, error, limit = None, 0.0, math.inf
     for i in np.flatnonzero(keep):
         rest = keep.copy()
         rest[i] = False
-        if _check_collinear(pu[rest], pb[rest], None) is not None:
-            continue
-        r = np.linalg.norm(apply(_kabsch(pu[rest], pb[rest]), pu) - pb, axis=1)
-        out.append((int(i), float(r[i]), _robust_sigma(r[rest]), float(r[rest].max())))
-    return out
+        if _check_collinear(pu[rest], pb[rest], None) is None:
+            r, rest_limit = rule.check(pu, pb, rest)
+            if r[i] > error:
+                worst, error, limit = int(i), float(r[i]), rest_limit
+    return worst if error > limit else None
+
+
+def _reinstate(pu: Array, pb: Array, keep: Array, rule: _OutlierRule) -> Array:
+    """Bring back rejected points within the limit of the final inliers' fit."""
+    if keep.all():
+        return keep
+    r, limit = rule.check(pu, pb, keep)
+    return keep | (r <= limit)
+
+
+def _ambiguity(pu: Array, pb: Array, keep: Array, rule: _OutlierRule) -> Failure | None:
+    """Failure if a rejected point swapped for an inlier also leaves a consistent set."""
+    _, limit = rule.check(pu, pb, keep)
+    for out in np.flatnonzero(~keep):
+        rivals = []
+        for inlier in np.flatnonzero(keep):
+            trial = keep.copy()
+            trial[[out, inlier]] = [True, False]
+            if _consistent(pu, pb, trial, rule, limit):
+                rivals.append(int(inlier))
+        if rivals:
+            named = ' or '.join(str(i) for i in [int(out), *rivals])
+            return Failure(ErrorCode.DEGENERATE_POINTS, f'a gross error is present, but the '
+                           f'layout cannot tell which of points {named} is wrong (dropping '
+                           'either leaves a consistent fit); re-touch them, or lay out the '
+                           'markers with no three on a line')
+    return None
+
+
+def _consistent(pu: Array, pb: Array, trial: Array, rule: _OutlierRule, limit: float) -> bool:
+    """True if no point of ``trial`` would be rejected: each within ``limit`` [m] of the fit
+    of the others (where those span a plane) and of the fit of all."""
+    if _check_collinear(pu[trial], pb[trial], None) is not None:
+        return False
+    r, _ = rule.check(pu, pb, trial)
+    if r[trial].max() > limit:
+        return False
+    for m in np.flatnonzero(trial):
+        rest = trial.copy()
+        rest[m] = False
+        spans = _check_collinear(pu[rest], pb[rest], None) is None
+        if spans and rule.check(pu, pb, rest)[0][m] > limit:
+            return False
+    return True
 
 
 def _robust_sigma(norms: Array) -> float:
     """Per-coordinate noise [m] from the median residual norm of a rigid fit of n points."""
     n = len(norms)
-    return float(np.median(norms)) / _CHI3_MEDIAN * math.sqrt(n / (n - 2))
+    return float(np.median(norms)) / _CHI3_MEDIAN * math.sqrt(n / max(n - 2, 1))
 
 
 # ----------------------------------------------------------------------------- results
@@ -512,7 +563,7 @@ def _rigid_fit(method: str, pu: Array, pb: Array, keep: Array, sigma_prior: floa
                outliers: tuple[int, ...] = (), message: str = '') -> FrameFit:
     T = _kabsch(pu[keep], pb[keep])
     residuals = apply(T, pu) - pb
-    sigma, note = _noise_sigma(residuals[keep], 6, sigma_prior)
+    sigma, note = _noise_sigma(residuals[keep], 3 * keep.sum() - 6, sigma_prior)
     cov = pose_covariance(pu[keep], T[:3, :3], sigma)
     return _assemble(method, T, T, residuals, (pu[keep], pb[keep]), cov, sigma,
                      _join(message, note), outliers=outliers, keep=keep)
@@ -548,22 +599,27 @@ def _scale_shear(M3: Array) -> tuple[Array, Array]:
     return np.linalg.norm(M3, axis=0), np.array(shear)
 
 
-def _noise_sigma(residuals: Array, n_params: int, sigma_prior: float | None
+def _noise_sigma(residuals: Array, dof: float, sigma_prior: float | None
                  ) -> tuple[float, str]:
     """Point noise per coordinate [m]: the prior, or sqrt(sum |r|^2 / dof); inf without dof."""
     if sigma_prior is not None:
         return float(sigma_prior), ''
-    dof = residuals.size - n_params
-    if dof <= 0:
+    if dof <= 1e-9:
         return math.inf, ('no spare measurements to estimate the noise: covariance is inf; '
                           'give sigma_prior or touch more markers')
     return math.sqrt(float((residuals ** 2).sum()) / dof), ''
 
 
 def _propagated_covariance(estimate: Estimator, pu: Array, pb: Array, sigma: float) -> Array:
-    """sigma^2 J J^T, J = d(rho, phi) / d p_base by central differences through ``estimate``."""
+    """sigma^2 J J^T: isotropic noise on p_base propagated through ``estimate`` (linearised)."""
     if not math.isfinite(sigma):
         return _scaled(np.eye(6), math.inf)
+    J = _pose_jacobian(estimate, pu, pb)
+    return _scaled(J @ J.T, sigma)
+
+
+def _pose_jacobian(estimate: Estimator, pu: Array, pb: Array) -> Array:
+    """(6, 3N) d(rho, phi) / d p_base (row-major points) by central differences."""
     T0 = estimate(pu, pb)
     flat = pb.ravel()
     J = np.empty((6, flat.size))
@@ -573,7 +629,16 @@ def _propagated_covariance(estimate: Estimator, pu: Array, pb: Array, sigma: flo
         plus = _pose_delta(estimate(pu, (flat + step).reshape(-1, 3)), T0)
         minus = _pose_delta(estimate(pu, (flat - step).reshape(-1, 3)), T0)
         J[:, k] = (plus - minus) / (2.0 * _FD_STEP)
-    return sigma ** 2 * J @ J.T
+    return J
+
+
+def _effective_dof(J: Array, pu: Array, R: Array) -> float:
+    """E[sum |r|^2] / sigma^2 for a rigid estimator with pose Jacobian J: ||A J - I||_F^2.
+
+    A stacks the rows [I, -[R p]x] (residual w.r.t. pose); for least squares this is 3N - 6.
+    """
+    A = np.concatenate([np.hstack([np.eye(3), -_skew(q)]) for q in pu @ R.T])
+    return float(np.sum((A @ J - np.eye(len(A))) ** 2))
 
 
 def _pose_delta(T: Array, T0: Array) -> Array:

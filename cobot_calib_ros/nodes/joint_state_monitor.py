@@ -66,10 +66,11 @@ class JointStateMonitor(Node):
         return values
 
     def _on_joint_state(self, msg: JointState) -> None:
-        now = time.monotonic()
-        stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+        # Windows are in publish time (header stamps, wall clock): samples queued during a
+        # motion and delivered late must not count as the hold that follows it.
+        stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9 or time.time()
         with self._lock:
-            why = self._buffer.add(now, list(msg.name), list(msg.position))
+            why = self._buffer.add(stamp, list(msg.name), list(msg.position))
             if why is None:
                 self._count_gap(stamp)
                 self._new_sample.notify_all()
@@ -93,7 +94,7 @@ class JointStateMonitor(Node):
             response.message = (f'duration {duration} s must be > 0 and within the buffer '
                                 f'({self.get_parameter("buffer_duration").value} s)')
             return response
-        t0 = time.monotonic()
+        t0 = time.time()
         t1 = t0 + duration
         with self._lock:
             self._new_sample.wait_for(lambda: self._buffer.latest_time >= t1,

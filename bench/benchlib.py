@@ -1,0 +1,189 @@
+"""Shared helpers of the benches: a private ROS domain, node processes, timed calls, figures.
+
+Every bench module `bench/bench_*.py` has `run() -> dict[str, tuple[float, str]]` (figure name
+-> (value, unit)); `bench/run_all.py` runs them all. Waits use `call_async` and a `spin_once`
+loop (`cobot_calib_ros.client.spin_until`), never `spin_until_future_complete`.
+"""
+from __future__ import annotations
+
+from contextlib import contextmanager
+from dataclasses import dataclass
+import os
+from pathlib import Path
+import sys
+import tempfile
+import time
+from typing import Callable, Iterator
+
+import domain_coordinator
+import numpy as np
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.signals import SignalHandlerOptions
+
+from cobot_calib_ros import launcher
+from cobot_calib_ros.client import spin_until
+
+BENCH_DIR = Path(__file__).resolve().parent
+REPO_ROOT = BENCH_DIR.parent
+STARTUP_TIMEOUT = 30.0  # [s] for a node process to offer its service (2 cores, cold imports)
+
+Figures = dict[str, tuple[float, str]]
+
+
+class BenchFailed(RuntimeError):
+    """A bench that could not finish; `partial` holds the figures it did measure."""
+
+    def __init__(self, reason: str, partial: Figures | None = None) -> None:
+        super().__init__(reason)
+        self.partial = dict(partial or {})
+
+
+@dataclass
+class Ros:
+    """The bench process's own rclpy context, node and executor on the private domain."""
+
+    node: Node
+    executor: SingleThreadedExecutor
+
+    def spin_until(self, done: Callable[[], bool], timeout: float) -> bool:
+        """Spin until done() or the timeout [s]; returns done()."""
+        return spin_until(self.node, done, timeout, self.executor)
+
+    def spin_for(self, seconds: float) -> None:
+        """Process callbacks for `seconds`."""
+        self.spin_until(lambda: False, seconds)
+
+
+class ScriptSpec(launcher.NodeSpec):
+    """A node run from a script in bench/ (not a cobot_calib_ros node) by launcher.Suite."""
+
+    def command(self) -> list[str]:
+        cmd = [sys.executable, str(BENCH_DIR / f'{self.name}.py'), '--ros-args']
+        for key, value in self.params.items():
+            cmd += ['-p', f'{key}:={value}']
+        return cmd
+
+
+@contextmanager
+def private_domain() -> Iterator[tuple[int, dict[str, str]]]:
+    """A free ROS_DOMAIN_ID (reserved while in use) and the environment for child processes.
+
+    Discovery stays on this machine; results a node may store go to a throw-away directory.
+    """
+    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'  # read by rmw at init
+    with domain_coordinator.domain_id() as domain, \
+            tempfile.TemporaryDirectory(prefix='cobot_bench_') as scratch:
+        env = dict(os.environ, ROS_DOMAIN_ID=str(domain),
+                   ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', COBOT_CALIB_DATA=scratch,
+                   PYTHONUNBUFFERED='1')
+        yield domain, env
+
+
+@contextmanager
+def ros_node(name: str, domain: int) -> Iterator[Ros]:
+    """An rclpy context, node and single-threaded executor of the bench process."""
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=domain,
+               signal_handler_options=SignalHandlerOptions.NO)
+    node = rclpy.create_node(name, context=context, start_parameter_services=False)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    try:
+        yield Ros(node, executor)
+    finally:
+        executor.shutdown(timeout_sec=1.0)
+        node.destroy_node()
+        context.try_shutdown()
+
+
+@contextmanager
+def running_suite(name: str, specs: list[launcher.NodeSpec],
+                  env: dict[str, str]) -> Iterator[launcher.Suite]:
+    """Node processes started with launcher.Suite; always stopped (SIGINT..SIGKILL) on exit."""
+    suite = launcher.Suite(launcher.default_log_dir().with_name(
+        f'cobot_bench_{name}_{time.strftime("%Y%m%dT%H%M%S")}_{os.getpid()}'))
+    try:
+        suite.start(specs, env=env)
+        yield suite
+    finally:
+        suite.stop()
+
+
+def wait_for_service(ros: Ros, suite: launcher.Suite, node_name: str, client,
+                     timeout: float = STARTUP_TIMEOUT) -> None:
+    """Wait until `client`'s service (of `node_name`) is ready; BenchFailed if a node exits."""
+    ros.spin_until(lambda: client.service_is_ready() or bool(suite.failed()), timeout)
+    if client.service_is_ready() and not suite.failed():
+        return
+    if not suite.failed():
+        raise BenchFailed(f'{node_name} did not start: service {client.srv_name} not ready '
+                          f'within {timeout:.0f} s (log: {suite.log_dir})')
+    raise BenchFailed('; '.join(exit_report(suite, name, code)
+                                for name, code in suite.failed().items()))
+
+
+def exit_report(suite: launcher.Suite, name: str, code: int) -> str:
+    """`<name> did not start: exited with code N: <last log lines>` for a failure message."""
+    tail = suite.log_tail(name, 3).strip().replace('\n', ' | ')
+    return (f'{name} did not start: exited with code {code}' + (f': {tail}' if tail else '')
+            + f' (log: {suite.log_dir / (name + ".log")})')
+
+
+def timed_call(ros: Ros, client, request, timeout: float = 10.0):
+    """One service round trip: (seconds from call_async to the response, response)."""
+    start = time.perf_counter()
+    future = client.call_async(request)
+    if not ros.spin_until(future.done, timeout):
+        client.remove_pending_request(future)
+        raise BenchFailed(f'service {client.srv_name} did not answer within {timeout:.0f} s')
+    return time.perf_counter() - start, future.result()
+
+
+def percentiles_ms(name: str, seconds: list[float]) -> Figures:
+    """`<name>_p50` and `<name>_p99` in ms."""
+    p50, p99 = np.percentile(np.asarray(seconds) * 1e3, [50, 99])
+    return {f'{name}_p50': (float(p50), 'ms'), f'{name}_p99': (float(p99), 'ms')}
+
+
+def format_figure(name: str, value: float, unit: str) -> str:
+    """One result line: `name: value unit`."""
+    if isinstance(value, int) or float(value).is_integer() and unit == 'count':
+        text = f'{int(value)}'
+    elif abs(value) >= 100:
+        text = f'{value:.1f}'
+    else:
+        text = f'{value:.3f}'
+    return f'{name}: {text} {unit}'.rstrip()
+
+
+def main(run: Callable[[], Figures]) -> int:
+    """Run one bench module on its own and print its figures."""
+    try:
+        figures = run()
+    except BenchFailed as exc:
+        for name, (value, unit) in exc.partial.items():
+            print(format_figure(name, value, unit))
+        print(f'{Path(sys.argv[0]).stem.removeprefix("bench_")}: FAILED ({exc})')
+        return 1
+    for name, (value, unit) in figures.items():
+        print(format_figure(name, value, unit))
+    return 0
+
+
+def process_cpu_seconds(pid: int) -> float:
+    """User + system CPU time [s] a process has used (all its threads), from /proc."""
+    try:
+        fields = Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()
+    except (OSError, IndexError):
+        return float('nan')
+    return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
+
+
+def machine_cpu_ticks() -> tuple[int, int]:
+    """(busy, total) CPU ticks of the whole machine since boot, from /proc/stat."""
+    values = [int(v) for v in Path('/proc/stat').read_text().splitlines()[0].split()[1:]]
+    idle = values[3] + (values[4] if len(values) > 4 else 0)
+    total = sum(values[:8])
+    return total - idle, total

@@ -1,0 +1,53 @@
+"""The node suite in separate processes on this session's private ROS domain."""
+import time
+
+import pytest
+import rclpy
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+
+from cobot_calib_ros import launcher
+from cobot_calib_ros.client import spin_until
+
+STARTUP_TIMEOUT = 30.0
+
+
+@pytest.fixture(scope='session')
+def suite(domain_id, tmp_path_factory):
+    """mock_robot, joint_state_monitor, proximity_sensor (+ an isolated /iso probe node),
+    user_frame_solver, each its own process."""
+    data = tmp_path_factory.mktemp('results')
+    specs = launcher.suite_specs('sawyer_close', overrides={
+        'mock_robot': {'time_scale': '0.2'},
+        'user_frame_solver': {'data_dir': str(data)}})
+    specs.append(launcher.NodeSpec('proximity_sensor', namespace='iso'))
+    running = launcher.Suite(tmp_path_factory.mktemp('logs'))
+    running.start(specs)
+    yield running
+    codes = running.stop()
+    assert all(c == 0 for c in codes.values()), f'nodes did not exit cleanly: {codes}'
+
+
+@pytest.fixture(scope='session')
+def ros(suite):
+    """A client node in this test process, on the suite's domain."""
+    context = Context()
+    rclpy.init(context=context)
+    node = rclpy.create_node('test_client', context=context)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    node.executor_for_tests = executor
+    ready = spin_until(node, lambda: _suite_visible(node), STARTUP_TIMEOUT, executor)
+    if not ready:
+        logs = '\n'.join(f'--- {n}\n{suite.log_tail(n)}' for n in suite.processes)
+        pytest.fail(f'node suite did not come up in {STARTUP_TIMEOUT} s:\n{logs}')
+    time.sleep(0.5)
+    yield node
+    node.destroy_node()
+    rclpy.try_shutdown(context=context)
+
+
+def _suite_visible(node) -> bool:
+    services = {n for n, _ in node.get_service_names_and_types()}
+    return {'/capture_joints', '/probe/average', '/iso/probe/average', '/get_ground_truth',
+            '/calibrate_user_frame'} <= services

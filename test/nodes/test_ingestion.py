@@ -1,0 +1,186 @@
+"""Mock robot, joint_state_monitor and proximity_sensor across processes."""
+import json
+import math
+import os
+import subprocess
+import sys
+import time
+
+from cobot_calib_msgs.action import MoveTo
+from cobot_calib_msgs.msg import ProbeVoltage, ProximityReading
+from cobot_calib_msgs.srv import AverageProximity, CaptureJoints, GetGroundTruth
+from diagnostic_msgs.msg import DiagnosticArray
+import numpy as np
+import pytest
+from rclpy.action import ActionClient
+from rclpy.qos import qos_profile_sensor_data
+from sensor_msgs.msg import JointState
+
+from cobot_calib_ros import convert
+from cobot_calib_ros.client import call_service, run_action, spin_until
+from cobot_calib_ros.core import cell as cellmod
+from cobot_calib_ros.core import frames
+from cobot_calib_ros.paths import cell_file
+
+CELL = cellmod.load_cell(cell_file('sawyer_close'))
+
+
+def _call(node, srv_type, name, timeout=10.0, **fields):
+    client = node.create_client(srv_type, name)
+    request = srv_type.Request(**fields)
+    try:
+        return call_service(node, client, request, timeout, node.executor_for_tests)
+    finally:
+        node.destroy_client(client)
+
+
+def _move(node, **goal_fields):
+    client = ActionClient(node, MoveTo, 'move_to')
+    try:
+        _, result = run_action(node, client, MoveTo.Goal(**goal_fields), 30.0,
+                               executor=node.executor_for_tests)
+        return result
+    finally:
+        client.destroy()
+
+
+def _cli(*args, timeout=30.0):
+    env = dict(os.environ)
+    return subprocess.run([sys.executable, '-m', 'cobot_calib_ros.cli.main', *args],
+                          capture_output=True, text=True, timeout=timeout, env=env)
+
+
+def test_echo_once_prints_a_joint_state(ros):
+    out = _cli('echo', 'joint_states', '--once', '--json')
+    assert out.returncode == 0, out.stderr
+    msg = json.loads(out.stdout)
+    assert msg['name'] == [f'right_j{i}' for i in range(7)]
+    assert len(msg['position']) == 7 and all(math.isfinite(p) for p in msg['position'])
+
+
+def test_list_shows_every_node_and_interface(ros):
+    out = _cli('list', '--json', '--wait', '4.0')
+    assert out.returncode == 0, out.stderr
+    g = json.loads(out.stdout)
+    assert {'/mock_robot', '/joint_state_monitor', '/proximity_sensor', '/user_frame_solver',
+            '/iso/proximity_sensor'} <= set(g['nodes'])
+    assert g['topics']['/joint_states'] == ['sensor_msgs/msg/JointState']
+    assert g['services']['/capture_joints'] == ['cobot_calib_msgs/srv/CaptureJoints']
+    assert g['actions']['/move_to'] == ['cobot_calib_msgs/action/MoveTo']
+
+
+def test_capture_at_home_matches_commanded_joints_and_encoder_noise(ros):
+    res = _call(ros, CaptureJoints, 'capture_joints', duration=0.5)
+    assert res.error_code == CaptureJoints.Response.SUCCESS, res.message
+    assert res.sample_count >= 250                      # half the 1 kHz samples at least
+    np.testing.assert_allclose(res.position, CELL.home, atol=5 * 2e-6 / np.sqrt(250))
+    assert all(1e-6 < s < 4e-6 for s in res.std)        # encoder noise sigma 2e-6 rad
+
+
+def test_capture_refuses_while_the_arm_moves(ros):
+    client = ActionClient(ros, MoveTo, 'move_to')
+    ex = ros.executor_for_tests
+    spin_until(ros, client.server_is_ready, 10.0, ex)
+    target = CELL.home + np.array([0.6, 0, 0, 0, 0, 0, 0])
+    send = client.send_goal_async(MoveTo.Goal(target_type=MoveTo.Goal.TARGET_JOINTS,
+                                              positions=target.tolist(), speed_scale=0.1))
+    spin_until(ros, send.done, 10.0, ex)
+    res = _call(ros, CaptureJoints, 'capture_joints', duration=0.2)
+    assert res.error_code == CaptureJoints.Response.MOVING, res.message
+    assert 'moving' in res.message and 'right_j0' in res.message
+    result = send.result().get_result_async()
+    spin_until(ros, result.done, 20.0, ex)
+    back = _move(ros, target_type=MoveTo.Goal.TARGET_JOINTS, positions=CELL.home.tolist())
+    assert back.error_code == MoveTo.Result.SUCCESS
+
+
+def test_capture_rejects_a_bad_duration(ros):
+    res = _call(ros, CaptureJoints, 'capture_joints', duration=-1.0)
+    assert res.error_code == CaptureJoints.Response.BAD_REQUEST
+    assert 'duration' in res.message
+
+
+def _monitor_counts(ros, done=lambda counts: True, timeout=10.0) -> dict:
+    """The monitor's latest /diagnostics counters, once `done(counts)` holds (or timeout)."""
+    latest = {}
+
+    def on_diag(msg):
+        for s in msg.status:
+            if 'joint_state_monitor' in s.name:
+                latest.clear()
+                latest.update({kv.key: int(kv.value) for kv in s.values})
+    sub = ros.create_subscription(DiagnosticArray, '/diagnostics', on_diag, 10)
+    spin_until(ros, lambda: bool(latest) and done(latest), timeout, ros.executor_for_tests)
+    ros.destroy_subscription(sub)
+    return latest
+
+
+def test_malformed_joint_states_are_dropped_and_counted(ros):
+    before = _monitor_counts(ros)
+    pub = ros.create_publisher(JointState, 'joint_states', 10)
+    names = [f'right_j{i}' for i in range(7)]
+    bad = [JointState(name=names, position=[0.0] * 6 + [math.nan]),
+           JointState(name=names, position=[0.0] * 6),
+           JointState(name=names[:6] + ['elbow'], position=[0.0] * 7)]
+    spin_until(ros, lambda: pub.get_subscription_count() > 0, 5.0, ros.executor_for_tests)
+    for msg in bad * 3:
+        pub.publish(msg)
+    reasons = ('non_finite', 'length_mismatch', 'unknown_joints')
+    after = _monitor_counts(ros, lambda c: all(
+        c[f'dropped_{r}'] - before[f'dropped_{r}'] >= 3 for r in reasons))
+    ros.destroy_publisher(pub)
+    for reason in reasons:
+        assert after[f'dropped_{reason}'] - before[f'dropped_{reason}'] == 3, reason
+    res = _call(ros, CaptureJoints, 'capture_joints', duration=0.2)
+    assert res.error_code == CaptureJoints.Response.SUCCESS     # the good stream is untouched
+
+
+@pytest.mark.parametrize('voltage, status', [
+    (-0.5, ProximityReading.STATUS_BELOW_RANGE), (-25.0, ProximityReading.STATUS_ABOVE_RANGE),
+    (math.nan, ProximityReading.STATUS_INVALID), (-9.45, ProximityReading.STATUS_OK)])
+def test_probe_voltage_range_check(ros, voltage, status):
+    got = []
+    sub = ros.create_subscription(ProximityReading, '/iso/probe/distance', got.append,
+                                  qos_profile_sensor_data)
+    pub = ros.create_publisher(ProbeVoltage, '/iso/probe/voltage', qos_profile_sensor_data)
+    ex = ros.executor_for_tests
+    spin_until(ros, lambda: pub.get_subscription_count() > 0 and sub.get_publisher_count() > 0,
+               5.0, ex)
+    deadline = time.monotonic() + 5.0
+    while not got and time.monotonic() < deadline:
+        pub.publish(ProbeVoltage(voltage=voltage))
+        spin_until(ros, lambda: bool(got), 0.2, ex)
+    ros.destroy_subscription(sub)
+    ros.destroy_publisher(pub)
+    assert got, 'no ProximityReading came back'
+    assert got[0].status == status
+    if status == ProximityReading.STATUS_OK:
+        assert got[0].distance == pytest.approx(0.0012, abs=1e-9)   # -9.45 V in the table
+    else:
+        assert math.isnan(got[0].distance)
+
+
+def test_probe_above_a_marker_reads_the_true_gap(ros):
+    """Send the tool 1.2 mm above P5's true top face; the probe must read about that."""
+    truth = _call(ros, GetGroundTruth, 'get_ground_truth')
+    T_base_user = convert.transform_to_matrix(truth.user_frame)
+    top = convert.points_to_array(truth.points_base)[truth.point_names.index('P5')]
+    T = frames.make_transform(cellmod.tool_down_orientation(T_base_user),
+                              top + T_base_user[:3, 2] * 0.0012)
+    moved = _move(ros, target_type=MoveTo.Goal.TARGET_POSE, pose=convert.matrix_to_pose(T))
+    assert moved.error_code == MoveTo.Result.SUCCESS, moved.message
+    res = _call(ros, AverageProximity, 'probe/average', duration=0.3)
+    assert res.error_code == AverageProximity.Response.SUCCESS, res.message
+    # the nominal model misplaces the tool by the kinematic errors (~0.1 mm) plus repeatability
+    assert res.distance == pytest.approx(0.0012, abs=2e-4)
+    assert res.std < 2e-6                                # 4 mV noise at 8 V/mm = 0.5 um
+
+
+def test_move_to_bad_targets_are_refused_with_a_reason(ros):
+    nan = _move(ros, target_type=MoveTo.Goal.TARGET_JOINTS, positions=[math.nan] * 7)
+    assert nan.error_code == MoveTo.Result.INVALID_TARGET and 'finite' in nan.message
+    unknown = _move(ros, target_type=MoveTo.Goal.TARGET_TOUCH, point_name='P9')
+    assert unknown.error_code == MoveTo.Result.INVALID_TARGET and 'P1' in unknown.message
+    far = frames.make_transform(np.eye(3), [3.0, 0.0, 0.0])
+    out = _move(ros, target_type=MoveTo.Goal.TARGET_POSE, pose=convert.matrix_to_pose(far))
+    assert out.error_code == MoveTo.Result.UNREACHABLE
