@@ -299,7 +299,9 @@ def fit_surface(p_user: ArrayLike, p_base: ArrayLike, T_base_user: Array,
 
 def user_to_base(T_base_user: Array, points: ArrayLike,
                  surface: SurfaceModel | None = None) -> Array:
-    """Map user-frame points (N, 3) or (3,) [m] to base, first adding dz(x, y) along user z."""
+    """Map user-frame points (N, 3) or (3,) [m] to base, first adding dz(x, y) along user z.
+
+    ``T_base_user`` may be rigid or the affine ``FrameFit.M``."""
     p = np.array(points, dtype=float)
     if surface:
         p[..., 2] += surface.height(p[..., 0], p[..., 1])
@@ -308,7 +310,8 @@ def user_to_base(T_base_user: Array, points: ArrayLike,
 
 def base_to_user(T_base_user: Array, points: ArrayLike,
                  surface: SurfaceModel | None = None) -> Array:
-    """Inverse of :func:`user_to_base`: map base points [m] to user, then remove dz(x, y)."""
+    """Inverse of :func:`user_to_base` for a rigid ``T_base_user``: base points [m] to user,
+    then remove dz(x, y). (For an affine M, map with ``np.linalg.inv(M)`` instead.)"""
     p = apply(invert(T_base_user), points)
     if surface:
         p[..., 2] -= surface.height(p[..., 0], p[..., 1])

@@ -7,10 +7,11 @@ from hypothesis import assume, given, settings, strategies as st
 from hypothesis.extra.numpy import arrays
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from cobot_calib_ros.core import user_frame as uf
 from cobot_calib_ros.core.errors import ErrorCode
-from cobot_calib_ros.core.frames import apply, from_vector, invert, transform_error
+from cobot_calib_ros.core.frames import apply, from_vector, transform_error
 
 # The paper's layout (ISO 9283): rectangle corners and centre on the table, user z = 0 [m].
 RECT5 = np.array([[0.0, 0.0, 0.0], [0.4, 0.0, 0.0], [0.4, 0.3, 0.0], [0.0, 0.3, 0.0],
@@ -28,8 +29,9 @@ def noisy(T: np.ndarray, p_user: np.ndarray, sigma: float, rng: np.random.Genera
 
 
 def pose_error(T: np.ndarray, T_ref: np.ndarray) -> np.ndarray:
-    """(rho, phi) of T about T_ref in the module's convention [m, rad]."""
-    return uf._pose_delta(T, T_ref)
+    """(rho, phi) with t = t_ref + rho, R = Exp(phi) R_ref, the module's convention [m, rad]."""
+    phi = Rotation.from_matrix(T[:3, :3] @ T_ref[:3, :3].T).as_rotvec()
+    return np.concatenate([T[:3, 3] - T_ref[:3, 3], phi])
 
 
 # ----------------------------------------------------------------------------- 1. properties

@@ -123,6 +123,7 @@ def test_malformed_joint_states_are_dropped_and_counted(ros):
            JointState(name=names, position=[0.0] * 6),
            JointState(name=names[:6] + ['elbow'], position=[0.0] * 7)]
     spin_until(ros, lambda: pub.get_subscription_count() > 0, 5.0, ros.executor_for_tests)
+    spin_until(ros, lambda: False, 1.0, ros.executor_for_tests)   # let the reader match us too
     for msg in bad * 3:
         pub.publish(msg)
     reasons = ('non_finite', 'length_mismatch', 'unknown_joints')
