@@ -98,7 +98,7 @@ class JointStateMonitor(Node):
         t1 = t0 + duration
         with self._lock:
             self._new_sample.wait_for(lambda: self._buffer.latest_time >= t1,
-                                      timeout=duration + 0.5)
+                                      timeout=duration + 3.0)  # a lagging queue catches up
             times, positions = self._buffer.window(t0, t1)
             names = list(self._buffer.joint_names or [])
         capture = hold_statistics(
