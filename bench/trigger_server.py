@@ -7,10 +7,10 @@ from __future__ import annotations
 
 import sys
 
-import rclpy
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from std_srvs.srv import Trigger
+
+from cobot_calib_ros.nodes import spin
 
 
 class TriggerServer(Node):
@@ -27,19 +27,7 @@ class TriggerServer(Node):
 
 def main(args: list[str] | None = None) -> None:
     """Spin the server until SIGINT / SIGTERM."""
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = TriggerServer()
-        executor = SingleThreadedExecutor()
-        executor.add_node(node)
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
+    spin.run(TriggerServer, args)
 
 
 if __name__ == '__main__':

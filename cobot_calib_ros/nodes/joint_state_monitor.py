@@ -7,14 +7,13 @@ import time
 from cobot_calib_msgs.srv import CaptureJoints
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
-import rclpy
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 
 from cobot_calib_ros.core.joint_buffer import hold_statistics, JointRingBuffer
+from cobot_calib_ros.nodes import spin
 
 
 def _float(desc: str, lo: float, hi: float) -> ParameterDescriptor:
@@ -132,19 +131,7 @@ class JointStateMonitor(Node):
 
 
 def main(args=None) -> None:
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = JointStateMonitor()
-        executor = MultiThreadedExecutor(num_threads=3)
-        executor.add_node(node)
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
+    spin.run(JointStateMonitor, args, threads=3)
 
 
 if __name__ == '__main__':

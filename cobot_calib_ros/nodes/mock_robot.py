@@ -15,10 +15,8 @@ from cobot_calib_msgs.msg import ProbeVoltage
 from cobot_calib_msgs.srv import GetGroundTruth
 import numpy as np
 from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
-import rclpy
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
@@ -26,6 +24,7 @@ from sensor_msgs.msg import JointState
 from cobot_calib_ros import convert, paths
 from cobot_calib_ros.core import cell as cellmod
 from cobot_calib_ros.core import frames, kinematics
+from cobot_calib_ros.nodes import spin
 
 FEEDBACK_PERIOD = 0.02  # [s] of simulated (scaled) time between feedback messages
 
@@ -287,19 +286,7 @@ class MockRobot(Node):
 
 
 def main(args=None) -> None:
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = MockRobot()
-        executor = MultiThreadedExecutor(num_threads=3)
-        executor.add_node(node)
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
+    spin.run(MockRobot, args, threads=3)
 
 
 if __name__ == '__main__':

@@ -9,13 +9,12 @@ from cobot_calib_msgs.msg import ProbeVoltage, ProximityReading
 from cobot_calib_msgs.srv import AverageProximity
 import numpy as np
 from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
-import rclpy
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 
 from cobot_calib_ros.core.probe import curve_from_lists, read_distance, ReadingStatus
+from cobot_calib_ros.nodes import spin
 
 
 class ProximitySensor(Node):
@@ -106,19 +105,7 @@ class ProximitySensor(Node):
 
 
 def main(args=None) -> None:
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = ProximitySensor()
-        executor = MultiThreadedExecutor(num_threads=2)
-        executor.add_node(node)
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
+    spin.run(ProximitySensor, args, threads=2)
 
 
 if __name__ == '__main__':

@@ -11,10 +11,8 @@ from cobot_calib_msgs.srv import (CalibrateUserFrame, CaptureJoints, ConvertPoin
                                   ListCalibrations)
 import numpy as np
 from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
-import rclpy
 from rclpy.action import ActionClient
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
@@ -23,6 +21,7 @@ from cobot_calib_ros.core import cell as cellmod
 from cobot_calib_ros.core import frames, kinematics, user_frame
 from cobot_calib_ros.core.errors import ErrorCode
 from cobot_calib_ros.core.storage import CalibrationStore, to_plain
+from cobot_calib_ros.nodes import spin
 
 Res = CalibrateUserFrame.Response
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
@@ -282,19 +281,7 @@ class _RequestError(ValueError):
 
 
 def main(args=None) -> None:
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = UserFrameSolver()
-        executor = MultiThreadedExecutor(num_threads=4)
-        executor.add_node(node)
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
+    spin.run(UserFrameSolver, args, threads=4)
 
 
 if __name__ == '__main__':
