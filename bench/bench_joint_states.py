@@ -46,7 +46,6 @@ class Snapshot:
     own_count: int          # bench subscriber: messages
     own_missing: int        # bench subscriber: missing by header stamp
     cpu: dict[str, float]   # process CPU seconds by name ('bench' = this process)
-    machine: tuple[int, int]
 
 
 class Probe:
@@ -82,8 +81,7 @@ class Probe:
                 time.monotonic(), values['received'], values['missing_by_stamp'],
                 sum(v for k, v in values.items() if k.startswith('dropped_')),
                 self._count, self._missing,
-                {n: benchlib.process_cpu_seconds(p) for n, p in self._pids.items()},
-                benchlib.machine_cpu_ticks()))
+                {n: benchlib.process_cpu_seconds(p) for n, p in self._pids.items()}))
 
     def next_snapshot(self, ros: Ros, after: float, timeout: float = 5.0) -> Snapshot:
         """The first snapshot taken at or after monotonic time `after`."""
@@ -119,12 +117,6 @@ def flow_figures(a: Snapshot, b: Snapshot, own_sub: bool) -> Figures:
         key = 'monitor' if name == MONITOR else name
         figures[f'joint_states_cpu_{key}'] = (
             100.0 * (b.cpu[name] - a.cpu[name]) / interval, '% of one core')
-    busy, total = (b.machine[i] - a.machine[i] for i in (0, 1))
-    figures['joint_states_cpu_machine'] = (
-        100.0 * busy / max(1, total), f'% of {os.cpu_count()} cores')
-    ours = sum(b.cpu[n] - a.cpu[n] for n in a.cpu)
-    figures['joint_states_cpu_others'] = (   # other processes on the machine: noise
-        100.0 * (busy / os.sysconf('SC_CLK_TCK') - ours) / interval, '% of one core')
     return figures
 
 

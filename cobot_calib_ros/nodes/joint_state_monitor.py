@@ -1,4 +1,8 @@
-"""joint_state_monitor: buffers joint_states and serves hold-window captures."""
+"""joint_state_monitor: buffers joint_states and serves hold-window captures.
+
+joint_states arrives on a spin.Companion, so a capture that blocks for its hold
+window never holds up the 1 kHz stream.
+"""
 from __future__ import annotations
 
 import threading
@@ -7,7 +11,6 @@ import time
 from cobot_calib_msgs.srv import CaptureJoints
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
-from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
@@ -32,14 +35,16 @@ class JointStateMonitor(Node):
         self._new_sample = threading.Condition(self._lock)
         self._gaps = 0
         self._last_stamp = None
-        self.create_subscription(
-            JointState, 'joint_states', self._on_joint_state,
-            QoSProfile(depth=p['qos_depth'], reliability=ReliabilityPolicy.RELIABLE),
-            callback_group=MutuallyExclusiveCallbackGroup())
-        self.create_service(CaptureJoints, 'capture_joints', self._on_capture,
-                            callback_group=MutuallyExclusiveCallbackGroup())
+        self._receiver = spin.Companion(self, 'receiver')
+        self._receiver.node.create_subscription(
+            JointState, 'joint_states', self._on_joint_state, QoSProfile(depth=p['qos_depth'], reliability=ReliabilityPolicy.RELIABLE))
+        self.create_service(CaptureJoints, 'capture_joints', self._on_capture)
         self._diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         self.create_timer(1.0, self._publish_diagnostics)
+
+    def destroy_node(self):
+        self._receiver.destroy()
+        return super().destroy_node()
 
     def _declare_parameters(self) -> dict:
         decls = {
@@ -131,7 +136,7 @@ class JointStateMonitor(Node):
 
 
 def main(args=None) -> None:
-    spin.run(JointStateMonitor, args, threads=3)
+    spin.run(JointStateMonitor, args)
 
 
 if __name__ == '__main__':

@@ -37,9 +37,10 @@ def stamp_now() -> Time:
 class PacedLoop:
     """Calls `tick()` at a steady rate from its own thread (rclpy timers cannot hold 1 kHz)."""
 
-    def __init__(self, rate_hz: float, tick) -> None:
+    def __init__(self, rate_hz: float, tick, ok) -> None:
         self._period = 1.0 / rate_hz
         self._tick = tick
+        self._ok = ok
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, daemon=True, name='paced_loop')
 
@@ -53,7 +54,12 @@ class PacedLoop:
     def _run(self) -> None:
         deadline = time.perf_counter()
         while not self._stop.is_set():
-            self._tick()
+            try:
+                self._tick()
+            except Exception:
+                if self._ok():
+                    raise
+                return                      # Ctrl-C shut the context down before stop()
             deadline += self._period
             remaining = deadline - time.perf_counter()
             if remaining < -0.1:           # fell far behind (suspended): do not burst
@@ -98,7 +104,7 @@ class MockRobot(Node):
             callback_group=MutuallyExclusiveCallbackGroup())
         self.create_service(GetGroundTruth, 'get_ground_truth', self._on_ground_truth,
                             callback_group=ReentrantCallbackGroup())
-        self._loop = PacedLoop(rate, self._publish_tick)
+        self._loop = PacedLoop(rate, self._publish_tick, self.context.ok)
         self._loop.start()
         self.get_logger().info(
             f'{self._cell.robot} cell "{self._cell.name}" layout {self._cell.layout}: '

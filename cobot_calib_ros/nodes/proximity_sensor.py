@@ -1,4 +1,8 @@
-"""proximity_sensor: probe voltage -> distance [m] with range checks, and window averages."""
+"""proximity_sensor: probe voltage -> distance [m] with range checks, and window averages.
+
+Averaging windows are in publish time (header stamps, wall clock), so readings taken during a
+motion and delivered late never count as the hold that follows it.
+"""
 from __future__ import annotations
 
 from collections import deque
@@ -9,7 +13,6 @@ from cobot_calib_msgs.msg import ProbeVoltage, ProximityReading
 from cobot_calib_msgs.srv import AverageProximity
 import numpy as np
 from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
-from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 
@@ -25,14 +28,13 @@ class ProximitySensor(Node):
                                        self._p('calibration_voltage'))
         self._margin = self._p('saturation_margin')
         self._lock = threading.Condition()
-        self._recent: deque = deque(maxlen=20000)   # (monotonic time, distance, status)
+        self._recent: deque = deque(maxlen=20000)   # (stamp [s], distance, status)
         self._pub = self.create_publisher(ProximityReading, 'probe/distance',
                                           qos_profile_sensor_data)
-        self.create_subscription(ProbeVoltage, 'probe/voltage', self._on_voltage,
-                                 qos_profile_sensor_data,
-                                 callback_group=MutuallyExclusiveCallbackGroup())
-        self.create_service(AverageProximity, 'probe/average', self._on_average,
-                            callback_group=MutuallyExclusiveCallbackGroup())
+        self._receiver = spin.Companion(self, 'receiver')
+        self._receiver.node.create_subscription(
+            ProbeVoltage, 'probe/voltage', self._on_voltage, qos_profile_sensor_data)
+        self.create_service(AverageProximity, 'probe/average', self._on_average)
         self.get_logger().info(
             f'probe range {self._curve.min_range * 1e3:.2f}-{self._curve.max_range * 1e3:.2f} mm')
 
@@ -48,6 +50,10 @@ class ProximitySensor(Node):
             description='Default window of probe/average [s]',
             floating_point_range=[FloatingPointRange(from_value=0.001, to_value=60.0)]))
 
+    def destroy_node(self):
+        self._receiver.destroy()
+        return super().destroy_node()
+
     def _p(self, name: str):
         return self.get_parameter(name).value
 
@@ -57,8 +63,9 @@ class ProximitySensor(Node):
                                voltage=msg.voltage, min_range=self._curve.min_range,
                                max_range=self._curve.max_range, status=int(reading.status))
         self._pub.publish(out)
+        stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9 or time.time()
         with self._lock:
-            self._recent.append((time.monotonic(), reading.distance, reading.status))
+            self._recent.append((stamp, reading.distance, reading.status))
             self._lock.notify_all()
         if reading.status == ReadingStatus.INVALID:
             self.get_logger().warning('non-finite probe voltage dropped',
@@ -70,7 +77,7 @@ class ProximitySensor(Node):
             response.error_code = AverageProximity.Response.BAD_REQUEST
             response.message = f'duration {duration} s must be in (0, 60]'
             return response
-        t0 = time.monotonic()
+        t0 = time.time()
         t1 = t0 + duration
         with self._lock:
             self._lock.wait_for(lambda: self._recent and self._recent[-1][0] >= t1,
@@ -105,7 +112,7 @@ class ProximitySensor(Node):
 
 
 def main(args=None) -> None:
-    spin.run(ProximitySensor, args, threads=2)
+    spin.run(ProximitySensor, args)
 
 
 if __name__ == '__main__':

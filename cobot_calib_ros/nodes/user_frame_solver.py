@@ -12,7 +12,6 @@ from cobot_calib_msgs.srv import (CalibrateUserFrame, CaptureJoints, ConvertPoin
 import numpy as np
 from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
 from rclpy.action import ActionClient
-from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
@@ -33,7 +32,7 @@ class CaptureError(RuntimeError):
 
 
 def _wait(future, timeout: float):
-    """Block this (worker) thread until a future completes; the executor runs the callbacks."""
+    """Block this thread until a future completes; another executor runs its callbacks."""
     done = threading.Event()
     future.add_done_callback(lambda _: done.set())
     if not done.wait(timeout):
@@ -111,21 +110,21 @@ class UserFrameSolver(Node):
         self._chain = model.chain(tool=self._cell.tool_offset)   # the nominal model
         root = self._p('data_dir')
         self._store = CalibrationStore(Path(root) if root else paths.data_dir())
-        clients = ReentrantCallbackGroup()
-        self._move = ActionClient(self, MoveTo, 'move_to', callback_group=clients)
-        self._capture = self.create_client(CaptureJoints, 'capture_joints',
-                                           callback_group=clients)
+        # a live calibration blocks in its service callback while the robot moves and
+        # captures: the answers it waits for arrive on the companion's own executor
+        self._answers = spin.Companion(self, 'clients')
+        self._move = ActionClient(self._answers.node, MoveTo, 'move_to')
+        self._capture = self._answers.node.create_client(CaptureJoints, 'capture_joints')
         self._pub = self.create_publisher(UserFrameCalibration, 'user_frame', LATCHED)
-        serial = MutuallyExclusiveCallbackGroup()
-        self.create_service(CalibrateUserFrame, 'calibrate_user_frame', self._on_calibrate,
-                            callback_group=serial)
-        self.create_service(ConvertPoints, 'user_to_robot', self._on_user_to_robot,
-                            callback_group=serial)
-        self.create_service(ConvertPoints, 'robot_to_user', self._on_robot_to_user,
-                            callback_group=serial)
-        self.create_service(ListCalibrations, 'list_calibrations', self._on_list,
-                            callback_group=serial)
+        self.create_service(CalibrateUserFrame, 'calibrate_user_frame', self._on_calibrate)
+        self.create_service(ConvertPoints, 'user_to_robot', self._on_user_to_robot)
+        self.create_service(ConvertPoints, 'robot_to_user', self._on_robot_to_user)
+        self.create_service(ListCalibrations, 'list_calibrations', self._on_list)
         self._republish_latest()
+
+    def destroy_node(self):
+        self._answers.destroy()
+        return super().destroy_node()
 
     def _declare_parameters(self) -> None:
         self.declare_parameter('cell_file', 'sawyer_close', ParameterDescriptor(
@@ -281,7 +280,7 @@ class _RequestError(ValueError):
 
 
 def main(args=None) -> None:
-    spin.run(UserFrameSolver, args, threads=4)
+    spin.run(UserFrameSolver, args)
 
 
 if __name__ == '__main__':

@@ -69,12 +69,6 @@ def test_list_shows_every_node_and_interface(ros):
     assert g['actions']['/move_to'] == ['cobot_calib_msgs/action/MoveTo']
 
 
-LAGGING_MONITOR = pytest.mark.xfail(strict=False, reason=(
-    'known issue: joint_state_monitor (Python, ~40% of a core at 1 kHz) lags the stream right '
-    'after start-up on 2 cores; captures then come back short. Open in issue 2.'))
-
-
-@LAGGING_MONITOR
 def test_capture_at_home_matches_commanded_joints_and_encoder_noise(ros):
     res = _call(ros, CaptureJoints, 'capture_joints', duration=0.5)
     assert res.error_code == CaptureJoints.Response.SUCCESS, res.message
@@ -121,7 +115,6 @@ def _monitor_counts(ros, done=lambda counts: True, timeout=10.0) -> dict:
     return latest
 
 
-@LAGGING_MONITOR
 def test_malformed_joint_states_are_dropped_and_counted(ros):
     before = _monitor_counts(ros)
     pub = ros.create_publisher(JointState, 'joint_states', 10)
