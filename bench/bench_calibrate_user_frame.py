@@ -4,9 +4,13 @@ user_frame_solver and bench/trigger_server.py run as separate processes on a pri
 After 20 warm-up calls each, the 500 timed calls of each service alternate, so both see the same
 load on this noisy 2-core machine and their figures can be compared side by side. Every call is
 `call_async` + a `spin_once` loop (benchlib.timed_call). The solver stores each calibration; its
-data_dir is a throw-away directory.
+data_dir is a throw-away directory on disk. A second solver (namespace /ram) keeps its data_dir
+on tmpfs, where fsync costs nothing: the difference between the two is the durable write
+(temporary file, fsync, rename, fsync of the directory).
 """
 from __future__ import annotations
+
+import tempfile
 
 from cobot_calib_msgs.srv import CalibrateUserFrame
 from geometry_msgs.msg import Point
@@ -108,19 +112,27 @@ def start_solver(ros: Ros, suite: launcher.Suite, client) -> str | None:
 
 def run() -> Figures:
     """calibrate_user_frame and Trigger round-trip percentiles."""
-    with benchlib.private_domain() as (domain, env):
+    with benchlib.private_domain() as (domain, env), \
+            tempfile.TemporaryDirectory(prefix='cobot_bench_', dir='/dev/shm') as ram_dir:
         solver_specs = launcher.suite_specs('sawyer_close', (SOLVER,), overrides={
             SOLVER: {'data_dir': env['COBOT_CALIB_DATA']}})
+        solver_specs.append(launcher.NodeSpec(
+            SOLVER, {**solver_specs[0].params, 'data_dir': ram_dir}, namespace='ram'))
         with benchlib.running_suite('trigger', [benchlib.ScriptSpec(TRIGGER)], env) as trig, \
                 benchlib.running_suite(SOLVER, solver_specs, env) as solver, \
                 benchlib.ros_node('bench_calibrate_user_frame', domain) as ros:
             trigger = ros.node.create_client(Trigger, 'bench_trigger')
             calibrate = ros.node.create_client(CalibrateUserFrame, 'calibrate_user_frame')
+            calibrate_ram = ros.node.create_client(CalibrateUserFrame,
+                                                   '/ram/calibrate_user_frame')
             benchlib.wait_for_service(ros, trig, TRIGGER, trigger)
-            solver_failed = start_solver(ros, solver, calibrate)
+            solver_failed = (start_solver(ros, solver, calibrate)
+                             or start_solver(ros, solver, calibrate_ram))
             targets = [Target('trigger_roundtrip', trigger, Trigger.Request(), trigger_error)]
             if solver_failed is None:
                 targets.append(Target('calibrate_user_frame_roundtrip', calibrate,
+                                      calibrate_request(), calibrate_error))
+                targets.append(Target('calibrate_user_frame_tmpfs_roundtrip', calibrate_ram,
                                       calibrate_request(), calibrate_error))
             figures = measure_interleaved(ros, targets)
     if solver_failed is not None:

@@ -596,10 +596,10 @@ def _failure(method: str, failure: Failure) -> FrameFit:
 
 def _scale_shear(M3: Array) -> tuple[Array, Array]:
     """Column norms of M3 and the xy, xz, yz angles between its columns minus pi/2 [rad]."""
-    cols = M3.T
-    shear = [math.atan2(np.linalg.norm(np.cross(cols[a], cols[b])), cols[a] @ cols[b])
-             - math.pi / 2 for a, b in ((0, 1), (0, 2), (1, 2))]
-    return np.linalg.norm(M3, axis=0), np.array(shear)
+    gram = M3.T @ M3
+    shear = [math.atan2(math.sqrt(max(0.0, gram[a, a] * gram[b, b] - gram[a, b] ** 2)),
+                        gram[a, b]) - math.pi / 2 for a, b in ((0, 1), (0, 2), (1, 2))]
+    return np.sqrt(np.diag(gram)), np.array(shear)
 
 
 def _noise_sigma(residuals: Array, dof: float, sigma_prior: float | None

@@ -1,12 +1,15 @@
 """The one way a node process runs: init, spin, clean shutdown on Ctrl-C or SIGTERM."""
 from __future__ import annotations
 
+import sys
 import threading
 from typing import Callable
 
 import rclpy
 from rclpy.executors import (ExternalShutdownException, MultiThreadedExecutor,
                              SingleThreadedExecutor)
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
+from rclpy.logging import LoggingSeverity
 from rclpy.node import Node
 
 
@@ -57,3 +60,17 @@ class Companion:
         self._executor.shutdown(timeout_sec=1.0)
         self._thread.join(timeout=2.0)
         self.node.destroy_node()
+
+
+def log_info(logger, message: str) -> None:
+    """``logger.info(message)`` for hot paths: same output, same /rosout, no filters.
+
+    rclpy's logger finds its caller with inspect.getframeinfo, which scans every loaded module
+    (1-3 ms per call here, more than a whole calibration); the caller's frame is enough.
+    """
+    if not logger.is_enabled_for(LoggingSeverity.INFO):
+        return
+    caller = sys._getframe(1)
+    _rclpy.rclpy_logging_rcutils_log(LoggingSeverity.INFO, logger.name, message,
+                                     caller.f_code.co_name, caller.f_code.co_filename,
+                                     caller.f_lineno)

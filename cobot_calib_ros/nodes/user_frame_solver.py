@@ -177,8 +177,8 @@ class UserFrameSolver(Node):
         response.calibration = record_to_msg(record)
         response.error_code, response.message = Res.SUCCESS, fit.message or 'calibrated'
         self._pub.publish(response.calibration)
-        self.get_logger().info(f'{record["id"]}: {len(names)} points, rms '
-                               f'{fit.rms * 1e3:.4f} mm, max {fit.max_residual * 1e3:.4f} mm')
+        spin.log_info(self.get_logger(), f'{record["id"]}: {len(names)} points, rms '
+                      f'{fit.rms * 1e3:.4f} mm, max {fit.max_residual * 1e3:.4f} mm')
         return response
 
     def _refuse(self, response, code, message: str):

@@ -50,7 +50,7 @@ def test_restart_sees_latest_calibration_and_history_order(tmp_path):
     store = CalibrationStore(tmp_path)
     for record_id, stamp in [('cal-b', 2_000), ('cal-a', 1_000), ('cal-c', 3_000)]:
         path = store.save(_record(record_id, stamp))
-        assert path == tmp_path / 'calibrations' / f'{record_id}.yaml'
+        assert path == tmp_path / 'calibrations' / f'{record_id}.json'
     restarted = CalibrationStore(tmp_path)
     assert restarted.latest()['id'] == 'cal-c'
     assert [r['id'] for r in restarted.history()] == ['cal-c', 'cal-b', 'cal-a']
@@ -67,7 +67,7 @@ def test_saving_an_id_again_replaces_the_record(tmp_path):
     assert [r['stamp_ns'] for r in CalibrationStore(tmp_path).history()] == [2]
 
 
-def test_numpy_values_are_stored_as_plain_yaml(tmp_path):
+def test_numpy_values_are_stored_as_plain_json(tmp_path):
     store = CalibrationStore(tmp_path)
     transform = np.eye(4)
     transform[:3, 3] = [0.5, -0.25, 0.125]
@@ -83,17 +83,17 @@ def test_corrupt_partial_and_leftover_files_are_skipped_with_warnings(tmp_path):
     store = CalibrationStore(tmp_path)
     store.save(_record('good', 1))
     directory = tmp_path / 'calibrations'
-    (directory / 'broken.yaml').write_text('id: broken\nstamp_ns: [2,\n')   # crash mid-write
-    (directory / 'list.yaml').write_text('- 1\n- 2\n')
-    (directory / 'renamed.yaml').write_text(
-        (directory / 'good.yaml').read_text().replace('stamp_ns: 1', 'stamp_ns: 9'))
-    (directory / 'partial.yaml').write_text('id: partial\nstamp_ns: 3\n')
-    (directory / '.newest.yaml.x1y2.tmp').write_text('id: newest\nstamp_ns: 99\nmeth')
+    (directory / 'broken.json').write_text('{"id": "broken", "stamp_ns": [2,\n')  # crash
+    (directory / 'list.json').write_text('[1, 2]\n')
+    (directory / 'renamed.json').write_text(
+        (directory / 'good.json').read_text().replace('"stamp_ns": 1', '"stamp_ns": 9'))
+    (directory / 'partial.json').write_text('{"id": "partial", "stamp_ns": 3}\n')
+    (directory / '.newest.json.x1y2.tmp').write_text('{"id": "newest", "stamp_ns": 99, "me')
     restarted = CalibrationStore(tmp_path)
     assert [r['id'] for r in restarted.history()] == ['good']
     assert restarted.get('broken') is None
     joined = '\n'.join(restarted.warnings)
-    for name in ('broken.yaml', 'list.yaml', 'renamed.yaml', 'partial.yaml'):
+    for name in ('broken.json', 'list.json', 'renamed.json', 'partial.json'):
         assert name in joined
     assert '.newest' not in joined
     assert len(restarted.warnings) == 4  # the same problem is reported once
