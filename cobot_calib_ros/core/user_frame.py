@@ -267,12 +267,12 @@ def estimation_limit(p_user: ArrayLike, sigma: float, *, method: str = DEFAULT_M
     return math.sqrt(np.trace(cov[:3, :3])), math.sqrt(np.trace(cov[3:, 3:]))
 
 
-def fit_surface(p_user: ArrayLike, p_base: ArrayLike, T_base_user: Array,
+def fit_surface(p_user: ArrayLike, p_base: ArrayLike, M_base_user: Array,
                 order: int | None = None) -> SurfaceModel:
     """Fit dz(x, y) = z_measured - z_nominal of the points in the user frame [m].
 
-    The measured points are taken into the user frame with the inverse of the rigid
-    ``T_base_user``; dz is fitted over the nominal x, y by least squares. ``order`` 0 (offset),
+    The measured points are taken into the user frame with the inverse of ``M_base_user``,
+    the map the calibration converts with (rigid, or the affine M of five_point_lsq); dz is fitted over the nominal x, y by least squares. ``order`` 0 (offset),
     1 (1, x, y) or 2 (adds x^2, xy, y^2); None picks the highest order that leaves at least one
     spare degree of freedom: 3 points -> 0, 4-6 points (the paper's 5) -> 1, 7+ -> 2. After a
     rigid fit the order-1 part is nearly zero (the fit took the tilt): the curvature terms need
@@ -286,7 +286,7 @@ def fit_surface(p_user: ArrayLike, p_base: ArrayLike, T_base_user: Array,
         return SurfaceModel(message=f'{len(pu)} points cannot fit an order-{order} surface '
                             'with a spare degree of freedom; touch more markers or lower order')
     terms = _TERMS[chosen]
-    dz = apply(invert(T_base_user), pb)[:, 2] - pu[:, 2]
+    dz = apply(np.linalg.inv(M_base_user), pb)[:, 2] - pu[:, 2]
     V = _design(pu[:, 0], pu[:, 1], terms)
     coefficients, _, rank, _ = np.linalg.lstsq(V, dz, rcond=None)
     if rank < len(terms):

@@ -69,6 +69,7 @@ def record_to_msg(record: dict) -> UserFrameCalibration:
     msg.stamp.sec, msg.stamp.nanosec = divmod(int(record['stamp_ns']), 1_000_000_000)
     msg.transform = convert.matrix_to_transform(
         np.array(r['T_base_user']), record['base_frame'], record['user_frame'], msg.stamp)
+    msg.matrix = [float(v) for v in np.ravel(r['M'])]
     outliers = set(r['outliers'])
     for i, (name, pu, pb, res) in enumerate(zip(inputs['point_names'], inputs['points_user'],
                                                 inputs['points_base'], r['residuals'])):
@@ -166,7 +167,7 @@ class UserFrameSolver(Node):
         fit = user_frame.calibrate(request.method, p_user, p_base, **opts)
         if not fit:
             return self._refuse(response, fit.code, fit.message)
-        surface = (user_frame.fit_surface(p_user, p_base, fit.T_base_user)
+        surface = (user_frame.fit_surface(p_user, p_base, fit.M)
                    if request.fit_surface else None)
         record = fit_record(fit, surface, names, p_user, p_base, frames_)
         try:
