@@ -339,13 +339,18 @@ class TrialStore(_WarningLog):
 
     def create(self, trial_id: str, *, method: str, axis: str, layout: str,
                point_names: Sequence[str], cycles_total: int,
-               stamp_ns: int | None = None) -> dict[str, Any]:
-        """Start a new 'running' trial; raises FileExistsError if the id is taken."""
+               stamp_ns: int | None = None,
+               extra: Mapping[str, Any] | None = None) -> dict[str, Any]:
+        """Start a new 'running' trial; raises FileExistsError if the id is taken.
+
+        ``extra`` is stored in the metadata beside the required keys (set-up a resume needs).
+        """
         if axis not in AXES or not _is_int(cycles_total) or cycles_total < 1:
             raise ValueError(f'need axis in {AXES} and int cycles_total >= 1, got '
                              f'{axis!r}, {cycles_total!r}')
         now = time.time_ns() if stamp_ns is None else stamp_ns
-        meta = {'id': check_id(trial_id), 'method': method, 'axis': axis, 'layout': layout,
+        meta = {**to_plain(dict(extra or {})),
+                'id': check_id(trial_id), 'method': method, 'axis': axis, 'layout': layout,
                 'point_names': _check_point_names(point_names),
                 'cycles_total': cycles_total, 'status': 'running',
                 'created_ns': now, 'updated_ns': now}

@@ -1,0 +1,290 @@
+"""The ISO 9283 repeatability trial of the first paper (sections 2.1, 3 and 4.3), robot-agnostic.
+
+Set-up, once per trial: every marker is touched and its robot coordinates P_i^R are read from
+the encoders (nominal forward kinematics: the taught pose); then, per point and probed axis,
+the offset F_i puts the probe tip where it reads the middle of its range.
+
+Each cycle n then visits the points P1..Pm once:
+- ``reference``: the robot is sent to the taught robot coordinates (plus F_i), no user frame:
+  the reference repeatability of the robot itself;
+- a calibration method: first a calibration pass probes the top face of every marker at its
+  taught position (z offsets re-read each cycle, as the paper does), the method fits this
+  cycle's frame M_n from those points, and the measurement pass sends the robot to the nominal
+  user-frame points through M_n. The spread then measures how well the user frame is
+  calibrated, not only the robot.
+A reading out of the probe range is retried once after moving by FF_i,n (eq 15), and the
+stored distance is corrected for it.
+
+Everything here is in metres and radians; the robot, the probe and the store come in as
+objects (see :class:`Robot`), so this runs the same on the ROS nodes and in a plain test.
+"""
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+import math
+from typing import Protocol
+
+import numpy as np
+from numpy.typing import NDArray
+
+from cobot_calib_ros.core import frames, user_frame
+from cobot_calib_ros.core.cell import Marker, tool_down_orientation
+from cobot_calib_ros.core.repeatability import point_statistics, PointStats
+from cobot_calib_ros.core.storage import TrialData, TrialStore
+
+Array = NDArray[np.float64]
+METHODS = ('reference', *user_frame.METHODS)
+AXES = ('x', 'y', 'z')
+DEFAULT_CYCLES = 30
+
+
+class TrialError(RuntimeError):
+    """The trial cannot go on; ``reason`` is one of 'invalid', 'motion', 'probe', 'canceled'."""
+
+    def __init__(self, reason: str, message: str) -> None:
+        super().__init__(message)
+        self.reason = reason
+
+
+@dataclass(frozen=True)
+class Reading:
+    status: str          # 'ok', 'below' (closer than the range) or 'above' (beyond it)
+    distance: float      # [m], valid when status == 'ok'
+
+
+class Robot(Protocol):
+    def touch(self, name: str) -> Array:
+        """Hand-guide the tool onto a marker's top; the (4, 4) nominal tool pose read there."""
+
+    def move(self, T_base_tool: Array) -> None:
+        """Move the tool to a pose in the base frame; raise TrialError('motion', ...)."""
+
+    def read(self) -> Reading:
+        """Average the probe; raise TrialError('probe', ...) when there is no reading."""
+
+
+@dataclass(frozen=True)
+class ProbeRange:
+    g_min: float             # [m]
+    g_max: float             # [m]
+
+    @property
+    def middle(self) -> float:
+        return 0.5 * (self.g_min + self.g_max)
+
+
+@dataclass
+class Plan:
+    trial_id: str
+    method: str
+    axis: str
+    layout: str
+    markers: Sequence[Marker]          # nominal geometry (the user's knowledge)
+    cycles: int
+    probe: ProbeRange
+    approach_distance: float = 0.005   # retreat before each arrival: unidirectional approach [m]
+    robust_threshold: float = user_frame.ROBUST_THRESHOLD
+    extra: dict = field(default_factory=dict)
+
+    def check(self) -> None:
+        if self.method not in METHODS:
+            raise TrialError('invalid', f'unknown method {self.method!r}; use one of {METHODS}')
+        if self.axis not in AXES:
+            raise TrialError('invalid', f'unknown axis {self.axis!r}; use x, y or z')
+        if not 1 <= self.cycles <= 10000:
+            raise TrialError('invalid', f'cycles must be 1..10000, got {self.cycles}')
+        if self.method != 'reference' and len(self.markers) < 3:
+            raise TrialError('invalid', f'{self.method} needs at least 3 points')
+
+
+def face_offset_user(marker: Marker, axis: str) -> Array:
+    """From the nominal top-face centre to the centre of the face the probe looks at [m]."""
+    sx, sy, sz = marker.size
+    return {'z': np.zeros(3), 'x': np.array([-sx / 2, 0.0, -sz / 2]),
+            'y': np.array([0.0, -sy / 2, -sz / 2])}[axis]
+
+
+def probe_pose(R_base_user: Array, face_base: Array, axis: str, standoff: float) -> Array:
+    """Tool pose looking along the user ``axis`` at ``face_base``, ``standoff`` [m] before it."""
+    T = np.eye(4)
+    T[:3, :3] = tool_down_orientation(_as_transform(R_base_user), axis)
+    T[:3, 3] = face_base - standoff * T[:3, 2]
+    return T
+
+
+def retreat(T: Array, distance: float) -> Array:
+    """The same pose moved back along the probe axis by ``distance`` [m]."""
+    out = T.copy()
+    out[:3, 3] -= distance * T[:3, 2]
+    return out
+
+
+def taught_user_rotation(T_touch: Array) -> Array:
+    """User-frame axes at a taught marker: the touch pose has the tool z down the user z."""
+    return T_touch[:3, :3] @ frames.rot_x(math.pi).T
+
+
+def nearest_rotation(M3: Array) -> Array:
+    U, _, Vt = np.linalg.svd(M3)
+    R = U @ Vt
+    if np.linalg.det(R) < 0:
+        U[:, -1] *= -1
+        R = U @ Vt
+    return R
+
+
+def statistics(trial: TrialData) -> PointStats:
+    return point_statistics(trial.distances)
+
+
+Progress = Callable[[int, int, float], None]      # cycle, point index, corrected distance [m]
+CycleDone = Callable[[int, PointStats], None]     # cycles completed, statistics so far
+
+
+class TrialRun:
+    """Runs (or resumes) one trial; every reading is stored before the next move."""
+
+    def __init__(self, plan: Plan, robot: Robot, store: TrialStore,
+                 on_reading: Progress | None = None, on_cycle: CycleDone | None = None,
+                 stop_requested: Callable[[], bool] = lambda: False) -> None:
+        plan.check()
+        self.plan, self.robot, self.store = plan, robot, store
+        self._on_reading = on_reading or (lambda *_: None)
+        self._on_cycle = on_cycle or (lambda *_: None)
+        self._stop_requested = stop_requested
+        self._taught: list[Array] = []
+        self._standoff: dict[str, list[float]] = {}
+
+    # -- set-up ---------------------------------------------------------------------------
+    def start(self) -> TrialData:
+        """Teach the points, find the offsets F_i, create the trial, run every cycle."""
+        self._teach()
+        self.store.create(self.plan.trial_id, method=self.plan.method, axis=self.plan.axis,
+                          layout=self.plan.layout, point_names=self._names(),
+                          cycles_total=self.plan.cycles,
+                          extra={**self.plan.extra, 'taught': self._taught,
+                                 'standoff_m': self._standoff})
+        return self._run(self.store.load(self.plan.trial_id))
+
+    def resume(self, trial: TrialData) -> TrialData:
+        """Carry on a stored trial from its first unmeasured point (same taught poses)."""
+        self._taught = [np.array(T) for T in trial.meta['taught']]
+        self._standoff = {a: list(v) for a, v in trial.meta['standoff_m'].items()}
+        if trial.meta['status'] != 'running':
+            self.store.set_status(self.plan.trial_id, 'running')
+        return self._run(trial)
+
+    def _names(self) -> list[str]:
+        return [m.name for m in self.plan.markers]
+
+    def _teach(self) -> None:
+        self._taught = [self.robot.touch(m.name) for m in self.plan.markers]
+        axes = {'z', self.plan.axis} if self.plan.method != 'reference' else {self.plan.axis}
+        for axis in sorted(axes):
+            self._standoff[axis] = [
+                self._find_standoff(lambda s, i=i, a=axis: self._taught_pose(i, a, s))
+                for i in range(len(self.plan.markers))]
+
+    def _find_standoff(self, pose_at: Callable[[float], Array]) -> float:
+        """F_i: the standoff [m] at which the probe reads the middle of its range."""
+        rng = self.plan.probe
+        standoff = rng.middle
+        for _ in range(6):
+            reading = self._visit(pose_at(standoff))
+            if reading.status == 'ok':
+                return standoff + (rng.middle - reading.distance)
+            step = 0.5 * (rng.g_max - rng.g_min)
+            standoff += step if reading.status == 'below' else -step
+        raise TrialError('probe', 'the probe never read in range near a marker; check the '
+                         'probe range parameters and that the markers are where the cell says')
+
+    # -- poses ----------------------------------------------------------------------------
+    def _taught_pose(self, i: int, axis: str, standoff: float) -> Array:
+        T_touch = self._taught[i]
+        R = taught_user_rotation(T_touch)
+        face = T_touch[:3, 3] + R @ face_offset_user(self.plan.markers[i], axis)
+        return probe_pose(R, face, axis, standoff)
+
+    def _frame_pose(self, M: Array, i: int, axis: str, standoff: float) -> Array:
+        marker = self.plan.markers[i]
+        face = frames.apply(M, marker.nominal_top + face_offset_user(marker, axis))
+        return probe_pose(nearest_rotation(M[:3, :3]), face, axis, standoff)
+
+    # -- cycles ---------------------------------------------------------------------------
+    def _run(self, trial: TrialData) -> TrialData:
+        while trial.resume is not None:
+            cycle, first = trial.resume
+            M = None if self.plan.method == 'reference' else self._cycle_frame(cycle)
+            for i in range(first, len(self.plan.markers)):
+                self._check_stop()
+                self._measure(cycle, i, M)
+            trial = self.store.load(self.plan.trial_id)
+            stats = statistics(trial)
+            self._on_cycle(cycle + 1, stats)
+        self.store.set_status(self.plan.trial_id, 'done')
+        return self.store.load(self.plan.trial_id)
+
+    def _check_stop(self) -> None:
+        if self._stop_requested():
+            self.store.set_status(self.plan.trial_id, 'aborted')
+            raise TrialError('canceled', f'trial {self.plan.trial_id} stopped on request; '
+                             'send the same trial_id again to resume it')
+
+    def _cycle_frame(self, cycle: int) -> Array:
+        """This cycle's M_n from the top faces probed at the taught positions."""
+        measured = []
+        for i in range(len(self.plan.markers)):
+            self._check_stop()
+            T = self._taught_pose(i, 'z', self._standoff['z'][i])
+            reading = self._visit(T)
+            if reading.status != 'ok':
+                raise TrialError('probe', f'cycle {cycle + 1}: calibration reading at '
+                                 f'{self.plan.markers[i].name} out of range ({reading.status})')
+            measured.append(T[:3, 3] + reading.distance * T[:3, 2])
+        nominal = np.array([m.nominal_top for m in self.plan.markers])
+        opts = {'threshold': self.plan.robust_threshold} if self.plan.method == 'robust' else {}
+        fit = user_frame.calibrate(self.plan.method, nominal, np.array(measured), **opts)
+        if not fit:
+            raise TrialError('invalid', f'cycle {cycle + 1}: {self.plan.method} fit failed: '
+                             f'{fit.message}')
+        return fit.M
+
+    def _measure(self, cycle: int, i: int, M: Array | None) -> None:
+        axis, standoff = self.plan.axis, self._standoff[self.plan.axis][i]
+        T = (self._taught_pose(i, axis, standoff) if M is None
+             else self._frame_pose(M, i, axis, standoff))
+        reading, ff, direction = self._visit(T), 0.0, None
+        if reading.status != 'ok':       # eq (15): move by FF_i,n and correct the reading
+            ff = 0.5 * (self.plan.probe.g_max - self.plan.probe.g_min)
+            direction = 'away' if reading.status == 'below' else 'closer'
+            reading = self._visit(retreat(T, ff if direction == 'away' else -ff))
+            if reading.status != 'ok':
+                raise TrialError('probe', f'cycle {cycle + 1}, {self.plan.markers[i].name}: '
+                                 f'probe still {reading.status} range after FF = '
+                                 f'{ff * 1e3:.2f} mm; check the frame and the offsets')
+        corrected = self.store.append(self.plan.trial_id, cycle, i, reading.distance,
+                                      ff, direction)
+        self._on_reading(cycle, i, corrected)
+
+    def _visit(self, T: Array) -> Reading:
+        """Unidirectional approach: arrive along the probe axis from a retreat pose."""
+        self.robot.move(retreat(T, self.plan.approach_distance))
+        self.robot.move(T)
+        return self.robot.read()
+
+
+def user_points(markers: Sequence[Marker]) -> Array:
+    return np.array([m.nominal_top for m in markers])
+
+
+def _as_transform(R: Array) -> Array:
+    T = np.eye(4)
+    T[:3, :3] = R
+    return T
+
+
+def summary(stats: PointStats) -> Mapping[str, object]:
+    """Per-point RP [mm] and RP_all [mm] for humans (NaN before two cycles)."""
+    return {'rp_mm': (stats.rp * 1e3).tolist(), 'rp_all_mm': stats.rp_all * 1e3,
+            'cycles': stats.cycles}
