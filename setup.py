@@ -4,7 +4,8 @@ from setuptools import find_packages, setup
 
 package_name = 'cobot_calib_ros'
 
-NODES = ['mock_robot', 'proximity_sensor', 'joint_state_monitor', 'user_frame_solver']
+NODES = ['mock_robot', 'proximity_sensor', 'joint_state_monitor', 'user_frame_solver',
+         'repeatability_trial']
 
 setup(
     name=package_name,

@@ -7,8 +7,10 @@ down with every call and stall for seconds.
 from __future__ import annotations
 
 import array
+import contextlib
 import importlib
 import math
+import os
 import time
 from typing import Any
 
@@ -131,3 +133,20 @@ def graph(node: Node, wait: float = 1.0) -> dict[str, dict[str, list[str]]]:
 
 def finite_or_none(value: float) -> float | None:
     return value if math.isfinite(value) else None
+
+
+def wait_for_suite(node: Node, timeout: float = 60.0) -> None:
+    """Until joint_states flow into joint_state_monitor (a short capture succeeds)."""
+    from cobot_calib_msgs.srv import CaptureJoints
+    client = node.create_client(CaptureJoints, 'capture_joints')
+    deadline = time.monotonic() + timeout
+    try:
+        while time.monotonic() < deadline:
+            with contextlib.suppress(CallError):
+                req = CaptureJoints.Request(duration=0.1)
+                if call_service(node, client, req, 10.0).error_code == 0:
+                    return
+    finally:
+        node.destroy_client(client)
+    raise CallError(f'the node suite was not ready within {timeout:.0f} s '
+                    f'(ROS_DOMAIN_ID={os.environ.get("ROS_DOMAIN_ID", "0")})')

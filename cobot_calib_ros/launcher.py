@@ -6,6 +6,7 @@ which is what `ros2 run` does with the installed executable on a full ROS instal
 """
 from __future__ import annotations
 
+import contextlib
 import ctypes
 from dataclasses import dataclass, field
 import os
@@ -17,7 +18,8 @@ import time
 
 from cobot_calib_ros import paths
 
-SUITE = ('mock_robot', 'joint_state_monitor', 'proximity_sensor', 'user_frame_solver')
+SUITE = ('mock_robot', 'joint_state_monitor', 'proximity_sensor', 'user_frame_solver',
+         'repeatability_trial')
 PR_SET_PDEATHSIG = 1
 
 
@@ -99,3 +101,19 @@ def default_log_dir() -> Path:
     stamp = time.strftime('%Y%m%dT%H%M%S')
     root = Path(os.environ.get('ROS_LOG_DIR', Path.home() / '.ros' / 'log'))
     return root / f'cobot_calib_{stamp}_{os.getpid()}'
+
+
+@contextlib.contextmanager
+def private_suite(cell: str, overrides: dict[str, dict[str, str]] | None = None,
+                  say=print):
+    """The node suite on a free ROS_DOMAIN_ID of its own (set in os.environ while it runs)."""
+    import domain_coordinator
+    with domain_coordinator.domain_id() as domain:
+        os.environ['ROS_DOMAIN_ID'] = str(domain)
+        suite = Suite(default_log_dir())
+        suite.start(suite_specs(cell, overrides=overrides))
+        say(f'node suite on ROS_DOMAIN_ID={domain}, logs in {suite.log_dir}')
+        try:
+            yield suite
+        finally:
+            suite.stop()

@@ -1,4 +1,5 @@
-"""cobot-calib: run the node suite and talk to it (up, echo, call, list, demo)."""
+"""cobot-calib: run the node suite and talk to it (up, echo, call, list, demo, trial,
+experiment, report)."""
 from __future__ import annotations
 
 import argparse
@@ -166,6 +167,21 @@ def cmd_demo(args) -> int:
     return demo.run(args)
 
 
+def cmd_trial(args) -> int:
+    from cobot_calib_ros import experiment
+    return experiment.run_trial(args)
+
+
+def cmd_experiment(args) -> int:
+    from cobot_calib_ros import experiment
+    return experiment.run_experiment(args)
+
+
+def cmd_report(args) -> int:
+    from cobot_calib_ros import experiment
+    return experiment.run_report(args)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog='cobot-calib', description=__doc__)
     sub = parser.add_subparsers(dest='command', required=True)
@@ -195,6 +211,31 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--attach', action='store_true',
                    help='use an already running suite instead of starting one')
     p.set_defaults(func=cmd_demo)
+    p = sub.add_parser('trial', help='run (or resume) one ISO 9283 repeatability trial on a '
+                       'running suite, printing RP after each cycle')
+    p.add_argument('--method', default='reference',
+                   help='reference | three_point | five_point_lsq | rigid | robust')
+    p.add_argument('--axis', default='z', choices=('x', 'y', 'z'))
+    p.add_argument('--cycles', type=int, default=30)
+    p.add_argument('--trial-id', default='', help='an unfinished trial id resumes it')
+    p.add_argument('--json', action='store_true')
+    p.set_defaults(func=cmd_trial)
+    p = sub.add_parser('experiment', help="reproduce the first paper's comparison on the "
+                       'mock robot (starts its own suite)')
+    p.add_argument('which', choices=('user-frame',))
+    p.add_argument('--setup', default='close', choices=('close', 'wide'))
+    p.add_argument('--axis', default='z', choices=('x', 'y', 'z'))
+    p.add_argument('--cycles', type=int, default=30)
+    p.add_argument('--cell', default='sawyer_close', help='cell YAML path or name')
+    p.add_argument('--data-dir', help='where trials are stored (default ~/.ros/cobot_calib)')
+    p.add_argument('--out', help='report folder (default <data dir>/reports)')
+    p.add_argument('--json', action='store_true')
+    p.set_defaults(func=cmd_experiment)
+    p = sub.add_parser('report', help='PNG box plot and table of stored trials')
+    p.add_argument('trials', nargs='+', help='trial ids')
+    p.add_argument('--data-dir', help='where trials are stored (default ~/.ros/cobot_calib)')
+    p.add_argument('--out', help='report folder (default <data dir>/reports)')
+    p.set_defaults(func=cmd_report)
     return parser
 
 
