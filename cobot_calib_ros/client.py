@@ -118,7 +118,8 @@ def graph(node: Node, wait: float = 1.0) -> dict[str, dict[str, list[str]]]:
     spin_until(node, lambda: False, wait)
     hidden = ('/_action/', '/rosout', '/parameter_events')
     own = node.get_fully_qualified_name()
-    nodes = sorted(f'{ns.rstrip("/")}/{n}' for n, ns in node.get_node_names_and_namespaces())
+    nodes = sorted(f'{ns.rstrip("/")}/{n}' for n, ns in node.get_node_names_and_namespaces()
+                   if not n.startswith('_'))      # hidden nodes, as ros2 node list does
     topics = {n: t for n, t in node.get_topic_names_and_types()
               if not any(h in n for h in hidden)}
     services = {n: t for n, t in node.get_service_names_and_types()

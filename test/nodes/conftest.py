@@ -11,13 +11,20 @@ STARTUP_TIMEOUT = 30.0
 
 
 @pytest.fixture(scope='session')
-def suite(domain_id, tmp_path_factory):
+def trial_data(tmp_path_factory):
+    """The suite nodes' data_dir: calibrations and trials (read them with the core stores)."""
+    return tmp_path_factory.mktemp('results')
+
+
+@pytest.fixture(scope='session')
+def suite(domain_id, trial_data, tmp_path_factory):
     """mock_robot, joint_state_monitor, proximity_sensor (+ an isolated /iso probe node),
     user_frame_solver, each its own process."""
-    data = tmp_path_factory.mktemp('results')
+    data = trial_data
     specs = launcher.suite_specs('sawyer_close', overrides={
         'mock_robot': {'time_scale': '0.2'},
-        'user_frame_solver': {'data_dir': str(data)}})
+        'user_frame_solver': {'data_dir': str(data)},
+        'repeatability_trial': {'data_dir': str(data)}})
     specs.append(launcher.NodeSpec('proximity_sensor', namespace='iso'))
     running = launcher.Suite(tmp_path_factory.mktemp('logs'))
     running.start(specs)

@@ -1,0 +1,49 @@
+"""`cobot-calib demo --json` on the session's suite: issue 3's comparison, scored on truth."""
+import json
+import os
+import subprocess
+import sys
+
+import pytest
+
+from cobot_calib_ros.core.user_frame import LIMIT_FACTOR
+
+
+@pytest.fixture(scope='module')
+def demo(ros):
+    out = subprocess.run([sys.executable, '-m', 'cobot_calib_ros.cli.main', 'demo', '--json',
+                          '--attach'], capture_output=True, text=True, timeout=180,
+                         env=dict(os.environ))
+    assert out.returncode == 0, out.stderr
+    result = json.loads(out.stdout)
+    return result, {m['name']: m for m in result['methods']}
+
+
+def test_every_method_is_reported_in_si_derived_mm(demo):
+    result, methods = demo
+    assert list(methods) == ['three_point', 'five_point_lsq', 'rigid', 'robust']
+    for m in methods.values():
+        assert {'frame_error_mm', 'frame_error_mrad', 'residual_rms_mm',
+                'point_error_max_mm'} <= set(m)
+        assert len(m['point_error_mm']) == 5
+    # per-point noise: hypot(touch 0.02, repeatability 0.03) mm from the mock's truth
+    assert result['noise_sigma_mm'] == pytest.approx(0.03606, rel=1e-3)
+    # the frame origin is ~0.25 m from the points: rotation noise dominates its translation
+    assert result['noise_sigma_mm'] < result['estimation_limit_mm'] < 0.2
+
+
+def test_rigid_frame_noise_part_is_within_the_estimation_limit(demo):
+    result, methods = demo
+    rigid = methods['rigid']
+    assert rigid['frame_error_noise_mm'] < LIMIT_FACTOR * result['estimation_limit_mm']
+    assert rigid['frame_error_noise_mrad'] < LIMIT_FACTOR * result['estimation_limit_mrad']
+    # what is left is the systematic part: kinematic errors and table, a few tenths of a mm
+    assert 0.05 < rigid['frame_error_systematic_mm'] < 0.6
+
+
+def test_five_points_position_better_than_three_as_in_the_paper(demo):
+    _, methods = demo
+    assert methods['five_point_lsq']['point_error_max_mm'] < \
+        methods['three_point']['point_error_max_mm']
+    assert methods['rigid']['point_error_max_mm'] < methods['three_point']['point_error_max_mm']
+    assert methods['rigid']['residual_rms_mm'] < methods['three_point']['residual_rms_mm']
