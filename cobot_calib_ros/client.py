@@ -136,18 +136,27 @@ def finite_or_none(value: float) -> float | None:
     return value if math.isfinite(value) else None
 
 
-def wait_for_suite(node: Node, timeout: float = 60.0) -> None:
-    """Until joint_states flow into joint_state_monitor (a short capture succeeds)."""
-    from cobot_calib_msgs.srv import CaptureJoints
-    client = node.create_client(CaptureJoints, 'capture_joints')
+def wait_for_suite(node: Node, timeout: float = 60.0, executor=None) -> None:
+    """Until joint_states and probe readings flow (a short capture and a probe average work)."""
+    from cobot_calib_msgs.srv import AverageProximity, CaptureJoints
+    checks = [(CaptureJoints, 'capture_joints', CaptureJoints.Response.NO_DATA),
+              (AverageProximity, 'probe/average', AverageProximity.Response.NO_DATA)]
     deadline = time.monotonic() + timeout
-    try:
-        while time.monotonic() < deadline:
-            with contextlib.suppress(CallError):
-                req = CaptureJoints.Request(duration=0.1)
-                if call_service(node, client, req, 10.0).error_code == 0:
-                    return
-    finally:
-        node.destroy_client(client)
-    raise CallError(f'the node suite was not ready within {timeout:.0f} s '
-                    f'(ROS_DOMAIN_ID={os.environ.get("ROS_DOMAIN_ID", "0")})')
+    for srv_type, name, no_data in checks:
+        client = node.create_client(srv_type, name)
+        try:
+            while not _flows(node, client, no_data, executor):
+                if time.monotonic() > deadline:
+                    raise CallError(f'{name} had no data within {timeout:.0f} s; is the node '
+                                    f'suite up (ROS_DOMAIN_ID='
+                                    f'{os.environ.get("ROS_DOMAIN_ID", "0")})?')
+        finally:
+            node.destroy_client(client)
+
+
+def _flows(node: Node, client, no_data: int, executor) -> bool:
+    with contextlib.suppress(CallError):
+        response = call_service(node, client, client.srv_type.Request(duration=0.1), 10.0,
+                                executor)
+        return response.error_code not in (no_data, getattr(response, 'BAD_REQUEST', -1))
+    return False

@@ -41,6 +41,8 @@ MIN_COLLINEARITY = 1e-3   # s_min / s_max of the in-plane spread below this: col
 PLANAR_TOL = 1e-6         # s3 / s1 of the user points below this: coplanar layout
 ROBUST_THRESHOLD = 5e-4   # [m] default gross-error threshold of the robust method
 ROBUST_K_SIGMA = 5.0      # robust method: also reject only beyond this many noise sigmas
+MAX_COORDINATE = 1.0e3
+"""[m] Coordinates beyond this are refused: no robot cell is a kilometre wide."""
 LIMIT_FACTOR = 3.0
 """An achieved frame error above ``LIMIT_FACTOR`` times :func:`estimation_limit` is suspect:
 for Gaussian noise it happens in well under 1 % of calibrations."""
@@ -358,10 +360,15 @@ def _check_points(pu: Array, pb: Array, n_plane: int | None) -> Failure | None:
 
 def _check_finite(points: Array, name: str) -> Failure | None:
     bad = np.flatnonzero(~np.isfinite(points).all(axis=1))
-    if len(bad) == 0:
-        return None
-    return Failure(ErrorCode.INVALID_INPUT, f'{name} point {bad[0]} is not finite '
-                   f'({points[bad[0]].tolist()}); re-measure it or leave it out')
+    if len(bad):
+        return Failure(ErrorCode.INVALID_INPUT, f'{name} point {bad[0]} is not finite '
+                       f'({points[bad[0]].tolist()}); re-measure it or leave it out')
+    far = np.flatnonzero((np.abs(points) > MAX_COORDINATE).any(axis=1))
+    if len(far):     # beyond any cell, and squares of ~1e154 m overflow inside the SVD
+        return Failure(ErrorCode.INVALID_INPUT, f'{name} point {far[0]} is '
+                       f'{points[far[0]].tolist()} m, beyond {MAX_COORDINATE:g} m from the '
+                       'origin; points are in metres (not millimetres?)')
+    return None
 
 
 def _check_duplicates(points: Array, name: str) -> Failure | None:

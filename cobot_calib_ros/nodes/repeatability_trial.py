@@ -35,24 +35,16 @@ PROBE_STATUS = {ProximityReading.STATUS_BELOW_RANGE: 'below',
                 ProximityReading.STATUS_ABOVE_RANGE: 'above'}
 
 
-def _wait(future, timeout: float, what: str):
-    done = threading.Event()
-    future.add_done_callback(lambda _: done.set())
-    if not done.wait(timeout):
-        raise trialmod.TrialError('motion', f'{what}: no answer within {timeout:.0f} s')
-    return future.result()
-
-
 class RosRobot:
     """core.trial.Robot over ROS: every call blocks this (action) thread until answered."""
 
-    def __init__(self, node: Node, clients: Node, chain: kinematics.Chain, speed: float,
+    def __init__(self, answers: spin.Companion, chain: kinematics.Chain, speed: float,
                  probe_window: float, capture_duration: float) -> None:
-        self._chain, self._speed = chain, speed
+        self._answers, self._chain, self._speed = answers, chain, speed
         self._probe_window, self._capture_duration = probe_window, capture_duration
-        self._move = ActionClient(clients, MoveTo, 'move_to')
-        self._capture = clients.create_client(CaptureJoints, 'capture_joints')
-        self._probe = clients.create_client(AverageProximity, 'probe/average')
+        self._move = ActionClient(answers.node, MoveTo, 'move_to')
+        self._capture = answers.node.create_client(CaptureJoints, 'capture_joints')
+        self._probe = answers.node.create_client(AverageProximity, 'probe/average')
 
     def wait_ready(self, timeout: float = 5.0) -> str:
         """'' when move_to, capture_joints and probe/average answer, else what is missing."""
@@ -67,18 +59,22 @@ class RosRobot:
 
     def _go(self, goal: MoveTo.Goal) -> MoveTo.Result:
         goal.speed_scale = self._speed
-        handle = _wait(self._move.send_goal_async(goal), 10.0, 'move_to')
-        if not handle.accepted:
+        result = _answer(self._answers.run_action, 'move_to', self._move, goal, 10.0, 120.0)
+        if result is None:
             raise trialmod.TrialError('motion', 'move_to rejected the goal (robot busy?)')
-        result = _wait(handle.get_result_async(), 120.0, 'move_to').result
         if result.error_code != MoveTo.Result.SUCCESS:
             raise trialmod.TrialError('motion', f'move_to: {result.message}')
         return result
 
+    def _average(self, window: float):
+        req = AverageProximity.Request(duration=window)
+        return _answer(spin.wait, 'probe/average', self._probe.call_async(req), window + 5.0)
+
     def touch(self, name: str) -> np.ndarray:
         self._go(MoveTo.Goal(target_type=MoveTo.Goal.TARGET_TOUCH, point_name=name))
         req = CaptureJoints.Request(duration=self._capture_duration)
-        res = _wait(self._capture.call_async(req), req.duration + 10.0, 'capture_joints')
+        res = _answer(spin.wait, 'capture_joints', self._capture.call_async(req),
+                      req.duration + 10.0)
         if res.error_code != CaptureJoints.Response.SUCCESS:
             raise trialmod.TrialError('motion', f'capture_joints at {name}: {res.message}')
         return kinematics.fk(self._chain, np.array(res.position))
@@ -88,13 +84,22 @@ class RosRobot:
                              pose=convert.matrix_to_pose(T_base_tool)))
 
     def read(self) -> trialmod.Reading:
-        req = AverageProximity.Request(duration=self._probe_window)
-        res = _wait(self._probe.call_async(req), req.duration + 5.0, 'probe/average')
+        res = self._average(self._probe_window)
+        if res.error_code == AverageProximity.Response.NO_DATA:   # a lost burst: once more
+            res = self._average(4 * self._probe_window)
         if res.error_code == AverageProximity.Response.SUCCESS:
             return trialmod.Reading('ok', res.distance)
         if res.error_code == AverageProximity.Response.OUT_OF_RANGE:
             return trialmod.Reading(PROBE_STATUS.get(res.reading_status, 'above'), float('nan'))
         raise trialmod.TrialError('probe', f'probe/average: {res.message}')
+
+
+def _answer(call, what: str, *args):
+    """call(*args), a timeout turned into the trial's motion error."""
+    try:
+        return call(*args)
+    except TimeoutError as e:
+        raise trialmod.TrialError('motion', f'{what}: {e}; is the node suite up?')
 
 
 def stats_msg(trial_id: str, meta: dict, cycles_done: int, stats: PointStats,
@@ -123,7 +128,7 @@ class RepeatabilityTrial(Node):
         root = self._p('data_dir')
         self._store = TrialStore(Path(root) if root else paths.data_dir())
         self._answers = spin.Companion(self, 'clients')
-        self._robot = RosRobot(self, self._answers.node, model.chain(tool=self._cell.tool_offset),
+        self._robot = RosRobot(self._answers, model.chain(tool=self._cell.tool_offset),
                                self._p('speed_scale'), self._p('probe_window'),
                                self._p('capture_duration'))
         self._pub = self.create_publisher(Repeatability, 'repeatability', LATCHED)

@@ -56,6 +56,21 @@ class Companion:
         except Exception:  # noqa: BLE001 - the context was shut down under us
             pass
 
+    def run_action(self, client, goal, accept_timeout: float, result_timeout: float):
+        """Send ``goal`` from any thread and block until its result; None if rejected.
+
+        rclpy's ActionClient is not thread-safe: a goal response can arrive on this executor
+        before send_goal_async (called from another thread) has registered its sequence
+        number, and is then dropped ("Ignoring unexpected goal response") and the call hangs.
+        So sending and asking for the result both happen on the companion's own thread.
+        """
+        sent = wait(self._executor.create_task(client.send_goal_async, goal), accept_timeout)
+        handle = wait(sent, accept_timeout)
+        if not handle.accepted:
+            return None
+        asked = wait(self._executor.create_task(handle.get_result_async), accept_timeout)
+        return wait(asked, result_timeout).result
+
     def destroy(self) -> None:
         self._executor.shutdown(timeout_sec=1.0)
         self._thread.join(timeout=2.0)
@@ -74,3 +89,15 @@ def log_info(logger, message: str) -> None:
     _rclpy.rclpy_logging_rcutils_log(LoggingSeverity.INFO, logger.name, message,
                                      caller.f_code.co_name, caller.f_code.co_filename,
                                      caller.f_lineno)
+
+
+def wait(future, timeout: float):
+    """Block this thread until ``future`` is done (another executor completes it); its result.
+
+    Raises TimeoutError after ``timeout`` [s].
+    """
+    done = threading.Event()
+    future.add_done_callback(lambda _: done.set())
+    if not done.wait(timeout):
+        raise TimeoutError(f'no answer within {timeout:.0f} s')
+    return future.result()

@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 from pathlib import Path
-import threading
 import time
 
 from cobot_calib_msgs.action import MoveTo
@@ -29,15 +28,6 @@ LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
 
 class CaptureError(RuntimeError):
     pass
-
-
-def _wait(future, timeout: float):
-    """Block this thread until a future completes; another executor runs its callbacks."""
-    done = threading.Event()
-    future.add_done_callback(lambda _: done.set())
-    if not done.wait(timeout):
-        raise CaptureError(f'no answer within {timeout:.0f} s')
-    return future.result()
 
 
 def fit_record(fit: user_frame.FrameFit, surface, names: list[str], p_user, p_base,
@@ -222,24 +212,34 @@ class UserFrameSolver(Node):
         if not self._move.wait_for_server(timeout_sec=5.0):
             raise CaptureError('move_to action server not available (is mock_robot up?)')
         goal = MoveTo.Goal(target_type=MoveTo.Goal.TARGET_TOUCH, point_name=name)
-        handle = _wait(self._move.send_goal_async(goal), 10.0)
-        if not handle.accepted:
+        try:
+            result = self._answers.run_action(self._move, goal, 10.0, 60.0)
+        except TimeoutError as e:
+            raise CaptureError(f'move_to: {e}')
+        if result is None:
             raise CaptureError('move_to rejected the goal (robot busy)')
-        result = _wait(handle.get_result_async(), 60.0).result
         if result.error_code != MoveTo.Result.SUCCESS:
             raise CaptureError(f'move_to: {result.message}')
         if not self._capture.wait_for_service(timeout_sec=5.0):
             raise CaptureError('capture_joints not available (is joint_state_monitor up?)')
         req = CaptureJoints.Request(duration=self._p('capture_duration'))
-        res = _wait(self._capture.call_async(req), req.duration + 10.0)
+        try:
+            res = spin.wait(self._capture.call_async(req), req.duration + 10.0)
+        except TimeoutError as e:
+            raise CaptureError(f'capture_joints: {e}')
         if res.error_code != CaptureJoints.Response.SUCCESS:
             raise CaptureError(f'capture_joints: {res.message}')
         return np.array(res.position)
 
     # -- conversion and history -----------------------------------------------------------
     def _convert(self, request, response, to_base: bool):
-        record = (self._store.get(request.calibration_id) if request.calibration_id
-                  else self._store.latest())
+        try:
+            record = (self._store.get(request.calibration_id) if request.calibration_id
+                      else self._store.latest())
+        except ValueError as e:        # not a possible calibration id
+            response.error_code = ConvertPoints.Response.INVALID_INPUT
+            response.message = f'calibration_id {request.calibration_id!r}: {e}'
+            return response
         if record is None:
             response.error_code = ConvertPoints.Response.NO_CALIBRATION
             response.message = (f'no calibration {request.calibration_id!r}' if

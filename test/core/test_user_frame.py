@@ -367,6 +367,10 @@ BAD = {
     'mismatch': (RECT5, BASE[:4], ErrorCode.INVALID_INPUT, ['5 user points', '4 base points']),
     'nan': (RECT5, with_nan(BASE, 3), ErrorCode.INVALID_INPUT, ['base point 3', 'not finite']),
     'inf': (with_nan(RECT5, 1, math.inf), BASE, ErrorCode.INVALID_INPUT, ['user point 1']),
+    'huge': (RECT5, with_nan(BASE, 2, 1e200), ErrorCode.INVALID_INPUT,     # hung the SVD
+             ['base point 2', 'metres']),
+    'millimetres': (RECT5 * 1e3, BASE * 1e3 + 2e3, ErrorCode.INVALID_INPUT,
+                    ['base point 0', 'not millimetres']),
     'same user': (RECT5[[0, 1, 2, 1]], BASE[:4], ErrorCode.DEGENERATE_POINTS,
                   ['user points 1 and 3', 'different marker']),
     'same base': (RECT5, BASE[[0, 1, 2, 3, 0]], ErrorCode.DEGENERATE_POINTS,

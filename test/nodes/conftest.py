@@ -5,7 +5,7 @@ from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 
 from cobot_calib_ros import launcher
-from cobot_calib_ros.client import spin_until
+from cobot_calib_ros.client import CallError, spin_until, wait_for_suite
 
 STARTUP_TIMEOUT = 30.0
 
@@ -46,25 +46,14 @@ def ros(suite):
     if not ready:
         logs = '\n'.join(f'--- {n}\n{suite.log_tail(n)}' for n in suite.processes)
         pytest.fail(f'node suite did not come up in {STARTUP_TIMEOUT} s:\n{logs}')
-    if not spin_until(node, lambda: _joint_states_flow(node, executor), STARTUP_TIMEOUT,
-                      executor):
-        pytest.fail(f'joint_states never reached joint_state_monitor:\n'
-                    f'{suite.log_tail("joint_state_monitor")}')
+    try:
+        wait_for_suite(node, STARTUP_TIMEOUT, executor)
+    except CallError as e:
+        logs = '\n'.join(f'--- {n}\n{suite.log_tail(n)}' for n in suite.processes)
+        pytest.fail(f'{e}:\n{logs}')
     yield node
     node.destroy_node()
     rclpy.try_shutdown(context=context)
-
-
-def _joint_states_flow(node, executor) -> bool:
-    """A short capture succeeds: discovery is complete both ways."""
-    from cobot_calib_msgs.srv import CaptureJoints
-    from cobot_calib_ros.client import call_service
-    client = node.create_client(CaptureJoints, 'capture_joints')
-    try:
-        res = call_service(node, client, CaptureJoints.Request(duration=0.1), 5.0, executor)
-        return res.error_code == CaptureJoints.Response.SUCCESS
-    finally:
-        node.destroy_client(client)
 
 
 def _suite_visible(node) -> bool:
