@@ -29,7 +29,7 @@ def run() -> Figures:
         with benchlib.running_suite('trial', specs, env) as suite, \
                 benchlib.ros_node('bench_trial', domain) as ros:
             try:
-                wait_for_suite(ros.node, benchlib.STARTUP_TIMEOUT)
+                wait_for_suite(ros.node, benchlib.STARTUP_TIMEOUT, ros.executor)
                 client = ActionClient(ros.node, RunTrial, 'run_trial')
                 for method in METHODS:
                     start = time.perf_counter()

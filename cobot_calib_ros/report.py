@@ -22,7 +22,8 @@ from typing import Any
 
 import numpy as np
 
-from cobot_calib_ros.core.repeatability import complete_cycles, overall_rp, point_statistics
+from cobot_calib_ros.core.repeatability import (complete_cycles, iso9283_rp_from_axes,
+                                                 overall_rp, point_statistics)
 from cobot_calib_ros.core.storage import atomic_write_bytes, atomic_write_text, check_id
 from cobot_calib_ros.core.storage import TrialData, TrialStore
 
@@ -61,6 +62,43 @@ def format_table(summaries: Sequence[dict[str, Any]]) -> str:
     return '\n\n'.join(blocks) + '\n'
 
 
+def rp_3d(trials: Sequence[TrialData]) -> dict[str, dict[str, Any]]:
+    """ISO 9283 RP_l [mm] per point for each method that has an x, a y and a z trial.
+
+    The single-axis probe measures one axis per trial (paper section 4.2); cycle j of the
+    three trials is taken as one attained position (``iso9283_rp_from_axes``). Only cycles
+    complete in all three are used. Keyed by method; the newest trial per axis wins.
+    """
+    by_method: dict[str, dict[str, TrialData]] = {}
+    for trial in trials:
+        by_method.setdefault(trial.meta['method'], {})[trial.meta['axis']] = trial
+    out = {}
+    for method, axes in by_method.items():
+        if set(axes) != {'x', 'y', 'z'} or len({tuple(t.meta['point_names'])
+                                                  for t in axes.values()}) != 1:
+            continue
+        runs = [axes[a].distances[:, complete_cycles(axes[a].distances)] for a in 'xyz']
+        n = min(r.shape[1] for r in runs)
+        if n < 2:
+            continue
+        names = axes['z'].meta['point_names']
+        rp = [iso9283_rp_from_axes(*(r[i, :n] for r in runs)) * MM_PER_M
+              for i in range(len(names))]
+        out[method] = {'points': names, 'rp_mm': rp, 'cycles': n,
+                       'trials': [axes[a].meta['id'] for a in 'xyz']}
+    return out
+
+
+def format_rp_3d(results: dict[str, dict[str, Any]]) -> str:
+    """The three-dimensional RP_l table of :func:`rp_3d`."""
+    names = next(iter(results.values()))['points']
+    rows = [['Experiment', *(f'RP_l {n} [mm]' for n in names), 'cycles']]
+    for method, r in results.items():
+        rows.append([method, *(_fmt(v) for v in r['rp_mm']), str(r['cycles'])])
+    return ('ISO 9283 three-dimensional repeatability RP_l from the x, y and z trials\n\n'
+            + _grid(rows) + '\n')
+
+
 def box_plot(trials: Sequence[TrialData], path: Path, title: str | None = None) -> Path:
     """Write a PNG box plot of the probe distances [mm] per point and trial; returns path."""
     if not trials:
@@ -82,6 +120,9 @@ def write_report(store: TrialStore, trial_ids: Sequence[str],
     """
     trials = _load_trials(store, trial_ids)
     table = format_table([trial_summary(t) for t in trials])
+    three_d = rp_3d(trials)
+    if three_d:
+        table += '\n' + format_rp_3d(three_d)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     stem = _report_stem([t.meta['id'] for t in trials])

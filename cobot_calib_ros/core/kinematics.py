@@ -386,3 +386,21 @@ def _failure_message(chain: Chain, q: Array, res: _Residual, iterations: int) ->
     limits = f'; joints at limits: {", ".join(at_limit)}' if at_limit else ''
     return (f'no convergence after {iterations} iterations: position error {res.position:.3g} m, '
             f'orientation error {res.orientation:.3g} rad{limits}')
+
+
+def solve_ik_with_restarts(chain: Chain, T_base_tool_target: ArrayLike, q_seed: ArrayLike,
+                           home: ArrayLike) -> IkResult:
+    """:func:`solve_ik` from ``q_seed``, then from ``home`` and from home with the last joint
+    turned by -pi/2 and +pi/2: the local solver can stall at a joint limit, typically the
+    wrist's when the tool orientation changes a lot. The first success, else the first failure.
+    """
+    home = np.asarray(home, dtype=float)
+    turn = np.zeros_like(home)
+    turn[-1] = math.pi / 2
+    first = None
+    for seed in (q_seed, home, home - turn, home + turn):
+        result = solve_ik(chain, T_base_tool_target, seed)
+        if result.success:
+            return result
+        first = first or result
+    return first

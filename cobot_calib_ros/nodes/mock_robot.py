@@ -196,7 +196,7 @@ class MockRobot(Node):
     def _solve(self, chain, T: np.ndarray) -> tuple[np.ndarray | None, str]:
         if not np.all(np.isfinite(T)):
             return None, 'target pose has NaN or inf'
-        result = kinematics.solve_ik(chain, T, self._q)
+        result = kinematics.solve_ik_with_restarts(chain, T, self._q, self._cell.home)
         if not result.success:
             return None, f'no inverse kinematics solution: {result.message}'
         return result.q, ''

@@ -32,10 +32,10 @@ EXPECTED_ROWS = {'P1': ['1.200', '0.020', '0.010', '0.050'],
 
 
 def _make_trial(store: TrialStore, trial_id: str, distances_mm, method: str = 'reference',
-                cycles_total: int | None = None) -> None:
+                cycles_total: int | None = None, axis: str = 'z') -> None:
     """A trial whose readings are ``distances_mm`` (points x cycles [mm], NaN: not measured)."""
     d = np.asarray(distances_mm, dtype=float)
-    store.create(trial_id, method=method, axis='z', layout='close',
+    store.create(trial_id, method=method, axis=axis, layout='close',
                  point_names=[f'P{i + 1}' for i in range(d.shape[0])],
                  cycles_total=cycles_total or d.shape[1], stamp_ns=1)
     for cycle in range(d.shape[1]):
@@ -199,3 +199,17 @@ def test_importing_the_module_does_not_load_matplotlib_or_rclpy():
     out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
                          check=True)
     assert out.stdout.strip() == '[]'
+
+
+def test_three_axis_trials_give_the_iso_3d_repeatability(store, tmp_path):
+    """x deviations +-0.03, y +-0.04, z none: every attained position is 0.05 mm from the
+    mean (3-4-5), so l-bar = 0.050 mm, S_l = 0 and RP_l = 0.050 mm (ISO 9283 7.2.2)."""
+    _make_trial(store, 'x', [[1.23, 1.17, 1.23, 1.17]], 'rigid', axis='x')
+    _make_trial(store, 'y', [[0.94, 0.86, 0.94, 0.86]], 'rigid', axis='y')
+    _make_trial(store, 'z', [[1.10, 1.10, 1.10, 1.10]], 'rigid', axis='z')
+    _make_trial(store, 'ref', [[1.2, 1.2, 1.2, 1.2]], 'reference')   # z only: no 3D row
+    _, _, table = report.write_report(store, ['x', 'y', 'z', 'ref'], tmp_path / 'out')
+    three_d = table.split('three-dimensional')[1]
+    assert _row(three_d, 'rigid')[1:] == ['0.050', '4']
+    with pytest.raises(AssertionError):
+        _row(three_d, 'reference')
