@@ -274,8 +274,9 @@ def fit_surface(p_user: ArrayLike, p_base: ArrayLike, M_base_user: Array,
     """Fit dz(x, y) = z_measured - z_nominal of the points in the user frame [m].
 
     The measured points are taken into the user frame with the inverse of ``M_base_user``,
-    the map the calibration converts with (rigid, or the affine M of five_point_lsq); dz is fitted over the nominal x, y by least squares. ``order`` 0 (offset),
-    1 (1, x, y) or 2 (adds x^2, xy, y^2); None picks the highest order that leaves at least one
+    the map the calibration converts with (rigid, or the affine M of five_point_lsq); dz is
+    fitted over the nominal x, y by least squares. ``order`` 0 (offset), 1 (1, x, y) or 2
+    (adds x^2, xy, y^2); None picks the highest order that leaves at least one
     spare degree of freedom: 3 points -> 0, 4-6 points (the paper's 5) -> 1, 7+ -> 2. After a
     rigid fit the order-1 part is nearly zero (the fit took the tilt): the curvature terms need
     7 or more points.

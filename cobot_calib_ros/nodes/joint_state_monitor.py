@@ -10,18 +10,13 @@ import time
 
 from cobot_calib_msgs.srv import CaptureJoints
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 
 from cobot_calib_ros.core.joint_buffer import hold_statistics, JointRingBuffer
 from cobot_calib_ros.nodes import spin
-
-
-def _float(desc: str, lo: float, hi: float) -> ParameterDescriptor:
-    return ParameterDescriptor(description=desc, floating_point_range=[
-        FloatingPointRange(from_value=lo, to_value=hi)])
+from cobot_calib_ros.nodes.params import declare
 
 
 class JointStateMonitor(Node):
@@ -37,7 +32,8 @@ class JointStateMonitor(Node):
         self._last_stamp = None
         self._receiver = spin.Companion(self, 'receiver')
         self._receiver.node.create_subscription(
-            JointState, 'joint_states', self._on_joint_state, QoSProfile(depth=p['qos_depth'], reliability=ReliabilityPolicy.RELIABLE))
+            JointState, 'joint_states', self._on_joint_state,
+            QoSProfile(depth=p['qos_depth'], reliability=ReliabilityPolicy.RELIABLE))
         self.create_service(CaptureJoints, 'capture_joints', self._on_capture)
         self._diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         self.create_timer(1.0, self._publish_diagnostics)
@@ -47,25 +43,26 @@ class JointStateMonitor(Node):
         return super().destroy_node()
 
     def _declare_parameters(self) -> dict:
-        decls = {
-            'expected_rate_hz': (1000.0, _float('Nominal joint_states rate [Hz]', 1.0, 10000.0)),
-            'buffer_duration': (10.0, _float('Ring buffer length [s]', 1.0, 600.0)),
-            'capture_duration': (1.0, _float('Default hold window of capture_joints [s]',
-                                             0.01, 60.0)),
-            'min_sample_fraction': (0.5, _float(
+        values = {
+            'expected_rate_hz': declare(self, 'expected_rate_hz', 1000.0,
+                                        'Nominal joint_states rate [Hz]', 1.0, 10000.0),
+            'buffer_duration': declare(self, 'buffer_duration', 10.0,
+                                       'Ring buffer length [s]', 1.0, 600.0),
+            'capture_duration': declare(self, 'capture_duration', 1.0,
+                                        'Default hold window of capture_joints [s]', 0.01, 60.0),
+            'min_sample_fraction': declare(
+                self, 'min_sample_fraction', 0.5,
                 'Refuse a capture with fewer than this fraction of the expected samples [1]',
-                0.0, 1.0)),
-            'max_joint_std': (1.0e-4, _float(
-                'Refuse a capture when a joint spreads more than this: moving [rad]', 0.0, 1.0)),
-            'qos_depth': (1000, ParameterDescriptor(
-                description='joint_states subscription queue depth [messages]',
-                integer_range=[IntegerRange(from_value=1, to_value=100000)])),
-            'joint_names': ([''], ParameterDescriptor(
-                description='Expected joint names; empty = take them from the first message')),
+                0.0, 1.0),
+            'max_joint_std': declare(
+                self, 'max_joint_std', 1.0e-4,
+                'Refuse a capture when a joint spreads more than this: moving [rad]', 0.0, 1.0),
+            'qos_depth': declare(self, 'qos_depth', 1000,
+                                 'joint_states subscription queue depth [messages]', 1, 100000),
+            'joint_names': declare(self, 'joint_names', [''],
+                                   'Expected joint names; empty = take them from the first '
+                                   'message'),
         }
-        values = {}
-        for name, (default, desc) in decls.items():
-            values[name] = self.declare_parameter(name, default, desc).value
         values['joint_names'] = [n for n in values['joint_names'] if n]
         return values
 

@@ -14,7 +14,6 @@ from cobot_calib_msgs.action import MoveTo
 from cobot_calib_msgs.msg import ProbeVoltage
 from cobot_calib_msgs.srv import GetGroundTruth
 import numpy as np
-from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.node import Node
@@ -25,6 +24,7 @@ from cobot_calib_ros import convert, paths
 from cobot_calib_ros.core import cell as cellmod
 from cobot_calib_ros.core import frames, kinematics
 from cobot_calib_ros.nodes import spin
+from cobot_calib_ros.nodes.params import declare
 
 FEEDBACK_PERIOD = 0.02  # [s] of simulated (scaled) time between feedback messages
 
@@ -113,22 +113,18 @@ class MockRobot(Node):
 
     # -- set-up ---------------------------------------------------------------------------
     def _declare_parameters(self) -> None:
-        def rate(desc):
-            return ParameterDescriptor(description=desc, floating_point_range=[
-                FloatingPointRange(from_value=0.0, to_value=5000.0)])
-        self.declare_parameter('cell_file', 'sawyer_close', ParameterDescriptor(
-            description='Cell scenario YAML: a path or a name in config/cells'))
-        self.declare_parameter('layout', '', ParameterDescriptor(
-            description='Marker layout of the cell (close, wide, ...); empty = the cell default'))
-        self.declare_parameter('publish_rate_hz', 0.0, rate(
-            'joint_states rate [Hz]; 0 = the cell file value'))
-        self.declare_parameter('probe_rate_hz', 0.0, rate(
-            'probe/voltage rate [Hz]; 0 = the cell file value'))
-        self.declare_parameter('time_scale', -1.0, ParameterDescriptor(
-            description='Simulated motion time = real time * time_scale [1]; <0 = cell value'))
-        self.declare_parameter('joint_velocity', 1.0, ParameterDescriptor(
-            description='Joint velocity at speed_scale 1 [rad/s]', floating_point_range=[
-                FloatingPointRange(from_value=0.01, to_value=10.0)]))
+        declare(self, 'cell_file', 'sawyer_close',
+                'Cell scenario YAML: a path or a name in config/cells')
+        declare(self, 'layout', '',
+                'Marker layout of the cell (close, wide, ...); empty = the cell default')
+        declare(self, 'publish_rate_hz', 0.0,
+                'joint_states rate [Hz]; 0 = the cell file value', 0.0, 5000.0)
+        declare(self, 'probe_rate_hz', 0.0,
+                'probe/voltage rate [Hz]; 0 = the cell file value', 0.0, 5000.0)
+        declare(self, 'time_scale', -1.0,
+                'Simulated motion time = real time * time_scale [1]; <0 = cell value')
+        declare(self, 'joint_velocity', 1.0, 'Joint velocity at speed_scale 1 [rad/s]',
+                0.01, 10.0)
 
     def _param(self, name: str):
         return self.get_parameter(name).value

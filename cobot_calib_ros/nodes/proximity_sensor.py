@@ -12,12 +12,12 @@ import time
 from cobot_calib_msgs.msg import ProbeVoltage, ProximityReading
 from cobot_calib_msgs.srv import AverageProximity
 import numpy as np
-from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 
 from cobot_calib_ros.core.probe import curve_from_lists, read_distance, ReadingStatus
 from cobot_calib_ros.nodes import spin
+from cobot_calib_ros.nodes.params import declare
 
 
 class ProximitySensor(Node):
@@ -39,16 +39,14 @@ class ProximitySensor(Node):
             f'probe range {self._curve.min_range * 1e3:.2f}-{self._curve.max_range * 1e3:.2f} mm')
 
     def _declare_parameters(self) -> None:
-        self.declare_parameter('calibration_distance', [0.0002, 0.0022], ParameterDescriptor(
-            description='Calibration table: gaps [m], increasing'))
-        self.declare_parameter('calibration_voltage', [-1.6, -17.6], ParameterDescriptor(
-            description='Calibration table: sensor output at those gaps [V]'))
-        self.declare_parameter('saturation_margin', 2.0e-6, ParameterDescriptor(
-            description='Readings this close to a range end count as saturated [m]',
-            floating_point_range=[FloatingPointRange(from_value=0.0, to_value=1e-3)]))
-        self.declare_parameter('average_duration', 0.2, ParameterDescriptor(
-            description='Default window of probe/average [s]',
-            floating_point_range=[FloatingPointRange(from_value=0.001, to_value=60.0)]))
+        declare(self, 'calibration_distance', [0.0002, 0.0022],
+                'Calibration table: gaps [m], increasing')
+        declare(self, 'calibration_voltage', [-1.6, -17.6],
+                'Calibration table: sensor output at those gaps [V]')
+        declare(self, 'saturation_margin', 2.0e-6,
+                'Readings this close to a range end count as saturated [m]', 0.0, 1e-3)
+        declare(self, 'average_duration', 0.2, 'Default window of probe/average [s]',
+                0.001, 60.0)
 
     def destroy_node(self):
         self._receiver.destroy()

@@ -14,7 +14,6 @@ from cobot_calib_msgs.action import MoveTo, RunTrial
 from cobot_calib_msgs.msg import ProximityReading, Repeatability
 from cobot_calib_msgs.srv import AverageProximity, CaptureJoints
 import numpy as np
-from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
 from rclpy.action import ActionClient, ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
@@ -26,6 +25,7 @@ from cobot_calib_ros.core import kinematics, trial as trialmod
 from cobot_calib_ros.core.repeatability import PointStats
 from cobot_calib_ros.core.storage import check_id, TrialStore
 from cobot_calib_ros.nodes import spin
+from cobot_calib_ros.nodes.params import declare
 
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
@@ -144,24 +144,20 @@ class RepeatabilityTrial(Node):
         return super().destroy_node()
 
     def _declare_parameters(self) -> None:
-        def number(name, default, desc, lo, hi):
-            self.declare_parameter(name, default, ParameterDescriptor(
-                description=desc, floating_point_range=[
-                    FloatingPointRange(from_value=lo, to_value=hi)]))
-        self.declare_parameter('cell_file', 'sawyer_close', ParameterDescriptor(
-            description='Cell YAML (path or name): markers, probe range, nominal tool'))
-        self.declare_parameter('layout', '', ParameterDescriptor(
-            description='Marker layout (close | wide); empty = the cell file default'))
-        self.declare_parameter('data_dir', '', ParameterDescriptor(
-            description='Trials go to <data_dir>/trials; empty = $COBOT_CALIB_DATA or '
-                        '~/.ros/cobot_calib'))
-        number('probe_window', 0.05, 'Probe averaging window per reading [s]', 0.005, 10.0)
-        number('capture_duration', 0.3, 'Hold window when teaching a point [s]', 0.01, 10.0)
-        number('speed_scale', 1.0, 'Fraction of the joint velocity limits for trial moves [1]',
-               0.01, 1.0)
-        number('approach_distance', 0.005,
-               'Retreat along the probe axis before every arrival (unidirectional) [m]',
-               0.0, 0.1)
+        declare(self, 'cell_file', 'sawyer_close',
+                'Cell YAML (path or name): markers, probe range, nominal tool')
+        declare(self, 'layout', '', 'Marker layout (close | wide); empty = the cell file default')
+        declare(self, 'data_dir', '', 'Trials go to <data_dir>/trials; empty = '
+                '$COBOT_CALIB_DATA or ~/.ros/cobot_calib')
+        declare(self, 'probe_window', 0.05, 'Probe averaging window per reading [s]',
+                0.005, 10.0)
+        declare(self, 'capture_duration', 0.3, 'Hold window when teaching a point [s]',
+                0.01, 10.0)
+        declare(self, 'speed_scale', 1.0,
+                'Fraction of the joint velocity limits for trial moves [1]', 0.01, 1.0)
+        declare(self, 'approach_distance', 0.005,
+                'Retreat along the probe axis before every arrival (unidirectional) [m]',
+                0.0, 0.1)
 
     def _p(self, name: str):
         return self.get_parameter(name).value

@@ -9,7 +9,6 @@ from cobot_calib_msgs.msg import PointResidual, SurfaceModel as SurfaceMsg, User
 from cobot_calib_msgs.srv import (CalibrateUserFrame, CaptureJoints, ConvertPoints,
                                   ListCalibrations)
 import numpy as np
-from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
 from rclpy.action import ActionClient
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
@@ -20,6 +19,7 @@ from cobot_calib_ros.core import frames, kinematics, user_frame
 from cobot_calib_ros.core.errors import ErrorCode
 from cobot_calib_ros.core.storage import CalibrationStore, to_plain
 from cobot_calib_ros.nodes import spin
+from cobot_calib_ros.nodes.params import declare
 
 Res = CalibrateUserFrame.Response
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
@@ -118,21 +118,16 @@ class UserFrameSolver(Node):
         return super().destroy_node()
 
     def _declare_parameters(self) -> None:
-        self.declare_parameter('cell_file', 'sawyer_close', ParameterDescriptor(
-            description='Cell YAML (path or name): named points and the nominal tool offset'))
-        self.declare_parameter('base_frame', 'base_link', ParameterDescriptor(
-            description='Robot base frame id'))
-        self.declare_parameter('user_frame', 'user_frame', ParameterDescriptor(
-            description='User (work surface) frame id'))
-        self.declare_parameter('data_dir', '', ParameterDescriptor(
-            description='Where calibrations are stored; empty = $COBOT_CALIB_DATA or '
-                        '~/.ros/cobot_calib'))
-        self.declare_parameter('capture_duration', 0.5, ParameterDescriptor(
-            description='Hold window of each live capture [s]', floating_point_range=[
-                FloatingPointRange(from_value=0.01, to_value=10.0)]))
-        self.declare_parameter('robust_threshold', 5.0e-4, ParameterDescriptor(
-            description='Residual above which the robust method rejects a point [m]',
-            floating_point_range=[FloatingPointRange(from_value=1e-6, to_value=0.1)]))
+        declare(self, 'cell_file', 'sawyer_close',
+                'Cell YAML (path or name): named points and the nominal tool offset')
+        declare(self, 'base_frame', 'base_link', 'Robot base frame id')
+        declare(self, 'user_frame', 'user_frame', 'User (work surface) frame id')
+        declare(self, 'data_dir', '', 'Where calibrations are stored; empty = '
+                '$COBOT_CALIB_DATA or ~/.ros/cobot_calib')
+        declare(self, 'capture_duration', 0.5, 'Hold window of each live capture [s]',
+                0.01, 10.0)
+        declare(self, 'robust_threshold', 5.0e-4,
+                'Residual above which the robust method rejects a point [m]', 1e-6, 0.1)
 
     def _p(self, name: str):
         return self.get_parameter(name).value

@@ -1,9 +1,6 @@
 """Mock robot, joint_state_monitor and proximity_sensor across processes."""
 import json
 import math
-import os
-import subprocess
-import sys
 import time
 
 from cobot_calib_msgs.action import MoveTo
@@ -17,21 +14,13 @@ from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import JointState
 
 from cobot_calib_ros import convert
-from cobot_calib_ros.client import call_service, run_action, spin_until
+from cobot_calib_ros.client import run_action, spin_until
 from cobot_calib_ros.core import cell as cellmod
 from cobot_calib_ros.core import frames
 from cobot_calib_ros.paths import cell_file
+from rosutil import call, cli
 
 CELL = cellmod.load_cell(cell_file('sawyer_close'))
-
-
-def _call(node, srv_type, name, timeout=10.0, **fields):
-    client = node.create_client(srv_type, name)
-    request = srv_type.Request(**fields)
-    try:
-        return call_service(node, client, request, timeout, node.executor_for_tests)
-    finally:
-        node.destroy_client(client)
 
 
 def _move(node, **goal_fields):
@@ -44,14 +33,8 @@ def _move(node, **goal_fields):
         client.destroy()
 
 
-def _cli(*args, timeout=30.0):
-    env = dict(os.environ)
-    return subprocess.run([sys.executable, '-m', 'cobot_calib_ros.cli.main', *args],
-                          capture_output=True, text=True, timeout=timeout, env=env)
-
-
 def test_echo_once_prints_a_joint_state(ros):
-    out = _cli('echo', 'joint_states', '--once', '--json')
+    out = cli('echo', 'joint_states', '--once', '--json')
     assert out.returncode == 0, out.stderr
     msg = json.loads(out.stdout)
     assert msg['name'] == [f'right_j{i}' for i in range(7)]
@@ -59,7 +42,7 @@ def test_echo_once_prints_a_joint_state(ros):
 
 
 def test_list_shows_every_node_and_interface(ros):
-    out = _cli('list', '--json', '--wait', '4.0')
+    out = cli('list', '--json', '--wait', '4.0')
     assert out.returncode == 0, out.stderr
     g = json.loads(out.stdout)
     assert {'/mock_robot', '/joint_state_monitor', '/proximity_sensor', '/user_frame_solver',
@@ -70,7 +53,7 @@ def test_list_shows_every_node_and_interface(ros):
 
 
 def test_capture_at_home_matches_commanded_joints_and_encoder_noise(ros):
-    res = _call(ros, CaptureJoints, 'capture_joints', duration=0.5)
+    res = call(ros, CaptureJoints, 'capture_joints', duration=0.5)
     assert res.error_code == CaptureJoints.Response.SUCCESS, res.message
     assert res.sample_count >= 250                      # half the 1 kHz samples at least
     np.testing.assert_allclose(res.position, CELL.home, atol=5 * 2e-6 / np.sqrt(250))
@@ -85,7 +68,7 @@ def test_capture_refuses_while_the_arm_moves(ros):
     send = client.send_goal_async(MoveTo.Goal(target_type=MoveTo.Goal.TARGET_JOINTS,
                                               positions=target.tolist(), speed_scale=0.1))
     spin_until(ros, send.done, 10.0, ex)
-    res = _call(ros, CaptureJoints, 'capture_joints', duration=0.2)
+    res = call(ros, CaptureJoints, 'capture_joints', duration=0.2)
     assert res.error_code == CaptureJoints.Response.MOVING, res.message
     assert 'moving' in res.message and 'right_j0' in res.message
     result = send.result().get_result_async()
@@ -95,7 +78,7 @@ def test_capture_refuses_while_the_arm_moves(ros):
 
 
 def test_capture_rejects_a_bad_duration(ros):
-    res = _call(ros, CaptureJoints, 'capture_joints', duration=-1.0)
+    res = call(ros, CaptureJoints, 'capture_joints', duration=-1.0)
     assert res.error_code == CaptureJoints.Response.BAD_REQUEST
     assert 'duration' in res.message
 
@@ -132,7 +115,7 @@ def test_malformed_joint_states_are_dropped_and_counted(ros):
     ros.destroy_publisher(pub)
     for reason in reasons:
         assert after[f'dropped_{reason}'] - before[f'dropped_{reason}'] == 3, reason
-    res = _call(ros, CaptureJoints, 'capture_joints', duration=0.2)
+    res = call(ros, CaptureJoints, 'capture_joints', duration=0.2)
     assert res.error_code == CaptureJoints.Response.SUCCESS     # the good stream is untouched
 
 
@@ -163,14 +146,14 @@ def test_probe_voltage_range_check(ros, voltage, status):
 
 def test_probe_above_a_marker_reads_the_true_gap(ros):
     """Send the tool 1.2 mm above P5's true top face; the probe must read about that."""
-    truth = _call(ros, GetGroundTruth, 'get_ground_truth')
+    truth = call(ros, GetGroundTruth, 'get_ground_truth')
     T_base_user = convert.transform_to_matrix(truth.user_frame)
     top = convert.points_to_array(truth.points_base)[truth.point_names.index('P5')]
     T = frames.make_transform(cellmod.tool_down_orientation(T_base_user),
                               top + T_base_user[:3, 2] * 0.0012)
     moved = _move(ros, target_type=MoveTo.Goal.TARGET_POSE, pose=convert.matrix_to_pose(T))
     assert moved.error_code == MoveTo.Result.SUCCESS, moved.message
-    res = _call(ros, AverageProximity, 'probe/average', duration=0.3)
+    res = call(ros, AverageProximity, 'probe/average', duration=0.3)
     assert res.error_code == AverageProximity.Response.SUCCESS, res.message
     # the nominal model misplaces the tool by the kinematic errors (~0.1 mm) plus repeatability
     assert res.distance == pytest.approx(0.0012, abs=2e-4)

@@ -3,7 +3,6 @@ import json
 import math
 import os
 import subprocess
-import sys
 import time
 
 from cobot_calib_msgs.action import RunTrial
@@ -13,22 +12,19 @@ from rclpy.action import ActionClient
 
 from cobot_calib_ros.client import run_action, spin_until
 from cobot_calib_ros.core.storage import TrialStore
+from rosutil import cli, cli_command
 
 CYCLES = 4
 
 
-def _cli(*args):
-    return [sys.executable, '-m', 'cobot_calib_ros.cli.main', *args]
-
-
 def test_echo_repeatability_shows_every_cycle_of_a_running_trial(ros, trial_data):
-    echo = subprocess.Popen(_cli('echo', 'repeatability', '--json', '--timeout', '60'),
+    echo = subprocess.Popen(cli_command('echo', 'repeatability', '--json', '--timeout', '60'),
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             env=dict(os.environ))
     try:
         time.sleep(2.0)                              # the echo subscribes before cycle 1
-        trial = subprocess.run(_cli('trial', '--cycles', str(CYCLES), '--trial-id', 'echoed',
-                                    '--json'), capture_output=True, text=True, timeout=120)
+        trial = cli('trial', '--cycles', str(CYCLES), '--trial-id', 'echoed', '--json',
+                    timeout=120)
         assert trial.returncode == 0, trial.stderr
         result = json.loads(trial.stdout)
         time.sleep(0.5)

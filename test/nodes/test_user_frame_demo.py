@@ -1,19 +1,15 @@
 """`cobot-calib demo --json` on the session's suite: issue 3's comparison, scored on truth."""
 import json
-import os
-import subprocess
-import sys
 
 import pytest
 
 from cobot_calib_ros.core.user_frame import LIMIT_FACTOR
+from rosutil import cli
 
 
 @pytest.fixture(scope='module')
 def demo(ros):
-    out = subprocess.run([sys.executable, '-m', 'cobot_calib_ros.cli.main', 'demo', '--json',
-                          '--attach'], capture_output=True, text=True, timeout=180,
-                         env=dict(os.environ))
+    out = cli('demo', '--json', '--attach', timeout=180)
     assert out.returncode == 0, out.stderr
     result = json.loads(out.stdout)
     return result, {m['name']: m for m in result['methods']}

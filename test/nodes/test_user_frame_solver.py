@@ -10,9 +10,10 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from scipy.spatial.transform import Rotation
 
 from cobot_calib_ros import convert, launcher
-from cobot_calib_ros.client import call_service, spin_until
+from cobot_calib_ros.client import spin_until
 from cobot_calib_ros.core import frames
 from cobot_calib_ros.paths import cell_file
+from rosutil import call
 
 Res = CalibrateUserFrame.Response
 Conv = ConvertPoints.Response
@@ -40,29 +41,20 @@ NAN = float('nan')
 ORPHAN = 'orphan.user_frame_solver'
 
 
-def _call(node, srv_type, name, timeout=10.0, **fields):
-    client = node.create_client(srv_type, name)
-    request = srv_type.Request(**fields)
-    try:
-        return call_service(node, client, request, timeout, node.executor_for_tests)
-    finally:
-        node.destroy_client(client)
-
-
 def _calibrate(ros, name='calibrate_user_frame', timeout=10.0, user=P_USER, base=P_BASE,
                **fields):
-    return _call(ros, CalibrateUserFrame, name, timeout,
+    return call(ros, CalibrateUserFrame, name, timeout,
                  points_user=convert.array_to_points(user),
                  points_base=convert.array_to_points(base), **fields)
 
 
 def _convert(ros, name, points, calibration_id=''):
-    return _call(ros, ConvertPoints, name, points=convert.array_to_points(points),
+    return call(ros, ConvertPoints, name, points=convert.array_to_points(points),
                  calibration_id=calibration_id)
 
 
 def _history(ros, name='list_calibrations', max_count=0):
-    return _call(ros, ListCalibrations, name, max_count=max_count).calibrations
+    return call(ros, ListCalibrations, name, max_count=max_count).calibrations
 
 
 def _matrix(calibration) -> np.ndarray:
@@ -174,7 +166,7 @@ def test_failed_live_capture_says_what_to_start(ros, spare):
     assert empty.error_code == Conv.NO_CALIBRATION, empty.message
     assert 'calibrate_user_frame' in empty.message
     start = time.monotonic()
-    res = _call(ros, CalibrateUserFrame, '/orphan/calibrate_user_frame', timeout=30.0,
+    res = call(ros, CalibrateUserFrame, '/orphan/calibrate_user_frame', timeout=30.0,
                 point_names=['P1', 'P2', 'P3'])
     elapsed = time.monotonic() - start
     assert res.error_code == Res.CAPTURE_FAILED, res.message
@@ -190,7 +182,7 @@ def test_failed_live_capture_says_what_to_start(ros, spare):
 
 def test_malformed_calibration_id_is_refused_not_fatal(ros, spare):
     assert _history(ros, '/scratch/list_calibrations') == []      # up and reachable
-    res = _call(ros, ConvertPoints, '/scratch/user_to_robot', timeout=3.0,
+    res = call(ros, ConvertPoints, '/scratch/user_to_robot', timeout=3.0,
                 calibration_id='bad id!', points=convert.array_to_points(P_USER))
     assert res.error_code == Conv.INVALID_INPUT, res.message
     assert 'bad id!' in res.message and 'must match' in res.message
