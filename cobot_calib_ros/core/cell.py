@@ -138,7 +138,10 @@ class ProbeCurve:
 
 @dataclass(frozen=True)
 class Noise:
-    repeatability_sigma: float = 3.0e-5  # unidirectional tool repeatability, per axis [m]
+    repeatability_sigma: float = 3.0e-5  # unidirectional tool repeatability, per axis, at
+    #                                      repeatability_centre [m]
+    repeatability_centre: tuple[float, float] = (0.0, 0.0)  # user x, y where it is best [m]
+    repeatability_growth: float = 0.0    # sigma * (1 + growth d^2), d from the centre [1/m^2]
     encoder_sigma: float = 2.0e-6        # joint encoder noise per sample [rad]
     touch_sigma: float = 2.0e-5          # operator centring error when touching a marker [m]
     probe_voltage_sigma: float = 4.0e-3  # [V] (8 V/mm sensitivity: 0.5 um)
@@ -168,6 +171,25 @@ class Cell:
     time_scale: float
     approach_gap: float
     raw: dict = field(repr=False, default_factory=dict)
+
+
+def repeatability_sigma_at(cell: Cell, p_base: Array) -> float:
+    """Tool repeatability sigma per axis [m] with the tool at ``p_base``.
+
+    Best at the cell's repeatability centre, growing with the squared horizontal distance
+    from it (user frame): the paper's robot repeated 2-3 times worse at the corners of the
+    "wide" set-up than at its centre or in the "close" one (Tables 4-5, reference rows).
+    """
+    x, y, _ = frames.apply(frames.invert(cell.world.T_base_user), p_base)
+    cx, cy = cell.noise.repeatability_centre
+    return cell.noise.repeatability_sigma * (
+        1.0 + cell.noise.repeatability_growth * ((x - cx) ** 2 + (y - cy) ** 2))
+
+
+def layout_repeatability_sigma(cell: Cell) -> float:
+    """RMS of :func:`repeatability_sigma_at` over the layout's marker tops [m]."""
+    sigmas = [repeatability_sigma_at(cell, p) for p in cell.world.true_points_base()]
+    return float(np.sqrt(np.mean(np.square(sigmas))))
 
 
 def _height_field(cfg: dict, rng: np.random.Generator) -> HeightField:
@@ -214,7 +236,8 @@ def cell_from_dict(raw: dict, layout: str | None = None) -> Cell:
     uf = raw['user_frame_true']
     world = World(frames.from_xyz_rpy(uf['xyz'], uf['rpy']), markers, field_)
     errors = raw.get('kinematic_errors', {})
-    noise = Noise(**{k: float(v) for k, v in raw.get('noise', {}).items()})
+    noise = Noise(**{k: tuple(float(x) for x in v) if isinstance(v, list) else float(v)
+                     for k, v in raw.get('noise', {}).items()})
     rates = raw.get('rates', {})
     return Cell(
         name=str(raw.get('name', 'cell')), robot=str(raw['robot']), seed=seed,

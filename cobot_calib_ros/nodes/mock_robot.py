@@ -263,7 +263,8 @@ class MockRobot(Node):
         """Come to rest: the tool lands within the robot's unidirectional repeatability."""
         with self._lock:
             self._q = np.asarray(q, dtype=float).copy()
-            self._tool_noise = self._rng.normal(0.0, self._cell.noise.repeatability_sigma, 3)
+            sigma = cellmod.repeatability_sigma_at(self._cell, self._T_true_tool[:3, 3])
+            self._tool_noise = self._rng.normal(0.0, sigma, 3)
             self._update_true_tool()
 
     # -- ground truth ---------------------------------------------------------------------
@@ -278,7 +279,7 @@ class MockRobot(Node):
         response.parameter_names = list(self._model.parameter_names)
         response.nominal_parameters = self._model.nominal.tolist()
         response.true_parameters = self._true_params.tolist()
-        response.repeatability_sigma = self._cell.noise.repeatability_sigma
+        response.repeatability_sigma = cellmod.layout_repeatability_sigma(self._cell)
         response.touch_sigma = self._cell.noise.touch_sigma
         return response
 

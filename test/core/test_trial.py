@@ -33,7 +33,8 @@ class SimRobot:
             raise TrialError('motion', result.message)
         self.q = result.q
         self.T_true = kinematics.fk(self.true, self.q)
-        self.T_true[:3, 3] += self.rng.normal(0.0, self.cell.noise.repeatability_sigma, 3)
+        sigma = cellmod.repeatability_sigma_at(self.cell, self.T_true[:3, 3])
+        self.T_true[:3, 3] += self.rng.normal(0.0, sigma, 3)
         self.moves += 1
 
     def touch(self, name: str) -> np.ndarray:
@@ -69,18 +70,32 @@ def _run(tmp_path, method: str, cycles: int, seed: int = 3, axis: str = 'z'):
 
 
 def test_reference_repeatability_matches_the_noise_model(tmp_path):
-    """Unidirectional noise sigma per axis: |D| is half-normal, so RP -> sigma (sqrt(2/pi)
-    + 3 sqrt(1 - 2/pi)) = 2.61 sigma = 0.078 mm for the cell's 0.03 mm."""
+    """Unidirectional noise sigma per axis: the deviation |D| of a reading is half-normal, so
+    RP_i -> sigma_i (sqrt(2/pi) + 3 sqrt(1 - 2/pi)) = 2.61 sigma_i, with sigma_i the cell's
+    repeatability where marker i is."""
     trial = _run(tmp_path, 'reference', 12)
     from cobot_calib_ros.core.repeatability import point_statistics
     stats = point_statistics(trial.distances)
     assert trial.meta['status'] == 'done' and stats.cycles == 12
-    expected = CELL.noise.repeatability_sigma * (math.sqrt(2 / math.pi)
-                                                 + 3 * math.sqrt(1 - 2 / math.pi))
-    assert expected == pytest.approx(7.83e-5, rel=0.01)
+    factor = math.sqrt(2 / math.pi) + 3 * math.sqrt(1 - 2 / math.pi)
+    assert factor == pytest.approx(2.61, abs=0.005)
+    sigma = np.array([cellmod.repeatability_sigma_at(CELL, p)
+                      for p in CELL.world.true_points_base()])
+    expected = factor * sigma.mean()
+    assert 1.8e-5 * factor < expected < 3.6e-5 * factor       # close layout: near the centre
     assert 0.5 * expected < stats.rp_all < 1.6 * expected
     # F_i put every reading near the middle of the 0.2-2.2 mm range
     assert np.all(np.abs(trial.distances - 1.2e-3) < 0.2e-3)
+
+
+def test_repeatability_grows_away_from_the_cell_centre():
+    """sigma (1 + growth d^2): at the centre the cell's sigma, 0.3 m out 1 + 50 * 0.09 = 5.5x."""
+    centre_user = np.array([0.25, 0.175, 0.02])
+    corner_user = centre_user + [0.3, 0.0, 0.0]
+    T = CELL.world.T_base_user
+    at = [cellmod.repeatability_sigma_at(CELL, T[:3, :3] @ p + T[:3, 3])
+          for p in (centre_user, corner_user)]
+    assert at == pytest.approx([1.8e-5, 1.8e-5 * 5.5])
 
 
 def test_methods_order_as_in_the_paper(tmp_path):
@@ -89,6 +104,19 @@ def test_methods_order_as_in_the_paper(tmp_path):
     rp = {m: point_statistics(_run(tmp_path / m, m, 15).distances).rp_all
           for m in ('reference', 'five_point_lsq', 'three_point')}
     assert rp['reference'] < rp['five_point_lsq'] < rp['three_point'], rp
+
+
+def test_the_wide_set_up_repeats_worse_than_the_close_one(tmp_path):
+    """Paper Tables 4-5: every method's RP_all grows from close to wide."""
+    from cobot_calib_ros.core.repeatability import point_statistics
+    wide = cellmod.load_cell(cell_file('sawyer_close'), 'wide')
+    for method in ('reference', 'five_point_lsq'):
+        close_rp = point_statistics(_run(tmp_path / method, method, 10).distances).rp_all
+        markers = [wide.world.marker(n) for n in wide.world.point_names]
+        plan = Plan(f'{method}-wide', method, 'z', 'wide', markers, 10,
+                    ProbeRange(wide.probe.min_range, wide.probe.max_range))
+        trial = TrialRun(plan, SimRobot(wide, 3), TrialStore(tmp_path / f'{method}-w')).start()
+        assert point_statistics(trial.distances).rp_all > 1.5 * close_rp, method
 
 
 @pytest.mark.parametrize('method, axis', [('reference', 'x'), ('rigid', 'x'), ('rigid', 'y')])

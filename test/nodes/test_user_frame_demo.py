@@ -1,9 +1,12 @@
 """`cobot-calib demo --json` on the session's suite: issue 3's comparison, scored on truth."""
 import json
+import math
 
 import pytest
 
+from cobot_calib_ros.core import cell as cellmod
 from cobot_calib_ros.core.user_frame import LIMIT_FACTOR
+from cobot_calib_ros.paths import cell_file
 from rosutil import cli
 
 
@@ -22,8 +25,11 @@ def test_every_method_is_reported_in_si_derived_mm(demo):
         assert {'frame_error_mm', 'frame_error_mrad', 'residual_rms_mm',
                 'point_error_max_mm'} <= set(m)
         assert len(m['point_error_mm']) == 5
-    # per-point noise: hypot(touch 0.02, repeatability 0.03) mm from the mock's truth
-    assert result['noise_sigma_mm'] == pytest.approx(0.03606, rel=1e-3)
+    # per-point noise: hypot(touch, repeatability over the markers) from the mock's truth
+    cell = cellmod.load_cell(cell_file('sawyer_close'))
+    sigma = math.hypot(cell.noise.touch_sigma, cellmod.layout_repeatability_sigma(cell))
+    assert result['noise_sigma_mm'] == pytest.approx(sigma * 1e3, rel=1e-6)
+    assert 0.025 < result['noise_sigma_mm'] < 0.04
     # the frame origin is ~0.25 m from the points: rotation noise dominates its translation
     assert result['noise_sigma_mm'] < result['estimation_limit_mm'] < 0.2
 
