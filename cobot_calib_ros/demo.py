@@ -83,8 +83,7 @@ def _truth_model(truth, cell):
 
 def _point_errors(client, M, p_user, p_true, true_chain) -> np.ndarray:
     """Send the tool to every marker through the frame M; true error of each arrival [m]."""
-    U, _, Vt = np.linalg.svd(M[:3, :3])                    # nearest rotation of M
-    orientation = (U @ Vt) @ frames.rot_x(math.pi)         # tool z down the user z axis
+    orientation = cellmod.tool_down_orientation(user_frame.nearest_rigid(M))
     errors = []
     for pu, pt in zip(p_user, p_true):
         target = frames.make_transform(orientation, frames.apply(M, pu))

@@ -20,7 +20,7 @@ objects (see :class:`Robot`), so this runs the same on the ROS nodes and in a pl
 """
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 import math
 from typing import Protocol
@@ -125,15 +125,6 @@ def taught_user_rotation(T_touch: Array) -> Array:
     return T_touch[:3, :3] @ frames.rot_x(math.pi).T
 
 
-def nearest_rotation(M3: Array) -> Array:
-    U, _, Vt = np.linalg.svd(M3)
-    R = U @ Vt
-    if np.linalg.det(R) < 0:
-        U[:, -1] *= -1
-        R = U @ Vt
-    return R
-
-
 def statistics(trial: TrialData) -> PointStats:
     return point_statistics(trial.distances)
 
@@ -209,7 +200,7 @@ class TrialRun:
     def _frame_pose(self, M: Array, i: int, axis: str, standoff: float) -> Array:
         marker = self.plan.markers[i]
         face = frames.apply(M, marker.nominal_top + face_offset_user(marker, axis))
-        return probe_pose(nearest_rotation(M[:3, :3]), face, axis, standoff)
+        return probe_pose(user_frame.nearest_rigid(M)[:3, :3], face, axis, standoff)
 
     # -- cycles ---------------------------------------------------------------------------
     def _run(self, trial: TrialData) -> TrialData:
@@ -274,17 +265,7 @@ class TrialRun:
         return self.robot.read()
 
 
-def user_points(markers: Sequence[Marker]) -> Array:
-    return np.array([m.nominal_top for m in markers])
-
-
 def _as_transform(R: Array) -> Array:
     T = np.eye(4)
     T[:3, :3] = R
     return T
-
-
-def summary(stats: PointStats) -> Mapping[str, object]:
-    """Per-point RP [mm] and RP_all [mm] for humans (NaN before two cycles)."""
-    return {'rp_mm': (stats.rp * 1e3).tolist(), 'rp_all_mm': stats.rp_all * 1e3,
-            'cycles': stats.cycles}

@@ -182,7 +182,7 @@ def fit_five_point_lsq(p_user: ArrayLike, p_base: ArrayLike, *,
         f'user points are nearly coplanar (condition {cond:.3g}): the column of M along '
         'their normal is poorly determined')
     message = _join(_COMPLETED if completed else '', nearly, note)
-    return _assemble('five_point_lsq', _nearest_rigid(M), M, residuals, (pu, pb), cov, sigma,
+    return _assemble('five_point_lsq', nearest_rigid(M), M, residuals, (pu, pb), cov, sigma,
                      message, condition=cond)
 
 
@@ -457,7 +457,7 @@ def _plane_basis(normal: Array) -> Array:
     return np.column_stack([e1, np.cross(n, e1), n])
 
 
-def _nearest_rigid(M: Array) -> Array:
+def nearest_rigid(M: Array) -> Array:
     """Polar decomposition: the rotation nearest M's 3x3 (det +1), with M's translation."""
     U, _, Vt = np.linalg.svd(M[:3, :3])
     R = U @ np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))]) @ Vt
@@ -465,7 +465,7 @@ def _nearest_rigid(M: Array) -> Array:
 
 
 def _affine_pose(pu: Array, pb: Array) -> Array:
-    return _nearest_rigid(_affine_fit(pu, pb)[0])
+    return nearest_rigid(_affine_fit(pu, pb)[0])
 
 
 def _estimator(method: str) -> Estimator:
