@@ -149,7 +149,7 @@ class RepeatabilityTrial(Node):
         declare(self, 'layout', '', 'Marker layout (close | wide); empty = the cell file default')
         declare(self, 'data_dir', '', 'Trials go to <data_dir>/trials; empty = '
                 '$COBOT_CALIB_DATA or ~/.ros/cobot_calib')
-        declare(self, 'probe_window', 0.05, 'Probe averaging window per reading [s]',
+        declare(self, 'probe_window', 0.02, 'Probe averaging window per reading [s]',
                 0.005, 10.0)
         declare(self, 'capture_duration', 0.3, 'Hold window when teaching a point [s]',
                 0.01, 10.0)
