@@ -47,12 +47,14 @@ class Companion:
                          context=owner.context, start_parameter_services=False)
         self._executor = SingleThreadedExecutor(context=owner.context)
         self._executor.add_node(self.node)
+        self._running = True
         self._thread = threading.Thread(target=self._spin, daemon=True, name=role)
         self._thread.start()
 
     def _spin(self) -> None:
         try:
-            self._executor.spin()
+            while self._running and self.node.context.ok():
+                self._executor.spin_once(timeout_sec=0.1)
         except Exception:  # noqa: BLE001 - the context was shut down under us
             pass
 
@@ -72,8 +74,13 @@ class Companion:
         return wait(asked, result_timeout).result
 
     def destroy(self) -> None:
+        # Stop the spinning thread before shutting its executor down: Executor.shutdown()
+        # destroys the guard condition a concurrent wait may still hold (a segfault at exit).
+        self._running = False
+        self._thread.join(timeout=5.0)
+        if self._thread.is_alive():
+            return                      # still blocked: leave the rest to process exit
         self._executor.shutdown(timeout_sec=1.0)
-        self._thread.join(timeout=2.0)
         self.node.destroy_node()
 
 
