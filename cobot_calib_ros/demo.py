@@ -28,11 +28,11 @@ def _suite(args):
     if args.attach:
         yield
         return
-    with launcher.private_suite(args.cell, say=lambda text: _say(args, text)):
+    with launcher.private_suite(args.cell, say=lambda text: say(args, text)):
         yield
 
 
-def _say(args, text: str) -> None:
+def say(args, text: str) -> None:
     print(text, file=sys.stderr if args.json else sys.stdout, flush=True)
 
 
@@ -172,7 +172,7 @@ def _run(args, client: DemoClient) -> dict:
     truth = client.ground_truth()
     T_true = convert.transform_to_matrix(truth.user_frame)
     true_by_name = dict(zip(truth.point_names, convert.points_to_array(truth.points_base)))
-    _say(args, f'touching {", ".join(POINTS)} and capturing joints ...')
+    say(args, f'touching {", ".join(POINTS)} and capturing joints ...')
     live = client.calibrate('rigid', POINTS)
     if live.error_code != 0:
         raise RuntimeError(f'live capture failed: {live.message}')
@@ -187,7 +187,7 @@ def _run(args, client: DemoClient) -> dict:
     p_apparent = _apparent_points(truth, cell, true_chain, p_true)
     rows = []
     for method in METHODS:
-        _say(args, f'{method}: fitting and visiting the five points through the frame ...')
+        say(args, f'{method}: fitting and visiting the five points through the frame ...')
         rows.append(_method_row(client, method, p_user, p_base, T_true, p_true, p_apparent,
                                 true_chain))
     captured = [{'name': n, 'captured_mm': (pb * 1e3).tolist(), 'true_mm': (pt * 1e3).tolist(),

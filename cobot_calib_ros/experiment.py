@@ -6,12 +6,13 @@ the chosen set-up, then one table and one box plot.
 """
 from __future__ import annotations
 
+import functools
 import json
 from pathlib import Path
 import sys
 import time
 
-from cobot_calib_ros import launcher, paths, report
+from cobot_calib_ros import demo, launcher, paths, report
 from cobot_calib_ros.core.storage import TrialStore
 
 EXPERIMENT_METHODS = ('reference', 'three_point', 'five_point_lsq', 'rigid')
@@ -53,15 +54,10 @@ class TrialClient:
         return result
 
 
-def _say_to(args):
-    stream = sys.stderr if getattr(args, 'json', False) else sys.stdout
-    return lambda text: print(text, file=stream, flush=True)
-
-
 def run_trial(args) -> int:
     """`cobot-calib trial`: one trial on a running suite."""
     from cobot_calib_ros.client import CallError
-    say = _say_to(args)
+    say = functools.partial(demo.say, args)
     client = TrialClient(say)
     try:
         result = client.run(args.method, args.axis, args.cycles, args.trial_id)
@@ -84,8 +80,8 @@ def run_trial(args) -> int:
 def run_experiment(args) -> int:
     """`cobot-calib experiment user-frame`: reference + each method, one table, one figure."""
     from cobot_calib_ros.client import CallError, wait_for_suite
-    say = _say_to(args)
-    data_dir = Path(args.data_dir) if args.data_dir else paths.data_dir()
+    say = functools.partial(demo.say, args)
+    data_dir = paths.data_dir(args.data_dir)
     stamp = time.strftime('%Y%m%dT%H%M%S')
     overrides = {n: {'layout': args.setup} for n in ('mock_robot', 'repeatability_trial')}
     overrides['repeatability_trial']['data_dir'] = str(data_dir)
@@ -110,8 +106,8 @@ def run_experiment(args) -> int:
     except (CallError, RuntimeError) as e:
         print(f'experiment failed: {e}', file=sys.stderr)
         return 1
-    out_dir = Path(args.out) if args.out else data_dir / 'reports'
-    png, table_file, table = report.write_report(TrialStore(data_dir), trial_ids, out_dir)
+    png, table_file, table = report.write_report(TrialStore(data_dir), trial_ids,
+                                                 _report_dir(args, data_dir))
     if args.json:
         print(json.dumps({'setup': args.setup, 'axis': args.axis, 'cycles': args.cycles,
                           'rows': rows, 'figure': str(png), 'table': str(table_file)}))
@@ -122,12 +118,17 @@ def run_experiment(args) -> int:
 
 def run_report(args) -> int:
     """`cobot-calib report TRIAL...`: PNG box plot and the paper's table for stored trials."""
-    data_dir = Path(args.data_dir) if args.data_dir else paths.data_dir()
-    out_dir = Path(args.out) if args.out else data_dir / 'reports'
+    data_dir = paths.data_dir(args.data_dir)
     try:
-        png, table_file, table = report.write_report(TrialStore(data_dir), args.trials, out_dir)
+        png, table_file, table = report.write_report(TrialStore(data_dir), args.trials,
+                                                     _report_dir(args, data_dir))
     except ValueError as e:
         print(f'report failed: {e}', file=sys.stderr)
         return 1
     print(f'{table}\nfigure: {png}\ntable:  {table_file}')
     return 0
+
+
+def _report_dir(args, data_dir: Path) -> Path:
+    """--out, else <data dir>/reports."""
+    return Path(args.out) if args.out else data_dir / 'reports'

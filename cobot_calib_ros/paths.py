@@ -28,7 +28,10 @@ def cell_file(name_or_path: str = 'sawyer_close') -> Path:
     return config_dir() / 'cells' / f'{name_or_path}.yaml'
 
 
-def data_dir() -> Path:
-    """Results root: $COBOT_CALIB_DATA, else ~/.ros/cobot_calib."""
+def data_dir(given: str | None = None) -> Path:
+    """Results root: ``given`` (a data_dir parameter or --data-dir) when not empty, else
+    $COBOT_CALIB_DATA, else ~/.ros/cobot_calib."""
+    if given:
+        return Path(given)
     env = os.environ.get('COBOT_CALIB_DATA')
     return Path(env).expanduser() if env else Path.home() / '.ros' / 'cobot_calib'

@@ -80,10 +80,6 @@ def atomic_write_bytes(path: Path, data: bytes) -> None:
     fsync_dir(path.parent)
 
 
-def _dump_yaml(data: Any) -> str:
-    return yaml.safe_dump(data, sort_keys=False, allow_unicode=True)
-
-
 def atomic_write_text(path: Path, text: str) -> None:
     """:func:`atomic_write_bytes` for UTF-8 text."""
     atomic_write_bytes(path, text.encode('utf-8'))
@@ -415,7 +411,8 @@ class TrialStore(_WarningLog):
 
     def _write_meta(self, meta: dict[str, Any]) -> None:
         path = self.directory / meta['id'] / 'trial.yaml'
-        atomic_write_text(path, _dump_yaml(to_plain(meta)))
+        atomic_write_text(path, yaml.safe_dump(to_plain(meta), sort_keys=False,
+                                               allow_unicode=True))
         self._meta[meta['id']] = meta
 
     def _read_meta(self, trial_id: str) -> dict[str, Any] | None:

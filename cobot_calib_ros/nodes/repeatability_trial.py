@@ -6,15 +6,14 @@ running statistics after every cycle.
 """
 from __future__ import annotations
 
-from pathlib import Path
 import threading
 import time
 
 from cobot_calib_msgs.action import MoveTo, RunTrial
 from cobot_calib_msgs.msg import ProximityReading, Repeatability
-from cobot_calib_msgs.srv import AverageProximity, CaptureJoints
+from cobot_calib_msgs.srv import AverageProximity
 import numpy as np
-from rclpy.action import ActionClient, ActionServer, CancelResponse, GoalResponse
+from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
@@ -26,11 +25,13 @@ from cobot_calib_ros.core.repeatability import PointStats
 from cobot_calib_ros.core.storage import check_id, TrialStore
 from cobot_calib_ros.nodes import spin
 from cobot_calib_ros.nodes.params import declare
+from cobot_calib_ros.nodes.robot_calls import RobotCallError, RobotCalls
 
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
 RESULT_CODE = {'invalid': RunTrial.Result.INVALID_GOAL, 'motion': RunTrial.Result.MOTION_FAILED,
                'probe': RunTrial.Result.PROBE_FAILED, 'canceled': RunTrial.Result.CANCELED}
+MOVE_TIMEOUT = 120.0    # [s] for one move_to to finish
 PROBE_STATUS = {ProximityReading.STATUS_BELOW_RANGE: 'below',
                 ProximityReading.STATUS_ABOVE_RANGE: 'above'}
 
@@ -40,48 +41,44 @@ class RosRobot:
 
     def __init__(self, answers: spin.Companion, chain: kinematics.Chain, speed: float,
                  probe_window: float, capture_duration: float) -> None:
-        self._answers, self._chain, self._speed = answers, chain, speed
+        self._calls = RobotCalls(answers)
+        self._chain, self._speed = chain, speed
         self._probe_window, self._capture_duration = probe_window, capture_duration
-        self._move = ActionClient(answers.node, MoveTo, 'move_to')
-        self._capture = answers.node.create_client(CaptureJoints, 'capture_joints')
         self._probe = answers.node.create_client(AverageProximity, 'probe/average')
 
     def wait_ready(self, timeout: float = 5.0) -> str:
         """'' when move_to, capture_joints and probe/average answer, else what is missing."""
         missing = []
-        if not self._move.wait_for_server(timeout_sec=timeout):
+        if not self._calls.move_client.wait_for_server(timeout_sec=timeout):
             missing.append('move_to (mock_robot)')
-        for client, who in ((self._capture, 'joint_state_monitor'),
+        for client, who in ((self._calls.capture_client, 'joint_state_monitor'),
                             (self._probe, 'proximity_sensor')):
             if not client.wait_for_service(timeout_sec=timeout):
                 missing.append(f'{client.srv_name} ({who})')
         return f'not available: {", ".join(missing)}; is the node suite up?' if missing else ''
 
-    def _go(self, goal: MoveTo.Goal) -> MoveTo.Result:
-        goal.speed_scale = self._speed
-        result = _answer(self._answers.run_action, 'move_to', self._move, goal, 10.0, 120.0)
-        if result is None:
-            raise trialmod.TrialError('motion', 'move_to rejected the goal (robot busy?)')
-        if result.error_code != MoveTo.Result.SUCCESS:
-            raise trialmod.TrialError('motion', f'move_to: {result.message}')
-        return result
-
     def _average(self, window: float):
         req = AverageProximity.Request(duration=window)
-        return _answer(spin.wait, 'probe/average', self._probe.call_async(req), window + 5.0)
+        try:
+            return spin.wait(self._probe.call_async(req), window + 5.0)
+        except TimeoutError as e:
+            raise trialmod.TrialError('probe', f'probe/average: {e}; is the node suite up?')
 
     def touch(self, name: str) -> np.ndarray:
-        self._go(MoveTo.Goal(target_type=MoveTo.Goal.TARGET_TOUCH, point_name=name))
-        req = CaptureJoints.Request(duration=self._capture_duration)
-        res = _answer(spin.wait, 'capture_joints', self._capture.call_async(req),
-                      req.duration + 10.0)
-        if res.error_code != CaptureJoints.Response.SUCCESS:
-            raise trialmod.TrialError('motion', f'capture_joints at {name}: {res.message}')
-        return kinematics.fk(self._chain, np.array(res.position))
+        try:
+            q = self._calls.touch_and_capture(name, self._capture_duration, MOVE_TIMEOUT,
+                                              self._speed)
+        except RobotCallError as e:
+            raise trialmod.TrialError('motion', f'teaching {name}: {e}')
+        return kinematics.fk(self._chain, q)
 
     def move(self, T_base_tool: np.ndarray) -> None:
-        self._go(MoveTo.Goal(target_type=MoveTo.Goal.TARGET_POSE,
-                             pose=convert.matrix_to_pose(T_base_tool)))
+        goal = MoveTo.Goal(target_type=MoveTo.Goal.TARGET_POSE, speed_scale=self._speed,
+                           pose=convert.matrix_to_pose(T_base_tool))
+        try:
+            self._calls.move(goal, MOVE_TIMEOUT)
+        except RobotCallError as e:
+            raise trialmod.TrialError('motion', str(e))
 
     def read(self) -> trialmod.Reading:
         res = self._average(self._probe_window)
@@ -92,14 +89,6 @@ class RosRobot:
         if res.error_code == AverageProximity.Response.OUT_OF_RANGE:
             return trialmod.Reading(PROBE_STATUS.get(res.reading_status, 'above'), float('nan'))
         raise trialmod.TrialError('probe', f'probe/average: {res.message}')
-
-
-def _answer(call, what: str, *args):
-    """call(*args), a timeout turned into the trial's motion error."""
-    try:
-        return call(*args)
-    except TimeoutError as e:
-        raise trialmod.TrialError('motion', f'{what}: {e}; is the node suite up?')
 
 
 def stats_msg(trial_id: str, meta: dict, cycles_done: int, stats: PointStats,
@@ -125,8 +114,7 @@ class RepeatabilityTrial(Node):
         self._cell = cellmod.load_cell(paths.cell_file(self._p('cell_file')),
                                        self._p('layout') or None)
         model = kinematics.model_by_name(self._cell.robot)
-        root = self._p('data_dir')
-        self._store = TrialStore(Path(root) if root else paths.data_dir())
+        self._store = TrialStore(paths.data_dir(self._p('data_dir')))
         self._answers = spin.Companion(self, 'clients')
         self._robot = RosRobot(self._answers, model.chain(tool=self._cell.tool_offset),
                                self._p('speed_scale'), self._p('probe_window'),

@@ -1,15 +1,11 @@
 """user_frame_solver: the calibrate_user_frame service, point conversion, durable history."""
 from __future__ import annotations
 
-from pathlib import Path
 import time
 
-from cobot_calib_msgs.action import MoveTo
 from cobot_calib_msgs.msg import PointResidual, SurfaceModel as SurfaceMsg, UserFrameCalibration
-from cobot_calib_msgs.srv import (CalibrateUserFrame, CaptureJoints, ConvertPoints,
-                                  ListCalibrations)
+from cobot_calib_msgs.srv import CalibrateUserFrame, ConvertPoints, ListCalibrations
 import numpy as np
-from rclpy.action import ActionClient
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
@@ -17,24 +13,22 @@ from cobot_calib_ros import convert, paths
 from cobot_calib_ros.core import cell as cellmod
 from cobot_calib_ros.core import frames, kinematics, user_frame
 from cobot_calib_ros.core.errors import ErrorCode
-from cobot_calib_ros.core.storage import CalibrationStore, to_plain
+from cobot_calib_ros.core.storage import CalibrationStore
 from cobot_calib_ros.nodes import spin
 from cobot_calib_ros.nodes.params import declare
+from cobot_calib_ros.nodes.robot_calls import RobotCallError, RobotCalls
 
 Res = CalibrateUserFrame.Response
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
-class CaptureError(RuntimeError):
-    pass
-
-
 def fit_record(fit: user_frame.FrameFit, surface, names: list[str], p_user, p_base,
                frames_: tuple[str, str]) -> dict:
-    """Everything about one calibration, as plain data (what is stored and republished)."""
+    """Everything about one calibration (what is stored and republished); numpy values are
+    left as they are: the store writes them as plain lists."""
     stamp_ns = time.time_ns()
-    return to_plain({
+    return {
         'id': time.strftime('%Y%m%dT%H%M%S', time.gmtime(stamp_ns / 1e9))
         + f'.{stamp_ns % 1_000_000_000:09d}Z-{fit.method}',
         'stamp_ns': stamp_ns, 'method': fit.method,
@@ -49,7 +43,7 @@ def fit_record(fit: user_frame.FrameFit, surface, names: list[str], p_user, p_ba
             'surface': None if surface is None else {
                 'valid': bool(surface), 'powers_x': surface.powers_x,
                 'powers_y': surface.powers_y, 'coefficients': surface.coefficients,
-                'rms_before': surface.rms_before, 'rms_after': surface.rms_after}}})
+                'rms_before': surface.rms_before, 'rms_after': surface.rms_after}}}
 
 
 def record_to_msg(record: dict) -> UserFrameCalibration:
@@ -99,13 +93,11 @@ class UserFrameSolver(Node):
         self._cell = cellmod.load_cell(paths.cell_file(self._p('cell_file')))
         model = kinematics.model_by_name(self._cell.robot)
         self._chain = model.chain(tool=self._cell.tool_offset)   # the nominal model
-        root = self._p('data_dir')
-        self._store = CalibrationStore(Path(root) if root else paths.data_dir())
+        self._store = CalibrationStore(paths.data_dir(self._p('data_dir')))
         # a live calibration blocks in its service callback while the robot moves and
         # captures: the answers it waits for arrive on the companion's own executor
         self._answers = spin.Companion(self, 'clients')
-        self._move = ActionClient(self._answers.node, MoveTo, 'move_to')
-        self._capture = self._answers.node.create_client(CaptureJoints, 'capture_joints')
+        self._robot = RobotCalls(self._answers)
         self._pub = self.create_publisher(UserFrameCalibration, 'user_frame', LATCHED)
         self.create_service(CalibrateUserFrame, 'calibrate_user_frame', self._on_calibrate)
         self.create_service(ConvertPoints, 'user_to_robot', self._on_user_to_robot)
@@ -196,35 +188,12 @@ class UserFrameSolver(Node):
         p_user, p_base = [], []
         for name in names:
             try:
-                q = self._touch_and_capture(name)
-            except CaptureError as e:
+                q = self._robot.touch_and_capture(name, self._p('capture_duration'), 60.0)
+            except RobotCallError as e:
                 raise _RequestError(ErrorCode.CAPTURE_FAILED, f'capture at {name} failed: {e}')
             p_user.append(self._cell.world.marker(name).nominal_top)
             p_base.append(kinematics.fk(self._chain, q)[:3, 3])
         return np.array(p_user), np.array(p_base)
-
-    def _touch_and_capture(self, name: str) -> np.ndarray:
-        if not self._move.wait_for_server(timeout_sec=5.0):
-            raise CaptureError('move_to action server not available (is mock_robot up?)')
-        goal = MoveTo.Goal(target_type=MoveTo.Goal.TARGET_TOUCH, point_name=name)
-        try:
-            result = self._answers.run_action(self._move, goal, 10.0, 60.0)
-        except TimeoutError as e:
-            raise CaptureError(f'move_to: {e}')
-        if result is None:
-            raise CaptureError('move_to rejected the goal (robot busy)')
-        if result.error_code != MoveTo.Result.SUCCESS:
-            raise CaptureError(f'move_to: {result.message}')
-        if not self._capture.wait_for_service(timeout_sec=5.0):
-            raise CaptureError('capture_joints not available (is joint_state_monitor up?)')
-        req = CaptureJoints.Request(duration=self._p('capture_duration'))
-        try:
-            res = spin.wait(self._capture.call_async(req), req.duration + 10.0)
-        except TimeoutError as e:
-            raise CaptureError(f'capture_joints: {e}')
-        if res.error_code != CaptureJoints.Response.SUCCESS:
-            raise CaptureError(f'capture_joints: {res.message}')
-        return np.array(res.position)
 
     # -- conversion and history -----------------------------------------------------------
     def _convert(self, request, response, to_base: bool):

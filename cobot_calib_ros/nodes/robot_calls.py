@@ -1,0 +1,56 @@
+"""move_to and capture_joints called from a callback that blocks until they answer.
+
+The answers arrive on a spin.Companion, so the caller's own executor stays free. Used by
+user_frame_solver (live captures) and repeatability_trial (every trial move).
+"""
+from __future__ import annotations
+
+from cobot_calib_msgs.action import MoveTo
+from cobot_calib_msgs.srv import CaptureJoints
+import numpy as np
+from rclpy.action import ActionClient
+
+from cobot_calib_ros.nodes.spin import Companion, wait
+
+SERVER_WAIT = 5.0       # [s] for move_to / capture_joints to be discovered
+
+
+class RobotCallError(RuntimeError):
+    """A move or capture that did not happen; the message says which and what to do."""
+
+
+class RobotCalls:
+    def __init__(self, answers: Companion) -> None:
+        self._answers = answers
+        self.move_client = ActionClient(answers.node, MoveTo, 'move_to')
+        self.capture_client = answers.node.create_client(CaptureJoints, 'capture_joints')
+
+    def move(self, goal: MoveTo.Goal, result_timeout: float) -> MoveTo.Result:
+        """Run a move_to goal to its end; RobotCallError unless it succeeded."""
+        if not self.move_client.wait_for_server(timeout_sec=SERVER_WAIT):
+            raise RobotCallError('move_to action server not available (is mock_robot up?)')
+        try:
+            result = self._answers.run_action(self.move_client, goal, 10.0, result_timeout)
+        except TimeoutError as e:
+            raise RobotCallError(f'move_to: {e}; is mock_robot up?')
+        if result is None:
+            raise RobotCallError('move_to rejected the goal (robot busy)')
+        if result.error_code != MoveTo.Result.SUCCESS:
+            raise RobotCallError(f'move_to: {result.message}')
+        return result
+
+    def touch_and_capture(self, name: str, duration: float, result_timeout: float,
+                          speed_scale: float = 0.0) -> np.ndarray:
+        """Hand-guide the tool onto cell point ``name``, hold, and return the mean joints."""
+        self.move(MoveTo.Goal(target_type=MoveTo.Goal.TARGET_TOUCH, point_name=name,
+                              speed_scale=speed_scale), result_timeout)
+        if not self.capture_client.wait_for_service(timeout_sec=SERVER_WAIT):
+            raise RobotCallError('capture_joints not available (is joint_state_monitor up?)')
+        req = CaptureJoints.Request(duration=duration)
+        try:
+            res = wait(self.capture_client.call_async(req), req.duration + 10.0)
+        except TimeoutError as e:
+            raise RobotCallError(f'capture_joints: {e}; is joint_state_monitor up?')
+        if res.error_code != CaptureJoints.Response.SUCCESS:
+            raise RobotCallError(f'capture_joints: {res.message}')
+        return np.array(res.position)
