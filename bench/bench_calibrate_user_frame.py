@@ -19,7 +19,7 @@ from std_srvs.srv import Trigger
 
 import benchlib
 from benchlib import BenchFailed, Figures, Ros
-from cobot_calib_ros import launcher
+from cobot_calib_ros.api import launcher
 
 SOLVER = 'user_frame_solver'
 TRIGGER = 'trigger_server'

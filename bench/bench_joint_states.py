@@ -24,7 +24,7 @@ from sensor_msgs.msg import JointState
 
 import benchlib
 from benchlib import BenchFailed, Figures, Ros
-from cobot_calib_ros import launcher
+from cobot_calib_ros.api import launcher
 
 NOMINAL_RATE = 1000.0       # [Hz] sawyer_close joint_states_hz
 CAPTURE_CALLS = 50

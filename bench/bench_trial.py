@@ -14,8 +14,8 @@ from rclpy.action import ActionClient
 
 import benchlib
 from benchlib import BenchFailed, Figures
-from cobot_calib_ros import launcher
-from cobot_calib_ros.client import CallError, run_action, wait_for_suite
+from cobot_calib_ros.api import launcher
+from cobot_calib_ros.api.client import CallError, run_action, wait_for_suite
 
 CYCLES = 30
 METHODS = ('reference', 'rigid')

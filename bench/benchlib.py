@@ -2,7 +2,7 @@
 
 Every bench module `bench/bench_*.py` has `run() -> dict[str, tuple[float, str]]` (figure name
 -> (value, unit)); `bench/run_all.py` runs them all. Waits use `call_async` and a `spin_once`
-loop (`cobot_calib_ros.client.spin_until`), never `spin_until_future_complete`.
+loop (`cobot_calib_ros.api.client.spin_until`), never `spin_until_future_complete`.
 """
 from __future__ import annotations
 
@@ -22,8 +22,8 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
-from cobot_calib_ros import launcher
-from cobot_calib_ros.client import spin_until
+from cobot_calib_ros.api import launcher
+from cobot_calib_ros.api.client import spin_until
 
 BENCH_DIR = Path(__file__).resolve().parent
 REPO_ROOT = BENCH_DIR.parent

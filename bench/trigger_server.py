@@ -10,7 +10,7 @@ import sys
 from rclpy.node import Node
 from std_srvs.srv import Trigger
 
-from cobot_calib_ros.nodes import spin
+from cobot_calib_ros.ros import spin
 
 
 class TriggerServer(Node):

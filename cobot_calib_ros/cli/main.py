@@ -12,7 +12,7 @@ import time
 
 import yaml
 
-from cobot_calib_ros import launcher
+from cobot_calib_ros.api import launcher
 
 EXIT_USAGE = 2
 EXIT_FAILED = 1
@@ -71,7 +71,7 @@ def _topic_qos(node, topic: str):
 
 
 def _resolve_type(node, name: str, kind: str, wait: float) -> str | None:
-    from cobot_calib_ros.client import spin_until
+    from cobot_calib_ros.api.client import spin_until
     lookup = (node.get_topic_names_and_types if kind == 'topic'
               else node.get_service_names_and_types)
     found: list[str] = []
@@ -96,7 +96,7 @@ def _print_message(data: dict, as_json: bool) -> None:
 
 
 def cmd_echo(args) -> int:
-    from cobot_calib_ros.client import import_type, spin_until, to_dict
+    from cobot_calib_ros.api.client import import_type, spin_until, to_dict
     topic = _absolute(args.topic)
     with ros_node('cobot_calib_echo') as node:
         type_name = _resolve_type(node, topic, 'topic', args.timeout)
@@ -125,7 +125,7 @@ def cmd_echo(args) -> int:
 
 
 def cmd_call(args) -> int:
-    from cobot_calib_ros.client import call_service, CallError, import_type, set_fields, to_dict
+    from cobot_calib_ros.api.client import call_service, CallError, import_type, set_fields, to_dict
     service = _absolute(args.service)
     with ros_node('cobot_calib_call') as node:
         type_name = args.type or _resolve_type(node, service, 'service', args.timeout)
@@ -149,7 +149,7 @@ def cmd_call(args) -> int:
 
 
 def cmd_list(args) -> int:
-    from cobot_calib_ros.client import graph
+    from cobot_calib_ros.api.client import graph
     with ros_node('cobot_calib_list') as node:
         g = graph(node, args.wait)
     if args.json:
@@ -163,22 +163,22 @@ def cmd_list(args) -> int:
 
 
 def cmd_demo(args) -> int:
-    from cobot_calib_ros import demo
+    from cobot_calib_ros.cli import demo
     return demo.run(args)
 
 
 def cmd_trial(args) -> int:
-    from cobot_calib_ros import experiment
+    from cobot_calib_ros.cli import experiment
     return experiment.run_trial(args)
 
 
 def cmd_experiment(args) -> int:
-    from cobot_calib_ros import experiment
+    from cobot_calib_ros.cli import experiment
     return experiment.run_experiment(args)
 
 
 def cmd_report(args) -> int:
-    from cobot_calib_ros import experiment
+    from cobot_calib_ros.cli import experiment
     return experiment.run_report(args)
 
 

@@ -14,9 +14,9 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 
-from cobot_calib_ros.core.joint_buffer import hold_statistics, JointRingBuffer
-from cobot_calib_ros.nodes import spin
-from cobot_calib_ros.nodes.params import declare
+from cobot_calib_ros.core.sensors.joint_buffer import hold_statistics, JointRingBuffer
+from cobot_calib_ros.ros import spin
+from cobot_calib_ros.ros.params import declare
 
 
 class JointStateMonitor(Node):

@@ -20,11 +20,12 @@ from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 
-from cobot_calib_ros import convert, paths
+from cobot_calib_ros import paths
+from cobot_calib_ros.ros import convert
 from cobot_calib_ros.core import cell as cellmod
 from cobot_calib_ros.core import frames, kinematics
-from cobot_calib_ros.nodes import spin
-from cobot_calib_ros.nodes.params import declare
+from cobot_calib_ros.ros import spin
+from cobot_calib_ros.ros.params import declare
 
 FEEDBACK_PERIOD = 0.02  # [s] of simulated (scaled) time between feedback messages
 

@@ -15,9 +15,9 @@ import numpy as np
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 
-from cobot_calib_ros.core.probe import curve_from_lists, read_distance, ReadingStatus
-from cobot_calib_ros.nodes import spin
-from cobot_calib_ros.nodes.params import declare
+from cobot_calib_ros.core.sensors.probe import curve_from_lists, read_distance, ReadingStatus
+from cobot_calib_ros.ros import spin
+from cobot_calib_ros.ros.params import declare
 
 
 class ProximitySensor(Node):

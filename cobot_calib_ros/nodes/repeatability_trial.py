@@ -1,7 +1,7 @@
 """repeatability_trial: the ISO 9283 trial action (run_trial) and the live `repeatability` topic.
 
 The procedure is core/trial.py; this node gives it a robot made of ROS calls (move_to,
-capture_joints, probe/average), stores readings through core.storage, and publishes the
+capture_joints, probe/average), stores readings through store.trials, and publishes the
 running statistics after every cycle.
 """
 from __future__ import annotations
@@ -18,14 +18,17 @@ from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
-from cobot_calib_ros import convert, paths
+from cobot_calib_ros import paths
+from cobot_calib_ros.ros import convert
 from cobot_calib_ros.core import cell as cellmod
-from cobot_calib_ros.core import kinematics, trial as trialmod
+from cobot_calib_ros.core import kinematics
+from cobot_calib_ros.core.repeatability import trial as trialmod
 from cobot_calib_ros.core.repeatability import PointStats
-from cobot_calib_ros.core.storage import check_id, TrialStore
-from cobot_calib_ros.nodes import spin
-from cobot_calib_ros.nodes.params import declare
-from cobot_calib_ros.nodes.robot_calls import RobotCallError, RobotCalls
+from cobot_calib_ros.store.files import check_id
+from cobot_calib_ros.store.trials import TrialStore
+from cobot_calib_ros.ros import spin
+from cobot_calib_ros.ros.params import declare
+from cobot_calib_ros.ros.robot_calls import RobotCallError, RobotCalls
 
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.TRANSIENT_LOCAL)

@@ -9,14 +9,15 @@ import numpy as np
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
-from cobot_calib_ros import convert, paths
+from cobot_calib_ros import paths
+from cobot_calib_ros.ros import convert
 from cobot_calib_ros.core import cell as cellmod
 from cobot_calib_ros.core import frames, kinematics, user_frame
 from cobot_calib_ros.core.errors import ErrorCode
-from cobot_calib_ros.core.storage import CalibrationStore
-from cobot_calib_ros.nodes import spin
-from cobot_calib_ros.nodes.params import declare
-from cobot_calib_ros.nodes.robot_calls import RobotCallError, RobotCalls
+from cobot_calib_ros.store.calibrations import CalibrationStore
+from cobot_calib_ros.ros import spin
+from cobot_calib_ros.ros.params import declare
+from cobot_calib_ros.ros.robot_calls import RobotCallError, RobotCalls
 
 Res = CalibrateUserFrame.Response
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,

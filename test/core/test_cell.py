@@ -7,7 +7,7 @@ import pytest
 from cobot_calib_ros.core import frames
 from cobot_calib_ros.core.cell import (HeightField, Marker, ProbeCurve, ray_box_distance,
                                        World)
-from cobot_calib_ros.core.probe import read_distance, ReadingStatus
+from cobot_calib_ros.core.sensors.probe import read_distance, ReadingStatus
 
 CURVE = ProbeCurve((0.0002, 0.0012, 0.0022), (-1.6, -9.6, -17.6))
 

@@ -4,8 +4,8 @@ import rclpy
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 
-from cobot_calib_ros import launcher
-from cobot_calib_ros.client import CallError, spin_until, wait_for_suite
+from cobot_calib_ros.api import launcher
+from cobot_calib_ros.api.client import CallError, spin_until, wait_for_suite
 
 STARTUP_TIMEOUT = 30.0
 

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from rclpy.action import ActionClient
 
-from cobot_calib_ros.client import run_action, spin_until
-from cobot_calib_ros.core.storage import TrialStore
+from cobot_calib_ros.api.client import run_action, spin_until
+from cobot_calib_ros.store.trials import TrialStore
 from rosutil import cli, cli_command
 
 CYCLES = 4

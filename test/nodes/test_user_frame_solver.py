@@ -9,8 +9,9 @@ import pytest
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from scipy.spatial.transform import Rotation
 
-from cobot_calib_ros import convert, launcher
-from cobot_calib_ros.client import spin_until
+from cobot_calib_ros.api import launcher
+from cobot_calib_ros.ros import convert
+from cobot_calib_ros.api.client import spin_until
 from cobot_calib_ros.core import frames
 from cobot_calib_ros.paths import cell_file
 from rosutil import call

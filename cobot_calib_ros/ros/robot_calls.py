@@ -10,7 +10,7 @@ from cobot_calib_msgs.srv import CaptureJoints
 import numpy as np
 from rclpy.action import ActionClient
 
-from cobot_calib_ros.nodes.spin import Companion, wait
+from cobot_calib_ros.ros.spin import Companion, wait
 
 SERVER_WAIT = 5.0       # [s] for move_to / capture_joints to be discovered
 

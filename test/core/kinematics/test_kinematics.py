@@ -10,10 +10,11 @@ import pytest
 
 from cobot_calib_ros.core import frames
 from cobot_calib_ros.core.kinematics import (
-    Chain, fk, iiwa14, iiwa7, KinematicModel, model_by_name, position_jacobian_wrt_params,
-    sawyer, solve_ik, to_pinocchio, ur10_pybotics)
+    Chain, fk, KinematicModel, model_by_name, position_jacobian_wrt_params, solve_ik,
+    to_pinocchio)
+from cobot_calib_ros.core.kinematics.model import iiwa14, iiwa7, sawyer, ur10_pybotics
 
-DATA = Path(__file__).resolve().parents[1] / 'data' / 'pybotics'
+DATA = Path(__file__).resolve().parents[2] / 'data' / 'pybotics'
 SAWYER_NEUTRAL = [0.0, -1.18, 0.0, 2.18, 0.0, 0.57, 3.3161]  # named_poses.yaml [rad]
 
 

@@ -25,6 +25,7 @@ from numpy.typing import ArrayLike, NDArray
 Array = NDArray[np.float64]
 Direction = Literal['away', 'closer']
 DIRECTIONS: tuple[Direction, ...] = ('away', 'closer')
+AXES = ('x', 'y', 'z')  # probed axis of a trial, in the user frame
 
 
 @dataclass(frozen=True, eq=False)

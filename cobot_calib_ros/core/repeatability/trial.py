@@ -30,12 +30,11 @@ from numpy.typing import NDArray
 
 from cobot_calib_ros.core import frames, user_frame
 from cobot_calib_ros.core.cell import Marker, tool_down_orientation
-from cobot_calib_ros.core.repeatability import point_statistics, PointStats
-from cobot_calib_ros.core.storage import TrialData, TrialStore
+from cobot_calib_ros.core.repeatability import AXES, point_statistics, PointStats
+from cobot_calib_ros.store.trials import TrialData, TrialStore
 
 Array = NDArray[np.float64]
 METHODS = ('reference', *user_frame.METHODS)
-AXES = ('x', 'y', 'z')
 DEFAULT_CYCLES = 30
 
 

@@ -9,8 +9,8 @@ import sys
 import numpy as np
 import pytest
 
-from cobot_calib_ros import report
-from cobot_calib_ros.core.storage import TrialStore
+from cobot_calib_ros.api import report
+from cobot_calib_ros.store.trials import TrialStore
 
 MM = 1e-3  # [m]
 NAN = math.nan
@@ -194,7 +194,7 @@ def test_no_trial_ids_is_an_error(store, tmp_path):
 
 
 def test_importing_the_module_does_not_load_matplotlib_or_rclpy():
-    code = ('import sys, cobot_calib_ros.report; '
+    code = ('import sys, cobot_calib_ros.api.report; '
             'print(sorted(m for m in ("matplotlib", "rclpy") if m in sys.modules))')
     out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
                          check=True)

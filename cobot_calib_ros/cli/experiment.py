@@ -12,8 +12,10 @@ from pathlib import Path
 import sys
 import time
 
-from cobot_calib_ros import demo, launcher, paths, report
-from cobot_calib_ros.core.storage import TrialStore
+from cobot_calib_ros import paths
+from cobot_calib_ros.api import launcher, report
+from cobot_calib_ros.cli import demo
+from cobot_calib_ros.store.trials import TrialStore
 
 EXPERIMENT_METHODS = ('reference', 'three_point', 'five_point_lsq', 'rigid')
 
@@ -38,7 +40,7 @@ class TrialClient:
 
     def run(self, method: str, axis: str, cycles: int, trial_id: str = '',
             layout: str = '', timeout: float = 3600.0):
-        from cobot_calib_ros.client import run_action
+        from cobot_calib_ros.api.client import run_action
         goal = self.RunTrial.Goal(trial_id=trial_id, method=method, axis=axis,
                                   cycles=cycles, layout=layout)
         last = [-1]
@@ -56,7 +58,7 @@ class TrialClient:
 
 def run_trial(args) -> int:
     """`cobot-calib trial`: one trial on a running suite."""
-    from cobot_calib_ros.client import CallError
+    from cobot_calib_ros.api.client import CallError
     say = functools.partial(demo.say, args)
     client = TrialClient(say)
     try:
@@ -79,7 +81,7 @@ def run_trial(args) -> int:
 
 def run_experiment(args) -> int:
     """`cobot-calib experiment user-frame`: reference + each method, one table, one figure."""
-    from cobot_calib_ros.client import CallError, wait_for_suite
+    from cobot_calib_ros.api.client import CallError, wait_for_suite
     say = functools.partial(demo.say, args)
     data_dir = paths.data_dir(args.data_dir)
     stamp = time.strftime('%Y%m%dT%H%M%S')

@@ -8,10 +8,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cobot_calib_ros.core import storage
+from cobot_calib_ros.store import files
 from cobot_calib_ros.core.repeatability import point_statistics
-from cobot_calib_ros.core.storage import (
-    atomic_write_bytes, atomic_write_text, CalibrationStore, CSV_HEADER, TrialStore)
+from cobot_calib_ros.store.calibrations import CalibrationStore
+from cobot_calib_ros.store.files import atomic_write_bytes, atomic_write_text
+from cobot_calib_ros.store.trials import CSV_HEADER, TrialStore
 
 MM = 1e-3  # [m]
 POINTS = ['P1', 'P2', 'P3']
@@ -39,7 +40,7 @@ def test_failed_atomic_write_keeps_old_content_and_removes_temp(tmp_path, monkey
     def crash(src, dst):
         raise OSError('disk gone')
 
-    monkeypatch.setattr(storage.os, 'replace', crash)
+    monkeypatch.setattr(files.os, 'replace', crash)
     with pytest.raises(OSError, match='disk gone'):
         atomic_write_text(target, 'new\n')
     assert target.read_text() == 'old\n'
@@ -195,7 +196,7 @@ def test_writes_are_fsynced(tmp_path, monkeypatch):
         synced.append(fd)
         real_fsync(fd)
 
-    monkeypatch.setattr(storage.os, 'fsync', spy)
+    monkeypatch.setattr(files.os, 'fsync', spy)
     trials.append('trial-1', 0, 0, 1.0 * MM)
     assert len(synced) == 1  # the appended line, before append() returns
     atomic_write_text(tmp_path / 'x.txt', 'x')

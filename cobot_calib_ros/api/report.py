@@ -24,8 +24,8 @@ import numpy as np
 
 from cobot_calib_ros.core.repeatability import (complete_cycles, iso9283_rp_from_axes,
                                                  overall_rp, point_statistics)
-from cobot_calib_ros.core.storage import atomic_write_bytes, atomic_write_text, check_id
-from cobot_calib_ros.core.storage import TrialData, TrialStore
+from cobot_calib_ros.store.files import atomic_write_bytes, atomic_write_text, check_id
+from cobot_calib_ros.store.trials import TrialData, TrialStore
 
 MM_PER_M = 1000.0
 DECIMALS = 3  # 1 um: the paper prints 0.01 mm, too coarse for a good reference repeatability

@@ -7,8 +7,8 @@ import pytest
 
 from cobot_calib_ros.core import cell as cellmod
 from cobot_calib_ros.core import kinematics
-from cobot_calib_ros.core.storage import TrialStore
-from cobot_calib_ros.core.trial import Plan, ProbeRange, Reading, TrialError, TrialRun
+from cobot_calib_ros.store.trials import TrialStore
+from cobot_calib_ros.core.repeatability.trial import Plan, ProbeRange, Reading, TrialError, TrialRun
 from cobot_calib_ros.paths import cell_file
 
 CELL = cellmod.load_cell(cell_file('sawyer_close'))

@@ -4,7 +4,7 @@ import math
 import numpy as np
 import pytest
 
-from cobot_calib_ros.core.joint_buffer import hold_statistics, JointRingBuffer, Rejection
+from cobot_calib_ros.core.sensors.joint_buffer import hold_statistics, JointRingBuffer, Rejection
 
 NAMES = ['j1', 'j2', 'j3']
 

@@ -13,7 +13,8 @@ import sys
 
 import numpy as np
 
-from cobot_calib_ros import convert, launcher
+from cobot_calib_ros.api import launcher
+from cobot_calib_ros.ros import convert
 from cobot_calib_ros.core import cell as cellmod
 from cobot_calib_ros.core import frames, kinematics, user_frame
 from cobot_calib_ros.paths import cell_file
@@ -57,11 +58,11 @@ class DemoClient:
         rclpy.try_shutdown()
 
     def ground_truth(self):
-        from cobot_calib_ros.client import call_service
+        from cobot_calib_ros.api.client import call_service
         return call_service(self.node, self._truth, self._truth.srv_type.Request(), 30.0)
 
     def calibrate(self, method: str, names=(), p_user=None, p_base=None):
-        from cobot_calib_ros.client import call_service
+        from cobot_calib_ros.api.client import call_service
         req = self.Calibrate.Request(method=method, point_names=list(names))
         if p_user is not None:
             req.points_user = convert.array_to_points(p_user)
@@ -69,7 +70,7 @@ class DemoClient:
         return call_service(self.node, self._calibrate, req, 120.0)
 
     def move_to_pose(self, T: np.ndarray):
-        from cobot_calib_ros.client import run_action
+        from cobot_calib_ros.api.client import run_action
         goal = self.MoveTo.Goal(target_type=self.MoveTo.Goal.TARGET_POSE,
                                 pose=convert.matrix_to_pose(T))
         return run_action(self.node, self._move, goal, 60.0)[1]
@@ -166,7 +167,7 @@ def _report(args, result: dict) -> None:
 
 
 def _run(args, client: DemoClient) -> dict:
-    from cobot_calib_ros.client import wait_for_suite
+    from cobot_calib_ros.api.client import wait_for_suite
     cell = cellmod.load_cell(cell_file(args.cell))
     wait_for_suite(client.node)
     truth = client.ground_truth()
@@ -200,7 +201,7 @@ def _run(args, client: DemoClient) -> dict:
 
 
 def run(args) -> int:
-    from cobot_calib_ros.client import CallError
+    from cobot_calib_ros.api.client import CallError
     try:
         with _suite(args):
             client = DemoClient()

@@ -1,34 +1,13 @@
-"""Durable results on disk: atomic whole-file writes and append-only measurement logs.
-
-Layout under a root directory given by the caller (nothing global)::
-
-    <root>/calibrations/<id>.json            one calibration record, written atomically
-    <root>/trials/<trial_id>/trial.yaml      trial metadata, rewritten atomically
-    <root>/trials/<trial_id>/distances.csv   one line per probe reading [m], appended + fsynced
-
-Durability: whole files go through a temporary file in the same directory that is fsynced and
-then renamed over the target (``os.replace``), after which the directory is fsynced, so a
-reader sees the old or the new content, never a mix. A crash may leave a hidden
-``.<name>.*.tmp`` file behind; readers ignore it. Measurement lines are appended with one
-``write`` each and fsynced, so a crash loses at most the line in flight; a truncated last line
-is ignored on load. One writer per trial is assumed.
-
-Failures: unreadable or inconsistent files are skipped and described in the store's
-``warnings`` list (never raised); invalid arguments raise ValueError.
-"""
+"""Repeatability trials: metadata plus an append-only log of probe readings (see store.files)."""
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-import contextlib
 import csv
 from dataclasses import dataclass
 import io
-import json
 import math
 import os
 from pathlib import Path
-import re
-import tempfile
 import time
 from typing import Any
 
@@ -36,198 +15,18 @@ import numpy as np
 from numpy.typing import NDArray
 import yaml
 
-from cobot_calib_ros.core.repeatability import correct_distance, Direction, DIRECTIONS
+from cobot_calib_ros.core.repeatability import AXES, correct_distance, Direction, DIRECTIONS
+from cobot_calib_ros.store.files import (atomic_write_text, check_id, ensure_dir, fsync_dir,
+                                         is_int, to_plain, WarningLog)
 
 Array = NDArray[np.float64]
-Cell = tuple[int, int]  # (cycle, point_index), both 0-based
-FILE_MODE = 0o644
-TEMP_SUFFIX = '.tmp'
-RECORD_KEYS = ('id', 'stamp_ns', 'method', 'inputs', 'result')
+Slot = tuple[int, int]  # (cycle, point_index), both 0-based
 TRIAL_KEYS = ('id', 'method', 'axis', 'layout', 'point_names', 'cycles_total', 'status',
               'created_ns', 'updated_ns')
 TRIAL_STATUSES = ('running', 'done', 'aborted')
-AXES = ('x', 'y', 'z')
 CSV_COLUMNS = ('cycle', 'point_index', 'point_name', 'raw_distance_m', 'ff_m', 'direction',
                'corrected_distance_m', 'stamp_ns')
 CSV_HEADER = ','.join(CSV_COLUMNS)
-_ID_PATTERN = re.compile(r'[A-Za-z0-9][A-Za-z0-9_.-]{0,127}')
-
-
-def fsync_dir(directory: Path) -> None:
-    """Flush a directory entry (a rename or a new file in it) to disk (POSIX)."""
-    fd = os.open(directory, os.O_RDONLY | getattr(os, 'O_DIRECTORY', 0))
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-
-
-def atomic_write_bytes(path: Path, data: bytes) -> None:
-    """Replace ``path`` by ``data`` atomically and durably (temp file, fsync, rename)."""
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f'.{path.name}.', suffix=TEMP_SUFFIX)
-    try:
-        with os.fdopen(fd, 'wb') as f:
-            os.fchmod(f.fileno(), FILE_MODE)
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp)
-        raise
-    fsync_dir(path.parent)
-
-
-def atomic_write_text(path: Path, text: str) -> None:
-    """:func:`atomic_write_bytes` for UTF-8 text."""
-    atomic_write_bytes(path, text.encode('utf-8'))
-
-
-def check_id(value: object) -> str:
-    """Return ``value`` if it is a safe file name stem (letters, digits, ``_.-``)."""
-    if not isinstance(value, str) or not _ID_PATTERN.fullmatch(value):
-        raise ValueError(f'id must match {_ID_PATTERN.pattern}, got {value!r}')
-    return value
-
-
-def to_plain(value: Any) -> Any:
-    """Recursively turn numpy arrays/scalars, tuples and paths into YAML-safe builtins."""
-    if isinstance(value, Mapping):
-        return {to_plain(k): to_plain(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [to_plain(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, Path):
-        return str(value)
-    return value
-
-
-class _WarningLog:
-    """Collects one message per distinct problem found while reading files."""
-
-    def __init__(self) -> None:
-        self.warnings: list[str] = []
-
-    def _warn(self, message: str) -> None:
-        if message not in self.warnings:
-            self.warnings.append(message)
-
-    def _read_mapping(self, path: Path) -> dict[str, Any] | None:
-        """A YAML or (by suffix) JSON file's top-level mapping, or None with a warning."""
-        try:
-            text = path.read_text(encoding='utf-8')
-            data = json.loads(text) if path.suffix == '.json' else yaml.safe_load(text)
-        except (OSError, UnicodeDecodeError, ValueError, yaml.YAMLError) as exc:
-            reason = ' '.join(str(exc).split())
-            self._warn(f'{path}: skipped, unreadable ({reason})')
-            return None
-        if not isinstance(data, dict):
-            self._warn(f'{path}: skipped, not a mapping')
-            return None
-        return data
-
-
-def _ensure_dir(directory: Path) -> None:
-    """mkdir -p, fsyncing the parent of every directory it creates."""
-    missing = []
-    current = directory
-    while not current.exists():
-        missing.append(current)
-        current = current.parent
-    directory.mkdir(parents=True, exist_ok=True)
-    for created in reversed(missing):
-        fsync_dir(created.parent)
-
-
-def _is_int(value: object) -> bool:
-    return isinstance(value, int) and not isinstance(value, bool)
-
-
-def _record_problem(record: Mapping[str, Any]) -> str:
-    """'' if ``record`` is a valid calibration record, else what is wrong with it."""
-    missing = [k for k in RECORD_KEYS if k not in record]
-    if missing:
-        return f'missing keys {missing}'
-    if not isinstance(record['id'], str) or not _ID_PATTERN.fullmatch(record['id']):
-        return f'bad id {record["id"]!r}'
-    if not _is_int(record['stamp_ns']):
-        return f'stamp_ns must be an int [ns], got {record["stamp_ns"]!r}'
-    if not isinstance(record['method'], str):
-        return f'method must be a string, got {record["method"]!r}'
-    return ''
-
-
-class CalibrationStore(_WarningLog):
-    """Calibration records, one JSON file each under ``<root>/calibrations``.
-
-    A record is a mapping with at least ``id`` (file name stem), ``stamp_ns`` (int, ns),
-    ``method``, ``inputs`` and ``result``; numpy values are stored as plain lists/numbers.
-    Saving an existing id replaces that record. Order is by (stamp_ns, id). The directory is
-    read once, on first use; later reads come from memory (one writer per root is assumed).
-    JSON rather than YAML: PyYAML's representer alone took 1.7 ms per record.
-    """
-
-    def __init__(self, root: Path) -> None:
-        super().__init__()
-        self.root = Path(root)
-        self.directory = self.root / 'calibrations'
-        self._records: dict[str, dict[str, Any]] | None = None
-
-    def save(self, record: Mapping[str, Any]) -> Path:
-        """Write ``record`` atomically and durably; returns its path."""
-        plain = to_plain(record)
-        problem = _record_problem(plain)
-        if problem:
-            raise ValueError(f'invalid calibration record: {problem}')
-        _ensure_dir(self.directory)
-        path = self._path(plain['id'])
-        atomic_write_text(path, json.dumps(plain) + '\n')  # indent= is the slow encoder
-        self._index()[plain['id']] = plain
-        return path
-
-    def get(self, record_id: str) -> dict[str, Any] | None:
-        """The record with this id, or None if absent or unreadable (see ``warnings``)."""
-        return self._index().get(check_id(record_id))
-
-    def history(self, max_count: int = 0) -> list[dict[str, Any]]:
-        """Readable records, newest first; at most ``max_count`` of them (0: all)."""
-        if max_count < 0:
-            raise ValueError(f'max_count must be >= 0, got {max_count}')
-        records = sorted(self._index().values(), key=lambda r: (r['stamp_ns'], r['id']),
-                         reverse=True)
-        return records[:max_count] if max_count else records
-
-    def latest(self) -> dict[str, Any] | None:
-        """The newest readable record, or None."""
-        newest = self.history(max_count=1)
-        return newest[0] if newest else None
-
-    def _index(self) -> dict[str, dict[str, Any]]:
-        if self._records is None:
-            paths = sorted(self.directory.glob('*.json')) if self.directory.is_dir() else []
-            loaded = (self._load(p) for p in paths)
-            self._records = {r['id']: r for r in loaded if r is not None}
-        return self._records
-
-    def _path(self, record_id: str) -> Path:
-        return self.directory / f'{record_id}.json'
-
-    def _load(self, path: Path) -> dict[str, Any] | None:
-        record = self._read_mapping(path)
-        if record is None:
-            return None
-        problem = _record_problem(record)
-        if not problem and record['id'] != path.stem:
-            problem = f'id {record["id"]!r} does not match the file name'
-        if problem:
-            self._warn(f'{path}: skipped, {problem}')
-            return None
-        return record
 
 
 @dataclass(frozen=True, eq=False)
@@ -237,8 +36,8 @@ class TrialData:
     meta: dict[str, Any]
     distances: Array       # corrected distances d_i,n of eq (15) [m], NaN = not measured
     raw_distances: Array   # probe readings before correction [m], NaN = not measured
-    resume: Cell | None        # next (cycle, point_index) to measure; None: all done
-    missing: tuple[Cell, ...]  # (cycle, point_index) not measured before ``resume``
+    resume: Slot | None        # next (cycle, point_index) to measure; None: all done
+    missing: tuple[Slot, ...]  # (cycle, point_index) not measured before ``resume``
 
 
 @dataclass(frozen=True)
@@ -260,7 +59,7 @@ def _trial_problem(meta: Mapping[str, Any], trial_id: str) -> str:
     names = meta['point_names']
     if not isinstance(names, list) or not names or not all(isinstance(n, str) for n in names):
         return f'point_names must be a non-empty list of strings, got {names!r}'
-    if not _is_int(meta['cycles_total']) or meta['cycles_total'] < 1:
+    if not is_int(meta['cycles_total']) or meta['cycles_total'] < 1:
         return f'cycles_total must be an int >= 1, got {meta["cycles_total"]!r}'
     if meta['status'] not in TRIAL_STATUSES:
         return f'status must be one of {TRIAL_STATUSES}, got {meta["status"]!r}'
@@ -306,7 +105,7 @@ def _parse_row(line: str, meta: Mapping[str, Any]) -> _Row | str:
     return _Row(cycle, index, raw, corrected, stamp)
 
 
-def _resume_point(measured: NDArray[np.bool_]) -> tuple[Cell | None, tuple[Cell, ...]]:
+def _resume_point(measured: NDArray[np.bool_]) -> tuple[Slot | None, tuple[Slot, ...]]:
     """Next (cycle, point) after the last measured one, and the holes before it.
 
     Measurement order is cycle-major: every point of cycle 0, then cycle 1, ...
@@ -320,7 +119,7 @@ def _resume_point(measured: NDArray[np.bool_]) -> tuple[Cell | None, tuple[Cell,
     return resume, holes
 
 
-class TrialStore(_WarningLog):
+class TrialStore(WarningLog):
     """Repeatability trials: metadata plus an append-only log of probe readings.
 
     Cycles and point indices are 0-based. A later line for the same (cycle, point)
@@ -341,7 +140,7 @@ class TrialStore(_WarningLog):
 
         ``extra`` is stored in the metadata beside the required keys (set-up a resume needs).
         """
-        if axis not in AXES or not _is_int(cycles_total) or cycles_total < 1:
+        if axis not in AXES or not is_int(cycles_total) or cycles_total < 1:
             raise ValueError(f'need axis in {AXES} and int cycles_total >= 1, got '
                              f'{axis!r}, {cycles_total!r}')
         now = time.time_ns() if stamp_ns is None else stamp_ns
@@ -350,7 +149,7 @@ class TrialStore(_WarningLog):
                 'point_names': _check_point_names(point_names),
                 'cycles_total': cycles_total, 'status': 'running',
                 'created_ns': now, 'updated_ns': now}
-        _ensure_dir(self.directory)
+        ensure_dir(self.directory)
         trial_dir = self.directory / trial_id
         trial_dir.mkdir()
         fsync_dir(self.directory)

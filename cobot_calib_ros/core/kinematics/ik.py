@@ -1,0 +1,145 @@
+"""Inverse kinematics with pinocchio: the only module of the package that imports it."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+import math
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+import pinocchio as pin
+
+from cobot_calib_ros.core.kinematics.model import _as_batch, Chain
+
+Array = NDArray[np.float64]
+
+def to_pinocchio(chain: Chain) -> pin.Model:
+    """Pinocchio model of the chain: RZ joints, frames 'flange' and 'tool' on the last joint."""
+    model = pin.Model()
+    model.name = 'chain'
+    parent = 0
+    for i, name in enumerate(chain.joint_names):
+        parent = model.addJoint(parent, pin.JointModelRZ(), pin.SE3(chain.placements[i]), name)
+        model.addJointFrame(parent)
+    model.lowerPositionLimit = np.array(chain.lower)
+    model.upperPositionLimit = np.array(chain.upper)
+    last_frame = model.nframes - 1
+    flange = pin.Frame('flange', parent, last_frame, pin.SE3(chain.flange),
+                       pin.FrameType.OP_FRAME)
+    model.addFrame(flange, False)
+    tool = pin.Frame('tool', parent, last_frame, pin.SE3(chain.flange @ chain.tool),
+                     pin.FrameType.OP_FRAME)
+    model.addFrame(tool, False)
+    return model
+
+
+@lru_cache(maxsize=32)
+def _cached_pinocchio(chain: Chain) -> pin.Model:
+    """to_pinocchio, cached per Chain object (Chain compares and hashes by identity)."""
+    return to_pinocchio(chain)
+
+
+@dataclass(frozen=True)
+class IkResult:
+    """Inverse kinematics result; falsy on failure."""
+
+    q: Array                   # (n,) [rad], the last iterate (within limits) even on failure
+    success: bool
+    position_error: float      # [m]
+    orientation_error: float   # [rad]; nan when position_only
+    iterations: int
+    message: str = ''
+
+    def __bool__(self) -> bool:
+        return self.success
+
+
+@dataclass(frozen=True)
+class _Residual:
+    error: Array        # (6,) or (3,) task error
+    jacobian: Array     # d error / dq, (6, n) or (3, n)
+    position: float     # [m]
+    orientation: float  # [rad]
+
+
+def _residual(model: pin.Model, data: pin.Data, q: Array, frame: int, target: pin.SE3,
+              position_only: bool) -> _Residual:
+    """Task error and its Jacobian at q; LOCAL frame Jacobian, rotated for position only."""
+    pin.computeJointJacobians(model, data, q)  # also runs forward kinematics
+    current = pin.updateFramePlacement(model, data, frame)
+    J = pin.getFrameJacobian(model, data, frame, pin.LOCAL)
+    delta = target.actInv(current)  # T_target_tool, identity at the solution
+    position = float(np.linalg.norm(current.translation - target.translation))
+    if position_only:
+        error = current.translation - target.translation
+        return _Residual(error, current.rotation @ J[:3], position, math.nan)
+    J_error = pin.Jlog6(delta) @ J
+    return _Residual(pin.log6(delta).vector, J_error, position,
+                     float(np.linalg.norm(pin.log3(delta.rotation))))
+
+
+_STALL_ITERATIONS = 20  # give up after this many iterations without progress
+
+
+def _dls_step(res: _Residual, max_step: float) -> Array:
+    """Damped least-squares step dq [rad], damping ~ |error|^2, largest component <= max_step."""
+    J, e = res.jacobian, res.error
+    damping = float(e @ e) + 1e-12
+    dq = -J.T @ np.linalg.solve(J @ J.T + damping * np.eye(len(e)), e)
+    largest = float(np.max(np.abs(dq)))
+    return dq * (max_step / largest) if largest > max_step else dq
+
+
+def solve_ik(chain: Chain, T_base_tool_target: ArrayLike, q_seed: ArrayLike, *,
+             position_only: bool = False, tol: float = 1e-10,
+             max_iter: int = 200) -> IkResult:
+    """Joint angles [rad] putting the tool at T_base_tool_target (4, 4), from q_seed (n,).
+
+    Damped least squares on the SE(3) log error; each iterate is clipped to the joint limits,
+    so a returned solution respects them. Redundancy resolves towards the seed. Converged when
+    position error < tol [m] and, unless position_only, rotation error < tol [rad].
+    Unreachable or limit-blocked targets return success False with a message.
+    """
+    model = _cached_pinocchio(chain)
+    data = model.createData()
+    frame = model.getFrameId('tool')
+    target = pin.SE3(np.asarray(T_base_tool_target, dtype=float))
+    q = np.clip(_as_batch(chain, q_seed)[0], chain.lower, chain.upper)
+    best, stalled = math.inf, 0
+    for iteration in range(max_iter + 1):
+        res = _residual(model, data, q, frame, target, position_only)
+        if res.position < tol and (position_only or res.orientation < tol):
+            return IkResult(q, True, res.position, res.orientation, iteration, 'converged')
+        size = float(np.linalg.norm(res.error))
+        best, stalled = (size, 0) if size < best * (1.0 - 1e-6) else (best, stalled + 1)
+        if iteration == max_iter or stalled >= _STALL_ITERATIONS:
+            break
+        q = np.clip(q + _dls_step(res, 0.5), chain.lower, chain.upper)
+    return IkResult(q, False, res.position, res.orientation, iteration,
+                    _failure_message(chain, q, res, iteration))
+
+
+def _failure_message(chain: Chain, q: Array, res: _Residual, iterations: int) -> str:
+    at_limit = [n for n, v, lo, hi in zip(chain.joint_names, q, chain.lower, chain.upper)
+                if v <= lo or v >= hi]
+    limits = f'; joints at limits: {", ".join(at_limit)}' if at_limit else ''
+    return (f'no convergence after {iterations} iterations: position error {res.position:.3g} m, '
+            f'orientation error {res.orientation:.3g} rad{limits}')
+
+
+def solve_ik_with_restarts(chain: Chain, T_base_tool_target: ArrayLike, q_seed: ArrayLike,
+                           home: ArrayLike) -> IkResult:
+    """:func:`solve_ik` from ``q_seed``, then from ``home`` and from home with the last joint
+    turned by -pi/2 and +pi/2: the local solver can stall at a joint limit, typically the
+    wrist's when the tool orientation changes a lot. The first success, else the first failure.
+    """
+    home = np.asarray(home, dtype=float)
+    turn = np.zeros_like(home)
+    turn[-1] = math.pi / 2
+    first = None
+    for seed in (q_seed, home, home - turn, home + turn):
+        result = solve_ik(chain, T_base_tool_target, seed)
+        if result.success:
+            return result
+        first = first or result
+    return first
