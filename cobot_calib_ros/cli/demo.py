@@ -108,8 +108,11 @@ def _apparent_points(truth, cell, true_chain, p_true) -> np.ndarray:
     nominal = model.chain(tool=cell.tool_offset)
     R = cellmod.tool_down_orientation(convert.transform_to_matrix(truth.user_frame))
     points = []
-    for p in p_true:
-        ik = kinematics.solve_ik(true_chain, frames.make_transform(R, p), cell.home)
+    for name, p in zip(POINTS, p_true):
+        ik = kinematics.solve_ik_with_restarts(true_chain, frames.make_transform(R, p),
+                                               cell.home, cell.home)
+        if not ik:
+            raise RuntimeError(f'the true robot cannot reach marker {name}: {ik.message}')
         points.append(kinematics.fk(nominal, ik.q)[:3, 3])
     return np.array(points)
 

@@ -1,13 +1,20 @@
-"""The simulated cell: true user frame, uneven table, aluminium markers, proximity probe.
+"""The cell as the user knows it: robot model, frame names, tool, home pose, marker layouts.
 
-Everything here is ground truth that a real cell never tells; the mock robot node uses it to
-decide where the tool really is and what the probe really reads. All lengths in metres.
+Everything here is nominal, what an integrator measures or configures; what only a simulator
+knows (the true user frame, kinematic errors, the uneven table, noise) is in
+:mod:`cobot_calib_ros.sim`. The probe's calibration table belongs to ``proximity_sensor``.
+
+A cell file is YAML with a ``cell:`` mapping (read here) and, for the mock robot, a
+``simulation:`` mapping (read by :mod:`cobot_calib_ros.sim.scenario`). Lengths in metres,
+angles in radians. A file that does not fit raises :class:`CellFileError` naming the file, the
+line, the key and what is expected.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 import math
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -16,74 +23,42 @@ import yaml
 from cobot_calib_ros.core import frames
 
 Array = NDArray[np.float64]
+ROBOTS = ('sawyer', 'iiwa7', 'iiwa14')
+FRAME_ID_CHARS = frozenset('abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_/')
 
 
-@dataclass(frozen=True)
-class HeightField:
-    """Table height error dz(x, y) [m] over the user-frame xy plane [m]."""
-
-    amplitude: float = 3.0e-4
-    wavelength: float = 0.8
-    tilt: tuple[float, float] = (0.0, 0.0)  # dz/dx, dz/dy [m/m]
-    phase: tuple[float, float] = (0.0, 0.0)  # [rad]
-
-    def __call__(self, x: Array | float, y: Array | float) -> Array:
-        k = 2.0 * math.pi / self.wavelength
-        wave = np.sin(k * np.asarray(x) + self.phase[0]) * np.sin(k * np.asarray(y) + self.phase[1])
-        return self.amplitude * wave + self.tilt[0] * np.asarray(x) + self.tilt[1] * np.asarray(y)
+class CellFileError(ValueError):
+    """A cell file that cannot be used; the message names file, line, key and the fix."""
 
 
 @dataclass(frozen=True)
 class Marker:
-    """An aluminium block glued on the table; axis-aligned in the user frame."""
+    """An aluminium block on the table, axis-aligned in the user frame (nominal geometry)."""
 
     name: str
-    xy: tuple[float, float]       # nominal centre in the user frame [m]
-    size: tuple[float, float, float]  # x, y, z extent [m] (50 x 30 x 20 mm in the paper)
-    base_z: float                 # true z of the table under it, user frame [m]
-    height_error: float           # true height minus nominal size[2] [m]
-
-    @property
-    def top_z(self) -> float:
-        return self.base_z + self.size[2] + self.height_error
+    xy: tuple[float, float]            # centre in the user frame [m]
+    size: tuple[float, float, float]   # x, y, z extent [m] (50 x 30 x 20 mm in the paper)
 
     @property
     def nominal_top(self) -> Array:
-        """Top-face centre as the user knows it (flat table, nominal height)."""
+        """Top-face centre on a flat table at nominal height, user frame [m]."""
         return np.array([self.xy[0], self.xy[1], self.size[2]])
-
-    @property
-    def true_top(self) -> Array:
-        return np.array([self.xy[0], self.xy[1], self.top_z])
-
-    def box(self) -> tuple[Array, Array]:
-        half = np.array(self.size[:2]) / 2.0
-        lo = np.array([self.xy[0] - half[0], self.xy[1] - half[1], self.base_z])
-        hi = np.array([self.xy[0] + half[0], self.xy[1] + half[1], self.top_z])
-        return lo, hi
-
-
-def ray_box_distance(origin: Array, direction: Array, lo: Array, hi: Array) -> float:
-    """Distance along a unit ray to where it enters an axis-aligned box; inf if it misses."""
-    with np.errstate(divide='ignore', invalid='ignore'):
-        t1 = (lo - origin) / direction
-        t2 = (hi - origin) / direction
-    t1 = np.where(np.isnan(t1), -np.inf, t1)
-    t2 = np.where(np.isnan(t2), np.inf, t2)
-    t_near = float(np.max(np.minimum(t1, t2)))
-    t_far = float(np.min(np.maximum(t1, t2)))
-    if t_near > t_far or t_far < 0.0 or t_near < 0.0:
-        return math.inf
-    return t_near
 
 
 @dataclass(frozen=True)
-class World:
-    """The true cell: where the user frame is and what stands on the table."""
+class Cell:
+    """The nominal cell of one file, with one layout of markers chosen."""
 
-    T_base_user: Array
+    name: str
+    robot: str
+    base_frame: str
+    tool_frame: str
+    user_frame: str
+    tool_offset: Array          # (4, 4) flange -> tool centre point (the probe tip)
+    home: Array                 # (n,) joint positions [rad]
+    layout: str
+    layouts: tuple[str, ...]
     markers: tuple[Marker, ...]
-    height_field: HeightField
 
     def marker(self, name: str) -> Marker | None:
         return next((m for m in self.markers if m.name == name), None)
@@ -92,196 +67,13 @@ class World:
     def point_names(self) -> list[str]:
         return [m.name for m in self.markers]
 
-    def true_points_base(self) -> Array:
-        """(N, 3) true marker top-face centres in the base frame [m]."""
-        return frames.apply(self.T_base_user, np.array([m.true_top for m in self.markers]))
-
     def nominal_points_user(self) -> Array:
+        """(N, 3) nominal top-face centres in the user frame [m]."""
         return np.array([m.nominal_top for m in self.markers])
-
-    def probe_gap(self, T_base_tool: Array) -> float:
-        """Gap [m] along the tool z axis from the probe tip to the nearest marker face."""
-        T_user_tool = frames.invert(self.T_base_user) @ T_base_tool
-        origin, direction = T_user_tool[:3, 3], T_user_tool[:3, 2]
-        gaps = [ray_box_distance(origin, direction, *m.box()) for m in self.markers]
-        return min(gaps, default=math.inf)
-
-
-@dataclass(frozen=True)
-class ProbeCurve:
-    """Calibration table of the inductive probe: voltage [V] against gap [m]."""
-
-    distance: tuple[float, ...]   # increasing [m]
-    voltage: tuple[float, ...]    # [V], monotonic
-
-    @property
-    def min_range(self) -> float:
-        return self.distance[0]
-
-    @property
-    def max_range(self) -> float:
-        return self.distance[-1]
-
-    def to_voltage(self, gap: float) -> float:
-        """Sensor output for a gap; saturates at the range ends like the real probe."""
-        g = min(max(gap, self.min_range), self.max_range)
-        return float(np.interp(g, self.distance, self.voltage))
-
-    def to_distance(self, voltage: float) -> float:
-        """Gap for a voltage by linear interpolation in the table (voltage may decrease)."""
-        v = np.asarray(self.voltage)
-        d = np.asarray(self.distance)
-        if v[0] > v[-1]:
-            v, d = v[::-1], d[::-1]
-        return float(np.interp(voltage, v, d))
-
-
-@dataclass(frozen=True)
-class Noise:
-    repeatability_sigma: float = 3.0e-5  # unidirectional tool repeatability, per axis, at
-    #                                      repeatability_centre [m]
-    repeatability_centre: tuple[float, float] = (0.0, 0.0)  # user x, y where it is best [m]
-    repeatability_growth: float = 0.0    # sigma * (1 + growth d^2), d from the centre [1/m^2]
-    encoder_sigma: float = 2.0e-6        # joint encoder noise per sample [rad]
-    touch_sigma: float = 2.0e-5          # operator centring error when touching a marker [m]
-    probe_voltage_sigma: float = 4.0e-3  # [V] (8 V/mm sensitivity: 0.5 um)
-
-
-@dataclass(frozen=True)
-class Cell:
-    """A whole scenario, from one cell YAML file."""
-
-    name: str
-    robot: str
-    seed: int
-    base_frame: str
-    tool_frame: str
-    user_frame: str
-    tool_offset: Array          # (4, 4) flange -> probe tip
-    home: Array                 # (n,) joint positions [rad]
-    parameter_errors: dict[str, float]
-    random_errors: tuple[float, float]  # sigma of random (length [m], angle [rad]) errors
-    world: World
-    layout: str
-    layouts: dict[str, dict[str, tuple[float, float]]]
-    noise: Noise
-    probe: ProbeCurve
-    joint_states_hz: float
-    probe_hz: float
-    time_scale: float
-    approach_gap: float
-    raw: dict = field(repr=False, default_factory=dict)
-
-
-def repeatability_sigma_at(cell: Cell, p_base: Array) -> float:
-    """Tool repeatability sigma per axis [m] with the tool at ``p_base``.
-
-    Best at the cell's repeatability centre, growing with the squared horizontal distance
-    from it (user frame): the paper's robot repeated 2-3 times worse at the corners of the
-    "wide" set-up than at its centre or in the "close" one (Tables 4-5, reference rows).
-    """
-    x, y, _ = frames.apply(frames.invert(cell.world.T_base_user), p_base)
-    cx, cy = cell.noise.repeatability_centre
-    return cell.noise.repeatability_sigma * (
-        1.0 + cell.noise.repeatability_growth * ((x - cx) ** 2 + (y - cy) ** 2))
-
-
-def layout_repeatability_sigma(cell: Cell) -> float:
-    """RMS of :func:`repeatability_sigma_at` over the layout's marker tops [m]."""
-    sigmas = [repeatability_sigma_at(cell, p) for p in cell.world.true_points_base()]
-    return float(np.sqrt(np.mean(np.square(sigmas))))
-
-
-def _height_field(cfg: dict, rng: np.random.Generator) -> HeightField:
-    phase = cfg.get('phase')
-    if phase is None:
-        phase = tuple(float(p) for p in rng.uniform(0.0, 2.0 * math.pi, 2))
-    return HeightField(amplitude=float(cfg.get('amplitude', 3.0e-4)),
-                       wavelength=float(cfg.get('wavelength', 0.8)),
-                       tilt=tuple(float(t) for t in cfg.get('tilt', (0.0, 0.0))),
-                       phase=tuple(float(p) for p in phase))
-
-
-def _markers(layout: dict, cfg: dict, field_: HeightField,
-             rng: np.random.Generator) -> tuple[Marker, ...]:
-    size = tuple(float(s) for s in cfg.get('size', (0.050, 0.030, 0.020)))
-    sigma = float(cfg.get('height_sigma', 5.0e-5))
-    markers = []
-    for name, xy in layout.items():
-        x, y = float(xy[0]), float(xy[1])
-        markers.append(Marker(name, (x, y), size, float(field_(x, y)),
-                              float(rng.normal(0.0, sigma))))
-    return tuple(markers)
-
-
-def _tool_offset(cfg: dict) -> Array:
-    return frames.from_xyz_rpy(cfg.get('xyz', (0.0, 0.0, 0.1)), cfg.get('rpy', (0.0, 0.0, 0.0)))
-
-
-def _probe(cfg: dict) -> ProbeCurve:
-    return ProbeCurve(tuple(float(d) for d in cfg['distance']),
-                      tuple(float(v) for v in cfg['voltage']))
-
-
-def cell_from_dict(raw: dict, layout: str | None = None) -> Cell:
-    """Build a Cell from the parsed YAML (the `cell:` mapping); seeded and reproducible."""
-    seed = int(raw.get('seed', 0))
-    rng = np.random.default_rng(seed)
-    layouts = {k: {n: tuple(p) for n, p in v.items()} for k, v in raw['layouts'].items()}
-    layout = layout or raw.get('layout', next(iter(layouts)))
-    if layout not in layouts:
-        raise ValueError(f'layout {layout!r} is not in the cell; choose one of {sorted(layouts)}')
-    field_ = _height_field(raw.get('table', {}).get('height_field', {}), rng)
-    markers = _markers(layouts[layout], raw.get('markers', {}), field_, rng)
-    uf = raw['user_frame_true']
-    world = World(frames.from_xyz_rpy(uf['xyz'], uf['rpy']), markers, field_)
-    errors = raw.get('kinematic_errors', {})
-    noise = Noise(**{k: tuple(float(x) for x in v) if isinstance(v, list) else float(v)
-                     for k, v in raw.get('noise', {}).items()})
-    rates = raw.get('rates', {})
-    return Cell(
-        name=str(raw.get('name', 'cell')), robot=str(raw['robot']), seed=seed,
-        base_frame=str(raw.get('base_frame', 'base_link')),
-        tool_frame=str(raw.get('tool_frame', 'tool0')),
-        user_frame=str(raw.get('user_frame', 'user_frame')),
-        tool_offset=_tool_offset(raw.get('tool_offset', {})),
-        home=np.asarray(raw['home'], dtype=float),
-        parameter_errors={k: float(v) for k, v in errors.get('explicit', {}).items()},
-        random_errors=(float(errors.get('random_length_sigma', 0.0)),
-                       float(errors.get('random_angle_sigma', 0.0))),
-        world=world, layout=layout, layouts=layouts, noise=noise, probe=_probe(raw['probe']),
-        joint_states_hz=float(rates.get('joint_states_hz', 1000.0)),
-        probe_hz=float(rates.get('probe_hz', 200.0)),
-        time_scale=float(raw.get('time_scale', 1.0)),
-        approach_gap=float(raw.get('approach_gap', 1.2e-3)), raw=raw)
-
-
-def load_cell(path: str | Path, layout: str | None = None) -> Cell:
-    """Read a cell YAML file (top-level key `cell`)."""
-    with open(path, encoding='utf-8') as f:
-        doc = yaml.safe_load(f)
-    if not isinstance(doc, dict) or 'cell' not in doc:
-        raise ValueError(f'{path}: expected a mapping with a top-level "cell" key')
-    return cell_from_dict(doc['cell'], layout)
-
-
-def true_parameters(cell: Cell, nominal: Array, names: tuple[str, ...]) -> Array:
-    """Nominal parameters plus the cell's explicit and seeded random kinematic errors."""
-    rng = np.random.default_rng(cell.seed + 1)
-    length_sigma, angle_sigma = cell.random_errors
-    is_angle = np.array([n.split('_')[0] in ('alpha', 'theta', 'roll', 'pitch', 'yaw')
-                         for n in names])
-    sigma = np.where(is_angle, angle_sigma, length_sigma)
-    true = nominal + rng.normal(0.0, 1.0, len(nominal)) * sigma
-    for name, delta in cell.parameter_errors.items():
-        if name not in names:
-            raise ValueError(f'kinematic error for unknown parameter {name!r}')
-        true[names.index(name)] += delta
-    return true
 
 
 def tool_down_orientation(T_base_user: Array, axis: str = 'z') -> Array:
-    """(3, 3) tool orientation in base whose z axis probes the marker along the user axis.
+    """(3, 3) tool orientation in base whose z axis probes a marker along the user ``axis``.
 
     'z': pointing down onto the top face; 'x' / 'y': pointing along +x / +y of the user frame
     at the marker's side face.
@@ -292,3 +84,125 @@ def tool_down_orientation(T_base_user: Array, axis: str = 'z') -> Array:
         'y': frames.rot_x(-math.pi / 2.0),
     }[axis]
     return T_base_user[:3, :3] @ R_user
+
+
+def check_frame_id(frame_id: str) -> str:
+    """'' if ``frame_id`` is a valid tf2 frame id (letters, digits, '_', '/'), else why not."""
+    if not frame_id:
+        return 'a frame id must not be empty'
+    bad = sorted(set(frame_id) - FRAME_ID_CHARS)
+    if bad or frame_id.startswith('/'):
+        return (f'frame id {frame_id!r} has characters tf2 does not accept ({"".join(bad) or "/"}'
+                '); use letters, digits and _ (e.g. user_frame), no leading /')
+    return ''
+
+
+# -- reading a cell file ------------------------------------------------------------------
+
+class CellReader:
+    """Typed access to one mapping of a cell file, with errors that name the file and line."""
+
+    def __init__(self, path: Path, text: str, section: str) -> None:
+        self.path, self.section = path, section
+        try:
+            self._root = yaml.compose(text)
+            doc = yaml.safe_load(text)
+        except yaml.YAMLError as e:
+            raise CellFileError(f'{path}: not valid YAML: {" ".join(str(e).split())}') from None
+        if not isinstance(doc, dict) or not isinstance(doc.get(section), dict):
+            raise CellFileError(f'{path}: expected a mapping with a top-level "{section}:" key')
+        self.data: dict = doc[section]
+
+    def fail(self, keys: tuple[str, ...], expected: str) -> CellFileError:
+        where = '.'.join((self.section, *keys))
+        return CellFileError(f'{self.path}:{self._line(keys)}: {where}: {expected}')
+
+    def _line(self, keys: tuple[str, ...]) -> int:
+        node, line = self._root, 1
+        for key in (self.section, *keys):
+            found = next((v for k, v in getattr(node, 'value', [])
+                          if isinstance(node, yaml.MappingNode) and k.value == key), None)
+            if found is None:
+                break
+            node, line = found, found.start_mark.line + 1
+        return line
+
+    def get(self, *keys: str, default: Any = ...) -> Any:
+        value: Any = self.data
+        for i, key in enumerate(keys):
+            if not isinstance(value, dict) or key not in value:
+                if default is not ...:
+                    return default
+                raise self.fail(keys[:i + 1], 'missing; see config/cells/sawyer_close.yaml')
+            value = value[key]
+        return value
+
+    def number(self, *keys: str, default: Any = ...) -> float:
+        value = self.get(*keys, default=default)
+        if isinstance(value, bool) or not isinstance(value, (int, float)) \
+                or not math.isfinite(value):
+            raise self.fail(keys, f'expected a finite number, got {value!r}')
+        return float(value)
+
+    def vector(self, *keys: str, length: int | None = None, default: Any = ...) -> Array:
+        value = self.get(*keys, default=default)
+        ok = isinstance(value, list) and all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)
+        if not ok or (length is not None and len(value) != length) \
+                or not np.all(np.isfinite(value)):
+            size = f'{length} ' if length else ''
+            raise self.fail(keys, f'expected a list of {size}finite numbers, got {value!r}')
+        return np.asarray(value, dtype=float)
+
+    def name(self, *keys: str, default: Any = ...) -> str:
+        value = self.get(*keys, default=default)
+        if not isinstance(value, str) or not value:
+            raise self.fail(keys, f'expected a non-empty string, got {value!r}')
+        return value
+
+
+def read_cell_text(path: str | Path) -> tuple[Path, str]:
+    path = Path(path)
+    try:
+        return path, path.read_text(encoding='utf-8')
+    except OSError as e:
+        raise CellFileError(f'{path}: cannot read the cell file ({e.strerror}); give a path or '
+                            'a name in config/cells (sawyer_close, iiwa7_close)') from None
+
+
+def load_cell(path: str | Path, layout: str | None = None) -> Cell:
+    """The nominal cell of a cell file, with ``layout`` (default: the file's ``layout``)."""
+    path, text = read_cell_text(path)
+    r = CellReader(path, text, 'cell')
+    robot = r.name('robot')
+    if robot not in ROBOTS:
+        raise r.fail(('robot',), f'unknown robot {robot!r}; use one of {", ".join(ROBOTS)}')
+    frames_ = {k: r.name(k, default=d) for k, d in (
+        ('base_frame', 'base_link'), ('tool_frame', 'tool0'), ('user_frame', 'user_frame'))}
+    for key, value in frames_.items():
+        if check_frame_id(value):
+            raise r.fail((key,), check_frame_id(value))
+    layouts = r.get('layouts')
+    if not isinstance(layouts, dict) or not layouts:
+        raise r.fail(('layouts',), 'expected a mapping of layout name -> {point: [x, y]}')
+    chosen = layout or r.get('layout', default=next(iter(layouts)))
+    if chosen not in layouts:
+        raise r.fail(('layout',), f'layout {chosen!r} is not in the cell; choose one of '
+                     f'{", ".join(layouts)}')
+    return Cell(
+        name=r.name('name', default=path.stem), robot=robot, **frames_,
+        tool_offset=frames.from_xyz_rpy(r.vector('tool_offset', 'xyz', length=3),
+                                        r.vector('tool_offset', 'rpy', length=3)),
+        home=r.vector('home'), layout=chosen, layouts=tuple(layouts),
+        markers=_markers(r, chosen))
+
+
+def _markers(r: CellReader, layout: str) -> tuple[Marker, ...]:
+    size = r.vector('markers', 'size', length=3)
+    if np.any(size <= 0) or np.any(size > 1.0):
+        raise r.fail(('markers', 'size'), f'expected x y z extents in metres, got {size}')
+    points = r.get('layouts', layout)
+    if not isinstance(points, dict) or not points:
+        raise r.fail(('layouts', layout), 'expected a mapping of point name -> [x, y] [m]')
+    return tuple(Marker(str(name), tuple(r.vector('layouts', layout, str(name), length=2)),
+                        tuple(size)) for name in points)

@@ -16,11 +16,23 @@ class ErrorCode(IntEnum):
     UNKNOWN_POINT = 5
     CAPTURE_FAILED = 6
     STORAGE_FAILED = 7
+    IMPLAUSIBLE_FIT = 8
+
+
+class MotionCode(IntEnum):
+    """Matches the error constants of cobot_calib_msgs/action/MoveTo."""
+
+    SUCCESS = 0
+    UNREACHABLE = 1
+    INVALID_TARGET = 2
+    CANCELED = 3
 
 
 @dataclass(frozen=True)
 class Failure:
-    code: ErrorCode
+    """Falsy: what went wrong (``code``, an IntEnum of the interface it answers) and what to do."""
+
+    code: IntEnum
     message: str
 
     def __bool__(self) -> bool:

@@ -6,7 +6,6 @@ window never holds up the 1 kHz stream.
 from __future__ import annotations
 
 import threading
-import time
 
 from cobot_calib_msgs.srv import CaptureJoints
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
@@ -16,7 +15,10 @@ from sensor_msgs.msg import JointState
 
 from cobot_calib_ros.core.sensors.joint_buffer import hold_statistics, JointRingBuffer
 from cobot_calib_ros.ros import spin
-from cobot_calib_ros.ros.params import declare
+from cobot_calib_ros.ros.params import declare, read_once
+from cobot_calib_ros.ros.time import now_ns, stamp_or_now_ns
+
+STALL_TIMEOUT = 3.0     # [s] of wall time without a new sample: the stream has stopped
 
 
 class JointStateMonitor(Node):
@@ -44,10 +46,10 @@ class JointStateMonitor(Node):
 
     def _declare_parameters(self) -> dict:
         values = {
-            'expected_rate_hz': declare(self, 'expected_rate_hz', 1000.0,
-                                        'Nominal joint_states rate [Hz]', 1.0, 10000.0),
-            'buffer_duration': declare(self, 'buffer_duration', 10.0,
-                                       'Ring buffer length [s]', 1.0, 600.0),
+            'expected_rate_hz': read_once(self, 'expected_rate_hz', 1000.0,
+                                          'Nominal joint_states rate [Hz]', 1.0, 10000.0),
+            'buffer_duration': read_once(self, 'buffer_duration', 10.0,
+                                         'Ring buffer length [s]', 1.0, 600.0),
             'capture_duration': declare(self, 'capture_duration', 1.0,
                                         'Default hold window of capture_joints [s]', 0.01, 60.0),
             'min_sample_fraction': declare(
@@ -57,19 +59,20 @@ class JointStateMonitor(Node):
             'max_joint_std': declare(
                 self, 'max_joint_std', 1.0e-4,
                 'Refuse a capture when a joint spreads more than this: moving [rad]', 0.0, 1.0),
-            'qos_depth': declare(self, 'qos_depth', 1000,
-                                 'joint_states subscription queue depth [messages]', 1, 100000),
-            'joint_names': declare(self, 'joint_names', [''],
-                                   'Expected joint names; empty = take them from the first '
-                                   'message'),
+            'qos_depth': read_once(self, 'qos_depth', 1000,
+                                   'joint_states subscription queue depth [messages]', 1,
+                                   100000),
+            'joint_names': read_once(self, 'joint_names', [''],
+                                     'Expected joint names; empty = take them from the '
+                                     'first message'),
         }
         values['joint_names'] = [n for n in values['joint_names'] if n]
         return values
 
     def _on_joint_state(self, msg: JointState) -> None:
-        # Windows are in publish time (header stamps, wall clock): samples queued during a
+        # Windows are in publish time (header stamps, node clock): samples queued during a
         # motion and delivered late must not count as the hold that follows it.
-        stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9 or time.time()
+        stamp = stamp_or_now_ns(self, msg.header.stamp) * 1e-9
         with self._lock:
             why = self._buffer.add(stamp, list(msg.name), list(msg.position))
             if why is None:
@@ -95,11 +98,10 @@ class JointStateMonitor(Node):
             response.message = (f'duration {duration} s must be > 0 and within the buffer '
                                 f'({self.get_parameter("buffer_duration").value} s)')
             return response
-        t0 = time.time()
+        t0 = now_ns(self) * 1e-9
         t1 = t0 + duration
         with self._lock:
-            self._new_sample.wait_for(lambda: self._buffer.latest_time >= t1,
-                                      timeout=duration + 3.0)  # a lagging queue catches up
+            self._wait_until(t1)
             times, positions = self._buffer.window(t0, t1)
             names = list(self._buffer.joint_names or [])
         capture = hold_statistics(
@@ -118,6 +120,16 @@ class JointStateMonitor(Node):
         if not capture.ok:
             self.get_logger().warning(f'capture_joints refused: {capture.message}')
         return response
+
+    def _wait_until(self, t1: float) -> None:
+        """Until a sample stamped at or after t1 [s] arrives (the window is over in ROS time,
+        whatever its rate to wall time), or the stream stalls. Holds self._lock."""
+        count = self._buffer.count
+        while self._buffer.latest_time < t1:
+            self._new_sample.wait(timeout=STALL_TIMEOUT)
+            if self._buffer.count == count:
+                return                  # nothing new for STALL_TIMEOUT: no data
+            count = self._buffer.count
 
     def _publish_diagnostics(self) -> None:
         with self._lock:

@@ -1,13 +1,12 @@
 """proximity_sensor: probe voltage -> distance [m] with range checks, and window averages.
 
-Averaging windows are in publish time (header stamps, wall clock), so readings taken during a
-motion and delivered late never count as the hold that follows it.
+Averaging windows are in publish time (header stamps, node clock: use_sim_time works), so
+readings taken during a motion and delivered late never count as the hold that follows it.
 """
 from __future__ import annotations
 
 from collections import deque
 import threading
-import time
 
 from cobot_calib_msgs.msg import ProbeVoltage, ProximityReading
 from cobot_calib_msgs.srv import AverageProximity
@@ -17,7 +16,10 @@ from rclpy.qos import qos_profile_sensor_data
 
 from cobot_calib_ros.core.sensors.probe import curve_from_lists, read_distance, ReadingStatus
 from cobot_calib_ros.ros import spin
-from cobot_calib_ros.ros.params import declare
+from cobot_calib_ros.ros.params import declare, read_once
+from cobot_calib_ros.ros.time import now_ns, stamp_or_now_ns
+
+STALL_TIMEOUT = 1.0     # [s] of wall time without a new reading: the probe stream has stopped
 
 
 class ProximitySensor(Node):
@@ -39,12 +41,12 @@ class ProximitySensor(Node):
             f'probe range {self._curve.min_range * 1e3:.2f}-{self._curve.max_range * 1e3:.2f} mm')
 
     def _declare_parameters(self) -> None:
-        declare(self, 'calibration_distance', [0.0002, 0.0022],
-                'Calibration table: gaps [m], increasing')
-        declare(self, 'calibration_voltage', [-1.6, -17.6],
-                'Calibration table: sensor output at those gaps [V]')
-        declare(self, 'saturation_margin', 2.0e-6,
-                'Readings this close to a range end count as saturated [m]', 0.0, 1e-3)
+        read_once(self, 'calibration_distance', [0.0002, 0.0022],
+                  'Calibration table: gaps [m], increasing')
+        read_once(self, 'calibration_voltage', [-1.6, -17.6],
+                  'Calibration table: sensor output at those gaps [V]')
+        read_once(self, 'saturation_margin', 2.0e-6,
+                  'Readings this close to a range end count as saturated [m]', 0.0, 1e-3)
         declare(self, 'average_duration', 0.2, 'Default window of probe/average [s]',
                 0.001, 60.0)
 
@@ -61,7 +63,7 @@ class ProximitySensor(Node):
                                voltage=msg.voltage, min_range=self._curve.min_range,
                                max_range=self._curve.max_range, status=int(reading.status))
         self._pub.publish(out)
-        stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9 or time.time()
+        stamp = stamp_or_now_ns(self, msg.header.stamp) * 1e-9
         with self._lock:
             self._recent.append((stamp, reading.distance, reading.status))
             self._lock.notify_all()
@@ -75,13 +77,22 @@ class ProximitySensor(Node):
             response.error_code = AverageProximity.Response.BAD_REQUEST
             response.message = f'duration {duration} s must be in (0, 60]'
             return response
-        t0 = time.time()
+        t0 = now_ns(self) * 1e-9
         t1 = t0 + duration
         with self._lock:
-            self._lock.wait_for(lambda: self._recent and self._recent[-1][0] >= t1,
-                                timeout=duration + 0.5)
+            self._wait_until(t1)
             window = [(d, s) for t, d, s in self._recent if t0 <= t <= t1]
+        response.min_range, response.max_range = self._curve.min_range, self._curve.max_range
         return self._fill_average(response, window, duration)
+
+    def _wait_until(self, t1: float) -> None:
+        """Until a reading stamped at or after t1 [s] (ROS time) arrives, or the stream
+        stalls for STALL_TIMEOUT of wall time. Holds self._lock."""
+        while not (self._recent and self._recent[-1][0] >= t1):
+            newest = self._recent[-1] if self._recent else None
+            self._lock.wait(timeout=STALL_TIMEOUT)
+            if (self._recent[-1] if self._recent else None) is newest:
+                return
 
     @staticmethod
     def _fill_average(response, window, duration: float):

@@ -16,27 +16,23 @@ import numpy as np
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
 from cobot_calib_ros import paths
 from cobot_calib_ros.ros import convert
-from cobot_calib_ros.core import cell as cellmod
+from cobot_calib_ros.core.cell import load_cell
 from cobot_calib_ros.core import kinematics
 from cobot_calib_ros.core.repeatability import trial as trialmod
 from cobot_calib_ros.core.repeatability import PointStats
+from cobot_calib_ros.core.sensors.probe import Reading, ReadingStatus
 from cobot_calib_ros.store.files import check_id
 from cobot_calib_ros.store.trials import TrialStore
-from cobot_calib_ros.ros import spin
-from cobot_calib_ros.ros.params import declare
+from cobot_calib_ros.ros import qos, spin
+from cobot_calib_ros.ros.params import declare, read_once
 from cobot_calib_ros.ros.robot_calls import RobotCallError, RobotCalls
 
-LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
 RESULT_CODE = {'invalid': RunTrial.Result.INVALID_GOAL, 'motion': RunTrial.Result.MOTION_FAILED,
                'probe': RunTrial.Result.PROBE_FAILED, 'canceled': RunTrial.Result.CANCELED}
 MOVE_TIMEOUT = 120.0    # [s] for one move_to to finish
-PROBE_STATUS = {ProximityReading.STATUS_BELOW_RANGE: 'below',
-                ProximityReading.STATUS_ABOVE_RANGE: 'above'}
 
 
 class RosRobot:
@@ -59,6 +55,15 @@ class RosRobot:
             if not client.wait_for_service(timeout_sec=timeout):
                 missing.append(f'{client.srv_name} ({who})')
         return f'not available: {", ".join(missing)}; is the node suite up?' if missing else ''
+
+    def probe_range(self) -> trialmod.ProbeRange:
+        """The probe's range from proximity_sensor's calibration table (not the cell's)."""
+        res = self._average(self._probe_window)
+        if res.error_code == AverageProximity.Response.BAD_REQUEST or \
+                not 0.0 <= res.min_range < res.max_range:
+            raise trialmod.TrialError('probe', f'proximity_sensor gave no probe range '
+                                      f'({res.message}); check its calibration table')
+        return trialmod.ProbeRange(res.min_range, res.max_range)
 
     def _average(self, window: float):
         req = AverageProximity.Request(duration=window)
@@ -83,14 +88,15 @@ class RosRobot:
         except RobotCallError as e:
             raise trialmod.TrialError('motion', str(e))
 
-    def read(self) -> trialmod.Reading:
+    def read(self) -> Reading:
         res = self._average(self._probe_window)
         if res.error_code == AverageProximity.Response.NO_DATA:   # a lost burst: once more
             res = self._average(4 * self._probe_window)
         if res.error_code == AverageProximity.Response.SUCCESS:
-            return trialmod.Reading('ok', res.distance)
-        if res.error_code == AverageProximity.Response.OUT_OF_RANGE:
-            return trialmod.Reading(PROBE_STATUS.get(res.reading_status, 'above'), float('nan'))
+            return Reading(res.distance, ReadingStatus.OK)
+        if res.error_code == AverageProximity.Response.OUT_OF_RANGE and res.reading_status in (
+                ProximityReading.STATUS_BELOW_RANGE, ProximityReading.STATUS_ABOVE_RANGE):
+            return Reading(float('nan'), ReadingStatus(res.reading_status))
         raise trialmod.TrialError('probe', f'probe/average: {res.message}')
 
 
@@ -114,15 +120,14 @@ class RepeatabilityTrial(Node):
     def __init__(self, **kwargs) -> None:
         super().__init__('repeatability_trial', **kwargs)
         self._declare_parameters()
-        self._cell = cellmod.load_cell(paths.cell_file(self._p('cell_file')),
-                                       self._p('layout') or None)
+        self._cell = load_cell(paths.cell_file(self._p('cell_file')), self._p('layout') or None)
         model = kinematics.model_by_name(self._cell.robot)
         self._store = TrialStore(paths.data_dir(self._p('data_dir')))
         self._answers = spin.Companion(self, 'clients')
         self._robot = RosRobot(self._answers, model.chain(tool=self._cell.tool_offset),
                                self._p('speed_scale'), self._p('probe_window'),
                                self._p('capture_duration'))
-        self._pub = self.create_publisher(Repeatability, 'repeatability', LATCHED)
+        self._pub = self.create_publisher(Repeatability, 'repeatability', qos.LATCHED)
         self._busy = threading.Lock()
         self._action = ActionServer(
             self, RunTrial, 'run_trial', execute_callback=self._execute,
@@ -135,17 +140,17 @@ class RepeatabilityTrial(Node):
         return super().destroy_node()
 
     def _declare_parameters(self) -> None:
-        declare(self, 'cell_file', 'sawyer_close',
-                'Cell YAML (path or name): markers, probe range, nominal tool')
-        declare(self, 'layout', '', 'Marker layout (close | wide); empty = the cell file default')
-        declare(self, 'data_dir', '', 'Trials go to <data_dir>/trials; empty = '
-                '$COBOT_CALIB_DATA or ~/.ros/cobot_calib')
-        declare(self, 'probe_window', 0.02, 'Probe averaging window per reading [s]',
-                0.005, 10.0)
-        declare(self, 'capture_duration', 0.3, 'Hold window when teaching a point [s]',
-                0.01, 10.0)
-        declare(self, 'speed_scale', 1.0,
-                'Fraction of the joint velocity limits for trial moves [1]', 0.01, 1.0)
+        read_once(self, 'cell_file', 'sawyer_close',
+                  'Cell YAML (path or name): markers, layouts, nominal tool')
+        read_once(self, 'layout', '', 'Marker layout (close | wide); empty = the cell default')
+        read_once(self, 'data_dir', '', 'Trials go to <data_dir>/trials; empty = '
+                  '$COBOT_CALIB_DATA or ~/.ros/cobot_calib')
+        read_once(self, 'probe_window', 0.02, 'Probe averaging window per reading [s]',
+                  0.005, 10.0)
+        read_once(self, 'capture_duration', 0.3, 'Hold window when teaching a point [s]',
+                  0.01, 10.0)
+        read_once(self, 'speed_scale', 1.0,
+                  'Fraction of the joint velocity limits for trial moves [1]', 0.01, 1.0)
         declare(self, 'approach_distance', 0.005,
                 'Retreat along the probe axis before every arrival (unidirectional) [m]',
                 0.0, 0.1)
@@ -216,16 +221,16 @@ class RepeatabilityTrial(Node):
             method, axis = resume.meta['method'], resume.meta['axis']
             names = resume.meta['point_names']
         else:
-            names = self._cell.world.point_names
+            names = self._cell.point_names
         why = self._robot.wait_ready()
         if why:
             raise trialmod.TrialError('motion', why)
-        markers = [self._cell.world.marker(n) for n in names]
+        markers = [self._cell.marker(n) for n in names]
         plan = trialmod.Plan(
             trial_id, method, axis, self._cell.layout, markers,
             (resume.meta['cycles_total'] if resume is not None
              else goal.cycles or trialmod.DEFAULT_CYCLES),
-            trialmod.ProbeRange(self._cell.probe.min_range, self._cell.probe.max_range),
+            self._robot.probe_range(),
             approach_distance=self._p('approach_distance'))
         feedback = RunTrial.Feedback()
 

@@ -1,37 +1,41 @@
-"""user_frame_solver: the calibrate_user_frame service, point conversion, durable history."""
+"""user_frame_solver: the calibrate_user_frame service, point conversion, durable history.
+
+calibrate_user_frame is served on its own executor thread (a spin.Companion): a live
+calibration that visits points blocks only that thread, so user_to_robot, robot_to_user and
+list_calibrations keep answering meanwhile.
+"""
 from __future__ import annotations
 
+import threading
 import time
 
 from cobot_calib_msgs.msg import PointResidual, SurfaceModel as SurfaceMsg, UserFrameCalibration
 from cobot_calib_msgs.srv import CalibrateUserFrame, ConvertPoints, ListCalibrations
 import numpy as np
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
 from cobot_calib_ros import paths
-from cobot_calib_ros.ros import convert
-from cobot_calib_ros.core import cell as cellmod
 from cobot_calib_ros.core import frames, kinematics, user_frame
+from cobot_calib_ros.core.cell import load_cell
 from cobot_calib_ros.core.errors import ErrorCode
-from cobot_calib_ros.store.calibrations import CalibrationStore
-from cobot_calib_ros.ros import spin
-from cobot_calib_ros.ros.params import declare
+from cobot_calib_ros.ros import convert, qos, spin
+from cobot_calib_ros.ros.params import declare, read_once
 from cobot_calib_ros.ros.robot_calls import RobotCallError, RobotCalls
+from cobot_calib_ros.ros.time import now_ns
+from cobot_calib_ros.store.calibrations import CalibrationStore
 
 Res = CalibrateUserFrame.Response
-LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
 def fit_record(fit: user_frame.FrameFit, surface, names: list[str], p_user, p_base,
-               frames_: tuple[str, str]) -> dict:
+               frames_: tuple[str, str], stamp_ns: int) -> dict:
     """Everything about one calibration (what is stored and republished); numpy values are
-    left as they are: the store writes them as plain lists."""
-    stamp_ns = time.time_ns()
+    left as they are: the store writes them as plain lists. ``stamp_ns`` is ROS time; the id
+    (a file name) comes from the wall clock so that it stays unique under a paused sim clock."""
+    wall_ns = time.time_ns()
     return {
-        'id': time.strftime('%Y%m%dT%H%M%S', time.gmtime(stamp_ns / 1e9))
-        + f'.{stamp_ns % 1_000_000_000:09d}Z-{fit.method}',
+        'id': time.strftime('%Y%m%dT%H%M%S', time.gmtime(wall_ns / 1e9))
+        + f'.{wall_ns % 1_000_000_000:09d}Z-{fit.method}',
         'stamp_ns': stamp_ns, 'method': fit.method,
         'base_frame': frames_[0], 'user_frame': frames_[1],
         'inputs': {'point_names': names, 'points_user': p_user, 'points_base': p_base},
@@ -91,32 +95,37 @@ class UserFrameSolver(Node):
     def __init__(self, **kwargs) -> None:
         super().__init__('user_frame_solver', **kwargs)
         self._declare_parameters()
-        self._cell = cellmod.load_cell(paths.cell_file(self._p('cell_file')))
+        self._cell = load_cell(paths.cell_file(self._p('cell_file')))
         model = kinematics.model_by_name(self._cell.robot)
         self._chain = model.chain(tool=self._cell.tool_offset)   # the nominal model
         self._store = CalibrationStore(paths.data_dir(self._p('data_dir')))
+        self._store_lock = threading.Lock()     # the calibrator thread writes, this one reads
         # a live calibration blocks in its service callback while the robot moves and
-        # captures: the answers it waits for arrive on the companion's own executor
+        # captures: it runs on the calibrator's thread, the answers it waits for arrive on
+        # the clients' thread, and this node's own services stay free
         self._answers = spin.Companion(self, 'clients')
+        self._calibrator = spin.Companion(self, 'calibrator')
         self._robot = RobotCalls(self._answers)
-        self._pub = self.create_publisher(UserFrameCalibration, 'user_frame', LATCHED)
-        self.create_service(CalibrateUserFrame, 'calibrate_user_frame', self._on_calibrate)
+        self._pub = self.create_publisher(UserFrameCalibration, 'user_frame', qos.LATCHED)
+        self._calibrator.node.create_service(CalibrateUserFrame, 'calibrate_user_frame',
+                                             self._on_calibrate)
         self.create_service(ConvertPoints, 'user_to_robot', self._on_user_to_robot)
         self.create_service(ConvertPoints, 'robot_to_user', self._on_robot_to_user)
         self.create_service(ListCalibrations, 'list_calibrations', self._on_list)
         self._republish_latest()
 
     def destroy_node(self):
+        self._calibrator.destroy()
         self._answers.destroy()
         return super().destroy_node()
 
     def _declare_parameters(self) -> None:
-        declare(self, 'cell_file', 'sawyer_close',
-                'Cell YAML (path or name): named points and the nominal tool offset')
+        read_once(self, 'cell_file', 'sawyer_close',
+                  'Cell YAML (path or name): named points and the nominal tool offset')
         declare(self, 'base_frame', 'base_link', 'Robot base frame id')
         declare(self, 'user_frame', 'user_frame', 'User (work surface) frame id')
-        declare(self, 'data_dir', '', 'Where calibrations are stored; empty = '
-                '$COBOT_CALIB_DATA or ~/.ros/cobot_calib')
+        read_once(self, 'data_dir', '', 'Where calibrations are stored; empty = '
+                  '$COBOT_CALIB_DATA or ~/.ros/cobot_calib')
         declare(self, 'capture_duration', 0.5, 'Hold window of each live capture [s]',
                 0.01, 10.0)
         declare(self, 'robust_threshold', 5.0e-4,
@@ -147,9 +156,10 @@ class UserFrameSolver(Node):
             return self._refuse(response, fit.code, fit.message)
         surface = (user_frame.fit_surface(p_user, p_base, fit.M)
                    if request.fit_surface else None)
-        record = fit_record(fit, surface, names, p_user, p_base, frames_)
+        record = fit_record(fit, surface, names, p_user, p_base, frames_, now_ns(self))
         try:
-            self._store.save(record)
+            with self._store_lock:
+                self._store.save(record)
         except OSError as e:
             return self._refuse(response, ErrorCode.STORAGE_FAILED,
                                 f'could not store the calibration: {e}; check data_dir')
@@ -179,28 +189,52 @@ class UserFrameSolver(Node):
             raise _RequestError(ErrorCode.TOO_FEW_POINTS, (
                 'no points: give points_user + points_base, or point_names of the cell to '
                 'visit live'))
-        return names, *self._capture_live(names)
+        self._check_names(names)
+        if request.joint_captures:
+            joints = self._given_joints(names, request.joint_captures)
+        else:
+            joints = [self._capture_live(name) for name in names]
+        p_user = np.array([self._cell.marker(n).nominal_top for n in names])
+        p_base = np.array([kinematics.fk(self._chain, q)[:3, 3] for q in joints])
+        return names, p_user, p_base
 
-    def _capture_live(self, names: list[str]) -> tuple[np.ndarray, np.ndarray]:
-        unknown = [n for n in names if self._cell.world.marker(n) is None]
+    def _check_names(self, names: list[str]) -> None:
+        unknown = [n for n in names if self._cell.marker(n) is None]
         if unknown:
             raise _RequestError(ErrorCode.UNKNOWN_POINT, (
-                f'unknown point(s) {unknown}; the cell defines {self._cell.world.point_names}'))
-        p_user, p_base = [], []
-        for name in names:
-            try:
-                q = self._robot.touch_and_capture(name, self._p('capture_duration'), 60.0)
-            except RobotCallError as e:
-                raise _RequestError(ErrorCode.CAPTURE_FAILED, f'capture at {name} failed: {e}')
-            p_user.append(self._cell.world.marker(name).nominal_top)
-            p_base.append(kinematics.fk(self._chain, q)[:3, 3])
-        return np.array(p_user), np.array(p_base)
+                f'unknown point(s) {unknown}; the cell defines {self._cell.point_names}'))
+
+    def _capture_live(self, name: str) -> np.ndarray:
+        try:
+            return self._robot.touch_and_capture(name, self._p('capture_duration'), 60.0)
+        except RobotCallError as e:
+            raise _RequestError(ErrorCode.CAPTURE_FAILED, f'capture at {name} failed: {e}')
+
+    def _given_joints(self, names: list[str], captures) -> list[np.ndarray]:
+        """Joint captures in the model's joint order [rad], one per named point."""
+        if len(captures) != len(names):
+            raise _RequestError(ErrorCode.INVALID_INPUT, (
+                f'{len(captures)} joint captures for {len(names)} point names; give one '
+                'capture per name'))
+        order = list(self._chain.joint_names)
+        joints = []
+        for name, capture in zip(names, captures):
+            positions = dict(zip(capture.name, capture.position))
+            missing = [j for j in order if j not in positions]
+            q = np.array([positions.get(j, np.nan) for j in order], dtype=float)
+            if missing or not np.all(np.isfinite(q)):
+                raise _RequestError(ErrorCode.INVALID_INPUT, (
+                    f'joint capture for {name}: needs finite positions [rad] for '
+                    f'{order}; missing or not finite: {missing or "NaN/inf values"}'))
+            joints.append(q)
+        return joints
 
     # -- conversion and history -----------------------------------------------------------
     def _convert(self, request, response, to_base: bool):
         try:
-            record = (self._store.get(request.calibration_id) if request.calibration_id
-                      else self._store.latest())
+            with self._store_lock:
+                record = (self._store.get(request.calibration_id) if request.calibration_id
+                          else self._store.latest())
         except ValueError as e:        # not a possible calibration id
             response.error_code = ConvertPoints.Response.INVALID_INPUT
             response.message = f'calibration_id {request.calibration_id!r}: {e}'
@@ -235,7 +269,9 @@ class UserFrameSolver(Node):
         return self._convert(request, response, to_base=False)
 
     def _on_list(self, request, response):
-        response.calibrations = [record_to_msg(r) for r in self._store.history(request.max_count)]
+        with self._store_lock:
+            history = self._store.history(request.max_count)
+        response.calibrations = [record_to_msg(r) for r in history]
         return response
 
 

@@ -1,49 +1,62 @@
-"""The simulated cell's geometry and probe curve, against hand-computed values."""
-import math
-
+"""The nominal cell file: what the user configures, and clear errors for files that do not fit."""
 import numpy as np
 import pytest
 
-from cobot_calib_ros.core import frames
-from cobot_calib_ros.core.cell import (HeightField, Marker, ProbeCurve, ray_box_distance,
-                                       World)
-from cobot_calib_ros.core.sensors.probe import read_distance, ReadingStatus
+from cobot_calib_ros.core.cell import CellFileError, check_frame_id, load_cell
+from cobot_calib_ros.paths import cell_file
 
-CURVE = ProbeCurve((0.0002, 0.0012, 0.0022), (-1.6, -9.6, -17.6))
+SAWYER = cell_file('sawyer_close')
 
 
-def test_ray_box_distance_hits_top_face_and_misses_beside():
-    lo, hi = np.array([-0.025, -0.015, 0.0]), np.array([0.025, 0.015, 0.02])
-    down = np.array([0.0, 0.0, -1.0])
-    assert ray_box_distance(np.array([0.01, 0.0, 0.0212]), down, lo, hi) == pytest.approx(0.0012)
-    assert ray_box_distance(np.array([0.03, 0.0, 0.0212]), down, lo, hi) == math.inf
-    side = np.array([1.0, 0.0, 0.0])   # probing the -x side face from 1 mm away
-    assert ray_box_distance(np.array([-0.026, 0.0, 0.01]), side, lo, hi) == pytest.approx(0.001)
+def test_the_shipped_cells_load_with_their_layouts():
+    cell = load_cell(SAWYER)
+    assert (cell.robot, cell.layout, cell.layouts) == ('sawyer', 'close', ('close', 'wide'))
+    assert cell.point_names == ['P1', 'P2', 'P3', 'P4', 'P5']
+    np.testing.assert_allclose(cell.marker('P5').nominal_top, [0.25, 0.175, 0.02])
+    assert load_cell(SAWYER, 'wide').marker('P1').xy == (0.0, 0.0)
+    iiwa = load_cell(cell_file('iiwa7_close'))
+    assert iiwa.robot == 'iiwa7' and len(iiwa.home) == 7
 
 
-def test_probe_gap_follows_marker_height_and_user_frame():
-    field = HeightField(amplitude=0.0, tilt=(0.001, 0.0))      # 1 mm per metre along x
-    marker = Marker('P1', (0.2, 0.1), (0.05, 0.03, 0.02), float(field(0.2, 0.1)), 5e-5)
-    T_base_user = frames.from_xyz_rpy([0.5, -0.1, 0.03], [0.0, 0.0, 0.4])
-    world = World(T_base_user, (marker,), field)
-    assert marker.top_z == pytest.approx(0.0002 + 0.02 + 5e-5)
-    T_user_tool = frames.make_transform(frames.rot_x(math.pi), [0.2, 0.1, 0.0215])
-    gap = world.probe_gap(T_base_user @ T_user_tool)
-    assert gap == pytest.approx(0.0215 - 0.02025, abs=1e-12)
+def _broken(tmp_path, old: str, new: str):
+    text = SAWYER.read_text()
+    assert old in text
+    path = tmp_path / 'broken.yaml'
+    path.write_text(text.replace(old, new, 1))
+    return path
 
 
-def test_probe_curve_saturates_and_inverts():
-    assert CURVE.to_voltage(0.0007) == pytest.approx(-5.6)
-    assert CURVE.to_voltage(0.0) == pytest.approx(-1.6)       # saturated below range
-    assert CURVE.to_voltage(0.01) == pytest.approx(-17.6)     # saturated above range
-    assert CURVE.to_distance(-5.6) == pytest.approx(0.0007)
+@pytest.mark.parametrize('old, new, words', [
+    ('  robot: sawyer ', '  robt: sawyer ', ['broken.yaml:', 'cell.robot', 'missing']),
+    ('  robot: sawyer ', '  robot: ur5 ', ['cell.robot', "unknown robot 'ur5'"]),
+    ('  layout: close', '  layout: narrow', ['cell.layout', 'close, wide']),
+    ('    xyz: [0.0, 0.0, 0.100]', '    xyz: [0.0, 0.1]', ['cell.tool_offset.xyz', '3 finite']),
+    ('  user_frame: user_frame', "  user_frame: 'bad frame!'", ['cell.user_frame', 'tf2']),
+    ('      P2: [0.35, 0.10]', '      P2: [0.35, x]', ['cell.layouts.close.P2']),
+    ('cell:\n', 'cell: [\n', ['not valid YAML']),
+])
+def test_a_broken_cell_file_names_file_line_key_and_fix(tmp_path, old, new, words):
+    with pytest.raises(CellFileError) as error:
+        load_cell(_broken(tmp_path, old, new))
+    for word in words:
+        assert word in str(error.value)
 
 
-@pytest.mark.parametrize('voltage, status', [
-    (-5.6, ReadingStatus.OK), (-1.6, ReadingStatus.BELOW_RANGE), (-1.0, ReadingStatus.BELOW_RANGE),
-    (-17.6, ReadingStatus.ABOVE_RANGE), (-30.0, ReadingStatus.ABOVE_RANGE),
-    (math.nan, ReadingStatus.INVALID), (math.inf, ReadingStatus.INVALID)])
-def test_read_distance_range_check(voltage, status):
-    reading = read_distance(CURVE, voltage, saturation_margin=2e-6)
-    assert reading.status == status
-    assert math.isnan(reading.distance) == (status != ReadingStatus.OK)
+def test_the_error_gives_the_line_of_the_bad_key(tmp_path):
+    path = _broken(tmp_path, '  layout: close', '  layout: narrow')
+    line = 1 + next(i for i, t in enumerate(path.read_text().splitlines())
+                    if t.startswith('  layout: narrow'))
+    with pytest.raises(CellFileError, match=f'broken.yaml:{line}: cell.layout'):
+        load_cell(path)
+
+
+def test_a_missing_file_says_where_cells_are(tmp_path):
+    with pytest.raises(CellFileError, match='config/cells'):
+        load_cell(tmp_path / 'nope.yaml')
+
+
+@pytest.mark.parametrize('frame_id, ok', [
+    ('user_frame', True), ('table_2/user', True), ('bad frame!', False), ('', False),
+    ('/user_frame', False)])
+def test_frame_ids_are_checked_as_tf2_accepts_them(frame_id, ok):
+    assert (check_frame_id(frame_id) == '') == ok

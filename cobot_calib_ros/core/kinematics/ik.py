@@ -141,5 +141,6 @@ def solve_ik_with_restarts(chain: Chain, T_base_tool_target: ArrayLike, q_seed: 
         result = solve_ik(chain, T_base_tool_target, seed)
         if result.success:
             return result
-        first = first or result
+        if first is None:
+            first = result
     return first

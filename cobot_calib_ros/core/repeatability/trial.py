@@ -23,15 +23,19 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 import math
-from typing import Protocol
+from typing import Protocol, TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
 
 from cobot_calib_ros.core import frames, user_frame
 from cobot_calib_ros.core.cell import Marker, tool_down_orientation
-from cobot_calib_ros.core.repeatability import AXES, point_statistics, PointStats
-from cobot_calib_ros.store.trials import TrialData, TrialStore
+from cobot_calib_ros.core.repeatability.iso9283 import (
+    AXES, point_statistics, PointStats, probe_offset, range_correction)
+from cobot_calib_ros.core.sensors.probe import Reading, ReadingStatus
+
+if TYPE_CHECKING:   # the store is passed in; core never does I/O itself
+    from cobot_calib_ros.store.trials import TrialData, TrialStore
 
 Array = NDArray[np.float64]
 METHODS = ('reference', *user_frame.METHODS)
@@ -46,12 +50,6 @@ class TrialError(RuntimeError):
         self.reason = reason
 
 
-@dataclass(frozen=True)
-class Reading:
-    status: str          # 'ok', 'below' (closer than the range) or 'above' (beyond it)
-    distance: float      # [m], valid when status == 'ok'
-
-
 class Robot(Protocol):
     def touch(self, name: str) -> Array:
         """Hand-guide the tool onto a marker's top; the (4, 4) nominal tool pose read there."""
@@ -60,13 +58,18 @@ class Robot(Protocol):
         """Move the tool to a pose in the base frame; raise TrialError('motion', ...)."""
 
     def read(self) -> Reading:
-        """Average the probe; raise TrialError('probe', ...) when there is no reading."""
+        """Average the probe; raise TrialError('probe', ...) when there is no reading.
+
+        An out-of-range reading has status BELOW_RANGE / ABOVE_RANGE and a NaN distance."""
 
 
 @dataclass(frozen=True)
 class ProbeRange:
+    """The probe's measuring range, from its calibration table (proximity_sensor's)."""
+
     g_min: float             # [m]
     g_max: float             # [m]
+    margin: float = 0.0      # readings this close to a range end count as out of range [m]
 
     @property
     def middle(self) -> float:
@@ -178,14 +181,14 @@ class TrialRun:
 
     def _find_standoff(self, pose_at: Callable[[float], Array]) -> float:
         """F_i: the standoff [m] at which the probe reads the middle of its range."""
-        rng = self.plan.probe
-        standoff = rng.middle
+        probe = self.plan.probe
+        standoff = probe.middle
         for _ in range(6):
             reading = self._visit(pose_at(standoff))
-            if reading.status == 'ok':
-                return standoff + (rng.middle - reading.distance)
-            step = 0.5 * (rng.g_max - rng.g_min)
-            standoff += step if reading.status == 'below' else -step
+            if reading.status == ReadingStatus.OK:
+                return standoff + probe_offset(reading.distance, probe.g_min, probe.g_max)
+            step = 0.5 * (probe.g_max - probe.g_min)
+            standoff += step if reading.status == ReadingStatus.BELOW_RANGE else -step
         raise TrialError('probe', 'the probe never read in range near a marker; check the '
                          'probe range parameters and that the markers are where the cell says')
 
@@ -228,9 +231,10 @@ class TrialRun:
             self._check_stop()
             T = self._taught_pose(i, 'z', self._standoff['z'][i])
             reading = self._visit(T)
-            if reading.status != 'ok':
+            if reading.status != ReadingStatus.OK:
                 raise TrialError('probe', f'cycle {cycle + 1}: calibration reading at '
-                                 f'{self.plan.markers[i].name} out of range ({reading.status})')
+                                 f'{self.plan.markers[i].name} out of range '
+                                 f'({reading.status.name})')
             measured.append(T[:3, 3] + reading.distance * T[:3, 2])
         nominal = np.array([m.nominal_top for m in self.plan.markers])
         opts = {'threshold': self.plan.robust_threshold} if self.plan.method == 'robust' else {}
@@ -245,17 +249,25 @@ class TrialRun:
         T = (self._taught_pose(i, axis, standoff) if M is None
              else self._frame_pose(M, i, axis, standoff))
         reading, ff, direction = self._visit(T), 0.0, None
-        if reading.status != 'ok':       # eq (15): move by FF_i,n and correct the reading
-            ff = 0.5 * (self.plan.probe.g_max - self.plan.probe.g_min)
-            direction = 'away' if reading.status == 'below' else 'closer'
+        if reading.status != ReadingStatus.OK:   # eq (15): move by FF_i,n, correct the reading
+            ff, direction = self._range_correction(reading)
             reading = self._visit(retreat(T, ff if direction == 'away' else -ff))
-            if reading.status != 'ok':
+            if reading.status != ReadingStatus.OK:
                 raise TrialError('probe', f'cycle {cycle + 1}, {self.plan.markers[i].name}: '
-                                 f'probe still {reading.status} range after FF = '
+                                 f'probe still {reading.status.name} after FF = '
                                  f'{ff * 1e3:.2f} mm; check the frame and the offsets')
         corrected = self.store.append(self.plan.trial_id, cycle, i, reading.distance,
                                       ff, direction)
         self._on_reading(cycle, i, corrected)
+
+    def _range_correction(self, reading: Reading) -> tuple[float, str]:
+        """FF_i,n of eq (15) for an out-of-range reading: the reading only bounds the gap by
+        the range end it passed, so that end is the predicted gap."""
+        probe = self.plan.probe
+        bound = probe.g_min if reading.status == ReadingStatus.BELOW_RANGE else probe.g_max
+        ff, direction = range_correction(bound, probe.g_min, probe.g_max,
+                                         max(probe.margin, 1e-9))
+        return ff, direction
 
     def _visit(self, T: Array) -> Reading:
         """Unidirectional approach: arrive along the probe axis from a retreat pose."""

@@ -7,7 +7,34 @@ import math
 
 import numpy as np
 
-from cobot_calib_ros.core.cell import ProbeCurve
+
+@dataclass(frozen=True)
+class ProbeCurve:
+    """Calibration table of an inductive probe: voltage [V] against gap [m]."""
+
+    distance: tuple[float, ...]   # increasing [m]
+    voltage: tuple[float, ...]    # [V], monotonic
+
+    @property
+    def min_range(self) -> float:
+        return self.distance[0]
+
+    @property
+    def max_range(self) -> float:
+        return self.distance[-1]
+
+    def to_voltage(self, gap: float) -> float:
+        """Sensor output for a gap; saturates at the range ends like the real probe."""
+        g = min(max(gap, self.min_range), self.max_range)
+        return float(np.interp(g, self.distance, self.voltage))
+
+    def to_distance(self, voltage: float) -> float:
+        """Gap for a voltage by linear interpolation in the table (voltage may decrease)."""
+        v = np.asarray(self.voltage)
+        d = np.asarray(self.distance)
+        if v[0] > v[-1]:
+            v, d = v[::-1], d[::-1]
+        return float(np.interp(voltage, v, d))
 
 
 class ReadingStatus(IntEnum):

@@ -1,0 +1,30 @@
+"""Time on the ROS side: header stamps <-> int nanoseconds, from the node clock.
+
+Every stamp and every capture window comes from the node's clock, so ``use_sim_time`` with a
+``/clock`` publisher (bag replay) works; core code sees int nanoseconds or float seconds.
+"""
+from __future__ import annotations
+
+from builtin_interfaces.msg import Time
+from rclpy.node import Node
+
+NS_PER_S = 1_000_000_000
+
+
+def stamp_to_ns(stamp: Time) -> int:
+    return stamp.sec * NS_PER_S + stamp.nanosec
+
+
+def ns_to_stamp(ns: int) -> Time:
+    sec, nanosec = divmod(int(ns), NS_PER_S)
+    return Time(sec=sec, nanosec=nanosec)
+
+
+def now_ns(node: Node) -> int:
+    """The node clock (ROS time: /clock under use_sim_time, else the system clock) [ns]."""
+    return node.get_clock().now().nanoseconds
+
+
+def stamp_or_now_ns(node: Node, stamp: Time) -> int:
+    """A message's header stamp [ns]; the node clock when the sender left it zero."""
+    return stamp_to_ns(stamp) or now_ns(node)

@@ -1,0 +1,98 @@
+"""The true cell: where the user frame really is, the uneven table, the real marker heights.
+
+Ground truth that a real cell never tells; only the mock robot and tests read it. Metres.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+import math
+
+import numpy as np
+from numpy.typing import NDArray
+
+from cobot_calib_ros.core import frames
+from cobot_calib_ros.core.cell import Marker
+
+Array = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class HeightField:
+    """Table height error dz(x, y) [m] over the user-frame xy plane [m]."""
+
+    amplitude: float = 3.0e-4
+    wavelength: float = 0.8
+    tilt: tuple[float, float] = (0.0, 0.0)  # dz/dx, dz/dy [m/m]
+    phase: tuple[float, float] = (0.0, 0.0)  # [rad]
+
+    def __call__(self, x: Array | float, y: Array | float) -> Array:
+        k = 2.0 * math.pi / self.wavelength
+        wave = np.sin(k * np.asarray(x) + self.phase[0]) * np.sin(k * np.asarray(y) + self.phase[1])
+        return self.amplitude * wave + self.tilt[0] * np.asarray(x) + self.tilt[1] * np.asarray(y)
+
+
+@dataclass(frozen=True)
+class TrueMarker:
+    """A nominal marker as it really stands: on the uneven table, slightly off in height."""
+
+    nominal: Marker
+    base_z: float          # true z of the table under it, user frame [m]
+    height_error: float    # true height minus the nominal size[2] [m]
+
+    @property
+    def name(self) -> str:
+        return self.nominal.name
+
+    @property
+    def top_z(self) -> float:
+        return self.base_z + self.nominal.size[2] + self.height_error
+
+    @property
+    def true_top(self) -> Array:
+        return np.array([*self.nominal.xy, self.top_z])
+
+    def box(self) -> tuple[Array, Array]:
+        half = np.array(self.nominal.size[:2]) / 2.0
+        xy = np.array(self.nominal.xy)
+        return np.array([*(xy - half), self.base_z]), np.array([*(xy + half), self.top_z])
+
+
+def ray_box_distance(origin: Array, direction: Array, lo: Array, hi: Array) -> float:
+    """Distance along a unit ray to where it enters an axis-aligned box; inf if it misses."""
+    with np.errstate(divide='ignore', invalid='ignore'):
+        t1 = (lo - origin) / direction
+        t2 = (hi - origin) / direction
+    t1 = np.where(np.isnan(t1), -np.inf, t1)
+    t2 = np.where(np.isnan(t2), np.inf, t2)
+    t_near = float(np.max(np.minimum(t1, t2)))
+    t_far = float(np.min(np.maximum(t1, t2)))
+    if t_near > t_far or t_far < 0.0 or t_near < 0.0:
+        return math.inf
+    return t_near
+
+
+@dataclass(frozen=True)
+class World:
+    """The true cell: where the user frame is and what stands on the table."""
+
+    T_base_user: Array
+    markers: tuple[TrueMarker, ...]
+    height_field: HeightField
+
+    def marker(self, name: str) -> TrueMarker | None:
+        return next((m for m in self.markers if m.name == name), None)
+
+    @property
+    def point_names(self) -> list[str]:
+        return [m.name for m in self.markers]
+
+    def true_points_base(self) -> Array:
+        """(N, 3) true marker top-face centres in the base frame [m]."""
+        return frames.apply(self.T_base_user, np.array([m.true_top for m in self.markers]))
+
+    def probe_gap(self, T_base_tool: Array) -> float:
+        """Gap [m] along the tool z axis from the probe tip to the nearest marker face."""
+        T_user_tool = frames.invert(self.T_base_user) @ T_base_tool
+        origin, direction = T_user_tool[:3, 3], T_user_tool[:3, 2]
+        gaps = [ray_box_distance(origin, direction, *m.box()) for m in self.markers]
+        return min(gaps, default=math.inf)
