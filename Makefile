@@ -19,11 +19,17 @@ $(STAMP)/deps: requirements.lock
 	$(PY) -m pip install --quiet --disable-pip-version-check -r requirements.lock
 	mkdir -p $(STAMP) && touch $@
 
-$(STAMP)/msgs: $(STAMP)/deps $(shell find msg_defs -type f)
-	tools/build_interfaces.sh $(VENV)
+$(STAMP)/msgs: $(STAMP)/deps tools/build_interfaces.sh $(shell find msg_defs -type f)
+	tools/build_interfaces.sh $(VENV) msg_defs
 	touch $@
 
-$(STAMP)/package: $(STAMP)/msgs setup.py setup.cfg package.xml $(wildcard config/*.yaml config/cells/*.yaml)
+# tf2_msgs (/tf, /tf_static) is not on PyPI: build interfaces/tf2_msgs into the venv unless a ROS
+# install already provides it (tools/interface_provider.py).
+$(STAMP)/tf2_msgs: $(STAMP)/deps tools/build_interfaces.sh tools/interface_provider.py $(shell find interfaces/tf2_msgs -type f)
+	tools/build_interfaces.sh --if-missing $(VENV) interfaces/tf2_msgs
+	touch $@
+
+$(STAMP)/package: $(STAMP)/msgs $(STAMP)/tf2_msgs setup.py setup.cfg package.xml $(wildcard config/*.yaml config/cells/*.yaml)
 	$(PY) -m pip install --quiet --disable-pip-version-check --no-deps --no-build-isolation -e .
 	$(PY) tools/install_ros_prefix.py $(VENV)
 	touch $@

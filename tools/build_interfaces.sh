@@ -1,10 +1,31 @@
 #!/usr/bin/env bash
-# Build msg_defs/ (cobot_calib_msgs) with rosidl and install it into the venv prefix.
-# Usage: tools/build_interfaces.sh VENV_DIR
+# Build an ament_cmake interface package with rosidl and install it into the venv prefix.
+# Usage: tools/build_interfaces.sh [--if-missing] VENV_DIR [PACKAGE_DIR]
+#   PACKAGE_DIR defaults to msg_defs (cobot_calib_msgs).
+#   --if-missing: build only where no ROS install provides the package already; for packages the
+#   project rebuilds from upstream definitions (interfaces/tf2_msgs: tf2_msgs is not on PyPI).
+#   tools/interface_provider.py decides; a copy we built before is rebuilt.
 set -euo pipefail
+if_missing=0
+if [ "${1:-}" = --if-missing ]; then if_missing=1; shift; fi
 venv=$(cd "$1" && pwd)
 here=$(cd "$(dirname "$0")/.." && pwd)
+src=$(cd "$here" && cd "${2:-msg_defs}" && pwd)
 py="$venv/bin/python"
+pkg=$(sed -n 's#.*<name>\(.*\)</name>.*#\1#p' "$src/package.xml" | head -1)
+[ -n "$pkg" ] || { echo "no <name> in $src/package.xml" >&2; exit 1; }
+
+if [ "$if_missing" = 1 ]; then
+  provider=$("$py" "$here/tools/interface_provider.py" "$venv" "$pkg")
+  case "$provider" in
+    foreign*)
+      echo "$pkg: using the installed one (${provider#foreign }), not building $src"
+      exit 0 ;;
+    index-only*)
+      echo "$pkg: listed in the ament index of ${provider#index-only } but not importable by $py;" \
+           "building this project's copy into the venv" ;;
+  esac
+fi
 
 # The ROS wheels' exported CMake targets hard-code the wheel builder's include paths
 # (/opt/python/cp311-cp311/...): point them at this interpreter's (ros2-from-pypi notes).
@@ -15,11 +36,15 @@ np_inc=$("$py" -c 'import numpy; print(numpy.get_include())')
          -e "s#/opt/python/cp311-cp311/include/python3.11#$py_inc#g" "$f"
 done
 
-build="$here/build/cobot_calib_msgs"
+build="$here/build/$pkg"
 mkdir -p "$build"
+# One checkout, several `make setup` at once (parallel make, or two shells): one build per package
+# at a time, or their `make install` runs trip over each other's files.
+exec 9>"$build.lock"
+flock 9
 cd "$build"
-PATH="$venv/bin:$PATH" cmake "$here/msg_defs" -DCMAKE_INSTALL_PREFIX="$venv" \
+PATH="$venv/bin:$PATH" cmake "$src" -DCMAKE_INSTALL_PREFIX="$venv" \
   -DCMAKE_PREFIX_PATH="$venv" -DPython3_EXECUTABLE="$py" -DBUILD_TESTING=OFF >cmake.log 2>&1 \
   || { cat cmake.log; exit 1; }
 PATH="$venv/bin:$PATH" make -j2 install >make.log 2>&1 || { tail -50 make.log; exit 1; }
-"$py" -c 'from cobot_calib_msgs.srv import CalibrateUserFrame; print("cobot_calib_msgs installed")'
+"$py" -c "import $pkg.msg; print('$pkg installed into $venv')"
