@@ -42,7 +42,7 @@ def test_echo_once_prints_a_joint_state(ros):
 
 
 def test_list_shows_every_node_and_interface(ros):
-    out = cli('list', '--json', '--wait', '4.0')
+    out = cli('list', '--json')
     assert out.returncode == 0, out.stderr
     g = json.loads(out.stdout)
     assert {'/mock_robot', '/joint_state_monitor', '/proximity_sensor', '/user_frame_solver',

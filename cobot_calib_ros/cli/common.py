@@ -1,0 +1,75 @@
+"""What the verb modules share: exit codes, one rclpy node per command, output, errors."""
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import os
+import sys
+
+EXIT_OK = 0
+EXIT_FAILED = 1      # the command ran and did not succeed (not found, timed out, refused)
+EXIT_USAGE = 2       # the user's input does not fit (as argparse uses 2)
+
+
+def domain_id() -> str:
+    return os.environ.get('ROS_DOMAIN_ID', '0')
+
+
+def fail(message: str, code: int = EXIT_FAILED) -> int:
+    """Print one line to stderr; the exit code."""
+    print(message, file=sys.stderr, flush=True)
+    return code
+
+
+@contextlib.contextmanager
+def ros_node(name: str):
+    """An rclpy context and node for one CLI command."""
+    import rclpy
+    rclpy.init(args=None, signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
+    node = rclpy.create_node(name, start_parameter_services=False)
+    try:
+        yield node
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+
+def absolute(name: str) -> str:
+    return name if name.startswith('/') else '/' + name
+
+
+def print_message(data: dict, as_json: bool) -> None:
+    """One message: a JSON line, or YAML then '---' as ros2 prints it."""
+    if as_json:
+        print(json.dumps(data, default=str), flush=True)
+        return
+    import yaml
+    print(yaml.safe_dump(data, sort_keys=False, default_flow_style=None).rstrip())
+    print('---', flush=True)
+
+
+def not_found_hint() -> str:
+    return f'see `cobot-calib list` (is the suite up on ROS_DOMAIN_ID={domain_id()}?)'
+
+
+class IntermixedParser(argparse.ArgumentParser):
+    """A verb parser that takes options between optional positionals too
+    (`call SERVICE --type T VALUES`), which plain argparse refuses."""
+
+    _inside = False
+
+    def parse_known_args(self, args=None, namespace=None):
+        if self._inside:
+            return super().parse_known_args(args, namespace)
+        self._inside = True
+        try:
+            return self.parse_known_intermixed_args(args, namespace)
+        finally:
+            self._inside = False
+
+
+def add_intermixed_parser(subparsers, name: str, **kwargs) -> IntermixedParser:
+    parser = subparsers.add_parser(name, **kwargs)
+    parser.__class__ = IntermixedParser       # add_parser has no per-verb parser class
+    return parser

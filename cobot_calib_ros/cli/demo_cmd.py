@@ -1,0 +1,23 @@
+"""`cobot-calib demo`: parser of the demo; the work is in cli/demo.py."""
+from __future__ import annotations
+
+
+def add_parser(subparsers):
+    p = subparsers.add_parser(
+        'demo', help='the main job on the mock robot (own suite on a private domain)',
+        description='Five-point user-frame calibration on the mock robot, scored on its '
+                    'ground truth. It starts its own node suite on a free private '
+                    'ROS_DOMAIN_ID (printed) and ignores the exported ROS_DOMAIN_ID; --attach '
+                    'uses the suite already running on the exported ROS_DOMAIN_ID '
+                    '(cobot-calib up) instead.')
+    p.add_argument('--cell', default='sawyer_close', help='cell YAML path or name')
+    p.add_argument('--json', action='store_true', help='print one JSON object')
+    p.add_argument('--attach', action='store_true',
+                   help='use the suite already running on the exported ROS_DOMAIN_ID '
+                        'instead of starting one on a private domain')
+    return p
+
+
+def run(args) -> int:
+    from cobot_calib_ros.cli import demo
+    return demo.run(args)

@@ -1,0 +1,122 @@
+"""`cobot-calib` call / echo / list / up as users type them, against the running suite."""
+import json
+import math
+import os
+import signal
+import subprocess
+
+import pytest
+
+from rosutil import cli, cli_command
+
+SUITE_NODES = {'/mock_robot', '/joint_state_monitor', '/proximity_sensor',
+               '/user_frame_solver', '/repeatability_trial'}
+CAPTURE = 'cobot_calib_msgs/srv/CaptureJoints'
+BAD_REQUEST = 3          # CaptureJoints.Response.BAD_REQUEST
+# A pure translation by (0.5, 0.1, 0.05) m: user (1, 2, 3) is base (1.5, 2.1, 3.05).
+SQUARE = ('[{x: 0.0, y: 0.0, z: 0.0}, {x: 0.2, y: 0.0, z: 0.0}, {x: 0.2, y: 0.15, z: 0.0}, '
+          '{x: 0.0, y: 0.15, z: 0.0}]')
+SHIFTED = ('[{x: 0.5, y: 0.1, z: 0.05}, {x: 0.7, y: 0.1, z: 0.05}, {x: 0.7, y: 0.25, z: 0.05}, '
+           '{x: 0.5, y: 0.25, z: 0.05}]')
+
+
+def _at_once(*commands, timeout=60.0) -> list[subprocess.CompletedProcess]:
+    """Run several `cobot-calib ARGS` at the same time (each discovers on its own)."""
+    running = [subprocess.Popen(cli_command(*args), stdout=subprocess.PIPE,
+                                stderr=subprocess.PIPE, text=True, env=dict(os.environ))
+               for args in commands]
+    done = []
+    for args, p in zip(commands, running):
+        out, err = p.communicate(timeout=timeout)
+        done.append(subprocess.CompletedProcess(args, p.returncode, out, err))
+    return done
+
+
+def _json(out: subprocess.CompletedProcess) -> dict:
+    assert out.returncode == 0, f'exit {out.returncode}: {out.stderr}'
+    return json.loads(out.stdout)
+
+
+@pytest.fixture(scope='module')
+def translation_id(ros):
+    """A stored calibration that only shifts by (0.5, 0.1, 0.05) m, made through the CLI."""
+    res = _json(cli('call', 'calibrate_user_frame',
+                    f'{{method: rigid, points_user: {SQUARE}, points_base: {SHIFTED}}}', '--json'))
+    assert res['error_code'] == 0, res['message']
+    return res['calibration']['id']
+
+
+def test_int_and_exponent_durations_do_not_abort_the_client(ros):
+    one, big, big_float = _at_once(
+        ['call', 'capture_joints', '{duration: 0.2e0}', '--json'],
+        ['call', 'capture_joints', '{duration: 1e9}', '--json'],
+        ['call', 'capture_joints', '{duration: 1.0e9}', '--json'])
+    assert _json(one)['error_code'] == 0
+    for out in (big, big_float):                       # was SIGABRT in the rosidl C code
+        res = _json(out)
+        assert res['error_code'] == BAD_REQUEST and '1000000000.0 s' in res['message']
+    whole = _json(cli('call', 'capture_joints', '{duration: 1}', '--json'))
+    assert whole['error_code'] == 0 and whole['window'] > 0.9
+
+
+def test_int_points_are_converted_as_floats(ros, translation_id):
+    res = _json(cli('call', 'user_to_robot',
+                    f'{{calibration_id: {translation_id}, points: [{{x: 1, y: 2, z: 3}}]}}',
+                    '--json'))
+    assert res['error_code'] == 0, res['message']
+    point = res['points'][0]
+    assert [point['x'], point['y'], point['z']] == pytest.approx([1.5, 2.1, 3.05], abs=1e-9)
+
+
+def test_nan_reaches_the_node_as_nan(ros, translation_id):
+    res = _json(cli('call', 'user_to_robot',
+                    f'{{calibration_id: {translation_id}, points: [{{x: nan, y: 2, z: 3}}]}}',
+                    '--json'))
+    assert res['error_code'] == 2 and 'NaN' in res['message']      # INVALID_INPUT
+
+
+def test_a_value_that_does_not_fit_names_the_field(ros):
+    out = cli('call', 'user_to_robot', '{points: [{x: abc, y: 2, z: 3}]}')
+    assert out.returncode == 2
+    assert out.stderr == "bad request: points[0].x: expected a float, got 'abc'\n"
+
+
+def test_call_takes_service_type_values_as_ros2_does(ros):
+    forms = (['/capture_joints', CAPTURE, '{duration: 0.5}'],
+             ['capture_joints', '--type', CAPTURE, '{duration: 0.5}'],
+             ['capture_joints', 'cobot_calib_msgs/CaptureJoints'])       # default request
+    for out in _at_once(*[['call', *form, '--json'] for form in forms]):
+        assert 'sample_count' in _json(out)          # answered (the capture may say no_data)
+
+
+def test_a_wrong_type_is_named_not_blamed_on_the_suite(ros):
+    out = cli('call', 'capture_joints', '{duration: 0.5}',
+              '--type', 'cobot_calib_msgs/srv/AverageProximity')
+    assert out.returncode == 2
+    assert out.stderr.startswith('type cobot_calib_msgs/srv/AverageProximity does not match '
+                                 'the advertised type(s) of /capture_joints: ' + CAPTURE)
+    assert 'suite up' not in out.stderr
+
+
+def test_list_finds_every_node_each_time(ros):
+    for out in _at_once(*[['list', '--json']] * 3):
+        assert SUITE_NODES | {'/iso/proximity_sensor'} <= set(_json(out)['nodes'])
+
+
+def test_echo_once_matches_a_best_effort_publisher(ros):
+    for out in _at_once(*[['echo', 'probe/voltage', '--once', '--json']] * 3):
+        assert math.isfinite(_json(out)['voltage'])
+
+
+def test_up_refuses_a_second_suite_on_the_same_domain(ros, domain_id):
+    up = subprocess.Popen(cli_command('up'), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                          text=True, env=dict(os.environ))
+    try:
+        out, err = up.communicate(timeout=20)
+    except subprocess.TimeoutExpired:
+        up.send_signal(signal.SIGINT)                  # it started a second suite: stop it
+        out, err = up.communicate(timeout=20)
+        pytest.fail(f'up started a second suite:\n{out}{err}')
+    assert up.returncode == 1, out + err
+    assert f'already runs on ROS_DOMAIN_ID={domain_id}' in err and '/mock_robot' in err
+    assert '--force' in err and not out
