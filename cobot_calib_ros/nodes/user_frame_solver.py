@@ -1,8 +1,14 @@
 """user_frame_solver: the calibrate_user_frame service, point conversion, durable history.
 
 calibrate_user_frame is served on its own executor thread (a spin.Companion): a live
-calibration that visits points blocks only that thread, so user_to_robot, robot_to_user and
-list_calibrations keep answering meanwhile.
+calibration that visits points blocks only that thread, so user_to_robot, robot_to_user,
+list_calibrations and set_active_calibration keep answering meanwhile.
+
+The active calibration (store.calibrations: chosen with set_active_calibration, else the newest
+non-retired one) is what conversions use by default, and what is latched on `user_frame` and,
+as base_frame -> user_frame, on /tf_static: on start-up and whenever it changes. Only the
+node's own thread publishes (it may replace a publisher to unlatch a retired frame); the
+calibrator hands that over with a task on the node's executor.
 """
 from __future__ import annotations
 
@@ -10,21 +16,40 @@ import threading
 import time
 
 from cobot_calib_msgs.msg import PointResidual, SurfaceModel as SurfaceMsg, UserFrameCalibration
-from cobot_calib_msgs.srv import CalibrateUserFrame, ConvertPoints, ListCalibrations
+from cobot_calib_msgs.srv import (CalibrateUserFrame, ConvertPoints, ListCalibrations,
+                                  SetActiveCalibration)
 import numpy as np
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 
 from cobot_calib_ros import paths
 from cobot_calib_ros.core import frames, kinematics, user_frame
-from cobot_calib_ros.core.cell import load_cell
+from cobot_calib_ros.core.cell import check_frame_id, load_cell
 from cobot_calib_ros.core.errors import ErrorCode
 from cobot_calib_ros.ros import convert, qos, spin
+from cobot_calib_ros.ros.diagnostics import Diagnostics, OK, WARN
 from cobot_calib_ros.ros.params import declare, read_once
 from cobot_calib_ros.ros.robot_calls import RobotCallError, RobotCalls
 from cobot_calib_ros.ros.time import now_ns
+from cobot_calib_ros.ros.tf_static import StaticBroadcaster
 from cobot_calib_ros.store.calibrations import CalibrationStore
 
 Res = CalibrateUserFrame.Response
+Choice = SetActiveCalibration
+FRAME_PARAMETERS = ('base_frame', 'user_frame')
+PUBLISH_TIMEOUT = 10.0   # [s] the calibrator waits this long for the node thread to publish
+
+
+def frames_problem(base: tuple[str, str], user: tuple[str, str]) -> str:
+    """'' if the (source, frame id) pairs can be base -> user on /tf_static, else why not."""
+    for source, frame_id in (base, user):
+        why = check_frame_id(frame_id)
+        if why:
+            return f'{source}: {why}'
+    if base[1] == user[1]:
+        return (f'{base[0]} and {user[0]} are both {base[1]!r}: the user frame needs a frame '
+                'id of its own')
+    return ''
 
 
 def fit_record(fit: user_frame.FrameFit, surface, names: list[str], p_user, p_base,
@@ -100,6 +125,10 @@ class UserFrameSolver(Node):
         self._chain = model.chain(tool=self._cell.tool_offset)   # the nominal model
         self._store = CalibrationStore(paths.data_dir(self._p('data_dir')))
         self._store_lock = threading.Lock()     # the calibrator thread writes, this one reads
+        self._health = Diagnostics(self)
+        self._last_refusal = ''
+        self._tf_problem = ''                   # why the active calibration is not on /tf_static
+        self._latched_id: str | None = None     # the calibration latched now (None: nothing)
         # a live calibration blocks in its service callback while the robot moves and
         # captures: it runs on the calibrator's thread, the answers it waits for arrive on
         # the clients' thread, and this node's own services stay free
@@ -107,12 +136,17 @@ class UserFrameSolver(Node):
         self._calibrator = spin.Companion(self, 'calibrator')
         self._robot = RobotCalls(self._answers)
         self._pub = self.create_publisher(UserFrameCalibration, 'user_frame', qos.LATCHED)
+        self._tf = StaticBroadcaster(self)
         self._calibrator.node.create_service(CalibrateUserFrame, 'calibrate_user_frame',
                                              self._on_calibrate)
         self.create_service(ConvertPoints, 'user_to_robot', self._on_user_to_robot)
         self.create_service(ConvertPoints, 'robot_to_user', self._on_robot_to_user)
         self.create_service(ListCalibrations, 'list_calibrations', self._on_list)
-        self._republish_latest()
+        self.create_service(SetActiveCalibration, 'set_active_calibration', self._on_set_active)
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+        self.add_post_set_parameters_callback(lambda _: self._update_health())
+        self._startup_checks()
+        self._publish_active()
 
     def destroy_node(self):
         self._calibrator.destroy()
@@ -122,36 +156,65 @@ class UserFrameSolver(Node):
     def _declare_parameters(self) -> None:
         read_once(self, 'cell_file', 'sawyer_close',
                   'Cell YAML (path or name): named points and the nominal tool offset')
-        declare(self, 'base_frame', 'base_link', 'Robot base frame id')
-        declare(self, 'user_frame', 'user_frame', 'User (work surface) frame id')
+        declare(self, 'base_frame', 'base_link', 'Robot base frame id of new calibrations '
+                'whose request gives none (tf2 frame id: letters, digits, _ and /)')
+        declare(self, 'user_frame', 'user_frame', 'User (work surface) frame id of new '
+                'calibrations whose request gives none (tf2 frame id, not base_frame)')
         read_once(self, 'data_dir', '', 'Where calibrations are stored; empty = '
                   '$COBOT_CALIB_DATA or ~/.ros/cobot_calib')
         declare(self, 'capture_duration', 0.5, 'Hold window of each live capture [s]',
                 0.01, 10.0)
         declare(self, 'robust_threshold', 5.0e-4,
                 'Residual above which the robust method rejects a point [m]', 1e-6, 0.1)
+        declare(self, 'max_rms_error', 1.0e-3,
+                'Largest RMS residual of a calibration that is accepted; a worse fit (units? '
+                'point order?) is refused with IMPLAUSIBLE_FIT, and so is a single residual '
+                'above 3 times this [m]', 1e-6, 0.1)
+        declare(self, 'max_scale_error', 0.01,
+                'Largest |scale - 1| of the fitted matrix (five_point_lsq) that is accepted; '
+                'more is refused with IMPLAUSIBLE_FIT [1]', 1e-4, 1.0)
 
     def _p(self, name: str):
         return self.get_parameter(name).value
 
-    def _republish_latest(self) -> None:
-        latest = self._store.latest()
-        for warning in self._store.warnings:
-            self.get_logger().warning(warning)
-        if latest is not None:
-            self._pub.publish(record_to_msg(latest))
-            self.get_logger().info(f'republished calibration {latest["id"]}')
+    # -- frame ids -------------------------------------------------------------------------
+    def _frame_parameters_problem(self) -> str:
+        return frames_problem(*((f'parameter {n}', self._p(n)) for n in FRAME_PARAMETERS))
+
+    def _startup_checks(self) -> None:
+        problem = self._frame_parameters_problem()
+        if problem:     # given with -p or --params-file: refused per request, not a crash
+            self.get_logger().error(f'{problem}; calibrations that do not name their frames '
+                                    'are refused until it is set right (ros2 param set)')
+
+    def _on_set_parameters(self, params) -> SetParametersResult:
+        """Refuse a base_frame / user_frame that tf2 would not accept, with the reason. Only
+        the values being set are checked: a bad one from start-up must not block the fix."""
+        new = {p.name: p.value for p in params if p.name in FRAME_PARAMETERS}
+        whys = [f'{name}: {check_frame_id(value)}' for name, value in new.items()
+                if check_frame_id(value)]
+        merged = {n: new.get(n, self._p(n)) for n in FRAME_PARAMETERS}
+        if new and not whys and merged['base_frame'] == merged['user_frame']:
+            whys.append(f'base_frame and user_frame would both be {merged["user_frame"]!r}: '
+                        'the user frame needs a frame id of its own')
+        return SetParametersResult(successful=not whys, reason='; '.join(whys))
+
+    def _request_frames(self, request) -> tuple[str, str]:
+        pairs = [(f'request {n}', value) if value else (f'parameter {n}', self._p(n))
+                 for n, value in zip(FRAME_PARAMETERS, (request.base_frame, request.user_frame))]
+        why = frames_problem(*pairs)
+        if why:
+            raise _RequestError(ErrorCode.INVALID_INPUT, why)
+        return pairs[0][1], pairs[1][1]
 
     # -- calibrate ------------------------------------------------------------------------
     def _on_calibrate(self, request, response):
-        frames_ = (request.base_frame or self._p('base_frame'),
-                   request.user_frame or self._p('user_frame'))
         try:
+            frames_ = self._request_frames(request)
             names, p_user, p_base = self._points(request)
         except _RequestError as e:
             return self._refuse(response, e.code, str(e))
-        opts = {'threshold': self._p('robust_threshold')} if request.method == 'robust' else {}
-        fit = user_frame.calibrate(request.method, p_user, p_base, **opts)
+        fit = self._fit(request, names, p_user, p_base)
         if not fit:
             return self._refuse(response, fit.code, fit.message)
         surface = (user_frame.fit_surface(p_user, p_base, fit.M)
@@ -160,19 +223,29 @@ class UserFrameSolver(Node):
         try:
             with self._store_lock:
                 self._store.save(record)
+                self._store.activate(record['id'])
         except OSError as e:
             return self._refuse(response, ErrorCode.STORAGE_FAILED,
                                 f'could not store the calibration: {e}; check data_dir')
         response.calibration = record_to_msg(record)
         response.error_code, response.message = Res.SUCCESS, fit.message or 'calibrated'
-        self._pub.publish(response.calibration)
+        self._publish_from_another_thread()
         spin.log_info(self.get_logger(), f'{record["id"]}: {len(names)} points, rms '
                       f'{fit.rms * 1e3:.4f} mm, max {fit.max_residual * 1e3:.4f} mm')
         return response
 
+    def _fit(self, request, names: list[str], p_user, p_base) -> user_frame.FrameFit:
+        """The fit, refused (IMPLAUSIBLE_FIT) beyond max_rms_error / max_scale_error."""
+        opts = {'threshold': self._p('robust_threshold')} if request.method == 'robust' else {}
+        return user_frame.calibrate(request.method, p_user, p_base, names=names,
+                                    max_rms_error=self._p('max_rms_error'),
+                                    max_scale_error=self._p('max_scale_error'), **opts)
+
     def _refuse(self, response, code, message: str):
         response.error_code, response.message = int(code), message
         self.get_logger().warning(f'calibrate_user_frame refused: {message}')
+        self._last_refusal = f'{ErrorCode(code).name}: {message}'
+        self._update_health()
         return response
 
     def _points(self, request) -> tuple[list[str], np.ndarray, np.ndarray]:
@@ -229,12 +302,138 @@ class UserFrameSolver(Node):
             joints.append(q)
         return joints
 
+    # -- the active calibration, latched ---------------------------------------------------
+    def _publish_from_another_thread(self) -> None:
+        """Have the node's thread publish the active calibration; wait until it has, so a
+        caller that subscribes after the response gets the new calibration."""
+        executor = self.executor
+        if executor is None:            # not spinning (built in-process): this thread it is
+            return self._publish_active()
+        try:
+            spin.wait(executor.create_task(self._publish_active), PUBLISH_TIMEOUT)
+        except TimeoutError:
+            self.get_logger().warning(f'the node thread did not publish the new calibration '
+                                      f'within {PUBLISH_TIMEOUT:.0f} s')
+
+    def _publish_active(self) -> None:
+        """Latch the active calibration on user_frame and /tf_static, or unlatch both when
+        there is none. Runs on the node's thread only."""
+        with self._store_lock:
+            record = self._store.active()
+            for warning in self._store.warnings:
+                self.get_logger().warning(warning)
+            self._store.warnings.clear()
+        if record is None:
+            self._unlatch()
+        elif record['id'] != self._latched_id:
+            msg = record_to_msg(record)
+            self._pub.publish(msg)
+            self._send_tf(msg.transform)
+            self._latched_id = record['id']
+            self.get_logger().info(f'active calibration {record["id"]}: latched on '
+                                   f'{self._pub.topic_name} and /tf_static')
+        self._update_health()
+
+    def _send_tf(self, transform) -> None:
+        """The user frame alone on /tf_static: a previous child frame does not stay latched."""
+        children = [t.child_frame_id for t in self._tf.transforms]
+        if children not in ([], [transform.child_frame_id]):
+            self._tf = self._fresh_tf()
+        self._tf_problem = frames_problem(('its base frame', transform.header.frame_id),
+                                          ('its user frame', transform.child_frame_id))
+        try:
+            if not self._tf_problem:
+                self._tf.send(transform)
+        except ValueError as e:
+            self._tf_problem = str(e)
+        if self._tf_problem:
+            self._tf = self._fresh_tf()
+            self._tf_problem = (f'the active calibration is not on /tf_static: '
+                                f'{self._tf_problem}; calibrate again or activate another')
+            self.get_logger().error(self._tf_problem)
+
+    def _fresh_tf(self) -> StaticBroadcaster:
+        """A broadcaster with nothing latched (the old publisher and its latched set go)."""
+        self.destroy_publisher(self._tf.publisher)
+        return StaticBroadcaster(self)
+
+    def _unlatch(self) -> None:
+        if self._latched_id is None:
+            return
+        self.destroy_publisher(self._pub)
+        self._pub = self.create_publisher(UserFrameCalibration, 'user_frame', qos.LATCHED)
+        self._tf, self._tf_problem, self._latched_id = self._fresh_tf(), '', None
+        self.get_logger().info('no active calibration: nothing latched on user_frame and '
+                               '/tf_static')
+
+    def _update_health(self) -> None:
+        with self._store_lock:
+            record, history = self._store.active(), self._store.history()
+            retired = self._store.retired()
+        problem = self._frame_parameters_problem() or self._tf_problem
+        if problem:
+            level, message = WARN, problem
+        elif record is None:
+            level, message = WARN, ('no active calibration: conversions without a '
+                                    'calibration_id are refused; call calibrate_user_frame' +
+                                    (' or set_active_calibration' if history else ''))
+        else:
+            level, message = OK, (f'active calibration {record["id"]}, RMS residual '
+                                  f'{record["result"]["rms"] * 1e3:.4f} mm')
+        self._health.set(
+            level, message, active_id=record['id'] if record else '',
+            active_rms_mm=f'{record["result"]["rms"] * 1e3:.4f}' if record else '',
+            calibrations_stored=len(history),
+            calibrations_retired=sum(r['id'] in retired for r in history),
+            last_refusal=self._last_refusal or 'none')
+
+    def _on_set_active(self, request, response):
+        response.error_code, response.message = self._choose(request)
+        if response.error_code == Choice.Response.SUCCESS:
+            self.get_logger().info(f'set_active_calibration: {response.message}')
+            self._publish_active()
+        with self._store_lock:
+            active = self._store.active()
+        if active is not None:
+            response.active = record_to_msg(active)
+        return response
+
+    def _choose(self, request) -> tuple[int, str]:
+        """(error code, message) of an ACTIVATE or RETIRE request, applied to the store."""
+        Out = Choice.Response
+        action, cid = request.action, request.calibration_id
+        if action not in (Choice.Request.ACTIVATE, Choice.Request.RETIRE):
+            return Out.INVALID_INPUT, (f'unknown action {action}; use ACTIVATE '
+                                       f'({Choice.Request.ACTIVATE}) or RETIRE '
+                                       f'({Choice.Request.RETIRE})')
+        retire = action == Choice.Request.RETIRE
+        if retire and not cid:
+            return Out.INVALID_INPUT, ('RETIRE needs a calibration_id; list_calibrations '
+                                       'shows the stored ones')
+        try:
+            with self._store_lock:
+                (self._store.retire if retire else self._store.activate)(cid)
+                active = self._store.active()
+        except ValueError as e:
+            return Out.INVALID_INPUT, f'calibration_id {cid!r}: {e}'
+        except KeyError:
+            return Out.NO_CALIBRATION, (f'no calibration {cid!r}; list_calibrations shows the '
+                                        'stored ones')
+        except OSError as e:
+            return Out.STORAGE_FAILED, (f'could not store the choice: {e}; nothing changed, '
+                                        'check data_dir')
+        now = (f'{active["id"]} is active' if active else
+               'no calibration is active: calibrate, or activate a retired one')
+        done = f'retired {cid}' if retire else (f'activated {cid}' if cid else
+                                               'back to the default (newest non-retired)')
+        return Out.SUCCESS, f'{done}; {now}'
+
     # -- conversion and history -----------------------------------------------------------
     def _convert(self, request, response, to_base: bool):
         try:
             with self._store_lock:
                 record = (self._store.get(request.calibration_id) if request.calibration_id
-                          else self._store.latest())
+                          else self._store.active())
         except ValueError as e:        # not a possible calibration id
             response.error_code = ConvertPoints.Response.INVALID_INPUT
             response.message = f'calibration_id {request.calibration_id!r}: {e}'
@@ -243,7 +442,8 @@ class UserFrameSolver(Node):
             response.error_code = ConvertPoints.Response.NO_CALIBRATION
             response.message = (f'no calibration {request.calibration_id!r}' if
                                 request.calibration_id else
-                                'no calibration yet: call calibrate_user_frame first')
+                                'no active calibration: call calibrate_user_frame first (or '
+                                'set_active_calibration)')
             return response
         points = convert.points_to_array(request.points)
         if not np.all(np.isfinite(points)):
@@ -271,7 +471,10 @@ class UserFrameSolver(Node):
     def _on_list(self, request, response):
         with self._store_lock:
             history = self._store.history(request.max_count)
+            active, retired = self._store.active(), self._store.retired()
         response.calibrations = [record_to_msg(r) for r in history]
+        response.active_id = active['id'] if active else ''
+        response.retired_ids = [r['id'] for r in history if r['id'] in retired]
         return response
 
 

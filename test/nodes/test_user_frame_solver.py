@@ -6,8 +6,11 @@ from cobot_calib_msgs.msg import UserFrameCalibration
 from cobot_calib_msgs.srv import CalibrateUserFrame, ConvertPoints, ListCalibrations
 import numpy as np
 import pytest
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+from rcl_interfaces.srv import GetParameters, SetParameters
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from scipy.spatial.transform import Rotation
+from tf2_msgs.msg import TFMessage
 
 from cobot_calib_ros.api import launcher
 from cobot_calib_ros.ros import convert
@@ -38,8 +41,12 @@ ROT_TOL = 2.0 * NOISE_MAX / 0.075                                  # [rad]
 TRANS_TOL = NOISE_MAX + ROT_TOL * float(np.linalg.norm(P_USER.mean(axis=0)))   # [m]
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
+TF_LISTENER = QoSProfile(depth=100, history=HistoryPolicy.KEEP_LAST,
+                         reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
 NAN = float('nan')
 ORPHAN = 'orphan.user_frame_solver'
+BAD_FRAME = 'bad frame!'
 
 
 def _calibrate(ros, name='calibrate_user_frame', timeout=10.0, user=P_USER, base=P_BASE,
@@ -91,14 +98,17 @@ def fits(ros):
 
 @pytest.fixture(scope='module')
 def spare(ros, tmp_path_factory):
-    """Two more user_frame_solvers where no mock_robot or monitor exists, started together:
-    /orphan (must stay up and exit cleanly) and /scratch (may be crashed by a test)."""
+    """More user_frame_solvers where no mock_robot or monitor exists, started together:
+    /orphan (must stay up and exit cleanly), /scratch (may be crashed by a test) and /frames
+    (started with an invalid user_frame parameter)."""
+    extra = {'frames': {'user_frame': BAD_FRAME}}
     running = launcher.Suite(tmp_path_factory.mktemp('spare_logs'))
     running.start([launcher.NodeSpec('user_frame_solver', namespace=ns, params={
         'cell_file': str(cell_file('sawyer_close')),
-        'data_dir': str(tmp_path_factory.mktemp(f'{ns}_results'))})
-        for ns in ('orphan', 'scratch')])
-    wanted = {'/orphan/calibrate_user_frame', '/scratch/user_to_robot'}
+        'data_dir': str(tmp_path_factory.mktemp(f'{ns}_results')), **extra.get(ns, {})})
+        for ns in ('orphan', 'scratch', 'frames')])
+    wanted = {'/orphan/calibrate_user_frame', '/scratch/user_to_robot',
+              '/frames/calibrate_user_frame', '/frames/user_frame_solver/set_parameters'}
     if not spin_until(ros, lambda: wanted <= {n for n, _ in ros.get_service_names_and_types()},
                       30.0, ros.executor_for_tests):
         running.stop()
@@ -121,6 +131,8 @@ USER_NAN = P_USER.copy()
 USER_NAN[2, 1] = NAN
 BASE_NAN = P_BASE.copy()
 BASE_NAN[4, 2] = NAN
+ONE_OFF = P_BASE.copy()
+ONE_OFF[4, 2] += 3e-3          # the centre touched 3 mm high: RMS ~1.2 mm
 
 
 @pytest.mark.parametrize('fields, code, words', [
@@ -131,13 +143,16 @@ BASE_NAN[4, 2] = NAN
     pytest.param({'user': LINE, 'base': frames.apply(T_TRUE, LINE)}, Res.DEGENERATE_POINTS,
                  ['collinear'], id='collinear'),
     pytest.param({'user': DUPLICATE, 'base': P_BASE}, Res.DEGENERATE_POINTS,
-                 ['user points 1 and 3 coincide'], id='duplicate_user'),
+                 ['user points P2 and P4 coincide'], id='duplicate_user'),
+    pytest.param({'user': DUPLICATE, 'base': P_BASE, 'point_names': list('abcde')},
+                 Res.DEGENERATE_POINTS, ['user points b and d coincide'],
+                 id='duplicate_named'),
     pytest.param({'user': P_USER, 'base': BASE_DUPLICATE}, Res.DEGENERATE_POINTS,
-                 ['base points 0 and 4 coincide', 'robot move'], id='duplicate_base'),
+                 ['base points P1 and P5 coincide', 'robot move'], id='duplicate_base'),
     pytest.param({'user': USER_NAN, 'base': P_BASE}, Res.INVALID_INPUT,
-                 ['user point 2', 'not finite'], id='nan_user'),
+                 ['user point P3', 'not finite'], id='nan_user'),
     pytest.param({'user': P_USER, 'base': BASE_NAN}, Res.INVALID_INPUT,
-                 ['base point 4', 'not finite'], id='nan_base'),
+                 ['base point P5', 'not finite'], id='nan_base'),
     pytest.param({'user': P_USER, 'base': P_BASE[:4]}, Res.INVALID_INPUT,
                  ['5 user points and 4 base points'], id='count_mismatch'),
     pytest.param({'user': P_USER, 'base': np.zeros((0, 3))}, Res.INVALID_INPUT,
@@ -148,6 +163,23 @@ BASE_NAN[4, 2] = NAN
                  ["'four_point'", 'five_point_lsq', 'rigid'], id='unknown_method'),
     pytest.param({'user': np.zeros((0, 3)), 'base': np.zeros((0, 3)), 'point_names': ['P9']},
                  Res.UNKNOWN_POINT, ['P9', 'P1', 'P5'], id='unknown_live_point'),
+    # the sanity gate: a fit no touched user frame can have (defaults: 1 mm RMS, 1 % scale)
+    pytest.param({'base': P_BASE * 1e3}, Res.IMPLAUSIBLE_FIT,
+                 ['RMS residual 111.7', 'max_rms_error', 'millimetres'], id='base_in_mm'),
+    pytest.param({'base': P_BASE * 1e3, 'method': 'five_point_lsq'}, Res.IMPLAUSIBLE_FIT,
+                 ['scale 1000', 'max_scale_error', 'millimetres'], id='lsq_base_in_mm'),
+    pytest.param({'base': P_BASE[[0, 2, 1, 3, 4]]}, Res.IMPLAUSIBLE_FIT,
+                 ['max_rms_error', 'same marker as its user point'], id='swapped_points'),
+    pytest.param({'base': ONE_OFF}, Res.IMPLAUSIBLE_FIT,    # accepted by calibrate()'s 10 mm
+                 ['RMS residual', 'max_rms_error', 're-touch'], id='one_point_off'),
+    # frame ids tf2 would not accept, and a user frame that is the base frame
+    pytest.param({'user_frame': BAD_FRAME}, Res.INVALID_INPUT,
+                 ['request user_frame', repr(BAD_FRAME), 'letters, digits'], id='bad_user_frame'),
+    pytest.param({'base_frame': '/world'}, Res.INVALID_INPUT,
+                 ['request base_frame', 'no leading /'], id='leading_slash'),
+    pytest.param({'user_frame': 'base_link'}, Res.INVALID_INPUT,
+                 ['parameter base_frame and request user_frame', "'base_link'", 'own'],
+                 id='user_frame_is_base_frame'),
 ])
 def test_bad_request_is_refused_with_a_reason_and_the_node_serves_on(ros, suite, fields, code,
                                                                        words):
@@ -159,6 +191,96 @@ def test_bad_request_is_refused_with_a_reason_and_the_node_serves_on(ros, suite,
     assert res.calibration.id == '' and len(res.calibration.residuals) == 0
     assert [c.id for c in _history(ros)] == before            # nothing stored
     _assert_serves_a_good_call(ros, suite)
+
+
+def test_implausible_fit_is_neither_stored_nor_published(ros, suite):
+    good = _assert_serves_a_good_call(ros, suite).calibration
+    res = _calibrate(ros, base=P_BASE * 1e3)
+    assert res.error_code == Res.IMPLAUSIBLE_FIT, res.message
+    assert res.calibration.id == ''
+    assert _history(ros, max_count=1)[0].id == good.id
+    assert call(ros, ListCalibrations, 'list_calibrations').active_id == good.id
+    latched = _late(ros, UserFrameCalibration, 'user_frame', LATCHED,
+                    lambda got: bool(got) and got[-1].id == good.id)
+    assert latched and latched[-1].id == good.id
+    tf = _late(ros, TFMessage, '/tf_static', TF_LISTENER,
+               lambda got: any(t == good.transform for m in got for t in m.transforms))
+    assert tf and [t for t in tf[-1].transforms if t.child_frame_id == 'user_frame'] == \
+        [good.transform]
+    conv = _convert(ros, 'user_to_robot', P_USER)
+    assert conv.error_code == Conv.SUCCESS and good.id in conv.message, conv.message
+
+
+def _late(ros, msg_type, topic, profile, done, timeout=10.0) -> list:
+    """What a new (late-joining) subscriber got until done(messages) or the timeout."""
+    got = []
+    sub = ros.create_subscription(msg_type, topic, got.append, profile)
+    try:
+        spin_until(ros, lambda: done(got), timeout, ros.executor_for_tests)
+    finally:
+        ros.destroy_subscription(sub)
+    return got
+
+
+def _set_parameter(ros, node, name, value: str):
+    """SetParameters on ``node`` (a string value); its SetParametersResult."""
+    param = Parameter(name=name, value=ParameterValue(type=ParameterType.PARAMETER_STRING,
+                                                      string_value=value))
+    return call(ros, SetParameters, f'{node}/set_parameters', parameters=[param]).results[0]
+
+
+def _get_parameter(ros, node, name) -> str:
+    return call(ros, GetParameters, f'{node}/get_parameters', names=[name]).values[0].string_value
+
+
+def test_invalid_frame_parameter_refuses_calibrations_until_it_is_set_right(ros, spare):
+    node = '/frames/user_frame_solver'
+    res = _calibrate(ros, '/frames/calibrate_user_frame')
+    assert res.error_code == Res.INVALID_INPUT, res.message
+    assert 'parameter user_frame' in res.message and repr(BAD_FRAME) in res.message
+    assert _history(ros, '/frames/list_calibrations') == []
+    named = _calibrate(ros, '/frames/calibrate_user_frame', user_frame='table')
+    assert named.error_code == Res.SUCCESS, named.message           # the request's own frame
+    assert named.calibration.transform.child_frame_id == 'table'
+    for name, value, words in [('user_frame', 'still bad!', ['user_frame', "'still bad!'"]),
+                               ('base_frame', '/world', ['base_frame', 'no leading /']),
+                               ('base_frame', '', ['base_frame', 'must not be empty'])]:
+        result = _set_parameter(ros, node, name, value)
+        assert not result.successful, (name, value)
+        assert all(w in result.reason for w in words), result.reason
+    assert _get_parameter(ros, node, 'base_frame') == 'base_link'     # nothing changed
+    same = _set_parameter(ros, node, 'user_frame', 'base_link')
+    assert not same.successful and 'both' in same.reason, same.reason
+    fixed = _set_parameter(ros, node, 'user_frame', 'work_table')
+    assert fixed.successful, fixed.reason
+    res = _calibrate(ros, '/frames/calibrate_user_frame')
+    assert res.error_code == Res.SUCCESS, res.message
+    assert (res.calibration.transform.header.frame_id,
+            res.calibration.transform.child_frame_id) == ('base_link', 'work_table')
+    assert 'frames.user_frame_solver' not in spare.failed()
+
+
+def _set_double(ros, node, name, value: float):
+    param = Parameter(name=name, value=ParameterValue(type=ParameterType.PARAMETER_DOUBLE,
+                                                      double_value=value))
+    return call(ros, SetParameters, f'{node}/set_parameters', parameters=[param]).results[0]
+
+
+def test_plausibility_limits_are_the_node_parameters(ros, spare):
+    """max_rms_error [m] and max_scale_error [1] reach the sanity gate, at run time."""
+    node, service = '/frames/user_frame_solver', '/frames/calibrate_user_frame'
+    stretched = frames.apply(T_TRUE, P_USER * 1.02) + NOISE        # a 2 % larger layout
+    cases = [('max_scale_error', 0.03, {'base': stretched, 'method': 'five_point_lsq'}),
+             ('max_rms_error', 0.002, {'base': ONE_OFF})]
+    for name, looser, fields in cases:
+        refused = _calibrate(ros, service, user_frame='table', **fields)
+        assert refused.error_code == Res.IMPLAUSIBLE_FIT and name in refused.message, \
+            refused.message
+        assert _set_double(ros, node, name, looser).successful
+        accepted = _calibrate(ros, service, user_frame='table', **fields)
+        assert accepted.error_code == Res.SUCCESS, accepted.message
+    out_of_range = _set_double(ros, node, 'max_rms_error', 0.5)
+    assert not out_of_range.successful
 
 
 def test_failed_live_capture_says_what_to_start(ros, spare):

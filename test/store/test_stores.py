@@ -279,3 +279,106 @@ def test_create_refuses_bad_metadata(tmp_path):
     with pytest.raises(ValueError):
         trials.create('a/b', point_names=['P1'], **kwargs)
     assert trials.list_trials() == []
+
+
+# -- the active calibration: chosen or newest, retired ones kept but never active --------------
+
+def _three(root: Path) -> CalibrationStore:
+    store = CalibrationStore(root)
+    for record_id, stamp in [('cal-a', 1_000), ('cal-b', 2_000), ('cal-c', 3_000)]:
+        store.save(_record(record_id, stamp))
+    return store
+
+
+def _active_id(store: CalibrationStore):
+    active = store.active()
+    return None if active is None else active['id']
+
+
+def test_active_is_the_newest_until_one_is_chosen_and_the_choice_survives_restart(tmp_path):
+    store = _three(tmp_path)
+    assert _active_id(store) == 'cal-c'
+    assert not (tmp_path / 'calibrations' / 'active.json').exists()   # nothing chosen yet
+    store.activate('cal-a')
+    assert _active_id(store) == 'cal-a'
+    restarted = CalibrationStore(tmp_path)
+    assert _active_id(restarted) == 'cal-a'
+    assert [r['id'] for r in restarted.history()] == ['cal-c', 'cal-b', 'cal-a']
+    assert restarted.warnings == []              # active.json is not read as a record
+    restarted.activate('')                       # back to the default
+    assert _active_id(CalibrationStore(tmp_path)) == 'cal-c'
+
+
+def test_a_new_record_activated_replaces_the_choice(tmp_path):
+    store = _three(tmp_path)
+    store.activate('cal-a')
+    store.save(_record('cal-d', 4_000))
+    assert _active_id(store) == 'cal-a'          # saving alone changes nothing
+    store.activate('cal-d')
+    assert _active_id(CalibrationStore(tmp_path)) == 'cal-d'
+    # a record that is not the newest (a sim clock started over) stays active when activated
+    store.save(_record('cal-e', 500))
+    store.activate('cal-e')
+    assert _active_id(CalibrationStore(tmp_path)) == 'cal-e'
+
+
+def test_retired_stays_in_the_history_and_is_never_the_default(tmp_path):
+    store = _three(tmp_path)
+    store.retire('cal-c')
+    assert _active_id(store) == 'cal-b'
+    store.activate('cal-a')
+    store.retire('cal-a')                        # the chosen one: the newest non-retired again
+    restarted = CalibrationStore(tmp_path)
+    assert _active_id(restarted) == 'cal-b'
+    assert restarted.retired() == {'cal-a', 'cal-c'}
+    assert [r['id'] for r in restarted.history()] == ['cal-c', 'cal-b', 'cal-a']
+    assert restarted.get('cal-c') is not None
+    restarted.retire('cal-b')
+    assert restarted.active() is None
+    restarted.activate('cal-c')                  # activating un-retires
+    assert _active_id(CalibrationStore(tmp_path)) == 'cal-c'
+    assert CalibrationStore(tmp_path).retired() == {'cal-a', 'cal-b'}
+
+
+def test_choosing_an_unknown_or_malformed_id_changes_nothing(tmp_path):
+    store = _three(tmp_path)
+    store.activate('cal-a')
+    with pytest.raises(KeyError):
+        store.activate('cal-z')
+    with pytest.raises(KeyError):
+        store.retire('cal-z')
+    with pytest.raises(ValueError):
+        store.activate('../cal-a')
+    assert _active_id(CalibrationStore(tmp_path)) == 'cal-a'
+    assert CalibrationStore(tmp_path).retired() == frozenset()
+
+
+def test_failed_choice_write_keeps_the_old_choice(tmp_path, monkeypatch):
+    store = _three(tmp_path)
+    store.activate('cal-a')
+
+    def crash(src, dst):
+        raise OSError('disk gone')
+
+    monkeypatch.setattr(files.os, 'replace', crash)
+    with pytest.raises(OSError, match='disk gone'):
+        store.retire('cal-a')
+    assert _active_id(store) == 'cal-a' and store.retired() == frozenset()
+    monkeypatch.undo()
+    assert _active_id(CalibrationStore(tmp_path)) == 'cal-a'
+
+
+@pytest.mark.parametrize('text', ['{"active_id": "cal-a", "retired": [1]}\n',
+                                  '{"active_id": "../x"}\n', '["cal-a"]\n', '{"active_id": '])
+def test_a_bad_active_file_is_ignored_with_a_warning(tmp_path, text):
+    store = _three(tmp_path)
+    (tmp_path / 'calibrations' / 'active.json').write_text(text)
+    restarted = CalibrationStore(tmp_path)
+    assert _active_id(restarted) == 'cal-c' and restarted.retired() == frozenset()
+    assert len(restarted.warnings) == 1 and 'active.json' in restarted.warnings[0]
+    assert [r['id'] for r in restarted.history()] == ['cal-c', 'cal-b', 'cal-a']
+
+
+def test_the_id_of_the_active_file_is_reserved(tmp_path):
+    with pytest.raises(ValueError, match='reserved'):
+        CalibrationStore(tmp_path).save(_record('active', 1))
