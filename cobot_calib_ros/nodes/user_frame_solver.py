@@ -165,7 +165,9 @@ class UserFrameSolver(Node):
         declare(self, 'capture_duration', 0.5, 'Hold window of each live capture [s]',
                 0.01, 10.0)
         declare(self, 'robust_threshold', 5.0e-4,
-                'Residual above which the robust method rejects a point [m]', 1e-6, 0.1)
+                'Robust method: never reject a point whose residual is below this [m]; above '
+                'it a point is rejected when the others predict it significantly worse than '
+                'the noise allows (leverage-aware test)', 0.0, 0.1)
         declare(self, 'max_rms_error', 1.0e-3,
                 'Largest RMS residual of a calibration that is accepted; a worse fit (units? '
                 'point order?) is refused with IMPLAUSIBLE_FIT, and so is a single residual '
