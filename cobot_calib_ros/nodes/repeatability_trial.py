@@ -2,12 +2,13 @@
 
 The procedure is core/trial.py; this node gives it a robot made of ROS calls (move_to,
 capture_joints, probe/average), stores readings through store.trials, and publishes the
-running statistics after every cycle.
+running statistics after every cycle (on start-up: those of the latest stored trial). Goal
+semantics are in RunTrial.action. Health on /diagnostics: OK idle, OK running (cycle figures),
+WARN after a failed trial (its message) until the next one starts.
 """
 from __future__ import annotations
 
 import threading
-import time
 
 from cobot_calib_msgs.action import MoveTo, RunTrial
 from cobot_calib_msgs.msg import ProximityReading, Repeatability
@@ -27,12 +28,14 @@ from cobot_calib_ros.core.sensors.probe import Reading, ReadingStatus
 from cobot_calib_ros.store.files import check_id
 from cobot_calib_ros.store.trials import TrialStore
 from cobot_calib_ros.ros import qos, spin
+from cobot_calib_ros.ros.diagnostics import Diagnostics, OK, WARN
 from cobot_calib_ros.ros.params import declare, read_once
 from cobot_calib_ros.ros.robot_calls import RobotCallError, RobotCalls
 
 RESULT_CODE = {'invalid': RunTrial.Result.INVALID_GOAL, 'motion': RunTrial.Result.MOTION_FAILED,
                'probe': RunTrial.Result.PROBE_FAILED, 'canceled': RunTrial.Result.CANCELED}
 MOVE_TIMEOUT = 120.0    # [s] for one move_to to finish
+HEARTBEAT = 2.0         # [s] feedback at least this often while a trial runs (see RunTrial)
 
 
 class RosRobot:
@@ -100,12 +103,16 @@ class RosRobot:
         raise trialmod.TrialError('probe', f'probe/average: {res.message}')
 
 
-def stats_msg(trial_id: str, meta: dict, cycles_done: int, stats: PointStats,
+def stats_msg(trial_id: str, meta: dict, cycles_done: int, stats: PointStats | None,
               stamp) -> Repeatability:
+    """The trial's method, axis and cycle counts, and its statistics when there are some."""
     msg = Repeatability(trial_id=trial_id, method=meta['method'], axis=meta['axis'],
                         cycles_done=cycles_done, cycles_total=meta['cycles_total'],
                         point_names=list(meta['point_names']))
     msg.header.stamp = stamp
+    if stats is None:
+        msg.rp_all = msg.rp_all_mm = float('nan')
+        return msg
     msg.mean_distance = stats.mean_distance.tolist()
     msg.mean_deviation = stats.mean_deviation.tolist()
     msg.sigma = stats.sigma.tolist()
@@ -114,6 +121,11 @@ def stats_msg(trial_id: str, meta: dict, cycles_done: int, stats: PointStats,
     msg.rp_mm = (stats.rp * 1e3).tolist()
     msg.rp_all_mm = float(stats.rp_all * 1e3)
     return msg
+
+
+def trial_line(trial_id: str, meta: dict) -> str:
+    """'trial <id> (rigid, z axis, 30 cycles)', the subject of every log line about a trial."""
+    return f'trial {trial_id} ({trialmod.describe(meta)})'
 
 
 class RepeatabilityTrial(Node):
@@ -128,12 +140,20 @@ class RepeatabilityTrial(Node):
                                self._p('speed_scale'), self._p('probe_window'),
                                self._p('capture_duration'))
         self._pub = self.create_publisher(Repeatability, 'repeatability', qos.LATCHED)
+        self._health = Diagnostics(self)
+        self._health.set(OK, 'idle', trial_id='', method='', axis='', cycles_done=0,
+                         cycles_total=0, rp_all_mm='nan')      # the keys while running
         self._busy = threading.Lock()
+        self._feedback_lock = threading.Lock()
+        self._live = None           # (goal handle, its latest feedback) while a trial runs
+        self.create_timer(HEARTBEAT, self._heartbeat)
         self._action = ActionServer(
             self, RunTrial, 'run_trial', execute_callback=self._execute,
             goal_callback=self._accept, cancel_callback=lambda _: CancelResponse.ACCEPT,
             callback_group=ReentrantCallbackGroup())
         self.get_logger().info(f'trials in {self._store.directory}, layout {self._cell.layout}')
+        # once spinning: a stop right after start then takes the executor's clean way out
+        self._republish = self.create_timer(0.0, self._republish_latest)
 
     def destroy_node(self):
         self._answers.destroy()
@@ -158,11 +178,45 @@ class RepeatabilityTrial(Node):
     def _p(self, name: str):
         return self.get_parameter(name).value
 
+    def _republish_latest(self) -> None:
+        """The latched statistics of the trial whose status changed last (done or not), as
+        they were before this node (re)started; once, on start-up."""
+        self._republish.cancel()
+        for meta in sorted(self._store.list_trials(), key=lambda m: m['updated_ns'],
+                           reverse=True):
+            data = self._store.load(meta['id'])
+            if data is None:
+                continue
+            stats = trialmod.statistics(data)
+            self._pub.publish(stats_msg(meta['id'], data.meta, stats.cycles, stats,
+                                        self.get_clock().now().to_msg()))
+            self.get_logger().info(f'republished {trial_line(meta["id"], data.meta)}: '
+                                   f'{meta["status"]}, {stats.cycles} cycles measured')
+            break
+        for warning in self._store.warnings:
+            self.get_logger().warning(warning)
+
+    # -- goals ----------------------------------------------------------------------------
     def _accept(self, goal) -> GoalResponse:
-        if self._busy.locked():
-            self.get_logger().warning('run_trial rejected: a trial is already running')
+        """Reject what needs no store to judge (a rejected goal carries no message, so the
+        client checks the same with the same core functions first); log why."""
+        why = self._goal_problem(goal)
+        if why:
+            self.get_logger().warning(f'run_trial goal rejected: {why}')
             return GoalResponse.REJECT
         return GoalResponse.ACCEPT
+
+    def _goal_problem(self, goal) -> str:
+        if self._busy.locked():
+            return 'a trial is already running; wait for its end or cancel it'
+        problem = trialmod.goal_problem(goal.method, goal.axis, goal.cycles)
+        if problem or not goal.trial_id:
+            return problem
+        try:
+            check_id(goal.trial_id)
+        except ValueError as e:
+            return f'trial_id: {e}'
+        return ''
 
     def _execute(self, goal_handle):
         if not self._busy.acquire(blocking=False):
@@ -172,84 +226,199 @@ class RepeatabilityTrial(Node):
         try:
             return self._run(goal_handle)
         finally:
+            self._send_feedback(None)
             self._busy.release()
 
+    def _send_feedback(self, goal_handle, feedback=None) -> None:
+        """Publish ``feedback`` and keep it for the heartbeat; None: the goal is ending."""
+        with self._feedback_lock:
+            self._live = None if goal_handle is None else (goal_handle, feedback)
+            if goal_handle is not None:
+                goal_handle.publish_feedback(feedback)
+
+    def _heartbeat(self) -> None:
+        """The latest feedback again, so a client hears the node is alive during long steps
+        (teaching by hand, a slow move) and can tell a hung or dead node by silence."""
+        with self._feedback_lock:
+            if self._live is not None:
+                self._live[0].publish_feedback(self._live[1])
+
     def _run(self, goal_handle):
-        goal, result = goal_handle.request, RunTrial.Result()
+        trial = _Goal(goal_handle.request)
         try:
-            run, resume = self._prepare(goal, goal_handle)
-            result.trial_id = run.plan.trial_id
+            run, resume = self._prepare(trial, goal_handle)
             data = run.resume(resume) if resume is not None else run.start()
         except trialmod.TrialError as e:
-            result.error_code, result.message = RESULT_CODE[e.reason], str(e)
-            if e.reason == 'canceled':
-                goal_handle.canceled()
-            else:
-                goal_handle.abort()
-            self.get_logger().warning(f'run_trial {result.trial_id}: {e}')
-            return result
-        stats = trialmod.statistics(data)
-        result.statistics = stats_msg(result.trial_id, data.meta, stats.cycles, stats,
-                                      self.get_clock().now().to_msg())
-        trial_dir = self._store.directory / result.trial_id
-        result.csv_path, result.yaml_path = (str(trial_dir / 'distances.csv'),
-                                             str(trial_dir / 'trial.yaml'))
-        result.message = (f'{stats.cycles} cycles, RP_all {stats.rp_all * 1e3:.4f} mm '
-                          f'({data.meta["method"]}, {data.meta["axis"]} axis)')
-        goal_handle.succeed()
-        self.get_logger().info(f'trial {result.trial_id}: {result.message}')
+            return self._failed(goal_handle, trial, e)
+        except (OSError, ValueError) as e:        # the store: disk full, no permission, ...
+            return self._failed(goal_handle, trial, trialmod.TrialError(
+                'invalid', f'trial store {self._store.directory}: {e}'))
+        return self._succeeded(goal_handle, trial, data)
+
+    def _failed(self, goal_handle, trial: _Goal, error: trialmod.TrialError):
+        self._send_feedback(None)
+        result = self._result(trial, RESULT_CODE[error.reason], str(error))
+        subject = (trial_line(trial.trial_id, trial.meta) if trial.meta
+                   else f'trial {trial.trial_id}')
+        if error.reason == 'canceled':
+            goal_handle.canceled()
+            cycle = trial.progress[0] + 1
+            self.get_logger().info(f'{subject}: canceled in cycle {cycle}; send trial_id '
+                                   f'{trial.trial_id} to resume it')
+            self._health.set(OK, f'idle; {subject} stopped on request in cycle {cycle}')
+        else:
+            goal_handle.abort()
+            self.get_logger().warning(f'{subject}: failed: {error}')
+            self._health.set(WARN, f'last trial {trial.trial_id} failed: {error}')
         return result
 
-    def _prepare(self, goal, goal_handle) -> tuple[trialmod.TrialRun, object]:
+    def _succeeded(self, goal_handle, trial: _Goal, data):
+        self._send_feedback(None)
+        stats = trialmod.statistics(data)
+        message = (f'{stats.cycles} cycles, RP_all {stats.rp_all * 1e3:.4f} mm '
+                   f'({data.meta["method"]}, {data.meta["axis"]} axis)')
+        result = self._result(trial, RunTrial.Result.SUCCESS, message, data)
+        goal_handle.succeed()
+        self.get_logger().info(f'{trial_line(trial.trial_id, data.meta)}: done, {message}')
+        self._health.set(OK, f'idle; trial {trial.trial_id} done: {message}')
+        return result
+
+    def _result(self, trial: _Goal, code: int, message: str, data=None):
+        """The result with what is known of the trial: its stored method, axis, cycles, RP."""
+        result = RunTrial.Result(error_code=code, message=message, trial_id=trial.trial_id)
+        trial_dir = self._store.directory / trial.trial_id
+        if data is None and (trial_dir / 'trial.yaml').exists():
+            data = self._store.load(trial.trial_id)
+        stamp = self.get_clock().now().to_msg()
+        if data is not None:
+            stats = trialmod.statistics(data)
+            result.statistics = stats_msg(trial.trial_id, data.meta, stats.cycles, stats,
+                                          stamp)
+            result.csv_path, result.yaml_path = (str(trial_dir / 'distances.csv'),
+                                                 str(trial_dir / 'trial.yaml'))
+        elif trial.meta:                         # a new trial that failed before it was stored
+            result.statistics = stats_msg(trial.trial_id, trial.meta, 0, None, stamp)
+        return result
+
+    def _prepare(self, trial: _Goal, goal_handle) -> tuple[trialmod.TrialRun, object]:
+        goal = trial.goal
         if goal.layout and goal.layout != self._cell.layout:
             raise trialmod.TrialError('invalid', (
                 f'layout {goal.layout!r} requested but this node (and the markers) use '
                 f'{self._cell.layout!r}; start the suite with layout:={goal.layout}'))
-        method = goal.method or 'reference'
-        axis = goal.axis or 'z'
-        trial_id = goal.trial_id or time.strftime(f'%Y%m%dT%H%M%S-{method}-{axis}')
-        try:
-            check_id(trial_id)
-        except ValueError as e:
-            raise trialmod.TrialError('invalid', str(e))
-        resume = self._store.load(trial_id) if (self._store.directory / trial_id).exists() \
-            else None
-        if resume is not None:
-            if resume.resume is None:
-                raise trialmod.TrialError('invalid', f'trial {trial_id} is complete; pick a '
-                                          'new trial_id (empty = a fresh one)')
-            method, axis = resume.meta['method'], resume.meta['axis']
-            names = resume.meta['point_names']
-        else:
-            names = self._cell.point_names
+        resume = self._stored(trial)
+        feedback = RunTrial.Feedback(resumed=trial.resumed)
+        self._announce(trial, goal_handle, resume, feedback)
         why = self._robot.wait_ready()
         if why:
             raise trialmod.TrialError('motion', why)
-        markers = [self._cell.marker(n) for n in names]
         plan = trialmod.Plan(
-            trial_id, method, axis, self._cell.layout, markers,
-            (resume.meta['cycles_total'] if resume is not None
-             else goal.cycles or trialmod.DEFAULT_CYCLES),
-            self._robot.probe_range(),
+            trial.trial_id, trial.meta['method'], trial.meta['axis'], self._cell.layout,
+            [self._cell.marker(n) for n in trial.meta['point_names']],
+            trial.meta['cycles_total'], self._robot.probe_range(),
             approach_distance=self._p('approach_distance'))
-        feedback = RunTrial.Feedback()
+        run = trialmod.TrialRun(plan, self._robot, self._store,
+                                *self._callbacks(trial, goal_handle, feedback),
+                                lambda: goal_handle.is_cancel_requested)
+        self._started(trial, resume)
+        return run, resume
+
+    def _stored(self, trial: _Goal):
+        """The stored trial this goal resumes (None for a new one); fills ``trial.meta``."""
+        goal = trial.goal
+        exists = (self._store.directory / trial.trial_id).exists()
+        stored = self._store.load(trial.trial_id) if exists else None
+        if exists and stored is None:
+            raise trialmod.TrialError('invalid', (
+                f'trial {trial.trial_id} is stored but unreadable '
+                f'({"; ".join(self._store.warnings[-1:])}); pick a new trial_id'))
+        if stored is None:
+            trial.meta = {'method': goal.method or trialmod.DEFAULT_METHOD,
+                          'axis': goal.axis or trialmod.DEFAULT_AXIS,
+                          'cycles_total': goal.cycles or trialmod.DEFAULT_CYCLES,
+                          'point_names': self._cell.point_names}
+            return None
+        trial.meta = stored.meta
+        problem = (trialmod.resume_problem(stored.meta, goal.method, goal.axis, goal.cycles)
+                   or self._layout_problem(stored.meta))
+        if problem:
+            raise trialmod.TrialError('invalid', problem)
+        if stored.resume is None:
+            raise trialmod.TrialError('invalid', (
+                f'trial {trial.trial_id} ({trialmod.describe(stored.meta)}) is complete; '
+                'pick a new trial_id (empty = a fresh one)'))
+        trial.progress, trial.resumed = stored.resume, True
+        return stored
+
+    def _layout_problem(self, meta: dict) -> str:
+        if meta['layout'] == self._cell.layout:
+            return ''
+        return (f'trial {meta["id"]} was measured on the {meta["layout"]} layout, this node '
+                f'uses {self._cell.layout}; start the suite with layout:={meta["layout"]} to '
+                'resume it')
+
+    def _announce(self, trial: _Goal, goal_handle, resume, feedback) -> None:
+        """The first feedback, before waiting for the robot: what runs (for a resume: the
+        stored method, axis and cycles); every feedback carries that from here on."""
+        stats = trialmod.statistics(resume) if resume is not None else None
+        feedback.cycle, feedback.distance = trial.progress[0], float('nan')
+        feedback.statistics = stats_msg(trial.trial_id, trial.meta,
+                                        stats.cycles if stats is not None else 0, stats,
+                                        self.get_clock().now().to_msg())
+        self._send_feedback(goal_handle, feedback)
+
+    def _started(self, trial: _Goal, resume) -> None:
+        """Log the start or resume (the robot is ready, the plan checked), set the health."""
+        subject, cycle = trial_line(trial.trial_id, trial.meta), trial.progress[0]
+        stats = trialmod.statistics(resume) if resume is not None else None
+        done = stats.cycles if stats is not None else 0
+        if resume is None:
+            self.get_logger().info(f'{subject}: start')
+        else:
+            self.get_logger().info(f'{subject}: resume at cycle {cycle + 1} '
+                                   f'({done} complete cycles stored)')
+        self._running(trial, done, stats)
+
+    def _running(self, trial: _Goal, cycles_done: int, stats: PointStats | None) -> None:
+        rp = stats.rp_all * 1e3 if stats is not None else float('nan')
+        total = trial.meta['cycles_total']
+        self._health.set(OK, f'running trial {trial.trial_id}: {cycles_done}/{total} cycles, '
+                         f'RP_all {rp:.4f} mm', trial_id=trial.trial_id,
+                         method=trial.meta['method'], axis=trial.meta['axis'],
+                         cycles_done=cycles_done, cycles_total=total, rp_all_mm=f'{rp:.4f}')
+
+    def _callbacks(self, trial: _Goal, goal_handle, feedback):
+        """TrialRun's on_reading and on_cycle: feedback, the topic, the health."""
+        names = trial.meta['point_names']
 
         def on_reading(cycle: int, i: int, distance: float) -> None:
-            feedback.cycle, feedback.point_index = cycle, i
-            feedback.point_name, feedback.distance = names[i], distance
-            goal_handle.publish_feedback(feedback)
+            trial.progress = (cycle, i)
+            with self._feedback_lock:
+                feedback.cycle, feedback.point_index = cycle, i
+                feedback.point_name, feedback.distance = names[i], distance
+            self._send_feedback(goal_handle, feedback)
 
         def on_cycle(cycles_done: int, stats: PointStats) -> None:
-            msg = stats_msg(trial_id, {'method': method, 'axis': axis,
-                                       'cycles_total': plan.cycles, 'point_names': names},
-                            cycles_done, stats, self.get_clock().now().to_msg())
+            msg = stats_msg(trial.trial_id, trial.meta, cycles_done, stats,
+                            self.get_clock().now().to_msg())
             self._pub.publish(msg)
-            feedback.statistics = msg
-            goal_handle.publish_feedback(feedback)
+            with self._feedback_lock:
+                feedback.statistics = msg
+            self._send_feedback(goal_handle, feedback)
+            self._running(trial, cycles_done, stats)
+        return on_reading, on_cycle
 
-        run = trialmod.TrialRun(plan, self._robot, self._store, on_reading, on_cycle,
-                                lambda: goal_handle.is_cancel_requested)
-        return run, resume
+
+class _Goal:
+    """One run_trial goal as it is worked out: its id, the trial's metadata once known (the
+    stored one on resume), and the (cycle, point) reached."""
+
+    def __init__(self, goal) -> None:
+        self.goal = goal
+        self.trial_id = goal.trial_id or trialmod.new_trial_id(goal.method, goal.axis)
+        self.meta: dict = {}
+        self.progress: tuple[int, int] = (0, 0)
+        self.resumed = False
 
 
 def main(args=None) -> None:

@@ -1,20 +1,66 @@
 """run_trial and the live repeatability topic, across processes, through the CLI users type."""
+from dataclasses import dataclass
 import json
 import math
 import os
+import select
+import signal
 import subprocess
+import sys
 import time
 
+from action_msgs.srv import CancelGoal
 from cobot_calib_msgs.action import RunTrial
+from cobot_calib_msgs.msg import Repeatability
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 import numpy as np
 import pytest
 from rclpy.action import ActionClient
 
-from cobot_calib_ros.api.client import run_action, spin_until
+from cobot_calib_ros import paths
+from cobot_calib_ros.api import launcher
+from cobot_calib_ros.api.client import CallError, run_action, spin_until
+from cobot_calib_ros.core.cell import load_cell
+from cobot_calib_ros.core.repeatability import point_statistics
+from cobot_calib_ros.ros import qos
 from cobot_calib_ros.store.trials import TrialStore
-from rosutil import cli, cli_command
+from rosutil import call, cli, cli_command
 
 CYCLES = 4
+HEALTH = 'repeatability_trial: health'
+
+
+def trial_command(ros_args=(), **args) -> list[str]:
+    """`cobot-calib trial` as run_trial runs it with these parsed options; an option left out
+    is None, as argparse gives it when it has no default."""
+    code = ('import argparse, json, sys; from cobot_calib_ros.cli import experiment; '
+            'sys.exit(experiment.run_trial(argparse.Namespace(**json.loads(sys.argv[1]))))')
+    options = {'method': None, 'axis': None, 'cycles': None, 'trial_id': '', 'json': False,
+               **args}
+    return [sys.executable, '-c', code, json.dumps(options), *ros_args]
+
+
+def start(command: list[str]) -> subprocess.Popen:
+    return subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env=dict(os.environ))
+
+
+def wait_for_line(proc: subprocess.Popen, text: str, timeout: float) -> list[str]:
+    """stdout lines of ``proc`` up to the first one containing ``text``."""
+    lines, deadline = [], time.monotonic() + timeout
+    while time.monotonic() < deadline and proc.poll() is None:
+        ready, _, _ = select.select([proc.stdout], [], [], 0.2)
+        if ready:
+            lines.append(proc.stdout.readline())
+            if text in lines[-1]:
+                return lines
+    proc.kill()
+    out, err = proc.communicate()
+    pytest.fail(f'no {text!r} within {timeout} s:\n{"".join(lines)}{out}\n{err}')
+
+
+def node_log(suite, name: str = 'repeatability_trial') -> str:
+    return suite.log_tail(name, lines=10000)
 
 
 def test_echo_repeatability_shows_every_cycle_of_a_running_trial(ros, trial_data):
@@ -46,14 +92,15 @@ def test_echo_repeatability_shows_every_cycle_of_a_running_trial(ros, trial_data
     assert np.all(np.abs(stored.distances - 1.2e-3) < 0.25e-3)       # F_i: mid-range
 
 
-def test_a_canceled_trial_resumes_where_it_stopped(ros, trial_data):
+def test_a_canceled_trial_resumes_where_it_stopped(ros, trial_data, suite):
     client = ActionClient(ros, RunTrial, 'run_trial')
     ex = ros.executor_for_tests
     assert spin_until(ros, client.server_is_ready, 10.0, ex)
-    readings = []
+    readings = set()                # (cycle, point): feedback also repeats as a heartbeat
     send = client.send_goal_async(
         RunTrial.Goal(trial_id='resumed', method='rigid', cycles=3),
-        feedback_callback=lambda fb: readings.append(fb.feedback.point_index))
+        feedback_callback=lambda fb: fb.feedback.point_name and readings.add(
+            (fb.feedback.cycle, fb.feedback.point_index)))
     assert spin_until(ros, send.done, 10.0, ex)
     handle = send.result()
     assert spin_until(ros, lambda: len(readings) >= 7, 60.0, ex)
@@ -63,27 +110,217 @@ def test_a_canceled_trial_resumes_where_it_stopped(ros, trial_data):
     assert spin_until(ros, outcome.done, 30.0, ex)
     stopped = outcome.result().result
     assert stopped.error_code == RunTrial.Result.CANCELED and 'resume' in stopped.message
+    assert (stopped.statistics.method, stopped.statistics.cycles_total) == ('rigid', 3)
     half = TrialStore(trial_data).load('resumed')
     assert half.meta['status'] == 'aborted' and half.resume is not None
-    _, done = run_action(ros, client, RunTrial.Goal(trial_id='resumed'), 120.0, executor=ex)
-    assert done.error_code == RunTrial.Result.SUCCESS, done.message
+    for goal, differ in ((RunTrial.Goal(trial_id='resumed', method='reference'),
+                          'method reference (stored: rigid)'),
+                         (RunTrial.Goal(trial_id='resumed', cycles=30),
+                          'cycles 30 (stored: 3)')):
+        _, refused = run_action(ros, client, goal, 30.0, executor=ex)
+        assert refused.error_code == RunTrial.Result.INVALID_GOAL and differ in refused.message
+    client.destroy()
+    resumed = subprocess.run(trial_command(trial_id='resumed'), capture_output=True,
+                             text=True, timeout=120, env=dict(os.environ))
+    assert resumed.returncode == 0, resumed.stderr
+    cycle = half.resume[0] + 1
+    assert (f'resuming trial resumed: rigid, z axis, 3 cycles, from cycle {cycle}'
+            in resumed.stdout)
+    assert '(rigid, z axis)' in resumed.stdout and 'reference' not in resumed.stdout
     full = TrialStore(trial_data).load('resumed')
     assert full.meta['status'] == 'done' and np.all(np.isfinite(full.distances))
-    measured_before = np.isfinite(half.distances)
-    np.testing.assert_array_equal(full.distances[measured_before],
-                                  half.distances[measured_before])
-    client.destroy()
+    kept = slice(0, half.resume[0])                  # complete cycles are kept as they were
+    np.testing.assert_array_equal(full.distances[:, kept], half.distances[:, kept])
+    log = node_log(suite)
+    for line in ('trial resumed (rigid, z axis, 3 cycles): start',
+                 'trial resumed (rigid, z axis, 3 cycles): canceled in cycle',
+                 f'trial resumed (rigid, z axis, 3 cycles): resume at cycle {cycle} ',
+                 'trial resumed (rigid, z axis, 3 cycles): done, 3 cycles'):
+        assert line in log
 
 
 @pytest.mark.parametrize('goal, message', [
-    (dict(method='four_point'), 'unknown method'),
-    (dict(axis='w'), 'unknown axis'),
-    (dict(layout='wide'), 'layout'),
+    (dict(method='four_point'), "unknown method 'four_point'"),
+    (dict(method='landmark_icp'), "unknown method 'landmark_icp'"),
+    (dict(axis='w'), "unknown axis 'w'"),
+    (dict(cycles=1), 'cycles must be 2..10000'),
+    (dict(cycles=10001), 'cycles must be 2..10000'),
     (dict(trial_id='../escape'), 'id must match')])
-def test_bad_trial_goals_are_refused_with_a_reason(ros, goal, message):
+def test_bad_trial_goals_are_rejected_and_the_node_logs_why(ros, suite, goal, message):
     client = ActionClient(ros, RunTrial, 'run_trial')
-    _, result = run_action(ros, client, RunTrial.Goal(**goal), 30.0,
+    with pytest.raises(CallError, match='rejected'):
+        run_action(ros, client, RunTrial.Goal(**goal), 30.0, executor=ros.executor_for_tests)
+    client.destroy()
+    deadline = time.monotonic() + 5.0                   # until the log line is in the file
+    while message not in _last_rejection(suite) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert message in _last_rejection(suite)
+
+
+def _last_rejection(suite) -> str:
+    lines = [line for line in node_log(suite).splitlines() if 'run_trial goal rejected: ' in line]
+    return lines[-1] if lines else ''
+
+
+def test_a_goal_for_another_layout_ends_with_a_reason(ros):
+    client = ActionClient(ros, RunTrial, 'run_trial')
+    _, result = run_action(ros, client, RunTrial.Goal(layout='wide'), 30.0,
                            executor=ros.executor_for_tests)
     client.destroy()
     assert result.error_code == RunTrial.Result.INVALID_GOAL
-    assert message in result.message
+    assert 'layout' in result.message and 'layout:=wide' in result.message
+
+
+@pytest.mark.parametrize('options, message', [
+    (['--cycles', '-1'], 'cycles must be 2..10000'),
+    (['--cycles', '1'], 'cycles must be 2..10000'),
+    (['--cycles', '10001'], 'cycles must be 2..10000'),
+    (['--method', 'landmark_icp'], "unknown method 'landmark_icp'; use one of reference,"),
+    (['--trial-id', '../escape'], 'id must match')])
+def test_the_trial_cli_refuses_a_bad_request_in_one_line(domain_id, options, message):
+    """Checked before any ROS call: no suite needed, no traceback, exit code 2."""
+    done = cli('trial', *options, timeout=60)
+    assert done.returncode == 2, done.stderr
+    assert done.stderr.strip().splitlines() == [done.stderr.strip()]
+    assert done.stderr.startswith('trial rejected: ') and message in done.stderr
+
+
+def test_ctrl_c_cancels_the_trial_and_says_how_to_resume_it(ros, trial_data):
+    proc = start(cli_command('trial', '--cycles', '30', '--trial-id', 'ctrl-c'))
+    wait_for_line(proc, 'trial ctrl-c: reference, z axis, 30 cycles', 60.0)
+    time.sleep(2.0)                                     # teaching and a few readings
+    proc.send_signal(signal.SIGINT)
+    out, err = proc.communicate(timeout=30)
+    assert proc.returncode == 130, err
+    assert 'Traceback' not in out + err
+    assert err.strip().splitlines() == [
+        err.strip()], 'one line: stopped, and how to resume'
+    assert 'trial ctrl-c stopped in cycle ' in err
+    assert err.strip().endswith('resume it with: cobot-calib trial --trial-id ctrl-c')
+    stored = TrialStore(trial_data).load('ctrl-c')
+    assert stored.meta['status'] == 'aborted' and stored.resume is not None
+
+
+def test_trial_health_is_on_diagnostics(ros):
+    """OK running with cycle figures, OK idle after the end, WARN after a failed trial."""
+    seen = []
+    sub = ros.create_subscription(
+        DiagnosticArray, '/diagnostics',
+        lambda msg: seen.extend(s for s in msg.status if s.name == HEALTH), 10)
+    client = ActionClient(ros, RunTrial, 'run_trial')
+    ex = ros.executor_for_tests
+    try:
+        _, done = run_action(ros, client, RunTrial.Goal(trial_id='health', cycles=3), 120.0,
+                             executor=ex)
+        assert done.error_code == RunTrial.Result.SUCCESS, done.message
+        running = [s for s in seen if s.message.startswith('running trial health: ')]
+        assert running and all(s.level == DiagnosticStatus.OK for s in running)
+        figures = {v.key: v.value for v in running[-1].values}
+        assert figures['trial_id'] == 'health' and figures['cycles_total'] == '3'
+        assert spin_until(ros, lambda: seen[-1].message.startswith('idle; trial health done'),
+                          5.0, ex)
+        assert seen[-1].level == DiagnosticStatus.OK
+        run_action(ros, client, RunTrial.Goal(layout='wide'), 30.0, executor=ex)
+        assert spin_until(ros, lambda: seen[-1].level == DiagnosticStatus.WARN, 5.0, ex)
+        assert 'failed' in seen[-1].message and 'layout' in seen[-1].message
+    finally:
+        client.destroy()
+        ros.destroy_subscription(sub)
+
+
+@dataclass
+class _OnTheSuitesRobot(launcher.NodeSpec):
+    """A second repeatability_trial in its own namespace, using the suite's robot and probe."""
+
+    def command(self) -> list[str]:
+        names = ['capture_joints', 'probe/average', *(f'move_to/_action/{part}' for part in (
+            'send_goal', 'cancel_goal', 'get_result', 'feedback', 'status'))]
+        # an action name is not remapped as a whole here: its services and topics are
+        return super().command() + [a for n in names for a in ('-r', f'{n}:=/{n}')]
+
+
+def test_the_client_gives_up_on_a_stalled_or_dead_trial_node(ros, tmp_path):
+    """No feedback for --stall-timeout s, or the node gone from the graph (a SIGKILL: after
+    DDS's 20 s lease): a clear message and exit 1, not an hour's wait."""
+    cell = str(paths.cell_file('sawyer_close'))
+    nodes = launcher.Suite(tmp_path / 'logs')
+    nodes.start([_OnTheSuitesRobot('repeatability_trial', {'cell_file': cell,
+                                                           'data_dir': str(tmp_path)},
+                                   namespace='doomed')])
+    node = nodes.processes['doomed.repeatability_trial']
+    ros_args = ('--ros-args', '-r', '__ns:=/doomed')
+    try:
+        proc = start(trial_command(ros_args, trial_id='doomed', cycles=30, stall_timeout=6.0))
+        wait_for_line(proc, 'reference: cycle 2/30', 60.0)          # readings flow
+        node.send_signal(signal.SIGSTOP)
+        out, err = proc.communicate(timeout=30)
+        node.send_signal(signal.SIGCONT)
+        assert proc.returncode == 1, err
+        assert 'no feedback from repeatability_trial for 6 s' in err and 'Traceback' not in err
+        assert 'trial doomed not canceled' in err and 'it may go on' in err    # it was frozen
+        assert err.strip().endswith('resume it with: cobot-calib trial --trial-id doomed')
+        # woken up, the node stops the trial: canceled now, or its own 5 s probe timeout ran
+        # out while it was frozen
+        call(ros, CancelGoal, '/doomed/run_trial/_action/cancel_goal')
+        store = TrialStore(tmp_path)
+        assert spin_until(ros, lambda: store.load('doomed').meta['status'] == 'aborted',
+                          30.0, ros.executor_for_tests)
+        time.sleep(1.0)                                 # the node ends the goal
+        proc = start(trial_command(ros_args, trial_id='doomed'))
+        wait_for_line(proc, 'resuming trial doomed: reference, z axis, 30 cycles', 60.0)
+        node.kill()
+        killed = time.monotonic()
+        out, err = proc.communicate(timeout=60)
+        assert proc.returncode == 1, err
+        assert time.monotonic() - killed < 30.0
+        assert 'the repeatability_trial node is gone' in err and 'Traceback' not in err
+        assert err.strip().endswith('resume it with: cobot-calib trial --trial-id doomed')
+    finally:
+        nodes.stop()
+        time.sleep(1.0)                           # the suite's robot ends the move it was on
+
+
+def test_repeatability_is_republished_when_the_node_restarts(ros, tmp_path):
+    """The latest trial's statistics (done or not), as user_frame's latest calibration is."""
+    store, names = TrialStore(tmp_path), load_cell(paths.cell_file('sawyer_close')).point_names
+    older = _stored_trial(store, 'older', names, cycles_total=4, measured=2)
+    replay = launcher.NodeSpec('repeatability_trial',
+                               {'cell_file': str(paths.cell_file('sawyer_close')),
+                                'data_dir': str(tmp_path)}, namespace='replay')
+    first = _latched(ros, replay, tmp_path / 'logs1')
+    assert (first.trial_id, first.method, first.cycles_done, first.cycles_total) == (
+        'older', 'rigid', 2, 4)
+    assert first.rp_all == pytest.approx(point_statistics(older).rp_all)
+    newer = _stored_trial(store, 'newer', names, cycles_total=3, measured=3)
+    second = _latched(ros, replay, tmp_path / 'logs2')
+    assert (second.trial_id, second.cycles_done) == ('newer', 3)
+    assert list(second.rp) == pytest.approx(point_statistics(newer).rp.tolist())
+
+
+def _stored_trial(store: TrialStore, trial_id: str, names, cycles_total: int,
+                  measured: int) -> np.ndarray:
+    """A rigid trial with ``measured`` cycles of readings; its distances [m]."""
+    rng = np.random.default_rng(len(trial_id))
+    store.create(trial_id, method='rigid', axis='z', layout='close', point_names=names,
+                 cycles_total=cycles_total)
+    d = 1.2e-3 + rng.normal(0.0, 2e-5, (len(names), measured))
+    for cycle in range(measured):
+        for i in range(len(names)):
+            store.append(trial_id, cycle, i, d[i, cycle])
+    store.set_status(trial_id, 'done' if measured == cycles_total else 'aborted')
+    return d
+
+
+def _latched(ros, spec: launcher.NodeSpec, log_dir) -> Repeatability:
+    """Start the node, take what it latched on /replay/repeatability, stop the node."""
+    nodes, got = launcher.Suite(log_dir), []
+    nodes.start([spec])
+    sub = ros.create_subscription(Repeatability, '/replay/repeatability', got.append,
+                                  qos.LATCHED)
+    try:
+        assert spin_until(ros, lambda: got, 30.0, ros.executor_for_tests), \
+            nodes.log_tail('replay.repeatability_trial')
+    finally:
+        ros.destroy_subscription(sub)
+        assert nodes.stop() == {'replay.repeatability_trial': 0}
+    return got[-1]

@@ -15,6 +15,8 @@ Each cycle n then visits the points P1..Pm once:
 A reading out of the probe range is retried once after moving by FF_i,n (eq 15), and the
 stored distance is corrected for it.
 
+A stopped trial resumes at the start of its interrupted cycle (see :meth:`TrialRun.resume`).
+
 Everything here is in metres and radians; the robot, the probe and the store come in as
 objects (see :class:`Robot`), so this runs the same on the ROS nodes and in a plain test.
 """
@@ -23,6 +25,7 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 import math
+import time
 from typing import Protocol, TYPE_CHECKING
 
 import numpy as np
@@ -39,7 +42,8 @@ if TYPE_CHECKING:   # the store is passed in; core never does I/O itself
 
 Array = NDArray[np.float64]
 METHODS = ('reference', *user_frame.METHODS)
-DEFAULT_CYCLES = 30
+DEFAULT_METHOD, DEFAULT_AXIS, DEFAULT_CYCLES = 'reference', 'z', 30    # for a new trial
+MIN_CYCLES, MAX_CYCLES = 2, 10000    # RP needs sigma of eq (12): at least two cycles
 
 
 class TrialError(RuntimeError):
@@ -90,14 +94,62 @@ class Plan:
     extra: dict = field(default_factory=dict)
 
     def check(self) -> None:
-        if self.method not in METHODS:
-            raise TrialError('invalid', f'unknown method {self.method!r}; use one of {METHODS}')
-        if self.axis not in AXES:
-            raise TrialError('invalid', f'unknown axis {self.axis!r}; use x, y or z')
-        if not 1 <= self.cycles <= 10000:
-            raise TrialError('invalid', f'cycles must be 1..10000, got {self.cycles}')
+        problem = (method_problem(self.method) or axis_problem(self.axis)
+                   or cycles_problem(self.cycles))
+        if problem:
+            raise TrialError('invalid', problem)
         if self.method != 'reference' and len(self.markers) < 3:
             raise TrialError('invalid', f'{self.method} needs at least 3 points')
+
+
+def method_problem(method: str) -> str:
+    """'' if ``method`` is one of METHODS, else why not (one line)."""
+    return '' if method in METHODS else (f'unknown method {method!r}; use one of '
+                                         f'{", ".join(METHODS)}')
+
+
+def axis_problem(axis: str) -> str:
+    """'' if ``axis`` is one of AXES, else why not (one line)."""
+    return '' if axis in AXES else f'unknown axis {axis!r}; use one of {", ".join(AXES)}'
+
+
+def cycles_problem(cycles: int) -> str:
+    """'' if ``cycles`` is a valid number of cycles, else why not (one line)."""
+    if not MIN_CYCLES <= cycles <= MAX_CYCLES:
+        return (f'cycles must be {MIN_CYCLES}..{MAX_CYCLES} (RP needs the spread of at least '
+                f'{MIN_CYCLES} cycles), got {cycles}')
+    return ''
+
+
+def goal_problem(method: str, axis: str, cycles: int) -> str:
+    """'' if a trial request is valid, else why not (one line); the client and the node both
+    check it. '' and 0 stand for "not given" (the default, or the stored value on resume)."""
+    return ((method and method_problem(method)) or (axis and axis_problem(axis))
+            or (cycles and cycles_problem(cycles)) or '')
+
+
+def resume_problem(meta: dict, method: str, axis: str, cycles: int) -> str:
+    """'' if a request may resume the stored trial ``meta``, else why not (one line).
+
+    Given values must equal the stored ones; '' and 0 take the stored ones."""
+    asked = {'method': method, 'axis': axis, 'cycles': cycles}
+    stored = {'method': meta['method'], 'axis': meta['axis'], 'cycles': meta['cycles_total']}
+    differ = [f'{key} {asked[key]} (stored: {stored[key]})' for key in asked
+              if asked[key] and asked[key] != stored[key]]
+    if not differ:
+        return ''
+    return (f'trial {meta["id"]} is {describe(meta)}; cannot resume it with '
+            f'{", ".join(differ)}: leave those out to resume it, or pick a new trial id')
+
+
+def describe(meta: dict) -> str:
+    """'rigid, z axis, 30 cycles' for a trial's metadata."""
+    return f'{meta["method"]}, {meta["axis"]} axis, {meta["cycles_total"]} cycles'
+
+
+def new_trial_id(method: str, axis: str) -> str:
+    """A fresh trial id from the local time: 20261122T153000-rigid-z."""
+    return time.strftime(f'%Y%m%dT%H%M%S-{method or DEFAULT_METHOD}-{axis or DEFAULT_AXIS}')
 
 
 def face_offset_user(marker: Marker, axis: str) -> Array:
@@ -161,11 +213,21 @@ class TrialRun:
         return self._run(self.store.load(self.plan.trial_id))
 
     def resume(self, trial: TrialData) -> TrialData:
-        """Carry on a stored trial from its first unmeasured point (same taught poses)."""
+        """Carry on a stored trial from the start of its interrupted cycle (same taught poses).
+
+        The interrupted cycle is measured again from its first point, not carried on from its
+        first unmeasured one: a cycle's readings must all go through that cycle's frame M_n,
+        and M_n comes from the calibration pass at the start of the cycle. Refitting M_n for
+        the rest of the cycle would mix two frames in one cycle; storing M_n with the
+        readings would keep the frame but not the robot it was fitted on (a restart may come
+        after a re-home, a power cycle or a cool-down), and ISO 9283 wants each cycle to visit
+        P1..Pm in order anyway, also for the reference. Redoing the cycle costs at most m - 1
+        readings; the store lets the new line for a (cycle, point) supersede the old one, and
+        a cycle only counts once its last point is stored, after its first ones again.
+        """
         self._taught = [np.array(T) for T in trial.meta['taught']]
         self._standoff = {a: list(v) for a, v in trial.meta['standoff_m'].items()}
-        if trial.meta['status'] != 'running':
-            self.store.set_status(self.plan.trial_id, 'running')
+        self.store.set_status(self.plan.trial_id, 'running')    # also marks it the latest
         return self._run(trial)
 
     def _names(self) -> list[str]:
@@ -206,10 +268,17 @@ class TrialRun:
 
     # -- cycles ---------------------------------------------------------------------------
     def _run(self, trial: TrialData) -> TrialData:
+        try:
+            return self._cycles(trial)
+        except TrialError:
+            self.store.set_status(self.plan.trial_id, 'aborted')   # not running any more
+            raise
+
+    def _cycles(self, trial: TrialData) -> TrialData:
         while trial.resume is not None:
-            cycle, first = trial.resume
+            cycle = trial.resume[0]     # a whole cycle, from its first point (see resume)
             M = None if self.plan.method == 'reference' else self._cycle_frame(cycle)
-            for i in range(first, len(self.plan.markers)):
+            for i in range(len(self.plan.markers)):
                 self._check_stop()
                 self._measure(cycle, i, M)
             trial = self.store.load(self.plan.trial_id)
@@ -220,7 +289,6 @@ class TrialRun:
 
     def _check_stop(self) -> None:
         if self._stop_requested():
-            self.store.set_status(self.plan.trial_id, 'aborted')
             raise TrialError('canceled', f'trial {self.plan.trial_id} stopped on request; '
                              'send the same trial_id again to resume it')
 

@@ -5,7 +5,10 @@ import math
 import numpy as np
 import pytest
 
-from cobot_calib_ros.core.repeatability.trial import Plan, ProbeRange, TrialError, TrialRun
+from cobot_calib_ros.core import user_frame
+from cobot_calib_ros.core.repeatability import AXES
+from cobot_calib_ros.core.repeatability.trial import (
+    goal_problem, METHODS, Plan, ProbeRange, resume_problem, TrialError, TrialRun)
 from cobot_calib_ros.core.sensors.probe import Reading, ReadingStatus
 from cobot_calib_ros.paths import cell_file
 from cobot_calib_ros.sim.robot import DirectRobot, SimRobot
@@ -130,10 +133,109 @@ def test_out_of_range_reading_is_corrected_by_ff(tmp_path):
     assert trial.distances[2, 0] == pytest.approx(raw + ff)    # 2.7 mm: the short landing
 
 
-@pytest.mark.parametrize('method, axis, message', [
-    ('four_point', 'z', 'unknown method'), ('rigid', 'w', 'unknown axis')])
-def test_bad_plans_are_refused_before_moving(tmp_path, method, axis, message):
+def test_a_trial_resumed_mid_cycle_measures_that_cycle_again_through_one_frame(
+        tmp_path, monkeypatch):
+    """Stopped after P1, P2 of cycle 2: the resumed run fits cycle 2's frame M_n once and
+    measures all of P1..P5 through it; the first attempt's P1, P2 are superseded."""
+    store, events = TrialStore(tmp_path), []
+    fit = user_frame.calibrate
+    monkeypatch.setattr(user_frame, 'calibrate',
+                        lambda *a, **k: events.append('fit') or fit(*a, **k))
+    run = TrialRun(_plan('rigid', 3, trial_id='mid'), robot(5), store,
+                   on_reading=lambda c, i, d: events.append((c, i)),
+                   stop_requested=lambda: len(events) >= 9)   # fit, 5 readings, fit, 2
+    with pytest.raises(TrialError, match='resume'):
+        run.start()
+    half = store.load('mid')
+    assert half.resume == (1, 2) and np.isfinite(half.distances[:2, 1]).all()
+    events.clear()
+    done = TrialRun(_plan('rigid', 3, trial_id='mid'), robot(6), store,
+                    on_reading=lambda c, i, d: events.append((c, i))).resume(half)
+    m = len(CELL.markers)
+    assert events == ['fit', *[(1, i) for i in range(m)], 'fit', *[(2, i) for i in range(m)]]
+    assert done.meta['status'] == 'done' and np.all(np.isfinite(done.distances))
+    assert not np.any(done.distances[:2, 1] == half.distances[:2, 1])   # measured again
+    np.testing.assert_array_equal(done.distances[:, 0], half.distances[:, 0])
+
+
+def test_a_trial_that_fails_midway_is_stored_as_aborted_and_resumes(tmp_path):
+    """A lost probe is no longer a running trial (the latest status change, for the topic)."""
+    arm, store = robot(4), TrialStore(tmp_path)
+    read, count = arm.read, []
+
+    def read_then_lose_the_probe():
+        count.append(1)
+        if len(count) == 12:
+            raise TrialError('probe', 'probe/average: no answer within 5 s')
+        return read()
+    arm.read = read_then_lose_the_probe
+    with pytest.raises(TrialError, match='no answer'):
+        TrialRun(_plan('reference', 3, trial_id='lost'), arm, store).start()
+    half = store.load('lost')
+    assert half.meta['status'] == 'aborted' and half.resume is not None
+    done = TrialRun(_plan('reference', 3, trial_id='lost'), robot(5), store).resume(half)
+    assert done.meta['status'] == 'done' and np.all(np.isfinite(done.distances))
+
+
+def test_a_reference_trial_also_resumes_at_the_start_of_its_cycle(tmp_path):
+    """The ISO cycle visits P1..Pm in order: a resumed cycle starts again at P1."""
+    store, readings = TrialStore(tmp_path), []
+    run = TrialRun(_plan('reference', 2, trial_id='ref'), robot(2), store,
+                   on_reading=lambda c, i, d: readings.append((c, i)),
+                   stop_requested=lambda: len(readings) >= 8)
+    with pytest.raises(TrialError):
+        run.start()
+    readings.clear()
+    TrialRun(_plan('reference', 2, trial_id='ref'), robot(3), store,
+             on_reading=lambda c, i, d: readings.append((c, i))).resume(store.load('ref'))
+    assert readings == [(1, i) for i in range(len(CELL.markers))]
+
+
+@pytest.mark.parametrize('method, axis, cycles, message', [
+    ('four_point', 'z', 2, 'unknown method'), ('rigid', 'w', 2, 'unknown axis'),
+    ('', 'z', 2, 'unknown method'), ('rigid', '', 2, 'unknown axis'),
+    ('reference', 'z', 1, 'cycles must be 2..10000'),
+    ('reference', 'z', 10001, 'cycles must be 2..10000')])
+def test_bad_plans_are_refused_before_moving(tmp_path, method, axis, cycles, message):
     arm = robot(1)
     with pytest.raises(TrialError, match=message):
-        TrialRun(_plan(method, 2, axis), arm, TrialStore(tmp_path))
+        TrialRun(_plan(method, cycles, axis, trial_id='bad'), arm, TrialStore(tmp_path))
     assert arm.moves == 0
+
+
+@pytest.mark.parametrize('method, axis, cycles, message', [
+    ('four_point', '', 0, "unknown method 'four_point'; use one of reference, three_point"),
+    ('landmark_icp', '', 0, 'unknown method'),
+    ('', 'w', 0, "unknown axis 'w'; use one of x, y, z"),
+    ('', '', 1, 'cycles must be 2..10000'), ('', '', 10001, 'cycles must be 2..10000'),
+    ('', '', -1, 'got -1')])
+def test_goal_problem_names_what_is_wrong(method, axis, cycles, message):
+    assert message in goal_problem(method, axis, cycles)
+
+
+@pytest.mark.parametrize('method, axis, cycles', [
+    ('', '', 0), ('robust', 'x', 2), ('reference', 'z', 10000)])
+def test_goal_problem_accepts_defaults_and_every_method_and_axis(method, axis, cycles):
+    assert goal_problem(method, axis, cycles) == ''
+    assert all(goal_problem(m, a, 0) == '' for m in METHODS for a in AXES)
+
+
+STORED = {'id': 't7', 'method': 'rigid', 'axis': 'x', 'cycles_total': 3}
+
+
+@pytest.mark.parametrize('method, axis, cycles', [
+    ('', '', 0), ('rigid', '', 0), ('', 'x', 3), ('rigid', 'x', 3)])
+def test_a_resume_may_leave_out_or_repeat_the_stored_settings(method, axis, cycles):
+    assert resume_problem(STORED, method, axis, cycles) == ''
+
+
+@pytest.mark.parametrize('method, axis, cycles, differ', [
+    ('reference', '', 0, 'method reference (stored: rigid)'),
+    ('', 'z', 0, 'axis z (stored: x)'),
+    ('', '', 30, 'cycles 30 (stored: 3)'),
+    ('reference', 'x', 30, 'method reference (stored: rigid), cycles 30 (stored: 3)')])
+def test_a_resume_with_other_settings_is_refused_saying_what_is_stored(method, axis, cycles,
+                                                                       differ):
+    problem = resume_problem(STORED, method, axis, cycles)
+    assert problem.startswith('trial t7 is rigid, x axis, 3 cycles; cannot resume it with ')
+    assert differ in problem and 'leave those out' in problem
