@@ -8,11 +8,17 @@ def add_parser(subparsers):
                       'printing RP after each cycle',
         description='Run (or resume) one ISO 9283 repeatability trial on the suite running on '
                     'the exported ROS_DOMAIN_ID (cobot-calib up).')
-    p.add_argument('--method', default='reference',
-                   help='reference | three_point | five_point_lsq | rigid | robust')
-    p.add_argument('--axis', default='z', choices=('x', 'y', 'z'))
-    p.add_argument('--cycles', type=int, default=30)
+    p.add_argument('--method', default=None,
+                   help='reference | three_point | five_point_lsq | rigid | robust (default '
+                        'reference; a resumed trial keeps its own)')
+    p.add_argument('--axis', default=None, choices=('x', 'y', 'z'),
+                   help='probed axis (default z; a resumed trial keeps its own)')
+    p.add_argument('--cycles', type=int, default=None,
+                   help='2..10000 (default 30; a resumed trial keeps its own)')
     p.add_argument('--trial-id', default='', help='an unfinished trial id resumes it')
+    p.add_argument('--stall-timeout', type=float, default=None,
+                   help='[s] without feedback from repeatability_trial before giving up '
+                        '(default 30)')
     p.add_argument('--json', action='store_true')
     return p
 
