@@ -13,8 +13,10 @@ import pytest
 
 PACKAGE = Path(__file__).resolve().parents[1] / 'cobot_calib_ros'
 SIMULATION = 'cobot_calib_ros.sim'
-# The only modules that may use the simulation: itself and the node that stands in for a robot.
-MAY_USE_SIMULATION = ('cobot_calib_ros.sim', 'cobot_calib_ros.nodes.mock_robot')
+# The only modules that may use the simulation: itself, the node that stands in for a robot,
+# and `cobot-calib up`, which starts that node and checks its scenario first.
+MAY_USE_SIMULATION = ('cobot_calib_ros.sim', 'cobot_calib_ros.nodes.mock_robot',
+                      'cobot_calib_ros.cli.up')
 
 
 def module_name(path: Path) -> str:

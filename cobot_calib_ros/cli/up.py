@@ -18,7 +18,10 @@ def add_parser(subparsers):
         'up', help='start the node suite (Ctrl-C stops it)',
         description='Start the node suite on the exported ROS_DOMAIN_ID (Ctrl-C stops it). '
                     'Refuses if suite nodes already run on that domain.')
-    p.add_argument('--cell', default='sawyer_close', help='cell YAML path or name')
+    p.add_argument('--cell', default='sawyer_close', help='cell YAML path or name '
+                   '(sawyer_close, iiwa7_close)')
+    p.add_argument('--layout', default='', help='marker layout of the cell (close, wide); '
+                   'default: the cell file\'s own')
     p.add_argument('--force', action='store_true',
                    help='start even if suite nodes already run on this ROS_DOMAIN_ID')
     return p
@@ -32,7 +35,12 @@ def run(args) -> int:
         names = ', '.join(sorted(p.stem for p in (paths.config_dir() / 'cells').glob('*.yaml')))
         return fail(f'cell file {cell} not found; give a cell YAML path or a name ({names})',
                     EXIT_USAGE)
-    specs = launcher.suite_specs(args.cell)
+    problem = cell_problem(cell, args.layout)
+    if problem:
+        return fail(f'{problem}; nothing started', EXIT_USAGE)
+    layout = {'layout': args.layout} if args.layout else {}
+    specs = launcher.suite_specs(args.cell, overrides={
+        n: layout for n in ('mock_robot', 'user_frame_solver', 'repeatability_trial')})
     if not args.force:
         running = running_nodes(['/' + spec.name for spec in specs])
         if running:
@@ -40,6 +48,20 @@ def run(args) -> int:
                         f'({", ".join(running)}); stop it, export another ROS_DOMAIN_ID, '
                         'or pass --force to start a second one anyway')
     return _serve(launcher.Suite(launcher.default_log_dir()), specs)
+
+
+def cell_problem(path, layout: str) -> str:
+    """'' if both parts of the cell file are usable, else file:line: key: what is expected.
+
+    `up` starts the mock robot, so it checks the simulation part too, before any node runs.
+    """
+    from cobot_calib_ros.core.cell import CellFileError
+    from cobot_calib_ros.sim.scenario import load_simulation
+    try:
+        load_simulation(path, layout or None)
+    except CellFileError as e:
+        return str(e)
+    return ''
 
 
 def running_nodes(names: list[str]) -> list[str]:

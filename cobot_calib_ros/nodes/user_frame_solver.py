@@ -120,7 +120,7 @@ class UserFrameSolver(Node):
     def __init__(self, **kwargs) -> None:
         super().__init__('user_frame_solver', **kwargs)
         self._declare_parameters()
-        self._cell = load_cell(paths.cell_file(self._p('cell_file')))
+        self._cell = load_cell(paths.cell_file(self._p('cell_file')), self._p('layout') or None)
         model = kinematics.model_by_name(self._cell.robot)
         self._chain = model.chain(tool=self._cell.tool_offset)   # the nominal model
         self._store = CalibrationStore(paths.data_dir(self._p('data_dir')))
@@ -156,6 +156,8 @@ class UserFrameSolver(Node):
     def _declare_parameters(self) -> None:
         read_once(self, 'cell_file', 'sawyer_close',
                   'Cell YAML (path or name): named points and the nominal tool offset')
+        read_once(self, 'layout', '', 'Marker layout of the named points (close | wide); '
+                  'empty = the cell file default')
         declare(self, 'base_frame', 'base_link', 'Robot base frame id of new calibrations '
                 'whose request gives none (tf2 frame id: letters, digits, _ and /)')
         declare(self, 'user_frame', 'user_frame', 'User (work surface) frame id of new '
