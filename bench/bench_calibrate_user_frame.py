@@ -1,15 +1,18 @@
-"""Round trip of calibrate_user_frame with 5 explicit point pairs, beside a bare Trigger.
+"""Round trip of calibrate_user_frame with 5 explicit point pairs, beside a bare Trigger, for
+each node executor side by side.
 
-user_frame_solver and bench/trigger_server.py run as separate processes on a private domain.
-After 20 warm-up calls each, the 500 timed calls of each service alternate, so both see the same
-load on this noisy 2-core machine and their figures can be compared side by side. Every call is
-`call_async` + a `spin_once` loop (benchlib.timed_call). The solver stores each calibration; its
-data_dir is a throw-away directory on disk. A second solver (namespace /ram) keeps its data_dir
-on tmpfs, where fsync costs nothing: the difference between the two is the durable write
-(temporary file, fsync, rename, fsync of the directory).
+For each executor (benchlib.executors()), in namespace /<executor>: user_frame_solver (its
+data_dir a throw-away directory on disk), a second solver in /<executor>/ram (data_dir on
+tmpfs, where fsync costs nothing: the difference between the two is the durable write, i.e.
+temporary file, fsync, rename, fsync of the directory) and bench/trigger_server.py, each its
+own process on one private domain. After 20 warm-up calls each, the 500 timed calls of every
+service alternate, so all see the same load on this noisy 2-core machine. Every call is
+`call_async` + a `spin_once` loop (benchlib.timed_call). Goal: calibrate_user_frame_p99_ms < 2.
 """
 from __future__ import annotations
 
+import contextlib
+import os
 import tempfile
 
 from cobot_calib_msgs.srv import CalibrateUserFrame
@@ -23,7 +26,7 @@ from cobot_calib_ros.api import launcher
 
 SOLVER = 'user_frame_solver'
 TRIGGER = 'trigger_server'
-CALLS = 500
+CALLS = int(os.environ.get('BENCH_CALIBRATE_CALLS', '500'))
 WARMUP = 20
 NOISE = 30e-6               # [m] per axis, on the base-frame points
 SEED = 20240611
@@ -101,45 +104,65 @@ def measure_interleaved(ros: Ros, targets: list[Target]) -> Figures:
     return figures
 
 
-def start_solver(ros: Ros, suite: launcher.Suite, client) -> str | None:
-    """Wait for the solver; None when ready, else why it did not start."""
-    try:
-        benchlib.wait_for_service(ros, suite, SOLVER, client)
-    except BenchFailed as exc:
-        return str(exc)
-    return None
+def specs(kind: str, disk_dir: str, ram_dir: str) -> list[launcher.NodeSpec]:
+    """Trigger server, solver on disk and solver on tmpfs, in namespace /<kind>."""
+    solver = launcher.suite_specs('sawyer_close', (SOLVER,))[0]
+    return [benchlib.ScriptSpec(TRIGGER, namespace=kind),
+            launcher.NodeSpec(SOLVER, {**solver.params, 'data_dir': disk_dir}, namespace=kind),
+            launcher.NodeSpec(SOLVER, {**solver.params, 'data_dir': ram_dir},
+                              namespace=f'{kind}/ram')]
+
+
+def targets(ros: Ros, suite: launcher.Suite, kind: str) -> list[Target]:
+    """The three services of one executor's processes, once they are ready."""
+    request = calibrate_request()
+    found = [Target(f'trigger_roundtrip_{kind}',
+                    ros.node.create_client(Trigger, f'/{kind}/bench_trigger'),
+                    Trigger.Request(), trigger_error),
+             Target(f'calibrate_user_frame_{kind}',
+                    ros.node.create_client(CalibrateUserFrame, f'/{kind}/calibrate_user_frame'),
+                    request, calibrate_error),
+             Target(f'calibrate_user_frame_tmpfs_{kind}',
+                    ros.node.create_client(CalibrateUserFrame,
+                                           f'/{kind}/ram/calibrate_user_frame'),
+                    request, calibrate_error)]
+    for target in found:
+        benchlib.wait_for_service(ros, suite, f'{kind} {target.name}', target.client)
+    return found
+
+
+def renamed(figures: Figures, kinds: list[str]) -> Figures:
+    """`<service>_<kind>_p99_ms` -> `<service>_p99_ms_<kind>`, and calibrate minus trigger."""
+    out: Figures = {}
+    for name, value in figures.items():
+        kind = next(k for k in kinds if f'_{k}_p' in name)
+        service, stat = name.split(f'_{kind}_')
+        out[f'{service}_{stat}_{kind}'] = value
+    for kind in kinds:
+        out[f'calibrate_user_frame_minus_trigger_p50_ms_{kind}'] = (
+            out[f'calibrate_user_frame_p50_ms_{kind}'][0]
+            - out[f'trigger_roundtrip_p50_ms_{kind}'][0], 'ms')
+    return out
 
 
 def run() -> Figures:
-    """calibrate_user_frame and Trigger round-trip percentiles."""
-    with benchlib.private_domain() as (domain, env), \
-            tempfile.TemporaryDirectory(prefix='cobot_bench_', dir='/dev/shm') as ram_dir:
-        solver_specs = launcher.suite_specs('sawyer_close', (SOLVER,), overrides={
-            SOLVER: {'data_dir': env['COBOT_CALIB_DATA']}})
-        solver_specs.append(launcher.NodeSpec(
-            SOLVER, {**solver_specs[0].params, 'data_dir': ram_dir}, namespace='ram'))
-        with benchlib.running_suite('trigger', [benchlib.ScriptSpec(TRIGGER)], env) as trig, \
-                benchlib.running_suite(SOLVER, solver_specs, env) as solver, \
-                benchlib.ros_node('bench_calibrate_user_frame', domain) as ros:
-            trigger = ros.node.create_client(Trigger, 'bench_trigger')
-            calibrate = ros.node.create_client(CalibrateUserFrame, 'calibrate_user_frame')
-            calibrate_ram = ros.node.create_client(CalibrateUserFrame,
-                                                   '/ram/calibrate_user_frame')
-            benchlib.wait_for_service(ros, trig, TRIGGER, trigger)
-            solver_failed = (start_solver(ros, solver, calibrate)
-                             or start_solver(ros, solver, calibrate_ram))
-            targets = [Target('trigger_roundtrip', trigger, Trigger.Request(), trigger_error)]
-            if solver_failed is None:
-                targets.append(Target('calibrate_user_frame_roundtrip', calibrate,
-                                      calibrate_request(), calibrate_error))
-                targets.append(Target('calibrate_user_frame_tmpfs_roundtrip', calibrate_ram,
-                                      calibrate_request(), calibrate_error))
-            figures = measure_interleaved(ros, targets)
-    if solver_failed is not None:
-        raise BenchFailed(solver_failed, figures)
-    figures['calibrate_user_frame_minus_trigger_p50'] = (
-        figures['calibrate_user_frame_roundtrip_p50'][0] - figures['trigger_roundtrip_p50'][0],
-        'ms')
+    """calibrate_user_frame and Trigger round-trip percentiles, per executor, interleaved."""
+    kinds = benchlib.executors()
+    with benchlib.private_domain() as (domain, env), contextlib.ExitStack() as stack:
+        suites = {}
+        for kind in kinds:
+            disk = stack.enter_context(tempfile.TemporaryDirectory(
+                prefix=f'cobot_bench_{kind}_', dir=env['COBOT_CALIB_DATA']))
+            ram = stack.enter_context(tempfile.TemporaryDirectory(
+                prefix=f'cobot_bench_{kind}_', dir='/dev/shm'))
+            suites[kind] = stack.enter_context(benchlib.running_suite(
+                f'calibrate_{kind}', specs(kind, disk, ram), benchlib.executor_env(env, kind)))
+        ros = stack.enter_context(benchlib.ros_node('bench_calibrate_user_frame', domain))
+        load_start = benchlib.load_average_1min()
+        everything = [t for kind in kinds for t in targets(ros, suites[kind], kind)]
+        figures = renamed(measure_interleaved(ros, everything), kinds)
+    figures['calibrate_load_average_1min'] = (
+        0.5 * (load_start + benchlib.load_average_1min()), 'load')
     return figures
 
 

@@ -1,146 +1,208 @@
-"""joint_states at 1 kHz between processes, and the capture_joints round trip.
+"""joint_states at 1 kHz between processes, and the capture_joints round trip, per executor.
 
-mock_robot and joint_state_monitor run as two processes (launcher.Suite) on a private domain.
-Over BENCH_JOINT_STATES_SECONDS (default 60 s) of flow, the monitor's own /diagnostics counters
-give the received rate and the fraction missing by header stamp (difference of two snapshots).
+For each node executor (benchlib.executors()), mock_robot and joint_state_monitor run as two
+processes on a private domain and joint_states flow for BENCH_JOINT_STATES_SECONDS (default 60 s)
+of stamp time. Both nodes' /diagnostics carry a count before the latest whole second of stamp
+time (core.sensors.joint_buffer.StampMarks): for two seconds a and b that both reported,
+`joint_states_lost` = published - received between them, exactly, with start-up and shut-down
+outside (goal: 0). Beside it, what stamp gaps say: `joint_states_stamp_gaps_missing_percent`
+(the monitor's missing_by_stamp: publisher stalls and losses alike) and
+`joint_states_publisher_stamp_gaps_missing_percent` (mock_robot's own stalls).
 
-The bench process also subscribes to joint_states to count what the publisher achieved without
-relying on the monitor. That is a third participant on a 2-core machine and adds load (its spin
-loop costs CPU, and the publisher now serves two reliable readers): it takes the messages as raw
-CDR bytes (no deserialisation) to keep that small, and BENCH_JOINT_STATES_OWN_SUB=0 turns it off
-to compare. Its count is a lower bound on the publisher's rate (equal when it loses nothing).
+The bench process also takes joint_states, as raw CDR bytes (no deserialisation, to keep its
+load small; BENCH_JOINT_STATES_OWN_SUB=0 turns it off): their stamps give the publisher's
+cadence, `joint_states_publish_gap_p99_ms`, and its own exact loss. It is a third participant on
+a 2-core machine (the publisher then serves two reliable readers). CPU figures are % of one
+core of each process over the same interval, from /proc/<pid>/stat; the load average shows how
+busy the machine was. `joint_states_lost` without a suffix is spin.DEFAULT_EXECUTOR's.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 import os
 import struct
 import time
 
 from cobot_calib_msgs.srv import CaptureJoints
 from diagnostic_msgs.msg import DiagnosticArray
+import numpy as np
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 
 import benchlib
 from benchlib import BenchFailed, Figures, Ros
 from cobot_calib_ros.api import launcher
+from cobot_calib_ros.ros import spin
 
-NOMINAL_RATE = 1000.0       # [Hz] sawyer_close joint_states_hz
 CAPTURE_CALLS = 50
 CAPTURE_WARMUP = 5          # not counted
 CAPTURE_DURATION = 0.05     # [s] hold window per capture
 MONITOR = 'joint_state_monitor'
-NODES = ('mock_robot', MONITOR)
+ROBOT = 'mock_robot'
+NODES = (ROBOT, MONITOR)
+STATUS = {ROBOT: 'mock_robot: health', MONITOR: 'joint_state_monitor: health'}
+COUNT_BEFORE_MARK = {ROBOT: 'published_before_mark', MONITOR: 'received_before_mark'}
+SETTLE_S = 2.0              # [s] of flow before the measured interval starts
 CDR_STAMP = struct.Struct('<iI')  # header.stamp after the 4-byte encapsulation header (LE)
+NS_PER_S = 1_000_000_000
 
 
 @dataclass(frozen=True)
 class Snapshot:
-    """Counters at the moment one monitor diagnostics message arrived in the bench."""
+    """One node's diagnostics values when they arrived in the bench, with CPU times then."""
 
     t: float                # bench monotonic time [s]
-    received: int           # monitor: accepted joint_states
-    missing: int            # monitor: missing by header stamp
-    malformed: int          # monitor: dropped_* summed
-    own_count: int          # bench subscriber: messages
-    own_missing: int        # bench subscriber: missing by header stamp
+    values: dict[str, str]
     cpu: dict[str, float]   # process CPU seconds by name ('bench' = this process)
 
+    @property
+    def mark(self) -> tuple[int, int]:
+        """(whole stamp second, messages before it) of the node's StampMarks."""
+        key = next(k for k in self.values if k.endswith('_before_mark'))
+        return int(self.values['mark_stamp_s']), int(self.values[key])
 
+    def number(self, key: str) -> float:
+        return float(self.values[key])
+
+
+@dataclass
 class Probe:
-    """Counts joint_states itself and records a Snapshot per monitor diagnostics message."""
+    """Snapshots of both nodes' /diagnostics, and the stamps [ns] of joint_states taken raw."""
 
-    def __init__(self, ros: Ros, pids: dict[str, int], own_sub: bool) -> None:
-        self.snapshots: list[Snapshot] = []
-        self._pids = dict(pids, bench=os.getpid())
-        self._count = 0
-        self._missing = 0
-        self._last_stamp: float | None = None
-        ros.node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics, 10)
-        self.joint_sub = None
+    pids: dict[str, int]
+    snapshots: dict[str, list[Snapshot]] = field(default_factory=lambda: {n: [] for n in NODES})
+    stamps_ns: list[int] = field(default_factory=list)
+
+    def attach(self, ros: Ros, own_sub: bool) -> list:
+        """Subscribe; the subscriptions (to destroy when done)."""
+        subs = [ros.node.create_subscription(DiagnosticArray, '/diagnostics',
+                                             self._on_diagnostics, 50)]
         if own_sub:
-            self.joint_sub = ros.node.create_subscription(
+            subs.append(ros.node.create_subscription(
                 JointState, 'joint_states', self._on_joint_state,
-                QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE), raw=True)
+                QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE), raw=True))
+        return subs
 
     def _on_joint_state(self, data: bytes) -> None:
         sec, nanosec = CDR_STAMP.unpack_from(data, 4)
-        stamp = sec + nanosec * 1e-9
-        if self._last_stamp is not None:
-            self._missing += max(0, round((stamp - self._last_stamp) * NOMINAL_RATE) - 1)
-        self._last_stamp = stamp
-        self._count += 1
+        self.stamps_ns.append(sec * NS_PER_S + nanosec)
 
     def _on_diagnostics(self, msg: DiagnosticArray) -> None:
         for status in msg.status:
-            if status.hardware_id != 'joint_states':
-                continue
-            values = {kv.key: int(kv.value) for kv in status.values}
-            self.snapshots.append(Snapshot(
-                time.monotonic(), values['received'], values['missing_by_stamp'],
-                sum(v for k, v in values.items() if k.startswith('dropped_')),
-                self._count, self._missing,
-                {n: benchlib.process_cpu_seconds(p) for n, p in self._pids.items()}))
+            node = next((n for n, name in STATUS.items() if status.name == name), None)
+            if node is not None:
+                cpu = {n: benchlib.process_cpu_seconds(p) for n, p in self.pids.items()}
+                self.snapshots[node].append(Snapshot(
+                    time.monotonic(), {kv.key: kv.value for kv in status.values}, cpu))
 
-    def next_snapshot(self, ros: Ros, after: float, timeout: float = 5.0) -> Snapshot:
-        """The first snapshot taken at or after monotonic time `after`."""
-        def found() -> bool:
-            return bool(self.snapshots) and self.snapshots[-1].t >= after
-        if not ros.spin_until(found, max(0.0, after - time.monotonic()) + timeout):
-            raise BenchFailed(f'no /diagnostics from {MONITOR} for {timeout:.0f} s')
-        return next(s for s in self.snapshots if s.t >= after)
+    def flowing(self) -> bool:
+        return all(s and s[-1].mark[1] > 0 for s in self.snapshots.values())
 
 
-def flow_figures(a: Snapshot, b: Snapshot, own_sub: bool) -> Figures:
-    """Rates, missing fractions and CPU use between two snapshots."""
-    interval = b.t - a.t
-    received, missing = b.received - a.received, b.missing - a.missing
-    figures: Figures = {
-        'joint_states_interval': (interval, 's'),
-        'joint_states_received_rate': (received / interval, 'Hz'),
-        'joint_states_drop_fraction': (100.0 * missing / max(1, received + missing), '%'),
-        'joint_states_missing_by_stamp': (missing, 'count'),
-        'joint_states_dropped_malformed': (b.malformed - a.malformed, 'count'),
+def marks(snapshots: list[Snapshot], after: float) -> dict[int, Snapshot]:
+    """The first snapshot of each marked second, among those taken after `after`."""
+    first: dict[int, Snapshot] = {}
+    for snap in snapshots:
+        if snap.t >= after:
+            first.setdefault(snap.mark[0], snap)
+    return first
+
+
+def common_interval(probe: Probe, after: float, seconds: float) -> tuple[int, int]:
+    """Seconds a < b of stamp time both nodes marked, b - a as close to `seconds` as there is."""
+    shared = sorted(set(marks(probe.snapshots[ROBOT], after))
+                    & set(marks(probe.snapshots[MONITOR], after)))
+    if len(shared) < 2:
+        raise BenchFailed(f'{ROBOT} and {MONITOR} reported fewer than two common stamp seconds')
+    a = shared[0]
+    b = max(s for s in shared if s <= a + seconds) if shared[1] <= a + seconds else shared[1]
+    return a, b
+
+
+def loss_figures(probe: Probe, a: int, b: int, after: float) -> Figures:
+    """Published, received and lost between stamp seconds a and b, and the rates."""
+    pub = {s: snap.mark[1] for s, snap in marks(probe.snapshots[ROBOT], after).items()}
+    recv = {s: snap.mark[1] for s, snap in marks(probe.snapshots[MONITOR], after).items()}
+    published, received = pub[b] - pub[a], recv[b] - recv[a]
+    return {
+        'joint_states_lost': (published - received, 'count'),
+        'joint_states_published': (published, 'count'),
+        'joint_states_interval_s': (b - a, 's'),
+        'joint_states_published_rate_hz': (published / (b - a), 'Hz'),
+        'joint_states_received_rate_hz': (received / (b - a), 'Hz'),
     }
-    if own_sub:
-        own, own_missing = b.own_count - a.own_count, b.own_missing - a.own_missing
-        figures['joint_states_publisher_rate'] = (own / interval, 'Hz')
-        figures['joint_states_bench_sub_drop_fraction'] = (
-            100.0 * own_missing / max(1, own + own_missing), '%')
-        # missing_by_stamp also counts publisher stalls (a late tick, then a catch-up burst)
-        # as missing; the monitor's count against the bench subscriber's is a lower bound on
-        # what the monitor really lost (exact when the bench subscriber lost nothing).
-        figures['joint_states_monitor_loss_vs_bench_sub'] = (
-            100.0 * (1.0 - received / max(1, own)), '%')
-    for name in a.cpu:
-        key = 'monitor' if name == MONITOR else name
-        figures[f'joint_states_cpu_{key}'] = (
-            100.0 * (b.cpu[name] - a.cpu[name]) / interval, '% of one core')
-    return figures
+
+
+def stamp_gap_figures(probe: Probe, a: int, b: int, after: float) -> Figures:
+    """What stamp gaps count as missing, at the monitor and at the publisher itself."""
+    robot_a, robot_b = (marks(probe.snapshots[ROBOT], after)[s] for s in (a, b))
+    mon_a, mon_b = (marks(probe.snapshots[MONITOR], after)[s] for s in (a, b))
+    received = mon_b.number('received') - mon_a.number('received')
+    missing = mon_b.number('missing_by_stamp') - mon_a.number('missing_by_stamp')
+    published = robot_b.number('published') - robot_a.number('published')
+    stalls = robot_b.number('stamp_gaps_missing') - robot_a.number('stamp_gaps_missing')
+    dropped = sum(mon_b.number(k) - mon_a.number(k) for k in mon_b.values
+                  if k.startswith('dropped_'))
+    return {
+        'joint_states_stamp_gaps_missing_percent': (
+            100.0 * missing / max(1.0, received + missing), '%'),
+        'joint_states_publisher_stamp_gaps_missing_percent': (
+            100.0 * stalls / max(1.0, published + stalls), '%'),
+        'joint_states_dropped_malformed': (dropped, 'count'),
+    }
+
+
+def cadence_figures(probe: Probe, a: int, b: int, after: float) -> Figures:
+    """The publisher's cadence as the bench's raw subscriber saw it, and that one's loss."""
+    stamps = np.asarray(probe.stamps_ns, dtype=np.int64)
+    inside = stamps[(stamps >= a * NS_PER_S) & (stamps < b * NS_PER_S)]
+    if len(inside) < 2:
+        return {}
+    gaps_ms = np.diff(inside) * 1e-6
+    pub = {s: snap.mark[1] for s, snap in marks(probe.snapshots[ROBOT], after).items()}
+    return {
+        'joint_states_publish_gap_p99_ms': (float(np.percentile(gaps_ms, 99)), 'ms'),
+        'joint_states_publish_gap_max_ms': (float(gaps_ms.max()), 'ms'),
+        'joint_states_bench_sub_lost': (pub[b] - pub[a] - len(inside), 'count'),
+    }
+
+
+def cpu_figures(probe: Probe, a: int, b: int, after: float) -> Figures:
+    """% of one core of each process between the monitor's reports of seconds a and b."""
+    start, end = (marks(probe.snapshots[MONITOR], after)[s] for s in (a, b))
+    interval = end.t - start.t
+    names = {MONITOR: 'monitor', ROBOT: 'mock_robot', 'bench': 'bench_process'}
+    return {f'{names[n]}_cpu_percent': (100.0 * (end.cpu[n] - start.cpu[n]) / interval,
+                                        '% of one core') for n in start.cpu}
 
 
 def wait_flowing(ros: Ros, suite: launcher.Suite, probe: Probe) -> None:
-    """Wait until the monitor counts joint_states (mock_robot starts slower than the monitor)."""
-    def flowing() -> bool:
-        return bool(suite.failed()) or any(s.received > 0 for s in probe.snapshots)
-    ros.spin_until(flowing, benchlib.STARTUP_TIMEOUT)
-    if suite.failed() or not flowing():
-        raise BenchFailed(f'{MONITOR} received no joint_states within '
-                          f'{benchlib.STARTUP_TIMEOUT:.0f} s; exited nodes: '
-                          f'{suite.failed() or "none"} (logs: {suite.log_dir})')
+    """Until both nodes report joint_states counted (mock_robot starts slower)."""
+    ros.spin_until(lambda: bool(suite.failed()) or probe.flowing(), benchlib.STARTUP_TIMEOUT)
+    if suite.failed() or not probe.flowing():
+        raise BenchFailed(f'joint_states not flowing within {benchlib.STARTUP_TIMEOUT:.0f} s; '
+                          f'exited nodes: {suite.failed() or "none"} (logs: {suite.log_dir})')
 
 
 def measure_flow(ros: Ros, suite: launcher.Suite, seconds: float) -> Figures:
-    """Let joint_states flow for `seconds` and compare the counters at both ends."""
+    """Let joint_states flow for `seconds` of stamp time and compare both ends."""
     own_sub = os.environ.get('BENCH_JOINT_STATES_OWN_SUB', '1') != '0'
-    probe = Probe(ros, {n: p.pid for n, p in suite.processes.items()}, own_sub)
+    probe = Probe(dict({n: p.pid for n, p in suite.processes.items()}, bench=os.getpid()))
+    subs = probe.attach(ros, own_sub)
     wait_flowing(ros, suite, probe)
-    start = probe.next_snapshot(ros, time.monotonic())
-    end = probe.next_snapshot(ros, start.t + seconds - 0.5)
-    if probe.joint_sub is not None:
-        ros.node.destroy_subscription(probe.joint_sub)  # keep it out of the capture figures
-    return flow_figures(start, end, own_sub)
+    ros.spin_for(SETTLE_S)
+    after = time.monotonic()
+    load_start = benchlib.load_average_1min()
+    ros.spin_for(seconds + 2.5)     # the last whole second, and one diagnostics period more
+    for sub in subs:
+        ros.node.destroy_subscription(sub)      # keep them out of the capture figures
+    a, b = common_interval(probe, after, seconds)
+    figures = loss_figures(probe, a, b, after)
+    for part in (stamp_gap_figures, cadence_figures, cpu_figures):
+        figures.update(part(probe, a, b, after))
+    figures['joint_states_load_average_1min'] = (
+        0.5 * (load_start + benchlib.load_average_1min()), 'load')
+    return figures
 
 
 def measure_capture(ros: Ros, client) -> Figures:
@@ -160,12 +222,12 @@ def measure_capture(ros: Ros, client) -> Figures:
     return figures
 
 
-def run() -> Figures:
-    """The joint_states flow and capture_joints figures."""
-    seconds = float(os.environ.get('BENCH_JOINT_STATES_SECONDS', '60'))
+def run_executor(kind: str, seconds: float) -> Figures:
+    """The flow and capture figures with every node on executor `kind`."""
     specs = launcher.suite_specs('sawyer_close', NODES)
     with benchlib.private_domain() as (domain, env), \
-            benchlib.running_suite('joint_states', specs, env) as suite, \
+            benchlib.running_suite(f'joint_states_{kind}', specs,
+                                   benchlib.executor_env(env, kind)) as suite, \
             benchlib.ros_node('bench_joint_states', domain) as ros:
         capture = ros.node.create_client(CaptureJoints, 'capture_joints')
         benchlib.wait_for_service(ros, suite, MONITOR, capture)
@@ -173,6 +235,22 @@ def run() -> Figures:
         figures.update(measure_capture(ros, capture))
         if suite.failed():
             raise BenchFailed(f'node exited during the bench: {suite.failed()}', figures)
+    return figures
+
+
+def run() -> Figures:
+    """The joint_states flow and capture_joints figures, for each executor."""
+    seconds = float(os.environ.get('BENCH_JOINT_STATES_SECONDS', '60'))
+    figures: Figures = {}
+    for kind in benchlib.executors():
+        try:
+            figures.update(benchlib.suffixed(run_executor(kind, seconds), kind))
+        except BenchFailed as exc:
+            figures.update(benchlib.suffixed(exc.partial, kind))
+            raise BenchFailed(f'{kind} executor: {exc}', figures) from exc
+    default = f'joint_states_lost_{spin.DEFAULT_EXECUTOR}'
+    if default in figures:
+        figures['joint_states_lost'] = figures[default]
     return figures
 
 

@@ -3,6 +3,11 @@
 Every bench module `bench/bench_*.py` has `run() -> dict[str, tuple[float, str]]` (figure name
 -> (value, unit)); `bench/run_all.py` runs them all. Waits use `call_async` and a `spin_once`
 loop (`cobot_calib_ros.api.client.spin_until`), never `spin_until_future_complete`.
+
+Figure names end with their unit (`_ms`, `_hz`, `_percent`, ...; counts say what they count),
+then, for figures measured once per node executor, `_single` or `_events`. The executors are
+those of $BENCH_EXECUTORS (default `single,events`); a node process gets its executor through
+$COBOT_CALIB_EXECUTOR (cobot_calib_ros.ros.spin).
 """
 from __future__ import annotations
 
@@ -24,10 +29,12 @@ from rclpy.signals import SignalHandlerOptions
 
 from cobot_calib_ros.api import launcher
 from cobot_calib_ros.api.client import spin_until
+from cobot_calib_ros.ros import spin
 
 BENCH_DIR = Path(__file__).resolve().parent
 REPO_ROOT = BENCH_DIR.parent
-STARTUP_TIMEOUT = 30.0  # [s] for a node process to offer its service (2 cores, cold imports)
+STARTUP_TIMEOUT = 120.0  # [s] for a node process to offer its service (cold imports on a
+                         # loaded 2-core machine took over 30 s)
 
 Figures = dict[str, tuple[float, str]]
 
@@ -63,7 +70,33 @@ class ScriptSpec(launcher.NodeSpec):
         cmd = [sys.executable, str(BENCH_DIR / f'{self.name}.py'), '--ros-args']
         for key, value in self.params.items():
             cmd += ['-p', f'{key}:={value}']
+        if self.namespace:
+            cmd += ['-r', f'__ns:=/{self.namespace.strip("/")}']
         return cmd
+
+
+def executors() -> list[str]:
+    """The node executors to measure: $BENCH_EXECUTORS (comma-separated), default all."""
+    kinds = [k.strip() for k in os.environ.get('BENCH_EXECUTORS', '').split(',') if k.strip()]
+    unknown = sorted(set(kinds) - set(spin.EXECUTORS))
+    if unknown:
+        raise ValueError(f'BENCH_EXECUTORS: unknown {unknown}; use {", ".join(spin.EXECUTORS)}')
+    return kinds or sorted(spin.EXECUTORS, reverse=True)   # single first, then events
+
+
+def executor_env(env: dict[str, str], kind: str) -> dict[str, str]:
+    """`env` with the node executor `kind` chosen for the processes started with it."""
+    return dict(env, **{spin.EXECUTOR_ENV: kind})
+
+
+def suffixed(figures: Figures, suffix: str) -> Figures:
+    """Every figure name with `_<suffix>` appended."""
+    return {f'{name}_{suffix}': value for name, value in figures.items()}
+
+
+def load_average_1min() -> float:
+    """The machine's 1-minute load average (2 cores here: above 2, processes wait for CPU)."""
+    return os.getloadavg()[0]
 
 
 @contextmanager
@@ -142,9 +175,9 @@ def timed_call(ros: Ros, client, request, timeout: float = 10.0):
 
 
 def percentiles_ms(name: str, seconds: list[float]) -> Figures:
-    """`<name>_p50` and `<name>_p99` in ms."""
+    """`<name>_p50_ms` and `<name>_p99_ms` of durations given in seconds."""
     p50, p99 = np.percentile(np.asarray(seconds) * 1e3, [50, 99])
-    return {f'{name}_p50': (float(p50), 'ms'), f'{name}_p99': (float(p99), 'ms')}
+    return {f'{name}_p50_ms': (float(p50), 'ms'), f'{name}_p99_ms': (float(p99), 'ms')}
 
 
 def format_figure(name: str, value: float, unit: str) -> str:

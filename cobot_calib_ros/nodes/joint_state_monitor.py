@@ -2,23 +2,34 @@
 
 joint_states arrives on a spin.Companion, so a capture that blocks for its hold
 window never holds up the 1 kHz stream.
+
+/diagnostics (1 Hz, from the same companion, so a capture never delays it): ``received``
+(every message taken from the topic), ``dropped_<reason>`` (malformed ones among them),
+``missing_by_stamp`` (gaps in the header stamps at the expected rate: losses and publisher
+stalls alike), ``receive_rate_hz`` over the last second, ``no_message_for_ms`` (since the last
+message, or since start before the first), and ``mark_stamp_s`` with ``received_before_mark``
+(see core.sensors.joint_buffer.StampMarks); every value is an integer. WARN when no
+joint_states came for more than NO_DATA_TIMEOUT, or malformed ones did.
 """
 from __future__ import annotations
 
 import threading
+import time
 
 from cobot_calib_msgs.srv import CaptureJoints
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 
-from cobot_calib_ros.core.sensors.joint_buffer import hold_statistics, JointRingBuffer
+from cobot_calib_ros.core.sensors.joint_buffer import (hold_statistics, JointRingBuffer,
+                                                       StampGaps, StampMarks)
 from cobot_calib_ros.ros import spin
+from cobot_calib_ros.ros.diagnostics import Diagnostics, OK, RateMeter, status_name, WARN
 from cobot_calib_ros.ros.params import declare, read_once
 from cobot_calib_ros.ros.time import now_ns, stamp_or_now_ns
 
 STALL_TIMEOUT = 3.0     # [s] of wall time without a new sample: the stream has stopped
+NO_DATA_TIMEOUT = 1.0   # [s] of wall time without a message: /diagnostics warns
 
 
 class JointStateMonitor(Node):
@@ -30,15 +41,18 @@ class JointStateMonitor(Node):
                                        int(p['buffer_duration'] * self._rate) + 1)
         self._lock = threading.Lock()
         self._new_sample = threading.Condition(self._lock)
-        self._gaps = 0
-        self._last_stamp = None
+        self._gaps = StampGaps(self._rate)
+        self._marks = StampMarks()                  # every message taken, by stamp second
+        self._last_arrival = self._started = time.monotonic()
+        self._dropped_reported = 0
+        self._rate_meter = RateMeter()
         self._receiver = spin.Companion(self, 'receiver')
+        self._diagnostics = Diagnostics(self._receiver.node, hardware_id='joint_states',
+                                        name=status_name(self), update=self._diagnose)
         self._receiver.node.create_subscription(
             JointState, 'joint_states', self._on_joint_state,
             QoSProfile(depth=p['qos_depth'], reliability=ReliabilityPolicy.RELIABLE))
         self.create_service(CaptureJoints, 'capture_joints', self._on_capture)
-        self._diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
-        self.create_timer(1.0, self._publish_diagnostics)
 
     def destroy_node(self):
         self._receiver.destroy()
@@ -72,24 +86,19 @@ class JointStateMonitor(Node):
     def _on_joint_state(self, msg: JointState) -> None:
         # Windows are in publish time (header stamps, node clock): samples queued during a
         # motion and delivered late must not count as the hold that follows it.
+        self._marks.add(msg.header.stamp.sec)
+        self._last_arrival = time.monotonic()
         stamp = stamp_or_now_ns(self, msg.header.stamp) * 1e-9
         with self._lock:
             why = self._buffer.add(stamp, list(msg.name), list(msg.position))
             if why is None:
-                self._count_gap(stamp)
+                self._gaps.add(stamp)
                 self._new_sample.notify_all()
         if why is not None:
             self.get_logger().warning(
                 f'dropped a malformed joint_states message ({why.value}); '
                 f'{sum(self._buffer.rejected.values())} dropped so far',
                 throttle_duration_sec=5.0)
-
-    def _count_gap(self, stamp: float) -> None:
-        """Missing samples inferred from header stamps (the publisher's nominal period)."""
-        if self._last_stamp is not None:
-            missing = round((stamp - self._last_stamp) * self._rate) - 1
-            self._gaps += max(0, missing)
-        self._last_stamp = stamp
 
     def _on_capture(self, request, response):
         duration = request.duration or self.get_parameter('capture_duration').value
@@ -131,18 +140,32 @@ class JointStateMonitor(Node):
                 return                  # nothing new for STALL_TIMEOUT: no data
             count = self._buffer.count
 
-    def _publish_diagnostics(self) -> None:
+    def _diagnose(self) -> None:
+        """The /diagnostics status, just before each publication (receiver thread)."""
         with self._lock:
-            values = {'received': self._buffer.count, 'missing_by_stamp': self._gaps,
-                      **{f'dropped_{r.value}': n for r, n in self._buffer.rejected.items()}}
-        status = DiagnosticStatus(
-            level=DiagnosticStatus.OK, name=f'{self.get_name()}: joint_states',
-            message='ok', hardware_id='joint_states',
-            values=[KeyValue(key=k, value=str(v)) for k, v in values.items()])
-        if any(v for k, v in values.items() if k.startswith('dropped_')):
-            status.level, status.message = DiagnosticStatus.WARN, 'malformed messages dropped'
-        self._diag_pub.publish(DiagnosticArray(status=[status]))
+            dropped = {f'dropped_{r.value}': n for r, n in self._buffer.rejected.items()}
+            missing = self._gaps.missing
+        received = self._marks.count
+        age = time.monotonic() - self._last_arrival
+        level, message = self._health(received, sum(dropped.values()), age)
+        mark_s, before_mark = self._marks.mark
+        self._diagnostics.set(
+            level, message, received=received, **dropped, missing_by_stamp=missing,
+            receive_rate_hz=round(self._rate_meter.rate_hz(received)),
+            no_message_for_ms=round(age * 1e3),
+            mark_stamp_s=mark_s, received_before_mark=before_mark)
 
+    def _health(self, received: int, dropped: int, age: float) -> tuple[bytes, str]:
+        """(level, message): WARN without data for NO_DATA_TIMEOUT, or on new malformed ones."""
+        new_dropped, self._dropped_reported = dropped - self._dropped_reported, dropped
+        if not received and time.monotonic() - self._started > NO_DATA_TIMEOUT:
+            return WARN, 'no joint_states received yet; is the robot driver publishing?'
+        if received and age > NO_DATA_TIMEOUT:
+            return WARN, f'no joint_states for {age:.1f} s; is the robot driver publishing?'
+        if new_dropped:
+            return WARN, (f'dropped {new_dropped} malformed joint_states since the last '
+                          'report (see dropped_*)')
+        return (OK, 'receiving joint_states') if received else (OK, 'starting')
 
 def main(args=None) -> None:
     spin.run(JointStateMonitor, args)

@@ -3,6 +3,14 @@
 A thin shell over sim.robot.SimRobot (the one simulated robot): publishes joint_states and
 probe/voltage stamped with the node clock (use_sim_time works), serves move_to like a driver
 would, and get_ground_truth, which only a simulation can answer.
+
+/diagnostics (1 Hz): ``published`` joint_states, ``publish_rate_hz`` and
+``publish_gap_max_ms`` over the last second, ``stamp_gaps_missing`` (the publisher's own
+stalls, counted as a subscriber counts missing stamps), ``mark_stamp_s`` with
+``published_before_mark`` (messages stamped before that whole second: a subscriber's count
+before the same second gives the exact loss, see core.sensors.joint_buffer.StampMarks),
+``probe_published``, ``moving``, the cell, robot and layout. WARN when joint_states run below
+90 % of their rate, ERROR when the publishing thread has stopped.
 """
 from __future__ import annotations
 
@@ -21,12 +29,16 @@ from sensor_msgs.msg import JointState
 
 from cobot_calib_ros import paths
 from cobot_calib_ros.core.errors import Failure, MotionCode
+from cobot_calib_ros.core.sensors.joint_buffer import StampGaps, StampMarks
 from cobot_calib_ros.ros import convert, qos, spin
+from cobot_calib_ros.ros.diagnostics import Diagnostics, ERROR, OK, RateMeter, WARN
 from cobot_calib_ros.ros.params import declare, read_once
 from cobot_calib_ros.sim.robot import SimRobot
 from cobot_calib_ros.sim.scenario import load_simulation
 
 FEEDBACK_PERIOD = 0.02  # [s] of simulated (scaled) time between feedback messages
+SLOW_RATE_FRACTION = 0.9  # [1] of the nominal joint_states rate: below it, WARN
+NS_PER_S = 1_000_000_000
 
 
 class PacedLoop:
@@ -41,6 +53,9 @@ class PacedLoop:
 
     def start(self) -> None:
         self._thread.start()
+
+    def alive(self) -> bool:
+        return self._thread.is_alive()
 
     def stop(self) -> None:
         self._stop.set()
@@ -79,7 +94,11 @@ class MockRobot(Node):
         rate = self._param('publish_rate_hz') or self._sim.joint_states_hz
         probe_rate = self._param('probe_rate_hz') or self._sim.probe_hz
         self._probe_every = max(1, round(rate / probe_rate))
-        self.published = 0          # joint_states messages published (the bench reads it)
+        self._rate = rate
+        self._marks = StampMarks()          # joint_states published, by stamp second
+        self._gaps = StampGaps(rate)
+        self._probe_published = 0
+        self._rate_meter = RateMeter()
         self._joint_msg = JointState(name=list(self._robot.model.joint_names))
         self._probe_msg = ProbeVoltage()
         self._probe_msg.header.frame_id = 'probe'
@@ -93,8 +112,9 @@ class MockRobot(Node):
         self.create_service(GetGroundTruth, 'get_ground_truth', self._on_ground_truth,
                             callback_group=ReentrantCallbackGroup())
         self._loop = PacedLoop(rate, self._publish_tick, self.context.ok)
-        self._loop.start()
         cell = self._sim.cell
+        self._diagnostics = Diagnostics(self, hardware_id=cell.robot, update=self._diagnose)
+        self._loop.start()
         self.get_logger().info(
             f'{cell.robot} cell "{cell.name}" layout {cell.layout}: joint_states at '
             f'{rate:.0f} Hz, probe at {rate / self._probe_every:.0f} Hz, time scale '
@@ -119,16 +139,43 @@ class MockRobot(Node):
         return self.get_parameter(name).value
 
     # -- sensors (the paced thread) -------------------------------------------------------
+    @property
+    def published(self) -> int:
+        """joint_states messages published so far."""
+        return self._marks.count
+
     def _publish_tick(self) -> None:
         msg = self._joint_msg
-        msg.header.stamp = self.get_clock().now().to_msg()
+        now = self.get_clock().now()
+        msg.header.stamp = now.to_msg()
         msg.position = self._robot.joint_reading().tolist()
         self._js_pub.publish(msg)
-        self.published += 1
-        if self.published % self._probe_every == 0:
+        self._marks.add(now.nanoseconds // NS_PER_S)
+        self._gaps.add(now.nanoseconds * 1e-9)
+        if self._marks.count % self._probe_every == 0:
             self._probe_msg.header.stamp = msg.header.stamp
             self._probe_msg.voltage = self._robot.probe_voltage()
             self._probe_pub.publish(self._probe_msg)
+            self._probe_published += 1
+
+    def _diagnose(self) -> None:
+        """The /diagnostics status, just before each publication."""
+        published = self._marks.count
+        rate = self._rate_meter.rate_hz(published)
+        level, message = OK, f'publishing joint_states at {rate:.0f} Hz'
+        if not self._loop.alive():
+            level, message = ERROR, 'the joint_states thread has stopped'
+        elif published and rate < SLOW_RATE_FRACTION * self._rate:
+            level, message = WARN, (f'joint_states at {rate:.0f} Hz, below '
+                                    f'{SLOW_RATE_FRACTION:.0%} of {self._rate:.0f} Hz')
+        mark_s, before_mark = self._marks.mark
+        cell = self._sim.cell
+        self._diagnostics.set(
+            level, message, published=published, publish_rate_hz=f'{rate:.1f}',
+            publish_gap_max_ms=f'{self._gaps.take_max_gap() * 1e3:.3f}',
+            stamp_gaps_missing=self._gaps.missing, mark_stamp_s=mark_s,
+            published_before_mark=before_mark, probe_published=self._probe_published,
+            moving=self._moving, cell=cell.name, robot=cell.robot, layout=cell.layout)
 
     # -- motion ---------------------------------------------------------------------------
     def _accept_goal(self, goal) -> GoalResponse:

@@ -2,11 +2,17 @@
 
 Averaging windows are in publish time (header stamps, node clock: use_sim_time works), so
 readings taken during a motion and delivered late never count as the hold that follows it.
+
+/diagnostics (1 Hz, from the receiving companion, so a long probe/average never delays it):
+``readings``, ``below_range`` / ``above_range`` / ``invalid`` counts, ``last_distance_m``,
+``last_voltage_v``, ``reading_rate_hz`` over the last second, ``last_reading_age_s``. WARN when
+no probe/voltage came for more than NO_DATA_TIMEOUT.
 """
 from __future__ import annotations
 
-from collections import deque
+from collections import Counter, deque
 import threading
+import time
 
 from cobot_calib_msgs.msg import ProbeVoltage, ProximityReading
 from cobot_calib_msgs.srv import AverageProximity
@@ -16,10 +22,12 @@ from rclpy.qos import qos_profile_sensor_data
 
 from cobot_calib_ros.core.sensors.probe import curve_from_lists, read_distance, ReadingStatus
 from cobot_calib_ros.ros import spin
+from cobot_calib_ros.ros.diagnostics import Diagnostics, OK, RateMeter, status_name, WARN
 from cobot_calib_ros.ros.params import declare, read_once
 from cobot_calib_ros.ros.time import now_ns, stamp_or_now_ns
 
 STALL_TIMEOUT = 1.0     # [s] of wall time without a new reading: the probe stream has stopped
+NO_DATA_TIMEOUT = 1.0   # [s] of wall time without probe/voltage: /diagnostics warns
 
 
 class ProximitySensor(Node):
@@ -33,7 +41,13 @@ class ProximitySensor(Node):
         self._recent: deque = deque(maxlen=20000)   # (stamp [s], distance, status)
         self._pub = self.create_publisher(ProximityReading, 'probe/distance',
                                           qos_profile_sensor_data)
+        self._statuses: Counter = Counter()         # readings by ReadingStatus
+        self._last_reading: tuple[float, float] | None = None   # (distance [m], voltage [V])
+        self._last_arrival = self._started = time.monotonic()
+        self._rate_meter = RateMeter()
         self._receiver = spin.Companion(self, 'receiver')
+        self._diagnostics = Diagnostics(self._receiver.node, hardware_id='probe',
+                                        name=status_name(self), update=self._diagnose)
         self._receiver.node.create_subscription(
             ProbeVoltage, 'probe/voltage', self._on_voltage, qos_profile_sensor_data)
         self.create_service(AverageProximity, 'probe/average', self._on_average)
@@ -63,6 +77,9 @@ class ProximitySensor(Node):
                                voltage=msg.voltage, min_range=self._curve.min_range,
                                max_range=self._curve.max_range, status=int(reading.status))
         self._pub.publish(out)
+        self._statuses[reading.status] += 1
+        self._last_reading = (reading.distance, msg.voltage)
+        self._last_arrival = time.monotonic()
         stamp = stamp_or_now_ns(self, msg.header.stamp) * 1e-9
         with self._lock:
             self._recent.append((stamp, reading.distance, reading.status))
@@ -70,6 +87,30 @@ class ProximitySensor(Node):
         if reading.status == ReadingStatus.INVALID:
             self.get_logger().warning('non-finite probe voltage dropped',
                                       throttle_duration_sec=5.0)
+
+    def _diagnose(self) -> None:
+        """The /diagnostics status, just before each publication (receiver thread)."""
+        readings = sum(self._statuses.values())
+        age = time.monotonic() - self._last_arrival
+        distance, voltage = self._last_reading or (float('nan'), float('nan'))
+        self._diagnostics.set(
+            *self._health(readings, age), readings=readings,
+            below_range=self._statuses[ReadingStatus.BELOW_RANGE],
+            above_range=self._statuses[ReadingStatus.ABOVE_RANGE],
+            invalid=self._statuses[ReadingStatus.INVALID],
+            last_distance_m=f'{distance:.7f}', last_voltage_v=f'{voltage:.4f}',
+            reading_rate_hz=f'{self._rate_meter.rate_hz(readings):.1f}',
+            last_reading_age_s=f'{age:.3f}' if readings else 'never')
+
+    def _health(self, readings: int, age: float) -> tuple[bytes, str]:
+        """(level, message): WARN without probe/voltage for more than NO_DATA_TIMEOUT."""
+        if not readings:
+            if time.monotonic() - self._started > NO_DATA_TIMEOUT:
+                return WARN, 'no probe/voltage received yet; is the probe publishing?'
+            return OK, 'starting'
+        if age > NO_DATA_TIMEOUT:
+            return WARN, f'no probe/voltage for {age:.1f} s; is the probe publishing?'
+        return OK, 'receiving probe/voltage'
 
     def _on_average(self, request, response):
         duration = request.duration or self._p('average_duration')

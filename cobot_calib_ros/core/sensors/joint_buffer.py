@@ -1,4 +1,5 @@
-"""Ring buffer of joint samples and the hold-window statistics of `capture_joints`."""
+"""Ring buffer of joint samples, the hold-window statistics of `capture_joints`, and the
+message counts by stamp second that line a publisher's count up with a subscriber's."""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -38,18 +39,17 @@ class JointRingBuffer:
             return self._reject(Rejection.LENGTH_MISMATCH)
         if self.joint_names is None:
             self.joint_names = list(names)
-        if len(names) != len(self.joint_names) or set(names) != set(self.joint_names):
-            return self._reject(Rejection.UNKNOWN_JOINTS)
-        q = np.asarray(positions, dtype=float)
-        if not np.all(np.isfinite(q)):
-            return self._reject(Rejection.NON_FINITE)
-        if names != self.joint_names:
+        if names != self.joint_names:       # 1 kHz: the common case (same order) stays cheap
+            if len(names) != len(self.joint_names) or set(names) != set(self.joint_names):
+                return self._reject(Rejection.UNKNOWN_JOINTS)
             order = {n: i for i, n in enumerate(names)}
-            q = q[[order[n] for n in self.joint_names]]
+            positions = [positions[order[n]] for n in self.joint_names]
+        if not all(map(math.isfinite, positions)):
+            return self._reject(Rejection.NON_FINITE)
         if self._positions is None:
-            self._positions = np.zeros((self._capacity, len(q)))
+            self._positions = np.zeros((self._capacity, len(positions)))
         self._times[self._next] = t
-        self._positions[self._next] = q
+        self._positions[self._next] = positions
         self._next = (self._next + 1) % self._capacity
         self.count += 1
         self.latest_time = max(self.latest_time, t)
@@ -66,6 +66,58 @@ class JointRingBuffer:
         mask = (self._times >= t0) & (self._times <= t1)
         order = np.argsort(self._times[mask])
         return self._times[mask][order], self._positions[mask][order]
+
+
+class StampMarks:
+    """Counts messages and marks each whole second of their header stamps.
+
+    ``mark`` is ``(second, count)``: the latest whole second S [s] of stamp time a message
+    reached, and how many messages came before the first one stamped at or after S. A
+    publisher and a subscriber that both keep one agree on which messages lie before S
+    (stamps increase, and a reliable topic delivers one publisher's messages in order), so
+    for two seconds both have marked, the difference of their counts is exactly the messages
+    lost between those stamps: start-up, shut-down and stalls do not enter it.
+    """
+
+    def __init__(self) -> None:
+        self.count = 0
+        self.mark: tuple[int, int] = (0, 0)
+        self._second = None
+
+    def add(self, stamp_sec: int) -> None:
+        """Count one message with header stamp seconds ``stamp_sec``."""
+        if stamp_sec != self._second:
+            self._second = stamp_sec
+            self.mark = (stamp_sec, self.count)     # one tuple: read whole from any thread
+        self.count += 1
+
+
+class StampGaps:
+    """Gaps between consecutive header stamps of a stream with a nominal rate.
+
+    ``missing`` adds up ``round(gap * rate) - 1`` over all gaps: what a stamp-gap count calls
+    missing. A subscriber's figure mixes messages lost on the way with the publisher's own
+    stalls (a late tick, then a catch-up); the publisher's figure is the stalls alone.
+    """
+
+    def __init__(self, rate_hz: float) -> None:
+        self._rate = rate_hz
+        self._last: float | None = None
+        self.missing = 0
+        self._max_gap = 0.0
+
+    def add(self, stamp: float) -> None:
+        """One message stamped ``stamp`` [s]."""
+        if self._last is not None:
+            gap = stamp - self._last
+            self.missing += max(0, round(gap * self._rate) - 1)
+            self._max_gap = max(self._max_gap, gap)
+        self._last = stamp
+
+    def take_max_gap(self) -> float:
+        """The largest gap [s] since the previous call (0.0 if none), and start over."""
+        gap, self._max_gap = self._max_gap, 0.0
+        return gap
 
 
 @dataclass(frozen=True)

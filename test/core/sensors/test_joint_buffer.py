@@ -4,7 +4,8 @@ import math
 import numpy as np
 import pytest
 
-from cobot_calib_ros.core.sensors.joint_buffer import hold_statistics, JointRingBuffer, Rejection
+from cobot_calib_ros.core.sensors.joint_buffer import (hold_statistics, JointRingBuffer, Rejection,
+                                                       StampGaps, StampMarks)
 
 NAMES = ['j1', 'j2', 'j3']
 
@@ -46,3 +47,36 @@ def test_hold_statistics_mean_std_and_refusals():
     moving[:, 1] += np.linspace(0.0, 0.01, 1000)
     refused = hold_statistics(t, moving, 1.0, 1000.0, 0.5, 1e-4, NAMES)
     assert refused.reason == 'moving' and 'j2' in refused.message
+
+
+def test_stamp_marks_count_the_messages_before_each_whole_second():
+    marks = StampMarks()
+    for stamp_sec in (10, 10, 10, 11, 11, 13):
+        marks.add(stamp_sec)
+    assert marks.count == 6
+    assert marks.mark == (13, 5)            # five messages stamped before second 13
+
+
+def test_stamp_marks_give_the_exact_loss_between_two_shared_seconds():
+    stamps = [s + k / 4 for s in range(10, 14) for k in range(4)]     # 4 per second
+    publisher, subscriber = StampMarks(), StampMarks()
+    history = {'pub': {}, 'sub': {}}
+    lost = {5, 8, 9, 14}            # 8 is the first of second 12: the mark moves to the next
+    for i, stamp in enumerate(stamps):
+        publisher.add(int(stamp))
+        history['pub'][publisher.mark[0]] = publisher.mark[1]
+        if i not in lost:
+            subscriber.add(int(stamp))
+            history['sub'][subscriber.mark[0]] = subscriber.mark[1]
+    published = history['pub'][13] - history['pub'][11]
+    received = history['sub'][13] - history['sub'][11]
+    assert published - received == 3        # 5, 8, 9 lie in [11 s, 13 s); 14 after it
+
+
+def test_stamp_gaps_count_missing_periods_and_the_largest_gap():
+    gaps = StampGaps(rate_hz=1000.0)
+    for stamp in (0.000, 0.001, 0.002, 0.0052, 0.0062, 0.0071):
+        gaps.add(stamp)
+    assert gaps.missing == 2                # 3.2 ms gap: two periods missing
+    assert gaps.take_max_gap() == pytest.approx(0.0032)
+    assert gaps.take_max_gap() == 0.0       # starts over

@@ -1,0 +1,97 @@
+"""spin: the executor choice; timers and Companion threads running, and clean exits, in node
+processes of each executor (a hung executor is killed with its process, never hangs the test).
+
+They run on a ROS domain of their own (domain_coordinator), not the session's.
+"""
+import os
+from pathlib import Path
+import select
+import signal
+import subprocess
+import sys
+
+import domain_coordinator
+import pytest
+
+from cobot_calib_ros.ros import spin
+
+TIMEOUT = 30.0          # [s] for a node process to start (cold imports on a loaded machine)
+NODE_SCRIPT = '''
+import sys
+from rclpy.node import Node
+from std_msgs.msg import String
+from cobot_calib_ros.ros import spin
+
+
+class Ticker(Node):
+    """A timer that publishes, and a Companion's subscription that receives it."""
+
+    def __init__(self):
+        super().__init__('spin_test_ticker')
+        self.receiver = spin.Companion(self, 'receiver')
+        self.got = 0
+        self.receiver.node.create_subscription(String, 'spin_test', self._on_message, 10)
+        self.pub = self.create_publisher(String, 'spin_test', 10)
+        self.create_timer(0.05, lambda: self.pub.publish(String(data='tick')))
+
+    def _on_message(self, _):
+        self.got += 1
+        if self.got == 3:
+            print('ticking and receiving', flush=True)
+
+    def destroy_node(self):
+        self.receiver.destroy()
+        return super().destroy_node()
+
+
+spin.run(Ticker, sys.argv)
+'''
+
+
+@pytest.fixture(scope='module')
+def domain():
+    with domain_coordinator.domain_id() as domain_id:
+        yield domain_id
+
+
+def test_the_executor_comes_from_the_environment(monkeypatch):
+    monkeypatch.delenv(spin.EXECUTOR_ENV, raising=False)
+    assert spin.executor_kind() == spin.DEFAULT_EXECUTOR
+    monkeypatch.setenv(spin.EXECUTOR_ENV, ' Events ')
+    assert spin.executor_kind() == 'events'
+    monkeypatch.setenv(spin.EXECUTOR_ENV, 'multi')
+    with pytest.raises(ValueError, match='single'):
+        spin.executor_kind()
+
+
+def _read_line(proc: subprocess.Popen, timeout: float) -> str:
+    """The next line the process prints, or '' after `timeout` [s]."""
+    ready, _, _ = select.select([proc.stdout], [], [], timeout)
+    return proc.stdout.readline().strip() if ready else ''
+
+
+def _start_node(kind: str, domain: int) -> subprocess.Popen:
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
+               PYTHONUNBUFFERED='1', **{spin.EXECUTOR_ENV: kind})
+    return subprocess.Popen([sys.executable, '-c', NODE_SCRIPT], stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True, env=env,
+                            cwd=Path(__file__).resolve().parents[2])
+
+
+@pytest.mark.parametrize('signum', [signal.SIGINT, signal.SIGTERM], ids=['SIGINT', 'SIGTERM'])
+@pytest.mark.parametrize('kind', spin.EXECUTORS)
+def test_a_node_runs_and_exits_cleanly_on_a_signal(domain, kind, signum):
+    """Timers and Companion subscriptions run (EventsExecutor.spin() of rclpy 7.1.6 ran no
+    timer here), and the node exits 0 on SIGINT and SIGTERM (with the EventsExecutor, Ctrl-C
+    once ended in exit code 130: a late KeyboardInterrupt in destroy_node)."""
+    proc = _start_node(kind, domain)
+    try:
+        assert _read_line(proc, TIMEOUT) == 'ticking and receiving'
+        proc.send_signal(signum)
+        out, _ = proc.communicate(timeout=TIMEOUT)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    assert proc.returncode == 0, out
+    assert 'Traceback' not in out, out
