@@ -334,8 +334,8 @@ class UserFrameSolver(Node):
             self._pub.publish(msg)
             self._send_tf(msg.transform)
             self._latched_id = record['id']
-            self.get_logger().info(f'active calibration {record["id"]}: latched on '
-                                   f'{self._pub.topic_name} and /tf_static')
+            spin.log_info(self.get_logger(), f'active calibration {record["id"]}: latched '
+                          f'on {self._pub.topic_name} and /tf_static')
         self._update_health()
 
     def _send_tf(self, transform) -> None:
@@ -372,7 +372,7 @@ class UserFrameSolver(Node):
 
     def _update_health(self) -> None:
         with self._store_lock:
-            record, history = self._store.active(), self._store.history()
+            record, ids = self._store.active(), self._store.ids()
             retired = self._store.retired()
         problem = self._frame_parameters_problem() or self._tf_problem
         if problem:
@@ -380,15 +380,14 @@ class UserFrameSolver(Node):
         elif record is None:
             level, message = WARN, ('no active calibration: conversions without a '
                                     'calibration_id are refused; call calibrate_user_frame' +
-                                    (' or set_active_calibration' if history else ''))
+                                    (' or set_active_calibration' if ids else ''))
         else:
             level, message = OK, (f'active calibration {record["id"]}, RMS residual '
                                   f'{record["result"]["rms"] * 1e3:.4f} mm')
         self._health.set(
             level, message, active_id=record['id'] if record else '',
             active_rms_mm=f'{record["result"]["rms"] * 1e3:.4f}' if record else '',
-            calibrations_stored=len(history),
-            calibrations_retired=sum(r['id'] in retired for r in history),
+            calibrations_stored=len(ids), calibrations_retired=len(ids & retired),
             last_refusal=self._last_refusal or 'none')
 
     def _on_set_active(self, request, response):
