@@ -444,3 +444,14 @@ def test_late_subscriber_gets_the_latest_calibration(ros):
     assert got[-1].id == latest.id and got[-1].method == 'robust'
     np.testing.assert_allclose(got[-1].matrix, latest.matrix, atol=0)
     assert len(got[-1].residuals) == 5
+
+
+def test_parameters_read_once_refuse_set_parameters_with_the_reason(ros):
+    """data_dir and cell_file are read at start-up: a change is refused, not silently kept."""
+    for node, name in [('/user_frame_solver', 'data_dir'), ('/user_frame_solver', 'cell_file'),
+                       ('/repeatability_trial', 'data_dir'), ('/mock_robot', 'cell_file')]:
+        before = _get_parameter(ros, node, name)
+        result = _set_parameter(ros, node, name, '/tmp/elsewhere')
+        assert not result.successful, (node, name)
+        assert 'read-only' in result.reason, result.reason
+        assert _get_parameter(ros, node, name) == before
