@@ -7,9 +7,9 @@ far corner), 0.1 and 0.036 mm of Gaussian noise per coordinate, a random rigid p
 one 2, 3, 4 or 5 mm outlier in a random direction on a random point, or none. Figures, per
 rule (new | old), layout and noise:
 
-- ``robust_<rule>_<layout>_<noise>um_clean_false_rejection`` [%]: clean data, a good point
+- ``robust_<rule>_<layout>_<noise>um_clean_false_rejection_percent`` [%]: clean data, a good point
   rejected or the fit refused;
-- ``robust_<rule>_<layout>_<noise>um_<size>mm_named`` [%]: exactly the bad point rejected.
+- ``robust_<rule>_<layout>_<noise>um_<size>mm_named_percent`` [%]: exactly the bad point rejected.
 
 Pure computation, no ROS. Seeded (numpy default_rng): the figures repeat. Trials: NEW_TRIALS and
 OLD_TRIALS (the OLD rule is slower), or ``--trials N`` for both.
@@ -36,10 +36,10 @@ def case_figures(rule: str, layout: str, sigma: float, trials: int, seed: int) -
     """The clean false-rejection rate and the detection rate of each outlier size [%]."""
     prefix = f'robust_{rule}_{layout}_{sigma * 1e6:g}um'
     clean = rs.run_case(RULES[rule], rs.LAYOUTS[layout], sigma, 0.0, trials, seed)
-    figures = {f'{prefix}_clean_false_rejection': (100.0 * (1.0 - clean.named), '%')}
+    figures = {f'{prefix}_clean_false_rejection_percent': (100.0 * (1.0 - clean.named), '%')}
     for k, size in enumerate(OUTLIERS, start=1):
         rates = rs.run_case(RULES[rule], rs.LAYOUTS[layout], sigma, size, trials, seed + k)
-        figures[f'{prefix}_{size * 1e3:g}mm_named'] = (100.0 * rates.named, '%')
+        figures[f'{prefix}_{size * 1e3:g}mm_named_percent'] = (100.0 * rates.named, '%')
     return figures
 
 
