@@ -79,6 +79,11 @@ def run(make_node: Callable[[], Node], args=None, threads: int = 1) -> None:
         spin_until_shutdown(executor, node.context)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except _rclpy.RCLError:
+        # SIGTERM shuts the context down from the signal handler; an executor building its
+        # next wait set then fails with "context is not valid": that is the shutdown asked for
+        if node is None or node.context.ok():
+            raise
     finally:
         _teardown(node)
 
