@@ -26,7 +26,7 @@ from cobot_calib_ros.core.sensors.joint_buffer import (hold_statistics, JointRin
 from cobot_calib_ros.ros import spin
 from cobot_calib_ros.ros.diagnostics import Diagnostics, OK, RateMeter, status_name, WARN
 from cobot_calib_ros.ros.params import declare, read_once
-from cobot_calib_ros.ros.time import now_ns, stamp_or_now_ns
+from cobot_calib_ros.ros.time import now_ns, stamp_or_now_ns, wait_past
 
 STALL_TIMEOUT = 3.0     # [s] of wall time without a new sample: the stream has stopped
 NO_DATA_TIMEOUT = 1.0   # [s] of wall time without a message: /diagnostics warns
@@ -110,7 +110,9 @@ class JointStateMonitor(Node):
         t0 = now_ns(self) * 1e-9
         t1 = t0 + duration
         with self._lock:
-            self._wait_until(t1)
+            wait_past(self._new_sample,
+                      lambda: (self._buffer.latest_time, self._buffer.count), t1,
+                      STALL_TIMEOUT)
             times, positions = self._buffer.window(t0, t1)
             names = list(self._buffer.joint_names or [])
         capture = hold_statistics(
@@ -129,16 +131,6 @@ class JointStateMonitor(Node):
         if not capture.ok:
             self.get_logger().warning(f'capture_joints refused: {capture.message}')
         return response
-
-    def _wait_until(self, t1: float) -> None:
-        """Until a sample stamped at or after t1 [s] arrives (the window is over in ROS time,
-        whatever its rate to wall time), or the stream stalls. Holds self._lock."""
-        count = self._buffer.count
-        while self._buffer.latest_time < t1:
-            self._new_sample.wait(timeout=STALL_TIMEOUT)
-            if self._buffer.count == count:
-                return                  # nothing new for STALL_TIMEOUT: no data
-            count = self._buffer.count
 
     def _diagnose(self) -> None:
         """The /diagnostics status, just before each publication (receiver thread)."""

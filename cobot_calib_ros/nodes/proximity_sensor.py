@@ -11,6 +11,7 @@ no probe/voltage came for more than NO_DATA_TIMEOUT.
 from __future__ import annotations
 
 from collections import Counter, deque
+import math
 import threading
 import time
 
@@ -24,7 +25,7 @@ from cobot_calib_ros.core.sensors.probe import curve_from_lists, read_distance, 
 from cobot_calib_ros.ros import spin
 from cobot_calib_ros.ros.diagnostics import Diagnostics, OK, RateMeter, status_name, WARN
 from cobot_calib_ros.ros.params import declare, read_once
-from cobot_calib_ros.ros.time import now_ns, stamp_or_now_ns
+from cobot_calib_ros.ros.time import now_ns, stamp_or_now_ns, wait_past
 
 STALL_TIMEOUT = 1.0     # [s] of wall time without a new reading: the probe stream has stopped
 NO_DATA_TIMEOUT = 1.0   # [s] of wall time without probe/voltage: /diagnostics warns
@@ -121,19 +122,15 @@ class ProximitySensor(Node):
         t0 = now_ns(self) * 1e-9
         t1 = t0 + duration
         with self._lock:
-            self._wait_until(t1)
+            wait_past(self._lock, self._newest, t1, STALL_TIMEOUT)
             window = [(d, s) for t, d, s in self._recent if t0 <= t <= t1]
         response.min_range, response.max_range = self._curve.min_range, self._curve.max_range
         return self._fill_average(response, window, duration)
 
-    def _wait_until(self, t1: float) -> None:
-        """Until a reading stamped at or after t1 [s] (ROS time) arrives, or the stream
-        stalls for STALL_TIMEOUT of wall time. Holds self._lock."""
-        while not (self._recent and self._recent[-1][0] >= t1):
-            newest = self._recent[-1] if self._recent else None
-            self._lock.wait(timeout=STALL_TIMEOUT)
-            if (self._recent[-1] if self._recent else None) is newest:
-                return
+    def _newest(self) -> tuple[float, int]:
+        """(newest reading's stamp [s], readings received so far), with self._lock held."""
+        return (self._recent[-1][0] if self._recent else -math.inf,
+                sum(self._statuses.values()))
 
     @staticmethod
     def _fill_average(response, window, duration: float):

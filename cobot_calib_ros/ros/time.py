@@ -5,6 +5,9 @@ Every stamp and every capture window comes from the node's clock, so ``use_sim_t
 """
 from __future__ import annotations
 
+from collections.abc import Callable
+import threading
+
 from builtin_interfaces.msg import Time
 from rclpy.node import Node
 
@@ -28,3 +31,18 @@ def now_ns(node: Node) -> int:
 def stamp_or_now_ns(node: Node, stamp: Time) -> int:
     """A message's header stamp [ns]; the node clock when the sender left it zero."""
     return stamp_to_ns(stamp) or now_ns(node)
+
+
+def wait_past(condition: threading.Condition, newest: Callable[[], tuple[float, int]],
+              t1: float, stall: float) -> None:
+    """With ``condition`` held: wait until a sample stamped at or after ``t1`` [s] has arrived
+    (the window is over in ROS time, whatever its rate to wall time), or nothing new arrived
+    for ``stall`` [s] of wall time. ``newest()`` gives (the newest stamp [s], the number of
+    samples received so far); the receiver notifies ``condition`` after each sample."""
+    stamp, count = newest()
+    while stamp < t1:
+        condition.wait(timeout=stall)
+        stamp, latest = newest()
+        if latest == count:
+            return                      # the stream has stopped: the caller finds no data
+        count = latest
