@@ -12,6 +12,7 @@ calibrator hands that over with a task on the node's executor.
 """
 from __future__ import annotations
 
+import functools
 import threading
 import time
 
@@ -233,7 +234,7 @@ class UserFrameSolver(Node):
                                 f'could not store the calibration: {e}; check data_dir')
         response.calibration = record_to_msg(record)
         response.error_code, response.message = Res.SUCCESS, fit.message or 'calibrated'
-        self._publish_from_another_thread()
+        self._publish_from_another_thread(response.calibration)
         spin.log_info(self.get_logger(), f'{record["id"]}: {len(names)} points, rms '
                       f'{fit.rms * 1e3:.4f} mm, max {fit.max_residual * 1e3:.4f} mm')
         return response
@@ -307,21 +308,24 @@ class UserFrameSolver(Node):
         return joints
 
     # -- the active calibration, latched ---------------------------------------------------
-    def _publish_from_another_thread(self) -> None:
-        """Have the node's thread publish the active calibration; wait until it has, so a
-        caller that subscribes after the response gets the new calibration."""
+    def _publish_from_another_thread(self, msg: UserFrameCalibration) -> None:
+        """Have the node's thread publish the active calibration (``msg``, just built for the
+        response); wait until it has, so a caller that subscribes after the response gets
+        the new calibration."""
         executor = self.executor
         if executor is None:            # not spinning (built in-process): this thread it is
-            return self._publish_active()
+            return self._publish_active(msg)
         try:
-            spin.wait(executor.create_task(self._publish_active), PUBLISH_TIMEOUT)
+            spin.wait(executor.create_task(functools.partial(self._publish_active, msg)),
+                      PUBLISH_TIMEOUT)
         except TimeoutError:
             self.get_logger().warning(f'the node thread did not publish the new calibration '
                                       f'within {PUBLISH_TIMEOUT:.0f} s')
 
-    def _publish_active(self) -> None:
+    def _publish_active(self, built: UserFrameCalibration | None = None) -> None:
         """Latch the active calibration on user_frame and /tf_static, or unlatch both when
-        there is none. Runs on the node's thread only."""
+        there is none; ``built`` is its message when the caller has it already. Runs on the
+        node's thread only."""
         with self._store_lock:
             record = self._store.active()
             for warning in self._store.warnings:
@@ -330,7 +334,8 @@ class UserFrameSolver(Node):
         if record is None:
             self._unlatch()
         elif record['id'] != self._latched_id:
-            msg = record_to_msg(record)
+            msg = built if built is not None and built.id == record['id'] \
+                else record_to_msg(record)
             self._pub.publish(msg)
             self._send_tf(msg.transform)
             self._latched_id = record['id']
