@@ -3,7 +3,7 @@ import os
 import subprocess
 import sys
 
-from cobot_calib_ros.api.client import call_service
+from cobot_calib_ros.api.client import call_service, spin_until
 
 
 def call(node, srv_type, name, timeout=10.0, **fields):
@@ -14,6 +14,17 @@ def call(node, srv_type, name, timeout=10.0, **fields):
         return call_service(node, client, request, timeout, node.executor_for_tests)
     finally:
         node.destroy_client(client)
+
+
+def listen_late(node, msg_type, topic, profile, done, timeout=10.0) -> list:
+    """The messages a new (late-joining) subscriber got until done(messages) or the timeout."""
+    got = []
+    sub = node.create_subscription(msg_type, topic, got.append, profile)
+    try:
+        spin_until(node, lambda: done(got), timeout, node.executor_for_tests)
+    finally:
+        node.destroy_subscription(sub)
+    return got
 
 
 def cli_command(*args) -> list[str]:

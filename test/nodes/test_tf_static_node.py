@@ -32,7 +32,7 @@ from cobot_calib_ros.api.client import spin_until
 from cobot_calib_ros.core import frames
 from cobot_calib_ros.paths import cell_file
 from cobot_calib_ros.ros import convert, qos
-from rosutil import call
+from rosutil import call, listen_late
 
 Res = CalibrateUserFrame.Response
 Choice = SetActiveCalibration
@@ -72,17 +72,6 @@ def _choose(node, calibration_id, action=Choice.Request.ACTIVATE):
                 calibration_id=calibration_id, action=action)
 
 
-def _listen(node, msg_type, topic, profile, done, timeout=TIMEOUT) -> list:
-    """The messages a new (late-joining) subscriber got until done(messages) or the timeout."""
-    got = []
-    sub = node.create_subscription(msg_type, topic, got.append, profile)
-    try:
-        spin_until(node, lambda: done(got), timeout, node.executor_for_tests)
-    finally:
-        node.destroy_subscription(sub)
-    return got
-
-
 def _tf(msg: TFMessage, child: str):
     return next((t for t in msg.transforms if t.child_frame_id == child), None)
 
@@ -93,14 +82,14 @@ def _latched_tf(node, child: str, expected=None):
     def done(msgs):
         found = [_tf(m, child) for m in msgs if _tf(m, child) is not None]
         return bool(found) and (expected is None or found[-1] == expected)
-    got = _listen(node, TFMessage, '/tf_static', TF_LISTENER, done)
+    got = listen_late(node, TFMessage, '/tf_static', TF_LISTENER, done, TIMEOUT)
     found = [_tf(m, child) for m in got if _tf(m, child) is not None]
     return found[-1] if found else None
 
 
 def _latched_calibration(node, topic='user_frame', expected_id=None):
-    got = _listen(node, UserFrameCalibration, topic, qos.LATCHED,
-                  lambda m: bool(m) and expected_id in (None, m[-1].id))
+    got = listen_late(node, UserFrameCalibration, topic, qos.LATCHED,
+                      lambda m: bool(m) and expected_id in (None, m[-1].id), TIMEOUT)
     return got[-1] if got else None
 
 
@@ -241,8 +230,8 @@ def test_retired_calibrations_are_listed_but_never_latched(own):
     # retire every calibration: nothing stays latched, conversions say what to do
     for cal in listed.calibrations:
         assert _choose(node, cal.id, Choice.Request.RETIRE).error_code == 0
-    assert _listen(node, TFMessage, '/tf_static', TF_LISTENER, bool, QUIET) == []
-    assert _listen(node, UserFrameCalibration, 'user_frame', qos.LATCHED, bool, QUIET) == []
+    assert listen_late(node, TFMessage, '/tf_static', TF_LISTENER, bool, QUIET) == []
+    assert listen_late(node, UserFrameCalibration, 'user_frame', qos.LATCHED, bool, QUIET) == []
     none = call(node, ConvertPoints, 'user_to_robot', points=convert.array_to_points(P_USER))
     assert none.error_code == ConvertPoints.Response.NO_CALIBRATION, none.message
     assert 'calibrate_user_frame' in none.message
@@ -257,8 +246,8 @@ def test_a_new_user_frame_id_replaces_the_old_one_on_tf_static(own):
     _assert_tf_is(node, old)
     table = _good(node, x=0.36, user_frame='table_b')
     _assert_tf_is(node, table)
-    got = _listen(node, TFMessage, '/tf_static', TF_LISTENER,
-                  lambda m: any(_tf(x, 'table_b') for x in m))
+    got = listen_late(node, TFMessage, '/tf_static', TF_LISTENER,
+                      lambda m: any(_tf(x, 'table_b') for x in m), TIMEOUT)
     assert got and [t.child_frame_id for t in got[-1].transforms] == ['table_b']
 
 
@@ -292,7 +281,7 @@ def _health(node, done) -> DiagnosticStatus | None:
     def values_ok(msgs):
         found = statuses(msgs)
         return bool(found) and done({kv.key: kv.value for kv in found[-1].values})
-    got = _listen(node, DiagnosticArray, '/diagnostics', 10, values_ok)
+    got = listen_late(node, DiagnosticArray, '/diagnostics', 10, values_ok, TIMEOUT)
     found = statuses(got)
     return found[-1] if found else None
 

@@ -17,7 +17,7 @@ from cobot_calib_ros.ros import convert
 from cobot_calib_ros.api.client import spin_until
 from cobot_calib_ros.core import frames
 from cobot_calib_ros.paths import cell_file
-from rosutil import call
+from rosutil import call, listen_late
 
 Res = CalibrateUserFrame.Response
 Conv = ConvertPoints.Response
@@ -200,26 +200,15 @@ def test_implausible_fit_is_neither_stored_nor_published(ros, suite):
     assert res.calibration.id == ''
     assert _history(ros, max_count=1)[0].id == good.id
     assert call(ros, ListCalibrations, 'list_calibrations').active_id == good.id
-    latched = _late(ros, UserFrameCalibration, 'user_frame', LATCHED,
-                    lambda got: bool(got) and got[-1].id == good.id)
+    latched = listen_late(ros, UserFrameCalibration, 'user_frame', LATCHED,
+                          lambda got: bool(got) and got[-1].id == good.id)
     assert latched and latched[-1].id == good.id
-    tf = _late(ros, TFMessage, '/tf_static', TF_LISTENER,
-               lambda got: any(t == good.transform for m in got for t in m.transforms))
+    tf = listen_late(ros, TFMessage, '/tf_static', TF_LISTENER,
+                     lambda got: any(t == good.transform for m in got for t in m.transforms))
     assert tf and [t for t in tf[-1].transforms if t.child_frame_id == 'user_frame'] == \
         [good.transform]
     conv = _convert(ros, 'user_to_robot', P_USER)
     assert conv.error_code == Conv.SUCCESS and good.id in conv.message, conv.message
-
-
-def _late(ros, msg_type, topic, profile, done, timeout=10.0) -> list:
-    """What a new (late-joining) subscriber got until done(messages) or the timeout."""
-    got = []
-    sub = ros.create_subscription(msg_type, topic, got.append, profile)
-    try:
-        spin_until(ros, lambda: done(got), timeout, ros.executor_for_tests)
-    finally:
-        ros.destroy_subscription(sub)
-    return got
 
 
 def _set_parameter(ros, node, name, value: str):
