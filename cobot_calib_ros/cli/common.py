@@ -35,6 +35,11 @@ def ros_node(name: str):
         rclpy.try_shutdown()
 
 
+def say(args, text: str) -> None:
+    """Progress for the user: on stdout, or on stderr when stdout carries --json."""
+    print(text, file=sys.stderr if args.json else sys.stdout, flush=True)
+
+
 def absolute(name: str) -> str:
     return name if name.startswith('/') else '/' + name
 

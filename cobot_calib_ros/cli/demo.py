@@ -14,6 +14,7 @@ import sys
 import numpy as np
 
 from cobot_calib_ros.api import launcher
+from cobot_calib_ros.cli.common import say
 from cobot_calib_ros.ros import convert
 from cobot_calib_ros.core import cell as cellmod
 from cobot_calib_ros.core import frames, kinematics, user_frame
@@ -31,10 +32,6 @@ def _suite(args):
         return
     with launcher.private_suite(args.cell, say=lambda text: say(args, text)):
         yield
-
-
-def say(args, text: str) -> None:
-    print(text, file=sys.stderr if args.json else sys.stdout, flush=True)
 
 
 class DemoClient:

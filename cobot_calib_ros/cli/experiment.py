@@ -14,7 +14,7 @@ import time
 
 from cobot_calib_ros import paths
 from cobot_calib_ros.api import launcher, report
-from cobot_calib_ros.cli import demo
+from cobot_calib_ros.cli import common
 from cobot_calib_ros.store.trials import TrialStore
 
 EXPERIMENT_METHODS = ('reference', 'three_point', 'five_point_lsq', 'rigid')
@@ -247,7 +247,7 @@ def run_trial(args) -> int:
     if problem:
         print(f'trial rejected: {problem}', file=sys.stderr)
         return 2
-    client = TrialClient(functools.partial(demo.say, args),
+    client = TrialClient(functools.partial(common.say, args),
                          getattr(args, 'stall_timeout', None) or TrialClient.STALL_TIMEOUT)
     try:
         result = client.run(method, axis, cycles, trial_id)
@@ -274,7 +274,7 @@ def run_trial(args) -> int:
 def run_experiment(args) -> int:
     """`cobot-calib experiment user-frame`: reference + each method, one table, one figure."""
     from cobot_calib_ros.api.client import CallError, wait_for_suite
-    say = functools.partial(demo.say, args)
+    say = functools.partial(common.say, args)
     data_dir = paths.data_dir(args.data_dir)
     stamp = time.strftime('%Y%m%dT%H%M%S')
     overrides = {n: {'layout': args.setup} for n in ('mock_robot', 'repeatability_trial')}

@@ -16,7 +16,7 @@ import select
 import sys
 import time
 
-from cobot_calib_ros.cli.common import EXIT_OK, EXIT_USAGE, fail, ros_node
+from cobot_calib_ros.cli.common import EXIT_OK, EXIT_USAGE, fail, ros_node, say
 
 NODE_NAME = 'cobot_calib_teach'
 
@@ -82,7 +82,7 @@ class TeachSession:
         self._stdin_open = True
 
     def say(self, text: str) -> None:
-        print(text, file=sys.stderr if self.args.json else sys.stdout, flush=True)
+        say(self.args, text)
 
     def run(self, names: list[str]) -> int:
         from cobot_calib_ros.api.client import spin_until
