@@ -18,6 +18,7 @@ import time
 
 from cobot_calib_ros.cli.common import EXIT_OK, EXIT_USAGE, fail, ros_node, say
 
+EXIT_INTERRUPTED = 130   # as a shell reports Ctrl-C
 NODE_NAME = 'cobot_calib_teach'
 
 
@@ -58,6 +59,8 @@ def run(args) -> int:
             return session.run(names)
         except TeachError as e:
             return fail(f'teach stopped: {e}')
+        except KeyboardInterrupt:
+            return fail('teach interrupted; nothing was stored', EXIT_INTERRUPTED)
 
 
 class TeachError(RuntimeError):

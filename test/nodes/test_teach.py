@@ -1,6 +1,7 @@
 """`cobot-calib teach` on the session's suite: confirmations from a pipe or ~/confirm, the
 stored frame equal to calibrate_user_frame's for the same captures."""
 import json
+import signal
 import subprocess
 import time
 
@@ -72,3 +73,16 @@ def test_teach_quit_stores_nothing_and_unknown_points_are_refused(ros, trial_dat
     bad = _teach('--points', 'P1', 'P9', stdin=subprocess.DEVNULL)
     _, err = bad.communicate(timeout=60)
     assert bad.returncode == 2 and "unknown point(s) ['P9']" in err
+
+
+def test_teach_interrupted_says_so_and_stores_nothing(ros, trial_data):
+    before = len(CalibrationStore(trial_data).history())
+    teach = _teach('--hold', '0.2', stdin=subprocess.PIPE)
+    deadline = time.monotonic() + 60
+    while 'guide the tool tip' not in (teach.stdout.readline() or '') and \
+            time.monotonic() < deadline:
+        pass
+    teach.send_signal(signal.SIGINT)
+    _, err = teach.communicate(timeout=30)
+    assert teach.returncode == 130 and 'teach interrupted; nothing was stored' in err, err
+    assert len(CalibrationStore(trial_data).history()) == before
