@@ -19,7 +19,7 @@ import time
 from cobot_calib_ros import paths
 
 SUITE = ('mock_robot', 'joint_state_monitor', 'proximity_sensor', 'user_frame_solver',
-         'repeatability_trial')
+         'repeatability_trial', 'kinematic_identifier')
 PR_SET_PDEATHSIG = 1
 
 

@@ -1,8 +1,10 @@
 """`cobot-calib demo`: five-point user-frame calibration on the mock robot, scored on truth.
 
-Visits P1..P5 live (touch, capture_joints, nominal forward kinematics), then fits the user
-frame with every method from the same captured points and sends the robot to each marker
-through each frame. The mock's ground truth scores every figure.
+Touches P1..P5 live and captures the joints (capture_joints), then has calibrate_user_frame
+fit the user frame with every method from the same captures and sends the robot to each
+marker through each frame. The mock's ground truth scores every figure. With --kinematics the
+same captures are mapped through the nominal and through a kinematic calibration (identified
+first on the mock when 'latest' finds none), before and after.
 """
 from __future__ import annotations
 
@@ -18,7 +20,8 @@ from cobot_calib_ros.cli.common import say
 from cobot_calib_ros.ros import convert
 from cobot_calib_ros.core import cell as cellmod
 from cobot_calib_ros.core import frames, kinematics, user_frame
-from cobot_calib_ros.paths import cell_file
+from cobot_calib_ros.paths import cell_file, data_dir
+from cobot_calib_ros.store.kinematics import chain_of, NOMINAL
 
 METHODS = ('three_point', 'five_point_lsq', 'rigid', 'robust')
 POINTS = ('P1', 'P2', 'P3', 'P4', 'P5')
@@ -41,11 +44,12 @@ class DemoClient:
         import rclpy
         from rclpy.action import ActionClient
         from cobot_calib_msgs.action import MoveTo
-        from cobot_calib_msgs.srv import CalibrateUserFrame, GetGroundTruth
+        from cobot_calib_msgs.srv import CalibrateUserFrame, CaptureJoints, GetGroundTruth
         rclpy.init()
         self.node = rclpy.create_node('cobot_calib_demo')
         self.MoveTo, self.Calibrate = MoveTo, CalibrateUserFrame
         self._truth = self.node.create_client(GetGroundTruth, 'get_ground_truth')
+        self._capture = self.node.create_client(CaptureJoints, 'capture_joints')
         self._calibrate = self.node.create_client(CalibrateUserFrame, 'calibrate_user_frame')
         self._move = ActionClient(self.node, MoveTo, 'move_to')
 
@@ -58,18 +62,34 @@ class DemoClient:
         from cobot_calib_ros.api.client import call_service
         return call_service(self.node, self._truth, self._truth.srv_type.Request(), 30.0)
 
-    def calibrate(self, method: str, names=(), p_user=None, p_base=None):
+    def calibrate(self, method: str, names=(), p_user=None, p_base=None, captures=(),
+                  kinematics: str = ''):
         from cobot_calib_ros.api.client import call_service
-        req = self.Calibrate.Request(method=method, point_names=list(names))
+        req = self.Calibrate.Request(method=method, point_names=list(names),
+                                     joint_captures=list(captures), kinematics=kinematics)
         if p_user is not None:
             req.points_user = convert.array_to_points(p_user)
             req.points_base = convert.array_to_points(p_base)
         return call_service(self.node, self._calibrate, req, 120.0)
 
-    def move_to_pose(self, T: np.ndarray):
+    def touch_and_capture(self, name: str, hold: float = 0.5):
+        """The operator guides the tool onto ``name``; the joints held there (JointState)."""
+        from sensor_msgs.msg import JointState
+        from cobot_calib_ros.api.client import call_service, run_action
+        goal = self.MoveTo.Goal(target_type=self.MoveTo.Goal.TARGET_TOUCH, point_name=name)
+        result = run_action(self.node, self._move, goal, 60.0)[1]
+        if result.error_code != self.MoveTo.Result.SUCCESS:
+            raise RuntimeError(f'touching {name}: {result.message}')
+        res = call_service(self.node, self._capture,
+                           self._capture.srv_type.Request(duration=hold), 30.0)
+        if res.error_code != 0:
+            raise RuntimeError(f'capture at {name}: {res.message}')
+        return JointState(name=list(res.name), position=list(res.position))
+
+    def move_to_joints(self, q: np.ndarray):
         from cobot_calib_ros.api.client import run_action
-        goal = self.MoveTo.Goal(target_type=self.MoveTo.Goal.TARGET_POSE,
-                                pose=convert.matrix_to_pose(T))
+        goal = self.MoveTo.Goal(target_type=self.MoveTo.Goal.TARGET_JOINTS,
+                                positions=[float(v) for v in q])
         return run_action(self.node, self._move, goal, 60.0)[1]
 
 
@@ -79,13 +99,18 @@ def _truth_model(truth, cell):
     return model.chain(np.array(truth.true_parameters), tool=cell.tool_offset)
 
 
-def _point_errors(client, M, p_user, p_true, true_chain) -> np.ndarray:
-    """Send the tool to every marker through the frame M; true error of each arrival [m]."""
+def _point_errors(client, M, p_user, p_true, true_chain, chain, home) -> np.ndarray:
+    """Send the tool to every marker through the frame M, with joints from ``chain`` (the
+    kinematic model in use); true error of each arrival [m]."""
     orientation = cellmod.tool_down_orientation(user_frame.nearest_rigid(M))
     errors = []
     for pu, pt in zip(p_user, p_true):
         target = frames.make_transform(orientation, frames.apply(M, pu))
-        result = client.move_to_pose(target)
+        ik = kinematics.solve_ik_with_restarts(chain, target, home, home)
+        if not ik:
+            errors.append(math.nan)
+            continue
+        result = client.move_to_joints(ik.q)
         if result.error_code != client.MoveTo.Result.SUCCESS:
             errors.append(math.nan)
             continue
@@ -94,15 +119,14 @@ def _point_errors(client, M, p_user, p_true, true_chain) -> np.ndarray:
     return np.array(errors)
 
 
-def _apparent_points(truth, cell, true_chain, p_true) -> np.ndarray:
-    """Where the nominal model sees perfectly touched markers [m]: the captures without noise.
+def _apparent_points(truth, cell, true_chain, p_true, chain) -> np.ndarray:
+    """Where ``chain`` (the kinematic model in use) sees perfectly touched markers [m]: the
+    captures without noise.
 
-    The robot's kinematic errors and the table's unevenness shift every captured point by
-    a few tenths of a millimetre, and no user-frame fit can remove that; fitting these
-    noise-free points tells that systematic part apart from what the noise does.
+    The robot's kinematic errors (what the model does not know of them) and the table's
+    unevenness shift every captured point, and no user-frame fit can remove that; fitting
+    these noise-free points tells that systematic part apart from what the noise does.
     """
-    model = kinematics.model_by_name(cell.robot)
-    nominal = model.chain(tool=cell.tool_offset)
     R = cellmod.tool_down_orientation(convert.transform_to_matrix(truth.user_frame))
     points = []
     for name, p in zip(POINTS, p_true):
@@ -110,23 +134,24 @@ def _apparent_points(truth, cell, true_chain, p_true) -> np.ndarray:
                                                cell.home, cell.home)
         if not ik:
             raise RuntimeError(f'the true robot cannot reach marker {name}: {ik.message}')
-        points.append(kinematics.fk(nominal, ik.q)[:3, 3])
+        points.append(kinematics.fk(chain, ik.q)[:3, 3])
     return np.array(points)
 
 
-def _method_row(client, method, p_user, p_base, T_true, p_true, p_apparent,
-                true_chain) -> dict:
-    res = client.calibrate(method, POINTS, p_user, p_base)
+def _method_row(client, method, captures, model, T_true, p_true, true_chain) -> dict:
+    res = client.calibrate(method, POINTS, captures=captures, kinematics=model['label'])
     if res.error_code != 0:
         return {'name': method, 'error': res.message}
     cal = res.calibration
+    p_user, p_apparent = model['p_user'], model['p_apparent']
     T = convert.transform_to_matrix(cal.transform)
     M = np.array(cal.matrix).reshape(4, 4)            # the map the method converts with
     dt, dr = frames.transform_error(T, T_true)
     T_apparent = user_frame.calibrate(method, p_user, p_apparent).T_base_user
     nt, nr = frames.transform_error(T, T_apparent)
     st, sr = frames.transform_error(T_apparent, T_true)
-    errors = _point_errors(client, M, p_user, p_true, true_chain)
+    errors = _point_errors(client, M, p_user, p_true, true_chain, model['chain'],
+                           model['home'])
     return {'name': method, 'frame_error_mm': dt * 1e3, 'frame_error_mrad': dr * 1e3,
             'frame_error_noise_mm': nt * 1e3, 'frame_error_noise_mrad': nr * 1e3,
             'frame_error_systematic_mm': st * 1e3, 'frame_error_systematic_mrad': sr * 1e3,
@@ -140,8 +165,23 @@ def _report(args, result: dict) -> None:
     if args.json:
         print(json.dumps(result, indent=2))
         return
-    print('\ncaptured tool points (nominal model) beside the truth, base frame [mm]:')
-    for c in result['captured']:
+    if 'nominal' in result:
+        _report_run(result['nominal'], 'nominal kinematics (before)')
+    _report_run(result, f'kinematics: {result["kinematics"]}'
+                + (' (after)' if 'nominal' in result else ''))
+    print(f"\nestimation limit from point noise alone (rigid, 5 points, sigma "
+          f"{result['noise_sigma_mm']:.4f} mm): {result['estimation_limit_mm']:.4f} mm, "
+          f"{result['estimation_limit_mrad']:.4f} mrad (RMS); a noise part above "
+          f"{user_frame.LIMIT_FACTOR:g}x that is suspect")
+    for name, r in result.get('systematic_reduction', {}).items():
+        print(f"{name:<16}systematic frame error {r['before_mm']:.4f} -> {r['after_mm']:.4f} mm "
+              f"({r['factor']:.1f}x smaller) after kinematic identification")
+
+
+def _report_run(run: dict, title: str) -> None:
+    print(f'\n== {title}')
+    print('captured tool points beside the truth, base frame [mm]:')
+    for c in run['captured']:
         cap, tru = c['captured_mm'], c['true_mm']
         print(f"  {c['name']}: captured ({cap[0]:9.3f} {cap[1]:9.3f} {cap[2]:8.3f})  true "
               f"({tru[0]:9.3f} {tru[1]:9.3f} {tru[2]:8.3f})  |diff| {c['error_mm']:.3f}")
@@ -151,7 +191,7 @@ def _report(args, result: dict) -> None:
     print(f"{'method':<16}{'frame err':>18}{'systematic':>18}{'noise part':>18}"
           f"{'resid RMS':>11}{'point err max':>15}")
     print(f"{'':<16}{'mm / mrad':>18}{'mm / mrad':>18}{'mm / mrad':>18}{'mm':>11}{'mm':>15}")
-    for m in result['methods']:
+    for m in run['methods']:
         if 'error' in m:
             print(f"{m['name']:<16} failed: {m['error']}")
             continue
@@ -160,10 +200,6 @@ def _report(args, result: dict) -> None:
               f"{m['frame_error_systematic_mm']:9.4f} /{m['frame_error_systematic_mrad']:7.4f}"
               f"{m['frame_error_noise_mm']:9.4f} /{m['frame_error_noise_mrad']:7.4f}"
               f"{m['residual_rms_mm']:11.4f}{m['point_error_max_mm']:15.4f}")
-    print(f"\nestimation limit from point noise alone (rigid, 5 points, sigma "
-          f"{result['noise_sigma_mm']:.4f} mm): {result['estimation_limit_mm']:.4f} mm, "
-          f"{result['estimation_limit_mrad']:.4f} mrad (RMS); a noise part above "
-          f"{user_frame.LIMIT_FACTOR:g}x that is suspect")
 
 
 def _run(args, client: DemoClient) -> dict:
@@ -173,31 +209,86 @@ def _run(args, client: DemoClient) -> dict:
     truth = client.ground_truth()
     T_true = convert.transform_to_matrix(truth.user_frame)
     true_by_name = dict(zip(truth.point_names, convert.points_to_array(truth.points_base)))
-    say(args, f'touching {", ".join(POINTS)} and capturing joints ...')
-    live = client.calibrate('rigid', POINTS)
-    if live.error_code != 0:
-        raise RuntimeError(f'live capture failed: {live.message}')
-    p_user = np.array([[r.point_user.x, r.point_user.y, r.point_user.z]
-                       for r in live.calibration.residuals])
-    p_base = np.array([[r.point_base.x, r.point_base.y, r.point_base.z]
-                       for r in live.calibration.residuals])
     p_true = np.array([true_by_name[n] for n in POINTS])
     true_chain = _truth_model(truth, cell)
+    records = [None] + ([] if args.kinematics == NOMINAL else [_kinematics(args, client)])
+    say(args, f'touching {", ".join(POINTS)} and capturing joints ...')
+    captures = [client.touch_and_capture(n) for n in POINTS]
+    p_user = cell.nominal_points_user()[[cell.point_names.index(n) for n in POINTS]]
     sigma = math.hypot(truth.touch_sigma, truth.repeatability_sigma)
     limit_t, limit_r = user_frame.estimation_limit(p_user, sigma)
-    p_apparent = _apparent_points(truth, cell, true_chain, p_true)
-    rows = []
-    for method in METHODS:
-        say(args, f'{method}: fitting and visiting the five points through the frame ...')
-        rows.append(_method_row(client, method, p_user, p_base, T_true, p_true, p_apparent,
-                                true_chain))
-    captured = [{'name': n, 'captured_mm': (pb * 1e3).tolist(), 'true_mm': (pt * 1e3).tolist(),
-                 'error_mm': float(np.linalg.norm(pb - pt) * 1e3)}
-                for n, pb, pt in zip(POINTS, p_base, p_true)]
-    return {'cell': cell.name, 'robot': cell.robot, 'layout': cell.layout,
-            'captured': captured, 'methods': rows,
-            'estimation_limit_mm': limit_t * 1e3, 'estimation_limit_mrad': limit_r * 1e3,
-            'noise_sigma_mm': sigma * 1e3}
+    runs = []
+    for record in records:
+        model = _model_entry(record, cell, truth, true_chain, p_true, p_user)
+        rows = []
+        for method in METHODS:
+            say(args, f'{method} ({model["label"]} kinematics): fitting and visiting the five '
+                      'points through the frame ...')
+            rows.append(_method_row(client, method, captures, model, T_true, p_true,
+                                    true_chain))
+        p_base = np.array([kinematics.fk(model['chain'], np.array(c.position))[:3, 3]
+                           for c in captures])
+        captured = [{'name': n, 'captured_mm': (pb * 1e3).tolist(),
+                     'true_mm': (pt * 1e3).tolist(),
+                     'error_mm': float(np.linalg.norm(pb - pt) * 1e3)}
+                    for n, pb, pt in zip(POINTS, p_base, p_true)]
+        runs.append({'kinematics': model['label'], 'captured': captured, 'methods': rows})
+    result = {'cell': cell.name, 'robot': cell.robot, 'layout': cell.layout,
+              **runs[-1],
+              'estimation_limit_mm': limit_t * 1e3, 'estimation_limit_mrad': limit_r * 1e3,
+              'noise_sigma_mm': sigma * 1e3}
+    if len(runs) > 1:
+        result['nominal'] = runs[0]
+        result['systematic_reduction'] = _reduction(runs[0]['methods'], runs[-1]['methods'])
+    return result
+
+
+def _kinematics(args, client: DemoClient) -> dict:
+    """The kinematic calibration record --kinematics names; 'latest' with none stored
+    identifies one on the mock first."""
+    from cobot_calib_ros.store.kinematics import KinematicStore
+    from cobot_calib_ros.api import identification
+    store = KinematicStore(data_dir(''))
+    try:
+        record = store.resolve(args.kinematics)
+    except (KeyError, ValueError) as e:
+        raise RuntimeError(f'--kinematics {args.kinematics}: {e}') from None
+    if record is None:
+        say(args, f'no kinematic calibration in {store.directory}: identifying one on the '
+                  'mock first (as cobot-calib identify) ...')
+        identifier = identification.IdentifyClient(client.node)
+        try:
+            report = identification.identify_on_suite(
+                identifier, say=lambda t: say(args, t), max_configs=args.identify_configs,
+                validation_configs=0)
+        except identification.IdentificationFailed as e:
+            raise RuntimeError(str(e)) from None
+        finally:
+            identifier.close()
+        record = KinematicStore(data_dir('')).get(report['calibration_id'])
+    return record
+
+
+def _model_entry(record, cell, truth, true_chain, p_true, p_user) -> dict:
+    """A kinematic model the demo maps captures through: label, chain, apparent points."""
+    model = kinematics.model_by_name(cell.robot)
+    chain = chain_of(record, model, cell.tool_offset)
+    return {'label': NOMINAL if record is None else record['id'], 'chain': chain,
+            'home': cell.home, 'p_user': p_user,
+            'p_apparent': _apparent_points(truth, cell, true_chain, p_true, chain)}
+
+
+def _reduction(before: list[dict], after: list[dict]) -> dict:
+    """Per method: systematic frame error before / after [mm] and the factor."""
+    out = {}
+    for b, a in zip(before, after):
+        if 'error' in b or 'error' in a:
+            continue
+        out[b['name']] = {'before_mm': b['frame_error_systematic_mm'],
+                          'after_mm': a['frame_error_systematic_mm'],
+                          'factor': b['frame_error_systematic_mm']
+                          / max(a['frame_error_systematic_mm'], 1e-12)}
+    return out
 
 
 def run(args) -> int:

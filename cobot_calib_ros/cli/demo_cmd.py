@@ -11,6 +11,14 @@ def add_parser(subparsers):
                     'uses the suite already running on the exported ROS_DOMAIN_ID '
                     '(cobot-calib up) instead.')
     p.add_argument('--cell', default='sawyer_close', help='cell YAML path or name')
+    p.add_argument('--kinematics', default='nominal',
+                   help='kinematic model for the captured joints: nominal (default), latest '
+                        '(the active kinematic calibration; identified on the mock first if '
+                        'there is none) or a kinematic calibration id; not nominal: the '
+                        'figures before and after')
+    p.add_argument('--identify-configs', type=int, default=0,
+                   help='sphere poses when --kinematics latest has to identify first '
+                        '(default all)')
     p.add_argument('--json', action='store_true', help='print one JSON object')
     p.add_argument('--attach', action='store_true',
                    help='use the suite already running on the exported ROS_DOMAIN_ID '

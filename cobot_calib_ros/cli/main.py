@@ -19,6 +19,8 @@ VERBS = (
     'trial',
     'experiment_cmd',
     'report',
+    'identify',
+    'detect',
 )
 
 

@@ -59,6 +59,7 @@ class Cell:
     layout: str
     layouts: tuple[str, ...]
     markers: tuple[Marker, ...]
+    spheres: SpherePlate | None = None   # kinematic calibration plate, if the cell has one
 
     def marker(self, name: str) -> Marker | None:
         return next((m for m in self.markers if m.name == name), None)
@@ -70,6 +71,33 @@ class Cell:
     def nominal_points_user(self) -> Array:
         """(N, 3) nominal top-face centres in the user frame [m]."""
         return np.array([m.nominal_top for m in self.markers])
+
+
+@dataclass(frozen=True)
+class SpherePlate:
+    """Kinematic calibration plate (second paper): precision spheres and a magnetic coupling.
+
+    The sphere centres relative to each other are known precisely (CMM, the paper's Table 1);
+    where the plate stands in the base frame is only roughly known (taught by hand-guiding):
+    the coupling self-centres on contact under impedance control.
+    """
+
+    names: tuple[str, ...]
+    centres_plate: Array       # (k, 3) sphere centres in the plate frame [m]
+    diameter: float            # [m] (50.8 mm)
+    T_base_plate: Array        # (4, 4) nominal (taught) plate pose in the base frame
+    coupling_offset: Array     # (4, 4) flange -> coupling centre when mated (the sphere centre)
+    approach_rpy: Array        # (3,) coupling orientation at a sphere, base frame rpy [rad]
+
+    def centres_base(self) -> Array:
+        """(k, 3) nominal sphere centres in the base frame [m]."""
+        return frames.apply(self.T_base_plate, self.centres_plate)
+
+    def known_distances(self) -> tuple[tuple[int, int, float], ...]:
+        """Centre-to-centre distances (i, j, metres) for every pair of spheres."""
+        c = self.centres_plate
+        return tuple((i, j, float(np.linalg.norm(c[i] - c[j])))
+                     for i in range(len(c)) for j in range(i + 1, len(c)))
 
 
 def tool_down_orientation(T_base_user: Array, axis: str = 'z') -> Array:
@@ -194,7 +222,29 @@ def load_cell(path: str | Path, layout: str | None = None) -> Cell:
         tool_offset=frames.from_xyz_rpy(r.vector('tool_offset', 'xyz', length=3),
                                         r.vector('tool_offset', 'rpy', length=3)),
         home=r.vector('home'), layout=chosen, layouts=tuple(layouts),
-        markers=_markers(r, chosen))
+        markers=_markers(r, chosen), spheres=_spheres(r))
+
+
+def _spheres(r: CellReader) -> SpherePlate | None:
+    if r.get('spheres', default=None) is None:
+        return None
+    centres = r.get('spheres', 'centres')
+    if not isinstance(centres, dict) or len(centres) < 2:
+        raise r.fail(('spheres', 'centres'), 'expected a mapping of at least two sphere names '
+                     '-> [x, y, z] centres in the plate frame [m]')
+    names = tuple(str(n) for n in centres)
+    points = np.array([r.vector('spheres', 'centres', n, length=3) for n in names])
+    diameter = r.number('spheres', 'diameter')
+    if not 0.001 < diameter < 0.5:
+        raise r.fail(('spheres', 'diameter'), f'expected a diameter in metres, got {diameter}')
+    return SpherePlate(
+        names=names, centres_plate=points, diameter=diameter,
+        T_base_plate=frames.from_xyz_rpy(r.vector('spheres', 'plate', 'xyz', length=3),
+                                         r.vector('spheres', 'plate', 'rpy', length=3)),
+        coupling_offset=frames.from_xyz_rpy(
+            r.vector('spheres', 'coupling_offset', 'xyz', length=3),
+            r.vector('spheres', 'coupling_offset', 'rpy', length=3)),
+        approach_rpy=r.vector('spheres', 'approach_rpy', length=3))
 
 
 def _markers(r: CellReader, layout: str) -> tuple[Marker, ...]:

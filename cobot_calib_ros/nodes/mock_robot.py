@@ -19,7 +19,7 @@ import time
 
 from cobot_calib_msgs.action import MoveTo
 from cobot_calib_msgs.msg import ProbeVoltage
-from cobot_calib_msgs.srv import GetGroundTruth
+from cobot_calib_msgs.srv import GetGroundTruth, MeasurePosition
 import numpy as np
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
@@ -36,7 +36,7 @@ from cobot_calib_ros.ros.params import declare, read_once
 from cobot_calib_ros.sim.robot import SimRobot
 from cobot_calib_ros.sim.scenario import load_simulation
 
-FEEDBACK_PERIOD = 0.02  # [s] of simulated (scaled) time between feedback messages
+FEEDBACK_PERIOD = 0.02  # [s] of wall time between motion steps (each with a feedback message)
 SLOW_RATE_FRACTION = 0.9  # [1] of the nominal joint_states rate: below it, WARN
 NS_PER_S = 1_000_000_000
 
@@ -110,6 +110,8 @@ class MockRobot(Node):
             goal_callback=self._accept_goal, cancel_callback=lambda _: CancelResponse.ACCEPT,
             callback_group=MutuallyExclusiveCallbackGroup())
         self.create_service(GetGroundTruth, 'get_ground_truth', self._on_ground_truth,
+                            callback_group=ReentrantCallbackGroup())
+        self.create_service(MeasurePosition, 'laser_tracker/measure', self._on_laser,
                             callback_group=ReentrantCallbackGroup())
         self._loop = PacedLoop(rate, self._publish_tick, self.context.ok)
         cell = self._sim.cell
@@ -203,8 +205,15 @@ class MockRobot(Node):
         self._moving = True
         try:
             canceled = self._interpolate(goal_handle, q_target, goal.speed_scale or 1.0)
+            if goal.compliant and not canceled:
+                canceled = self._comply(q_target)
         finally:
             self._moving = False
+        if isinstance(canceled, Failure):
+            goal_handle.abort()
+            result.error_code, result.message = int(canceled.code), canceled.message
+            result.positions = self._robot.q.tolist()
+            return result
         result.positions = self._robot.q.tolist()
         if canceled:
             goal_handle.canceled()
@@ -219,7 +228,7 @@ class MockRobot(Node):
         q_start = self._robot.q
         velocity = self._param('joint_velocity') * min(max(speed_scale, 0.01), 1.0)
         duration = float(np.max(np.abs(q_target - q_start))) / velocity * self._time_scale
-        steps = max(1, int(duration / (FEEDBACK_PERIOD * max(self._time_scale, 1e-3))))
+        steps = max(1, int(duration / FEEDBACK_PERIOD))
         feedback = MoveTo.Feedback()
         for k in range(1, steps + 1):
             if goal_handle.is_cancel_requested:
@@ -235,6 +244,28 @@ class MockRobot(Node):
             time.sleep(duration / steps)
         self._robot.settle(q_target)
         return False
+
+    def _comply(self, q_target: np.ndarray) -> bool | Failure:
+        """Impedance control at the target: a coupling near a sphere self-centres on it (the
+        arm yields; no repeatability noise, the sphere holds the tool)."""
+        q = self._robot.plan_compliant(q_target)
+        if isinstance(q, Failure):
+            return q
+        self._robot.set_joints(q)
+        return False
+
+    def _on_laser(self, request, response):
+        try:
+            p = self._robot.laser_measurement()
+        except ValueError as e:
+            response.error_code, response.message = MeasurePosition.Response.NOT_AVAILABLE, str(e)
+            return response
+        response.point.header.stamp = self.get_clock().now().to_msg()
+        response.point.header.frame_id = 'laser_tracker'
+        response.point.point.x, response.point.point.y, response.point.point.z = map(float, p)
+        response.sigma = self._sim.spheres.tracker.sigma
+        response.error_code, response.message = MeasurePosition.Response.SUCCESS, 'measured'
+        return response
 
     # -- ground truth ---------------------------------------------------------------------
     def _on_ground_truth(self, request, response):

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import threading
 
-from cobot_calib_msgs.action import MoveTo, RunTrial
+from cobot_calib_msgs.action import RunTrial
 from cobot_calib_msgs.msg import ProximityReading, Repeatability
 from cobot_calib_msgs.srv import AverageProximity
 import numpy as np
@@ -19,13 +19,13 @@ from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 
 from cobot_calib_ros import paths
-from cobot_calib_ros.ros import convert
 from cobot_calib_ros.core.cell import load_cell
 from cobot_calib_ros.core import kinematics
 from cobot_calib_ros.core.repeatability import trial as trialmod
 from cobot_calib_ros.core.repeatability import PointStats
 from cobot_calib_ros.core.sensors.probe import Reading, ReadingStatus
 from cobot_calib_ros.store.files import check_id
+from cobot_calib_ros.store.kinematics import chain_of, KinematicStore, NOMINAL
 from cobot_calib_ros.store.trials import TrialStore
 from cobot_calib_ros.ros import qos, spin
 from cobot_calib_ros.ros.diagnostics import Diagnostics, OK, WARN
@@ -41,10 +41,11 @@ HEARTBEAT = 2.0         # [s] feedback at least this often while a trial runs (s
 class RosRobot:
     """core.trial.Robot over ROS: every call blocks this (action) thread until answered."""
 
-    def __init__(self, answers: spin.Companion, chain: kinematics.Chain, speed: float,
-                 probe_window: float, capture_duration: float) -> None:
+    def __init__(self, answers: spin.Companion, chain: kinematics.Chain, home: np.ndarray,
+                 speed: float, probe_window: float, capture_duration: float) -> None:
         self._calls = RobotCalls(answers)
-        self._chain, self._speed = chain, speed
+        self.chain, self._speed = chain, speed     # the kinematic model of this trial
+        self._home, self._q = home, home.copy()    # where IK starts: the last known joints
         self._probe_window, self._capture_duration = probe_window, capture_duration
         self._probe = answers.node.create_client(AverageProximity, 'probe/average')
 
@@ -81,13 +82,17 @@ class RosRobot:
                                               self._speed)
         except RobotCallError as e:
             raise trialmod.TrialError('motion', f'teaching {name}: {e}')
-        return kinematics.fk(self._chain, q)
+        self._q = q
+        return kinematics.fk(self.chain, q)
 
     def move(self, T_base_tool: np.ndarray) -> None:
-        goal = MoveTo.Goal(target_type=MoveTo.Goal.TARGET_POSE, speed_scale=self._speed,
-                           pose=convert.matrix_to_pose(T_base_tool))
+        """Joints for the pose by this trial's kinematic model (nominal or calibrated), sent
+        as a joint target: the controller's own nominal model plays no part."""
+        ik = kinematics.solve_ik_with_restarts(self.chain, T_base_tool, self._q, self._home)
+        if not ik:
+            raise trialmod.TrialError('motion', f'no inverse kinematics solution: {ik.message}')
         try:
-            self._calls.move(goal, MOVE_TIMEOUT)
+            self._q = self._calls.move_joints(ik.q, MOVE_TIMEOUT, speed_scale=self._speed)
         except RobotCallError as e:
             raise trialmod.TrialError('motion', str(e))
 
@@ -133,12 +138,12 @@ class RepeatabilityTrial(Node):
         super().__init__('repeatability_trial', **kwargs)
         self._declare_parameters()
         self._cell = load_cell(paths.cell_file(self._p('cell_file')), self._p('layout') or None)
-        model = kinematics.model_by_name(self._cell.robot)
+        self._model = kinematics.model_by_name(self._cell.robot)
         self._store = TrialStore(paths.data_dir(self._p('data_dir')))
         self._answers = spin.Companion(self, 'clients')
-        self._robot = RosRobot(self._answers, model.chain(tool=self._cell.tool_offset),
-                               self._p('speed_scale'), self._p('probe_window'),
-                               self._p('capture_duration'))
+        self._robot = RosRobot(self._answers, self._model.chain(tool=self._cell.tool_offset),
+                               self._cell.home, self._p('speed_scale'),
+                               self._p('probe_window'), self._p('capture_duration'))
         self._pub = self.create_publisher(Repeatability, 'repeatability', qos.LATCHED)
         self._health = Diagnostics(self)
         self._health.set(OK, 'idle', trial_id='', method='', axis='', cycles_done=0,
@@ -171,6 +176,9 @@ class RepeatabilityTrial(Node):
                   0.01, 10.0)
         read_once(self, 'speed_scale', 1.0,
                   'Fraction of the joint velocity limits for trial moves [1]', 0.01, 1.0)
+        declare(self, 'kinematics', 'latest', 'Kinematic model of new trials (a resumed one '
+                'keeps its own): latest (the active kinematic calibration, nominal if none), '
+                'nominal, or a kinematic calibration id')
         declare(self, 'approach_distance', 0.005,
                 'Retreat along the probe axis before every arrival (unidirectional) [m]',
                 0.0, 0.1)
@@ -312,16 +320,28 @@ class RepeatabilityTrial(Node):
         why = self._robot.wait_ready()
         if why:
             raise trialmod.TrialError('motion', why)
+        model_used = self._use_kinematics(trial.meta.get('kinematics') or self._p('kinematics'))
         plan = trialmod.Plan(
             trial.trial_id, trial.meta['method'], trial.meta['axis'], self._cell.layout,
             [self._cell.marker(n) for n in trial.meta['point_names']],
             trial.meta['cycles_total'], self._robot.probe_range(),
-            approach_distance=self._p('approach_distance'))
+            approach_distance=self._p('approach_distance'),
+            extra={'kinematics': model_used})
         run = trialmod.TrialRun(plan, self._robot, self._store,
                                 *self._callbacks(trial, goal_handle, feedback),
                                 lambda: goal_handle.is_cancel_requested)
         self._started(trial, resume)
         return run, resume
+
+    def _use_kinematics(self, choice: str) -> str:
+        """Give the robot the chain of a kinematics choice; its label (id or nominal)."""
+        try:
+            record = KinematicStore(paths.data_dir(self._p('data_dir'))).resolve(choice)
+            self._robot.chain = chain_of(record, self._model, self._cell.tool_offset)
+        except (KeyError, ValueError) as e:
+            raise trialmod.TrialError('invalid', f'kinematics {choice!r}: {e}; use latest, '
+                                      'nominal or a stored kinematic calibration id')
+        return NOMINAL if record is None else record['id']
 
     def _stored(self, trial: _Goal):
         """The stored trial this goal resumes (None for a new one); fills ``trial.meta``."""

@@ -34,6 +34,7 @@ from cobot_calib_ros.ros.robot_calls import RobotCallError, RobotCalls
 from cobot_calib_ros.ros.time import now_ns
 from cobot_calib_ros.ros.tf_static import StaticBroadcaster
 from cobot_calib_ros.store.calibrations import CalibrationStore
+from cobot_calib_ros.store.kinematics import chain_of, KinematicStore, NOMINAL
 
 Res = CalibrateUserFrame.Response
 Choice = SetActiveCalibration
@@ -54,7 +55,7 @@ def frames_problem(base: tuple[str, str], user: tuple[str, str]) -> str:
 
 
 def fit_record(fit: user_frame.FrameFit, surface, names: list[str], p_user, p_base,
-               frames_: tuple[str, str], stamp_ns: int) -> dict:
+               frames_: tuple[str, str], stamp_ns: int, kinematics: str = '') -> dict:
     """Everything about one calibration (what is stored and republished); numpy values are
     left as they are: the store writes them as plain lists. ``stamp_ns`` is ROS time; the id
     (a file name) comes from the wall clock so that it stays unique under a paused sim clock."""
@@ -62,7 +63,7 @@ def fit_record(fit: user_frame.FrameFit, surface, names: list[str], p_user, p_ba
     return {
         'id': time.strftime('%Y%m%dT%H%M%S', time.gmtime(wall_ns / 1e9))
         + f'.{wall_ns % 1_000_000_000:09d}Z-{fit.method}',
-        'stamp_ns': stamp_ns, 'method': fit.method,
+        'stamp_ns': stamp_ns, 'method': fit.method, 'kinematics': kinematics,
         'base_frame': frames_[0], 'user_frame': frames_[1],
         'inputs': {'point_names': names, 'points_user': p_user, 'points_base': p_base},
         'result': {
@@ -80,7 +81,8 @@ def fit_record(fit: user_frame.FrameFit, surface, names: list[str], p_user, p_ba
 def record_to_msg(record: dict) -> UserFrameCalibration:
     r = record['result']
     inputs = record['inputs']
-    msg = UserFrameCalibration(id=record['id'], method=record['method'])
+    msg = UserFrameCalibration(id=record['id'], method=record['method'],
+                               kinematics=record.get('kinematics', ''))
     msg.stamp.sec, msg.stamp.nanosec = divmod(int(record['stamp_ns']), 1_000_000_000)
     msg.transform = convert.matrix_to_transform(
         np.array(r['T_base_user']), record['base_frame'], record['user_frame'], msg.stamp)
@@ -122,8 +124,7 @@ class UserFrameSolver(Node):
         super().__init__('user_frame_solver', **kwargs)
         self._declare_parameters()
         self._cell = load_cell(paths.cell_file(self._p('cell_file')), self._p('layout') or None)
-        model = kinematics.model_by_name(self._cell.robot)
-        self._chain = model.chain(tool=self._cell.tool_offset)   # the nominal model
+        self._model = kinematics.model_by_name(self._cell.robot)
         self._store = CalibrationStore(paths.data_dir(self._p('data_dir')))
         self._store_lock = threading.Lock()     # the calibrator thread writes, this one reads
         self._health = Diagnostics(self)
@@ -165,6 +166,9 @@ class UserFrameSolver(Node):
                 'calibrations whose request gives none (tf2 frame id, not base_frame)')
         read_once(self, 'data_dir', '', 'Where calibrations are stored; empty = '
                   '$COBOT_CALIB_DATA or ~/.ros/cobot_calib')
+        declare(self, 'kinematics', 'latest', 'Kinematic model that maps captured joints to '
+                'points: latest (the active kinematic calibration of kinematic_identifier, '
+                'the nominal model if there is none), nominal, or a kinematic calibration id')
         declare(self, 'capture_duration', 0.5, 'Hold window of each live capture [s]',
                 0.01, 10.0)
         declare(self, 'robust_threshold', 5.0e-4,
@@ -216,7 +220,7 @@ class UserFrameSolver(Node):
     def _on_calibrate(self, request, response):
         try:
             frames_ = self._request_frames(request)
-            names, p_user, p_base = self._points(request)
+            names, p_user, p_base, model_used = self._points(request)
         except _RequestError as e:
             return self._refuse(response, e.code, str(e))
         fit = self._fit(request, names, p_user, p_base)
@@ -224,7 +228,8 @@ class UserFrameSolver(Node):
             return self._refuse(response, fit.code, fit.message)
         surface = (user_frame.fit_surface(p_user, p_base, fit.M)
                    if request.fit_surface else None)
-        record = fit_record(fit, surface, names, p_user, p_base, frames_, now_ns(self))
+        record = fit_record(fit, surface, names, p_user, p_base, frames_, now_ns(self),
+                            model_used)
         try:
             with self._store_lock:
                 self._store.save(record)
@@ -253,7 +258,9 @@ class UserFrameSolver(Node):
         self._update_health()
         return response
 
-    def _points(self, request) -> tuple[list[str], np.ndarray, np.ndarray]:
+    def _points(self, request) -> tuple[list[str], np.ndarray, np.ndarray, str]:
+        """Names, nominal user points, measured base points [m], and the kinematic model
+        that measured them ('' for points given in the request)."""
         p_user = convert.points_to_array(request.points_user)
         p_base = convert.points_to_array(request.points_base)
         names = list(request.point_names)
@@ -262,19 +269,33 @@ class UserFrameSolver(Node):
                 raise _RequestError(ErrorCode.INVALID_INPUT, (
                     f'{len(names)} point names for {len(p_user)} points; give one name per '
                     'point or none'))
-            return names or [f'P{i + 1}' for i in range(len(p_user))], p_user, p_base
+            return names or [f'P{i + 1}' for i in range(len(p_user))], p_user, p_base, ''
         if not names:
             raise _RequestError(ErrorCode.TOO_FEW_POINTS, (
                 'no points: give points_user + points_base, or point_names of the cell to '
                 'visit live'))
         self._check_names(names)
+        chain, model_used = self._kinematic_chain(request.kinematics or self._p('kinematics'))
         if request.joint_captures:
             joints = self._given_joints(names, request.joint_captures)
         else:
             joints = [self._capture_live(name) for name in names]
         p_user = np.array([self._cell.marker(n).nominal_top for n in names])
-        p_base = np.array([kinematics.fk(self._chain, q)[:3, 3] for q in joints])
-        return names, p_user, p_base
+        p_base = np.array([kinematics.fk(chain, q)[:3, 3] for q in joints])
+        return names, p_user, p_base, model_used
+
+    def _kinematic_chain(self, choice: str) -> tuple[kinematics.Chain, str]:
+        """The chain for a kinematics choice and its label (a calibration id or nominal),
+        read fresh: kinematic_identifier may have stored a new one since."""
+        store = KinematicStore(paths.data_dir(self._p('data_dir')))
+        try:
+            record = store.resolve(choice)
+            chain = chain_of(record, self._model, self._cell.tool_offset)
+        except (KeyError, ValueError) as e:
+            raise _RequestError(ErrorCode.INVALID_INPUT, (
+                f'kinematics {choice!r}: {str(e).strip(chr(39))}; use latest, nominal or a '
+                f'stored kinematic calibration id'))
+        return chain, NOMINAL if record is None else record['id']
 
     def _check_names(self, names: list[str]) -> None:
         unknown = [n for n in names if self._cell.marker(n) is None]
@@ -294,7 +315,7 @@ class UserFrameSolver(Node):
             raise _RequestError(ErrorCode.INVALID_INPUT, (
                 f'{len(captures)} joint captures for {len(names)} point names; give one '
                 'capture per name'))
-        order = list(self._chain.joint_names)
+        order = list(self._model.joint_names)
         joints = []
         for name, capture in zip(names, captures):
             positions = dict(zip(capture.name, capture.position))

@@ -1,12 +1,14 @@
-"""move_to and capture_joints called from a callback that blocks until they answer.
+"""move_to, capture_joints and laser_tracker/measure called from a callback that blocks until
+they answer.
 
 The answers arrive on a spin.Companion, so the caller's own executor stays free. Used by
-user_frame_solver (live captures) and repeatability_trial (every trial move).
+user_frame_solver (live captures), repeatability_trial (every trial move) and
+kinematic_identifier (data collection).
 """
 from __future__ import annotations
 
 from cobot_calib_msgs.action import MoveTo
-from cobot_calib_msgs.srv import CaptureJoints
+from cobot_calib_msgs.srv import CaptureJoints, MeasurePosition
 import numpy as np
 from rclpy.action import ActionClient
 
@@ -24,6 +26,7 @@ class RobotCalls:
         self._answers = answers
         self.move_client = ActionClient(answers.node, MoveTo, 'move_to')
         self.capture_client = answers.node.create_client(CaptureJoints, 'capture_joints')
+        self._laser_client = None
 
     def move(self, goal: MoveTo.Goal, result_timeout: float) -> MoveTo.Result:
         """Run a move_to goal to its end; RobotCallError unless it succeeded."""
@@ -44,6 +47,19 @@ class RobotCalls:
         """Hand-guide the tool onto cell point ``name``, hold, and return the mean joints."""
         self.move(MoveTo.Goal(target_type=MoveTo.Goal.TARGET_TOUCH, point_name=name,
                               speed_scale=speed_scale), result_timeout)
+        return self.capture(duration).position
+
+    def move_joints(self, q: np.ndarray, result_timeout: float, *, compliant: bool = False,
+                    speed_scale: float = 0.0) -> np.ndarray:
+        """Move to joints ``q`` [rad] (``compliant``: under impedance control, yielding to
+        contact); the joints reached [rad]."""
+        result = self.move(MoveTo.Goal(target_type=MoveTo.Goal.TARGET_JOINTS,
+                                       positions=[float(v) for v in q], compliant=compliant,
+                                       speed_scale=speed_scale), result_timeout)
+        return np.array(result.positions)
+
+    def capture(self, duration: float) -> CaptureJoints.Response:
+        """Joints averaged over a hold of ``duration`` [s] (``position``, ``std`` [rad])."""
         if not self.capture_client.wait_for_service(timeout_sec=SERVER_WAIT):
             raise RobotCallError('capture_joints not available (is joint_state_monitor up?)')
         req = CaptureJoints.Request(duration=duration)
@@ -53,4 +69,21 @@ class RobotCalls:
             raise RobotCallError(f'capture_joints: {e}; is joint_state_monitor up?')
         if res.error_code != CaptureJoints.Response.SUCCESS:
             raise RobotCallError(f'capture_joints: {res.message}')
-        return np.array(res.position)
+        res.position = np.array(res.position)
+        return res
+
+    def measure_position(self) -> np.ndarray:
+        """(3,) the tool position measured by the laser tracker, in its frame [m]."""
+        if self._laser_client is None:
+            self._laser_client = self._answers.node.create_client(MeasurePosition,
+                                                                  'laser_tracker/measure')
+        if not self._laser_client.wait_for_service(timeout_sec=SERVER_WAIT):
+            raise RobotCallError('laser_tracker/measure not available (no tracker driver up?)')
+        try:
+            res = wait(self._laser_client.call_async(MeasurePosition.Request()), 10.0)
+        except TimeoutError as e:
+            raise RobotCallError(f'laser_tracker/measure: {e}')
+        if res.error_code != MeasurePosition.Response.SUCCESS:
+            raise RobotCallError(f'laser_tracker/measure: {res.message}')
+        p = res.point.point
+        return np.array([p.x, p.y, p.z])

@@ -35,6 +35,9 @@ class SimRobot:
         self.true_parameters = sim.true_parameters(self.model)
         self.nominal = self.model.chain(tool=self.cell.tool_offset)
         self.true = self.model.chain(self.true_parameters, tool=self.cell.tool_offset)
+        spheres = sim.spheres
+        self.coupling = None if spheres is None else self.model.chain(
+            self.true_parameters, tool=spheres.coupling_offset)   # true chain to the coupling
         streams = np.random.SeedSequence(sim.seed + seed_offset).spawn(2)
         self._motion_rng = np.random.default_rng(streams[MOTION_STREAM])
         self._sensor_rng = np.random.default_rng(streams[SENSOR_STREAM])
@@ -101,6 +104,36 @@ class SimRobot:
             frames.apply(T_base_user, marker.true_top)
             + self._motion_rng.normal(0.0, self.sim.noise.touch_sigma, 3))
         return self._solve(self.true, target)
+
+    def plan_compliant(self, q: Array) -> Array | Failure:
+        """Where the arm comes to rest when sent to ``q`` under impedance control [rad].
+
+        If the true coupling centre ends up within the capture radius of a sphere, the
+        coupling self-centres on it: the arm yields in translation (orientation held) until
+        the true coupling centre is on the sphere centre, within the compliance error.
+        Otherwise ``q`` itself.
+        """
+        q = self.plan_joints(q)
+        if isinstance(q, Failure) or self.coupling is None:
+            return q
+        spheres = self.sim.spheres
+        T = kinematics.fk(self.coupling, q)
+        i, distance = spheres.nearest(T[:3, 3])
+        if distance > spheres.capture_radius:
+            return q
+        T[:3, 3] = spheres.centres_base[i] + self._motion_rng.normal(
+            0.0, spheres.compliance_sigma, 3)
+        result = kinematics.solve_ik(self.coupling, T, q, tol=1e-12)
+        if not result:
+            return Failure(MotionCode.UNREACHABLE, f'coupling on sphere {i}: {result.message}')
+        return result.q
+
+    def laser_measurement(self) -> Array:
+        """(3,) the true coupling centre as the laser tracker measures it, tracker frame [m]."""
+        if self.coupling is None:
+            raise ValueError('this cell has no sphere plate, coupling or laser tracker')
+        p = kinematics.fk(self.coupling, self.q)[:3, 3]
+        return self.sim.spheres.tracker.measure(p, self._sensor_rng)
 
     def _solve(self, chain: kinematics.Chain, T: Array) -> Array | Failure:
         if not np.all(np.isfinite(T)):

@@ -15,6 +15,7 @@ from cobot_calib_ros.core import frames
 from cobot_calib_ros.core.cell import Cell, CellReader, load_cell, read_cell_text
 from cobot_calib_ros.core.kinematics import KinematicModel
 from cobot_calib_ros.core.sensors.probe import ProbeCurve
+from cobot_calib_ros.sim.spheres import LaserTracker, SphereTruth
 from cobot_calib_ros.sim.world import HeightField, TrueMarker, World
 
 Array = NDArray[np.float64]
@@ -45,6 +46,7 @@ class Simulation:
     probe: ProbeCurve           # the probe's true curve
     joint_states_hz: float
     probe_hz: float
+    spheres: SphereTruth | None = None   # the sphere plate, if the cell has one
 
     def true_parameters(self, model: KinematicModel) -> Array:
         """Nominal parameters plus the explicit and seeded random kinematic errors."""
@@ -98,7 +100,31 @@ def load_simulation(path: str | Path, layout: str | None = None) -> Simulation:
                        r.number('kinematic_errors', 'random_angle_sigma', default=0.0)),
         world=world, noise=_noise(r), probe=_probe(r),
         joint_states_hz=r.number('rates', 'joint_states_hz', default=1000.0),
-        probe_hz=r.number('rates', 'probe_hz', default=200.0))
+        probe_hz=r.number('rates', 'probe_hz', default=200.0),
+        spheres=_spheres(r, cell))
+
+
+def _spheres(r: CellReader, cell: Cell) -> SphereTruth | None:
+    """The true plate; nominal where the file gives no truth."""
+    plate = cell.spheres
+    if plate is None:
+        return None
+    keys = ('spheres',)
+    if r.get(*keys, 'plate_true', default=None) is None:
+        T_plate = plate.T_base_plate
+    else:
+        T_plate = frames.from_xyz_rpy(r.vector(*keys, 'plate_true', 'xyz', length=3),
+                                      r.vector(*keys, 'plate_true', 'rpy', length=3))
+    coupling = plate.coupling_offset.copy()
+    coupling[:3, 3] = r.vector(*keys, 'coupling_offset_true', length=3,
+                               default=plate.coupling_offset[:3, 3])
+    tracker = LaserTracker(
+        frames.from_xyz_rpy(r.vector(*keys, 'laser_tracker', 'xyz', length=3, default=[2, 0, 0]),
+                            r.vector(*keys, 'laser_tracker', 'rpy', length=3, default=[0, 0, 0])),
+        r.number(*keys, 'laser_tracker', 'sigma', default=2.5e-5))
+    return SphereTruth(frames.apply(T_plate, plate.centres_plate), coupling,
+                       r.number(*keys, 'capture_radius', default=0.008),
+                       r.number(*keys, 'compliance_sigma', default=3.0e-6), tracker)
 
 
 def _height_field(r: CellReader, rng: np.random.Generator) -> HeightField:

@@ -65,10 +65,10 @@ class CalibrationStore(WarningLog):
     writes nothing in the common case.
     """
 
-    def __init__(self, root: Path) -> None:
+    def __init__(self, root: Path, subdir: str = 'calibrations') -> None:
         super().__init__()
         self.root = Path(root)
-        self.directory = self.root / 'calibrations'
+        self.directory = self.root / subdir
         self.selection_path = self.directory / ACTIVE_FILE
         self._records: dict[str, dict[str, Any]] | None = None
         self._chosen: str | None = None

@@ -126,6 +126,39 @@ def ensure_dir(directory: Path) -> None:
         fsync_dir(created.parent)
 
 
+def append_line(path: Path, line: str, header: str) -> None:
+    """Append one line with a single write, then fsync (at most this line is lost); a new
+    file starts with ``header``; a line truncated by a crash is ended first (readers skip it)."""
+    data = line.encode('utf-8')
+    with open(path, 'a+b') as f:  # writes always go to the end, reads do not
+        size = f.seek(0, os.SEEK_END)
+        if size == 0:
+            data = (header + '\n').encode('utf-8') + data
+        else:
+            f.seek(size - 1)
+            if f.read(1) != b'\n':
+                data = b'\n' + data
+        f.write(data)
+        f.flush()
+        os.fsync(f.fileno())
+
+
+def read_lines(path: Path, header: str, log: 'WarningLog') -> list[tuple[int, str]]:
+    """(line number, text) of the complete data lines after ``header``; a truncated last line
+    is reported in ``log`` and left out."""
+    try:
+        text = path.read_bytes().decode('utf-8', errors='replace')
+    except OSError as exc:
+        log._warn(f'{path}: no rows read ({exc})')
+        return []
+    lines = text.split('\n')
+    tail = lines.pop()  # '' when the file ends with a newline
+    if tail:
+        log._warn(f'{path}: ignored truncated last line {tail!r} (crash mid-write?)')
+    return [(n, line) for n, line in enumerate(lines, start=1)
+            if line and not (n == 1 and line == header)]
+
+
 def is_int(value: object) -> bool:
     return isinstance(value, int) and not isinstance(value, bool)
 

@@ -6,7 +6,6 @@ import csv
 from dataclasses import dataclass
 import io
 import math
-import os
 from pathlib import Path
 import time
 from typing import Any
@@ -16,8 +15,8 @@ from numpy.typing import NDArray
 import yaml
 
 from cobot_calib_ros.core.repeatability import AXES, correct_distance, Direction, DIRECTIONS
-from cobot_calib_ros.store.files import (atomic_write_text, check_id, ensure_dir, fsync_dir,
-                                         is_int, to_plain, WarningLog)
+from cobot_calib_ros.store.files import (append_line, atomic_write_text, check_id, ensure_dir,
+                                         fsync_dir, is_int, read_lines, to_plain, WarningLog)
 
 Array = NDArray[np.float64]
 Slot = tuple[int, int]  # (cycle, point_index), both 0-based
@@ -171,7 +170,7 @@ class TrialStore(WarningLog):
         stamp = time.time_ns() if stamp_ns is None else stamp_ns
         line = _csv_line([cycle, point_index, names[point_index], float(raw_distance_m),
                           float(ff_m), direction or '', float(corrected), stamp])
-        self._append_line(self.directory / trial_id / 'distances.csv', line)
+        append_line(self.directory / trial_id / 'distances.csv', line, CSV_HEADER)
         return corrected
 
     def load(self, trial_id: str) -> TrialData | None:
@@ -237,39 +236,12 @@ class TrialStore(WarningLog):
             raise ValueError(f'trial {trial_id!r} is {meta["status"]}, not running')
         return meta
 
-    @staticmethod
-    def _append_line(path: Path, line: str) -> None:
-        """Append one line with a single write, then fsync (at most this line is lost)."""
-        data = line.encode('utf-8')
-        with open(path, 'a+b') as f:  # writes always go to the end, reads do not
-            size = f.seek(0, os.SEEK_END)
-            if size == 0:
-                data = (CSV_HEADER + '\n').encode('utf-8') + data
-            else:
-                f.seek(size - 1)
-                if f.read(1) != b'\n':
-                    data = b'\n' + data  # end a line truncated by a crash; load skips it
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-
     def _read_rows(self, path: Path, meta: Mapping[str, Any]) -> list[_Row]:
-        try:
-            text = path.read_bytes().decode('utf-8', errors='replace')
-        except OSError as exc:
-            self._warn(f'{path}: no measurements read ({exc})')
-            return []
-        lines = text.split('\n')
-        tail = lines.pop()  # '' when the file ends with a newline
-        if tail:
-            self._warn(f'{path}: ignored truncated last line {tail!r} (crash mid-write?)')
-        if lines and lines[0] == CSV_HEADER:
-            lines[0] = ''
         rows = []
-        for number, line in enumerate(lines, start=1):
-            row = _parse_row(line, meta) if line else None
+        for number, line in read_lines(path, CSV_HEADER, self):
+            row = _parse_row(line, meta)
             if isinstance(row, str):
                 self._warn(f'{path}:{number}: ignored line, {row}')
-            elif row is not None:
+            else:
                 rows.append(row)
         return rows

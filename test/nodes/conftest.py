@@ -18,13 +18,15 @@ def trial_data(tmp_path_factory):
 
 @pytest.fixture(scope='session')
 def suite(domain_id, trial_data, tmp_path_factory):
-    """mock_robot, joint_state_monitor, proximity_sensor (+ an isolated /iso probe node),
-    user_frame_solver, each its own process."""
+    """The suite (launcher.SUITE: mock_robot, joint_state_monitor, proximity_sensor,
+    user_frame_solver, repeatability_trial, kinematic_identifier; + an isolated /iso probe
+    node), each its own process, all storing under ``trial_data``."""
     data = trial_data
     specs = launcher.suite_specs('sawyer_close', overrides={
         'mock_robot': {'time_scale': '0.2'},
         'user_frame_solver': {'data_dir': str(data)},
-        'repeatability_trial': {'data_dir': str(data)}})
+        'repeatability_trial': {'data_dir': str(data)},
+        'kinematic_identifier': {'data_dir': str(data)}})
     specs.append(launcher.NodeSpec('proximity_sensor', namespace='iso'))
     running = launcher.Suite(tmp_path_factory.mktemp('logs'))
     running.start(specs)

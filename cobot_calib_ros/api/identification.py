@@ -1,0 +1,120 @@
+"""Kinematic identification through the suite: collect on the robot, identify, validate.
+
+Used by ``cobot-calib identify`` and ``cobot-calib demo --kinematics``. One rclpy node with
+action clients for ``collect_sphere_data`` and ``identify_kinematics``.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+import time
+from typing import Callable
+
+PAPER_RATIO_PERCENT = 41.6     # the paper's max error, calibrated / nominal (0.990 / 2.381 mm)
+
+
+class IdentificationFailed(RuntimeError):
+    """A collection or identification that did not succeed; the message says why."""
+
+
+class IdentifyClient:
+    """Action calls of an identification on one rclpy node: ``node`` if given, else one of its
+    own (rclpy initialised here and shut down by close())."""
+
+    def __init__(self, node=None) -> None:
+        import rclpy
+        from rclpy.action import ActionClient
+        from cobot_calib_msgs.action import CollectSphereData, IdentifyKinematics
+        self._own = node is None
+        if self._own:
+            rclpy.init(signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
+            node = rclpy.create_node('cobot_calib_identify', start_parameter_services=False)
+        self.node = node
+        self.Collect, self.Identify = CollectSphereData, IdentifyKinematics
+        self.collect = ActionClient(node, CollectSphereData, 'collect_sphere_data')
+        self.identify = ActionClient(node, IdentifyKinematics, 'identify_kinematics')
+
+    def close(self) -> None:
+        import rclpy
+        self.collect.destroy()
+        self.identify.destroy()
+        if self._own:
+            self.node.destroy_node()
+            rclpy.try_shutdown()
+
+
+def identify_on_suite(client: IdentifyClient, *, say: Callable[[str], None],
+                      source: str = 'mock', solver: str = 'lm', loss: str = 'soft_l1',
+                      max_configs: int = 0, hold: float = 0.05,
+                      validation_configs: int = 125, dry_run: bool = False) -> dict:
+    """Collect (source 'mock') or take a collection folder, identify; the report (mm)."""
+    from cobot_calib_ros.api.client import run_action, to_dict, wait_for_suite
+    wait_for_suite(client.node)
+    collections, collect_seconds = {}, {}
+    if source == 'mock':
+        jobs = [('spheres', 'spheres', '', max_configs)]
+        if validation_configs:
+            jobs += [('volume', 'laser_tracker', 'volume', validation_configs),
+                     ('workspace', 'laser_tracker', 'workspace', validation_configs)]
+        for key, kind, region, count in jobs:
+            say(f'collecting {key} ({kind}{" " + region if region else ""}) ...')
+            start = time.perf_counter()
+            goal = client.Collect.Goal(source=kind, region=region, max_configs=count,
+                                       hold=hold, seed=1 if region == 'workspace' else 0)
+            _, result = run_action(client.node, client.collect, goal, 3600.0,
+                                   feedback=_progress(say))
+            if result.error_code != 0:
+                raise IdentificationFailed(f'collect_sphere_data ({key}) failed: '
+                                           f'{result.message}')
+            collect_seconds[key] = time.perf_counter() - start
+            collections[key] = {'id': result.collection_id, 'recorded': result.recorded,
+                                'skipped': result.skipped, 'path': result.path}
+            say(f'  {result.message} in {collect_seconds[key]:.1f} s')
+    say(f'identifying ({solver}) ...')
+    goal = client.Identify.Goal(
+        collection_id=collections.get('spheres', {}).get('id', ''),
+        file='' if source == 'mock' else str(Path(source).resolve()),
+        solver=solver, loss=loss, max_configs=max_configs,
+        validation_volume=collections.get('volume', {}).get('id', ''),
+        validation_workspace=collections.get('workspace', {}).get('id', ''),
+        dry_run=dry_run)
+    _, result = run_action(client.node, client.identify, goal, 3600.0)
+    if result.error_code != 0:
+        raise IdentificationFailed(f'identify_kinematics failed: {result.message}')
+    data = to_dict(result)
+    return {
+        'calibration_id': result.calibration_id, 'message': result.message,
+        'dropped_parameters': list(result.dropped_parameters),
+        'dropped_reasons': dict(zip(result.dropped_parameters, result.dropped_reasons)),
+        'identified': [{'name': n, 'value': v, 'std': s} for n, v, s in
+                       zip(result.parameter_names, result.values, result.std)],
+        'validation': _stats_pair(data['validation_nominal'], data['validation_calibrated']),
+        'validation_workspace': _stats_pair(data['workspace_nominal'],
+                                            data['workspace_calibrated']),
+        'rms_mm': result.rms * 1e3, 'iterations': result.iterations,
+        'solve_seconds': result.solve_seconds, 'collections': collections,
+        'collect_seconds': collect_seconds, 'yaml_path': result.yaml_path,
+        'urdf_path': result.urdf_path, 'paper_ratio_percent': PAPER_RATIO_PERCENT}
+
+
+def _stats_pair(nominal: dict, calibrated: dict) -> dict:
+    """Table 5 rows in mm from ErrorStats messages [m]; empty when not validated."""
+    if not nominal['count']:
+        return {}
+    rows = {key: {f'{k}_mm': stats[k] * 1e3 for k in ('mean', 'std', 'min', 'max')}
+            | {'count': stats['count']} for key, stats in (('nominal', nominal),
+                                                            ('calibrated', calibrated))}
+    rows['ratio_max_percent'] = 100.0 * rows['calibrated']['max_mm'] / rows['nominal']['max_mm']
+    return rows
+
+
+def _progress(say):
+    last = [0.0]
+
+    def on_feedback(message) -> None:
+        fb = message.feedback
+        now = time.monotonic()
+        if now - last[0] > 5.0 or fb.index + 1 == fb.total:
+            last[0] = now
+            say(f'  pose {fb.index + 1}/{fb.total} ({fb.target}): {fb.recorded} '
+                f'recorded, {fb.skipped} skipped')
+    return on_feedback

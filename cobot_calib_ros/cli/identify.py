@@ -1,0 +1,131 @@
+"""`cobot-calib identify`: kinematic identification from sphere coupling (second paper).
+
+``--source mock``: on the node suite (a private one unless --attach), collect_sphere_data
+brings the coupling onto each sphere in the pose grid, two laser-tracker sets are measured for
+validation (in the calibrated volume and spread over the workspace, 125 each as the paper's
+Table 4), then identify_kinematics identifies, validates, stores and activates the result.
+``--source FOLDER``: a collection folder written by collect_sphere_data (identified by the
+suite), or a folder of MUKCa sphere-socket data (``<location>/hole_{0,1}.csv``), identified
+offline with one location held out at a time.
+"""
+from __future__ import annotations
+
+import contextlib
+import json
+from pathlib import Path
+import sys
+
+from cobot_calib_ros.api.identification import PAPER_RATIO_PERCENT
+from cobot_calib_ros.cli.common import EXIT_FAILED, EXIT_OK, EXIT_USAGE, fail, say
+
+MUKCA_PUBLISHED_MM = 0.2       # MUKCa paper: mean error after calibration on this robot
+CELLS = {'iiwa7': 'iiwa7_close', 'sawyer': 'sawyer_close'}
+
+
+def add_parser(subparsers):
+    p = subparsers.add_parser(
+        'identify', help='identify the robot\'s kinematic errors from sphere coupling',
+        description=__doc__.split('\n\n')[0] + ' Collects on the mock robot, identifies, '
+                    'validates against a laser tracker and stores a calibrated model.')
+    p.add_argument('--robot', choices=sorted(CELLS), default=None,
+                   help='robot of the default cell (iiwa7 -> iiwa7_close, sawyer -> '
+                        'sawyer_close); default iiwa7')
+    p.add_argument('--cell', default=None, help='cell file (path or name); overrides --robot')
+    p.add_argument('--source', default='mock',
+                   help='mock (collect now), a collection folder, or a MUKCa data folder')
+    p.add_argument('--solver', default='lm', choices=('lm', 'nelder-mead'))
+    p.add_argument('--loss', default='soft_l1', choices=('soft_l1', 'linear', 'huber'))
+    p.add_argument('--max-configs', type=int, default=0,
+                   help='sphere poses to collect/use, an even subset (default all: 3 x 625 '
+                        'on 7-joint robots)')
+    p.add_argument('--hold', type=float, default=0.05,
+                   help='[s] joints averaged per pose (default 0.05; the paper held 1 s)')
+    p.add_argument('--validation-configs', type=int, default=125,
+                   help='laser-tracker configurations per validation set (0: none)')
+    p.add_argument('--dry-run', action='store_true', help='identify and validate, store nothing')
+    p.add_argument('--attach', action='store_true',
+                   help='use the suite running on ROS_DOMAIN_ID instead of starting one')
+    p.add_argument('--json', action='store_true')
+    return p
+
+
+def run(args) -> int:
+    if args.max_configs < 0 or args.validation_configs < 0 or not args.hold > 0:
+        return fail('--max-configs and --validation-configs must be >= 0, --hold > 0 [s]',
+                    EXIT_USAGE)
+    if args.source != 'mock':
+        folder = Path(args.source).expanduser()
+        if not folder.is_dir():
+            return fail(f'--source {args.source}: not mock and not a folder; give mock, a '
+                        'collection folder or a MUKCa data folder', EXIT_USAGE)
+        if any(folder.glob('*/hole_0.csv')):
+            return _mukca(args, folder)
+        if not (folder / 'collection.yaml').is_file():
+            return fail(f'{folder}: neither a collection folder (collection.yaml) nor MUKCa '
+                        'data (<location>/hole_0.csv)', EXIT_USAGE)
+    cell = args.cell or CELLS[args.robot or 'iiwa7']
+    from cobot_calib_ros.api import identification, launcher
+    from cobot_calib_ros.api.client import CallError
+    suite = contextlib.nullcontext() if args.attach else launcher.private_suite(
+        cell, say=lambda text: say(args, text))
+    try:
+        with suite:
+            client = identification.IdentifyClient()
+            try:
+                report = identification.identify_on_suite(
+                    client, say=lambda text: say(args, text), source=args.source,
+                    solver=args.solver, loss=args.loss, max_configs=args.max_configs,
+                    hold=args.hold, validation_configs=args.validation_configs,
+                    dry_run=args.dry_run)
+            finally:
+                client.close()
+    except (CallError, identification.IdentificationFailed) as e:
+        return fail(f'identify failed: {e}')
+    _print(args, report)
+    return EXIT_OK
+
+
+def _print(args, report: dict) -> None:
+    if args.json:
+        print(json.dumps(report, indent=2))
+        return
+    print(f'\n{report["message"]}')
+    print(f'dropped (not identifiable or tied to the world frame): '
+          f'{", ".join(report["dropped_parameters"])}')
+    print(f'\n{"identified":<12}{"value":>16}{"std":>14}')
+    for p in report['identified']:
+        length = not p['name'].startswith(('alpha', 'theta', 'roll', 'pitch', 'yaw'))
+        unit, scale = ('mm', 1e3) if length else ('mrad', 1e3)
+        print(f'{p["name"]:<12}{p["value"] * scale:>12.4f} {unit:<4}{p["std"] * scale:>10.4f}')
+    for key, title in (('validation', 'calibrated volume'),
+                       ('validation_workspace', 'workspace spread')):
+        rows = report[key]
+        if not rows:
+            continue
+        print(f'\nabsolute error, laser tracker, {title} ({rows["nominal"]["count"]} '
+              'configurations) [mm]   (the paper\'s Table 5)')
+        print(f'{"":<12}{"mean":>9}{"std":>9}{"min":>9}{"max":>9}')
+        for name in ('calibrated', 'nominal'):
+            r = rows[name]
+            print(f'{name:<12}{r["mean_mm"]:9.3f}{r["std_mm"]:9.3f}{r["min_mm"]:9.3f}'
+                  f'{r["max_mm"]:9.3f}')
+        print(f'max calibrated / nominal: {rows["ratio_max_percent"]:.1f} % (paper, on its '
+              f'spread: {PAPER_RATIO_PERCENT} %)')
+    if report['calibration_id']:
+        print(f'\nstored and active: {report["calibration_id"]}\n  {report["yaml_path"]}\n'
+              f'  {report["urdf_path"]}')
+
+
+def _mukca(args, folder: Path) -> int:
+    """Real MUKCa sphere-socket data: identify on two locations, evaluate on the third."""
+    from cobot_calib_ros.core.kinematics.identification import sockets
+    try:
+        data = sockets.load_socket_data(folder)
+        table = sockets.leave_one_location_out(data)
+    except ValueError as e:
+        return fail(f'{folder}: {e}', EXIT_FAILED)
+    if args.json:
+        print(json.dumps(table, indent=2, default=float))
+        return EXIT_OK
+    print(json.dumps(table, indent=2, default=float), file=sys.stdout)
+    return EXIT_OK

@@ -1,0 +1,243 @@
+"""MUKCa sphere-socket data: loading, MUKCa's consistency metric, leave-one-location-out.
+
+The core identification modules are imported directly (not through the package
+``__init__``), so that the package may re-export this module.
+
+MUKCa (platonics-delft/kinematics_calibration) records the joint angles of an arm whose flange
+ball sits in one of two spherical sockets 50 mm apart, while the arm moves through its null
+space and wrist. A data folder holds one sub-folder per tool location with ``hole_0.csv`` and
+``hole_1.csv`` (no header, one row per configuration, one column per joint, radians).
+
+Each (location, socket) is one fixed but unknown sphere centre; the two sockets of a location
+are a known 0.050 m apart. Lengths are metres except in names ending ``_mm``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from cobot_calib_ros.core.kinematics.identification.identifiability import find_redundant
+from cobot_calib_ros.core.kinematics.identification.observations import SphereObservations
+from cobot_calib_ros.core.kinematics.identification.parameters import (
+    default_candidates, ParameterSet, tool_kinematics)
+from cobot_calib_ros.core.kinematics.identification.solvers import (
+    identify, IdentificationResult)
+from cobot_calib_ros.core.kinematics.model import KinematicModel
+
+Array = NDArray[np.float64]
+
+SOCKET_DISTANCE = 0.050  # [m] between the two socket centres of the MUKCa tool
+_FILES = ('hole_0.csv', 'hole_1.csv')
+
+
+@dataclass(frozen=True, eq=False)
+class SocketData:
+    """All configurations of a MUKCa data folder, in location then socket then file order."""
+
+    locations: tuple[str, ...]  # location names (sub-folder names, sorted)
+    q: Array                    # (m, n) joint angles [rad]
+    location: NDArray[np.int_]  # (m,) index into locations
+    socket: NDArray[np.int_]    # (m,) 0 or 1
+    distance: float = SOCKET_DISTANCE  # [m] between the two sockets of a location
+
+    def location_indices(self, locations: Sequence[str | int] | None = None) -> list[int]:
+        """Indices of ``locations`` (names or indices; default all); ValueError if unknown."""
+        if locations is None:
+            return list(range(len(self.locations)))
+        out = []
+        for loc in locations:
+            if isinstance(loc, str):
+                if loc not in self.locations:
+                    raise ValueError(f'unknown location {loc!r}; known: {list(self.locations)}')
+                out.append(self.locations.index(loc))
+            elif 0 <= int(loc) < len(self.locations):
+                out.append(int(loc))
+            else:
+                raise ValueError(f'location index {loc} out of range 0..{len(self.locations) - 1}')
+        if len(set(out)) != len(out):
+            raise ValueError(f'locations repeated: {list(locations)}')
+        return out
+
+    def sphere_ids(self, locations: Sequence[str | int] | None = None
+                   ) -> tuple[NDArray[np.bool_], NDArray[np.int_]]:
+        """(mask (m,), sphere id per selected row): the k-th selected location's socket s is
+        sphere 2 k + s."""
+        idx = self.location_indices(locations)
+        rank = np.full(len(self.locations), -1)
+        rank[idx] = np.arange(len(idx))
+        mask = rank[self.location] >= 0
+        return mask, 2 * rank[self.location[mask]] + self.socket[mask]
+
+    def observations(self, locations: Sequence[str | int] | None = None
+                     ) -> SphereObservations:
+        """SphereObservations of ``locations`` (default all): sphere 2 k + socket for the k-th
+        location, and the known distance between spheres 2 k and 2 k + 1."""
+        mask, sphere = self.sphere_ids(locations)
+        k = len(self.location_indices(locations))
+        known = tuple((2 * i, 2 * i + 1, self.distance) for i in range(k))
+        return SphereObservations(self.q[mask], sphere, known)
+
+
+def load_socket_data(folder: str | Path, distance: float = SOCKET_DISTANCE) -> SocketData:
+    """Read ``folder/<location>/hole_{0,1}.csv`` for every sub-folder holding both files.
+
+    ValueError for a folder without such sub-folders or a file that is not a numeric table
+    with the same number of columns everywhere.
+    """
+    root = Path(folder)
+    if not root.is_dir():
+        raise ValueError(f'socket data folder {str(root)!r} does not exist')
+    names = sorted(p.name for p in root.iterdir()
+                   if p.is_dir() and all((p / f).is_file() for f in _FILES))
+    if not names:
+        raise ValueError(f'no <location>/hole_0.csv + hole_1.csv under {str(root)!r}')
+    q, location, socket = [], [], []
+    for i, name in enumerate(names):
+        for s, file in enumerate(_FILES):
+            path = root / name / file
+            try:
+                table = np.loadtxt(path, delimiter=',', ndmin=2)
+            except ValueError as exc:
+                raise ValueError(f'{path}: not a comma-separated numeric table ({exc})') from None
+            if len(table) == 0 or not np.all(np.isfinite(table)):
+                raise ValueError(f'{path}: empty or not finite')
+            if q and table.shape[1] != q[0].shape[1]:
+                raise ValueError(f'{path}: {table.shape[1]} columns, expected {q[0].shape[1]} '
+                                 '(one per joint, radians)')
+            q.append(table)
+            location.append(np.full(len(table), i))
+            socket.append(np.full(len(table), s))
+    return SocketData(tuple(names), np.vstack(q), np.concatenate(location),
+                      np.concatenate(socket), float(distance))
+
+
+def mukca_metrics(positions: ArrayLike, socket_ids: ArrayLike,
+                  known_distances: Sequence[tuple[int, int, float]] | None = None) -> dict:
+    """MUKCa's consistency metric of ball-centre positions (m, 3) [m] in any common frame.
+
+    Per socket id: deviations ||p_i - mean p|| over its rows. ``mae_mm``: the per-socket means
+    averaged with the sample counts as weights (= mean of all deviations); ``max_mm``: the
+    largest deviation. ``known_distances`` (i, j, metres) pairs of socket ids, default
+    ((0, 1, 0.050),) when the ids are exactly {0, 1}: ``centroid_distances_mm`` (one per pair)
+    and ``distance_error_mm`` = the largest | ||c_i - c_j|| - d | (nan without pairs).
+    No outlier removal (MUKCa removes outliers before it evaluates).
+    """
+    p = np.asarray(positions, dtype=float)
+    ids = np.asarray(socket_ids)
+    if p.ndim != 2 or p.shape[1] != 3 or ids.shape != (len(p),) or len(p) == 0:
+        raise ValueError(f'expected positions (m, 3) and socket_ids (m,), got {p.shape} and '
+                         f'{ids.shape}')
+    unique = np.unique(ids)
+    centres = {int(s): p[ids == s].mean(axis=0) for s in unique}
+    deviation = np.empty(len(p))
+    for s, c in centres.items():
+        deviation[ids == s] = np.linalg.norm(p[ids == s] - c, axis=1)
+    if known_distances is None:
+        known_distances = ((0, 1, SOCKET_DISTANCE),) if set(centres) == {0, 1} else ()
+    distances = tuple(float(np.linalg.norm(centres[i] - centres[j])) for i, j, _ in
+                      known_distances)
+    errors = [abs(d - k[2]) for d, k in zip(distances, known_distances)]
+    return {'mae_mm': 1e3 * float(deviation.mean()),
+            'max_mm': 1e3 * float(deviation.max()),
+            'distance_error_mm': 1e3 * max(errors) if errors else float('nan'),
+            'centroid_distances_mm': tuple(1e3 * d for d in distances)}
+
+
+# --- leave one location out ----------------------------------------------------------------
+
+@dataclass(frozen=True)
+class HeldOutLocation:
+    """One fold: identified on the other locations, MUKCa's metric on ``location`` [mm].
+
+    ``before``/``after``: :func:`mukca_metrics` of the held-out location with the start model
+    (params0, tool_xyz0) and with the identified one; ``train_before``/``train_after`` the same
+    on the training locations together.
+    """
+
+    location: str
+    training: tuple[str, ...]
+    free: tuple[str, ...]          # identified parameters (find_redundant on the training q)
+    before: dict
+    after: dict
+    train_before: dict
+    train_after: dict
+    result: IdentificationResult
+
+
+@dataclass(frozen=True)
+class LeaveOneLocationOut:
+    """All folds, in location order, and the mean held-out MAE before/after [mm]."""
+
+    folds: tuple[HeldOutLocation, ...]
+
+    @property
+    def mean_mae_mm_before(self) -> float:
+        return float(np.mean([f.before['mae_mm'] for f in self.folds]))
+
+    @property
+    def mean_mae_mm_after(self) -> float:
+        return float(np.mean([f.after['mae_mm'] for f in self.folds]))
+
+    def table(self) -> str:
+        """One line per held-out location: free count, held-out and training MAE [mm]."""
+        lines = [f'{"held out":<12} {"free":>4} {"MAE before":>10} {"MAE after":>9} '
+                 f'{"max after":>9} {"dist err after":>14} {"train MAE after":>15}']
+        for f in self.folds:
+            lines.append(f'{f.location:<12} {len(f.free):>4} {f.before["mae_mm"]:>10.3f} '
+                         f'{f.after["mae_mm"]:>9.3f} {f.after["max_mm"]:>9.3f} '
+                         f'{f.after["distance_error_mm"]:>14.3f} '
+                         f'{f.train_after["mae_mm"]:>15.3f}')
+        lines.append(f'{"mean":<12} {"":>4} {self.mean_mae_mm_before:>10.3f} '
+                     f'{self.mean_mae_mm_after:>9.3f}')
+        return '\n'.join(lines)
+
+
+def location_metrics(model: KinematicModel, params: ArrayLike | None, tool_xyz: ArrayLike,
+                     data: SocketData, locations: Sequence[str | int] | None = None) -> dict:
+    """:func:`mukca_metrics` of the ball centres (tool at ``tool_xyz`` [m] in the flange) on
+    ``locations`` together (default all; one pair of sockets per location)."""
+    obs = data.observations(locations)
+    p, _, _ = tool_kinematics(model, params, tool_xyz, obs.q)
+    return mukca_metrics(p, obs.sphere, obs.known_distances)
+
+
+def leave_one_location_out(model: KinematicModel, data: SocketData, tool_xyz0: ArrayLike, *,
+                           params0: ArrayLike | None = None,
+                           candidates: Sequence[str] | None = None,
+                           excluded: dict[str, str] | None = None,
+                           **identify_options) -> LeaveOneLocationOut:
+    """For each location: identify on the others, evaluate MUKCa's metric on it.
+
+    The free parameters of a fold are those :func:`find_redundant` keeps among ``candidates``
+    (default :func:`default_candidates`: all but the first joint's row, plus the tool/ball
+    offset) on the training configurations at ``params0``/``tool_xyz0`` [m]. ``identify`` gets
+    the training locations' SphereObservations (each socket its own sphere, the 0.050 m
+    between the two sockets of a location) and ``identify_options`` (solver, loss, f_scale...).
+    The held-out location's socket centres are not needed: MUKCa's metric is centred on them.
+    ValueError with fewer than 2 locations.
+    """
+    if len(data.locations) < 2:
+        raise ValueError(f'need at least 2 locations to hold one out, got {data.locations}')
+    p0 = np.array(model.nominal if params0 is None else params0, dtype=float)
+    t0 = np.asarray(tool_xyz0, dtype=float)
+    names = tuple(default_candidates(model) if candidates is None else candidates)
+    folds = []
+    for held in data.locations:
+        training = tuple(loc for loc in data.locations if loc != held)
+        obs = data.observations(training)
+        kept = find_redundant(model, obs.q, t0, names, excluded).kept
+        result = identify(ParameterSet(model, kept), obs, tool_xyz0=t0, params0=p0,
+                          **identify_options)
+        folds.append(HeldOutLocation(
+            held, training, kept,
+            before=location_metrics(model, p0, t0, data, [held]),
+            after=location_metrics(model, result.params, result.tool_xyz, data, [held]),
+            train_before=location_metrics(model, p0, t0, data, training),
+            train_after=location_metrics(model, result.params, result.tool_xyz, data,
+                                         training),
+            result=result))
+    return LeaveOneLocationOut(tuple(folds))

@@ -1,0 +1,110 @@
+"""What the robot visits to collect kinematic calibration data, planned on the nominal model.
+
+- :func:`sphere_plan`: the second paper's Algorithm 2 grid on every sphere of the cell's plate.
+- :func:`tracker_plan`: configurations measured by a laser tracker, either in the calibrated
+  volume (around the spheres, where the calibration is meant to hold) or spread over the
+  workspace (like the paper's Tables 3-4).
+
+A plan is a list of steps ``{'q': [rad], 'target': sphere index or -1, 'label': str}``.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numpy.typing import NDArray
+
+from cobot_calib_ros.core import frames
+from cobot_calib_ros.core.cell import Cell
+from cobot_calib_ros.core.kinematics.identification.poses import sphere_pose_grid
+from cobot_calib_ros.core.kinematics.ik import solve_ik_with_restarts
+from cobot_calib_ros.core.kinematics.model import fk, KinematicModel
+
+Array = NDArray[np.float64]
+REGIONS = ('volume', 'workspace')
+TRACKER_CONFIGS = 125          # the paper's validation set
+VOLUME_MARGIN = 0.05           # the volume reaches this far beyond the sphere centres [m]
+VOLUME_TILT = math.radians(20.0)   # largest tilt from the approach orientation in the volume
+WORKSPACE_MIN_Z = 0.05         # workspace configurations keep the coupling this high [m]
+
+
+def even_subset(count: int, limit: int) -> NDArray[np.int64]:
+    """Indices of ``limit`` steps spread evenly over ``count`` (all when limit is 0)."""
+    if limit <= 0 or limit >= count:
+        return np.arange(count)
+    return np.unique(np.round(np.linspace(0, count - 1, limit)).astype(np.int64))
+
+
+def sphere_plan(cell: Cell, model: KinematicModel, max_configs: int = 0,
+                angles_deg=(-20.0, -10.0, 0.0, 10.0, 20.0)) -> tuple[list[dict], list[str]]:
+    """Steps that bring the coupling onto every sphere in the pose grid, and why poses were
+    left out (unreachable on the nominal model). ``max_configs`` > 0 keeps an even subset."""
+    plate = cell.spheres
+    if plate is None:
+        raise ValueError(f'cell {cell.name!r} has no spheres: section; see '
+                         'config/cells/iiwa7_close.yaml')
+    chain = model.chain(tool=plate.coupling_offset)
+    R = frames.rpy_to_matrix(*plate.approach_rpy)
+    arm = angles_deg if model.chain().dof == 7 else (0.0,)
+    steps, skipped = [], []
+    for k, (name, centre) in enumerate(zip(plate.names, plate.centres_base())):
+        grid = sphere_pose_grid(chain, centre, R, cell.home, angles_deg=angles_deg,
+                                arm_angles_deg=arm)
+        for pose in grid:
+            steps.append({'q': pose.q.tolist(), 'target': k,
+                          'label': f'{name} rx{pose.rx_deg:+.0f} ry{pose.ry_deg:+.0f} '
+                                   f'rz{pose.rz_deg:+.0f} arm{pose.arm_deg:+.0f}'})
+        skipped += [f'{name} rx{u.rx_deg:+.0f} ry{u.ry_deg:+.0f} rz{u.rz_deg:+.0f} '
+                    f'arm{u.arm_deg:+.0f}: {u.message}' for u in grid.unreachable]
+    return [steps[i] for i in even_subset(len(steps), max_configs)], skipped
+
+
+def tracker_plan(cell: Cell, model: KinematicModel, region: str, count: int = TRACKER_CONFIGS,
+                 seed: int = 0) -> list[dict]:
+    """``count`` configurations for laser-tracker measurements in ``region``."""
+    if region not in REGIONS:
+        raise ValueError(f'unknown region {region!r}; use one of {", ".join(REGIONS)}')
+    if cell.spheres is None:
+        raise ValueError(f'cell {cell.name!r} has no spheres: section (it places the coupling '
+                         'that carries the retro-reflector)')
+    rng = np.random.default_rng(seed)
+    chain = model.chain(tool=cell.spheres.coupling_offset)
+    draw = _volume_draw(cell, chain) if region == 'volume' else _workspace_draw(chain)
+    steps, attempts = [], 0
+    while len(steps) < count:
+        attempts += 1
+        if attempts > 50 * count:
+            raise ValueError(f'only {len(steps)} of {count} {region} configurations found')
+        q = draw(rng)
+        if q is not None:
+            steps.append({'q': q.tolist(), 'target': -1, 'label': f'{region} {len(steps)}'})
+    return steps
+
+
+def _volume_draw(cell: Cell, chain):
+    """Random poses in the box around the spheres, tilted up to 20 deg from the approach."""
+    centres = cell.spheres.centres_base()
+    lo, hi = centres.min(axis=0) - VOLUME_MARGIN, centres.max(axis=0) + VOLUME_MARGIN
+    hi[2] = lo[2] + 2 * VOLUME_MARGIN + 0.1
+    R0 = frames.rpy_to_matrix(*cell.spheres.approach_rpy)
+
+    def draw(rng: np.random.Generator) -> Array | None:
+        axis = rng.normal(size=3)
+        tilt = frames.from_vector(np.r_[0.0, 0.0, 0.0, axis / np.linalg.norm(axis)
+                                        * rng.uniform(0.0, VOLUME_TILT)])[:3, :3]
+        T = frames.make_transform(R0 @ tilt, rng.uniform(lo, hi))
+        result = solve_ik_with_restarts(chain, T, cell.home, cell.home)
+        return result.q if result else None
+    return draw
+
+
+def _workspace_draw(chain):
+    """Uniform joint configurations (80 % of each range) with the coupling above the table and
+    in front of the robot: a spread like the paper's Tables 3-4."""
+    lower, upper = chain.lower * 0.8, chain.upper * 0.8
+
+    def draw(rng: np.random.Generator) -> Array | None:
+        q = rng.uniform(lower, upper)
+        p = fk(chain, q)[:3, 3]
+        return q if p[2] > WORKSPACE_MIN_Z and p[0] > 0.1 else None
+    return draw

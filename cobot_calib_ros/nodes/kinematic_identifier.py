@@ -1,0 +1,393 @@
+"""kinematic_identifier: sphere-coupling data collection and kinematic identification.
+
+Two actions, one long job at a time (the node spins two threads: one runs the job, the other
+answers cancels and feedback):
+
+- ``collect_sphere_data``: the second paper's Algorithm 2 through ``move_to`` (compliant: the
+  coupling self-centres on the sphere) and ``capture_joints``, or laser-tracker configurations
+  through ``laser_tracker/measure``; every pose is stored as it is measured and a collection
+  resumes after a restart.
+- ``identify_kinematics``: identifiability (Algorithm 1), Levenberg-Marquardt or Nelder-Mead,
+  validation on laser-tracker collections, stored as JSON + YAML + calibrated URDF and made
+  the active kinematic calibration that user_frame_solver and repeatability_trial use.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+import threading
+import time
+
+from cobot_calib_msgs.action import CollectSphereData, IdentifyKinematics
+from cobot_calib_msgs.msg import ErrorStats
+import numpy as np
+from rclpy.action import ActionServer, CancelResponse, GoalResponse
+from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.node import Node
+
+from cobot_calib_ros import paths
+from cobot_calib_ros.core import kinematics
+from cobot_calib_ros.core.cell import load_cell
+from cobot_calib_ros.core.kinematics import plans
+from cobot_calib_ros.core.kinematics.identification.observations import (
+    PositionObservations, SphereObservations)
+from cobot_calib_ros.core.kinematics.identification.solvers import LOSSES, SOLVERS
+from cobot_calib_ros.core.kinematics.kinematic_calibration import CalibrationJob, JobCancelled
+from cobot_calib_ros.ros import spin
+from cobot_calib_ros.ros.diagnostics import Diagnostics, OK, WARN
+from cobot_calib_ros.ros.params import declare, read_once
+from cobot_calib_ros.ros.robot_calls import RobotCallError, RobotCalls
+from cobot_calib_ros.store.collections import Collection, CollectionStore
+from cobot_calib_ros.store.files import check_id
+from cobot_calib_ros.store.kinematics import KinematicStore
+
+Collect, Identify = CollectSphereData, IdentifyKinematics
+MOVE_TIMEOUT = 60.0        # [s] for one move_to
+MAX_SKIPPED_IN_A_ROW = 20  # more unreachable poses in a row than this ends the collection
+CAPTURE_ATTEMPTS = 3
+
+
+def observations(collection: Collection):
+    """The core's observations of a stored collection (relative for spheres, absolute for a
+    laser tracker); ValueError if it holds too little."""
+    meta = collection.meta
+    if meta['source'] == 'spheres':
+        return SphereObservations(collection.q, collection.target,
+                                  tuple(tuple(d) for d in meta['known_distances']))
+    return PositionObservations(collection.q, collection.p)
+
+
+def load_collection_folder(folder: str) -> Collection:
+    """A collection folder given by path (one with collection.yaml and rows.csv)."""
+    path = Path(folder).expanduser().resolve()
+    if not (path / 'collection.yaml').is_file():
+        raise ValueError(f'{path}: not a collection folder (no collection.yaml); give a folder '
+                         'written by collect_sphere_data')
+    store = CollectionStore(path.parent.parent)
+    store.directory = path.parent
+    data = store.load(path.name)
+    if data is None:
+        raise ValueError(f'{path}: unreadable collection: {"; ".join(store.warnings)}')
+    return data
+
+
+def new_id(suffix: str) -> str:
+    wall_ns = time.time_ns()
+    return (time.strftime('%Y%m%dT%H%M%S', time.gmtime(wall_ns / 1e9))
+            + f'.{wall_ns % 1_000_000_000:09d}Z-{suffix}')
+
+
+class KinematicIdentifier(Node):
+    def __init__(self, **kwargs) -> None:
+        super().__init__('kinematic_identifier', **kwargs)
+        self._declare_parameters()
+        self._cell = load_cell(paths.cell_file(self._p('cell_file')), self._p('layout') or None)
+        self._model = kinematics.model_by_name(self._cell.robot)
+        root = paths.data_dir(self._p('data_dir'))
+        self._collections = CollectionStore(root)
+        self._calibrations = KinematicStore(root)
+        self._answers = spin.Companion(self, 'clients')
+        self._robot = RobotCalls(self._answers)
+        self._busy = threading.Lock()
+        self._health = Diagnostics(self)
+        self._health.set(OK, 'idle', job='')
+        group = ReentrantCallbackGroup()
+        self._collect = ActionServer(
+            self, Collect, 'collect_sphere_data', execute_callback=self._on_collect,
+            goal_callback=self._accept, cancel_callback=lambda _: CancelResponse.ACCEPT,
+            callback_group=group)
+        self._identify = ActionServer(
+            self, Identify, 'identify_kinematics', execute_callback=self._on_identify,
+            goal_callback=self._accept, cancel_callback=lambda _: CancelResponse.ACCEPT,
+            callback_group=group)
+        self.get_logger().info(f'{self._cell.robot} cell "{self._cell.name}": collections in '
+                               f'{self._collections.directory}, kinematic calibrations in '
+                               f'{self._calibrations.directory}')
+
+    def destroy_node(self):
+        self._answers.destroy()
+        return super().destroy_node()
+
+    def _declare_parameters(self) -> None:
+        read_once(self, 'cell_file', 'sawyer_close',
+                  'Cell YAML (path or name): robot, home, the sphere plate and coupling')
+        read_once(self, 'layout', '', 'Marker layout; empty = the cell default')
+        read_once(self, 'data_dir', '', 'Collections go to <data_dir>/kinematic_data, results '
+                  'to <data_dir>/kinematics; empty = $COBOT_CALIB_DATA or ~/.ros/cobot_calib')
+        declare(self, 'hold_duration', 1.0,
+                'Joints are averaged over this hold at every pose [s] (paper: 1 s at 1 kHz)',
+                0.005, 10.0)
+        declare(self, 'speed_scale', 1.0, 'Fraction of the joint velocity limits [1]',
+                0.01, 1.0)
+
+    def _p(self, name: str):
+        return self.get_parameter(name).value
+
+    def _accept(self, goal) -> GoalResponse:
+        if self._busy.locked():
+            self.get_logger().warning('goal rejected: a collection or identification is '
+                                      'running; wait for its end or cancel it')
+            return GoalResponse.REJECT
+        return GoalResponse.ACCEPT
+
+    def _exclusive(self, goal_handle, run, Result):
+        if not self._busy.acquire(blocking=False):
+            goal_handle.abort()
+            return Result(error_code=Result.INVALID_GOAL, message='another job is running')
+        try:
+            return run(goal_handle)
+        finally:
+            self._health.set(OK, 'idle', job='')
+            self._busy.release()
+
+    def _end(self, goal_handle, result, code: int, message: str):
+        result.error_code, result.message = int(code), message
+        if code == 0:
+            goal_handle.succeed()
+            spin.log_info(self.get_logger(), message)
+        elif goal_handle.is_cancel_requested:
+            goal_handle.canceled()
+        else:
+            goal_handle.abort()
+            self.get_logger().warning(message)
+        return result
+
+    # -- collection -----------------------------------------------------------------------
+    def _on_collect(self, goal_handle):
+        return self._exclusive(goal_handle, self._collect_run, Collect.Result)
+
+    def _collect_run(self, goal_handle):
+        goal, result = goal_handle.request, Collect.Result()
+        try:
+            collection_id, meta = self._open_collection(goal)
+        except ValueError as e:
+            return self._end(goal_handle, result, Collect.Result.INVALID_GOAL, str(e))
+        except OSError as e:
+            return self._end(goal_handle, result, Collect.Result.STORAGE_FAILED,
+                             f'could not store the collection: {e}; check data_dir')
+        result.collection_id = collection_id
+        result.path = str(self._collections.directory / collection_id)
+        hold = goal.hold or self._p('hold_duration')
+        self._health.set(OK, f'collecting {collection_id}', job=collection_id)
+        code, message = self._visit(goal_handle, collection_id, meta, hold)
+        data = self._collections.load(collection_id)
+        result.recorded, result.skipped = len(data.q), len(data.skipped)
+        status = 'done' if code == Collect.Result.SUCCESS else 'aborted'
+        try:
+            self._collections.set_status(collection_id, status)
+        except (OSError, ValueError) as e:
+            code, message = Collect.Result.STORAGE_FAILED, f'could not store the status: {e}'
+        if code == Collect.Result.SUCCESS:
+            message = (f'{collection_id}: {result.recorded} poses recorded, '
+                       f'{result.skipped} skipped ({message})')
+        return self._end(goal_handle, result, code, message)
+
+    def _open_collection(self, goal) -> tuple[str, dict]:
+        """A stored unfinished collection to resume, or a new one with its plan stored."""
+        if goal.collection_id:
+            check_id(goal.collection_id)
+            stored = self._collections.load(goal.collection_id)
+            if stored is not None:
+                meta = stored.meta
+                if meta['status'] == 'done':
+                    raise ValueError(f'collection {goal.collection_id} is complete; give a '
+                                     'new id (or none) to collect again')
+                self._collections.set_status(goal.collection_id, 'running')
+                return goal.collection_id, meta
+        source = goal.source or 'spheres'
+        region = goal.region or 'volume'
+        if source == 'spheres':
+            plan, unreachable = plans.sphere_plan(self._cell, self._model, goal.max_configs)
+            targets = list(self._cell.spheres.names)
+            extra = {'known_distances': self._cell.spheres.known_distances(),
+                     'unreachable_in_plan': unreachable,
+                     'coupling_offset_xyz': self._cell.spheres.coupling_offset[:3, 3]}
+        elif source == 'laser_tracker':
+            plan = plans.tracker_plan(self._cell, self._model, region,
+                                      goal.max_configs or plans.TRACKER_CONFIGS, goal.seed)
+            targets, extra = [], {'region': region, 'seed': goal.seed,
+                                  'coupling_offset_xyz': self._cell.spheres.coupling_offset[:3, 3]}
+        else:
+            raise ValueError(f'unknown source {source!r}; use spheres or laser_tracker')
+        collection_id = goal.collection_id or new_id(
+            source if source == 'spheres' else f'tracker-{region}')
+        meta = self._collections.create(
+            collection_id, source=source, robot=self._cell.robot,
+            joint_names=self._model.joint_names, targets=targets, plan=plan,
+            extra={**extra, 'cell': self._cell.name})
+        return collection_id, meta
+
+    def _visit(self, goal_handle, collection_id: str, meta: dict, hold: float):
+        """Visit the plan from the first pose without a row; (code, message)."""
+        plan, laser = meta['plan'], meta['source'] == 'laser_tracker'
+        start = self._collections.load(collection_id).next_index
+        feedback = Collect.Feedback(total=len(plan))
+        recorded, skipped, in_a_row = 0, 0, 0
+        seconds = {'move': 0.0, 'capture': 0.0, 'store': 0.0}
+        clock = time.perf_counter
+        for i in range(start, len(plan)):
+            if goal_handle.is_cancel_requested:
+                return Collect.Result.CANCELED, f'{collection_id}: canceled at pose {i}; ' \
+                    'give the same collection_id to resume'
+            step = plan[i]
+            feedback.index = i
+            feedback.target = 'tracker' if laser else meta['targets'][step['target']]
+            t0 = clock()
+            try:
+                self._robot.move_joints(np.array(step['q']), MOVE_TIMEOUT, compliant=not laser,
+                                        speed_scale=self._p('speed_scale'))
+            except RobotCallError as e:
+                self._collections.append(collection_id, i, step['target'], None, note=str(e))
+                skipped, in_a_row = skipped + 1, in_a_row + 1
+                if in_a_row > MAX_SKIPPED_IN_A_ROW:
+                    return Collect.Result.MOTION_FAILED, f'{in_a_row} poses in a row failed, ' \
+                        f'the last: {e}'
+                continue
+            in_a_row = 0
+            t1 = clock()
+            try:
+                capture = self._capture(hold)
+                p = self._robot.measure_position() if laser else None
+            except RobotCallError as e:
+                return Collect.Result.CAPTURE_FAILED, f'pose {i}: {e}; resume with ' \
+                    f'collection_id {collection_id}'
+            t2 = clock()
+            self._collections.append(collection_id, i, step['target'], capture.position,
+                                     sample_count=capture.sample_count,
+                                     std_max=float(np.max(capture.std)), p=p)
+            seconds['move'] += t1 - t0
+            seconds['capture'] += t2 - t1
+            seconds['store'] += clock() - t2
+            recorded += 1
+            feedback.recorded, feedback.skipped = recorded, skipped
+            goal_handle.publish_feedback(feedback)
+        per_pose = ', '.join(f'{k} {v / max(recorded, 1) * 1e3:.0f} ms'
+                             for k, v in seconds.items())
+        return Collect.Result.SUCCESS, f'per pose: {per_pose}'
+
+    def _capture(self, hold: float):
+        """capture_joints, tried again after a short stream stall (a busy machine can starve
+        the 1 kHz joint_states for a few ms: too few samples in a short hold)."""
+        for attempt in range(CAPTURE_ATTEMPTS):
+            try:
+                return self._robot.capture(hold)
+            except RobotCallError as e:
+                if attempt + 1 == CAPTURE_ATTEMPTS:
+                    raise
+                self.get_logger().warning(f'capture_joints failed, trying again: {e}')
+
+    # -- identification -------------------------------------------------------------------
+    def _on_identify(self, goal_handle):
+        return self._exclusive(goal_handle, self._identify_run, Identify.Result)
+
+    def _identify_run(self, goal_handle):
+        goal, result = goal_handle.request, Identify.Result()
+        try:
+            job = self._job(goal)
+        except (ValueError, KeyError) as e:
+            return self._end(goal_handle, result, Identify.Result.INVALID_GOAL
+                             if not isinstance(e, KeyError) else Identify.Result.NO_DATA,
+                             str(e).strip("'\""))
+        self._health.set(OK, f'identifying from {job.source}', job=job.source)
+        feedback = Identify.Feedback()
+
+        def on_iteration(iteration: int, cost: float, rms: float) -> bool:
+            feedback.iteration, feedback.cost, feedback.rms = iteration, cost, rms
+            goal_handle.publish_feedback(feedback)
+            return not goal_handle.is_cancel_requested
+
+        try:
+            outcome = job.run(on_iteration)
+        except JobCancelled:
+            return self._end(goal_handle, result, Identify.Result.CANCELED, 'canceled; '
+                             'nothing stored')
+        except (ValueError, np.linalg.LinAlgError) as e:
+            self._health.set(WARN, f'identification failed: {e}', job='')
+            return self._end(goal_handle, result, Identify.Result.SOLVER_FAILED, str(e))
+        self._fill(result, outcome)
+        if not goal.dry_run:
+            try:
+                paths_ = self._calibrations.save_outcome(outcome)
+            except OSError as e:
+                return self._end(goal_handle, result, Identify.Result.STORAGE_FAILED,
+                                 f'could not store the kinematic calibration: {e}')
+            result.calibration_id = outcome.record['id']
+            result.yaml_path, result.urdf_path = str(paths_['yaml']), str(paths_['urdf'])
+        return self._end(goal_handle, result, Identify.Result.SUCCESS, outcome.summary())
+
+    def _job(self, goal) -> CalibrationJob:
+        """The identification job of a goal: data, validation sets, options."""
+        for name, value, known in (('solver', goal.solver, SOLVERS), ('loss', goal.loss, LOSSES),
+                                   ('objective', goal.objective, ('relative', 'absolute'))):
+            if value and value not in known:
+                raise ValueError(f'unknown {name} {value!r}; use one of {", ".join(known)}')
+        if goal.file:
+            collection = load_collection_folder(goal.file)
+        else:
+            collection = self._collection(goal.collection_id, 'spheres'
+                                          if goal.objective != 'absolute' else 'laser_tracker')
+        if collection.meta['robot'] != self._cell.robot:
+            raise ValueError(f'collection {collection.meta["id"]} is of a '
+                             f'{collection.meta["robot"]}, this cell is a {self._cell.robot}')
+        data, source = observations(collection), collection.meta['id']
+        validation = {}
+        for key, given in (('volume', goal.validation_volume),
+                           ('workspace', goal.validation_workspace)):
+            collection = self._collection(given, 'laser_tracker', region=key, required=False)
+            if collection is not None:
+                validation[key] = observations(collection)
+        return CalibrationJob(self._cell, self._model, data, source=source,
+                              solver=goal.solver or 'lm', loss=goal.loss or 'soft_l1',
+                              objective=goal.objective or None, max_configs=goal.max_configs,
+                              validation=validation)
+
+    def _collection(self, collection_id: str, source: str, region: str | None = None,
+                    required: bool = True):
+        """The given collection, else the newest done one of ``source`` (and region)."""
+        if collection_id:
+            data = self._collections.load(check_id(collection_id))
+            if data is None:
+                raise KeyError(f'no readable collection {collection_id!r} in '
+                               f'{self._collections.directory}')
+            return data
+        for meta in self._collections.list_collections():
+            if meta['source'] == source and meta['status'] == 'done' and meta['robot'] == \
+                    self._cell.robot and (region is None or meta.get('region') == region):
+                return self._collections.load(meta['id'])
+        if required:
+            raise KeyError(f'no finished {source} collection for {self._cell.robot} in '
+                           f'{self._collections.directory}; run collect_sphere_data first')
+        return None
+
+    @staticmethod
+    def _fill(result, outcome) -> None:
+        r = outcome.result
+        result.parameter_names = list(r.free)
+        result.values = [float(v) for v in outcome.free_values]
+        result.std = [float(v) for v in r.std]
+        result.dropped_parameters = [d.name for d in outcome.identifiability.dropped]
+        result.dropped_reasons = [d.reason for d in outcome.identifiability.dropped]
+        for key, nominal, calibrated in (('volume', 'validation_nominal',
+                                          'validation_calibrated'),
+                                         ('workspace', 'workspace_nominal',
+                                          'workspace_calibrated')):
+            table = outcome.validation.get(key)
+            if table:
+                setattr(result, nominal, _stats_msg(table['nominal']))
+                setattr(result, calibrated, _stats_msg(table['calibrated']))
+        result.rms, result.iterations = float(r.rms_m), int(r.iterations)
+        result.solve_seconds = float(r.solve_seconds)
+
+
+def _stats_msg(stats: dict) -> ErrorStats:
+    """Table 5 statistics (mm in the core's dict) as an SI message."""
+    return ErrorStats(count=int(stats['count']), mean=stats['mean_mm'] * 1e-3,
+                      std=stats['std_mm'] * 1e-3, min=stats['min_mm'] * 1e-3,
+                      max=stats['max_mm'] * 1e-3)
+
+
+def main(args=None) -> None:
+    spin.run(KinematicIdentifier, args, threads=2)
+
+
+if __name__ == '__main__':
+    main()

@@ -1,0 +1,188 @@
+"""Kinematic calibration data: one folder per collection, the plan and an append-only log.
+
+Layout under a root directory::
+
+    <root>/kinematic_data/<id>/collection.yaml   metadata and the plan, rewritten atomically
+    <root>/kinematic_data/<id>/rows.csv          one line per planned pose, appended + fsynced
+
+A row is a pose the robot was sent to: ``ok`` with the averaged joints [rad] (and, for a laser
+tracker collection, the measured position [m] in the tracker frame), or ``skipped`` with why
+(unreachable, not coupled). A crash loses at most the row in flight; the collection resumes at
+the first planned index without a row. One writer per collection is assumed.
+"""
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+import math
+from pathlib import Path
+import time
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+import yaml
+
+from cobot_calib_ros.store.files import (append_line, atomic_write_text, check_id, ensure_dir,
+                                         fsync_dir, read_lines, to_plain, WarningLog)
+
+Array = NDArray[np.float64]
+SOURCES = ('spheres', 'laser_tracker')
+STATUSES = ('running', 'done', 'aborted')
+CSV_HEADER = 'index,target,status,sample_count,std_max_rad,q_rad...,p_m...,note'
+META_KEYS = ('id', 'source', 'robot', 'joint_names', 'targets', 'plan', 'status', 'created_ns')
+
+
+@dataclass(frozen=True)
+class Collection:
+    """A stored collection, rebuilt from disk."""
+
+    meta: dict[str, Any]
+    index: NDArray[np.int64]    # (m,) plan index of each ok row
+    target: NDArray[np.int64]   # (m,) index into meta['targets'] (sphere), -1 for the tracker
+    q: Array                    # (m, n) averaged joints [rad]
+    p: Array                    # (m, 3) tracker measurement [m]; NaN for sphere rows
+    skipped: dict[int, str]     # plan index -> why
+
+    @property
+    def next_index(self) -> int:
+        """First plan index with no row (ok or skipped): where a resume starts."""
+        done = set(self.index.tolist()) | set(self.skipped)
+        return next((i for i in range(len(self.meta['plan'])) if i not in done),
+                    len(self.meta['plan']))
+
+
+def _problem(meta: Mapping[str, Any], collection_id: str) -> str:
+    missing = [k for k in META_KEYS if k not in meta]
+    if missing:
+        return f'missing keys {missing}'
+    if meta['id'] != collection_id:
+        return f'id {meta["id"]!r} does not match the folder name'
+    if meta['source'] not in SOURCES or meta['status'] not in STATUSES:
+        return f'bad source {meta["source"]!r} or status {meta["status"]!r}'
+    n = len(meta['joint_names'])
+    if not all(isinstance(step, Mapping) and len(step.get('q', ())) == n
+               for step in meta['plan']):
+        return f'every plan step needs q with {n} joint positions'
+    return ''
+
+
+class CollectionStore(WarningLog):
+    def __init__(self, root: Path) -> None:
+        super().__init__()
+        self.directory = Path(root) / 'kinematic_data'
+        self._meta: dict[str, dict[str, Any]] = {}   # written or read by this store
+
+    def create(self, collection_id: str, *, source: str, robot: str,
+               joint_names: Sequence[str], targets: Sequence[str],
+               plan: Sequence[Mapping[str, Any]],
+               extra: Mapping[str, Any] | None = None) -> dict[str, Any]:
+        """Start a 'running' collection; plan steps are mappings with 'q' [rad] and 'target'
+        (an index into ``targets``, -1 for none). FileExistsError if the id is taken."""
+        if source not in SOURCES:
+            raise ValueError(f'source must be one of {SOURCES}, got {source!r}')
+        now = time.time_ns()
+        meta = {**to_plain(dict(extra or {})), 'id': check_id(collection_id),
+                'source': source, 'robot': robot, 'joint_names': list(joint_names),
+                'targets': list(targets), 'plan': to_plain(list(plan)), 'status': 'running',
+                'created_ns': now, 'updated_ns': now}
+        problem = _problem(meta, collection_id)
+        if problem:
+            raise ValueError(f'invalid collection: {problem}')
+        ensure_dir(self.directory)
+        folder = self.directory / collection_id
+        folder.mkdir()
+        fsync_dir(self.directory)
+        atomic_write_text(folder / 'rows.csv', CSV_HEADER + '\n')
+        self._write_meta(meta)   # last: a folder without collection.yaml is an aborted create
+        return meta
+
+    def append(self, collection_id: str, index: int, target: int, q: Array | None, *,
+               sample_count: int = 0, std_max: float = math.nan,
+               p: Array | None = None, note: str = '') -> None:
+        """Log one pose durably: joints ``q`` [rad] (None: skipped, ``note`` says why)."""
+        n = len(self.meta(collection_id)['joint_names'])
+        status = 'skipped' if q is None else 'ok'
+        q_values = [math.nan] * n if q is None else [float(v) for v in q]
+        if len(q_values) != n or (q is not None and not all(map(math.isfinite, q_values))):
+            raise ValueError(f'need {n} finite joint positions [rad], got {q_values}')
+        p_values = [math.nan] * 3 if p is None else [float(v) for v in p]
+        fields = [index, target, status, sample_count, float(std_max), *q_values, *p_values,
+                  note.replace(',', ';').replace('\n', ' ')]
+        append_line(self.directory / collection_id / 'rows.csv',
+                    ','.join(repr(f) if isinstance(f, float) else str(f) for f in fields)
+                    + '\n', CSV_HEADER)
+
+    def meta(self, collection_id: str) -> dict[str, Any]:
+        meta = self._meta.get(collection_id) or self._read_meta(check_id(collection_id))
+        if meta is None:
+            raise ValueError(f'collection {collection_id!r} is missing or unreadable: '
+                             f'{"; ".join(self.warnings[-1:])}')
+        return meta
+
+    def set_status(self, collection_id: str, status: str) -> dict[str, Any]:
+        if status not in STATUSES:
+            raise ValueError(f'status must be one of {STATUSES}, got {status!r}')
+        meta = {**self.meta(collection_id), 'status': status, 'updated_ns': time.time_ns()}
+        self._write_meta(meta)
+        return meta
+
+    def load(self, collection_id: str) -> Collection | None:
+        """The collection with its rows, or None if unreadable (see ``warnings``)."""
+        meta = self._read_meta(check_id(collection_id))
+        if meta is None:
+            return None
+        n = len(meta['joint_names'])
+        ok: dict[int, tuple[int, list[float], list[float]]] = {}
+        skipped: dict[int, str] = {}
+        path = self.directory / collection_id / 'rows.csv'
+        for number, line in read_lines(path, CSV_HEADER, self):
+            parts = line.split(',')
+            try:
+                index, target, status = int(parts[0]), int(parts[1]), parts[2]
+                values = [float(v) for v in parts[5:5 + n + 3]]
+                if len(values) != n + 3 or len(parts) != 5 + n + 3 + 1:
+                    raise ValueError('wrong number of fields')
+            except (ValueError, IndexError) as exc:
+                self._warn(f'{path}:{number}: ignored line ({exc})')
+                continue
+            if status == 'ok':
+                ok[index] = (target, values[:n], values[n:])
+                skipped.pop(index, None)
+            else:
+                skipped[index] = parts[-1]
+                ok.pop(index, None)
+        order = sorted(ok)
+        return Collection(
+            meta, np.array(order, dtype=np.int64),
+            np.array([ok[i][0] for i in order], dtype=np.int64),
+            np.array([ok[i][1] for i in order], dtype=float).reshape(-1, n),
+            np.array([ok[i][2] for i in order], dtype=float).reshape(-1, 3), skipped)
+
+    def list_collections(self) -> list[dict[str, Any]]:
+        """Metadata of every readable collection, newest first."""
+        if not self.directory.is_dir():
+            return []
+        metas = [m for m in (self._read_meta(p.name) for p in sorted(self.directory.iterdir())
+                             if p.is_dir()) if m is not None]
+        return sorted(metas, key=lambda m: (m['created_ns'], m['id']), reverse=True)
+
+    def _write_meta(self, meta: dict[str, Any]) -> None:
+        atomic_write_text(self.directory / meta['id'] / 'collection.yaml',
+                          yaml.safe_dump(to_plain(meta), sort_keys=False))
+        self._meta[meta['id']] = meta
+
+    def _read_meta(self, collection_id: str) -> dict[str, Any] | None:
+        path = self.directory / collection_id / 'collection.yaml'
+        if not path.exists():
+            self._warn(f'{path.parent}: skipped, no collection.yaml (missing or aborted)')
+            return None
+        meta = self._read_mapping(path)
+        if meta is None:
+            return None
+        problem = _problem(meta, collection_id)
+        if problem:
+            self._warn(f'{path}: skipped, {problem}')
+            return None
+        self._meta[collection_id] = meta
+        return meta

@@ -1,0 +1,84 @@
+"""Kinematic calibrations: records like the user-frame ones, plus YAML and a calibrated URDF.
+
+Under ``<root>/kinematics``: ``<id>.json`` (the record, what the suite reads), ``<id>.yaml``
+(the same for people: the identified table as the paper's Table 6, validation figures) and
+``<id>.urdf`` (the calibrated model for MoveIt, RViz, robot_state_publisher). The active one
+(:class:`CalibrationStore` rules: chosen, else the newest non-retired) is what
+user_frame_solver and repeatability_trial use with ``kinematics: latest``.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from cobot_calib_ros.core.kinematics.model import Chain, KinematicModel
+from cobot_calib_ros.core.kinematics.urdf import calibrated_urdf
+from cobot_calib_ros.store.calibrations import CalibrationStore
+from cobot_calib_ros.store.files import atomic_write_text, to_plain
+
+NOMINAL = 'nominal'
+LATEST = 'latest'
+
+
+class KinematicStore(CalibrationStore):
+    def __init__(self, root: Path) -> None:
+        super().__init__(root, 'kinematics')
+
+    def save_outcome(self, outcome, activate: bool = True) -> dict[str, Path]:
+        """Write the outcome's record (JSON), its YAML and URDF; make it active."""
+        record = to_plain(outcome.record)
+        result = record['result']
+        paths = {'yaml': self.directory / f'{record["id"]}.yaml',
+                 'urdf': self.directory / f'{record["id"]}.urdf'}
+        json_path = self.save(record)    # creates the directory
+        atomic_write_text(paths['yaml'], yaml.safe_dump(_readable(record), sort_keys=False,
+                                                        width=100))
+        model = outcome.model
+        atomic_write_text(paths['urdf'], calibrated_urdf(
+            model, np.array(result['params']), np.array(result['tool_xyz']),
+            robot_name=f'{model.name}_calibrated'))
+        if activate:
+            self.activate(record['id'])
+        return {'json': json_path, **paths}
+
+    def resolve(self, choice: str) -> dict[str, Any] | None:
+        """The record ``choice`` names: 'latest' (the active one, None if there is none),
+        'nominal' (None) or an id (KeyError if not stored)."""
+        if choice in ('', NOMINAL):
+            return None
+        if choice == LATEST:
+            return self.active()
+        record = self.get(choice)
+        if record is None:
+            raise KeyError(f'no kinematic calibration {choice!r} in {self.directory}')
+        return record
+
+
+def chain_of(record: dict[str, Any] | None, model: KinematicModel, tool) -> Chain:
+    """The chain a record describes (the nominal one for None) with T_flange_tool ``tool``.
+
+    ValueError if the record is of another robot or its parameters do not fit the model.
+    """
+    if record is None:
+        return model.chain(tool=tool)
+    result = record['result']
+    if record.get('robot') != model.name or result['parameter_names'] != list(
+            model.parameter_names):
+        raise ValueError(f'kinematic calibration {record["id"]} is for robot '
+                         f'{record.get("robot")!r}, not {model.name!r}')
+    return model.chain(np.array(result['params'], dtype=float), tool=tool)
+
+
+def _readable(record: dict[str, Any]) -> dict[str, Any]:
+    """The record for people: no full parameter vector, the table as lines."""
+    result = dict(record['result'])
+    table = result.pop('table6', '')
+    result.pop('params', None)
+    result.pop('parameter_names', None)
+    result['identified'] = {name: {'value': value, 'std': std} for name, value, std in zip(
+        result.pop('free'), result.pop('values'), result.pop('std'))}
+    return {**{k: v for k, v in record.items() if k != 'result'}, 'result': result,
+            'table6': table.splitlines()}
