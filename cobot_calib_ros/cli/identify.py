@@ -13,13 +13,12 @@ from __future__ import annotations
 import contextlib
 import json
 from pathlib import Path
-import sys
 
 from cobot_calib_ros.api.identification import PAPER_RATIO_PERCENT
 from cobot_calib_ros.cli.common import EXIT_FAILED, EXIT_OK, EXIT_USAGE, fail, say
 
-MUKCA_PUBLISHED_MM = 0.2       # MUKCa paper: mean error after calibration on this robot
 CELLS = {'iiwa7': 'iiwa7_close', 'sawyer': 'sawyer_close'}
+MUKCA_PUBLISHED_MM = 0.2       # MUKCa paper: mean error after calibration
 
 
 def add_parser(subparsers):
@@ -43,6 +42,10 @@ def add_parser(subparsers):
     p.add_argument('--validation-configs', type=int, default=125,
                    help='laser-tracker configurations per validation set (0: none)')
     p.add_argument('--dry-run', action='store_true', help='identify and validate, store nothing')
+    p.add_argument('--urdf', default=None,
+                   help='MUKCa data: nominal URDF (default: iiwa14.urdf beside the data folder)')
+    p.add_argument('--ball', type=float, nargs=3, default=(0.0, 0.0, 0.04), metavar=('X', 'Y', 'Z'),
+                   help='MUKCa data: nominal ball centre in tool0 [m] (default 0 0 0.04)')
     p.add_argument('--attach', action='store_true',
                    help='use the suite running on ROS_DOMAIN_ID instead of starting one')
     p.add_argument('--json', action='store_true')
@@ -117,15 +120,34 @@ def _print(args, report: dict) -> None:
 
 
 def _mukca(args, folder: Path) -> int:
-    """Real MUKCa sphere-socket data: identify on two locations, evaluate on the third."""
+    """Real MUKCa sphere-socket data: identify on two locations, evaluate on the third, each in
+    turn (MUKCa's metric: mean distance of the ball centre from its socket's centroid)."""
     from cobot_calib_ros.core.kinematics.identification import sockets
+    from cobot_calib_ros.core.kinematics.urdf import model_from_urdf
+    urdf = Path(args.urdf) if args.urdf else folder.parent / 'iiwa14.urdf'
     try:
+        model = model_from_urdf(urdf.read_text(encoding='utf-8'), 'base_link', 'tool0',
+                                urdf.stem)
         data = sockets.load_socket_data(folder)
-        table = sockets.leave_one_location_out(data)
+        loo = sockets.leave_one_location_out(model, data, args.ball, solver=args.solver,
+                                             loss=args.loss)
+    except OSError as e:
+        return fail(f'{urdf}: {e.strerror}; give the nominal URDF with --urdf', EXIT_USAGE)
     except ValueError as e:
         return fail(f'{folder}: {e}', EXIT_FAILED)
+    report = {'robot': model.name, 'folds': [
+        {'held_out': f.location, 'free_parameters': len(f.free),
+         'mae_before_mm': f.before['mae_mm'], 'mae_after_mm': f.after['mae_mm'],
+         'max_after_mm': f.after['max_mm'], 'train_mae_after_mm': f.train_after['mae_mm']}
+        for f in loo.folds],
+        'mean_mae_before_mm': loo.mean_mae_mm_before, 'mean_mae_after_mm': loo.mean_mae_mm_after,
+        'mukca_published_mm': MUKCA_PUBLISHED_MM}
     if args.json:
-        print(json.dumps(table, indent=2, default=float))
+        print(json.dumps(report, indent=2))
         return EXIT_OK
-    print(json.dumps(table, indent=2, default=float), file=sys.stdout)
+    print(f'{model.name}: identify on two locations, MUKCa mean ball error on the third [mm]')
+    print(loo.table())
+    print(f'held-out mean {loo.mean_mae_mm_before:.3f} -> {loo.mean_mae_mm_after:.3f} mm '
+          f'(MUKCa published about {MUKCA_PUBLISHED_MM} mm on this robot, after removing '
+          'outliers)')
     return EXIT_OK

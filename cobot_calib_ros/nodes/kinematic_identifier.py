@@ -43,7 +43,8 @@ from cobot_calib_ros.store.kinematics import KinematicStore
 Collect, Identify = CollectSphereData, IdentifyKinematics
 MOVE_TIMEOUT = 60.0        # [s] for one move_to
 MAX_SKIPPED_IN_A_ROW = 20  # more unreachable poses in a row than this ends the collection
-CAPTURE_ATTEMPTS = 3
+CAPTURE_ATTEMPTS = 4
+CAPTURE_RETRY_PAUSE = 0.2    # [s], times the attempt: lets a starved stream recover
 
 
 def observations(collection: Collection):
@@ -274,6 +275,7 @@ class KinematicIdentifier(Node):
                 if attempt + 1 == CAPTURE_ATTEMPTS:
                     raise
                 self.get_logger().warning(f'capture_joints failed, trying again: {e}')
+                time.sleep(CAPTURE_RETRY_PAUSE * (attempt + 1))
 
     # -- identification -------------------------------------------------------------------
     def _on_identify(self, goal_handle):

@@ -6,7 +6,10 @@ The one place that strings the identification core together, used by the
 1. Algorithm 1 (:func:`find_redundant`) on the calibration configurations themselves picks the
    identifiable parameters among all but the first joint's (tied to the world frame) plus the
    tool centre, with a rigid base motion held in the Jacobian: relative data cannot see it and
-   the absolute objective fits it, so parameters equivalent to it go too;
+   the absolute objective fits it, so parameters equivalent to it go too. The tool centre is
+   always kept: where an arm parameter and the tool are redundant (the last joint's d against
+   tool_z), the difference is the coupling's mounting, and the arm stays nominal there, so
+   another tool on the same flange (the probe) does not inherit the coupling's offset;
 2. :func:`identify` with the chosen solver and loss;
 3. validation: absolute errors against laser-tracker sets, nominal against calibrated, as the
    paper's Table 5; each model registered to the tracker by its own best rigid fit (a relative
@@ -28,7 +31,7 @@ from cobot_calib_ros.core.kinematics.identification.identifiability import (
 from cobot_calib_ros.core.kinematics.identification.observations import (
     PositionObservations, SphereObservations)
 from cobot_calib_ros.core.kinematics.identification.parameters import (
-    default_candidates, ParameterSet, tool_kinematics)
+    default_candidates, ParameterSet, tool_kinematics, TOOL_NAMES)
 from cobot_calib_ros.core.kinematics.identification.solvers import (
     identify, IdentificationResult)
 from cobot_calib_ros.core.kinematics.identification.validation import (
@@ -101,7 +104,7 @@ class CalibrationJob:
         identifiability = find_redundant(
             model, self.data.q, self.tool_xyz0, candidates,
             excluded={name: BASE_ROW_REASON for name in base_row}, base_frame=True,
-            rank_rtol=ROUNDED_MODEL_RTOL if model.kind == 'origin' else None)
+            rank_rtol=ROUNDED_MODEL_RTOL if model.kind == 'origin' else None, keep=TOOL_NAMES)
         parameter_set = ParameterSet(model, identifiability.kept)
         result = identify(parameter_set, self.data, tool_xyz0=self.tool_xyz0,
                           solver=self.solver, loss=self.loss, objective=self.objective,
@@ -114,7 +117,8 @@ class CalibrationJob:
                       for region, data in self.validation.items()}
         free_values = parameter_set.values(result.params, result.tool_xyz)
         table = table6(model, result.params)
-        return Outcome(model, self._record(result, identifiability, free_values, validation, table),
+        return Outcome(model, self._record(result, identifiability, free_values, validation,
+                                           table),
                        result, identifiability, free_values, validation, table)
 
     def validate(self, result: IdentificationResult, data: PositionObservations) -> dict:

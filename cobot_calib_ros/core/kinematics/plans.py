@@ -16,8 +16,8 @@ from numpy.typing import NDArray
 
 from cobot_calib_ros.core import frames
 from cobot_calib_ros.core.cell import Cell
-from cobot_calib_ros.core.kinematics.identification.poses import sphere_pose_grid
-from cobot_calib_ros.core.kinematics.ik import solve_ik_with_restarts
+from cobot_calib_ros.core.kinematics.identification.poses import lock_joint, sphere_pose_grid
+from cobot_calib_ros.core.kinematics.ik import solve_ik, solve_ik_with_restarts
 from cobot_calib_ros.core.kinematics.model import fk, KinematicModel
 
 Array = NDArray[np.float64]
@@ -26,6 +26,8 @@ TRACKER_CONFIGS = 125          # the paper's validation set
 VOLUME_MARGIN = 0.05           # the volume reaches this far beyond the sphere centres [m]
 VOLUME_TILT = math.radians(20.0)   # largest tilt from the approach orientation in the volume
 WORKSPACE_MIN_Z = 0.05         # workspace configurations keep the coupling this high [m]
+REDUNDANT_JOINT = 2            # locked to realise the arm angle on 7-joint arms (poses.py)
+LEAN_DEG = (0.0, 10.0, -10.0, 20.0, -20.0)   # approach leans tried per sphere [deg]
 
 
 def even_subset(count: int, limit: int) -> NDArray[np.int64]:
@@ -44,11 +46,15 @@ def sphere_plan(cell: Cell, model: KinematicModel, max_configs: int = 0,
         raise ValueError(f'cell {cell.name!r} has no spheres: section; see '
                          'config/cells/iiwa7_close.yaml')
     chain = model.chain(tool=plate.coupling_offset)
-    R = frames.rpy_to_matrix(*plate.approach_rpy)
+    R0 = frames.rpy_to_matrix(*plate.approach_rpy)
     arm = angles_deg if model.chain().dof == 7 else (0.0,)
     steps, skipped = [], []
     for k, (name, centre) in enumerate(zip(plate.names, plate.centres_base())):
-        grid = sphere_pose_grid(chain, centre, R, cell.home, angles_deg=angles_deg,
+        R, home = _approach(chain, centre, R0, cell.home, angles_deg, arm)
+        if home is None:
+            skipped.append(f'{name}: the approach pose itself is unreachable')
+            continue
+        grid = sphere_pose_grid(chain, centre, R, home, angles_deg=angles_deg,
                                 arm_angles_deg=arm)
         for pose in grid:
             steps.append({'q': pose.q.tolist(), 'target': k,
@@ -57,6 +63,47 @@ def sphere_plan(cell: Cell, model: KinematicModel, max_configs: int = 0,
         skipped += [f'{name} rx{u.rx_deg:+.0f} ry{u.ry_deg:+.0f} rz{u.rz_deg:+.0f} '
                     f'arm{u.arm_deg:+.0f}: {u.message}' for u in grid.unreachable]
     return [steps[i] for i in even_subset(len(steps), max_configs)], skipped
+
+
+def _approach(chain, centre: Array, R0: Array, home: Array, angles_deg,
+              arm_deg) -> tuple[Array, Array | None]:
+    """The approach orientation for one sphere, and the grid's home pose on it.
+
+    ``R0`` leaned towards or away from the base by one of LEAN_DEG, whichever reaches the
+    most corners of the grid (every angle at its extremes); near spheres need the wrist to
+    lean out, far ones in (a quarter of the iiwa's grid is out of reach without it).
+    """
+    radial = np.array([centre[0], centre[1], 0.0])
+    axis = np.cross([0.0, 0.0, 1.0], radial / max(np.linalg.norm(radial), 1e-9))
+    extremes = (min(angles_deg), max(angles_deg))
+    corners = [(rx, ry, rz, a) for rx in extremes for ry in extremes for rz in extremes
+               for a in {min(arm_deg), max(arm_deg)}]
+    best = (-1, None, None)
+    for lean in LEAN_DEG:
+        R = frames.from_vector(np.r_[0.0, 0.0, 0.0, axis * math.radians(lean)])[:3, :3] @ R0
+        start = _home_on_sphere(chain, centre, R, home)
+        if start is None:
+            continue
+        grid = sphere_pose_grid(chain, centre, R, start, angles_deg=extremes, arm_angles_deg=
+                                tuple(sorted({min(arm_deg), max(arm_deg)})))
+        if len(grid) > best[0]:
+            best = (len(grid), R, start)
+        if len(grid) == len(corners):
+            break
+    return best[1] if best[1] is not None else R0, best[2]
+
+
+def _home_on_sphere(chain, centre: Array, R: Array, home: Array) -> Array | None:
+    """The approach pose on a sphere with the redundant joint at its home value: the grid's
+    reference and first seed (seeding every pose from the cell's home leaves a quarter of the
+    iiwa's grid unsolved)."""
+    T = frames.make_transform(R, centre)
+    if chain.dof == 7:
+        result = solve_ik(lock_joint(chain, REDUNDANT_JOINT, home[REDUNDANT_JOINT]), T,
+                          np.delete(home, REDUNDANT_JOINT))
+        return np.insert(result.q, REDUNDANT_JOINT, home[REDUNDANT_JOINT]) if result else None
+    result = solve_ik_with_restarts(chain, T, home, home)
+    return result.q if result else None
 
 
 def tracker_plan(cell: Cell, model: KinematicModel, region: str, count: int = TRACKER_CONFIGS,

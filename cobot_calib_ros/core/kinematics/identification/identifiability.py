@@ -68,7 +68,8 @@ def find_redundant(model: KinematicModel, q: ArrayLike, tool_xyz: ArrayLike,
                    candidates: tuple[str, ...],
                    excluded: dict[str, str] | None = None,
                    rank_rtol: float | None = None,
-                   base_frame: bool = False) -> Identifiability:
+                   base_frame: bool = False,
+                   keep: tuple[str, ...] = ()) -> Identifiability:
     """Run Algorithm 1 on the position Jacobian of ``candidates`` at the nominal model.
 
     q (m, n) [rad], tool centre ``tool_xyz`` (3,) [m] in the flange. ``excluded`` maps names
@@ -89,19 +90,33 @@ def find_redundant(model: KinematicModel, q: ArrayLike, tool_xyz: ArrayLike,
     priori, covers it; for origin (URDF) models the second joint's z, a translation along
     joint 1's axis, does not get caught otherwise. ``rank`` and ``condition_number`` then
     count the base columns (rank minus 6, so that len(kept) == rank).
+
+    ``keep`` (not in the paper): candidates never removed; a parameter redundant with one of
+    them goes instead. Used for the tool: the flange-side part of an arm/tool redundancy (the
+    last joint's d against tool_z) is then attributed to the tool, which is remounted for every
+    tool, and the arm keeps its nominal value there.
     """
     q = np.asarray(q, dtype=float)
     if q.ndim != 2 or not np.all(np.isfinite(q)):
         raise ValueError(f'q must be (m, n) finite joint angles [rad], got shape {q.shape}')
     excluded = dict(excluded or {})
-    names = list(candidates) + [n for n in excluded if n not in candidates]
-    p, J = ParameterSet(model, tuple(names)).positions_and_jacobian(None, tool_xyz, q)
-    J = J.reshape(-1, len(names))
-    fixed = base_motion_columns(p) if base_frame else np.empty((len(J), 0))
+    keep = tuple(keep)
+    unknown = [n for n in keep if n not in candidates]
+    if unknown:
+        raise ValueError(f'keep names {unknown} that are not candidates')
+    names = [n for n in candidates if n not in keep] + [n for n in excluded
+                                                        if n not in candidates]
+    p, J = ParameterSet(model, tuple(names) + keep).positions_and_jacobian(None, tool_xyz, q)
+    J = J.reshape(-1, len(names) + len(keep))
+    J, J_keep = J[:, :len(names)], J[:, len(names):]
+    fixed = np.hstack([base_motion_columns(p) if base_frame else np.empty((len(J), 0)),
+                       J_keep])
+
+    base_columns = fixed.shape[1] - len(keep)
 
     def rank_and_condition(columns: Array) -> tuple[int, float]:
         full = np.hstack([columns, fixed])
-        return (int(np.linalg.matrix_rank(full, rtol=rank_rtol)) - fixed.shape[1],
+        return (int(np.linalg.matrix_rank(full, rtol=rank_rtol)) - base_columns,
                 float(np.linalg.cond(full)))
 
     dropped = []
@@ -110,8 +125,10 @@ def find_redundant(model: KinematicModel, q: ArrayLike, tool_xyz: ArrayLike,
         before = rank_and_condition(J)[1]
         J, _ = np.delete(J, k, axis=1), names.pop(k)
         dropped.append(Dropped(name, reason, before, rank_and_condition(J)[1]))
+    if keep and rank_and_condition(J[:, :0])[0] < len(keep):
+        raise ValueError(f'the kept parameters {keep} are themselves redundant on these data')
     rank, condition = rank_and_condition(J)
-    while rank < J.shape[1]:
+    while rank - len(keep) < J.shape[1]:
         best, best_condition = -1, np.inf
         for k in range(J.shape[1]):
             trial_rank, c = rank_and_condition(np.delete(J, k, axis=1))
@@ -120,4 +137,4 @@ def find_redundant(model: KinematicModel, q: ArrayLike, tool_xyz: ArrayLike,
         J = np.delete(J, best, axis=1)
         dropped.append(Dropped(names.pop(best), REDUNDANT, condition, best_condition))
         condition = best_condition
-    return Identifiability(tuple(names), tuple(dropped), rank, condition)
+    return Identifiability(tuple(names) + keep, tuple(dropped), rank, condition)

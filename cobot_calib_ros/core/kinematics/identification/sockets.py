@@ -212,7 +212,8 @@ def leave_one_location_out(model: KinematicModel, data: SocketData, tool_xyz0: A
                            **identify_options) -> LeaveOneLocationOut:
     """For each location: identify on the others, evaluate MUKCa's metric on it.
 
-    The free parameters of a fold are those :func:`find_redundant` keeps among ``candidates``
+    The free parameters of a fold are those :func:`find_redundant` keeps (a rigid base motion
+    held, which relative data cannot see) among ``candidates``
     (default :func:`default_candidates`: all but the first joint's row, plus the tool/ball
     offset) on the training configurations at ``params0``/``tool_xyz0`` [m]. ``identify`` gets
     the training locations' SphereObservations (each socket its own sphere, the 0.050 m
@@ -229,7 +230,7 @@ def leave_one_location_out(model: KinematicModel, data: SocketData, tool_xyz0: A
     for held in data.locations:
         training = tuple(loc for loc in data.locations if loc != held)
         obs = data.observations(training)
-        kept = find_redundant(model, obs.q, t0, names, excluded).kept
+        kept = find_redundant(model, obs.q, t0, names, excluded, base_frame=True).kept
         result = identify(ParameterSet(model, kept), obs, tool_xyz0=t0, params0=p0,
                           **identify_options)
         folds.append(HeldOutLocation(
