@@ -9,7 +9,11 @@ tool_xyz, extra). Three forms:
   sqrt(w) (||c_a - c_b|| - D_ab) per known distance.
 - :class:`PairsObjective` (relative, the paper's eq 11 on chosen row pairs): same sphere ->
   p_i - p_j (3); spheres a != b with a known distance -> ||p_i - p_j|| - D_ab (1). Both are
-  independent of the base/world frame, so there are no nuisance unknowns.
+  independent of the base/world frame, so there are no nuisance unknowns. Where the pairs
+  hold every pair of a sphere's rows, those n(n-1)/2 difference residuals are replaced by the
+  n residuals sqrt(n) (p_i - mean p): the same sum of squares, gradient and Gauss-Newton
+  matrix (sum_{i<j} |p_i - p_j|^2 = n sum_i |p_i - mean p|^2), 3n rows instead of
+  3n(n-1)/2 (a robust loss then weighs rows instead of pairs).
 - :class:`AbsoluteObjective` (laser tracker): residuals T_world_base p_i - p_measured,i (3 per
   row) with the 6-dof T_world_base as nuisance, T = (Exp(w) R0, t), R0 from a rigid fit of the
   start model to the measurements, x holding (t [m], w [rad]).
@@ -168,31 +172,54 @@ class PairsObjective:
         same = s[:, 0] == s[:, 1]
         cross = ~same & np.isfinite(cross_D)
         self.same, self.cross, self.cross_D = pairs[same], pairs[cross], cross_D[cross]
+        self.same_count = len(self.same)
+        self.groups = []    # rows of spheres whose every pair is given: centroid residuals
+        for sphere in np.unique(s[same, 0]):
+            on_sphere = self.same[s[same, 0] == sphere]
+            rows = np.unique(on_sphere)
+            n = len(rows)
+            unique_pairs = np.unique(np.sort(on_sphere, axis=1), axis=0)
+            if n > 1 and len(unique_pairs) == len(on_sphere) == n * (n - 1) // 2:
+                self.groups.append(rows)
+        grouped = np.concatenate(self.groups) if self.groups else np.empty(0, np.intp)
+        self.same = self.same[~np.isin(self.same[:, 0], grouped)]
         self.skipped = int(len(pairs) - same.sum() - cross.sum())
-        if not len(self.same) and not len(self.cross):
+        if not self.same_count and not len(self.cross):
             raise ValueError('no usable pair: give pairs on the same sphere or between spheres '
                              'with a known distance')
         self.x0 = self.kin.x0
         self.nuisance_names: tuple[str, ...] = ()
-        self.residual_count = 3 * len(self.same) + len(self.cross)
+        # a group of n rows holds 3 (n - 1) independent differences
+        self.residual_count = 3 * (len(self.same) + len(grouped) - len(self.groups)) \
+            + len(self.cross)
+
+    def _centred(self, values: Array) -> list[Array]:
+        """sqrt(n) (v_i - mean v) over each complete group's rows, flattened per group."""
+        out = []
+        for rows in self.groups:
+            v = values[rows]
+            out.append((math.sqrt(len(rows)) * (v - v.mean(axis=0))).reshape(-1, *v.shape[2:]))
+        return out
 
     def residuals(self, x: Array) -> Array:
         p = self.kin.positions(x)
         d_same = p[self.same[:, 0]] - p[self.same[:, 1]]
         d_cross = p[self.cross[:, 0]] - p[self.cross[:, 1]]
-        return np.concatenate([d_same.ravel(), np.linalg.norm(d_cross, axis=1) - self.cross_D])
+        return np.concatenate([*(c.ravel() for c in self._centred(p)), d_same.ravel(),
+                               np.linalg.norm(d_cross, axis=1) - self.cross_D])
 
     def jacobian(self, x: Array) -> Array:
         p, Jp = self.kin(x)
+        J_groups = [c.reshape(-1, self.n_free) for c in self._centred(Jp)]
         J_same = (Jp[self.same[:, 0]] - Jp[self.same[:, 1]]).reshape(-1, self.n_free)
         d_cross = p[self.cross[:, 0]] - p[self.cross[:, 1]]
         u = d_cross / np.linalg.norm(d_cross, axis=1)[:, None]
         J_cross = np.einsum('kc,kcf->kf', u, Jp[self.cross[:, 0]] - Jp[self.cross[:, 1]])
-        return np.concatenate([J_same, J_cross])
+        return np.concatenate([*J_groups, J_same, J_cross])
 
     def solution(self, x: Array) -> tuple[Array, Array, dict]:
         params, tool = self.kin.full(x)
-        return params, tool, {'pairs_same_sphere': len(self.same),
+        return params, tool, {'pairs_same_sphere': self.same_count,
                               'pairs_known_distance': len(self.cross),
                               'pairs_skipped': self.skipped}
 
