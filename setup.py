@@ -5,7 +5,7 @@ from setuptools import find_packages, setup
 package_name = 'cobot_calib_ros'
 
 NODES = ['mock_robot', 'proximity_sensor', 'joint_state_monitor', 'user_frame_solver',
-         'repeatability_trial', 'kinematic_identifier']
+         'repeatability_trial', 'kinematic_identifier', 'mock_camera', 'landmark_detector']
 
 setup(
     name=package_name,

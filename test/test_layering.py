@@ -13,10 +13,10 @@ import pytest
 
 PACKAGE = Path(__file__).resolve().parents[1] / 'cobot_calib_ros'
 SIMULATION = 'cobot_calib_ros.sim'
-# The only modules that may use the simulation: itself, the node that stands in for a robot,
-# and `cobot-calib up`, which starts that node and checks its scenario first.
+# The only modules that may use the simulation: itself, the nodes that stand in for a robot
+# and its wrist camera, and `cobot-calib up`, which starts them and checks the scenario first.
 MAY_USE_SIMULATION = ('cobot_calib_ros.sim', 'cobot_calib_ros.nodes.mock_robot',
-                      'cobot_calib_ros.cli.up')
+                      'cobot_calib_ros.nodes.mock_camera', 'cobot_calib_ros.cli.up')
 
 
 def module_name(path: Path) -> str:

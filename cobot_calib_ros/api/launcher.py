@@ -19,7 +19,7 @@ import time
 from cobot_calib_ros import paths
 
 SUITE = ('mock_robot', 'joint_state_monitor', 'proximity_sensor', 'user_frame_solver',
-         'repeatability_trial', 'kinematic_identifier')
+         'repeatability_trial', 'kinematic_identifier', 'mock_camera', 'landmark_detector')
 PR_SET_PDEATHSIG = 1
 
 

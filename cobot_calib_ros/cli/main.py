@@ -20,6 +20,7 @@ VERBS = (
     'experiment_cmd',
     'report',
     'identify',
+    'record', 'bag', 'replay',      # bags (rosbag2): record, bag info, replay
     'detect',
 )
 

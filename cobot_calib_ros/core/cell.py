@@ -60,6 +60,8 @@ class Cell:
     layouts: tuple[str, ...]
     markers: tuple[Marker, ...]
     spheres: SpherePlate | None = None   # kinematic calibration plate, if the cell has one
+    camera: WristCamera | None = None    # the wrist camera, if the cell has one
+    landmarks: Landmarks | None = None   # fiducials on the table, if the cell has them
 
     def marker(self, name: str) -> Marker | None:
         return next((m for m in self.markers if m.name == name), None)
@@ -98,6 +100,63 @@ class SpherePlate:
         c = self.centres_plate
         return tuple((i, j, float(np.linalg.norm(c[i] - c[j])))
                      for i in range(len(c)) for j in range(i + 1, len(c)))
+
+
+@dataclass(frozen=True)
+class WristCamera:
+    """The wrist camera as configured: nominal hand-eye and intrinsics of the raw image."""
+
+    frame_id: str              # optical frame (x right, y down, z along the lens axis)
+    T_flange_optical: Array    # (4, 4) nominal hand-eye: the optical frame on the flange
+    width: int                 # [px]
+    height: int                # [px]
+    K: Array                   # (3, 3) [px]
+    D: Array                   # distortion coefficients (plumb_bob: k1 k2 p1 p2 k3)
+    distortion_model: str = 'plumb_bob'
+
+    def camera_model(self):
+        """core.landmarks.camera.CameraModel of these intrinsics (imports OpenCV)."""
+        from cobot_calib_ros.core.landmarks.camera import CameraModel
+        return CameraModel(self.width, self.height, self.K, self.D, self.distortion_model,
+                           self.frame_id)
+
+
+@dataclass(frozen=True)
+class Landmarks:
+    """Fiducials lying on the table: single markers and an optional ChArUco board.
+
+    Placements are (x, y, yaw) in the user frame [m, m, rad]: a marker's centre and the
+    direction of its x axis, the board's grid centre and the direction of its x axis (its
+    columns), both printed face up. Frames as core.landmarks: marker z out of the face (up),
+    board z into the board (down), board origin at the grid's top-left outer corner.
+    """
+
+    dictionary: str                                   # canonical cv2.aruco name
+    marker_length: float                              # [m]
+    markers: dict[int, tuple[float, float, float]]    # id -> (x, y, yaw)
+    board: str = ''                                   # ChArUco spec (targets.BoardSpec), '' none
+    board_pose: tuple[float, float, float] | None = None
+
+    def T_user_marker(self, marker_id: int, T_user_surface: Array | None = None) -> Array:
+        """(4, 4) marker frame in the user frame; ``T_user_surface``: the table surface at the
+        marker (its z and tilt), default the flat table (z = 0)."""
+        x, y, yaw = self.markers[marker_id]
+        return _on_surface(x, y, T_user_surface) @ frames.make_transform(frames.rot_z(yaw),
+                                                                         np.zeros(3))
+
+    def T_user_board(self, T_user_surface: Array | None = None) -> Array:
+        """(4, 4) board frame in the user frame (surface as for T_user_marker)."""
+        from cobot_calib_ros.core.landmarks.targets import BoardSpec
+        x, y, yaw = self.board_pose
+        width, height = BoardSpec.parse(self.board).size
+        face_up = frames.make_transform(frames.rot_z(yaw) @ frames.rot_x(math.pi), np.zeros(3))
+        return _on_surface(x, y, T_user_surface) @ face_up @ frames.make_transform(
+            np.eye(3), [-width / 2.0, -height / 2.0, 0.0])
+
+
+def _on_surface(x: float, y: float, T_user_surface: Array | None) -> Array:
+    return frames.make_transform(np.eye(3), [x, y, 0.0]) if T_user_surface is None \
+        else T_user_surface
 
 
 def tool_down_orientation(T_base_user: Array, axis: str = 'z') -> Array:
@@ -142,14 +201,14 @@ class CellReader:
         self.data: dict = doc[section]
 
     def fail(self, keys: tuple[str, ...], expected: str) -> CellFileError:
-        where = '.'.join((self.section, *keys))
+        where = '.'.join(str(k) for k in (self.section, *keys))
         return CellFileError(f'{self.path}:{self._line(keys)}: {where}: {expected}')
 
     def _line(self, keys: tuple[str, ...]) -> int:
         node, line = self._root, 1
         for key in (self.section, *keys):
             found = next((v for k, v in getattr(node, 'value', [])
-                          if isinstance(node, yaml.MappingNode) and k.value == key), None)
+                          if isinstance(node, yaml.MappingNode) and k.value == str(key)), None)
             if found is None:
                 break
             node, line = found, found.start_mark.line + 1
@@ -222,7 +281,8 @@ def load_cell(path: str | Path, layout: str | None = None) -> Cell:
         tool_offset=frames.from_xyz_rpy(r.vector('tool_offset', 'xyz', length=3),
                                         r.vector('tool_offset', 'rpy', length=3)),
         home=r.vector('home'), layout=chosen, layouts=tuple(layouts),
-        markers=_markers(r, chosen), spheres=_spheres(r))
+        markers=_markers(r, chosen), spheres=_spheres(r), camera=_camera(r),
+        landmarks=_landmarks(r))
 
 
 def _spheres(r: CellReader) -> SpherePlate | None:
@@ -256,3 +316,58 @@ def _markers(r: CellReader, layout: str) -> tuple[Marker, ...]:
         raise r.fail(('layouts', layout), 'expected a mapping of point name -> [x, y] [m]')
     return tuple(Marker(str(name), tuple(r.vector('layouts', layout, str(name), length=2)),
                         tuple(size)) for name in points)
+
+
+def _camera(r: CellReader) -> WristCamera | None:
+    if r.get('camera', default=None) is None:
+        return None
+    frame_id = r.name('camera', 'frame_id')
+    if check_frame_id(frame_id):
+        raise r.fail(('camera', 'frame_id'), check_frame_id(frame_id))
+    width, height = r.vector('camera', 'resolution', length=2)
+    if width != int(width) or height != int(height) or width <= 0 or height <= 0:
+        raise r.fail(('camera', 'resolution'), f'expected [width, height] in pixels, got '
+                     f'{[width, height]}')
+    fx, fy, cx, cy = r.vector('camera', 'intrinsics', length=4)
+    model = r.name('camera', 'distortion_model', default='plumb_bob')
+    D = r.vector('camera', 'distortion', default=[])
+    K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+    camera = WristCamera(frame_id, frames.from_xyz_rpy(
+        r.vector('camera', 'hand_eye', 'xyz', length=3),
+        r.vector('camera', 'hand_eye', 'rpy', length=3)), int(width), int(height), K, D, model)
+    try:
+        camera.camera_model()
+    except ValueError as e:
+        raise r.fail(('camera',), str(e)) from None
+    return camera
+
+
+def _landmarks(r: CellReader) -> Landmarks | None:
+    if r.get('landmarks', default=None) is None:
+        return None
+    from cobot_calib_ros.core.landmarks.targets import BoardSpec, canonical_dictionary_name
+    keys = ('landmarks',)
+    try:
+        dictionary = canonical_dictionary_name(r.name(*keys, 'dictionary'))
+    except ValueError as e:
+        raise r.fail((*keys, 'dictionary'), str(e)) from None
+    length = r.number(*keys, 'marker_length')
+    if not 0.001 < length < 1.0:
+        raise r.fail((*keys, 'marker_length'), f'expected a side length in metres, got {length}')
+    placements = r.get(*keys, 'markers', default={})
+    if not isinstance(placements, dict):
+        raise r.fail((*keys, 'markers'), 'expected a mapping of marker id -> [x, y, yaw]')
+    markers = {}
+    for key in placements:
+        if isinstance(key, bool) or not isinstance(key, int) or key < 0:
+            raise r.fail((*keys, 'markers'), f'marker ids are integers >= 0, got {key!r}')
+        markers[key] = tuple(float(v) for v in r.vector(*keys, 'markers', key, length=3))
+    board, pose = '', None
+    if r.get(*keys, 'board', default=None) is not None:
+        board = r.name(*keys, 'board', 'spec')
+        try:
+            BoardSpec.parse(board)
+        except ValueError as e:
+            raise r.fail((*keys, 'board', 'spec'), str(e)) from None
+        pose = tuple(float(v) for v in r.vector(*keys, 'board', 'pose', length=3))
+    return Landmarks(dictionary, length, markers, board, pose)

@@ -33,6 +33,18 @@ class Noise:
 
 
 @dataclass(frozen=True)
+class CameraTruth:
+    """The real wrist camera (``simulation: camera:``): true hand-eye and image quality;
+    sim.camera renders with it."""
+
+    T_flange_optical: Array              # (4, 4) true flange -> optical frame
+    noise_sigma: float = 1.5             # [grey levels]
+    blur_sigma: float = 0.6              # [px]
+    light_gradient: tuple[float, float] = (0.0, 0.0)  # gain change left->right, top->bottom [1]
+    vignetting: float = 0.0              # gain lost at the image corners [1]
+
+
+@dataclass(frozen=True)
 class Simulation:
     """Everything the mock robot knows and the calibration path must not."""
 
@@ -47,6 +59,7 @@ class Simulation:
     joint_states_hz: float
     probe_hz: float
     spheres: SphereTruth | None = None   # the sphere plate, if the cell has one
+    camera: CameraTruth | None = None    # the wrist camera, if the cell has one
 
     def true_parameters(self, model: KinematicModel) -> Array:
         """Nominal parameters plus the explicit and seeded random kinematic errors."""
@@ -101,7 +114,7 @@ def load_simulation(path: str | Path, layout: str | None = None) -> Simulation:
         world=world, noise=_noise(r), probe=_probe(r),
         joint_states_hz=r.number('rates', 'joint_states_hz', default=1000.0),
         probe_hz=r.number('rates', 'probe_hz', default=200.0),
-        spheres=_spheres(r, cell))
+        spheres=_spheres(r, cell), camera=_camera(r, cell))
 
 
 def _spheres(r: CellReader, cell: Cell) -> SphereTruth | None:
@@ -125,6 +138,25 @@ def _spheres(r: CellReader, cell: Cell) -> SphereTruth | None:
     return SphereTruth(frames.apply(T_plate, plate.centres_plate), coupling,
                        r.number(*keys, 'capture_radius', default=0.008),
                        r.number(*keys, 'compliance_sigma', default=3.0e-6), tracker)
+
+
+def _camera(r: CellReader, cell: Cell) -> CameraTruth | None:
+    """The real wrist camera; the nominal hand-eye where the file gives no truth."""
+    if cell.camera is None:
+        return None
+    keys = ('camera',)
+    if r.get(*keys, 'hand_eye_true', default=None) is None:
+        T = cell.camera.T_flange_optical
+    else:
+        T = frames.from_xyz_rpy(r.vector(*keys, 'hand_eye_true', 'xyz', length=3),
+                                r.vector(*keys, 'hand_eye_true', 'rpy', length=3))
+    defaults = CameraTruth(T)
+    return CameraTruth(
+        T, noise_sigma=r.number(*keys, 'noise_sigma', default=defaults.noise_sigma),
+        blur_sigma=r.number(*keys, 'blur_sigma', default=defaults.blur_sigma),
+        light_gradient=tuple(float(v) for v in r.vector(
+            *keys, 'light_gradient', length=2, default=list(defaults.light_gradient))),
+        vignetting=r.number(*keys, 'vignetting', default=defaults.vignetting))
 
 
 def _height_field(r: CellReader, rng: np.random.Generator) -> HeightField:

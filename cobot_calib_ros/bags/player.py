@@ -1,0 +1,312 @@
+"""bag_player: replay a bag's topics on rclpy, as ``ros2 bag play`` does.
+
+- Each topic is published with the QoS its recorded publishers offered, when they all offered
+  the same (reliability, durability, lifespan, deadline), as keep-last DEPTH (a recording says
+  ``history: unknown, depth: 0``, which rclpy refuses); otherwise reliable/volatile keep-last
+  DEPTH, and transient local for ``/tf_static`` so latched transforms stay latched.
+- Messages go out as the recorded serialized bytes (``Publisher.publish(bytes)``, rclpy's
+  publish_raw: no deserialisation; bench_bag measures it against deserialize+publish).
+- Timing follows the receive stamps scaled by ``rate``; ``rate`` 0 publishes as fast as the
+  loop goes. There is no back-pressure from a subscriber's application to be had: with Fast DDS
+  a reliable writer's acknowledgements arrive once per heartbeat period (3 s here, so waiting
+  for them every few hundred messages plays slower than real time), and they only say the
+  sample reached the reader's history, which a slow subscriber then overwrites (keep-last) all
+  the same; a publisher with keep-all history did not block either (measured). A subscriber
+  that must see every message at rate 0 needs a history as deep as the bag, or a finite rate.
+- Before starting it waits, up to ``wait_subscribers`` seconds, until every topic has a
+  subscriber matched to its publisher (and every subscriber the graph knows of is matched):
+  a publisher needs 0.02-3.5 s to match one in another process here, and messages sent before
+  are lost. After the last message it waits for reliable subscribers' acknowledgements, or the
+  last messages would be lost when the process ends.
+- ``clock_hz``: publishes /clock (rosgraph_msgs/Clock) from the recorded stamps at that rate of
+  wall time, never going back within a pass (a loop starts over from the first stamp, as
+  rosbag2 does). ``loop``; ``topics`` to play a subset; ``start_paused`` waits for a call to
+  ``~/resume`` (std_srvs/Trigger); ``~/pause`` pauses again.
+
+The node's services are served by a SingleThreadedExecutor on its own thread (``spinning``);
+play() runs on the caller's thread.
+"""
+from __future__ import annotations
+
+import contextlib
+from dataclasses import dataclass
+import threading
+import time
+from typing import Callable, Iterable
+
+from rclpy.duration import Duration
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rosbags.interfaces import Qos, QosDurability, QosReliability
+from rosgraph_msgs.msg import Clock
+from std_srvs.srv import Trigger
+
+from cobot_calib_ros.bags.errors import BagError
+from cobot_calib_ros.bags.metadata import duration_ns
+from cobot_calib_ros.bags.reader import Bag
+from cobot_calib_ros.ros.time import ns_to_stamp
+
+NODE_NAME = 'bag_player'
+DEPTH = 1000                 # keep-last depth of every replay publisher
+CLOCK_HZ = 40.0              # rosbag2's default /clock rate
+FINAL_ACK_TIMEOUT = 5.0      # [s] after the last message (Fast DDS acknowledges once per
+                             # 3 s heartbeat period)
+LATCHED_TOPICS = ('/tf_static',)
+SPIN_PERIOD = 0.05           # [s]
+NS_PER_S = 1_000_000_000
+
+
+def replay_qos(topic: str, offered: list[Qos], depth: int = DEPTH) -> QoSProfile:
+    """The profile to publish a recorded topic with (see the module doc)."""
+    profile = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth,
+                         reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.VOLATILE)
+    same = {(p.reliability, p.durability, p.deadline, p.lifespan) for p in offered}
+    if len(same) == 1:
+        p = offered[0]
+        if p.reliability == QosReliability.BEST_EFFORT:
+            profile.reliability = ReliabilityPolicy.BEST_EFFORT
+        if p.durability == QosDurability.TRANSIENT_LOCAL:
+            profile.durability = DurabilityPolicy.TRANSIENT_LOCAL
+        for name, value in (('deadline', p.deadline), ('lifespan', p.lifespan)):
+            ns = duration_ns(value)
+            if ns is not None:
+                setattr(profile, name, Duration(nanoseconds=ns))
+    elif topic in LATCHED_TOPICS:
+        profile.durability = DurabilityPolicy.TRANSIENT_LOCAL
+    return profile
+
+
+@dataclass
+class PlayResult:
+    published: int = 0               # messages published (all passes)
+    passes: int = 0                  # complete passes over the bag
+    wall_s: float = 0.0              # [s] from the first message to the last of the last
+                                     # pass, paused time left out
+    bag_s: float = 0.0               # [s] of recorded time played (all passes)
+    unacknowledged: tuple = ()       # topics whose subscribers did not acknowledge at the end
+
+    @property
+    def speed(self) -> float:
+        """Recorded time played per wall time (the real-time factor)."""
+        return self.bag_s / self.wall_s if self.wall_s > 0 else float('inf')
+
+
+class BagPlayer(Node):
+    """Publishes a bag's messages; see the module doc."""
+
+    def __init__(self, bag: Bag, *, rate: float = 1.0, loop: bool = False,
+                 topics: Iterable[str] | None = None, clock_hz: float | None = None,
+                 start_paused: bool = False, wait_subscribers: float = 2.0,
+                 depth: int = DEPTH, report: Callable[[str], None] | None = None,
+                 node_name: str = NODE_NAME, **node_kwargs) -> None:
+        if rate < 0:
+            raise ValueError('rate must be >= 0 (0: as fast as possible)')
+        self.bag = bag
+        self.topics = bag.select(topics)
+        if not self.topics or not sum(bag.topics[t].count for t in self.topics):
+            which = ' on ' + ', '.join(self.topics) if topics is not None else ''
+            raise BagError(f'{bag.path}: no messages{which} to replay')
+        classes = {t: _message_class(bag, t) for t in self.topics}
+        super().__init__(node_name, start_parameter_services=False, **node_kwargs)
+        self.rate = rate
+        self.loop = loop
+        self.clock_period_ns = int(NS_PER_S / clock_hz) if clock_hz else 0
+        self.wait_subscribers = wait_subscribers
+        self.report = report or self.get_logger().info
+        self.publishers_by_topic = {
+            t: self.create_publisher(classes[t], t, replay_qos(t, bag.topics[t].offered_qos,
+                                                               depth))
+            for t in self.topics}
+        self._reliable = [p for p in self.publishers_by_topic.values()
+                          if p.qos_profile.reliability == ReliabilityPolicy.RELIABLE]
+        self._clock_pub = (self.create_publisher(Clock, '/clock', 10) if clock_hz else None)
+        self._last_clock_ns = -1
+        self._next_clock_wall = 0
+        self._paused = threading.Event()
+        if start_paused:
+            self._paused.set()
+        self._stop = threading.Event()
+        self.create_service(Trigger, '~/resume', self._on_resume)
+        self.create_service(Trigger, '~/pause', self._on_pause)
+
+    # -- services -------------------------------------------------------------------------------
+
+    def _on_resume(self, request, response):
+        response.success = self._paused.is_set()
+        response.message = 'resumed' if response.success else 'was not paused'
+        self._paused.clear()
+        return response
+
+    def _on_pause(self, request, response):
+        response.success = not self._paused.is_set()
+        response.message = 'paused' if response.success else 'already paused'
+        self._paused.set()
+        return response
+
+    def stop(self) -> None:
+        """Ends play() from another thread."""
+        self._stop.set()
+
+    @property
+    def paused(self) -> bool:
+        return self._paused.is_set()
+
+    # -- playing --------------------------------------------------------------------------------
+
+    def wait_for_subscribers(self) -> list[str]:
+        """Wait (up to wait_subscribers s) until every topic has a matched subscriber and every
+        subscriber the graph shows is matched; the topics still without one."""
+        deadline = time.monotonic() + self.wait_subscribers
+        while True:
+            missing = [t for t, p in self.publishers_by_topic.items()
+                       if p.get_subscription_count() < max(1, self.count_subscribers(t))]
+            if not missing or time.monotonic() >= deadline or self._stop.is_set():
+                return missing
+            time.sleep(0.02)
+
+    def play(self) -> PlayResult:
+        """Wait for subscribers (and for ~/resume if paused), then publish; returns when the
+        bag is played (every pass with loop: only stop() or Ctrl-C end it)."""
+        missing = self.wait_for_subscribers()
+        if missing and self.wait_subscribers > 0:
+            self.report(f'no subscriber matched within {self.wait_subscribers:g} s on: '
+                        + ', '.join(missing) + '; playing anyway')
+        if self._paused.is_set():
+            self.report(f'paused: call {self.get_fully_qualified_name()}/resume '
+                        '(std_srvs/srv/Trigger) to start')
+        result = PlayResult()
+        started = None
+        while not self._stop.is_set():
+            first_wall = self._play_pass(result)
+            started = started if started is not None else first_wall
+            if first_wall is None:          # nothing was published (stopped)
+                break
+            result.passes += 1
+            if not self.loop:
+                break
+        if started is not None:
+            result.wall_s = (self._last_publish_wall - started - self._paused_ns) / NS_PER_S
+        result.unacknowledged = self._wait_acknowledged(FINAL_ACK_TIMEOUT)
+        return result
+
+    def _play_pass(self, result: PlayResult) -> int | None:
+        """One pass over the bag; the wall time [ns] of its first message (None if stopped
+        before one)."""
+        rate = self.rate
+        first_stamp = base_wall = first_wall = None
+        self._last_clock_ns = -1
+        previous = None
+        publishers = self.publishers_by_topic
+        for message in self.bag.messages(self.topics):
+            if self._stop.is_set():
+                break
+            stamp = message.timestamp_ns
+            if self._paused.is_set():
+                held = self._hold(previous if previous is not None else stamp)
+                if base_wall is not None:
+                    base_wall += held
+            now = time.monotonic_ns()
+            if first_stamp is None:
+                first_stamp, base_wall = stamp, now
+            while rate > 0 and not self._stop.is_set():
+                target = base_wall + int((stamp - first_stamp) / rate)
+                if now >= target - 100_000:             # 0.1 ms early at most: no spin-wait
+                    break
+                if self._paused.is_set():
+                    base_wall += self._hold(previous if previous is not None else stamp)
+                else:
+                    self._tick_clock(now, first_stamp + int((now - base_wall) * rate), stamp)
+                    time.sleep(min(target - now, self._clock_sleep(now), 50_000_000) / NS_PER_S)
+                now = time.monotonic_ns()
+            if self._stop.is_set():
+                break
+            if self._clock_pub is not None:
+                self._tick_clock(time.monotonic_ns(), stamp, stamp)
+            publishers[message.topic].publish(message.rawdata)
+            self._last_publish_wall = time.monotonic_ns()
+            if first_wall is None:
+                first_wall = self._last_publish_wall
+            result.published += 1
+            if previous is not None and stamp > previous:
+                result.bag_s += (stamp - previous) / NS_PER_S
+            previous = stamp
+        return first_wall
+
+    def _hold(self, stamp: int) -> int:
+        """While paused: keep /clock at ``stamp``; the wall time [ns] spent paused."""
+        start = time.monotonic_ns()
+        while self._paused.is_set() and not self._stop.is_set():
+            now = time.monotonic_ns()
+            self._tick_clock(now, stamp, stamp)
+            time.sleep(min(0.05, self._clock_sleep(now) / NS_PER_S))
+        held = time.monotonic_ns() - start
+        if self._last_publish_wall:
+            self._paused_ns += held                 # after the first message: not playing
+        return held
+
+    def _clock_sleep(self, now: int) -> int:
+        if self._clock_pub is None:
+            return 50_000_000
+        return max(0, self._next_clock_wall - now)
+
+    def _tick_clock(self, now: int, playback_ns: int, cap_ns: int) -> None:
+        """Publish /clock when one is due: the playback time, capped at the next message's
+        stamp and never below the last one sent."""
+        if self._clock_pub is None or now < self._next_clock_wall:
+            return
+        value = max(self._last_clock_ns, min(playback_ns, cap_ns))
+        self._last_clock_ns = value
+        self._next_clock_wall = now + self.clock_period_ns
+        self._clock_pub.publish(Clock(clock=ns_to_stamp(value)))
+
+    def _wait_acknowledged(self, timeout: float) -> tuple:
+        """Wait for reliable subscribers' acknowledgements; the topics still waiting."""
+        late = []
+        for publisher in self._reliable:
+            if publisher.get_subscription_count() and not publisher.wait_for_all_acked(
+                    Duration(nanoseconds=int(timeout * NS_PER_S))):
+                late.append(publisher.topic_name)
+        return tuple(late)
+
+    _last_publish_wall = 0
+    _paused_ns = 0
+
+
+def _message_class(bag: Bag, topic: str):
+    from cobot_calib_ros.api.client import import_type
+    msgtype = bag.topics[topic].type
+    try:
+        return import_type(msgtype)
+    except ValueError as exc:
+        raise BagError(f'{bag.path}: cannot replay {topic}: {exc}; leave the topic out '
+                       '(--topics)') from None
+
+
+@contextlib.contextmanager
+def spinning(node: Node):
+    """Serve ``node``'s services on a SingleThreadedExecutor thread while the block runs."""
+    executor = SingleThreadedExecutor(context=node.context)
+    executor.add_node(node)
+    running = threading.Event()
+    running.set()
+
+    def spin() -> None:
+        while running.is_set() and node.context.ok():
+            try:
+                executor.spin_once(timeout_sec=SPIN_PERIOD)
+            except Exception:  # noqa: BLE001 - the context went down under us
+                if running.is_set() and node.context.ok():
+                    raise
+                return
+
+    thread = threading.Thread(target=spin, daemon=True, name='bag_player_services')
+    thread.start()
+    try:
+        yield executor
+    finally:
+        running.clear()
+        thread.join(timeout=2.0)
+        if not thread.is_alive():
+            executor.shutdown(timeout_sec=1.0)

@@ -1,0 +1,106 @@
+"""`cobot-calib replay BAG`: publish a bag's messages, like `ros2 bag play`.
+
+Each topic goes out with the QoS it was recorded with (keep-last 1000), as the recorded
+bytes, timed by the recorded receive stamps scaled by --rate (0 or max: as fast as possible;
+DDS gives no back-pressure, so a subscriber slower than that loses what overflows its
+history). Before starting it waits up to --wait-subscribers seconds until every topic has a
+matched subscriber; after the last message, until reliable subscribers acknowledged it.
+"""
+from __future__ import annotations
+
+import sys
+
+from cobot_calib_ros.cli.common import EXIT_OK, EXIT_USAGE, fail
+
+EXIT_INTERRUPTED = 130
+NODE_NAME = 'bag_player'
+
+
+def _rate(text: str) -> float:
+    import argparse
+    if text.strip().lower() == 'max':
+        return 0.0
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'not a rate: {text!r} (a factor like 2, or max)') \
+            from None
+    if not value >= 0:
+        raise argparse.ArgumentTypeError('rate must be >= 0 (0 or max: as fast as possible)')
+    return value
+
+
+def add_parser(subparsers):
+    p = subparsers.add_parser('replay', help='publish a bag\'s messages, like ros2 bag play',
+                              description=__doc__ + ' Uses the exported ROS_DOMAIN_ID.')
+    p.add_argument('bag', metavar='BAG', help='bag directory, or a .mcap/.db3 file')
+    p.add_argument('--rate', type=_rate, default=1.0, metavar='R',
+                   help='speed factor (default 1); 0 or max: as fast as possible')
+    p.add_argument('--loop', action='store_true', help='start over at the end, until Ctrl-C')
+    p.add_argument('--topics', nargs='+', metavar='TOPIC', help='play only these topics')
+    p.add_argument('--clock', nargs='?', type=float, const=40.0, default=None, metavar='HZ',
+                   help='publish /clock from the recorded stamps, HZ times per second of wall '
+                        'time (default 40)')
+    p.add_argument('--start-paused', action='store_true',
+                   help=f'wait for a call to /{NODE_NAME}/resume (std_srvs/srv/Trigger)')
+    p.add_argument('--wait-subscribers', type=float, default=2.0, metavar='SECONDS',
+                   help='longest wait for subscribers to match before playing (default 2)')
+    return p
+
+
+def run(args) -> int:
+    if args.clock is not None and not args.clock > 0:
+        return fail('replay: --clock HZ must be > 0', EXIT_USAGE)
+    if args.wait_subscribers < 0:
+        return fail('replay: --wait-subscribers must be >= 0', EXIT_USAGE)
+    from cobot_calib_ros.bags.errors import BagError
+    from cobot_calib_ros.bags.reader import open_bag
+    try:
+        bag = open_bag(args.bag)
+    except BagError as exc:
+        return fail(f'replay: {exc}')
+    with bag:
+        for warning in bag.warnings:
+            print(f'warning: {warning}', file=sys.stderr, flush=True)
+        return _replay(bag, args)
+
+
+def _replay(bag, args) -> int:
+    import rclpy
+    from rclpy.signals import SignalHandlerOptions
+
+    from cobot_calib_ros.bags.errors import BagError
+    from cobot_calib_ros.bags.player import BagPlayer, spinning
+
+    def say(text: str) -> None:
+        print(text, flush=True)
+
+    rclpy.init(args=None, signal_handler_options=SignalHandlerOptions.NO)
+    player = None
+    try:
+        player = BagPlayer(bag, rate=args.rate, loop=args.loop, topics=args.topics,
+                           clock_hz=args.clock, start_paused=args.start_paused,
+                           wait_subscribers=args.wait_subscribers, report=say)
+        count = sum(bag.topics[t].count for t in player.topics)
+        speed = 'as fast as possible' if args.rate == 0 else f'at {args.rate:g}x'
+        say(f'replaying {bag.path}: {count} messages on {len(player.topics)} topics, '
+            f'{bag.duration_ns / 1e9:.3f} s recorded, {speed}'
+            + (', looping' if args.loop else '') + ' (Ctrl-C to stop)')
+        with spinning(player):
+            try:
+                result = player.play()
+            except KeyboardInterrupt:
+                player.stop()
+                return fail('replay interrupted', EXIT_INTERRUPTED)
+        say(f'published {result.published} messages in {result.wall_s:.3f} s '
+            f'({result.speed:.2f}x real time)')
+        if result.unacknowledged:
+            return fail('replay: subscribers did not acknowledge the last messages on '
+                        + ', '.join(result.unacknowledged))
+        return EXIT_OK
+    except BagError as exc:
+        return fail(f'replay: {exc}')
+    finally:
+        if player is not None:
+            player.destroy_node()
+        rclpy.try_shutdown()

@@ -1,0 +1,134 @@
+"""mock_camera: stands in for the wrist camera's driver (simulation only, like mock_robot).
+
+Renders (sim.camera.SimCamera) what the camera on the TRUE robot sees of the cell's fiducials at
+the joints of the latest ``joint_states`` and publishes ``wrist_camera/image_raw`` (mono8,
+frame_id the cell's camera frame, stamped with the node clock) and ``wrist_camera/camera_info``
+(the cell's nominal intrinsics, plumb_bob) at ``rate_hz``, sensor-data QoS. It shares no memory
+with mock_robot: it loads the same cell file and builds the same true robot (same seed), and
+follows the arm through joint_states. Those come at 1 kHz and a frame needs only the newest:
+they go to a depth-1 subscription of a hidden helper node that no executor spins, and each
+frame takes the newest one from it (handling all 1 kHz in callbacks cost 30 % of a core). A
+cell without a camera (cell: camera:, landmarks:) leaves the node idle, WARN on /diagnostics.
+
+Parameters (read at start-up): cell_file, rate_hz (default 10), width and height (0: the
+cell's resolution; another one scales the lens to it, e.g. 1280 x 800).
+
+/diagnostics (1 Hz): ``published`` frames, ``render_ms_mean`` over the last second; WARN while
+no joint_states have arrived (nothing is published then).
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+from rclpy.node import Node
+from rclpy.qos import qos_profile_sensor_data, QoSProfile
+from rclpy.serialization import deserialize_message
+from sensor_msgs.msg import CameraInfo, Image, JointState
+
+from cobot_calib_ros import paths
+from cobot_calib_ros.ros import spin
+from cobot_calib_ros.ros.diagnostics import Diagnostics, OK, WARN
+from cobot_calib_ros.ros.images import gray_to_image, model_to_camera_info
+from cobot_calib_ros.ros.params import read_once
+from cobot_calib_ros.sim.camera import scaled_camera, SimCamera
+from cobot_calib_ros.sim.robot import SimRobot
+from cobot_calib_ros.sim.scenario import load_simulation
+
+LATEST_ONLY = QoSProfile(depth=1, reliability=qos_profile_sensor_data.reliability)
+
+
+class MockCamera(Node):
+    def __init__(self, **kwargs) -> None:
+        super().__init__('mock_camera', **kwargs)
+        cell_file = read_once(self, 'cell_file', 'sawyer_close',
+                              'Cell scenario YAML (cell: camera/landmarks, simulation: camera): '
+                              'a path or a name in config/cells')
+        rate = read_once(self, 'rate_hz', 10.0, 'Image rate [Hz]', 0.1, 200.0)
+        width = read_once(self, 'width', 0, "Image width [px]; 0 = the cell's (the lens "
+                          'is scaled to it, e.g. 1280 x 800)', 0, 10000)
+        height = read_once(self, 'height', 0, "Image height [px]; 0 = the cell's", 0, 10000)
+        sim = load_simulation(paths.cell_file(cell_file))
+        self._joints: bytes | None = None
+        self._published = 0
+        self._render_s: list[float] = []
+        self._diagnostics = Diagnostics(self, hardware_id='wrist_camera', update=self._diagnose)
+        self._camera = None
+        if sim.cell.camera is None or sim.cell.landmarks is None:
+            self.get_logger().warning(f'cell {sim.cell.name!r} has no camera or no landmarks '
+                                      '(cell: camera:, landmarks:); no images')
+            return
+        robot = SimRobot(sim)          # for its true chain only: same seed, same true robot
+        self._joint_names = list(robot.model.joint_names)
+        camera = sim.cell.camera.camera_model()
+        if width or height:
+            camera = scaled_camera(camera, width or camera.width, height or camera.height)
+        self._camera = SimCamera(sim, robot, camera)
+        self._frame_id = sim.cell.camera.frame_id
+        self._info = model_to_camera_info(self._camera.camera, self._frame_id)
+        self._image_pub = self.create_publisher(Image, 'wrist_camera/image_raw',
+                                                qos_profile_sensor_data)
+        self._info_pub = self.create_publisher(CameraInfo, 'wrist_camera/camera_info',
+                                               qos_profile_sensor_data)
+        self._poll = Node(f'_{self.get_name()}_joints', namespace=self.get_namespace(),
+                          context=self.context, start_parameter_services=False)
+        self._joint_sub = self._poll.create_subscription(JointState, 'joint_states',
+                                                         lambda _: None, LATEST_ONLY, raw=True)
+        self.create_timer(1.0 / rate, self._tick)
+        camera = self._camera.camera
+        self.get_logger().info(f'{camera.width}x{camera.height} px on {self._frame_id} at '
+                               f'{rate:g} Hz, {len(self._camera.targets)} fiducials')
+
+    def destroy_node(self):
+        if self._camera is not None:
+            self._poll.destroy_node()
+        return super().destroy_node()
+
+    def _positions(self) -> np.ndarray | None:
+        """The arm's joints [rad] from the newest joint_states, in the model's order."""
+        sub = self._joint_sub
+        with sub.handle:                # as an executor takes a message, but only the newest
+            taken = sub.handle.take_message(sub.msg_type, sub.raw)
+        if taken is not None:
+            self._joints = taken[0]
+        if self._joints is None:
+            return None
+        msg = deserialize_message(self._joints, JointState)
+        by_name = dict(zip(msg.name, msg.position))
+        if not all(n in by_name for n in self._joint_names):
+            self.get_logger().warning(f'joint_states lack joints of {self._joint_names}',
+                                      throttle_duration_sec=5.0)
+            return None
+        return np.array([by_name[n] for n in self._joint_names])
+
+    def _tick(self) -> None:
+        q = self._positions()
+        if q is None:
+            return
+        start = time.perf_counter()
+        image = self._camera.render(q)
+        self._render_s.append(time.perf_counter() - start)
+        stamp = self.get_clock().now().to_msg()
+        self._info.header.stamp = stamp
+        self._info_pub.publish(self._info)          # first: a detector needs it for the image
+        self._image_pub.publish(gray_to_image(image, self._frame_id, stamp))
+        self._published += 1
+
+    def _diagnose(self) -> None:
+        times, self._render_s = self._render_s, []
+        level, message = OK, 'publishing images'
+        if self._camera is None:
+            level, message = WARN, 'the cell has no camera or no landmarks: no images'
+        elif self._joints is None:
+            level, message = WARN, 'no joint_states yet: no image published'
+        self._diagnostics.set(
+            level, message, published=self._published,
+            render_ms_mean=f'{1e3 * float(np.mean(times)):.2f}' if times else 'nan')
+
+
+def main(args=None) -> None:
+    spin.run(MockCamera, args)
+
+
+if __name__ == '__main__':
+    main()
