@@ -5,6 +5,11 @@ bytes, timed by the recorded receive stamps scaled by --rate (0 or max: as fast 
 DDS gives no back-pressure, so a subscriber slower than that loses what overflows its
 history). Before starting it waits up to --wait-subscribers seconds until every topic has a
 matched subscriber; after the last message, until reliable subscribers acknowledged it.
+
+--check: replay a teach bag (bags/five_point_close) through joint_state_monitor and
+user_frame_solver on a private ROS_DOMAIN_ID with /clock (use_sim_time), re-run
+calibrate_user_frame with the replayed captures and compare with the bag's expected.yaml:
+exit 0 within 1e-6 m / 1e-6 rad, else 1 (api.replay_check).
 """
 from __future__ import annotations
 
@@ -45,10 +50,22 @@ def add_parser(subparsers):
                    help=f'wait for a call to /{NODE_NAME}/resume (std_srvs/srv/Trigger)')
     p.add_argument('--wait-subscribers', type=float, default=2.0, metavar='SECONDS',
                    help='longest wait for subscribers to match before playing (default 2)')
+    p.add_argument('--check', action='store_true',
+                   help='re-run the teach recorded in BAG through joint_state_monitor and '
+                        'user_frame_solver (own domain, sim time) and compare the frame with '
+                        'BAG/expected.yaml; exit 0 if within 1e-6 m / 1e-6 rad, else 1')
+    p.add_argument('--recapture', action='store_true',
+                   help='with --check: average each hold again with capture_joints on the '
+                        'replayed /clock instead of using the recorded means (needs a finite '
+                        '--rate; a /clock of 1000 Hz unless --clock is given)')
     return p
 
 
 def run(args) -> int:
+    if getattr(args, 'recapture', False) and not args.check:
+        return fail('replay: --recapture goes with --check', EXIT_USAGE)
+    if getattr(args, 'check', False):
+        return _check(args)
     if args.clock is not None and not args.clock > 0:
         return fail('replay: --clock HZ must be > 0', EXIT_USAGE)
     if args.wait_subscribers < 0:
@@ -104,3 +121,39 @@ def _replay(bag, args) -> int:
         if player is not None:
             player.destroy_node()
         rclpy.try_shutdown()
+
+
+def _check(args) -> int:
+    if args.loop or args.start_paused or args.topics:
+        return fail('replay --check: --loop, --start-paused and --topics do not apply',
+                    EXIT_USAGE)
+    if args.recapture and args.rate == 0:
+        return fail('replay --check --recapture: needs a finite --rate (the holds are '
+                    'averaged again on the replayed /clock)', EXIT_USAGE)
+    from cobot_calib_ros.api import replay_check
+    from cobot_calib_ros.bags.errors import BagError
+
+    def say(text: str) -> None:
+        print(text, flush=True)
+    try:
+        result = replay_check.run_check(args.bag, rate=args.rate, say=say,
+                                        clock_hz=args.clock or (1000.0 if args.recapture
+                                                                else 40.0),
+                                        recapture=args.recapture)
+    except (replay_check.CheckError, BagError) as exc:
+        return fail(f'replay --check: {exc}')
+    except KeyboardInterrupt:
+        return fail('replay --check interrupted', EXIT_INTERRUPTED)
+    if result.ok:
+        say(f'check passed in {result.wall_s:.1f} s')
+        return EXIT_OK
+    print('check FAILED: the replayed frame differs from the expected one\n'
+          f'  replayed T_base_user (rms {result.rms_replayed * 1e3:.4f} mm):\n'
+          + replay_check.format_matrix(result.T_replayed)
+          + '\n  expected T_base_user:\n' + replay_check.format_matrix(result.T_expected)
+          + f'\n  translation differs by {result.translation_m * 1e3:.6f} mm, rotation by '
+          f'{result.rotation_rad * 1e3:.6f} mrad (tolerance 1e-06 m, 1e-06 rad); '
+          'replayed - expected xyz: ('
+          + ', '.join(f'{v * 1e3:+.6f}' for v in result.T_replayed[:3, 3]
+                      - result.T_expected[:3, 3]) + ') mm', file=sys.stderr, flush=True)
+    return 1

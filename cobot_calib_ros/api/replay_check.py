@@ -1,0 +1,293 @@
+"""`cobot-calib replay BAG --check`: replay a teach bag through the suite, compare the frame.
+
+A teach bag (bags/make_sample_bags.py) holds ``/joint_states``, the teach's captures as marks
+on ``/cobot_calib/captures`` (sensor_msgs/JointState: header.stamp = end of the hold,
+header.frame_id = point name, name/position = the captured mean) and the live ``/user_frame``;
+next to it ``expected.yaml`` (T_base_user, rms_residual, method, kinematics, point_names).
+
+The check starts joint_state_monitor and user_frame_solver on a private ROS_DOMAIN_ID
+(``use_sim_time: true``, a temporary data_dir), replays ``/joint_states`` and the marks with
+``/clock`` (bags.player.BagPlayer), collects the marks as they arrive over DDS, then calls
+``calibrate_user_frame`` (the expected method and kinematics) with the replayed captures as
+``joint_captures`` and compares the frame with expected.yaml: translation within TOL_M and
+rotation within TOL_RAD.
+
+Two modes:
+- default (the solver path): the recorded capture means, replayed over DDS, go through the
+  solver's kinematic model and fit. Deterministic: the frame comes out bit for bit (0 m, 0 rad
+  on the sample bag), at any --rate (max: about 5 s in all).
+- ``recapture``: each hold is averaged again by joint_state_monitor's ``capture_joints`` from
+  the REPLAYED joint_states on sim time: the request goes out when the replayed /clock (1 kHz
+  by default here) reaches the hold's start (mark stamp minus ``hold_s``). capture_joints opens
+  its window when the request arrives, so the window can be off by a sample or two: the means
+  differ from the recorded ones by up to ~7e-8 rad and the frame by ~3e-8 m / ~1.6e-7 rad on
+  the sample bag (rate 1 and 2), within the tolerance but not to the bit. Needs a finite rate.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+import math
+import os
+from pathlib import Path
+import tempfile
+import threading
+import time
+from typing import Callable
+
+import numpy as np
+
+CAPTURES_TOPIC = '/cobot_calib/captures'
+EXPECTED_FILE = 'expected.yaml'
+TOL_M = 1e-6
+TOL_RAD = 1e-6
+SERVICE_TIMEOUT = 30.0   # [s] for the nodes to come up
+MARKS_TIMEOUT = 10.0     # [s] after play for the last marks to arrive
+
+
+class CheckError(RuntimeError):
+    """The check could not run (a missing file, a node that did not come up)."""
+
+
+def matrix(calibration) -> list[list[float]]:
+    """UserFrameCalibration.matrix (row-major 16) as a 4x4 list."""
+    m = [float(v) for v in calibration.matrix]
+    return [m[4 * i:4 * i + 4] for i in range(4)]
+
+
+def write_expected(path: Path, data: dict) -> None:
+    import yaml
+    with open(path, 'w') as out:
+        out.write('# expected result of replaying this bag: cobot-calib replay BAG --check\n')
+        yaml.safe_dump(data, out, sort_keys=False, default_flow_style=None)
+
+
+def read_expected(bag_path: str | os.PathLike) -> tuple[Path, dict]:
+    import yaml
+    folder = Path(bag_path)
+    if not folder.is_dir():
+        folder = folder.parent
+    path = folder / EXPECTED_FILE
+    try:
+        data = yaml.safe_load(path.read_text())
+    except OSError as exc:
+        raise CheckError(f'{path}: cannot read the expected result: {exc.strerror}') from None
+    if not isinstance(data, dict) or 'T_base_user' not in data:
+        raise CheckError(f'{path}: no T_base_user in it')
+    T = np.array(data['T_base_user'], dtype=float)
+    if T.shape != (4, 4):
+        raise CheckError(f'{path}: T_base_user must be 4x4')
+    data['T_base_user'] = T
+    return path, data
+
+
+def difference(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
+    """(translation [m], rotation angle [rad]) between two 4x4 transforms."""
+    dt = float(np.linalg.norm(a[:3, 3] - b[:3, 3]))
+    R = a[:3, :3].T @ b[:3, :3]
+    skew = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+    angle = math.atan2(float(np.linalg.norm(skew)) / 2.0, (float(np.trace(R)) - 1.0) / 2.0)
+    return dt, abs(angle)
+
+
+@dataclass
+class CheckResult:
+    ok: bool
+    translation_m: float
+    rotation_rad: float
+    T_replayed: np.ndarray
+    T_expected: np.ndarray
+    rms_replayed: float
+    marks: int
+    wall_s: float
+
+
+def run_check(bag_path: str, rate: float = 0.0, say: Callable[[str], None] = print,
+              clock_hz: float = 40.0, recapture: bool = False) -> CheckResult:
+    """Replay ``bag_path`` through the nodes and compare; see the module doc."""
+    import domain_coordinator
+
+    from cobot_calib_ros.bags.reader import open_bag
+    expected_path, expected = read_expected(bag_path)
+    started = time.monotonic()
+    os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    with open_bag(bag_path) as bag, domain_coordinator.domain_id() as domain, \
+            tempfile.TemporaryDirectory(prefix='cobot_calib_check_') as tmp:
+        if CAPTURES_TOPIC not in bag.topics or not bag.topics[CAPTURES_TOPIC].count:
+            raise CheckError(f'{bag.path}: no {CAPTURES_TOPIC} marks to re-run')
+        for warning in bag.warnings:
+            say(f'warning: {warning}')
+        wanted = bag.topics[CAPTURES_TOPIC].count
+        holds = [bag.deserialize(m.rawdata, m.msgtype).header.stamp
+                 for m in bag.messages([CAPTURES_TOPIC])]
+        holds = [s.sec * 10**9 + s.nanosec for s in holds]
+        T, rms, marks = _replay_and_calibrate(bag, expected, domain, Path(tmp), rate,
+                                              clock_hz, wanted, say, recapture, holds)
+    dt, dr = difference(T, expected['T_base_user'])
+    ok = dt < TOL_M and dr < TOL_RAD
+    say(f'replayed {marks} captures from {bag_path}; {expected.get("method", "rigid")} frame '
+        f'vs {expected_path}: translation differs by {dt:.3e} m (tolerance {TOL_M:g}), '
+        f'rotation by {dr:.3e} rad (tolerance {TOL_RAD:g})')
+    return CheckResult(ok, dt, dr, T, expected['T_base_user'], rms, marks,
+                       time.monotonic() - started)
+
+
+def _replay_and_calibrate(bag, expected: dict, domain: int, tmp: Path, rate: float,
+                          clock_hz: float, wanted: int, say, recapture: bool = False,
+                          holds: list[int] = ()):
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.parameter import Parameter
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from rclpy.signals import SignalHandlerOptions
+    from sensor_msgs.msg import JointState
+    from cobot_calib_msgs.srv import CalibrateUserFrame
+
+    from cobot_calib_ros import paths
+    from cobot_calib_ros.api.client import call_service, CallError, spin_until
+    from cobot_calib_ros.api.launcher import NodeSpec, Suite
+    from cobot_calib_ros.bags.player import BagPlayer, spinning
+
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), COBOT_CALIB_DATA=str(tmp / 'data'))
+    env.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    cell = str(paths.cell_file(expected.get('cell', 'sawyer_close')))
+    kinematics = str(expected.get('kinematics', 'nominal'))
+    sim = {'use_sim_time': 'true'}
+    suite = Suite(tmp / 'log')
+    suite.start([
+        NodeSpec('joint_state_monitor',
+                 {**sim, 'expected_rate_hz': str(expected.get('joint_states_hz', 1000.0))}),
+        NodeSpec('user_frame_solver', {**sim, 'cell_file': cell, 'kinematics': kinematics,
+                                       'data_dir': str(tmp / 'data')}),
+    ], env=env)
+    say(f'joint_state_monitor and user_frame_solver on ROS_DOMAIN_ID={domain} (sim time)')
+    context = Context()
+    rclpy.init(context=context, domain_id=domain,
+               signal_handler_options=SignalHandlerOptions.NO)
+    node = player = None
+    try:
+        node = rclpy.create_node('cobot_calib_replay_check', context=context,
+                                 parameter_overrides=[Parameter('use_sim_time', value=True)])
+        executor = SingleThreadedExecutor(context=context)
+        executor.add_node(node)
+        marks: list[JointState] = []
+        node.create_subscription(JointState, CAPTURES_TOPIC, marks.append,
+                                 QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE))
+        calibrate = node.create_client(CalibrateUserFrame, 'calibrate_user_frame')
+        if not spin_until(node, calibrate.service_is_ready, SERVICE_TIMEOUT, executor):
+            raise CheckError(f'calibrate_user_frame did not come up; logs in {suite.log_dir}'
+                             + _failed(suite))
+        player = BagPlayer(bag, rate=rate, topics=['/joint_states', CAPTURES_TOPIC],
+                           clock_hz=clock_hz, wait_subscribers=10.0, report=say,
+                           context=context)
+        stop = threading.Event()
+
+        def spin() -> None:
+            while not stop.is_set() and context.ok():
+                executor.spin_once(timeout_sec=0.005)
+        spinner = threading.Thread(target=spin, daemon=True)
+        spinner.start()
+        played: dict = {}
+
+        def play() -> None:
+            try:
+                with spinning(player):
+                    played['result'] = player.play()
+            except Exception as exc:  # noqa: BLE001 - reported by the caller
+                played['error'] = exc
+        recaptured = None
+        try:
+            playing = threading.Thread(target=play, daemon=True)
+            playing.start()
+            if recapture:
+                recaptured = _recapture(node, holds, float(expected.get('hold_s', 0.5)),
+                                        playing, say)
+            playing.join()
+            deadline = time.monotonic() + MARKS_TIMEOUT
+            while len(marks) < wanted and time.monotonic() < deadline:
+                time.sleep(0.02)
+        finally:
+            stop.set()
+            spinner.join(timeout=2.0)
+        if 'error' in played:
+            raise CheckError(f'replay failed: {played["error"]}')
+        result = played['result']
+        say(f'replayed {result.published} messages in {result.wall_s:.2f} s '
+            f'({result.speed:.1f}x real time), {len(marks)}/{wanted} captures received')
+        if len(marks) < wanted:
+            raise CheckError(f'only {len(marks)} of {wanted} {CAPTURES_TOPIC} marks arrived')
+        if recaptured is not None:
+            for mark, again in zip(marks, recaptured):
+                worst = max(abs(a - b) for a, b in zip(mark.position, again.position))
+                say(f'  {mark.header.frame_id}: re-captured {again.name and len(again.name)} '
+                    f'joints, largest difference from the recorded mean {worst:.3e} rad')
+                mark.name, mark.position = list(again.name), list(again.position)
+        names = [m.header.frame_id for m in marks]
+        if expected.get('point_names') and names != list(expected['point_names']):
+            raise CheckError(f'the bag\'s captures are {names}, expected.yaml has '
+                             f'{expected["point_names"]}')
+        request = CalibrateUserFrame.Request(
+            method=str(expected.get('method', 'rigid')), point_names=names,
+            kinematics=kinematics,
+            joint_captures=[JointState(name=list(m.name), position=list(m.position))
+                            for m in marks])
+        try:
+            res = call_service(node, calibrate, request, 60.0, executor)
+        except CallError as exc:
+            raise CheckError(str(exc)) from None
+        if res.error_code != CalibrateUserFrame.Response.SUCCESS:
+            raise CheckError(f'calibrate_user_frame refused (code {res.error_code}): '
+                             f'{res.message}')
+        return (np.array(matrix(res.calibration)), float(res.calibration.rms_residual),
+                len(marks))
+    finally:
+        if player is not None:
+            player.destroy_node()
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown(context=context)
+        suite.stop()
+
+
+def _recapture(node, holds: list[int], hold_s: float, playing, say) -> list:
+    """capture_joints over each recorded hold window, on the replayed /clock: the request goes
+    out when ROS time reaches the window's start (its end stamp minus the hold)."""
+    from cobot_calib_msgs.srv import CaptureJoints
+    from sensor_msgs.msg import JointState
+    client = node.create_client(CaptureJoints, 'capture_joints')
+    deadline = time.monotonic() + SERVICE_TIMEOUT
+    while not client.service_is_ready():
+        if time.monotonic() > deadline:
+            raise CheckError('capture_joints did not come up')
+        time.sleep(0.01)
+    out = []
+    for end_ns in holds:
+        start_ns = end_ns - round(hold_s * 1e9)
+        while node.get_clock().now().nanoseconds < start_ns:
+            if not playing.is_alive():
+                raise CheckError('the replay ended before a hold window started; '
+                                 'use a finite --rate for --recapture')
+            time.sleep(0.0005)
+        future = client.call_async(CaptureJoints.Request(duration=hold_s))
+        deadline = time.monotonic() + 30.0
+        while not future.done():
+            if time.monotonic() > deadline:
+                raise CheckError('capture_joints did not answer')
+            time.sleep(0.002)
+        res = future.result()
+        if res.error_code != CaptureJoints.Response.SUCCESS:
+            raise CheckError(f'capture_joints on the replay: {res.message}')
+        out.append(JointState(name=list(res.name), position=list(res.position)))
+    return out
+
+
+def _failed(suite) -> str:
+    failed = suite.failed()
+    if not failed:
+        return ''
+    return '; exited: ' + ', '.join(f'{n} ({c}): {suite.log_tail(n, 5)}'
+                                    for n, c in failed.items())
+
+
+def format_matrix(T: np.ndarray) -> str:
+    return '\n'.join('    [' + ', '.join(f'{v: .9f}' for v in row) + ']' for row in T)
