@@ -24,6 +24,7 @@ import math
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from scipy import sparse
 from scipy.spatial.transform import Rotation
 
 from cobot_calib_ros.core.frames import make_transform
@@ -187,6 +188,9 @@ class PairsObjective:
         if not self.same_count and not len(self.cross):
             raise ValueError('no usable pair: give pairs on the same sphere or between spheres '
                              'with a known distance')
+        self._cross_columns = np.hstack([3 * self.cross[:, :1] + np.arange(3),
+                                         3 * self.cross[:, 1:] + np.arange(3)]).ravel()
+        self._cross_rows = np.arange(0, 6 * len(self.cross) + 1, 6)
         self.x0 = self.kin.x0
         self.nuisance_names: tuple[str, ...] = ()
         # a group of n rows holds 3 (n - 1) independent differences
@@ -214,7 +218,11 @@ class PairsObjective:
         J_same = (Jp[self.same[:, 0]] - Jp[self.same[:, 1]]).reshape(-1, self.n_free)
         d_cross = p[self.cross[:, 0]] - p[self.cross[:, 1]]
         u = d_cross / np.linalg.norm(d_cross, axis=1)[:, None]
-        J_cross = np.einsum('kc,kcf->kf', u, Jp[self.cross[:, 0]] - Jp[self.cross[:, 1]])
+        # u_k . (J_i - J_j) for every pair as one sparse product (6 entries a row): gathering
+        # the (k, 3, F) blocks took 80 % of a solve on the paper's 44,850 pairs
+        pick = sparse.csr_matrix((np.hstack([u, -u]).ravel(), self._cross_columns,
+                                  self._cross_rows), shape=(len(u), Jp.shape[0] * 3))
+        J_cross = pick @ Jp.reshape(-1, self.n_free)
         return np.concatenate([*J_groups, J_same, J_cross])
 
     def solution(self, x: Array) -> tuple[Array, Array, dict]:
