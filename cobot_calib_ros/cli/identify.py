@@ -19,6 +19,7 @@ from cobot_calib_ros.cli.common import EXIT_FAILED, EXIT_OK, EXIT_USAGE, fail, s
 
 CELLS = {'iiwa7': 'iiwa7_close', 'sawyer': 'sawyer_close'}
 MUKCA_PUBLISHED_MM = 0.2       # MUKCa paper: mean error after calibration
+CAPTURES_TOPIC = '/cobot_calib/captures'   # kinematic_identifier's recorded poses
 
 
 def add_parser(subparsers):
@@ -31,7 +32,8 @@ def add_parser(subparsers):
                         'sawyer_close); default iiwa7')
     p.add_argument('--cell', default=None, help='cell file (path or name); overrides --robot')
     p.add_argument('--source', default='mock',
-                   help='mock (collect now), a collection folder, or a MUKCa data folder')
+                   help='mock (collect now), a collection folder, a bag with '
+                        '/cobot_calib/captures, or a MUKCa data folder')
     p.add_argument('--solver', default='lm', choices=('lm', 'nelder-mead'))
     p.add_argument('--loss', default='soft_l1', choices=('soft_l1', 'linear', 'huber'))
     p.add_argument('--max-configs', type=int, default=0,
@@ -63,9 +65,11 @@ def run(args) -> int:
                         'collection folder or a MUKCa data folder', EXIT_USAGE)
         if any(folder.glob('*/hole_0.csv')):
             return _mukca(args, folder)
+        if (folder / 'metadata.yaml').is_file() or any(folder.glob('*.mcap')):
+            return _bag(args, folder)
         if not (folder / 'collection.yaml').is_file():
-            return fail(f'{folder}: neither a collection folder (collection.yaml) nor MUKCa '
-                        'data (<location>/hole_0.csv)', EXIT_USAGE)
+            return fail(f'{folder}: not a collection folder (collection.yaml), a bag '
+                        '(metadata.yaml) or MUKCa data (<location>/hole_0.csv)', EXIT_USAGE)
     cell = args.cell or CELLS[args.robot or 'iiwa7']
     from cobot_calib_ros.api import identification, launcher
     from cobot_calib_ros.api.client import CallError
@@ -117,6 +121,53 @@ def _print(args, report: dict) -> None:
     if report['calibration_id']:
         print(f'\nstored and active: {report["calibration_id"]}\n  {report["yaml_path"]}\n'
               f'  {report["urdf_path"]}')
+
+
+def _bag(args, folder: Path) -> int:
+    """A recorded sphere session: the poses kinematic_identifier published on
+    /cobot_calib/captures (frame_id = sphere name), identified offline by the same core job."""
+    from cobot_calib_ros.bags.errors import BagError
+    from cobot_calib_ros.bags.reader import open_bag
+    from cobot_calib_ros.core.cell import load_cell
+    from cobot_calib_ros.core.kinematics import model_by_name
+    from cobot_calib_ros.core.kinematics.identification import SphereObservations
+    from cobot_calib_ros.core.kinematics.kinematic_calibration import CalibrationJob
+    from cobot_calib_ros.paths import cell_file
+    cell = load_cell(cell_file(args.cell or CELLS[args.robot or 'iiwa7']))
+    model = model_by_name(cell.robot)
+    try:
+        with open_bag(folder) as bag:
+            captures = [bag.deserialize(m.rawdata, m.msgtype)
+                        for m in bag.messages([CAPTURES_TOPIC])]
+    except BagError as e:
+        return fail(f'identify: {e}')
+    names = cell.spheres.names if cell.spheres else ()
+    rows = [c for c in captures if c.header.frame_id in names]
+    if not rows:
+        return fail(f'{folder}: no {CAPTURES_TOPIC} poses on the spheres {list(names)} of cell '
+                    f'{cell.name}; record that topic during collect_sphere_data', EXIT_FAILED)
+    order = list(model.joint_names)
+    try:
+        q = [[dict(zip(c.name, c.position))[j] for j in order] for c in rows]
+        data = SphereObservations(q, [names.index(c.header.frame_id) for c in rows],
+                                  cell.spheres.known_distances())
+        outcome = CalibrationJob(cell, model, data, source=str(folder), solver=args.solver,
+                                 loss=args.loss, max_configs=args.max_configs).run()
+    except (KeyError, ValueError) as e:
+        return fail(f'{folder}: {e}', EXIT_FAILED)
+    r = outcome.result
+    report = {'source': str(folder), 'poses': len(rows), 'message': outcome.summary(),
+              'dropped_parameters': [d.name for d in outcome.identifiability.dropped],
+              'identified': [{'name': n, 'value': float(v), 'std': float(sd)} for n, v, sd in
+                             zip(r.free, outcome.free_values, r.std)],
+              'validation': {}, 'validation_workspace': {}, 'solve_seconds': r.solve_seconds,
+              'rms_mm': r.rms_m * 1e3, 'calibration_id': '', 'table6': outcome.table}
+    if args.json:
+        print(json.dumps(report, indent=2))
+    else:
+        _print(args, report)
+        print(f'\n{outcome.table}')
+    return EXIT_OK
 
 
 def _mukca(args, folder: Path) -> int:

@@ -23,6 +23,7 @@ import numpy as np
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
+from sensor_msgs.msg import JointState
 
 from cobot_calib_ros import paths
 from cobot_calib_ros.core import kinematics
@@ -91,6 +92,8 @@ class KinematicIdentifier(Node):
         self._busy = threading.Lock()
         self._health = Diagnostics(self)
         self._health.set(OK, 'idle', job='')
+        # every recorded pose, for recording a session (cobot-calib record); frame_id = target
+        self._captures = self.create_publisher(JointState, 'cobot_calib/captures', 100)
         group = ReentrantCallbackGroup()
         self._collect = ActionServer(
             self, Collect, 'collect_sphere_data', execute_callback=self._on_collect,
@@ -255,6 +258,7 @@ class KinematicIdentifier(Node):
             self._collections.append(collection_id, i, step['target'], capture.position,
                                      sample_count=capture.sample_count,
                                      std_max=float(np.max(capture.std)), p=p)
+            self._publish_capture(feedback.target, capture)
             seconds['move'] += t1 - t0
             seconds['capture'] += t2 - t1
             seconds['store'] += clock() - t2
@@ -264,6 +268,15 @@ class KinematicIdentifier(Node):
         per_pose = ', '.join(f'{k} {v / max(recorded, 1) * 1e3:.0f} ms'
                              for k, v in seconds.items())
         return Collect.Result.SUCCESS, f'per pose: {per_pose}'
+
+    def _publish_capture(self, target: str, capture) -> None:
+        msg = JointState(name=list(self._model.joint_names),
+                         position=[float(v) for v in capture.position],
+                         velocity=[0.0] * len(capture.position),  # see bags/README.md
+                         effort=[float(v) for v in capture.std])
+        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.header.frame_id = target
+        self._captures.publish(msg)
 
     def _capture(self, hold: float):
         """capture_joints, tried again after a short stream stall (a busy machine can starve

@@ -23,7 +23,7 @@ def test_wrong_sources_say_what_is_accepted(capsys, tmp_path):
     assert main(['identify', '--source', str(tmp_path / 'missing')]) == 2
     assert 'not mock and not a folder' in capsys.readouterr().err
     assert main(['identify', '--source', str(tmp_path)]) == 2
-    assert 'neither a collection folder' in capsys.readouterr().err
+    assert 'not a collection folder' in capsys.readouterr().err
     assert main(['identify', '--source', str(MUKCA), '--urdf', str(tmp_path / 'x.urdf')]) == 2
     assert 'give the nominal URDF with --urdf' in capsys.readouterr().err
     assert main(['identify', '--max-configs', '-1']) == 2

@@ -1,0 +1,68 @@
+"""Make bags/iiwa_spheres (see README.md): ``python bags/make_sphere_bag.py [--force]``.
+
+A sphere-coupling session on the mock iiwa 7 (cell iiwa7_close): ``cobot-calib up`` runs the
+suite on a private ROS_DOMAIN_ID with a temporary data_dir, ``cobot-calib record`` records
+``/cobot_calib/captures`` (every pose kinematic_identifier records: sensor_msgs/JointState,
+frame_id = sphere name, position = the joints averaged over the hold, effort = their standard
+deviation), and ``cobot-calib identify --attach`` collects POSES of the 3 x 625 grid and
+identifies. Its JSON report is stored as ``expected.json``: ``cobot-calib identify --source
+bags/iiwa_spheres`` must give the same parameters from the bag.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+from pathlib import Path
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+
+HERE = Path(__file__).resolve().parent
+NAME = 'iiwa_spheres'
+POSES = 150
+HOLD = 0.05
+CLI = [sys.executable, '-m', 'cobot_calib_ros.cli.main']
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
+    ap.add_argument('--force', action='store_true', help='replace an existing bag')
+    args = ap.parse_args(argv)
+    out = HERE / NAME
+    if out.exists():
+        if not args.force:
+            print(f'{out} exists; --force replaces it', file=sys.stderr)
+            return 2
+        shutil.rmtree(out)
+    import domain_coordinator
+    with domain_coordinator.domain_id() as domain, \
+            tempfile.TemporaryDirectory(prefix='cobot_calib_sample_') as tmp:
+        env = dict(os.environ, ROS_DOMAIN_ID=str(domain), COBOT_CALIB_DATA=tmp,
+                   ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
+        up = subprocess.Popen(CLI + ['up', '--cell', 'iiwa7_close'], env=env,
+                              stdout=subprocess.DEVNULL)
+        try:
+            time.sleep(10.0)            # the suite's nodes, and their publishers, are up
+            record = subprocess.Popen(CLI + ['record', '-o', str(out), '/cobot_calib/captures',
+                                             '--compress', 'zstd'], env=env)
+            time.sleep(3.0)
+            report = subprocess.run(
+                CLI + ['identify', '--attach', '--json', '--max-configs', str(POSES),
+                       '--hold', str(HOLD), '--validation-configs', '0', '--dry-run'],
+                env=env, capture_output=True, text=True, check=True)
+            time.sleep(1.0)
+            record.send_signal(signal.SIGINT)
+            record.wait(30)
+        finally:
+            up.send_signal(signal.SIGINT)
+            up.wait(60)
+    (out / 'expected.json').write_text(report.stdout)
+    print(f'{out}: {sum(p.stat().st_size for p in out.iterdir())} bytes')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
