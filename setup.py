@@ -5,7 +5,8 @@ from setuptools import find_packages, setup
 package_name = 'cobot_calib_ros'
 
 NODES = ['mock_robot', 'proximity_sensor', 'joint_state_monitor', 'user_frame_solver',
-         'repeatability_trial', 'kinematic_identifier', 'mock_camera', 'landmark_detector']
+         'repeatability_trial', 'kinematic_identifier', 'mock_camera', 'landmark_detector',
+         'hand_eye_calibrator']
 
 setup(
     name=package_name,

@@ -1,0 +1,323 @@
+"""hand_eye_calibrator: the wrist camera's hand-eye (flange -> optical frame) from board views.
+
+Action ``calibrate_hand_eye`` (cobot_calib_msgs/action/CalibrateHandEye): plans ``views`` views
+of the cell's ChArUco board (core.landmarks.hand_eye.hand_eye_views: IK on the nominal chain
+through the nominal hand-eye), and for each one moves there (``move_to``, joints), waits for the
+first ``landmarks`` message with a board in an image stamped after the arrival, captures the
+joints (``capture_joints``, ``hold`` seconds) and takes the flange pose by nominal FK. A view
+that cannot be reached or shows no board within ``landmark_timeout`` is skipped and counted.
+With at least three views, core.landmarks.hand_eye.solve_hand_eye (closed form, then the joint
+least-squares refinement of T_flange_optical and T_base_board, weighted by the landmarks'
+covariances) gives the result; it is stored under ``<data_dir>/hand_eye`` (CalibrationStore:
+atomic JSON, history, the newest active) and published latched on ``hand_eye``
+(geometry_msgs/TransformStamped, flange_frame -> the camera's optical frame) and /tf_static.
+
+Where the board is: the cell gives it in the user frame, so the views need T_base_user: the
+``user_frame`` parameter ("x y z roll pitch yaw" [m, rad]) or, when empty, the active user-frame
+calibration in data_dir. A few millimetres off only move the board in the image.
+
+Parameters (read at start-up): cell_file, layout, data_dir, flange_frame, user_frame, seed;
+hold_duration [s], speed_scale [1], landmark_timeout [s].
+"""
+from __future__ import annotations
+
+import threading
+import time
+
+from cobot_calib_msgs.action import CalibrateHandEye
+from cobot_calib_msgs.msg import Landmark, Landmarks
+from geometry_msgs.msg import TransformStamped
+import numpy as np
+from rclpy.action import ActionServer, CancelResponse, GoalResponse
+from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.node import Node
+
+from cobot_calib_ros import paths
+from cobot_calib_ros.core import frames, kinematics
+from cobot_calib_ros.core.cell import load_cell
+from cobot_calib_ros.core.landmarks.hand_eye import hand_eye_views, solve_hand_eye
+from cobot_calib_ros.ros import convert, qos, spin
+from cobot_calib_ros.ros.diagnostics import Diagnostics, OK, WARN
+from cobot_calib_ros.ros.params import declare, read_once
+from cobot_calib_ros.ros.robot_calls import RobotCallError, RobotCalls
+from cobot_calib_ros.ros.tf_static import StaticBroadcaster
+from cobot_calib_ros.ros.time import now_ns, stamp_to_ns
+from cobot_calib_ros.store.calibrations import CalibrationStore
+
+Action = CalibrateHandEye
+DEFAULT_VIEWS = 12
+MOVE_TIMEOUT = 60.0        # [s] for one move_to
+CAPTURE_ATTEMPTS = 3
+
+
+class BoardWatch:
+    """The newest ``landmarks`` message with a board (filled on the companion's thread)."""
+
+    def __init__(self) -> None:
+        self._cond = threading.Condition()
+        self._newest: tuple[int, Landmark] | None = None
+        self.messages = 0
+
+    def on_landmarks(self, msg: Landmarks) -> None:
+        board = next((lm for lm in msg.landmarks if lm.kind == Landmark.KIND_BOARD), None)
+        with self._cond:
+            self.messages += 1
+            if board is not None:
+                self._newest = (stamp_to_ns(msg.header.stamp), board)
+            self._cond.notify_all()
+
+    def board_after(self, t_ns: int, timeout: float) -> Landmark | None:
+        """The first board in an image stamped after ``t_ns``; None if none within
+        ``timeout`` [s] of wall time (no board in view, or no images)."""
+        deadline = time.monotonic() + timeout
+        with self._cond:
+            while True:
+                if self._newest is not None and self._newest[0] > t_ns:
+                    return self._newest[1]
+                remaining = deadline - time.monotonic()
+                if remaining <= 0:
+                    return None
+                self._cond.wait(remaining)
+
+
+def parse_user_frame(text: str) -> np.ndarray | None:
+    """``"x y z roll pitch yaw"`` [m, rad] -> T_base_user; None for ''; ValueError else."""
+    if not text.strip():
+        return None
+    try:
+        values = [float(v) for v in text.replace(',', ' ').split()]
+    except ValueError:
+        values = []
+    if len(values) != 6 or not np.all(np.isfinite(values)):
+        raise ValueError(f'user_frame must be "x y z roll pitch yaw" [m, rad], got {text!r}')
+    return frames.from_xyz_rpy(values[:3], values[3:])
+
+
+def new_id() -> str:
+    wall_ns = time.time_ns()
+    return (time.strftime('%Y%m%dT%H%M%S', time.gmtime(wall_ns / 1e9))
+            + f'.{wall_ns % 1_000_000_000:09d}Z-hand_eye')
+
+
+class HandEyeCalibrator(Node):
+    def __init__(self, **kwargs) -> None:
+        super().__init__('hand_eye_calibrator', **kwargs)
+        self._declare_parameters()
+        self._cell = load_cell(paths.cell_file(self._p('cell_file')), self._p('layout') or None)
+        self._model = kinematics.model_by_name(self._cell.robot)
+        self._chain = self._model.chain()
+        self._root = paths.data_dir(self._p('data_dir'))
+        self._store = CalibrationStore(self._root, 'hand_eye')
+        self._user_frame = parse_user_frame(self._p('user_frame'))
+        self._answers = spin.Companion(self, 'clients')
+        self._robot = RobotCalls(self._answers)
+        self._watch = BoardWatch()
+        self._answers.node.create_subscription(Landmarks, 'landmarks',
+                                               self._watch.on_landmarks, 10)
+        self._pub = self.create_publisher(TransformStamped, 'hand_eye', qos.LATCHED)
+        self._tf = StaticBroadcaster(self)
+        self._busy = threading.Lock()
+        self._health = Diagnostics(self)
+        self._server = ActionServer(
+            self, Action, 'calibrate_hand_eye', execute_callback=self._on_goal,
+            goal_callback=self._accept, cancel_callback=lambda _: CancelResponse.ACCEPT,
+            callback_group=ReentrantCallbackGroup())
+        active = self._store.active()
+        if active is not None:
+            self._publish(active)
+        problem = '' if self._cell.camera and self._cell.landmarks and \
+            self._cell.landmarks.board else 'the cell has no wrist camera or no board'
+        self._health.set(WARN if problem else OK, problem or 'idle',
+                         active_id=active['id'] if active else '')
+        self.get_logger().info(f'hand-eye calibrations in {self._store.directory}'
+                               + (f'; {problem}' if problem else ''))
+
+    def destroy_node(self):
+        self._answers.destroy()
+        return super().destroy_node()
+
+    def _declare_parameters(self) -> None:
+        read_once(self, 'cell_file', 'sawyer_close',
+                  'Cell YAML (path or name): robot, camera (nominal hand-eye), board')
+        read_once(self, 'layout', '', 'Marker layout; empty = the cell default')
+        read_once(self, 'data_dir', '', 'Results go to <data_dir>/hand_eye; empty = '
+                  '$COBOT_CALIB_DATA or ~/.ros/cobot_calib')
+        read_once(self, 'flange_frame', 'flange', 'tf frame of the flange (parent of the '
+                  'camera frame on hand_eye and /tf_static)')
+        read_once(self, 'user_frame', '', 'T_base_user as "x y z roll pitch yaw" [m, rad] to '
+                  'plan the views; empty = the active user-frame calibration in data_dir')
+        read_once(self, 'seed', 0, 'Seed of the view plan [1]', 0, 2 ** 31 - 1)
+        declare(self, 'hold_duration', 0.2, 'Joints are averaged over this hold at every '
+                'view [s]', 0.005, 10.0)
+        declare(self, 'speed_scale', 1.0, 'Fraction of the joint velocity limits [1]',
+                0.01, 1.0)
+        declare(self, 'landmark_timeout', 5.0, 'A view without a board in an image after '
+                'this long [s] is skipped', 0.1, 120.0)
+
+    def _p(self, name: str):
+        return self.get_parameter(name).value
+
+    def _accept(self, goal) -> GoalResponse:
+        if self._busy.locked():
+            self.get_logger().warning('goal rejected: a hand-eye calibration is running')
+            return GoalResponse.REJECT
+        return GoalResponse.ACCEPT
+
+    def _on_goal(self, goal_handle):
+        if not self._busy.acquire(blocking=False):
+            goal_handle.abort()
+            return Action.Result(error_code=Action.Result.INVALID_GOAL,
+                                 message='another hand-eye calibration is running')
+        try:
+            return self._run(goal_handle)
+        finally:
+            self._busy.release()
+
+    def _end(self, goal_handle, result, code: int, message: str):
+        result.error_code, result.message = int(code), message
+        if code == Action.Result.SUCCESS:
+            goal_handle.succeed()
+            spin.log_info(self.get_logger(), message)
+        elif goal_handle.is_cancel_requested:
+            goal_handle.canceled()
+        else:
+            goal_handle.abort()
+            self.get_logger().warning(message)
+        self._health.set(OK if code == Action.Result.SUCCESS else WARN, message)
+        return result
+
+    def _T_base_user(self) -> np.ndarray:
+        if self._user_frame is not None:
+            return self._user_frame
+        record = CalibrationStore(self._root).active()
+        if record is None or record['result'].get('T_base_user') is None:
+            raise ValueError('no user frame to find the board by: set the user_frame parameter '
+                             'or calibrate the user frame first (calibrate_user_frame)')
+        return np.array(record['result']['T_base_user'], dtype=float)
+
+    def _run(self, goal_handle):
+        goal, result = goal_handle.request, Action.Result()
+        count = int(goal.views) or DEFAULT_VIEWS
+        hold = float(goal.hold) or self._p('hold_duration')
+        if not (3 <= count <= 200) or not (0.0 < hold <= 10.0):
+            return self._end(goal_handle, result, Action.Result.INVALID_GOAL,
+                             f'views must be 3..200 (0 = {DEFAULT_VIEWS}) and hold 0..10 s, '
+                             f'got {goal.views} and {goal.hold}')
+        try:
+            plan = hand_eye_views(self._cell, self._model, count, self._p('seed'),
+                                  T_base_user=self._T_base_user())
+        except ValueError as e:
+            return self._end(goal_handle, result, Action.Result.INVALID_GOAL, str(e))
+        self._health.set(OK, f'calibrating: {count} views')
+        t_start = time.monotonic()
+        flange, boards, covariances, joints, skipped = [], [], [], [], []
+        feedback = Action.Feedback(total=count)
+        for i, q in enumerate(plan):
+            if goal_handle.is_cancel_requested:
+                return self._end(goal_handle, result, Action.Result.CANCELED,
+                                 f'canceled at view {i}; nothing stored')
+            feedback.view_index = i
+            try:
+                self._robot.move_joints(q, MOVE_TIMEOUT, speed_scale=self._p('speed_scale'))
+            except RobotCallError as e:
+                skipped.append({'view': i, 'reason': str(e)})
+                self.get_logger().warning(f'view {i}: skipped: {e}')
+                feedback.board_seen = False
+                feedback.skipped = len(skipped)
+                goal_handle.publish_feedback(feedback)
+                continue
+            arrived = now_ns(self)
+            board = self._watch.board_after(arrived, self._p('landmark_timeout'))
+            feedback.board_seen = board is not None
+            if board is None:
+                skipped.append({'view': i, 'reason': 'no board seen'})
+                self.get_logger().warning(f'view {i}: no board in view within '
+                                          f'{self._p("landmark_timeout")} s; skipped')
+            else:
+                try:
+                    capture = self._capture(hold)
+                except RobotCallError as e:
+                    return self._end(goal_handle, result, Action.Result.CAPTURE_FAILED,
+                                     f'view {i}: {e}')
+                q_meas = np.asarray(capture.position, dtype=float)
+                joints.append(q_meas)
+                flange.append(kinematics.fk(self._chain, q_meas))
+                boards.append(convert.pose_to_matrix(board.pose.pose))
+                covariances.append(np.array(board.pose.covariance, dtype=float).reshape(6, 6))
+            feedback.used, feedback.skipped = len(boards), len(skipped)
+            goal_handle.publish_feedback(feedback)
+        result.views_used, result.views_skipped = len(boards), len(skipped)
+        if len(boards) < 3:
+            return self._end(goal_handle, result, Action.Result.TOO_FEW_VIEWS,
+                             f'only {len(boards)} of {count} views showed the board (at least '
+                             f'3 needed); {len(skipped)} skipped: check the user frame, the '
+                             'lighting and landmark_detector')
+        try:
+            solved = solve_hand_eye(flange, boards, covariances=covariances)
+        except (ValueError, np.linalg.LinAlgError) as e:
+            return self._end(goal_handle, result, Action.Result.SOLVER_FAILED, str(e))
+        record = self._record(solved, joints, flange, boards, covariances, skipped, count)
+        try:
+            self._store.save(record)
+            self._store.activate(None)
+        except (OSError, ValueError) as e:
+            return self._end(goal_handle, result, Action.Result.STORAGE_FAILED,
+                             f'could not store the hand-eye calibration: {e}')
+        self._publish(record)
+        result.calibration_id = record['id']
+        result.t_flange_optical = convert.matrix_to_transform(
+            solved.T_flange_optical, '', '').transform
+        result.residual_mm, result.residual_mrad = solved.residual_mm, solved.residual_mrad
+        result.covariance = [float(v) for v in solved.covariance.ravel()]
+        nominal = frames.transform_error(solved.T_flange_optical,
+                                         self._cell.camera.T_flange_optical)
+        return self._end(goal_handle, result, Action.Result.SUCCESS, (
+            f'{record["id"]}: {len(boards)} views used, {len(skipped)} skipped; residual RMS '
+            f'{solved.residual_mm:.4f} mm / {solved.residual_mrad:.4f} mrad; '
+            f'{nominal[0] * 1e3:.3f} mm / {nominal[1] * 1e3:.3f} mrad from the nominal '
+            f'hand-eye; {time.monotonic() - t_start:.1f} s'))
+
+    def _capture(self, hold: float):
+        for attempt in range(CAPTURE_ATTEMPTS):
+            try:
+                return self._robot.capture(hold)
+            except RobotCallError as e:
+                if attempt + 1 == CAPTURE_ATTEMPTS:
+                    raise
+                self.get_logger().warning(f'capture_joints failed, trying again: {e}')
+                time.sleep(0.2 * (attempt + 1))
+
+    def _record(self, solved, joints, flange, boards, covariances, skipped, planned) -> dict:
+        return {
+            'id': new_id(), 'stamp_ns': now_ns(self), 'method': 'park+least_squares',
+            'kinematics': 'nominal', 'flange_frame': self._p('flange_frame'),
+            'camera_frame': self._cell.camera.frame_id, 'cell': self._cell.name,
+            'inputs': {'joints': joints, 'T_base_flange': flange, 'T_optical_board': boards,
+                       'board_covariances': covariances, 'skipped': skipped,
+                       'planned_views': planned},
+            'result': {'T_flange_optical': solved.T_flange_optical,
+                       'T_base_board': solved.T_base_board,
+                       'initial_T_flange_optical': solved.initial,
+                       'residual_mm': solved.residual_mm, 'residual_mrad': solved.residual_mrad,
+                       'residuals_mm': solved.residuals_mm,
+                       'residuals_mrad': solved.residuals_mrad,
+                       'covariance': solved.covariance, 'views_used': len(boards)}}
+
+    def _publish(self, record: dict) -> None:
+        stamp = self.get_clock().now().to_msg()
+        msg = convert.matrix_to_transform(np.array(record['result']['T_flange_optical']),
+                                          record.get('flange_frame', self._p('flange_frame')),
+                                          record.get('camera_frame', ''), stamp)
+        self._pub.publish(msg)
+        try:
+            self._tf.send(msg)
+        except (TypeError, ValueError) as e:
+            self.get_logger().error(f'hand-eye not on /tf_static: {e}')
+
+
+def main(args=None) -> None:
+    spin.run(HandEyeCalibrator, args, threads=2)
+
+
+if __name__ == '__main__':
+    main()
