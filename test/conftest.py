@@ -6,8 +6,11 @@ import pytest
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 
 
-@pytest.fixture(scope='session')
+@pytest.fixture(scope='session', autouse=True)
 def domain_id():
+    """Reserved before any test runs: a domain that another test's suite used and released
+    (test/bags) could otherwise come back as this one, with its dead nodes still in the DDS
+    graph for a while ('service ... is not available' instead of 'not found')."""
     import domain_coordinator
     with domain_coordinator.domain_id() as domain:
         os.environ['ROS_DOMAIN_ID'] = str(domain)

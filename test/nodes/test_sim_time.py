@@ -82,7 +82,9 @@ def test_a_capture_window_is_in_ros_time(ros, sim_clock, rate):
     _capture(ros, 0.1)       # the monitor's first samples on this clock
     res, wall = _capture(ros, 0.5)
     assert res.error_code == CaptureJoints.Response.SUCCESS, res.message
-    assert res.window == pytest.approx(0.5, abs=0.06)       # 0.5 s of stamps (ROS time)
+    # 0.5 s of stamps (ROS time); a window in wall time would hold 1.0 s (2x) or 0.25 s (0.5x).
+    # A loaded machine can starve the monitor for the window's first tens of ms.
+    assert res.window == pytest.approx(0.5, abs=0.12)
     assert 0.5 / rate * 0.9 < wall < 0.5 / rate + 1.0       # 0.25 s / 1 s of wall time
     # the mock publishes up to 1 kHz of wall time: up to 1000 / rate samples per second of
     # ROS time (fewer on a loaded machine, more when the paced publisher catches up after a stall)
@@ -105,9 +107,12 @@ def test_a_probe_average_is_in_ros_time(ros, sim_clock, rate):
     finally:
         client.destroy()
     assert moved.error_code == MoveTo.Result.SUCCESS, moved.message
-    started = time.monotonic()
-    res = call(ros, AverageProximity, f'/{NS}/probe/average', timeout=30.0, duration=0.4)
-    wall = time.monotonic() - started
+    for _ in range(3):      # a stall of the probe stream on a loaded machine: NO_DATA, again
+        started = time.monotonic()
+        res = call(ros, AverageProximity, f'/{NS}/probe/average', timeout=30.0, duration=0.4)
+        wall = time.monotonic() - started
+        if res.error_code != AverageProximity.Response.NO_DATA:
+            break
     assert res.error_code == AverageProximity.Response.SUCCESS, res.message
     assert res.distance == pytest.approx(0.0012, abs=2e-4)
     assert 0.4 / rate * 0.9 < wall < 0.4 / rate + 1.0

@@ -78,11 +78,11 @@ def test_teach_quit_stores_nothing_and_unknown_points_are_refused(ros, trial_dat
 def test_teach_interrupted_says_so_and_stores_nothing(ros, trial_data):
     before = len(CalibrationStore(trial_data).history())
     teach = _teach('--hold', '0.2', stdin=subprocess.PIPE)
-    deadline = time.monotonic() + 60
+    deadline = time.monotonic() + 120
     while 'guide the tool tip' not in (teach.stdout.readline() or '') and \
             time.monotonic() < deadline:
         pass
     teach.send_signal(signal.SIGINT)
-    _, err = teach.communicate(timeout=30)
+    _, err = teach.communicate(timeout=90)
     assert teach.returncode == 130 and 'teach interrupted; nothing was stored' in err, err
     assert len(CalibrationStore(trial_data).history()) == before
