@@ -298,8 +298,9 @@ GRAPH_SETTLE = 0.5        # [s] unchanged graph that ends a discovery wait
 # Fast DDS finds most remote nodes within 0.1 s, but often one or two only when their next
 # periodic discovery traffic comes (every 3 s): measured here (2 CPUs under load), the last
 # suite node showed up as late as 3.5 s after start, after gaps of up to 2.4 s with no change
-# at all, so "unchanged for a while" alone ends too early. Wait this long at least.
-DISCOVERY_MIN_WAIT = 4.0  # [s]
+# at all, so "unchanged for a while" alone ends too early. Wait this long at least (4 s missed
+# nodes of the 9-process suite when three `list` ran at once).
+DISCOVERY_MIN_WAIT = 6.0  # [s]
 _PARAMETER_SERVICES = ('_parameters', '_parameter_types', 'describe_parameters',
                        'set_parameters_atomically', 'get_type_description')
 
