@@ -55,8 +55,11 @@ def test_int_and_exponent_durations_do_not_abort_the_client(ros):
     for out in (big, big_float):                       # was SIGABRT in the rosidl C code
         res = _json(out)
         assert res['error_code'] == BAD_REQUEST and '1000000000.0 s' in res['message']
-    whole = _json(cli('call', 'capture_joints', '{duration: 1}', '--json'))
-    assert whole['error_code'] == 0 and whole['window'] > 0.9
+    for _ in range(3):      # a stall of the 1 kHz stream on a loaded machine shortens the span
+        whole = _json(cli('call', 'capture_joints', '{duration: 1}', '--json'))
+        if whole['window'] > 0.9:
+            break
+    assert whole['error_code'] == 0 and whole['window'] > 0.9     # 1 is 1 s, not 1 ns
 
 
 def test_int_points_are_converted_as_floats(ros, translation_id):

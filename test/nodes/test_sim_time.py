@@ -80,7 +80,10 @@ def test_a_capture_window_is_in_ros_time(ros, sim_clock, rate):
     sim_clock.rate = rate
     time.sleep(0.3)
     _capture(ros, 0.1)       # the monitor's first samples on this clock
-    res, wall = _capture(ros, 0.5)
+    for _ in range(3):       # a stall of the stream on a loaded machine: NO_DATA, again
+        res, wall = _capture(ros, 0.5)
+        if res.error_code != CaptureJoints.Response.NO_DATA:
+            break
     assert res.error_code == CaptureJoints.Response.SUCCESS, res.message
     # 0.5 s of stamps (ROS time); a window in wall time would hold 1.0 s (2x) or 0.25 s (0.5x).
     # A loaded machine can starve the monitor for the window's first tens of ms.
