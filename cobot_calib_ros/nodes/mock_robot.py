@@ -91,6 +91,7 @@ class MockRobot(Node):
         scale = self._param('time_scale')
         self._time_scale = self._sim.time_scale if scale < 0 else scale
         self._moving = False
+        self._motion_s = 0.0     # simulated duration of the latest move [s]
         rate = self._param('publish_rate_hz') or self._sim.joint_states_hz
         probe_rate = self._param('probe_rate_hz') or self._sim.probe_hz
         self._probe_every = max(1, round(rate / probe_rate))
@@ -221,13 +222,15 @@ class MockRobot(Node):
             return result
         goal_handle.succeed()
         result.error_code, result.message = MoveTo.Result.SUCCESS, 'reached'
+        result.duration = self._motion_s
         return result
 
     def _interpolate(self, goal_handle, q_target: np.ndarray, speed_scale: float) -> bool:
         """Move along a joint-space line; returns True when canceled."""
         q_start = self._robot.q
         velocity = self._param('joint_velocity') * min(max(speed_scale, 0.01), 1.0)
-        duration = float(np.max(np.abs(q_target - q_start))) / velocity * self._time_scale
+        self._motion_s = float(np.max(np.abs(q_target - q_start))) / velocity   # simulated
+        duration = self._motion_s * self._time_scale
         steps = max(1, int(duration / FEEDBACK_PERIOD))
         feedback = MoveTo.Feedback()
         for k in range(1, steps + 1):

@@ -1,7 +1,8 @@
 """repeatability_trial: the ISO 9283 trial action (run_trial) and the live `repeatability` topic.
 
 The procedure is core/trial.py; this node gives it a robot made of ROS calls (move_to,
-capture_joints, probe/average), stores readings through store.trials, and publishes the
+capture_joints, probe/average; for the landmark methods the wrist camera's ``landmarks`` through
+ros.landmark_views, with the active hand-eye calibration), stores readings through store.trials, and publishes the
 running statistics after every cycle (on start-up: those of the latest stored trial). Goal
 semantics are in RunTrial.action. Health on /diagnostics: OK idle, OK running (cycle figures),
 WARN after a failed trial (its message) until the next one starts.
@@ -24,13 +25,16 @@ from cobot_calib_ros.core import kinematics
 from cobot_calib_ros.core.repeatability import trial as trialmod
 from cobot_calib_ros.core.repeatability import PointStats
 from cobot_calib_ros.core.sensors.probe import Reading, ReadingStatus
+from cobot_calib_ros.core.user_frame.plausibility import MAX_RMS_ERROR, MAX_SCALE_ERROR
 from cobot_calib_ros.store.files import check_id
 from cobot_calib_ros.store.kinematics import chain_of, KinematicStore, NOMINAL
 from cobot_calib_ros.store.trials import TrialStore
 from cobot_calib_ros.ros import qos, spin
 from cobot_calib_ros.ros.diagnostics import Diagnostics, OK, WARN
 from cobot_calib_ros.ros.params import declare, read_once
+from cobot_calib_ros.ros.landmark_views import active_hand_eye, LandmarkViewError, LandmarkViews
 from cobot_calib_ros.ros.robot_calls import RobotCallError, RobotCalls
+from cobot_calib_ros.ros.time import now_ns
 
 RESULT_CODE = {'invalid': RunTrial.Result.INVALID_GOAL, 'motion': RunTrial.Result.MOTION_FAILED,
                'probe': RunTrial.Result.PROBE_FAILED, 'canceled': RunTrial.Result.CANCELED}
@@ -41,10 +45,15 @@ HEARTBEAT = 2.0         # [s] feedback at least this often while a trial runs (s
 class RosRobot:
     """core.trial.Robot over ROS: every call blocks this (action) thread until answered."""
 
-    def __init__(self, answers: spin.Companion, chain: kinematics.Chain, home: np.ndarray,
-                 speed: float, probe_window: float, capture_duration: float) -> None:
-        self._calls = RobotCalls(answers)
+    def __init__(self, answers: spin.Companion, calls: RobotCalls, chain: kinematics.Chain,
+                 home: np.ndarray, speed: float, probe_window: float, capture_duration: float,
+                 views: LandmarkViews | None = None) -> None:
+        self._calls = calls
         self.chain, self._speed = chain, speed     # the kinematic model of this trial
+        self.camera_chain = None    # the model with the hand-eye as tool (landmark methods)
+        self.hand_eye = np.eye(4)   # the hand-eye landmark views are planned with
+        self._views = views
+        self._probe_seconds = 0.0
         self._home, self._q = home, home.copy()    # where IK starts: the last known joints
         self._probe_window, self._capture_duration = probe_window, capture_duration
         self._probe = answers.node.create_client(AverageProximity, 'probe/average')
@@ -96,7 +105,29 @@ class RosRobot:
         except RobotCallError as e:
             raise trialmod.TrialError('motion', str(e))
 
+    @property
+    def robot_seconds(self) -> float:
+        """Robot time of this node's moves, holds and probe windows so far [s]."""
+        return self._calls.robot_seconds + self._probe_seconds
+
+    def landmark_frame(self, method: str, T_base_user_guess: np.ndarray) -> np.ndarray:
+        """M_n of a landmark method (ros.landmark_views), on this trial's model."""
+        if self._views is None or self.camera_chain is None:
+            raise trialmod.TrialError('invalid', f'{method}: the cell has no wrist camera or '
+                                      'no landmarks; add camera: and landmarks: to the cell')
+        try:
+            result = self._views.frame(method, T_base_user_guess, self.camera_chain,
+                                       self.hand_eye, self._capture_duration,
+                                       max_rms_error=MAX_RMS_ERROR,
+                                       max_scale_error=MAX_SCALE_ERROR)
+        except LandmarkViewError as e:
+            raise trialmod.TrialError('motion', str(e))
+        if not result:
+            raise trialmod.TrialError('invalid', f'{method}: {result.fit.message}')
+        return result.fit.M
+
     def read(self) -> Reading:
+        self._probe_seconds += self._probe_window
         res = self._average(self._probe_window)
         if res.error_code == AverageProximity.Response.NO_DATA:   # a lost burst: once more
             res = self._average(4 * self._probe_window)
@@ -141,9 +172,13 @@ class RepeatabilityTrial(Node):
         self._model = kinematics.model_by_name(self._cell.robot)
         self._store = TrialStore(paths.data_dir(self._p('data_dir')))
         self._answers = spin.Companion(self, 'clients')
-        self._robot = RosRobot(self._answers, self._model.chain(tool=self._cell.tool_offset),
-                               self._cell.home, self._p('speed_scale'),
-                               self._p('probe_window'), self._p('capture_duration'))
+        calls = RobotCalls(self._answers)
+        views = LandmarkViews(self._answers, calls, self._cell, self._model,
+                              lambda: now_ns(self))
+        self._robot = RosRobot(self._answers, calls,
+                               self._model.chain(tool=self._cell.tool_offset), self._cell.home,
+                               self._p('speed_scale'), self._p('probe_window'),
+                               self._p('capture_duration'), None if views.problem() else views)
         self._pub = self.create_publisher(Repeatability, 'repeatability', qos.LATCHED)
         self._health = Diagnostics(self)
         self._health.set(OK, 'idle', trial_id='', method='', axis='', cycles_done=0,
@@ -298,7 +333,9 @@ class RepeatabilityTrial(Node):
         if data is None and (trial_dir / 'trial.yaml').exists():
             data = self._store.load(trial.trial_id)
         stamp = self.get_clock().now().to_msg()
+        result.calibration_seconds = float('nan')
         if data is not None:
+            result.calibration_seconds = trialmod.mean_calibration_seconds(data.meta)
             stats = trialmod.statistics(data)
             result.statistics = stats_msg(trial.trial_id, data.meta, stats.cycles, stats,
                                           stamp)
@@ -335,9 +372,14 @@ class RepeatabilityTrial(Node):
 
     def _use_kinematics(self, choice: str) -> str:
         """Give the robot the chain of a kinematics choice; its label (id or nominal)."""
+        data_dir = paths.data_dir(self._p('data_dir'))
         try:
-            record = KinematicStore(paths.data_dir(self._p('data_dir'))).resolve(choice)
+            record = KinematicStore(data_dir).resolve(choice)
             self._robot.chain = chain_of(record, self._model, self._cell.tool_offset)
+            if self._cell.camera is not None:
+                X, _ = active_hand_eye(data_dir, self._cell)
+                self._robot.hand_eye = X
+                self._robot.camera_chain = chain_of(record, self._model, X)
         except (KeyError, ValueError) as e:
             raise trialmod.TrialError('invalid', f'kinematics {choice!r}: {e}; use latest, '
                                       'nominal or a stored kinematic calibration id')

@@ -10,13 +10,10 @@ as base_frame -> user_frame, on /tf_static: on start-up and whenever it changes.
 node's own thread publishes (it may replace a publisher to unlatch a retired frame); the
 calibrator hands that over with a task on the node's executor.
 
-Landmark methods (issue 11; point_names ignored): ``landmark_single`` looks straight down at the
-cell's lowest-id fiducial from VIEW_DISTANCE, ``landmark_multi`` at every fiducial from three
-views (above, tilted +-20 deg). Views are planned on the nominal chain with the nominal hand-eye
-camera as tool, around the active user frame; each is visited (move_to), the joints captured,
-and the first ``landmarks`` message of an image stamped after the capture gives T_optical_marker;
-T_base_marker = FK(captured joints; camera tool) @ T_optical_marker. The fit is
-core.user_frame.landmarks (frame_from_single / frame_from_landmarks).
+Landmark methods (issue 11; point_names ignored): ``landmark_single`` and ``landmark_multi``
+move the robot to views of the cell's fiducials planned around the active user frame and fit
+the frame to what the wrist camera sees (ros.landmark_views), with the active hand-eye
+calibration (nominal if none); the record names the hand-eye used.
 """
 from __future__ import annotations
 
@@ -24,7 +21,7 @@ import functools
 import threading
 import time
 
-from cobot_calib_msgs.msg import (Landmarks, PointResidual, SurfaceModel as SurfaceMsg,
+from cobot_calib_msgs.msg import (PointResidual, SurfaceModel as SurfaceMsg,
                                   UserFrameCalibration)
 from cobot_calib_msgs.srv import (CalibrateUserFrame, ConvertPoints, ListCalibrations,
                                   SetActiveCalibration)
@@ -40,6 +37,7 @@ from cobot_calib_ros.core.user_frame import landmarks as landmark_frames
 from cobot_calib_ros.ros import convert, qos, spin
 from cobot_calib_ros.ros.diagnostics import Diagnostics, OK, WARN
 from cobot_calib_ros.ros.params import declare, read_once
+from cobot_calib_ros.ros.landmark_views import active_hand_eye, LandmarkViewError, LandmarkViews
 from cobot_calib_ros.ros.robot_calls import RobotCallError, RobotCalls
 from cobot_calib_ros.ros.time import now_ns
 from cobot_calib_ros.ros.tf_static import StaticBroadcaster
@@ -50,12 +48,6 @@ Res = CalibrateUserFrame.Response
 Choice = SetActiveCalibration
 FRAME_PARAMETERS = ('base_frame', 'user_frame')
 PUBLISH_TIMEOUT = 10.0   # [s] the calibrator waits this long for the node thread to publish
-VIEW_DISTANCE = 0.35     # [m] landmark methods: camera above a marker's centre
-VIEW_TILTS = (0.0, np.radians(20.0), -np.radians(20.0))   # landmark_multi: views per marker
-LANDMARK_TIMEOUT = 5.0   # [s] for a landmarks message stamped after a capture
-LANDMARK_MESSAGES = 3    # messages after a capture looked at before a marker counts as unseen
-LANDMARK_MAX_RMS = 5e-3  # [m] plausibility of landmark_multi: camera poses are mm-class (the
-                         # nominal hand-eye alone is a few mm off at VIEW_DISTANCE)
 
 
 def frames_problem(base: tuple[str, str], user: tuple[str, str]) -> str:
@@ -153,6 +145,8 @@ class UserFrameSolver(Node):
         self._answers = spin.Companion(self, 'clients')
         self._calibrator = spin.Companion(self, 'calibrator')
         self._robot = RobotCalls(self._answers)
+        self._views = LandmarkViews(self._answers, self._robot, self._cell, self._model,
+                                    lambda: now_ns(self))
         self._pub = self.create_publisher(UserFrameCalibration, 'user_frame', qos.LATCHED)
         self._tf = StaticBroadcaster(self)
         self._calibrator.node.create_service(CalibrateUserFrame, 'calibrate_user_frame',
@@ -238,9 +232,10 @@ class UserFrameSolver(Node):
         try:
             frames_ = self._request_frames(request)
             if request.method in landmark_frames.LANDMARK_METHODS:
-                names, p_user, p_base, model_used, fit = self._landmark_fit(request)
+                names, p_user, p_base, model_used, hand_eye, fit = self._landmark_fit(request)
             else:
                 names, p_user, p_base, model_used = self._points(request)
+                hand_eye = ''
         except _RequestError as e:
             return self._refuse(response, e.code, str(e))
         if fit is None:
@@ -252,6 +247,8 @@ class UserFrameSolver(Node):
                    landmark_frames.LANDMARK_METHODS else None)
         record = fit_record(fit, surface, names, p_user, p_base, frames_, now_ns(self),
                             model_used)
+        if hand_eye:
+            record['hand_eye'] = hand_eye
         try:
             with self._store_lock:
                 self._store.save(record)
@@ -355,55 +352,23 @@ class UserFrameSolver(Node):
 
     # -- landmark methods (wrist camera) ---------------------------------------------------
     def _landmark_fit(self, request):
-        """landmark_single / landmark_multi: plan views on the nominal model, visit them,
-        observe the markers; names, p_user, p_base, model label and the FrameFit."""
-        cell = self._cell
-        if cell.camera is None or cell.landmarks is None or not cell.landmarks.markers:
-            raise _RequestError(ErrorCode.INVALID_INPUT, (
-                f'{request.method}: cell {cell.name!r} has no wrist camera or no landmarks; '
-                'add camera: and landmarks: markers: to the cell file'))
+        """landmark_single / landmark_multi (ros.landmark_views): names, p_user, p_base,
+        model label and the FrameFit."""
+        problem = self._views.problem()
+        if problem:
+            raise _RequestError(ErrorCode.INVALID_INPUT, f'{request.method}: {problem}')
         guess = self._user_frame_guess()
-        X = cell.camera.T_flange_optical
+        X, hand_eye = active_hand_eye(paths.data_dir(self._p('data_dir')), self._cell)
         chain, model_used = self._kinematic_chain(request.kinematics or self._p('kinematics'),
                                                   tool=X)
-        ids = sorted(cell.landmarks.markers)
-        single = request.method == landmark_frames.LANDMARK_SINGLE
-        targets = ids[:1] if single else ids
-        tilts = VIEW_TILTS[:1] if single else VIEW_TILTS
-        T_um = {i: cell.landmarks.T_user_marker(i) for i in ids}
-        plan_chain = self._model.chain(tool=X)       # nominal: where to go
-        observations, q_prev = [], np.asarray(cell.home, dtype=float)
-        for marker_id in targets:
-            for tilt in tilts:
-                q = self._plan_view(plan_chain, guess @ T_um[marker_id], tilt, q_prev)
-                if q is None:
-                    continue
-                q_prev = q
-                T_base_optical, msg = self._observe(chain, q, marker_id)
-                for lm in msg.landmarks:
-                    if lm.kind != lm.KIND_MARKER or lm.id not in T_um:
-                        continue
-                    if single and lm.id != marker_id:
-                        continue
-                    T_om = convert.pose_to_matrix(lm.pose.pose)
-                    C = np.array(lm.pose.covariance, dtype=float).reshape(6, 6)
-                    B = np.kron(np.eye(2), T_base_optical[:3, :3])
-                    observations.append((lm.id, T_base_optical @ T_om, B @ C @ B.T))
-        unseen = sorted(set(targets) - {i for i, _, _ in observations})
-        if unseen:
-            raise _RequestError(ErrorCode.CAPTURE_FAILED, (
-                f'{request.method}: landmark(s) {unseen} never seen (or no view of them was '
-                'reachable); check the camera, the landmarks topic and the user frame the '
-                'views are planned by'))
-        if single:
-            i, T, C = observations[-1]
-            result = landmark_frames.frame_from_single(T, T_um[i], covariance=C, marker_id=i)
-        else:
-            result = landmark_frames.frame_from_landmarks(
-                observations, T_um,
-                max_rms_error=max(self._p('max_rms_error'), LANDMARK_MAX_RMS),
-                max_scale_error=self._p('max_scale_error'))
-        return result.names, result.p_user, result.p_base, model_used, result.fit
+        try:
+            result = self._views.frame(request.method, guess, chain, X,
+                                       self._p('capture_duration'),
+                                       max_rms_error=self._p('max_rms_error'),
+                                       max_scale_error=self._p('max_scale_error'))
+        except LandmarkViewError as e:
+            raise _RequestError(e.code, str(e))
+        return result.names, result.p_user, result.p_base, model_used, hand_eye, result.fit
 
     def _user_frame_guess(self) -> np.ndarray:
         """Where the table is, to plan views by: the active user-frame calibration."""
@@ -414,75 +379,6 @@ class UserFrameSolver(Node):
                 'landmark methods plan their views by the active user frame and there is '
                 'none: calibrate once with points first (a few millimetres off is fine)'))
         return np.array(record['result']['T_base_user'], dtype=float)
-
-    def _plan_view(self, chain, T_base_marker, tilt: float, q_seed) -> np.ndarray | None:
-        """Joints [rad] putting the camera VIEW_DISTANCE from the marker centre, looking at
-        it, tilted by ``tilt`` about the marker's x axis; a few rolls about the view axis are
-        tried. None if none is reachable on the nominal model."""
-        home = np.asarray(self._cell.home, dtype=float)
-        for roll in (0.0, np.pi / 2, -np.pi / 2, np.pi):
-            T_marker_optical = (frames.make_transform(frames.rot_x(tilt), np.zeros(3))
-                                @ frames.make_transform(frames.rot_x(np.pi),
-                                                        [0.0, 0.0, VIEW_DISTANCE])
-                                @ frames.make_transform(frames.rot_z(roll), np.zeros(3)))
-            ik = kinematics.solve_ik_with_restarts(chain, T_base_marker @ T_marker_optical,
-                                                   q_seed, home)
-            if ik.success:
-                return np.asarray(ik.q, dtype=float)
-        return None
-
-    def _observe(self, chain, q, marker_id: int):
-        """Move to ``q``, capture the joints, and wait for landmarks of an image stamped after
-        the capture: (T_base_optical by FK of the captured joints, the first message showing
-        ``marker_id``, else the last of LANDMARK_MESSAGES)."""
-        box = self._landmark_box()
-        try:
-            self._robot.move_joints(q, 60.0)
-            captured = self._robot.capture(self._p('capture_duration')).position
-        except RobotCallError as e:
-            raise _RequestError(ErrorCode.CAPTURE_FAILED, f'view of landmark {marker_id}: {e}')
-        t0 = time.time_ns()
-        deadline = time.monotonic() + LANDMARK_TIMEOUT
-        seen, last = 0, None
-        with box['cond']:
-            box['msgs'].clear()
-            while seen < LANDMARK_MESSAGES:
-                remaining = deadline - time.monotonic()
-                if remaining <= 0:
-                    break
-                if not box['msgs']:
-                    box['cond'].wait(remaining)
-                    continue
-                msg = box['msgs'].pop(0)
-                stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-                if stamp <= t0:
-                    continue
-                seen, last = seen + 1, msg
-                if any(lm.id == marker_id and lm.kind == lm.KIND_MARKER
-                       for lm in msg.landmarks):
-                    break
-        if last is None:
-            raise _RequestError(ErrorCode.CAPTURE_FAILED, (
-                f'no landmarks message within {LANDMARK_TIMEOUT:.0f} s of the capture at '
-                f'landmark {marker_id}; are mock_camera / the camera driver and '
-                'landmark_detector up?'))
-        return kinematics.fk(chain, captured), last
-
-    def _landmark_box(self) -> dict:
-        """The landmarks subscription on the clients' thread (made on first use)."""
-        box = getattr(self, '_landmarks', None)
-        if box is None:
-            box = {'cond': threading.Condition(), 'msgs': []}
-
-            def take(msg) -> None:
-                with box['cond']:
-                    box['msgs'].append(msg)
-                    del box['msgs'][:-20]
-                    box['cond'].notify_all()
-
-            box['sub'] = self._answers.node.create_subscription(Landmarks, 'landmarks', take, 10)
-            self._landmarks = box
-        return box
 
     # -- the active calibration, latched ---------------------------------------------------
     def _publish_from_another_thread(self, msg: UserFrameCalibration) -> None:

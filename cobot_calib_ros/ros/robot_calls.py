@@ -27,6 +27,7 @@ class RobotCalls:
         self.move_client = ActionClient(answers.node, MoveTo, 'move_to')
         self.capture_client = answers.node.create_client(CaptureJoints, 'capture_joints')
         self._laser_client = None
+        self.robot_seconds = 0.0    # robot time of the moves (as move_to reports) and holds [s]
 
     def move(self, goal: MoveTo.Goal, result_timeout: float) -> MoveTo.Result:
         """Run a move_to goal to its end; RobotCallError unless it succeeded."""
@@ -40,6 +41,7 @@ class RobotCalls:
             raise RobotCallError('move_to rejected the goal (robot busy)')
         if result.error_code != MoveTo.Result.SUCCESS:
             raise RobotCallError(f'move_to: {result.message}')
+        self.robot_seconds += result.duration
         return result
 
     def touch_and_capture(self, name: str, duration: float, result_timeout: float,
@@ -69,6 +71,7 @@ class RobotCalls:
             raise RobotCallError(f'capture_joints: {e}; is joint_state_monitor up?')
         if res.error_code != CaptureJoints.Response.SUCCESS:
             raise RobotCallError(f'capture_joints: {res.message}')
+        self.robot_seconds += req.duration
         res.position = np.array(res.position)
         return res
 

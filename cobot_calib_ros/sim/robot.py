@@ -165,14 +165,20 @@ class DirectRobot:
     """
 
     def __init__(self, sim: SimRobot, probe_table: ProbeCurve, samples: int = 4,
-                 saturation_margin: float = 2e-6) -> None:
+                 saturation_margin: float = 2e-6, joint_velocity: float = 1.0,
+                 hand_eye: Array | None = None) -> None:
         self.sim, self.table = sim, probe_table
         self.samples, self.margin = samples, saturation_margin
+        self.joint_velocity = joint_velocity    # [rad/s] as mock_robot's default
         self.moves = 0
+        self.robot_seconds = 0.0
+        self._camera = None
+        self.hand_eye = hand_eye    # T_flange_optical landmark frames use; None: the nominal
 
     def _go(self, q: Array | Failure) -> None:
         if isinstance(q, Failure):
             raise TrialError('motion', q.message)
+        self.robot_seconds += float(np.max(np.abs(q - self.sim.q))) / self.joint_velocity
         self.sim.settle(q)
         self.moves += 1
 
@@ -186,8 +192,43 @@ class DirectRobot:
     def read(self) -> Reading:
         readings = [read_distance(self.table, self.sim.probe_voltage(), self.margin)
                     for _ in range(self.samples)]
+        self.robot_seconds += self.samples / self.sim.sim.probe_hz
         ok = [r.distance for r in readings if r.status == ReadingStatus.OK]
         if len(ok) > len(readings) / 2:
             return Reading(float(np.mean(ok)), ReadingStatus.OK)
         statuses = [r.status for r in readings if r.status != ReadingStatus.OK]
         return Reading(math.nan, max(set(statuses), key=statuses.count))
+
+    def landmark_frame(self, method: str, T_base_user_guess: Array) -> Array:
+        """The landmark method's M_n as the ROS path measures it (core.landmarks.views): the
+        views planned with the nominal hand-eye, images rendered by sim.camera at the arm's
+        joints, markers detected and posed by core.landmarks, camera poses by the nominal
+        model and ``hand_eye`` at the encoder readings."""
+        from cobot_calib_ros.core.landmarks import views
+        from cobot_calib_ros.core.landmarks.detect import detect_markers
+        from cobot_calib_ros.core.landmarks.pose import estimate_marker_pose
+        from cobot_calib_ros.core.user_frame.plausibility import MAX_RMS_ERROR, MAX_SCALE_ERROR
+        from cobot_calib_ros.sim.camera import SimCamera
+        cell = self.sim.cell
+        if self._camera is None:
+            self._camera = SimCamera(self.sim.sim, self.sim)
+        camera, marks = self._camera.camera, cell.landmarks
+        X = cell.camera.T_flange_optical if self.hand_eye is None else self.hand_eye
+        chain = self.sim.model.chain(tool=X)
+        observations = []
+        for _, q in views.plan_views(method, cell, chain, T_base_user_guess, self.sim.q):
+            self._go(self.sim.plan_joints(q))
+            image = self._camera.render(self.sim.q)
+            T_base_optical = kinematics.fk(chain, self.sim.joint_reading())
+            for marker in detect_markers(image, marks.dictionary, camera=camera):
+                pose = estimate_marker_pose(marker.corners, marks.marker_length, camera)
+                if pose:
+                    observations.append(views.observation(marker.id, T_base_optical,
+                                                          pose.T_optical_target,
+                                                          pose.covariance))
+        result = views.landmark_frame(method, cell, observations, max_rms_error=MAX_RMS_ERROR,
+                                      max_scale_error=MAX_SCALE_ERROR)
+        if not result:
+            why = result.fit.message if hasattr(result, 'fit') else result.message
+            raise TrialError('invalid', f'{method}: {why}')
+        return result.fit.M

@@ -58,7 +58,8 @@ class TrueMarker:
 
 
 def ray_box_distance(origin: Array, direction: Array, lo: Array, hi: Array) -> float:
-    """Distance along a unit ray to where it enters an axis-aligned box; inf if it misses."""
+    """Distance along a unit ray to where it enters an axis-aligned box; inf if it misses, 0
+    if the ray starts inside (a probe pushed into a marker reads as touching it)."""
     with np.errstate(divide='ignore', invalid='ignore'):
         t1 = (lo - origin) / direction
         t2 = (hi - origin) / direction
@@ -66,9 +67,9 @@ def ray_box_distance(origin: Array, direction: Array, lo: Array, hi: Array) -> f
     t2 = np.where(np.isnan(t2), np.inf, t2)
     t_near = float(np.max(np.minimum(t1, t2)))
     t_far = float(np.min(np.maximum(t1, t2)))
-    if t_near > t_far or t_far < 0.0 or t_near < 0.0:
+    if t_near > t_far or t_far < 0.0:
         return math.inf
-    return t_near
+    return max(t_near, 0.0)
 
 
 @dataclass(frozen=True)

@@ -173,6 +173,14 @@ class TrialStore(WarningLog):
         append_line(self.directory / trial_id / 'distances.csv', line, CSV_HEADER)
         return corrected
 
+    def record_calibration_time(self, trial_id: str, cycle: int, seconds: float) -> None:
+        """Keep the robot time [s] of a cycle's calibration pass (``calibration_s`` in the
+        metadata: a list by cycle, None where not measured; a redone cycle overwrites)."""
+        meta = self._require_running(trial_id)
+        times = list(meta.get('calibration_s') or [None] * meta['cycles_total'])
+        times[cycle] = float(seconds)
+        self._write_meta({**meta, 'calibration_s': times})
+
     def load(self, trial_id: str) -> TrialData | None:
         """Rebuild a trial from disk, or None if its metadata is unreadable (see warnings)."""
         meta = self._read_meta(check_id(trial_id))

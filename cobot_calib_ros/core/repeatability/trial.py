@@ -12,8 +12,13 @@ Each cycle n then visits the points P1..Pm once:
   cycle's frame M_n from those points, and the measurement pass sends the robot to the nominal
   user-frame points through M_n. The spread then measures how well the user frame is
   calibrated, not only the robot.
-A reading out of the probe range is retried once after moving by FF_i,n (eq 15), and the
-stored distance is corrected for it.
+- a landmark method (``landmark_single`` / ``landmark_multi``): the calibration pass is the
+  robot's own (:meth:`Robot.landmark_frame`: wrist-camera views planned around the frame the
+  taught points give), then the same measurement pass through that M_n.
+The robot time of each cycle's calibration pass (moves as the robot reports them, holds) is
+stored with the trial as ``calibration_s`` (the paper's Figure 7 compares the methods' times).
+A reading out of the probe range is retried after moving by FF_i,n (eq 15; up to
+MAX_FF_STEPS times in one direction), and the stored distance is corrected for the total.
 
 A stopped trial resumes at the start of its interrupted cycle (see :meth:`TrialRun.resume`).
 
@@ -36,14 +41,17 @@ from cobot_calib_ros.core.cell import Marker, tool_down_orientation
 from cobot_calib_ros.core.repeatability.iso9283 import (
     AXES, point_statistics, PointStats, probe_offset, range_correction)
 from cobot_calib_ros.core.sensors.probe import Reading, ReadingStatus
+from cobot_calib_ros.core.user_frame.landmarks import LANDMARK_METHODS
 
 if TYPE_CHECKING:   # the store is passed in; core never does I/O itself
     from cobot_calib_ros.store.trials import TrialData, TrialStore
 
 Array = NDArray[np.float64]
-METHODS = ('reference', *user_frame.METHODS)
+METHODS = ('reference', *user_frame.METHODS, *LANDMARK_METHODS)
 DEFAULT_METHOD, DEFAULT_AXIS, DEFAULT_CYCLES = 'reference', 'z', 30    # for a new trial
-MIN_CYCLES, MAX_CYCLES = 2, 10000    # RP needs sigma of eq (12): at least two cycles
+MIN_CYCLES, MAX_CYCLES = 2, 10000
+MAX_FF_STEPS = 3     # eq (15) moves, each by FF, before a reading counts as out of reach: a
+                     # single-landmark frame can be off by more than half the probe range    # RP needs sigma of eq (12): at least two cycles
 
 
 class TrialError(RuntimeError):
@@ -65,6 +73,13 @@ class Robot(Protocol):
         """Average the probe; raise TrialError('probe', ...) when there is no reading.
 
         An out-of-range reading has status BELOW_RANGE / ABOVE_RANGE and a NaN distance."""
+
+    def landmark_frame(self, method: str, T_base_user_guess: Array) -> Array:
+        """A landmark method's (4, 4) T_base_user from wrist-camera views planned around
+        ``T_base_user_guess``; raise TrialError('motion' | 'invalid', ...) when it fails."""
+
+    robot_seconds: float
+    """Robot time spent so far [s]: moves (as the robot reports them) and holds."""
 
 
 @dataclass(frozen=True)
@@ -293,7 +308,26 @@ class TrialRun:
                              'send the same trial_id again to resume it')
 
     def _cycle_frame(self, cycle: int) -> Array:
-        """This cycle's M_n from the top faces probed at the taught positions."""
+        """This cycle's M_n; the robot time of its calibration pass goes to the store."""
+        started = self.robot.robot_seconds
+        if self.plan.method in LANDMARK_METHODS:
+            M = self.robot.landmark_frame(self.plan.method, self._taught_frame())
+        else:
+            M = self._probed_frame(cycle)
+        self.store.record_calibration_time(self.plan.trial_id, cycle,
+                                           self.robot.robot_seconds - started)
+        return M
+
+    def _taught_frame(self) -> Array:
+        """T_base_user of the taught points (rigid): where landmark views are planned."""
+        nominal = np.array([m.nominal_top for m in self.plan.markers])
+        fit = user_frame.calibrate('rigid', nominal, np.array([T[:3, 3] for T in self._taught]))
+        if not fit:
+            raise TrialError('invalid', f'the taught points give no frame: {fit.message}')
+        return fit.T_base_user
+
+    def _probed_frame(self, cycle: int) -> Array:
+        """M_n from the top faces probed at the taught positions."""
         measured = []
         for i in range(len(self.plan.markers)):
             self._check_stop()
@@ -317,13 +351,18 @@ class TrialRun:
         T = (self._taught_pose(i, axis, standoff) if M is None
              else self._frame_pose(M, i, axis, standoff))
         reading, ff, direction = self._visit(T), 0.0, None
-        if reading.status != ReadingStatus.OK:   # eq (15): move by FF_i,n, correct the reading
-            ff, direction = self._range_correction(reading)
+        for _ in range(MAX_FF_STEPS):   # eq (15): move by FF_i,n, correct the reading
+            if reading.status == ReadingStatus.OK:
+                break
+            step, way = self._range_correction(reading)
+            if direction not in (None, way):
+                break                   # the gap is between two steps: no reading there
+            ff, direction = ff + step, way
             reading = self._visit(retreat(T, ff if direction == 'away' else -ff))
-            if reading.status != ReadingStatus.OK:
-                raise TrialError('probe', f'cycle {cycle + 1}, {self.plan.markers[i].name}: '
-                                 f'probe still {reading.status.name} after FF = '
-                                 f'{ff * 1e3:.2f} mm; check the frame and the offsets')
+        if reading.status != ReadingStatus.OK:
+            raise TrialError('probe', f'cycle {cycle + 1}, {self.plan.markers[i].name}: '
+                             f'probe still {reading.status.name} after FF = '
+                             f'{ff * 1e3:.2f} mm; check the frame and the offsets')
         corrected = self.store.append(self.plan.trial_id, cycle, i, reading.distance,
                                       ff, direction)
         self._on_reading(cycle, i, corrected)
@@ -342,6 +381,12 @@ class TrialRun:
         self.robot.move(retreat(T, self.plan.approach_distance))
         self.robot.move(T)
         return self.robot.read()
+
+
+def mean_calibration_seconds(meta: dict) -> float:
+    """Mean robot time [s] of the calibration passes a stored trial measured; NaN if none."""
+    times = [t for t in meta.get('calibration_s') or [] if t is not None]
+    return float(np.mean(times)) if times else math.nan
 
 
 def _as_transform(R: Array) -> Array:

@@ -8,7 +8,7 @@ import pytest
 from cobot_calib_ros.core import user_frame
 from cobot_calib_ros.core.repeatability import AXES
 from cobot_calib_ros.core.repeatability.trial import (
-    goal_problem, METHODS, Plan, ProbeRange, resume_problem, TrialError, TrialRun)
+    goal_problem, METHODS, Plan, ProbeRange, resume_problem, retreat, TrialError, TrialRun)
 from cobot_calib_ros.core.sensors.probe import Reading, ReadingStatus
 from cobot_calib_ros.paths import cell_file
 from cobot_calib_ros.sim.robot import DirectRobot, SimRobot
@@ -239,3 +239,58 @@ def test_a_resume_with_other_settings_is_refused_saying_what_is_stored(method, a
     problem = resume_problem(STORED, method, axis, cycles)
     assert problem.startswith('trial t7 is rigid, x axis, 3 cycles; cannot resume it with ')
     assert differ in problem and 'leave those out' in problem
+
+
+def test_landmark_methods_on_the_wide_layout_rank_as_issue_11_asks(tmp_path):
+    """Issue 11, must-show 3, in-process (the ROS path differs only in how views are taken):
+    on the wide set-up with the non-planar table, landmark_multi repeats at least 5x better
+    than landmark_single (one marker's plane) and within 1.5x of five_point_lsq. Camera poses
+    come from the nominal hand-eye, as before a hand-eye calibration. The paper's close-layout
+    figures: RPS 1.42 mm (z), five points 0.12 mm."""
+    import cv2
+    from cobot_calib_ros.core.repeatability import point_statistics
+    from cobot_calib_ros.core.repeatability.trial import mean_calibration_seconds
+    cv2.setRNGSeed(11)                  # the renderer's sensor noise
+    wide = load_simulation(cell_file('sawyer_close'), 'wide')
+    rp, seconds = {}, {}
+    for method in ('five_point_lsq', 'landmark_single', 'landmark_multi'):
+        plan = _plan(method, 30, trial_id=method, cell=wide.cell)
+        trial = TrialRun(plan, robot(3, wide), TrialStore(tmp_path / method)).start()
+        rp[method] = point_statistics(trial.distances).rp_all
+        seconds[method] = mean_calibration_seconds(trial.meta)
+        assert sum(t is not None for t in trial.meta['calibration_s']) == 30
+    print({m: f'RP_all {v * 1e3:.3f} mm, calibration {seconds[m]:.1f} s'
+           for m, v in rp.items()})
+    assert rp['landmark_single'] >= 5 * rp['landmark_multi'], rp
+    assert rp['landmark_multi'] <= 1.5 * rp['five_point_lsq'], rp
+    assert 0.5e-3 < rp['landmark_single'] < 3e-3      # the paper's RPS class, not a broken fit
+    # 18 views against one; five probed points against one view
+    assert seconds['landmark_multi'] > 5 * seconds['landmark_single'] > 0
+
+
+def test_a_reading_far_out_of_range_takes_several_ff_steps(tmp_path):
+    """A frame 2.5 mm off (a single-landmark frame on a wide layout): eq (15) moves up to
+    MAX_FF_STEPS times by FF in one direction; the stored FF is the total."""
+    arm = robot(8)
+    store = TrialStore(tmp_path)
+    run = TrialRun(_plan('reference', 2, trial_id='ff2'), arm, store)
+    original_read, state = arm.read, {'n': 0}
+
+    def read_far_short_at_one_visit():
+        state['n'] += 1
+        reading = original_read()
+        if state['n'] not in (8, 9, 10):      # cycle 1, P3 and its two retries
+            return reading
+        back = retreat(arm.sim.true_tool(), 5e-3)      # the gap as if the marker were lower
+        gap = SIM.world.probe_gap(back) - 5e-3 + 2.5e-3
+        return (Reading(math.nan, ReadingStatus.ABOVE_RANGE) if gap > SIM.probe.max_range
+                else Reading(gap, ReadingStatus.OK))
+    arm.read = read_far_short_at_one_visit
+    trial = run.start()
+    rows = (tmp_path / 'trials' / 'ff2' / 'distances.csv').read_text().splitlines()
+    corrected = [r.split(',') for r in rows[1:] if 'closer' in r]
+    assert len(corrected) == 1 and corrected[0][2] == 'P3'
+    raw, ff = float(corrected[0][3]), float(corrected[0][4])
+    assert ff == pytest.approx(2.0e-3)
+    assert raw == pytest.approx(1.2e-3 - 2.0e-3 + 2.5e-3, abs=2e-4)
+    assert trial.distances[2, 0] == pytest.approx(raw + ff)    # 3.7 mm: the far landing
