@@ -19,7 +19,8 @@ import time
 from cobot_calib_ros import paths
 
 SUITE = ('mock_robot', 'joint_state_monitor', 'proximity_sensor', 'user_frame_solver',
-         'repeatability_trial', 'kinematic_identifier', 'mock_camera', 'landmark_detector')
+         'repeatability_trial', 'kinematic_identifier', 'mock_camera', 'landmark_detector',
+         'hand_eye_calibrator')
 PR_SET_PDEATHSIG = 1
 
 

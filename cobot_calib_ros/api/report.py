@@ -24,6 +24,7 @@ import numpy as np
 
 from cobot_calib_ros.core.repeatability import (complete_cycles, iso9283_rp_from_axes,
                                                  overall_rp, point_statistics)
+from cobot_calib_ros.core.repeatability.trial import mean_calibration_seconds
 from cobot_calib_ros.store.files import atomic_write_bytes, atomic_write_text, check_id
 from cobot_calib_ros.store.trials import TrialData, TrialStore
 
@@ -35,6 +36,27 @@ REFERENCE_COLOR = '0.6'  # grey, so the methods stand out against the robot's ow
 MAX_STEM_CHARS = 100
 PNG_SIZE_IN = (10.0, 5.0)
 PNG_DPI = 120
+# RP_all [mm] the first paper measured on the Sawyer: Tables 1-3 (the built-in one-landmark
+# method, RPS, and the reference, per axis) and Tables 4-5 (z, close and wide set-ups).
+PAPER_RP_ALL_MM = {
+    ('landmark_single', 'x', None): (0.70, 'Table 1'),
+    ('landmark_single', 'y', None): (0.39, 'Table 2'),
+    ('landmark_single', 'z', None): (1.42, 'Table 3'),
+    ('reference', 'x', None): (0.08, 'Table 1'),
+    ('reference', 'y', None): (0.16, 'Table 2'),
+    ('reference', 'z', 'close'): (0.08, 'Table 4'),
+    ('three_point', 'z', 'close'): (0.33, 'Table 4'),
+    ('five_point_lsq', 'z', 'close'): (0.12, 'Table 4'),
+    ('reference', 'z', 'wide'): (0.24, 'Table 5'),
+    ('three_point', 'z', 'wide'): (0.53, 'Table 5'),
+    ('five_point_lsq', 'z', 'wide'): (0.36, 'Table 5'),
+}
+
+
+def paper_rp_all_mm(method: str, axis: str, layout: str) -> tuple[float, str] | None:
+    """(RP_all [mm], table) the paper gives for this method, axis and set-up, else None."""
+    return PAPER_RP_ALL_MM.get((method, axis, layout)) or PAPER_RP_ALL_MM.get(
+        (method, axis, None))
 
 
 def trial_summary(trial: TrialData) -> dict[str, Any]:
@@ -48,10 +70,15 @@ def trial_summary(trial: TrialData) -> dict[str, Any]:
         points.append(dict(zip(('name', 'mean_d_mm', 'mean_D_mm', 'sigma_mm', 'rp_mm'),
                                [name, *mm])))
     rp_all_mm, note = _rp_all_mm(points, stats.cycles)
+    seconds = mean_calibration_seconds(meta)
+    paper = paper_rp_all_mm(meta['method'], meta['axis'], meta['layout'])
     return {'id': meta['id'], 'method': meta['method'], 'axis': meta['axis'],
             'layout': meta['layout'], 'status': meta['status'], 'cycles': stats.cycles,
             'cycles_total': meta['cycles_total'], 'points': points,
-            'rp_all_mm': rp_all_mm, 'note': note}
+            'rp_all_mm': rp_all_mm, 'note': note,
+            'calibration_s': seconds if math.isfinite(seconds) else None,
+            'paper_rp_all_mm': None if paper is None else paper[0],
+            'paper_table': None if paper is None else paper[1]}
 
 
 def format_table(summaries: Sequence[dict[str, Any]]) -> str:
@@ -174,13 +201,21 @@ def _point_names(summaries: Sequence[dict[str, Any]]) -> list[str]:
 def _rp_table(summaries: Sequence[dict[str, Any]]) -> str:
     """The paper's Tables 1-5: one row per experiment, RP_i per point, then RP_all."""
     names = _point_names(summaries)
-    rows = [['Experiment', *(f'RP_{n} [mm]' for n in names), 'RP_all [mm]']]
+    rows = [['Experiment', *(f'RP_{n} [mm]' for n in names), 'RP_all [mm]',
+             'paper RP_all [mm]', 'calibration [s]']]
     for summary in summaries:
         rp_by_name = {p['name']: _fmt(p['rp_mm']) for p in summary['points']}
+        paper = (MISSING if summary['paper_rp_all_mm'] is None else
+                 f'{summary["paper_rp_all_mm"]:.2f} ({summary["paper_table"]})')
+        seconds = (MISSING if summary['calibration_s'] is None
+                   else f'{summary["calibration_s"]:.1f}')
         rows.append([f'{summary["method"]} ({summary["id"]})',
-                     *(rp_by_name.get(n, '-') for n in names), _fmt(summary['rp_all_mm'])])
-    return ('Positioning repeatability RP (ISO 9283, eqs 9-14), values in mm\n\n'
-            + _grid(rows))
+                     *(rp_by_name.get(n, '-') for n in names), _fmt(summary['rp_all_mm']),
+                     paper, seconds])
+    return ('Positioning repeatability RP (ISO 9283, eqs 9-14), values in mm; paper: the '
+            'first paper\'s Tables 1-5 for the same method, axis and set-up; calibration: '
+            'robot time of one cycle\'s calibration pass (moves, holds; simulated on the mock)'
+            '\n\n' + _grid(rows))
 
 
 def _detail_block(summary: dict[str, Any]) -> str:

@@ -1,8 +1,9 @@
 """`cobot-calib trial` and `cobot-calib experiment user-frame`: repeatability trials over ROS.
 
-The experiment reproduces the first paper's comparison (Tables 4-5, Figures 2-4) on the mock
-robot: a reference trial and one trial per calibration method, each n cycles over P1..P5 of
-the chosen set-up, then one table and one box plot.
+The experiment reproduces the first paper's comparison (Tables 1-5, Figures 2-4, 7) on the
+mock robot: a reference trial and one trial per calibration method (the landmark methods after
+a hand-eye calibration), each n cycles over P1..P5 of the chosen set-up, then one table (with
+the paper's figures and each method's calibration time beside) and one box plot.
 """
 from __future__ import annotations
 
@@ -17,7 +18,9 @@ from cobot_calib_ros.api import launcher, report
 from cobot_calib_ros.cli import common
 from cobot_calib_ros.store.trials import TrialStore
 
-EXPERIMENT_METHODS = ('reference', 'three_point', 'five_point_lsq', 'rigid')
+EXPERIMENT_METHODS = ('reference', 'three_point', 'five_point_lsq', 'rigid', 'landmark_single',
+                      'landmark_multi')
+LANDMARK_METHODS = ('landmark_single', 'landmark_multi')
 
 
 class TrialClient:
@@ -277,15 +280,20 @@ def run_experiment(args) -> int:
     say = functools.partial(common.say, args)
     data_dir = paths.data_dir(args.data_dir)
     stamp = time.strftime('%Y%m%dT%H%M%S')
-    overrides = {n: {'layout': args.setup} for n in ('mock_robot', 'repeatability_trial')}
-    overrides['repeatability_trial']['data_dir'] = str(data_dir)
-    rows, trial_ids = [], []
+    methods = args.methods or EXPERIMENT_METHODS
+    overrides = {n: {'layout': args.setup, 'data_dir': str(data_dir)}
+                 for n in ('repeatability_trial', 'user_frame_solver', 'hand_eye_calibrator')}
+    overrides['mock_robot'] = {'layout': args.setup}
+    rows, trial_ids, hand_eye = [], [], None
     try:
         with launcher.private_suite(args.cell, overrides, say):
             client = TrialClient(say)
             try:
                 wait_for_suite(client.node)
-                for method in EXPERIMENT_METHODS:
+                for method in methods:
+                    if method in LANDMARK_METHODS and hand_eye is None:
+                        hand_eye = (_calibrate_hand_eye(client.node, args.cell, say)
+                                    if args.hand_eye == 'calibrate' else {'hand_eye': 'nominal'})
                     trial_id = f'{stamp}-{args.setup}-{args.axis}-{method}'
                     say(f'{method}: {args.cycles} cycles on the {args.setup} set-up ...')
                     result = client.run(method, args.axis, args.cycles, trial_id, args.setup)
@@ -294,7 +302,8 @@ def run_experiment(args) -> int:
                     trial_ids.append(trial_id)
                     rows.append({'method': method, 'trial_id': trial_id,
                                  'rp_mm': list(result.statistics.rp_mm),
-                                 'rp_all_mm': result.statistics.rp_all_mm})
+                                 'rp_all_mm': result.statistics.rp_all_mm,
+                                 'calibration_s': result.calibration_seconds})
             finally:
                 client.close()
     except (CallError, RuntimeError) as e:
@@ -304,10 +313,47 @@ def run_experiment(args) -> int:
                                                  _report_dir(args, data_dir))
     if args.json:
         print(json.dumps({'setup': args.setup, 'axis': args.axis, 'cycles': args.cycles,
-                          'rows': rows, 'figure': str(png), 'table': str(table_file)}))
+                          'rows': rows, 'hand_eye': hand_eye, 'figure': str(png),
+                          'table': str(table_file)}))
     else:
         print(f'\n{table}\nfigure: {png}\ntable:  {table_file}')
     return 0
+
+
+def _calibrate_hand_eye(node, cell: str, say) -> dict:
+    """What the landmark rows need first, as an integrator does it: a user frame from the five
+    touched points (so the hand-eye views find the board), then calibrate_hand_eye; the result
+    and its error against the mock's truth. CallError / RuntimeError when a step fails."""
+    from cobot_calib_msgs.srv import CalibrateUserFrame
+    from geometry_msgs.msg import TransformStamped
+    from cobot_calib_ros.api.client import call_service
+    from cobot_calib_ros.api.hand_eye import calibrate_hand_eye, error_against_truth
+    from cobot_calib_ros.core.cell import load_cell
+    from cobot_calib_ros.ros import convert
+    nominal_cell = load_cell(paths.cell_file(cell))
+    say('landmark rows: a five-point user frame (to find the board), then the hand-eye ...')
+    client = node.create_client(CalibrateUserFrame, 'calibrate_user_frame')
+    try:
+        frame = call_service(node, client, CalibrateUserFrame.Request(
+            method='rigid', point_names=list(nominal_cell.point_names)), 300.0)
+    finally:
+        node.destroy_client(client)
+    if frame.error_code != 0:
+        raise RuntimeError(f'user frame for the hand-eye failed: {frame.message}')
+    result = calibrate_hand_eye(node)
+    if result.error_code != 0:
+        raise RuntimeError(f'hand-eye calibration failed: {result.message}')
+    X = convert.transform_to_matrix(TransformStamped(transform=result.t_flange_optical))
+    error = error_against_truth(node, X, nominal_cell.camera.T_flange_optical)
+    say(f'hand-eye {result.calibration_id}: {result.views_used} views, residual '
+        f'{result.residual_mm:.3f} mm / {result.residual_mrad:.3f} mrad; error against the '
+        f'truth {error.position_m * 1e3:.3f} mm / {error.rotation_rad * 1e3:.3f} mrad '
+        f'(nominal: {error.nominal_position_m * 1e3:.3f} mm / '
+        f'{error.nominal_rotation_rad * 1e3:.3f} mrad)')
+    return {'hand_eye': result.calibration_id, 'views_used': result.views_used,
+            'error_mm': error.position_m * 1e3, 'error_mrad': error.rotation_rad * 1e3,
+            'nominal_error_mm': error.nominal_position_m * 1e3,
+            'nominal_error_mrad': error.nominal_rotation_rad * 1e3}
 
 
 def run_report(args) -> int:

@@ -17,11 +17,29 @@ def add_parser(subparsers):
     p.add_argument('--setup', default='close', choices=('close', 'wide'))
     p.add_argument('--axis', default='z', choices=('x', 'y', 'z'))
     p.add_argument('--cycles', type=int, default=30)
+    p.add_argument('--methods', type=_methods, default=None, metavar='M[,M...]',
+                   help='trials to run, in this order (default: reference, three_point, '
+                        'five_point_lsq, rigid, landmark_single, landmark_multi)')
+    p.add_argument('--hand-eye', default='calibrate', choices=('calibrate', 'nominal'),
+                   help='before the landmark rows: calibrate the wrist camera first (a '
+                        'five-point user frame to find the board, then calibrate_hand_eye; '
+                        'its error against the mock\'s truth is printed), or use the cell\'s '
+                        'nominal hand-eye')
     p.add_argument('--cell', default='sawyer_close', help='cell YAML path or name')
     p.add_argument('--data-dir', help='where trials are stored (default ~/.ros/cobot_calib)')
     p.add_argument('--out', help='report folder (default <data dir>/reports)')
     p.add_argument('--json', action='store_true')
     return p
+
+
+def _methods(text: str) -> tuple[str, ...]:
+    import argparse
+    from cobot_calib_ros.core.repeatability.trial import METHODS
+    methods = tuple(m.strip() for m in text.split(',') if m.strip())
+    unknown = [m for m in methods if m not in METHODS]
+    if unknown or not methods:
+        raise argparse.ArgumentTypeError(f'unknown method(s) {unknown}; use of {", ".join(METHODS)}')
+    return methods
 
 
 def run(args) -> int:

@@ -20,6 +20,7 @@ VERBS = (
     'experiment_cmd',
     'report',
     'identify',
+    'hand_eye',
     'record', 'bag', 'replay',      # bags (rosbag2): record, bag info, replay
     'detect',
 )

@@ -284,6 +284,9 @@ class MockRobot(Node):
         response.true_parameters = self._robot.true_parameters.tolist()
         response.repeatability_sigma = self._sim.layout_repeatability_sigma()
         response.touch_sigma = self._sim.noise.touch_sigma
+        if self._sim.camera is not None:
+            response.hand_eye_true = convert.matrix_to_transform(
+                self._sim.camera.T_flange_optical, 'flange', cell.camera.frame_id)
         return response
 
     def destroy_node(self):

@@ -18,6 +18,7 @@ from typing import Callable
 
 from cobot_calib_msgs.msg import Landmarks
 import numpy as np
+from sensor_msgs.msg import JointState
 
 from cobot_calib_ros.core import kinematics
 from cobot_calib_ros.core.errors import ErrorCode, Failure
@@ -28,6 +29,7 @@ from cobot_calib_ros.ros.robot_calls import RobotCallError, RobotCalls
 from cobot_calib_ros.ros.spin import Companion
 from cobot_calib_ros.store.calibrations import CalibrationStore
 
+CAPTURES_TOPIC = 'cobot_calib/captures'
 LANDMARK_TIMEOUT = 5.0   # [s] of wall time for a landmarks message stamped after a capture
 LANDMARK_MESSAGES = 3    # messages after a capture looked at before a marker counts as unseen
 MOVE_TIMEOUT = 60.0      # [s] for one view's move
@@ -66,6 +68,9 @@ class LandmarkViews:
         self._cond = threading.Condition()
         self._msgs: list[Landmarks] = []
         self._sub = None
+        # every view's capture, as kinematic_identifier publishes its poses: a recorded session
+        # (images, camera_info, these marks) can be fitted again (bags/README.md)
+        self._captures = answers.node.create_publisher(JointState, CAPTURES_TOPIC, 100)
 
     def problem(self) -> str:
         """'' when the cell has a camera and landmarks, else what to add to the cell file."""
@@ -107,11 +112,13 @@ class LandmarkViews:
         self._subscribe()
         try:
             self._robot.move_joints(q, MOVE_TIMEOUT)
-            captured = self._robot.capture(capture_duration).position
+            capture = self._robot.capture(capture_duration)
         except RobotCallError as e:
             raise LandmarkViewError(ErrorCode.CAPTURE_FAILED,
                                     f'view of landmark {marker_id}: {e}')
+        captured = capture.position
         t0 = self._now_ns()
+        self._publish_capture(marker_id, capture, t0)
         deadline = time.monotonic() + LANDMARK_TIMEOUT
         seen, last = 0, None
         with self._cond:
@@ -137,6 +144,18 @@ class LandmarkViews:
                 f'landmark {marker_id}; are mock_camera / the camera driver and '
                 'landmark_detector up?'))
         return kinematics.fk(chain, captured), last
+
+    def _publish_capture(self, marker_id: int, capture, stamp_ns: int) -> None:
+        """The view's mark: header.stamp = the time after which landmarks count (ROS time),
+        frame_id = 'landmark_<id>' (the marker the view is planned for), name/position = the
+        captured joints [rad], effort = their standard deviation."""
+        msg = JointState(name=list(self._model.joint_names),
+                         position=[float(v) for v in capture.position],
+                         velocity=[0.0] * len(capture.position),
+                         effort=[float(v) for v in capture.std])
+        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
+        msg.header.frame_id = f'landmark_{marker_id}'
+        self._captures.publish(msg)
 
     def _subscribe(self) -> None:
         """The landmarks subscription on the answers' thread (made on first use)."""

@@ -79,9 +79,13 @@ def test_table_has_paper_rp_row_and_per_point_details_with_units(store):
     _make_trial(store, 'rig', np.array(DISTANCES_MM) * 2, method='rigid')  # everything x2
     table = report.format_table([report.trial_summary(store.load(i)) for i in ('ref', 'rig')])
     assert _row(table, 'Experiment') == ['Experiment', 'RP_P1', '[mm]', 'RP_P2', '[mm]',
-                                         'RP_all', '[mm]']
-    assert _row(table, 'reference') == ['reference', '(ref)', '0.050', '0.100', '0.075']
-    assert _row(table, 'rigid') == ['rigid', '(rig)', '0.100', '0.200', '0.150']
+                                         'RP_all', '[mm]', 'paper', 'RP_all', '[mm]',
+                                         'calibration', '[s]']
+    # the paper's Table 4 beside the reference (close, z); no paper value and no calibration
+    # pass time for rigid (these hand-made trials store none)
+    assert _row(table, 'reference') == ['reference', '(ref)', '0.050', '0.100', '0.075',
+                                        '0.08', '(Table', '4)', 'n/a']
+    assert _row(table, 'rigid') == ['rigid', '(rig)', '0.100', '0.200', '0.150', 'n/a', 'n/a']
     assert _row(table, 'Point') == ['Point', 'mean', 'd_i', '[mm]', 'mean', 'D_i', '[mm]',
                                     'sigma_i', '[mm]', 'RP_i', '[mm]']
     assert _row(table, 'P1')[1:] == EXPECTED_ROWS['P1']  # first block: the reference
@@ -213,3 +217,14 @@ def test_three_axis_trials_give_the_iso_3d_repeatability(store, tmp_path):
     assert _row(three_d, 'rigid')[1:] == ['0.050', '4']
     with pytest.raises(AssertionError):
         _row(three_d, 'reference')
+
+
+def test_the_table_shows_the_mean_calibration_time_and_the_papers_rps_figure(store):
+    _make_trial(store, 'rps', DISTANCES_MM, method='landmark_single')
+    for cycle, seconds in enumerate((1.5, 2.5, None)):     # the third cycle stored no time
+        if seconds is not None:
+            store.record_calibration_time('rps', cycle, seconds)
+    summary = report.trial_summary(store.load('rps'))
+    assert summary['calibration_s'] == pytest.approx(2.0)
+    table = report.format_table([summary])
+    assert _row(table, 'landmark_single')[-4:] == ['1.42', '(Table', '3)', '2.0']

@@ -324,3 +324,26 @@ def _latched(ros, spec: launcher.NodeSpec, log_dir) -> Repeatability:
         ros.destroy_subscription(sub)
         assert nodes.stop() == {'replay.repeatability_trial': 0}
     return got[-1]
+
+
+def test_a_landmark_multi_trial_runs_over_ros_with_its_calibration_time(ros, trial_data):
+    """Each cycle's frame from the wrist camera (18 views of the six fiducials through
+    mock_camera and landmark_detector), then the probe pass; the stored calibration time is the
+    robot time of those views (moves as mock_robot reports them, and the holds)."""
+    client = ActionClient(ros, RunTrial, 'run_trial')
+    try:
+        _, result = run_action(ros, client, RunTrial.Goal(method='landmark_multi', cycles=2),
+                               600.0, executor=ros.executor_for_tests)
+    finally:
+        client.destroy()
+    assert result.error_code == RunTrial.Result.SUCCESS, result.message
+    s = result.statistics
+    assert s.method == 'landmark_multi' and s.cycles_done == 2
+    # two cycles: RP is mostly the spread of two frames; the close layout's is ~0.1 mm
+    assert 0.0 < s.rp_all < 0.5e-3
+    meta = TrialStore(trial_data).load(result.trial_id).meta
+    times = meta['calibration_s']
+    assert len(times) == 2 and all(t is not None and t > 0 for t in times)
+    assert result.calibration_seconds == pytest.approx(sum(times) / 2)
+    # 18 holds of capture_duration (0.3 s) and 18 moves of at least a few degrees each
+    assert result.calibration_seconds > 18 * 0.3
