@@ -106,20 +106,25 @@ def test_stop_then_resume_completes_without_losing_readings(tmp_path):
     assert np.all(np.isfinite(done.distances))
 
 
-def test_out_of_range_reading_is_corrected_by_ff(tmp_path):
-    """At one visit the robot lands 1.5 mm short, out of range: eq (15) moves 1 mm closer,
-    reads again, and refers the reading back to the commanded point."""
+@pytest.mark.parametrize('short_m, steps', [(1.5e-3, 1), (2.5e-3, 2)])
+def test_an_out_of_range_reading_is_corrected_by_ff(tmp_path, short_m, steps):
+    """At one visit the robot lands ``short_m`` short, out of range: eq (15) moves 1 mm closer
+    (again, up to MAX_FF_STEPS times, when still out of range), reads, and refers the reading
+    back to the commanded point with the total FF. 2.5 mm: a single-landmark frame on the wide
+    layout is off by that much."""
     arm = robot(8)
     store = TrialStore(tmp_path)
     run = TrialRun(_plan('reference', 2, trial_id='ff'), arm, store)
     original_read, state = arm.read, {'n': 0}
+    faked = range(8, 8 + steps + 1)   # after the 5 set-up readings: cycle 1, P3 and retries
 
     def read_short_at_one_visit():
         state['n'] += 1
         reading = original_read()
-        if state['n'] not in (8, 9):      # after the 5 set-up readings: cycle 1, P3 (+ retry)
+        if state['n'] not in faked:
             return reading
-        gap = SIM.world.probe_gap(arm.sim.true_tool()) + 1.5e-3
+        back = retreat(arm.sim.true_tool(), 5e-3)      # the gap as if the marker were lower
+        gap = SIM.world.probe_gap(back) - 5e-3 + short_m
         return (Reading(math.nan, ReadingStatus.ABOVE_RANGE) if gap > SIM.probe.max_range
                 else Reading(gap, ReadingStatus.OK))
     arm.read = read_short_at_one_visit
@@ -128,9 +133,9 @@ def test_out_of_range_reading_is_corrected_by_ff(tmp_path):
     corrected = [r.split(',') for r in rows[1:] if 'closer' in r]
     assert len(corrected) == 1 and corrected[0][2] == 'P3'
     raw, ff = float(corrected[0][3]), float(corrected[0][4])
-    assert ff == pytest.approx(1.0e-3)
-    assert raw == pytest.approx(1.2e-3 - 1.0e-3 + 1.5e-3, abs=2e-4)
-    assert trial.distances[2, 0] == pytest.approx(raw + ff)    # 2.7 mm: the short landing
+    assert ff == pytest.approx(steps * 1.0e-3)
+    assert raw == pytest.approx(1.2e-3 - steps * 1.0e-3 + short_m, abs=2e-4)
+    assert trial.distances[2, 0] == pytest.approx(raw + ff)    # 1.2 mm + the short landing
 
 
 def test_a_trial_resumed_mid_cycle_measures_that_cycle_again_through_one_frame(
@@ -266,31 +271,3 @@ def test_landmark_methods_on_the_wide_layout_rank_as_issue_11_asks(tmp_path):
     assert 0.5e-3 < rp['landmark_single'] < 3e-3      # the paper's RPS class, not a broken fit
     # 18 views against one; five probed points against one view
     assert seconds['landmark_multi'] > 5 * seconds['landmark_single'] > 0
-
-
-def test_a_reading_far_out_of_range_takes_several_ff_steps(tmp_path):
-    """A frame 2.5 mm off (a single-landmark frame on a wide layout): eq (15) moves up to
-    MAX_FF_STEPS times by FF in one direction; the stored FF is the total."""
-    arm = robot(8)
-    store = TrialStore(tmp_path)
-    run = TrialRun(_plan('reference', 2, trial_id='ff2'), arm, store)
-    original_read, state = arm.read, {'n': 0}
-
-    def read_far_short_at_one_visit():
-        state['n'] += 1
-        reading = original_read()
-        if state['n'] not in (8, 9, 10):      # cycle 1, P3 and its two retries
-            return reading
-        back = retreat(arm.sim.true_tool(), 5e-3)      # the gap as if the marker were lower
-        gap = SIM.world.probe_gap(back) - 5e-3 + 2.5e-3
-        return (Reading(math.nan, ReadingStatus.ABOVE_RANGE) if gap > SIM.probe.max_range
-                else Reading(gap, ReadingStatus.OK))
-    arm.read = read_far_short_at_one_visit
-    trial = run.start()
-    rows = (tmp_path / 'trials' / 'ff2' / 'distances.csv').read_text().splitlines()
-    corrected = [r.split(',') for r in rows[1:] if 'closer' in r]
-    assert len(corrected) == 1 and corrected[0][2] == 'P3'
-    raw, ff = float(corrected[0][3]), float(corrected[0][4])
-    assert ff == pytest.approx(2.0e-3)
-    assert raw == pytest.approx(1.2e-3 - 2.0e-3 + 2.5e-3, abs=2e-4)
-    assert trial.distances[2, 0] == pytest.approx(raw + ff)    # 3.7 mm: the far landing
