@@ -7,6 +7,8 @@ package_name = 'cobot_calib_ros'
 NODES = ['mock_robot', 'proximity_sensor', 'joint_state_monitor', 'user_frame_solver',
          'repeatability_trial', 'kinematic_identifier', 'mock_camera', 'landmark_detector',
          'hand_eye_calibrator']
+# rosbag2 record / play on rclpy (cobot_calib_ros.bags): `ros2 run cobot_calib_ros bag_player`
+BAG_NODES = ['bag_player', 'bag_recorder']
 
 setup(
     name=package_name,
@@ -27,6 +29,8 @@ setup(
     tests_require=['pytest'],
     entry_points={'console_scripts': [
         *[f'{node} = cobot_calib_ros.nodes.{node}:main' for node in NODES],
+        *[f'{node} = cobot_calib_ros.bags.{node.removeprefix("bag_")}:main'
+          for node in BAG_NODES],
         'cobot-calib = cobot_calib_ros.cli.main:main',
     ]},
 )

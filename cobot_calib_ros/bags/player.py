@@ -25,11 +25,20 @@
 
 The node's services are served by a SingleThreadedExecutor on its own thread (``spinning``);
 play() runs on the caller's thread.
+
+As its own process (``main``; ``ros2 run cobot_calib_ros bag_player --ros-args -p bag:=DIR
+-p rate:=2.0 -p clock_hz:=40.0``, also ``.venv/lib/cobot_calib_ros/bag_player``) it takes the
+parameters ``bag``, ``rate``, ``loop``, ``topics``, ``clock_hz`` (0: no /clock),
+``start_paused`` and ``wait_subscribers`` (read at start-up, described in ``ros2 param
+describe``), plays the bag once (or until shut down with ``loop``) and exits. Given a Bag from
+Python (``cobot-calib replay``, the --check modules) the arguments are the values, and the
+parameters show them.
 """
 from __future__ import annotations
 
 import contextlib
 from dataclasses import dataclass
+import sys
 import threading
 import time
 from typing import Callable, Iterable
@@ -44,7 +53,9 @@ from std_srvs.srv import Trigger
 
 from cobot_calib_ros.bags.errors import BagError
 from cobot_calib_ros.bags.metadata import duration_ns
-from cobot_calib_ros.bags.reader import Bag
+from cobot_calib_ros.bags.reader import Bag, open_bag
+from cobot_calib_ros.bags.recorder import declare_strings
+from cobot_calib_ros.ros.params import read_once
 from cobot_calib_ros.ros.time import ns_to_stamp
 
 NODE_NAME = 'bag_player'
@@ -94,22 +105,28 @@ class PlayResult:
 
 
 class BagPlayer(Node):
-    """Publishes a bag's messages; see the module doc."""
+    """Publishes a bag's messages; see the module doc. With ``bag`` None every setting comes
+    from the node's parameters (and the player opens and closes the bag itself)."""
 
-    def __init__(self, bag: Bag, *, rate: float = 1.0, loop: bool = False,
+    def __init__(self, bag: Bag | None = None, *, rate: float = 1.0, loop: bool = False,
                  topics: Iterable[str] | None = None, clock_hz: float | None = None,
                  start_paused: bool = False, wait_subscribers: float = 2.0,
                  depth: int = DEPTH, report: Callable[[str], None] | None = None,
                  node_name: str = NODE_NAME, **node_kwargs) -> None:
-        if rate < 0:
-            raise ValueError('rate must be >= 0 (0: as fast as possible)')
-        self.bag = bag
-        self.topics = bag.select(topics)
-        if not self.topics or not sum(bag.topics[t].count for t in self.topics):
-            which = ' on ' + ', '.join(self.topics) if topics is not None else ''
-            raise BagError(f'{bag.path}: no messages{which} to replay')
-        classes = {t: _message_class(bag, t) for t in self.topics}
-        super().__init__(node_name, start_parameter_services=False, **node_kwargs)
+        self._own_bag = None
+        if bag is not None:                 # refused before any rclpy set-up
+            classes = self._select(bag, rate, topics)
+        super().__init__(node_name, start_parameter_services=bag is None, **node_kwargs)
+        values = self._declare_parameters(bag, rate, loop, topics, clock_hz, start_paused,
+                                          wait_subscribers)
+        if bag is None:
+            path, rate, loop, topics, clock_hz, start_paused, wait_subscribers = values
+            if not path:
+                raise BagError('parameter bag: give the bag to play (-p bag:=DIR)')
+            bag = self._own_bag = open_bag(path)
+            for warning in bag.warnings:
+                self.get_logger().warning(warning)
+            classes = self._select(bag, rate, topics or None)
         self.rate = rate
         self.loop = loop
         self.clock_period_ns = int(NS_PER_S / clock_hz) if clock_hz else 0
@@ -130,6 +147,44 @@ class BagPlayer(Node):
         self._stop = threading.Event()
         self.create_service(Trigger, '~/resume', self._on_resume)
         self.create_service(Trigger, '~/pause', self._on_pause)
+
+    def _select(self, bag: Bag, rate: float, topics) -> dict:
+        """Check the settings against the bag; the message class of each topic to play."""
+        if rate < 0:
+            raise ValueError('rate must be >= 0 (0: as fast as possible)')
+        self.bag = bag
+        self.topics = bag.select(topics)
+        if not self.topics or not sum(bag.topics[t].count for t in self.topics):
+            which = ' on ' + ', '.join(self.topics) if topics is not None else ''
+            raise BagError(f'{bag.path}: no messages{which} to replay')
+        return {t: _message_class(bag, t) for t in self.topics}
+
+    def _declare_parameters(self, bag, rate, loop, topics, clock_hz, start_paused,
+                            wait_subscribers) -> tuple:
+        """Declare the parameters (the arguments as defaults); their values, in order."""
+        return (
+            read_once(self, 'bag', str(bag.path) if bag is not None else '',
+                      'Bag directory, or a .mcap/.db3 file, to play'),
+            read_once(self, 'rate', float(rate),
+                      'Speed factor [1] on the recorded timing; 0 = as fast as possible',
+                      0.0, 1e6),
+            read_once(self, 'loop', bool(loop), 'Start over at the end, until shut down'),
+            declare_strings(self, 'topics', topics, 'Topics to play; empty = all'),
+            read_once(self, 'clock_hz', float(clock_hz or 0.0),
+                      '/clock from the recorded stamps, this often per second of wall time '
+                      '[Hz]; 0 = no /clock', 0.0, 1e4),
+            read_once(self, 'start_paused', bool(start_paused),
+                      'Wait for a call to ~/resume (std_srvs/Trigger) before playing'),
+            read_once(self, 'wait_subscribers', float(wait_subscribers),
+                      'Longest wait for subscribers to match before playing [s]', 0.0, 3600.0))
+
+    def destroy_node(self):
+        try:
+            return super().destroy_node()
+        finally:
+            if self._own_bag is not None:
+                self._own_bag.close()
+                self._own_bag = None
 
     # -- services -------------------------------------------------------------------------------
 
@@ -310,3 +365,42 @@ def spinning(node: Node):
         thread.join(timeout=2.0)
         if not thread.is_alive():
             executor.shutdown(timeout_sec=1.0)
+
+
+def main(args=None) -> None:
+    """``ros2 run cobot_calib_ros bag_player --ros-args -p bag:=DIR [-p rate:=R ...]``: play
+    the bag (once, or until Ctrl-C with loop) and exit; 1 on a bag problem."""
+    import rclpy
+    from rclpy.executors import ExternalShutdownException
+    rclpy.init(args=args)
+    player = None
+    code = 0
+    try:
+        player = BagPlayer()
+        log = player.get_logger()
+        count = sum(player.bag.topics[t].count for t in player.topics)
+        log.info(f'replaying {player.bag.path}: {count} messages on {len(player.topics)} '
+                 f'topics, rate {player.rate:g} (0 = as fast as possible)')
+        with spinning(player):
+            result = player.play()
+        log.info(f'published {result.published} messages in {result.wall_s:.3f} s '
+                 f'({result.speed:.2f}x real time)')
+        if result.unacknowledged:
+            log.warning('subscribers did not acknowledge the last messages on '
+                        + ', '.join(result.unacknowledged))
+    except (KeyboardInterrupt, ExternalShutdownException):
+        if player is not None:
+            player.stop()
+    except (BagError, ValueError) as exc:
+        print(f'bag_player: {exc}', file=sys.stderr)
+        code = 1
+    finally:
+        if player is not None:
+            player.destroy_node()
+        rclpy.try_shutdown()
+    if code:
+        sys.exit(code)
+
+
+if __name__ == '__main__':
+    main()

@@ -16,19 +16,31 @@ the receive time is taken in the callback and the send time is not known (set eq
 Closing: ``destroy_node`` (Ctrl-C and SIGTERM under ros.spin.run, or the end of ``duration``)
 finishes the bag: mcap summary and the final metadata.yaml. Until then the writer hands closed
 chunks to the OS at least once a second, so a crash loses at most that much.
+
+As its own process (``main``; ``ros2 run cobot_calib_ros bag_recorder --ros-args -p
+output:=DIR -p topics:='[/joint_states]'``, also ``.venv/lib/cobot_calib_ros/bag_recorder``)
+it takes the parameters ``output``, ``topics``, ``all_topics``, ``include_hidden``,
+``compression`` and ``duration`` (read at start-up, described in ``ros2 param describe``).
+Built from Python (``cobot-calib record``) the arguments are the values, and the parameters
+show them.
 """
 from __future__ import annotations
 
+import sys
 import time
 from typing import Callable, Iterable
 
+from rcl_interfaces.msg import ParameterDescriptor, ParameterType
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from rosbags.interfaces import (Qos, QosDurability, QosHistory, QosLiveliness, QosReliability,
                                 QosTime)
 
+from cobot_calib_ros.bags.errors import BagError
 from cobot_calib_ros.bags.writer import BagWriter
 from cobot_calib_ros.ros import spin
+from cobot_calib_ros.ros.params import read_once
 
 NODE_NAME = 'bag_recorder'
 DEPTH = 1000                  # keep-last depth of each subscription (1 kHz bursts)
@@ -54,16 +66,35 @@ def is_hidden(topic: str) -> bool:
     return any(part.startswith('_') for part in topic.split('/'))
 
 
-class BagRecorder(Node):
-    """Records into a new bag directory ``output``; see the module doc."""
+def declare_strings(node: Node, name: str, value, description: str) -> list[str]:
+    """A read-only string-array parameter that may start empty (rclpy types an empty list
+    default as a byte array); its value, [] when not set."""
+    descriptor = ParameterDescriptor(
+        description=f'{description} (read at start-up; restart the node to change it)',
+        type=ParameterType.PARAMETER_STRING_ARRAY, read_only=True)
+    param = node.declare_parameter(name, list(value) if value else Parameter.Type.STRING_ARRAY,
+                                   descriptor)
+    return list(param.value or [])
 
-    def __init__(self, output: str, topics: Iterable[str] | None = None, *,
+
+class BagRecorder(Node):
+    """Records into a new bag directory ``output``; see the module doc. Without ``output``
+    every setting comes from the node's parameters."""
+
+    def __init__(self, output: str | None = None, topics: Iterable[str] | None = None, *,
                  all_topics: bool = False, include_hidden: bool = False,
                  compression: str | None = None, depth: int = DEPTH,
                  duration: float | None = None, report: Callable[[str], None] | None = None,
                  node_name: str = NODE_NAME, **node_kwargs) -> None:
-        super().__init__(node_name, start_parameter_services=False, **node_kwargs)
+        super().__init__(node_name, start_parameter_services=output is None, **node_kwargs)
         self.report = report or self.get_logger().info
+        given = self._declare_parameters(output, topics, all_topics, include_hidden,
+                                         compression, duration)
+        if output is None:
+            output, topics, all_topics, include_hidden, compression, duration = given
+            if not output:
+                raise ValueError('parameter output: give the bag directory to create '
+                                 '(-p output:=DIR)')
         wanted = [t if t.startswith('/') else '/' + t for t in topics or ()]
         if not wanted and not all_topics:
             raise ValueError('give topics to record, or all_topics')
@@ -83,6 +114,27 @@ class BagRecorder(Node):
         if duration:
             self._stop_timer = self.create_timer(duration, self._end_of_duration, clock=steady)
         self._scan()
+
+    def _declare_parameters(self, output, topics, all_topics, include_hidden, compression,
+                            duration) -> tuple:
+        """Declare the parameters (the arguments as defaults); their values, in order."""
+        values = (
+            read_once(self, 'output', output or '',
+                      'The bag directory to create (must not exist)'),
+            declare_strings(self, 'topics', topics,
+                            'Topics to record; empty: all_topics must be true'),
+            read_once(self, 'all_topics', bool(all_topics),
+                      'Record every topic, also those that appear later'),
+            read_once(self, 'include_hidden', bool(include_hidden),
+                      'With all_topics: also hidden topics (a name part starting with _)'),
+            read_once(self, 'compression', compression or 'none',
+                      'mcap chunk compression: zstd or none'),
+            read_once(self, 'duration', float(duration or 0.0),
+                      'Stop after this long [s] of wall time; 0 = until shut down', 0.0, 1e9))
+        compress = values[4]
+        if compress not in ('none', 'zstd'):
+            raise ValueError(f'parameter compression: {compress!r}; use zstd or none')
+        return (*values[:4], None if compress == 'none' else compress, values[5] or None)
 
     # -- discovery ------------------------------------------------------------------------------
 
@@ -194,3 +246,16 @@ class BagRecorder(Node):
             self.close()
         finally:
             super().destroy_node()
+
+
+def main(args=None) -> None:
+    """``ros2 run cobot_calib_ros bag_recorder --ros-args -p output:=DIR -p topics:=[...]``."""
+    try:
+        spin.run(BagRecorder, args)
+    except (BagError, ValueError) as exc:
+        print(f'bag_recorder: {exc}', file=sys.stderr)
+        sys.exit(1)
+
+
+if __name__ == '__main__':
+    main()

@@ -6,10 +6,14 @@ DDS gives no back-pressure, so a subscriber slower than that loses what overflow
 history). Before starting it waits up to --wait-subscribers seconds until every topic has a
 matched subscriber; after the last message, until reliable subscribers acknowledged it.
 
---check: replay a teach bag (bags/five_point_close) through joint_state_monitor and
-user_frame_solver on a private ROS_DOMAIN_ID with /clock (use_sim_time), re-run
-calibrate_user_frame with the replayed captures and compare with the bag's expected.yaml:
-exit 0 within 1e-6 m / 1e-6 rad, else 1 (api.replay_check).
+--check: replay a sample bag through the pipeline on a private ROS_DOMAIN_ID with /clock
+(use_sim_time) and compare the result with the bag's expected.yaml; exit 0 when it matches,
+else 1. A teach bag (bags/five_point_close) goes through joint_state_monitor and
+user_frame_solver, calibrate_user_frame is re-run with the replayed captures: the frame within
+1e-6 m / 1e-6 rad (api.replay_check). A repeatability-trial bag (bags/trial_close: it has
+/cobot_calib/probe_averages) goes through proximity_sensor, every probe average the trial took
+is rebuilt from the replayed distances and the ISO 9283 statistics recomputed: RP_i and RP_all
+within 1e-6 m (api.replay_trial_check; --rate 2 unless given, at most 20).
 """
 from __future__ import annotations
 
@@ -39,8 +43,9 @@ def add_parser(subparsers):
     p = subparsers.add_parser('replay', help='publish a bag\'s messages, like ros2 bag play',
                               description=__doc__ + ' Uses the exported ROS_DOMAIN_ID.')
     p.add_argument('bag', metavar='BAG', help='bag directory, or a .mcap/.db3 file')
-    p.add_argument('--rate', type=_rate, default=1.0, metavar='R',
-                   help='speed factor (default 1); 0 or max: as fast as possible')
+    p.add_argument('--rate', type=_rate, default=None, metavar='R',
+                   help='speed factor (default 1; 2 for --check of a trial bag); 0 or max: '
+                        'as fast as possible')
     p.add_argument('--loop', action='store_true', help='start over at the end, until Ctrl-C')
     p.add_argument('--topics', nargs='+', metavar='TOPIC', help='play only these topics')
     p.add_argument('--clock', nargs='?', type=float, const=40.0, default=None, metavar='HZ',
@@ -51,9 +56,10 @@ def add_parser(subparsers):
     p.add_argument('--wait-subscribers', type=float, default=2.0, metavar='SECONDS',
                    help='longest wait for subscribers to match before playing (default 2)')
     p.add_argument('--check', action='store_true',
-                   help='re-run the teach recorded in BAG through joint_state_monitor and '
-                        'user_frame_solver (own domain, sim time) and compare the frame with '
-                        'BAG/expected.yaml; exit 0 if within 1e-6 m / 1e-6 rad, else 1')
+                   help='replay a sample bag through the pipeline (own domain, sim time) and '
+                        'compare with BAG/expected.yaml: a teach bag\'s frame (1e-6 m / 1e-6 '
+                        'rad), a trial bag\'s RP_i and RP_all (1e-6 m); exit 0 if it matches, '
+                        'else 1')
     p.add_argument('--recapture', action='store_true',
                    help='with --check: average each hold again with capture_joints on the '
                         'replayed /clock instead of using the recorded means (needs a finite '
@@ -62,10 +68,12 @@ def add_parser(subparsers):
 
 
 def run(args) -> int:
-    if getattr(args, 'recapture', False) and not args.check:
-        return fail('replay: --recapture goes with --check', EXIT_USAGE)
     if getattr(args, 'check', False):
         return _check(args)
+    if args.rate is None:
+        args.rate = 1.0
+    if getattr(args, 'recapture', False) and not args.check:
+        return fail('replay: --recapture goes with --check', EXIT_USAGE)
     if args.clock is not None and not args.clock > 0:
         return fail('replay: --clock HZ must be > 0', EXIT_USAGE)
     if args.wait_subscribers < 0:
@@ -127,6 +135,20 @@ def _check(args) -> int:
     if args.loop or args.start_paused or args.topics:
         return fail('replay --check: --loop, --start-paused and --topics do not apply',
                     EXIT_USAGE)
+    if args.clock is not None and not args.clock > 0:
+        return fail('replay: --clock HZ must be > 0', EXIT_USAGE)
+    from cobot_calib_ros.api import replay_trial_check
+    from cobot_calib_ros.bags.errors import BagError
+    from cobot_calib_ros.bags.reader import open_bag
+    try:
+        with open_bag(args.bag) as bag:
+            trial = replay_trial_check.is_trial_bag(bag)
+    except BagError as exc:
+        return fail(f'replay --check: {exc}')
+    if trial:
+        return _check_trial(args)
+    if args.rate is None:
+        args.rate = 1.0
     if args.recapture and args.rate == 0:
         return fail('replay --check --recapture: needs a finite --rate (the holds are '
                     'averaged again on the replayed /clock)', EXIT_USAGE)
@@ -156,4 +178,42 @@ def _check(args) -> int:
           'replayed - expected xyz: ('
           + ', '.join(f'{v * 1e3:+.6f}' for v in result.T_replayed[:3, 3]
                       - result.T_expected[:3, 3]) + ') mm', file=sys.stderr, flush=True)
+    return 1
+
+
+def _check_trial(args) -> int:
+    """--check of a repeatability-trial bag (api.replay_trial_check)."""
+    from cobot_calib_ros.api import replay_trial_check as check
+    from cobot_calib_ros.bags.errors import BagError
+    if args.recapture:
+        return fail('replay --check: --recapture is for a teach bag (capture_joints); a trial '
+                    'bag is checked from its probe voltages', EXIT_USAGE)
+    rate = check.DEFAULT_RATE if args.rate is None else args.rate
+    if not 0 < rate <= check.MAX_RATE:
+        return fail(f'replay --check: a trial bag replays at a finite --rate up to '
+                    f'{check.MAX_RATE:g} (proximity_sensor takes probe/voltage best effort, '
+                    f'history 5); got {"max" if rate == 0 else f"{rate:g}"}', EXIT_USAGE)
+
+    def say(text: str) -> None:
+        print(text, flush=True)
+    try:
+        result = check.run_check(args.bag, rate=rate, say=say, clock_hz=args.clock or 40.0)
+    except (check.CheckError, BagError) as exc:
+        return fail(f'replay --check: {exc}')
+    except KeyboardInterrupt:
+        return fail('replay --check interrupted', EXIT_INTERRUPTED)
+    if result.ok:
+        say(f'check passed in {result.wall_s:.1f} s')
+        return EXIT_OK
+    lines = ['check FAILED: the replayed repeatability differs from the expected one',
+             f'  replayed RP_i {check.format_rp(result.rp_replayed)}, '
+             f'RP_all {result.rp_all_replayed * 1e3:.6f} mm',
+             f'  expected RP_i {check.format_rp(result.rp_expected)}, '
+             f'RP_all {result.rp_all_expected * 1e3:.6f} mm']
+    if result.rp_recorded is not None:
+        lines.append(f'  recorded RP_i {check.format_rp(result.rp_recorded)}, '
+                     f'RP_all {result.rp_all_recorded * 1e3:.6f} mm ({check.STATS_TOPIC})')
+    lines.append(f'  largest difference {result.worst_m * 1e3:.6f} mm (tolerance '
+                 f'{check.TOL_M * 1e3:g} mm)')
+    print('\n'.join(lines), file=sys.stderr, flush=True)
     return 1

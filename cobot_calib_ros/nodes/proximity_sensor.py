@@ -7,6 +7,17 @@ readings taken during a motion and delivered late never count as the hold that f
 ``readings``, ``below_range`` / ``above_range`` / ``invalid`` counts, ``last_distance_m``,
 ``last_voltage_v``, ``reading_rate_hz`` over the last second, ``last_reading_age_s``. WARN when
 no probe/voltage came for more than NO_DATA_TIMEOUT.
+
+Marks on ``cobot_calib/probe_averages`` (MARKS_TOPIC, sensor_msgs/JointState, reliable, depth
+100): one per probe/average served, so a recording can tie each reading of a trial to the
+probe readings it averaged (bags/make_trial_bag.py, api.replay_trial_check). ``header.stamp`` =
+the window start t0 (node clock), ``header.frame_id`` = 'probe', ``name`` = AVERAGE_FIELDS and
+``position`` their values: the window's duration [s], then the response's distance and std [m],
+sample_count, rejected_count, error_code, reading_status, min_range and max_range [m];
+``velocity`` = the header stamps of the readings the window held, in the order they arrived,
+as nanoseconds after t0 (exact in float64). A reading the subscription dropped (best effort,
+history 5) is not among them, so a replay can average exactly the readings this node did.
+``average_window`` and ``fill_average`` are what probe/average computes, for a replay to use.
 """
 from __future__ import annotations
 
@@ -20,15 +31,65 @@ from cobot_calib_msgs.srv import AverageProximity
 import numpy as np
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
+from sensor_msgs.msg import JointState
 
 from cobot_calib_ros.core.sensors.probe import curve_from_lists, read_distance, ReadingStatus
 from cobot_calib_ros.ros import spin
 from cobot_calib_ros.ros.diagnostics import Diagnostics, OK, RateMeter, status_name, WARN
 from cobot_calib_ros.ros.params import declare, read_once
-from cobot_calib_ros.ros.time import now_ns, stamp_or_now_ns, wait_past
+from cobot_calib_ros.ros.time import now_ns, ns_to_stamp, stamp_or_now_ns, wait_past
 
 STALL_TIMEOUT = 1.0     # [s] of wall time without a new reading: the probe stream has stopped
 NO_DATA_TIMEOUT = 1.0   # [s] of wall time without probe/voltage: /diagnostics warns
+MARKS_TOPIC = 'cobot_calib/probe_averages'
+AVERAGE_FIELDS = ('duration', 'distance', 'std', 'sample_count', 'rejected_count', 'error_code',
+                  'reading_status', 'min_range', 'max_range')
+
+
+def average_window(samples, t0_ns: int, duration: float) -> list:
+    """The (stamp [ns], distance [m], status) samples, in their order, that probe/average
+    takes for a window opened at ``t0_ns`` [ns] lasting ``duration`` [s]."""
+    t0 = t0_ns * 1e-9
+    t1 = t0 + duration
+    return [sample for sample in samples if t0 <= sample[0] * 1e-9 <= t1]
+
+
+def fill_average(response, window, duration: float):
+    """probe/average's response from a window's (stamp, distance, status) readings; the
+    fields of AverageProximity.Response other than min_range and max_range."""
+    valid = np.array([d for _, d, s in window if s == ReadingStatus.OK])
+    rejected = [s for _, d, s in window if s != ReadingStatus.OK]
+    response.sample_count = int(valid.size)
+    response.rejected_count = len(rejected)
+    if not window:
+        response.error_code = AverageProximity.Response.NO_DATA
+        response.message = (f'no probe readings in {duration:.3f} s; '
+                            'is probe/voltage being published?')
+        return response
+    if rejected and len(rejected) >= len(window) / 2:
+        status = max(set(rejected), key=rejected.count)
+        response.reading_status = int(status)
+        response.error_code = AverageProximity.Response.OUT_OF_RANGE
+        side = 'closer than' if status == ReadingStatus.BELOW_RANGE else 'beyond'
+        response.message = (f'{len(rejected)} of {len(window)} readings out of range '
+                            f'({status.name}): the target is {side} the probe range; '
+                            'move the probe and measure again')
+        return response
+    response.distance = float(valid.mean())
+    response.std = float(valid.std(ddof=1)) if valid.size > 1 else 0.0
+    response.message = f'{valid.size} readings, {len(rejected)} rejected'
+    return response
+
+
+def average_mark(t0_ns: int, duration: float, response, window) -> JointState:
+    """The MARKS_TOPIC message of one probe/average (see the module doc)."""
+    mark = JointState(name=list(AVERAGE_FIELDS))
+    mark.header.stamp = ns_to_stamp(t0_ns)
+    mark.header.frame_id = 'probe'
+    mark.position = [float(duration), *(float(getattr(response, f))
+                                        for f in AVERAGE_FIELDS[1:])]
+    mark.velocity = [float(stamp - t0_ns) for stamp, _, _ in window]
+    return mark
 
 
 class ProximitySensor(Node):
@@ -39,7 +100,7 @@ class ProximitySensor(Node):
                                        self._p('calibration_voltage'))
         self._margin = self._p('saturation_margin')
         self._lock = threading.Condition()
-        self._recent: deque = deque(maxlen=20000)   # (stamp [s], distance, status)
+        self._recent: deque = deque(maxlen=20000)   # (stamp [ns], distance, status)
         self._pub = self.create_publisher(ProximityReading, 'probe/distance',
                                           qos_profile_sensor_data)
         self._statuses: Counter = Counter()         # readings by ReadingStatus
@@ -51,6 +112,7 @@ class ProximitySensor(Node):
                                         name=status_name(self), update=self._diagnose)
         self._receiver.node.create_subscription(
             ProbeVoltage, 'probe/voltage', self._on_voltage, qos_profile_sensor_data)
+        self._marks = self.create_publisher(JointState, MARKS_TOPIC, 100)
         self.create_service(AverageProximity, 'probe/average', self._on_average)
         self.get_logger().info(
             f'probe range {self._curve.min_range * 1e3:.2f}-{self._curve.max_range * 1e3:.2f} mm')
@@ -81,7 +143,7 @@ class ProximitySensor(Node):
         self._statuses[reading.status] += 1
         self._last_reading = (reading.distance, msg.voltage)
         self._last_arrival = time.monotonic()
-        stamp = stamp_or_now_ns(self, msg.header.stamp) * 1e-9
+        stamp = stamp_or_now_ns(self, msg.header.stamp)
         with self._lock:
             self._recent.append((stamp, reading.distance, reading.status))
             self._lock.notify_all()
@@ -119,43 +181,19 @@ class ProximitySensor(Node):
             response.error_code = AverageProximity.Response.BAD_REQUEST
             response.message = f'duration {duration} s must be in (0, 60]'
             return response
-        t0 = now_ns(self) * 1e-9
-        t1 = t0 + duration
+        t0_ns = now_ns(self)
         with self._lock:
-            wait_past(self._lock, self._newest, t1, STALL_TIMEOUT)
-            window = [(d, s) for t, d, s in self._recent if t0 <= t <= t1]
+            wait_past(self._lock, self._newest, t0_ns * 1e-9 + duration, STALL_TIMEOUT)
+            window = average_window(self._recent, t0_ns, duration)
         response.min_range, response.max_range = self._curve.min_range, self._curve.max_range
-        return self._fill_average(response, window, duration)
+        fill_average(response, window, duration)
+        self._marks.publish(average_mark(t0_ns, duration, response, window))
+        return response
 
     def _newest(self) -> tuple[float, int]:
         """(newest reading's stamp [s], readings received so far), with self._lock held."""
-        return (self._recent[-1][0] if self._recent else -math.inf,
+        return (self._recent[-1][0] * 1e-9 if self._recent else -math.inf,
                 sum(self._statuses.values()))
-
-    @staticmethod
-    def _fill_average(response, window, duration: float):
-        valid = np.array([d for d, s in window if s == ReadingStatus.OK])
-        rejected = [s for d, s in window if s != ReadingStatus.OK]
-        response.sample_count = int(valid.size)
-        response.rejected_count = len(rejected)
-        if not window:
-            response.error_code = AverageProximity.Response.NO_DATA
-            response.message = (f'no probe readings in {duration:.3f} s; '
-                                'is probe/voltage being published?')
-            return response
-        if rejected and len(rejected) >= len(window) / 2:
-            status = max(set(rejected), key=rejected.count)
-            response.reading_status = int(status)
-            response.error_code = AverageProximity.Response.OUT_OF_RANGE
-            side = 'closer than' if status == ReadingStatus.BELOW_RANGE else 'beyond'
-            response.message = (f'{len(rejected)} of {len(window)} readings out of range '
-                                f'({status.name}): the target is {side} the probe range; '
-                                'move the probe and measure again')
-            return response
-        response.distance = float(valid.mean())
-        response.std = float(valid.std(ddof=1)) if valid.size > 1 else 0.0
-        response.message = f'{valid.size} readings, {len(rejected)} rejected'
-        return response
 
 
 def main(args=None) -> None:

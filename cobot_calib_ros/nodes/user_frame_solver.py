@@ -242,9 +242,11 @@ class UserFrameSolver(Node):
             fit = self._fit(request, names, p_user, p_base)
         if not fit:
             return self._refuse(response, fit.code, fit.message)
-        surface = (user_frame.fit_surface(p_user, p_base, fit.M)
-                   if request.fit_surface and request.method not in
-                   landmark_frames.LANDMARK_METHODS else None)
+        # landmark_multi: the fiducials' centres lie on the table, so they carry its height
+        # field like touched points do; one marker's single frame has nothing to fit
+        surface = (user_frame.fit_surface(p_user, p_base, fit.M, names=names)
+                   if request.fit_surface and request.method !=
+                   landmark_frames.LANDMARK_SINGLE else None)
         record = fit_record(fit, surface, names, p_user, p_base, frames_, now_ns(self),
                             model_used)
         if hand_eye:

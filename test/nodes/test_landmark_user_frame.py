@@ -46,12 +46,12 @@ def test_explicit_rigid_still_works(ros):
     assert len(res.calibration.residuals) == 5
 
 
-def _landmark(ros, method):
+def _landmark(ros, method, **extra):
     _explicit_rigid(ros)        # whatever earlier tests left active: a frame to plan by
     _, T_true = _truth(ros)
     t0 = time.monotonic()
     res = call(ros, CalibrateUserFrame, 'calibrate_user_frame', LANDMARK_TIMEOUT,
-               method=method, point_names=['ignored'])
+               method=method, point_names=['ignored'], **extra)
     seconds = time.monotonic() - t0
     assert res.error_code == Res.SUCCESS, res.message
     assert res.calibration.method == method
@@ -70,8 +70,10 @@ def test_landmark_single(ros):
 
 
 def test_landmark_multi(ros):
-    res, pos, ang = _landmark(ros, Req.METHOD_LANDMARK_MULTI)
+    res, pos, ang = _landmark(ros, Req.METHOD_LANDMARK_MULTI, fit_surface=True)
     assert len(res.calibration.residuals) >= 3
+    # six fiducial centres on the table: an order-1 height correction, named by marker
+    assert res.calibration.surface.valid and len(res.calibration.surface.coefficients) == 3
     assert pos < 0.01 and ang < 0.02
     if Req.METHOD_LANDMARK_SINGLE in RESULTS:
         single = RESULTS[Req.METHOD_LANDMARK_SINGLE]

@@ -1,0 +1,415 @@
+"""`cobot-calib replay BAG --check` for a repeatability-trial bag: RP from the replayed probe.
+
+A trial bag (bags/make_trial_bag.py, bags/trial_close) holds the raw probe output
+``/probe/voltage``, proximity_sensor's mark of every probe/average it served on
+``/cobot_calib/probe_averages`` (MARKS_TOPIC: window start t0 as header.stamp, the window's
+duration, the response and the stamps of the readings it averaged, see
+nodes/proximity_sensor.py) and the live, latched
+``/repeatability``; next to it ``expected.yaml``: the trial (method, axis, cycles, points), the
+probe's calibration table, the final live statistics (``rp``, ``rp_all``, ``mean_distance``,
+``mean_deviation``, ``sigma`` [m]) and ``readings``: for each (cycle, point) of the trial the
+index of the mark it read, FF_i,n [m] and its direction (eq 15).
+
+The check starts a proximity_sensor on a private ROS_DOMAIN_ID (``use_sim_time: true``, the
+bag's calibration table), replays ``/probe/voltage`` with ``/clock`` (bags.player.BagPlayer)
+into it and collects the distances it publishes on ``probe/distance``. Then it averages
+every recorded window again with the node's own ``fill_average``, from the replayed distances
+the live window held (by their stamps, in the live order: the live node's best-effort
+subscription may have dropped a voltage the recorder kept, and the average leaves it out too).
+Each must give the live average to the bit. The trial's readings are those averages corrected by eq 15 (core ``correct_distance``); the
+ISO 9283 statistics come from core ``point_statistics`` and are compared, RP_i and RP_all,
+with expected.yaml and with the last recorded ``/repeatability``: within TOL_M.
+
+proximity_sensor subscribes best effort with a history of 5, so the replay needs a finite
+rate it keeps up with: DEFAULT_RATE, at most MAX_RATE. Under load a best-effort reading can
+still be lost on the way (into the node or out of it), and the first ones go before the
+node's subscription has matched the player (WARMUP after the player sees it). The conversion
+is per message and stateless, so a pass that misses readings the averages need is followed
+by another pass over the bag at half the rate (not below MIN_RATE), up to PASSES; each reading
+is the node's conversion of its voltage whichever pass brought it, so the result does not
+depend on the losses. A reading still missing after that is a CheckError that says to lower
+--rate.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+import math
+import os
+from pathlib import Path
+import tempfile
+import threading
+import time
+from typing import Callable
+
+import numpy as np
+
+VOLTAGE_TOPIC = '/probe/voltage'
+MARKS_TOPIC = '/cobot_calib/probe_averages'
+STATS_TOPIC = '/repeatability'
+EXPECTED_FILE = 'expected.yaml'
+TOL_M = 1e-6
+DEFAULT_RATE = 2.0
+MAX_RATE = 20.0
+PASSES = 4               # replays of the bag at most, until every averaged reading came back
+MIN_RATE = 1.0           # a pass after a lossy one goes at half the rate, down to this
+WARMUP = 1.0             # [s] after the player sees proximity_sensor's subscription
+SERVICE_TIMEOUT = 30.0   # [s] for proximity_sensor to come up
+DRAIN_TIMEOUT = 1.0      # [s] after a pass without a new distance: the rest is lost
+TABLE_KEYS = ('calibration_distance', 'calibration_voltage', 'saturation_margin')
+
+
+class CheckError(RuntimeError):
+    """The check could not run (a missing file or topic, a node that did not come up, lost
+    messages)."""
+
+
+@dataclass(frozen=True)
+class Mark:
+    """One probe/average proximity_sensor served (a MARKS_TOPIC message)."""
+
+    t0_ns: int              # window start, the node clock [ns]
+    duration: float         # [s]
+    distance: float         # [m]
+    std: float              # [m]
+    sample_count: int
+    rejected_count: int
+    error_code: int
+    reading_status: int
+    stamps_ns: tuple[int, ...]   # of the readings the window held, in their live order
+
+    @property
+    def ok(self) -> bool:
+        return self.error_code == 0          # AverageProximity.Response.SUCCESS
+
+
+def header_ns(msg) -> int:
+    return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+
+
+def mark_of(msg) -> Mark:
+    """A MARKS_TOPIC message (sensor_msgs/JointState: name = AVERAGE_FIELDS) as a Mark."""
+    values = dict(zip(msg.name, msg.position))
+    try:
+        return Mark(header_ns(msg), float(values['duration']), float(values['distance']),
+                    float(values['std']), int(values['sample_count']),
+                    int(values['rejected_count']), int(values['error_code']),
+                    int(values['reading_status']),
+                    tuple(header_ns(msg) + round(v) for v in msg.velocity))
+    except KeyError as exc:
+        raise CheckError(f'a {MARKS_TOPIC} message without {exc.args[0]!r} (names: '
+                         f'{list(msg.name)})') from None
+
+
+def read_marks(bag) -> list[Mark]:
+    return [mark_of(bag.deserialize(m.rawdata, m.msgtype)) for m in bag.messages([MARKS_TOPIC])]
+
+
+def bag_samples(bag, table: dict) -> list[tuple[int, float, int]]:
+    """(stamp [ns], distance [m], status) of the bag's voltages, converted offline as
+    proximity_sensor converts them (for bags/make_trial_bag.py's completeness check)."""
+    from cobot_calib_ros.core.sensors.probe import curve_from_lists, read_distance
+    curve = curve_from_lists(table['calibration_distance'], table['calibration_voltage'])
+    out = []
+    for m in bag.messages([VOLTAGE_TOPIC]):
+        msg = bag.deserialize(m.rawdata, m.msgtype)
+        reading = read_distance(curve, msg.voltage, table['saturation_margin'])
+        out.append((header_ns(msg), reading.distance, reading.status))
+    return out
+
+
+def rebuild_marks(marks: list[Mark], samples) -> list:
+    """probe/average's response for each mark, from (stamp [ns], distance, status) samples:
+    the readings the live window held, in the live order, through proximity_sensor's
+    fill_average. CheckError naming the first reading not among the samples."""
+    from cobot_calib_msgs.srv import AverageProximity
+
+    from cobot_calib_ros.nodes.proximity_sensor import fill_average
+    by_stamp: dict[int, list] = {}
+    for sample in samples:
+        by_stamp.setdefault(sample[0], []).append(sample)
+    out = []
+    for k, mark in enumerate(marks):
+        taken: dict[int, int] = {}
+        window = []
+        for stamp in mark.stamps_ns:
+            n = taken.get(stamp, 0)
+            found = by_stamp.get(stamp, ())
+            if n >= len(found):
+                raise LostReading(k, stamp)
+            window.append(found[n])
+            taken[stamp] = n + 1
+        out.append(fill_average(AverageProximity.Response(), window, mark.duration))
+    return out
+
+
+class LostReading(CheckError):
+    """A reading a live average held is not among the replayed (or recorded) ones."""
+
+    def __init__(self, mark: int, stamp_ns: int) -> None:
+        super().__init__(f'probe/average #{mark}: its reading stamped {stamp_ns} ns is missing')
+        self.mark, self.stamp_ns = mark, stamp_ns
+
+
+def mark_difference(mark: Mark, rebuilt) -> str:
+    """'' when a rebuilt average is the recorded one (counts, outcome, distance to the bit),
+    else what differs."""
+    got = (rebuilt.sample_count, rebuilt.rejected_count, rebuilt.error_code)
+    want = (mark.sample_count, mark.rejected_count, mark.error_code)
+    if got != want:
+        return (f'{got[0]} valid + {got[1]} rejected readings (code {got[2]}) in the window, '
+                f'the live average had {want[0]} + {want[1]} (code {want[2]})')
+    if mark.ok and rebuilt.distance != mark.distance:
+        return (f'distance {rebuilt.distance!r} m, the live average gave {mark.distance!r} m '
+                f'({rebuilt.distance - mark.distance:+.3e} m)')
+    return ''
+
+
+def distances(readings: list[dict], rebuilt: list, m: int, n: int) -> np.ndarray:
+    """The trial's (m, n) corrected distances [m]: each reading's average, eq (15)."""
+    from cobot_calib_ros.core.repeatability import correct_distance
+    d = np.full((m, n), math.nan)
+    for r in readings:
+        average = rebuilt[r['mark']]
+        if average.error_code != 0:
+            raise CheckError(f'cycle {r["cycle"] + 1}, point {r["point"] + 1}: probe/average '
+                             f'#{r["mark"]} was not a valid reading ({average.message})')
+        d[r['point'], r['cycle']] = correct_distance(average.distance, float(r['ff_m']),
+                                                     r.get('direction') or None)
+    return d
+
+
+def write_expected(path: Path, data: dict) -> None:
+    import yaml
+    with open(path, 'w') as out:
+        out.write('# expected result of replaying this trial bag: cobot-calib replay BAG --check'
+                  '\n# (lengths in metres; readings: mark = index on '
+                  f'{MARKS_TOPIC}, ff_m and direction of eq 15)\n')
+        yaml.safe_dump(data, out, sort_keys=False, default_flow_style=None, width=100)
+
+
+def read_expected(bag_path: str | os.PathLike) -> tuple[Path, dict]:
+    import yaml
+    folder = Path(bag_path)
+    if not folder.is_dir():
+        folder = folder.parent
+    path = folder / EXPECTED_FILE
+    try:
+        data = yaml.safe_load(path.read_text())
+    except OSError as exc:
+        raise CheckError(f'{path}: cannot read the expected result: {exc.strerror}') from None
+    except yaml.YAMLError as exc:
+        raise CheckError(f'{path}: not YAML: {exc}') from None
+    missing = [k for k in ('point_names', 'cycles', 'rp', 'rp_all', 'readings')
+               if not isinstance(data, dict) or k not in data]
+    if missing:
+        raise CheckError(f'{path}: missing {", ".join(missing)}')
+    m, n = len(data['point_names']), int(data['cycles'])
+    if len(data['rp']) != m:
+        raise CheckError(f'{path}: rp has {len(data["rp"])} values for {m} points')
+    for r in data['readings']:
+        if not (0 <= r.get('cycle', -1) < n and 0 <= r.get('point', -1) < m
+                and isinstance(r.get('mark'), int)):
+            raise CheckError(f'{path}: bad reading {r}')
+    return path, data
+
+
+def is_trial_bag(bag) -> bool:
+    """A bag this check applies to: it has probe/average marks."""
+    return MARKS_TOPIC in bag.topics
+
+
+@dataclass
+class TrialCheckResult:
+    ok: bool
+    rp_replayed: np.ndarray         # [m]
+    rp_all_replayed: float          # [m]
+    rp_expected: np.ndarray
+    rp_all_expected: float
+    rp_recorded: np.ndarray | None  # the last /repeatability in the bag
+    rp_all_recorded: float
+    worst_m: float                  # largest |difference| over RP_i and RP_all, both refs [m]
+    marks: int                      # probe averages rebuilt (all equal the live ones)
+    readings: int
+    voltages: int                   # replayed and received
+    wall_s: float
+
+
+def run_check(bag_path: str, rate: float = DEFAULT_RATE, say: Callable[[str], None] = print,
+              clock_hz: float = 40.0) -> TrialCheckResult:
+    """Replay the bag's voltages through proximity_sensor and compare RP; see the module doc."""
+    import domain_coordinator
+
+    from cobot_calib_ros.bags.reader import open_bag
+    from cobot_calib_ros.core.repeatability import point_statistics
+    if not 0 < rate <= MAX_RATE:
+        raise CheckError(f'a trial bag replays at a finite rate up to {MAX_RATE:g} '
+                         f'(proximity_sensor takes the probe best effort); got {rate:g}')
+    expected_path, expected = read_expected(bag_path)
+    started = time.monotonic()
+    os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    with open_bag(bag_path) as bag:
+        for topic in (VOLTAGE_TOPIC, MARKS_TOPIC):
+            if topic not in bag.topics or not bag.topics[topic].count:
+                raise CheckError(f'{bag.path}: nothing on {topic}')
+        for warning in bag.warnings:
+            say(f'warning: {warning}')
+        marks = read_marks(bag)
+        recorded = [bag.deserialize(m.rawdata, m.msgtype) for m in bag.messages([STATS_TOPIC])] \
+            if STATS_TOPIC in bag.topics else []
+        wanted = bag.topics[VOLTAGE_TOPIC].count
+        bad = [r['mark'] for r in expected['readings'] if r['mark'] >= len(marks)]
+        if bad:
+            raise CheckError(f'{expected_path}: readings refer to mark #{bad[0]}, the bag has '
+                             f'{len(marks)} marks')
+        with domain_coordinator.domain_id() as domain, \
+                tempfile.TemporaryDirectory(prefix='cobot_calib_check_') as tmp:
+            needed = {stamp for mark in marks for stamp in mark.stamps_ns}
+            samples = _replay(bag, expected, domain, Path(tmp), rate, clock_hz, wanted, needed,
+                              say)
+    try:
+        rebuilt = rebuild_marks(marks, samples)
+    except LostReading as exc:
+        lost = len(needed - {x[0] for x in samples})
+        raise CheckError(f'{exc} from the replay: {lost} of the {len(needed)} readings the '
+                         f'averages need did not come back in {PASSES} passes; replay at a '
+                         'lower --rate') from None
+    for k, (mark, again) in enumerate(zip(marks, rebuilt)):
+        problem = mark_difference(mark, again)
+        if problem:
+            raise CheckError(f'probe/average #{k} (t0 {mark.t0_ns} ns) replayed: {problem}')
+    m, n = len(expected['point_names']), int(expected['cycles'])
+    stats = point_statistics(distances(expected['readings'], rebuilt, m, n))
+    rp_exp, rp_all_exp = np.array(expected['rp'], dtype=float), float(expected['rp_all'])
+    diffs = [np.max(np.abs(stats.rp - rp_exp)), abs(stats.rp_all - rp_all_exp)]
+    rp_rec, rp_all_rec = None, math.nan
+    if recorded:
+        last = recorded[-1]
+        rp_rec, rp_all_rec = np.array(last.rp, dtype=float), float(last.rp_all)
+        if rp_rec.shape != stats.rp.shape:
+            raise CheckError(f'the recorded {STATS_TOPIC} has {rp_rec.size} points, the trial '
+                             f'{stats.rp.size}')
+        diffs += [np.max(np.abs(stats.rp - rp_rec)), abs(stats.rp_all - rp_all_rec)]
+    worst = float(max(diffs))
+    ok = bool(np.isfinite(worst) and worst <= TOL_M)
+    say(f'rebuilt {len(marks)} probe averages from {len(samples)} replayed readings, all equal '
+        f'to the live ones; {len(expected["readings"])} trial readings, {stats.cycles} cycles: '
+        f'RP_all {stats.rp_all * 1e3:.6f} mm vs {rp_all_exp * 1e3:.6f} mm in {expected_path}'
+        + (f' and {rp_all_rec * 1e3:.6f} mm recorded on {STATS_TOPIC}' if recorded else '')
+        + f'; largest difference {worst:.3e} m (tolerance {TOL_M:g})')
+    return TrialCheckResult(ok, stats.rp, float(stats.rp_all), rp_exp, rp_all_exp, rp_rec,
+                            rp_all_rec, worst, len(marks), len(expected['readings']),
+                            len(samples), time.monotonic() - started)
+
+
+def _replay(bag, expected: dict, domain: int, tmp: Path, rate: float, clock_hz: float,
+            wanted: int, needed: set[int], say) -> list[tuple[int, float, int]]:
+    """Play /probe/voltage into a proximity_sensor, pass after pass until the readings
+    stamped ``needed`` [ns] came back (at most PASSES); its probe/distance readings as
+    (stamp [ns], distance [m], status), in the order they arrived (all passes)."""
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.parameter import Parameter
+    from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+    from rclpy.signals import SignalHandlerOptions
+    from cobot_calib_msgs.msg import ProximityReading
+
+    from cobot_calib_ros.api.client import spin_until
+    from cobot_calib_ros.api.launcher import NodeSpec, Suite
+    from cobot_calib_ros.bags.player import BagPlayer, spinning
+    from cobot_calib_ros.core.sensors.probe import ReadingStatus
+
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain))
+    env.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    params = {'use_sim_time': 'true'}
+    table = expected.get('proximity_sensor') or {}
+    for key in TABLE_KEYS:
+        if key in table:
+            value = table[key]
+            params[key] = (('[' + ', '.join(repr(float(v)) for v in value) + ']')
+                           if isinstance(value, list) else repr(float(value)))
+    suite = Suite(tmp / 'log')
+    suite.start([NodeSpec('proximity_sensor', params)], env=env)
+    say(f'proximity_sensor on ROS_DOMAIN_ID={domain} (sim time)')
+    context = Context()
+    rclpy.init(context=context, domain_id=domain, signal_handler_options=SignalHandlerOptions.NO)
+    node = player = None
+    try:
+        node = rclpy.create_node('cobot_calib_replay_trial_check', context=context,
+                                 parameter_overrides=[Parameter('use_sim_time', value=True)])
+        executor = SingleThreadedExecutor(context=context)
+        executor.add_node(node)
+        samples: list[tuple[int, float, int]] = []
+
+        def on_distance(msg: ProximityReading) -> None:
+            samples.append((header_ns(msg), msg.distance, ReadingStatus(msg.status)))
+        sub = node.create_subscription(
+            ProximityReading, 'probe/distance', on_distance,
+            QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=wanted + 100,
+                       reliability=ReliabilityPolicy.BEST_EFFORT))
+        if not spin_until(node, lambda: sub.get_publisher_count() > 0, SERVICE_TIMEOUT,
+                          executor):
+            raise CheckError(f'proximity_sensor did not come up; logs in {suite.log_dir}'
+                             + _failed(suite))
+        player = BagPlayer(bag, rate=rate, topics=[VOLTAGE_TOPIC], clock_hz=clock_hz,
+                           wait_subscribers=10.0, report=say, context=context)
+        stop = threading.Event()
+
+        def spin() -> None:
+            while not stop.is_set() and context.ok():
+                executor.spin_once(timeout_sec=0.005)
+        spinner = threading.Thread(target=spin, daemon=True)
+        spinner.start()
+        try:
+            with spinning(player):
+                if player.wait_for_subscribers():
+                    raise CheckError('proximity_sensor did not subscribe to probe/voltage '
+                                     f'within 10 s; logs in {suite.log_dir}' + _failed(suite))
+                time.sleep(WARMUP)
+                for attempt in range(1, PASSES + 1):
+                    if attempt > 1:
+                        player.rate = max(min(rate, MIN_RATE), player.rate / 2)
+                    before = len(samples)
+                    result = player.play()
+                    _drain(samples, before + wanted)
+                    missing = len(needed - {x[0] for x in samples})
+                    say(f'pass {attempt}: replayed {result.published} voltages in '
+                        f'{result.wall_s:.2f} s ({result.speed:.1f}x real time), '
+                        f'{len(samples) - before}/{wanted} distances back; '
+                        + (f'{missing} of the {len(needed)} readings the averages need still '
+                           'missing' if missing else
+                           f'all {len(needed)} readings the averages need are in'))
+                    if not missing:
+                        break
+        finally:
+            stop.set()
+            spinner.join(timeout=2.0)
+        return list(samples)
+    finally:
+        if player is not None:
+            player.destroy_node()
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown(context=context)
+        suite.stop()
+
+
+def _drain(samples: list, wanted: int) -> None:
+    """Wait until ``wanted`` readings are in, or none came for DRAIN_TIMEOUT."""
+    count, quiet = len(samples), time.monotonic()
+    while len(samples) < wanted and time.monotonic() - quiet < DRAIN_TIMEOUT:
+        time.sleep(0.02)
+        if len(samples) != count:
+            count, quiet = len(samples), time.monotonic()
+
+
+def _failed(suite) -> str:
+    failed = suite.failed()
+    if not failed:
+        return ''
+    return '; exited: ' + ', '.join(f'{n} ({c}): {suite.log_tail(n, 5)}'
+                                    for n, c in failed.items())
+
+
+def format_rp(values) -> str:
+    return '[' + ', '.join(f'{v * 1e3:.6f}' for v in values) + '] mm'
