@@ -36,6 +36,7 @@ from cobot_calib_ros import paths
 from cobot_calib_ros.core import frames, kinematics
 from cobot_calib_ros.core.cell import load_cell
 from cobot_calib_ros.core.landmarks.hand_eye import hand_eye_views, solve_hand_eye
+from cobot_calib_ros.core.ids import record_id
 from cobot_calib_ros.ros import convert, qos, spin
 from cobot_calib_ros.ros.diagnostics import Diagnostics, OK, WARN
 from cobot_calib_ros.ros.params import declare, read_once
@@ -91,12 +92,6 @@ def parse_user_frame(text: str) -> np.ndarray | None:
     if len(values) != 6 or not np.all(np.isfinite(values)):
         raise ValueError(f'user_frame must be "x y z roll pitch yaw" [m, rad], got {text!r}')
     return frames.from_xyz_rpy(values[:3], values[3:])
-
-
-def new_id() -> str:
-    wall_ns = time.time_ns()
-    return (time.strftime('%Y%m%dT%H%M%S', time.gmtime(wall_ns / 1e9))
-            + f'.{wall_ns % 1_000_000_000:09d}Z-hand_eye')
 
 
 class HandEyeCalibrator(Node):
@@ -289,7 +284,7 @@ class HandEyeCalibrator(Node):
 
     def _record(self, solved, joints, flange, boards, covariances, skipped, planned) -> dict:
         return {
-            'id': new_id(), 'stamp_ns': now_ns(self), 'method': 'park+least_squares',
+            'id': record_id('hand_eye'), 'stamp_ns': now_ns(self), 'method': 'park+least_squares',
             'kinematics': 'nominal', 'flange_frame': self._p('flange_frame'),
             'camera_frame': self._cell.camera.frame_id, 'cell': self._cell.name,
             'inputs': {'joints': joints, 'T_base_flange': flange, 'T_optical_board': boards,

@@ -34,6 +34,7 @@ from cobot_calib_ros.core.kinematics.identification.observations import (
     PositionObservations, SphereObservations)
 from cobot_calib_ros.core.kinematics.identification.solvers import LOSSES, SOLVERS
 from cobot_calib_ros.core.kinematics.kinematic_calibration import CalibrationJob, JobCancelled
+from cobot_calib_ros.core.ids import record_id
 from cobot_calib_ros.ros import spin
 from cobot_calib_ros.ros.diagnostics import Diagnostics, OK, WARN
 from cobot_calib_ros.ros.params import declare, read_once
@@ -71,12 +72,6 @@ def load_collection_folder(folder: str) -> Collection:
     if data is None:
         raise ValueError(f'{path}: unreadable collection: {"; ".join(store.warnings)}')
     return data
-
-
-def new_id(suffix: str) -> str:
-    wall_ns = time.time_ns()
-    return (time.strftime('%Y%m%dT%H%M%S', time.gmtime(wall_ns / 1e9))
-            + f'.{wall_ns % 1_000_000_000:09d}Z-{suffix}')
 
 
 class KinematicIdentifier(Node):
@@ -213,7 +208,7 @@ class KinematicIdentifier(Node):
                                   'coupling_offset_xyz': self._cell.spheres.coupling_offset[:3, 3]}
         else:
             raise ValueError(f'unknown source {source!r}; use spheres or laser_tracker')
-        collection_id = goal.collection_id or new_id(
+        collection_id = goal.collection_id or record_id(
             source if source == 'spheres' else f'tracker-{region}')
         meta = self._collections.create(
             collection_id, source=source, robot=self._cell.robot,

@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import functools
 import threading
-import time
 
 from cobot_calib_msgs.msg import (PointResidual, SurfaceModel as SurfaceMsg,
                                   UserFrameCalibration)
@@ -33,6 +32,7 @@ from cobot_calib_ros import paths
 from cobot_calib_ros.core import frames, kinematics, user_frame
 from cobot_calib_ros.core.cell import check_frame_id, load_cell
 from cobot_calib_ros.core.errors import ErrorCode
+from cobot_calib_ros.core.ids import record_id
 from cobot_calib_ros.core.user_frame import landmarks as landmark_frames
 from cobot_calib_ros.ros import convert, qos, spin
 from cobot_calib_ros.ros.diagnostics import Diagnostics, OK, WARN
@@ -67,10 +67,8 @@ def fit_record(fit: user_frame.FrameFit, surface, names: list[str], p_user, p_ba
     """Everything about one calibration (what is stored and republished); numpy values are
     left as they are: the store writes them as plain lists. ``stamp_ns`` is ROS time; the id
     (a file name) comes from the wall clock so that it stays unique under a paused sim clock."""
-    wall_ns = time.time_ns()
     return {
-        'id': time.strftime('%Y%m%dT%H%M%S', time.gmtime(wall_ns / 1e9))
-        + f'.{wall_ns % 1_000_000_000:09d}Z-{fit.method}',
+        'id': record_id(fit.method),
         'stamp_ns': stamp_ns, 'method': fit.method, 'kinematics': kinematics,
         'base_frame': frames_[0], 'user_frame': frames_[1],
         'inputs': {'point_names': names, 'points_user': p_user, 'points_base': p_base},

@@ -38,6 +38,7 @@ from cobot_calib_ros.core.kinematics.identification.validation import (
     absolute_errors, error_stats, table6)
 from cobot_calib_ros.core.kinematics.model import KinematicModel
 from cobot_calib_ros.core.kinematics.plans import even_subset
+from cobot_calib_ros.core.ids import record_id
 
 Array = NDArray[np.float64]
 Observations = SphereObservations | PositionObservations
@@ -136,8 +137,7 @@ class CalibrationJob:
         objective = result.extra.get('objective') or self.objective or (
             'relative' if isinstance(self.data, SphereObservations) else 'absolute')
         return {
-            'id': time.strftime('%Y%m%dT%H%M%S', time.gmtime(wall_ns / 1e9))
-            + f'.{wall_ns % 1_000_000_000:09d}Z-{self.solver}',
+            'id': record_id(self.solver, wall_ns),
             'stamp_ns': wall_ns, 'method': f'{objective}-{self.solver}',
             'robot': self.model.name,
             'inputs': {'source': self.source, 'rows': len(self.data.q), 'solver': self.solver,
