@@ -48,7 +48,6 @@ from cobot_calib_ros.store.calibrations import CalibrationStore
 Action = CalibrateHandEye
 DEFAULT_VIEWS = 12
 MOVE_TIMEOUT = 60.0        # [s] for one move_to
-CAPTURE_ATTEMPTS = 3
 
 
 class BoardWatch:
@@ -230,7 +229,7 @@ class HandEyeCalibrator(Node):
                                           f'{self._p("landmark_timeout")} s; skipped')
             else:
                 try:
-                    capture = self._capture(hold)
+                    capture = self._robot.capture(hold)
                 except RobotCallError as e:
                     return self._end(goal_handle, result, Action.Result.CAPTURE_FAILED,
                                      f'view {i}: {e}')
@@ -271,16 +270,6 @@ class HandEyeCalibrator(Node):
             f'{solved.residual_mm:.4f} mm / {solved.residual_mrad:.4f} mrad; '
             f'{nominal[0] * 1e3:.3f} mm / {nominal[1] * 1e3:.3f} mrad from the nominal '
             f'hand-eye; {time.monotonic() - t_start:.1f} s'))
-
-    def _capture(self, hold: float):
-        for attempt in range(CAPTURE_ATTEMPTS):
-            try:
-                return self._robot.capture(hold)
-            except RobotCallError as e:
-                if attempt + 1 == CAPTURE_ATTEMPTS:
-                    raise
-                self.get_logger().warning(f'capture_joints failed, trying again: {e}')
-                time.sleep(0.2 * (attempt + 1))
 
     def _record(self, solved, joints, flange, boards, covariances, skipped, planned) -> dict:
         return {

@@ -46,8 +46,6 @@ from cobot_calib_ros.store.kinematics import KinematicStore
 Collect, Identify = CollectSphereData, IdentifyKinematics
 MOVE_TIMEOUT = 60.0        # [s] for one move_to
 MAX_SKIPPED_IN_A_ROW = 20  # more unreachable poses in a row than this ends the collection
-CAPTURE_ATTEMPTS = 4
-CAPTURE_RETRY_PAUSE = 0.2    # [s], times the attempt: lets a starved stream recover
 
 
 def observations(collection: Collection):
@@ -245,7 +243,7 @@ class KinematicIdentifier(Node):
             in_a_row = 0
             t1 = clock()
             try:
-                capture = self._capture(hold)
+                capture = self._robot.capture(hold)
                 p = self._robot.measure_position() if laser else None
             except RobotCallError as e:
                 return Collect.Result.CAPTURE_FAILED, f'pose {i}: {e}; resume with ' \
@@ -273,18 +271,6 @@ class KinematicIdentifier(Node):
         msg.header.stamp = self.get_clock().now().to_msg()
         msg.header.frame_id = target
         self._captures.publish(msg)
-
-    def _capture(self, hold: float):
-        """capture_joints, tried again after a short stream stall (a busy machine can starve
-        the 1 kHz joint_states for a few ms: too few samples in a short hold)."""
-        for attempt in range(CAPTURE_ATTEMPTS):
-            try:
-                return self._robot.capture(hold)
-            except RobotCallError as e:
-                if attempt + 1 == CAPTURE_ATTEMPTS:
-                    raise
-                self.get_logger().warning(f'capture_joints failed, trying again: {e}')
-                time.sleep(CAPTURE_RETRY_PAUSE * (attempt + 1))
 
     # -- identification -------------------------------------------------------------------
     def _on_identify(self, goal_handle):

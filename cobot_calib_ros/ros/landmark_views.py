@@ -110,6 +110,8 @@ class LandmarkViews:
         the capture: (T_base_optical by FK of the captured joints, the first message showing
         ``marker_id``, else the last of LANDMARK_MESSAGES)."""
         self._subscribe()
+        with self._cond:        # older images cannot count; later ones are kept from here on
+            self._msgs.clear()
         try:
             self._robot.move_joints(q, MOVE_TIMEOUT)
             capture = self._robot.capture(capture_duration)
@@ -122,7 +124,6 @@ class LandmarkViews:
         deadline = time.monotonic() + LANDMARK_TIMEOUT
         seen, last = 0, None
         with self._cond:
-            self._msgs.clear()
             while seen < LANDMARK_MESSAGES:
                 remaining = deadline - time.monotonic()
                 if remaining <= 0:

@@ -7,6 +7,8 @@ kinematic_identifier (data collection).
 """
 from __future__ import annotations
 
+import time
+
 from cobot_calib_msgs.action import MoveTo
 from cobot_calib_msgs.srv import CaptureJoints, MeasurePosition
 import numpy as np
@@ -15,6 +17,8 @@ from rclpy.action import ActionClient
 from cobot_calib_ros.ros.spin import Companion, wait
 
 SERVER_WAIT = 5.0       # [s] for move_to / capture_joints to be discovered
+CAPTURE_ATTEMPTS = 4
+CAPTURE_RETRY_PAUSE = 0.2   # [s], times the attempt: lets a starved joint_states stream recover
 
 
 class RobotCallError(RuntimeError):
@@ -61,14 +65,23 @@ class RobotCalls:
         return np.array(result.positions)
 
     def capture(self, duration: float) -> CaptureJoints.Response:
-        """Joints averaged over a hold of ``duration`` [s] (``position``, ``std`` [rad])."""
+        """Joints averaged over a hold of ``duration`` [s] (``position``, ``std`` [rad]).
+
+        A hold with too few samples (NO_DATA: a busy machine starved the 1 kHz joint_states
+        for a moment) is tried again, up to CAPTURE_ATTEMPTS times, after a growing pause."""
         if not self.capture_client.wait_for_service(timeout_sec=SERVER_WAIT):
             raise RobotCallError('capture_joints not available (is joint_state_monitor up?)')
         req = CaptureJoints.Request(duration=duration)
-        try:
-            res = wait(self.capture_client.call_async(req), req.duration + 10.0)
-        except TimeoutError as e:
-            raise RobotCallError(f'capture_joints: {e}; is joint_state_monitor up?')
+        for attempt in range(1, CAPTURE_ATTEMPTS + 1):
+            try:
+                res = wait(self.capture_client.call_async(req), req.duration + 10.0)
+            except TimeoutError as e:
+                raise RobotCallError(f'capture_joints: {e}; is joint_state_monitor up?')
+            if res.error_code != CaptureJoints.Response.NO_DATA or attempt == CAPTURE_ATTEMPTS:
+                break
+            self._answers.node.get_logger().warning(
+                f'capture_joints: {res.message}; trying again ({attempt}/{CAPTURE_ATTEMPTS})')
+            time.sleep(CAPTURE_RETRY_PAUSE * attempt)
         if res.error_code != CaptureJoints.Response.SUCCESS:
             raise RobotCallError(f'capture_joints: {res.message}')
         self.robot_seconds += req.duration
