@@ -137,16 +137,19 @@ def _check(args) -> int:
                     EXIT_USAGE)
     if args.clock is not None and not args.clock > 0:
         return fail('replay: --clock HZ must be > 0', EXIT_USAGE)
-    from cobot_calib_ros.api import replay_trial_check
+    from cobot_calib_ros.api import replay_landmark_check, replay_trial_check
     from cobot_calib_ros.bags.errors import BagError
     from cobot_calib_ros.bags.reader import open_bag
     try:
         with open_bag(args.bag) as bag:
             trial = replay_trial_check.is_trial_bag(bag)
+            landmark = replay_landmark_check.is_landmark_bag(bag)
     except BagError as exc:
         return fail(f'replay --check: {exc}')
     if trial:
         return _check_trial(args)
+    if landmark:
+        return _check_landmarks(args)
     if args.rate is None:
         args.rate = 1.0
     if args.recapture and args.rate == 0:
@@ -178,6 +181,30 @@ def _check(args) -> int:
           'replayed - expected xyz: ('
           + ', '.join(f'{v * 1e3:+.6f}' for v in result.T_replayed[:3, 3]
                       - result.T_expected[:3, 3]) + ') mm', file=sys.stderr, flush=True)
+    return 1
+
+
+def _check_landmarks(args) -> int:
+    """--check of a landmark-session bag (api.replay_landmark_check)."""
+    from cobot_calib_ros.api import replay_landmark_check as check
+    from cobot_calib_ros.bags.errors import BagError
+    if args.recapture:
+        return fail('replay --check: --recapture is for a teach bag (capture_joints); a '
+                    'landmark bag is checked from its images', EXIT_USAGE)
+    rate = check.DEFAULT_RATE if args.rate is None else args.rate
+    if not 0 < rate <= check.MAX_RATE:
+        return fail(f'replay --check: a landmark bag replays at a finite --rate up to '
+                    f'{check.MAX_RATE:g} (landmark_detector keeps only the newest image); '
+                    f'got {"max" if rate == 0 else f"{rate:g}"}', EXIT_USAGE)
+    try:
+        ok, report = check.check(args.bag, rate, say=lambda text: print(text, flush=True))
+    except (check.CheckError, BagError) as exc:
+        return fail(f'replay --check: {exc}')
+    except KeyboardInterrupt:
+        return fail('replay --check interrupted', EXIT_INTERRUPTED)
+    if ok:
+        return EXIT_OK
+    print(report, file=sys.stderr, flush=True)
     return 1
 
 

@@ -1,0 +1,379 @@
+"""`cobot-calib replay BAG --check` for a landmark bag: the user frame from the replayed images.
+
+A landmark bag (bags/make_landmark_bag.py, bags/landmark_multi_close) holds the wrist camera's
+``/wrist_camera/image_raw`` and ``/wrist_camera/camera_info`` around every view of a
+``landmark_multi`` calibration, the view marks user_frame_solver published on
+``/cobot_calib/captures`` (MARKS_TOPIC, sensor_msgs/JointState: header.stamp = the ROS time
+after which landmarks count, frame_id = ``landmark_<id>``, position = the captured joints [rad]
+in the model's joint order, effort = their standard deviation) and the live, latched
+``/user_frame``; next to it ``expected.yaml``: T_base_user (the calibration's matrix), method,
+kinematics, hand_eye, cell, calibration id, rms, the solver's max_rms_error / max_scale_error
+and, per view, the stamp of the image the live solver used.
+
+The check starts a landmark_detector on a private ROS_DOMAIN_ID (``use_sim_time: true``, the
+bag's cell), replays the images and camera_info with ``/clock`` (bags.player.BagPlayer) and
+collects the ``landmarks`` it publishes. Each mark is paired as ros.landmark_views does live:
+among the landmarks messages of images stamped after the mark, in stamp order, the first that
+shows the mark's marker, else the last of the first LANDMARK_MESSAGES. The mark's joints go
+through the model's chain (``kinematics``; the nominal model) with the hand-eye as tool (the
+cell's nominal one: ``hand_eye: nominal``), and the frame is fitted with the core's
+views.observation and views.landmark_frame, as the live solver does (:func:`fit_frame`). The
+frame must be within TOL_M and TOL_RAD of expected.yaml's.
+
+landmark_detector takes images best effort with a history of 1 and keeps only the newest
+when it falls behind, so the replay goes at a finite rate (DEFAULT_RATE, at most MAX_RATE) and
+every image must come back as a landmarks message: a pass that misses some is followed by
+another pass, of the images still missing and their camera_info, at half the rate (not below
+MIN_RATE), up to PASSES. Detection is per
+image and deterministic, so which pass brought an image's landmarks does not change the result.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+import os
+from pathlib import Path
+import re
+import tempfile
+import threading
+import time
+from typing import Callable
+
+import numpy as np
+
+IMAGE_TOPIC = '/wrist_camera/image_raw'
+INFO_TOPIC = '/wrist_camera/camera_info'
+MARKS_TOPIC = '/cobot_calib/captures'
+USER_FRAME_TOPIC = '/user_frame'
+EXPECTED_FILE = 'expected.yaml'
+TOL_M = 1e-6
+TOL_RAD = 1e-6
+DEFAULT_RATE = 2.0
+MAX_RATE = 20.0
+PASSES = 4
+MIN_RATE = 0.5
+WARMUP = 1.0             # [s] after the player sees the detector's subscriptions
+SERVICE_TIMEOUT = 30.0   # [s] for landmark_detector to come up
+DRAIN_TIMEOUT = 2.0      # [s] after a pass without a new landmarks message: the rest is lost
+DEFAULT_MAX_RMS = 1e-3   # user_frame_solver's defaults, when expected.yaml does not say
+DEFAULT_MAX_SCALE = 0.01
+MARKER = re.compile(r'landmark_(\d+)$')
+
+
+class CheckError(RuntimeError):
+    """The check could not run (a missing file, a node that did not come up, lost images)."""
+
+
+def header_ns(msg) -> int:
+    return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+
+
+def marker_of(mark) -> int:
+    """The marker a view mark was planned for (frame_id ``landmark_<id>``)."""
+    found = MARKER.match(mark.header.frame_id)
+    if not found:
+        raise CheckError(f'mark frame_id {mark.header.frame_id!r} is not landmark_<id>')
+    return int(found.group(1))
+
+
+def shows(msg, marker_id: int) -> bool:
+    """A landmarks message shows the single marker ``marker_id``."""
+    return any(lm.id == marker_id and lm.kind == lm.KIND_MARKER for lm in msg.landmarks)
+
+
+def pair(marks: list, landmarks: list) -> list[tuple[int, object]]:
+    """For each mark, (image stamp [ns], landmarks message) as ros.landmark_views takes it:
+    among the messages stamped after the mark, in stamp order, the first showing the mark's
+    marker, else the last of the first LANDMARK_MESSAGES. CheckError if there is none."""
+    from cobot_calib_ros.ros.landmark_views import LANDMARK_MESSAGES
+    ordered = sorted(((header_ns(m), m) for m in landmarks), key=lambda x: x[0])
+    out = []
+    for k, mark in enumerate(marks):
+        t0, marker = header_ns(mark), marker_of(mark)
+        seen = [x for x in ordered if x[0] > t0][:LANDMARK_MESSAGES]
+        if not seen:
+            raise CheckError(f'mark #{k} ({mark.header.frame_id}): no landmarks message of an '
+                             'image stamped after it')
+        out.append(next((x for x in seen if shows(x[1], marker)), seen[-1]))
+    return out
+
+
+def fit_frame(marks: list, landmarks: list, *, cell_name: str, kinematics: str = 'nominal',
+              max_rms_error: float = DEFAULT_MAX_RMS,
+              max_scale_error: float = DEFAULT_MAX_SCALE, method: str = 'landmark_multi'):
+    """The landmark frame from the view marks and the landmarks message paired with each, as
+    the live solver fits it (ros.landmark_views.LandmarkViews.frame): T_base_optical = FK of
+    the mark's joints on the model's chain with the cell's nominal hand-eye as tool, then
+    views.observation per marker and views.landmark_frame. A LandmarkFit; CheckError when the
+    fit fails."""
+    from cobot_calib_ros import paths
+    from cobot_calib_ros.core import kinematics as kin
+    from cobot_calib_ros.core.cell import load_cell
+    from cobot_calib_ros.core.errors import Failure
+    from cobot_calib_ros.core.landmarks import views
+    from cobot_calib_ros.ros import convert
+    if kinematics != 'nominal':
+        raise CheckError(f'kinematics {kinematics!r}: a landmark bag is checked on the nominal '
+                         'model only')
+    cell = load_cell(paths.cell_file(cell_name))
+    model = kin.model_by_name(cell.robot)
+    chain = model.chain(tool=np.asarray(cell.camera.T_flange_optical, dtype=float))
+    order = list(model.joint_names)
+    observations = []
+    for k, (mark, msg) in enumerate(zip(marks, landmarks)):
+        if list(mark.name) != order:
+            raise CheckError(f'mark #{k}: joints {list(mark.name)}, the model has {order}')
+        T_base_optical = kin.fk(chain, np.array(mark.position, dtype=float))
+        observations += [views.observation(lm.id, T_base_optical,
+                                           convert.pose_to_matrix(lm.pose.pose),
+                                           lm.pose.covariance)
+                         for lm in msg.landmarks if lm.kind == lm.KIND_MARKER]
+    result = views.landmark_frame(method, cell, observations, max_rms_error=max_rms_error,
+                                  max_scale_error=max_scale_error)
+    if isinstance(result, Failure) or not result:
+        raise CheckError(f'the landmark fit failed: {result.message}')
+    return result
+
+
+def write_expected(path: Path, data: dict) -> None:
+    import yaml
+    with open(path, 'w') as out:
+        out.write('# expected result of replaying this bag: cobot-calib replay BAG --check\n')
+        yaml.safe_dump(data, out, sort_keys=False, default_flow_style=None)
+
+
+def read_expected(bag_path: str | os.PathLike) -> tuple[Path, dict]:
+    from cobot_calib_ros.api.replay_check import read_expected as read
+    from cobot_calib_ros.api import replay_check
+    try:
+        return read(bag_path)
+    except replay_check.CheckError as exc:
+        raise CheckError(str(exc)) from None
+
+
+def is_landmark_bag(bag) -> bool:
+    """A bag this check applies to: camera images and view marks."""
+    return IMAGE_TOPIC in bag.topics and MARKS_TOPIC in bag.topics
+
+
+@dataclass
+class LandmarkCheckResult:
+    ok: bool
+    translation_m: float
+    rotation_rad: float
+    T_replayed: np.ndarray
+    T_expected: np.ndarray
+    rms_replayed: float
+    rms_expected: float
+    marks: int
+    images: int                     # images in the bag, all turned into landmarks
+    passes: int
+    pairing_differs: list           # marks whose image differs from expected.yaml's views
+    wall_s: float
+    report: str = ''
+
+
+def run_check(bag_path: str, rate: float = DEFAULT_RATE, say: Callable[[str], None] = print,
+              clock_hz: float = 40.0) -> LandmarkCheckResult:
+    """Replay the bag's images through landmark_detector, fit, compare; see the module doc."""
+    import domain_coordinator
+
+    from cobot_calib_ros.api.replay_check import difference
+    from cobot_calib_ros.bags.reader import open_bag
+    if not 0 < rate <= MAX_RATE:
+        raise CheckError(f'a landmark bag replays at a finite rate up to {MAX_RATE:g} '
+                         f'(landmark_detector takes images best effort); got {rate:g}')
+    expected_path, expected = read_expected(bag_path)
+    method = str(expected.get('method', 'landmark_multi'))
+    if str(expected.get('hand_eye', 'nominal')) != 'nominal':
+        raise CheckError(f'{expected_path}: hand_eye {expected["hand_eye"]!r}; only the '
+                         "cell's nominal hand-eye can be checked")
+    started = time.monotonic()
+    os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    with open_bag(bag_path) as bag:
+        for topic in (IMAGE_TOPIC, INFO_TOPIC, MARKS_TOPIC):
+            if topic not in bag.topics or not bag.topics[topic].count:
+                raise CheckError(f'{bag.path}: nothing on {topic}')
+        for warning in bag.warnings:
+            say(f'warning: {warning}')
+        marks = [bag.deserialize(m.rawdata, m.msgtype) for m in bag.messages([MARKS_TOPIC])]
+        stamps = {(m.topic, m.timestamp_ns): header_ns(bag.deserialize(m.rawdata, m.msgtype))
+                  for m in bag.messages([IMAGE_TOPIC, INFO_TOPIC])}
+        needed = {s for (topic, _), s in stamps.items() if topic == IMAGE_TOPIC}
+        with domain_coordinator.domain_id() as domain, \
+                tempfile.TemporaryDirectory(prefix='cobot_calib_check_') as tmp:
+            received, passes = _replay(bag, expected, domain, Path(tmp), rate, clock_hz,
+                                       needed, stamps, say)
+    landmarks = [received[s] for s in sorted(needed)]
+    pairs = pair(marks, landmarks)
+    views = expected.get('views') or []
+    differs = [k for k, (s, _) in enumerate(pairs)
+               if k < len(views) and int(views[k]['image_stamp_ns']) != s]
+    fit = fit_frame(marks, [msg for _, msg in pairs], cell_name=str(expected.get('cell')),
+                    kinematics=str(expected.get('kinematics', 'nominal')),
+                    max_rms_error=float(expected.get('max_rms_error', DEFAULT_MAX_RMS)),
+                    max_scale_error=float(expected.get('max_scale_error', DEFAULT_MAX_SCALE)),
+                    method=method)
+    T = np.asarray(fit.fit.M, dtype=float)
+    dt, dr = difference(T, expected['T_base_user'])
+    ok = bool(dt <= TOL_M and dr <= TOL_RAD and np.isfinite(dt) and np.isfinite(dr))
+    report = (f'replayed {len(needed)} images through landmark_detector ({passes} pass'
+              f'{"es" if passes > 1 else ""}), {len(marks)} views paired'
+              + (f' ({len(differs)} with another image than the live solver: marks {differs})'
+                 if differs else ' with the images the live solver used')
+              + f'; {method} frame (rms {fit.fit.rms * 1e3:.4f} mm) vs {expected_path}: '
+              f'translation differs by {dt:.3e} m (tolerance {TOL_M:g}), rotation by '
+              f'{dr:.3e} rad (tolerance {TOL_RAD:g})')
+    say(report)
+    return LandmarkCheckResult(ok, dt, dr, T, expected['T_base_user'], float(fit.fit.rms),
+                               float(expected.get('rms_residual', float('nan'))), len(marks),
+                               len(needed), passes, differs, time.monotonic() - started, report)
+
+
+def check(bag_path: str, rate: float | None = None, say: Callable[[str], None] = print
+          ) -> tuple[bool, str]:
+    """(ok, report) for the CLI; CheckError when the check cannot run."""
+    result = run_check(bag_path, DEFAULT_RATE if rate is None else rate, say=say)
+    if not result.ok:
+        return False, (result.report + '\n  replayed:\n' + format_matrix(result.T_replayed)
+                       + '\n  expected:\n' + format_matrix(result.T_expected))
+    return True, result.report
+
+
+def format_matrix(T: np.ndarray) -> str:
+    return '\n'.join('    [' + ', '.join(f'{v: .9f}' for v in row) + ']' for row in T)
+
+
+class _Missing:
+    """The bag as BagPlayer sees it, with only the images (and their camera_info) that have
+    not come back yet: a later pass replays only those."""
+
+    def __init__(self, bag, stamps: dict, missing: set[int]) -> None:
+        self._bag, self._stamps, self._missing = bag, stamps, missing
+        self.path, self.topics, self.warnings = bag.path, bag.topics, bag.warnings
+
+    def select(self, topics=None):
+        return self._bag.select(topics)
+
+    def messages(self, topics=None, start_ns=None, stop_ns=None):
+        return (m for m in self._bag.messages(topics, start_ns, stop_ns)
+                if self._stamps.get((m.topic, m.timestamp_ns)) in self._missing)
+
+
+def _replay(bag, expected: dict, domain: int, tmp: Path, rate: float, clock_hz: float,
+            needed: set[int], stamps: dict, say) -> tuple[dict, int]:
+    """Play the images and camera_info into a landmark_detector, pass after pass until every
+    image stamped ``needed`` came back as a landmarks message (at most PASSES; a later pass
+    plays only the images still missing, with their camera_info): ({image stamp [ns]: the first
+    landmarks message for it}, passes). ``stamps``: (topic, log time) -> header stamp."""
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.parameter import Parameter
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from rclpy.signals import SignalHandlerOptions
+    from cobot_calib_msgs.msg import Landmarks
+
+    from cobot_calib_ros import paths
+    from cobot_calib_ros.api.client import spin_until
+    from cobot_calib_ros.api.launcher import NodeSpec, Suite
+    from cobot_calib_ros.bags.player import BagPlayer, spinning
+
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain))
+    env.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    cell = str(paths.cell_file(str(expected.get('cell', 'sawyer_close'))))
+    suite = Suite(tmp / 'log')
+    suite.start([NodeSpec('landmark_detector', {'use_sim_time': 'true', 'cell_file': cell})],
+                env=env)
+    say(f'landmark_detector on ROS_DOMAIN_ID={domain} (sim time)')
+    context = Context()
+    rclpy.init(context=context, domain_id=domain, signal_handler_options=SignalHandlerOptions.NO)
+    node = player = None
+    received: dict[int, object] = {}
+    lock = threading.Lock()
+    try:
+        node = rclpy.create_node('cobot_calib_replay_landmark_check', context=context,
+                                 parameter_overrides=[Parameter('use_sim_time', value=True)])
+        executor = SingleThreadedExecutor(context=context)
+        executor.add_node(node)
+
+        def on_landmarks(msg: Landmarks) -> None:
+            with lock:
+                received.setdefault(header_ns(msg), msg)
+        sub = node.create_subscription(Landmarks, 'landmarks', on_landmarks,
+                                       QoSProfile(depth=100,
+                                                  reliability=ReliabilityPolicy.RELIABLE))
+        if not spin_until(node, lambda: sub.get_publisher_count() > 0, SERVICE_TIMEOUT,
+                          executor):
+            raise CheckError(f'landmark_detector did not come up; logs in {suite.log_dir}'
+                             + _failed(suite))
+        player = BagPlayer(bag, rate=rate, topics=[IMAGE_TOPIC, INFO_TOPIC], clock_hz=clock_hz,
+                           wait_subscribers=10.0, report=say, context=context)
+        stop = threading.Event()
+
+        def spin() -> None:
+            while not stop.is_set() and context.ok():
+                executor.spin_once(timeout_sec=0.005)
+        spinner = threading.Thread(target=spin, daemon=True)
+        spinner.start()
+        passes = 0
+        try:
+            with spinning(player):
+                if player.wait_for_subscribers():
+                    raise CheckError('landmark_detector did not subscribe to the camera '
+                                     f'within 10 s; logs in {suite.log_dir}' + _failed(suite))
+                time.sleep(WARMUP)
+                for passes in range(1, PASSES + 1):
+                    if passes > 1:
+                        player.rate = max(min(rate, MIN_RATE), player.rate / 2)
+                        with lock:
+                            player.bag = _Missing(bag, stamps, needed - set(received))
+                    result = player.play()
+                    _drain(received, lock, needed)
+                    with lock:
+                        missing = len(needed - set(received))
+                    say(f'pass {passes}: replayed {result.published} messages in '
+                        f'{result.wall_s:.2f} s ({result.speed:.1f}x real time, rate '
+                        f'{player.rate:g}); '
+                        + (f'{missing} of {len(needed)} images without landmarks yet'
+                           if missing else f'landmarks of all {len(needed)} images in'))
+                    if not missing:
+                        break
+        finally:
+            stop.set()
+            spinner.join(timeout=2.0)
+        with lock:
+            lost = sorted(needed - set(received))
+        if lost:
+            raise CheckError(f'{len(lost)} of {len(needed)} images (first stamped {lost[0]} ns) '
+                             f'gave no landmarks in {PASSES} passes; replay at a lower --rate; '
+                             f'logs in {suite.log_dir}')
+        return dict(received), passes
+    finally:
+        if player is not None:
+            player.destroy_node()
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown(context=context)
+        suite.stop()
+
+
+def _drain(received: dict, lock, needed: set[int]) -> None:
+    """Wait until every needed image is in, or none came for DRAIN_TIMEOUT."""
+    with lock:
+        count = len(received)
+    quiet = time.monotonic()
+    while time.monotonic() - quiet < DRAIN_TIMEOUT:
+        time.sleep(0.02)
+        with lock:
+            if needed <= set(received):
+                return
+            if len(received) != count:
+                count, quiet = len(received), time.monotonic()
+
+
+def _failed(suite) -> str:
+    failed = suite.failed()
+    if not failed:
+        return ''
+    return '; exited: ' + ', '.join(f'{n} ({c}): {suite.log_tail(n, 5)}'
+                                    for n, c in failed.items())
