@@ -9,8 +9,10 @@ def add_parser(subparsers):
         description='Run (or resume) one ISO 9283 repeatability trial on the suite running on '
                     'the exported ROS_DOMAIN_ID (cobot-calib up).')
     p.add_argument('--method', default=None,
-                   help='reference | three_point | five_point_lsq | rigid | robust (default '
-                        'reference; a resumed trial keeps its own)')
+                   help='reference | three_point | five_point_lsq | rigid | robust | '
+                        'landmark_single | landmark_multi (wrist camera; calibrate the hand-eye '
+                        'first: cobot-calib hand-eye) (default reference; a resumed trial keeps '
+                        'its own)')
     p.add_argument('--axis', default=None, choices=('x', 'y', 'z'),
                    help='probed axis (default z; a resumed trial keeps its own)')
     p.add_argument('--cycles', type=int, default=None,
