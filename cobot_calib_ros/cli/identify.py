@@ -19,7 +19,6 @@ from cobot_calib_ros.cli.common import EXIT_FAILED, EXIT_OK, EXIT_USAGE, fail, s
 
 CELLS = {'iiwa7': 'iiwa7_close', 'sawyer': 'sawyer_close'}
 MUKCA_PUBLISHED_MM = 0.2       # MUKCa paper: mean error after calibration
-CAPTURES_TOPIC = '/cobot_calib/captures'   # kinematic_identifier's recorded poses
 
 
 def add_parser(subparsers):
@@ -127,36 +126,26 @@ def _bag(args, folder: Path) -> int:
     """A recorded sphere session: the poses kinematic_identifier published on
     /cobot_calib/captures (frame_id = sphere name), identified offline by the same core job."""
     from cobot_calib_ros.bags.errors import BagError
-    from cobot_calib_ros.bags.reader import open_bag
+    from cobot_calib_ros.bags.sphere_captures import sphere_observations
     from cobot_calib_ros.core.cell import load_cell
     from cobot_calib_ros.core.kinematics import model_by_name
-    from cobot_calib_ros.core.kinematics.identification import SphereObservations
     from cobot_calib_ros.core.kinematics.kinematic_calibration import CalibrationJob
     from cobot_calib_ros.paths import cell_file
     cell = load_cell(cell_file(args.cell or CELLS[args.robot or 'iiwa7']))
     model = model_by_name(cell.robot)
     try:
-        with open_bag(folder) as bag:
-            captures = [bag.deserialize(m.rawdata, m.msgtype)
-                        for m in bag.messages([CAPTURES_TOPIC])]
+        data, poses = sphere_observations(folder, cell, model)
     except BagError as e:
         return fail(f'identify: {e}')
-    names = cell.spheres.names if cell.spheres else ()
-    rows = [c for c in captures if c.header.frame_id in names]
-    if not rows:
-        return fail(f'{folder}: no {CAPTURES_TOPIC} poses on the spheres {list(names)} of cell '
-                    f'{cell.name}; record that topic during collect_sphere_data', EXIT_FAILED)
-    order = list(model.joint_names)
+    except ValueError as e:
+        return fail(str(e), EXIT_FAILED)
     try:
-        q = [[dict(zip(c.name, c.position))[j] for j in order] for c in rows]
-        data = SphereObservations(q, [names.index(c.header.frame_id) for c in rows],
-                                  cell.spheres.known_distances())
         outcome = CalibrationJob(cell, model, data, source=str(folder), solver=args.solver,
                                  loss=args.loss, max_configs=args.max_configs).run()
     except (KeyError, ValueError) as e:
         return fail(f'{folder}: {e}', EXIT_FAILED)
     r = outcome.result
-    report = {'source': str(folder), 'poses': len(rows), 'message': outcome.summary(),
+    report = {'source': str(folder), 'poses': poses, 'message': outcome.summary(),
               'dropped_parameters': [d.name for d in outcome.identifiability.dropped],
               'identified': [{'name': n, 'value': float(v), 'std': float(sd)} for n, v, sd in
                              zip(r.free, outcome.free_values, r.std)],

@@ -34,6 +34,8 @@ from cobot_calib_ros.core.kinematics.identification.observations import (
     PositionObservations, SphereObservations)
 from cobot_calib_ros.core.kinematics.identification.solvers import LOSSES, SOLVERS
 from cobot_calib_ros.core.kinematics.kinematic_calibration import CalibrationJob, JobCancelled
+from cobot_calib_ros.bags.errors import BagError
+from cobot_calib_ros.bags.sphere_captures import is_bag, sphere_observations
 from cobot_calib_ros.core.ids import record_id
 from cobot_calib_ros.ros import spin
 from cobot_calib_ros.ros.diagnostics import Diagnostics, OK, WARN
@@ -317,15 +319,20 @@ class KinematicIdentifier(Node):
                                    ('objective', goal.objective, ('relative', 'absolute'))):
             if value and value not in known:
                 raise ValueError(f'unknown {name} {value!r}; use one of {", ".join(known)}')
-        if goal.file:
-            collection = load_collection_folder(goal.file)
+        if goal.file and is_bag(goal.file):     # a recorded session: its capture marks
+            try:
+                data, _ = sphere_observations(goal.file, self._cell, self._model)
+            except BagError as e:
+                raise ValueError(str(e))
+            source = str(goal.file)
         else:
-            collection = self._collection(goal.collection_id, 'spheres'
-                                          if goal.objective != 'absolute' else 'laser_tracker')
-        if collection.meta['robot'] != self._cell.robot:
-            raise ValueError(f'collection {collection.meta["id"]} is of a '
-                             f'{collection.meta["robot"]}, this cell is a {self._cell.robot}')
-        data, source = observations(collection), collection.meta['id']
+            collection = (load_collection_folder(goal.file) if goal.file else self._collection(
+                goal.collection_id,
+                'spheres' if goal.objective != 'absolute' else 'laser_tracker'))
+            if collection.meta['robot'] != self._cell.robot:
+                raise ValueError(f'collection {collection.meta["id"]} is of a '
+                                 f'{collection.meta["robot"]}, this cell is a {self._cell.robot}')
+            data, source = observations(collection), collection.meta['id']
         validation = {}
         for key, given in (('volume', goal.validation_volume),
                            ('workspace', goal.validation_workspace)):

@@ -23,3 +23,46 @@ def test_a_bag_without_sphere_captures_is_refused(capsys):
     teach = BAG.parent / 'five_point_close'
     assert main(['identify', '--source', str(teach)]) == 1
     assert 'no /cobot_calib/captures poses on the spheres' in capsys.readouterr().err
+
+
+def test_the_identify_kinematics_goal_takes_the_bag_too(bag_domain, tmp_path):
+    """The node's `file` may name a bag: kinematic_identifier (iiwa7 cell, its own process)
+    identifies from the recorded captures and gives the live parameters again."""
+    import rclpy
+    from rclpy.action import ActionClient
+    from rclpy.context import Context
+    from rclpy.executors import SingleThreadedExecutor
+    from cobot_calib_msgs.action import IdentifyKinematics
+    from cobot_calib_ros.api import launcher
+    from cobot_calib_ros.api.client import run_action
+    expected = json.loads((BAG / 'expected.json').read_text())
+    domain, env = bag_domain
+    suite = launcher.Suite(tmp_path / 'logs')
+    suite.start(launcher.suite_specs('iiwa7_close', ('kinematic_identifier',), overrides={
+        'kinematic_identifier': {'data_dir': str(tmp_path / 'data')}}), env=env)
+    context = Context()
+    rclpy.init(context=context, domain_id=domain)
+    node = rclpy.create_node('test_identify_bag', context=context)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    client = ActionClient(node, IdentifyKinematics, 'identify_kinematics')
+    try:
+        _, result = run_action(node, client, IdentifyKinematics.Goal(
+            file=str(BAG), dry_run=True), 120.0, executor=executor)
+        missing = run_action(node, client, IdentifyKinematics.Goal(
+            file=str(BAG.parent / 'five_point_close'), dry_run=True), 60.0,
+            executor=executor)[1]
+    finally:
+        client.destroy()
+        node.destroy_node()
+        rclpy.try_shutdown(context=context)
+        codes = suite.stop()
+    assert result.error_code == IdentifyKinematics.Result.SUCCESS, result.message
+    assert not result.calibration_id                        # dry run: nothing stored
+    live = {p['name']: p['value'] for p in expected['identified']}
+    got = dict(zip(result.parameter_names, result.values))
+    assert set(got) == set(live)
+    assert max(abs(got[n] - live[n]) for n in live) <= 1e-9
+    assert missing.error_code != IdentifyKinematics.Result.SUCCESS
+    assert 'no /cobot_calib/captures poses on the spheres' in missing.message
+    assert all(c == 0 for c in codes.values()), codes
