@@ -17,7 +17,9 @@ driver), BENCH_DETECTOR_SECONDS (default 5) after a warm-up, and takes the landm
   one-slot queue while it was busy);
 - ``detector_<res>_<target>_latency_p50_ms``: publish to landmarks received;
 - ``detector_<res>_<target>_detect_ms``: the node's own time per image (its /diagnostics
-  ``detect_ms_mean``, detection + poses + message), so 1000 / detect_ms is its capacity;
+  ``detect_ms_mean``: OpenCV's search + refinement, poses and message). The node runs the two
+  stages on two threads, one image in each, so its capacity is above 1000 / detect_ms (up to
+  1000 / the slower stage);
 - ``detector_<res>_<target>_found``: landmarks per message (4 markers or 1 board expected).
 
 Every process runs with bench/fastdds_large_images.xml (shared-memory segments large enough

@@ -7,6 +7,7 @@ mock_robot on the session's domain would answer its move_to goals.
 """
 from dataclasses import dataclass
 import os
+import threading
 import time
 
 from cobot_calib_msgs.action import MoveTo
@@ -26,8 +27,8 @@ from sensor_msgs.msg import Image
 from cobot_calib_ros.api import launcher
 from cobot_calib_ros.api.client import run_action, spin_until
 from cobot_calib_ros.core import frames
-from cobot_calib_ros.nodes.landmark_detector import (configure, FrameSlot, LandmarkDetector,
-                                                     NotConfigured)
+from cobot_calib_ros.nodes.landmark_detector import (configure, FrameSlot, Handoff,
+                                                     LandmarkDetector, NotConfigured)
 from cobot_calib_ros.paths import cell_file
 from cobot_calib_ros.ros import convert
 from cobot_calib_ros.sim.camera import SimCamera
@@ -258,6 +259,16 @@ def test_the_slot_keeps_the_newest_and_counts_the_dropped():
     for frame in (1, 2, 3):
         slot.put(frame)
     assert (slot.take(0.0), slot.dropped, slot.take(0.0)) == (3, 2, None)
+
+
+def test_the_handoff_between_the_stages_waits_instead_of_dropping():
+    handoff = Handoff()
+    assert handoff.put(1, 0.0) and not handoff.put(2, 0.05)      # full: waits, then refuses
+    taker = threading.Timer(0.05, handoff.take, args=(0.0,))
+    taker.start()
+    assert handoff.put(3, 5.0)                                    # goes in once 1 is taken
+    taker.join()
+    assert (handoff.take(0.0), handoff.take(0.0)) == (3, None)
 
 
 def test_an_unknown_dictionary_is_an_error_on_diagnostics_not_a_crash(camera_suite):
