@@ -54,14 +54,17 @@ def matrix(calibration) -> list[list[float]]:
     return [m[4 * i:4 * i + 4] for i in range(4)]
 
 
-def write_expected(path: Path, data: dict) -> None:
+def write_expected(path: Path, data: dict, comment: str = '') -> None:
+    """expected.yaml of a sample bag (every check's); ``comment``: more header lines."""
     import yaml
     with open(path, 'w') as out:
-        out.write('# expected result of replaying this bag: cobot-calib replay BAG --check\n')
-        yaml.safe_dump(data, out, sort_keys=False, default_flow_style=None)
+        out.write('# expected result of replaying this bag: cobot-calib replay BAG --check\n'
+                  + ''.join(f'# {line}\n' for line in comment.splitlines()))
+        yaml.safe_dump(data, out, sort_keys=False, default_flow_style=None, width=100)
 
 
-def read_expected(bag_path: str | os.PathLike) -> tuple[Path, dict]:
+def load_expected(bag_path: str | os.PathLike) -> tuple[Path, dict]:
+    """(path, mapping) of the bag's expected.yaml; CheckError when unreadable or not YAML."""
     import yaml
     folder = Path(bag_path)
     if not folder.is_dir():
@@ -71,7 +74,15 @@ def read_expected(bag_path: str | os.PathLike) -> tuple[Path, dict]:
         data = yaml.safe_load(path.read_text())
     except OSError as exc:
         raise CheckError(f'{path}: cannot read the expected result: {exc.strerror}') from None
-    if not isinstance(data, dict) or 'T_base_user' not in data:
+    except yaml.YAMLError as exc:
+        raise CheckError(f'{path}: not YAML: {exc}') from None
+    return path, data if isinstance(data, dict) else {}
+
+
+def read_expected(bag_path: str | os.PathLike) -> tuple[Path, dict]:
+    """A frame check's expected.yaml: T_base_user as a 4x4 array."""
+    path, data = load_expected(bag_path)
+    if 'T_base_user' not in data:
         raise CheckError(f'{path}: no T_base_user in it')
     T = np.array(data['T_base_user'], dtype=float)
     if T.shape != (4, 4):

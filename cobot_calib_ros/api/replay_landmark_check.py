@@ -40,11 +40,13 @@ from typing import Callable
 
 import numpy as np
 
+from cobot_calib_ros.api import replay_check
+
 IMAGE_TOPIC = '/wrist_camera/image_raw'
 INFO_TOPIC = '/wrist_camera/camera_info'
 MARKS_TOPIC = '/cobot_calib/captures'
 USER_FRAME_TOPIC = '/user_frame'
-EXPECTED_FILE = 'expected.yaml'
+EXPECTED_FILE = replay_check.EXPECTED_FILE
 TOL_M = 1e-6
 TOL_RAD = 1e-6
 DEFAULT_RATE = 2.0
@@ -59,8 +61,7 @@ DEFAULT_MAX_SCALE = 0.01
 MARKER = re.compile(r'landmark_(\d+)$')
 
 
-class CheckError(RuntimeError):
-    """The check could not run (a missing file, a node that did not come up, lost images)."""
+CheckError = replay_check.CheckError
 
 
 def header_ns(msg) -> int:
@@ -134,20 +135,8 @@ def fit_frame(marks: list, landmarks: list, *, cell_name: str, kinematics: str =
     return result
 
 
-def write_expected(path: Path, data: dict) -> None:
-    import yaml
-    with open(path, 'w') as out:
-        out.write('# expected result of replaying this bag: cobot-calib replay BAG --check\n')
-        yaml.safe_dump(data, out, sort_keys=False, default_flow_style=None)
-
-
-def read_expected(bag_path: str | os.PathLike) -> tuple[Path, dict]:
-    from cobot_calib_ros.api.replay_check import read_expected as read
-    from cobot_calib_ros.api import replay_check
-    try:
-        return read(bag_path)
-    except replay_check.CheckError as exc:
-        raise CheckError(str(exc)) from None
+write_expected = replay_check.write_expected
+read_expected = replay_check.read_expected
 
 
 def is_landmark_bag(bag) -> bool:

@@ -43,10 +43,12 @@ from typing import Callable
 
 import numpy as np
 
+from cobot_calib_ros.api import replay_check
+
 VOLTAGE_TOPIC = '/probe/voltage'
 MARKS_TOPIC = '/cobot_calib/probe_averages'
 STATS_TOPIC = '/repeatability'
-EXPECTED_FILE = 'expected.yaml'
+EXPECTED_FILE = replay_check.EXPECTED_FILE
 TOL_M = 1e-6
 DEFAULT_RATE = 2.0
 MAX_RATE = 20.0
@@ -58,9 +60,7 @@ DRAIN_TIMEOUT = 1.0      # [s] after a pass without a new distance: the rest is 
 TABLE_KEYS = ('calibration_distance', 'calibration_voltage', 'saturation_margin')
 
 
-class CheckError(RuntimeError):
-    """The check could not run (a missing file or topic, a node that did not come up, lost
-    messages)."""
+CheckError = replay_check.CheckError
 
 
 @dataclass(frozen=True)
@@ -179,28 +179,15 @@ def distances(readings: list[dict], rebuilt: list, m: int, n: int) -> np.ndarray
 
 
 def write_expected(path: Path, data: dict) -> None:
-    import yaml
-    with open(path, 'w') as out:
-        out.write('# expected result of replaying this trial bag: cobot-calib replay BAG --check'
-                  '\n# (lengths in metres; readings: mark = index on '
-                  f'{MARKS_TOPIC}, ff_m and direction of eq 15)\n')
-        yaml.safe_dump(data, out, sort_keys=False, default_flow_style=None, width=100)
+    replay_check.write_expected(path, data, comment=(
+        f'lengths in metres; readings: mark = index on {MARKS_TOPIC}, ff_m and direction '
+        'of eq 15'))
 
 
 def read_expected(bag_path: str | os.PathLike) -> tuple[Path, dict]:
-    import yaml
-    folder = Path(bag_path)
-    if not folder.is_dir():
-        folder = folder.parent
-    path = folder / EXPECTED_FILE
-    try:
-        data = yaml.safe_load(path.read_text())
-    except OSError as exc:
-        raise CheckError(f'{path}: cannot read the expected result: {exc.strerror}') from None
-    except yaml.YAMLError as exc:
-        raise CheckError(f'{path}: not YAML: {exc}') from None
+    path, data = replay_check.load_expected(bag_path)
     missing = [k for k in ('point_names', 'cycles', 'rp', 'rp_all', 'readings')
-               if not isinstance(data, dict) or k not in data]
+               if k not in data]
     if missing:
         raise CheckError(f'{path}: missing {", ".join(missing)}')
     m, n = len(data['point_names']), int(data['cycles'])
