@@ -54,6 +54,22 @@ def matrix(calibration) -> list[list[float]]:
     return [m[4 * i:4 * i + 4] for i in range(4)]
 
 
+def spin_in_background(executor, context) -> Callable[[], None]:
+    """Spin ``executor`` on a thread of its own until the returned function is called."""
+    stop = threading.Event()
+
+    def spin() -> None:
+        while not stop.is_set() and context.ok():
+            executor.spin_once(timeout_sec=0.005)
+    spinner = threading.Thread(target=spin, daemon=True)
+    spinner.start()
+
+    def stop_spinning() -> None:
+        stop.set()
+        spinner.join(timeout=2.0)
+    return stop_spinning
+
+
 def write_expected(path: Path, data: dict, comment: str = '') -> None:
     """expected.yaml of a sample bag (every check's); ``comment``: more header lines."""
     import yaml
@@ -191,13 +207,7 @@ def _replay_and_calibrate(bag, expected: dict, domain: int, tmp: Path, rate: flo
         player = BagPlayer(bag, rate=rate, topics=['/joint_states', CAPTURES_TOPIC],
                            clock_hz=clock_hz, wait_subscribers=10.0, report=say,
                            context=context)
-        stop = threading.Event()
-
-        def spin() -> None:
-            while not stop.is_set() and context.ok():
-                executor.spin_once(timeout_sec=0.005)
-        spinner = threading.Thread(target=spin, daemon=True)
-        spinner.start()
+        stop_spinning = spin_in_background(executor, context)
         played: dict = {}
 
         def play() -> None:
@@ -218,8 +228,7 @@ def _replay_and_calibrate(bag, expected: dict, domain: int, tmp: Path, rate: flo
             while len(marks) < wanted and time.monotonic() < deadline:
                 time.sleep(0.02)
         finally:
-            stop.set()
-            spinner.join(timeout=2.0)
+            stop_spinning()
         if 'error' in played:
             raise CheckError(f'replay failed: {played["error"]}')
         result = played['result']

@@ -297,13 +297,7 @@ def _replay(bag, expected: dict, domain: int, tmp: Path, rate: float, clock_hz: 
                              + _failed(suite))
         player = BagPlayer(bag, rate=rate, topics=[IMAGE_TOPIC, INFO_TOPIC], clock_hz=clock_hz,
                            wait_subscribers=10.0, report=say, context=context)
-        stop = threading.Event()
-
-        def spin() -> None:
-            while not stop.is_set() and context.ok():
-                executor.spin_once(timeout_sec=0.005)
-        spinner = threading.Thread(target=spin, daemon=True)
-        spinner.start()
+        stop_spinning = replay_check.spin_in_background(executor, context)
         passes = 0
         try:
             with spinning(player):
@@ -328,8 +322,7 @@ def _replay(bag, expected: dict, domain: int, tmp: Path, rate: float, clock_hz: 
                     if not missing:
                         break
         finally:
-            stop.set()
-            spinner.join(timeout=2.0)
+            stop_spinning()
         with lock:
             lost = sorted(needed - set(received))
         if lost:

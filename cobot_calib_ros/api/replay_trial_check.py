@@ -37,7 +37,6 @@ import math
 import os
 from pathlib import Path
 import tempfile
-import threading
 import time
 from typing import Callable
 
@@ -340,13 +339,7 @@ def _replay(bag, expected: dict, domain: int, tmp: Path, rate: float, clock_hz: 
                              + _failed(suite))
         player = BagPlayer(bag, rate=rate, topics=[VOLTAGE_TOPIC], clock_hz=clock_hz,
                            wait_subscribers=10.0, report=say, context=context)
-        stop = threading.Event()
-
-        def spin() -> None:
-            while not stop.is_set() and context.ok():
-                executor.spin_once(timeout_sec=0.005)
-        spinner = threading.Thread(target=spin, daemon=True)
-        spinner.start()
+        stop_spinning = replay_check.spin_in_background(executor, context)
         try:
             with spinning(player):
                 if player.wait_for_subscribers():
@@ -369,8 +362,7 @@ def _replay(bag, expected: dict, domain: int, tmp: Path, rate: float, clock_hz: 
                     if not missing:
                         break
         finally:
-            stop.set()
-            spinner.join(timeout=2.0)
+            stop_spinning()
         return list(samples)
     finally:
         if player is not None:
