@@ -38,7 +38,8 @@ def _methods(text: str) -> tuple[str, ...]:
     methods = tuple(m.strip() for m in text.split(',') if m.strip())
     unknown = [m for m in methods if m not in METHODS]
     if unknown or not methods:
-        raise argparse.ArgumentTypeError(f'unknown method(s) {unknown}; use any of {", ".join(METHODS)}')
+        raise argparse.ArgumentTypeError(f'unknown method(s) {unknown}; use any of '
+                                         f'{", ".join(METHODS)}')
     return methods
 
 
