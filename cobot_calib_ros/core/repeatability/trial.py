@@ -49,9 +49,9 @@ if TYPE_CHECKING:   # the store is passed in; core never does I/O itself
 Array = NDArray[np.float64]
 METHODS = ('reference', *user_frame.METHODS, *LANDMARK_METHODS)
 DEFAULT_METHOD, DEFAULT_AXIS, DEFAULT_CYCLES = 'reference', 'z', 30    # for a new trial
-MIN_CYCLES, MAX_CYCLES = 2, 10000
+MIN_CYCLES, MAX_CYCLES = 2, 10000    # RP needs sigma of eq (12): at least two cycles
 MAX_FF_STEPS = 3     # eq (15) moves, each by FF, before a reading counts as out of reach: a
-                     # single-landmark frame can be off by more than half the probe range    # RP needs sigma of eq (12): at least two cycles
+                     # single-landmark frame can be off by more than half the probe range
 
 
 class TrialError(RuntimeError):
