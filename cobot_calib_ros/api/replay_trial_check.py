@@ -17,8 +17,9 @@ every recorded window again with the node's own ``fill_average``, from the repla
 the live window held (by their stamps, in the live order: the live node's best-effort
 subscription may have dropped a voltage the recorder kept, and the average leaves it out too).
 Each must give the live average to the bit. The trial's readings are those averages corrected
-by eq 15 (core ``correct_distance``); the ISO 9283 statistics come from core ``point_statistics`` and are compared, RP_i and RP_all,
-with expected.yaml and with the last recorded ``/repeatability``: within TOL_M.
+by eq 15 (core ``correct_distance``); the ISO 9283 statistics come from core
+``point_statistics`` and are compared, RP_i and RP_all, with expected.yaml and with the last
+recorded ``/repeatability``: within TOL_M.
 
 proximity_sensor subscribes best effort with a history of 5, so the replay needs a finite
 rate it keeps up with: DEFAULT_RATE, at most MAX_RATE. Under load a best-effort reading can

@@ -3,9 +3,10 @@
 The procedure is core/trial.py; this node gives it a robot made of ROS calls (move_to,
 capture_joints, probe/average; for the landmark methods the wrist camera's ``landmarks``
 through ros.landmark_views, with the active hand-eye calibration), stores readings through
-store.trials, and publishes the running statistics after every cycle (on start-up: those of the latest stored trial). Goal
-semantics are in RunTrial.action. Health on /diagnostics: OK idle, OK running (cycle figures),
-WARN after a failed trial (its message) until the next one starts.
+store.trials, and publishes the running statistics after every cycle (on start-up: those of
+the latest stored trial). Goal semantics are in RunTrial.action. Health on /diagnostics: OK
+idle, OK running (cycle figures), WARN after a failed trial (its message) until the next one
+starts.
 """
 from __future__ import annotations
 
