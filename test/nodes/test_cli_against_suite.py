@@ -12,7 +12,7 @@ from rosutil import cli, cli_command
 SUITE_NODES = {'/mock_robot', '/joint_state_monitor', '/proximity_sensor',
                '/user_frame_solver', '/repeatability_trial'}
 CAPTURE = 'cobot_calib_msgs/srv/CaptureJoints'
-BAD_REQUEST = 3          # CaptureJoints.Response.BAD_REQUEST
+NO_DATA, BAD_REQUEST = 1, 3     # CaptureJoints.Response.NO_DATA, BAD_REQUEST
 # A pure translation by (0.5, 0.1, 0.05) m: user (1, 2, 3) is base (1.5, 2.1, 3.05).
 SQUARE = ('[{x: 0.0, y: 0.0, z: 0.0}, {x: 0.2, y: 0.0, z: 0.0}, {x: 0.2, y: 0.15, z: 0.0}, '
           '{x: 0.0, y: 0.15, z: 0.0}]')
@@ -51,7 +51,11 @@ def test_int_and_exponent_durations_do_not_abort_the_client(ros):
         ['call', 'capture_joints', '{duration: 0.2e0}', '--json'],
         ['call', 'capture_joints', '{duration: 1e9}', '--json'],
         ['call', 'capture_joints', '{duration: 1.0e9}', '--json'])
-    assert _json(one)['error_code'] == 0
+    first = _json(one)
+    # three CLIs starting at once can starve the 1 kHz stream: NO_DATA then, but it must
+    # still be about a 0.2 s window (the exponent form reached the node as 0.2)
+    assert first['error_code'] == 0 or (first['error_code'] == NO_DATA
+                                        and 'samples in 0.200 s' in first['message']), first
     for out in (big, big_float):                       # was SIGABRT in the rosidl C code
         res = _json(out)
         assert res['error_code'] == BAD_REQUEST and '1000000000.0 s' in res['message']
