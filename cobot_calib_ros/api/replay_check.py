@@ -54,6 +54,18 @@ def matrix(calibration) -> list[list[float]]:
     return [m[4 * i:4 * i + 4] for i in range(4)]
 
 
+def shut_down(player, node, context, suite) -> None:
+    """End a check: its player and client node (either may not exist yet), their rclpy context
+    and the suite of nodes it started."""
+    import rclpy
+    if player is not None:
+        player.destroy_node()
+    if node is not None:
+        node.destroy_node()
+    rclpy.try_shutdown(context=context)
+    suite.stop()
+
+
 def spin_in_background(executor, context) -> Callable[[], None]:
     """Spin ``executor`` on a thread of its own until the returned function is called."""
     stop = threading.Event()
@@ -261,12 +273,7 @@ def _replay_and_calibrate(bag, expected: dict, domain: int, tmp: Path, rate: flo
         return (np.array(matrix(res.calibration)), float(res.calibration.rms_residual),
                 len(marks))
     finally:
-        if player is not None:
-            player.destroy_node()
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown(context=context)
-        suite.stop()
+        shut_down(player, node, context, suite)
 
 
 def _recapture(node, holds: list[int], hold_s: float, playing, say) -> list:

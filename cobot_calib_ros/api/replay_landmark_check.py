@@ -331,12 +331,7 @@ def _replay(bag, expected: dict, domain: int, tmp: Path, rate: float, clock_hz: 
                              f'logs in {suite.log_dir}')
         return dict(received), passes
     finally:
-        if player is not None:
-            player.destroy_node()
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown(context=context)
-        suite.stop()
+        replay_check.shut_down(player, node, context, suite)
 
 
 def _drain(received: dict, lock, needed: set[int]) -> None:

@@ -366,12 +366,7 @@ def _replay(bag, expected: dict, domain: int, tmp: Path, rate: float, clock_hz: 
             stop_spinning()
         return list(samples)
     finally:
-        if player is not None:
-            player.destroy_node()
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown(context=context)
-        suite.stop()
+        replay_check.shut_down(player, node, context, suite)
 
 
 def _drain(samples: list, wanted: int) -> None:

@@ -184,18 +184,28 @@ def _check(args) -> int:
     return 1
 
 
+def _check_rate(args, check, kind: str, checked_from: str, why: str) -> float | int:
+    """The --rate of a trial or landmark bag's check (its DEFAULT_RATE when not given), or the
+    usage exit code after a one-line error: --recapture, or a rate outside (0, MAX_RATE]."""
+    if args.recapture:
+        return fail(f'replay --check: --recapture is for a teach bag (capture_joints); a {kind} '
+                    f'bag {checked_from}', EXIT_USAGE)
+    rate = float(check.DEFAULT_RATE if args.rate is None else args.rate)
+    if not 0 < rate <= check.MAX_RATE:
+        return fail(f'replay --check: a {kind} bag replays at a finite --rate up to '
+                    f'{check.MAX_RATE:g} ({why}); got {"max" if rate == 0 else f"{rate:g}"}',
+                    EXIT_USAGE)
+    return rate
+
+
 def _check_landmarks(args) -> int:
     """--check of a landmark-session bag (api.replay_landmark_check)."""
     from cobot_calib_ros.api import replay_landmark_check as check
     from cobot_calib_ros.bags.errors import BagError
-    if args.recapture:
-        return fail('replay --check: --recapture is for a teach bag (capture_joints); a '
-                    'landmark bag is checked from its images', EXIT_USAGE)
-    rate = check.DEFAULT_RATE if args.rate is None else args.rate
-    if not 0 < rate <= check.MAX_RATE:
-        return fail(f'replay --check: a landmark bag replays at a finite --rate up to '
-                    f'{check.MAX_RATE:g} (landmark_detector keeps only the newest image); '
-                    f'got {"max" if rate == 0 else f"{rate:g}"}', EXIT_USAGE)
+    rate = _check_rate(args, check, 'landmark', 'is checked from its images',
+                       'landmark_detector keeps only the newest image')
+    if isinstance(rate, int):
+        return rate
     try:
         ok, report = check.check(args.bag, rate, say=lambda text: print(text, flush=True))
     except (check.CheckError, BagError) as exc:
@@ -212,14 +222,10 @@ def _check_trial(args) -> int:
     """--check of a repeatability-trial bag (api.replay_trial_check)."""
     from cobot_calib_ros.api import replay_trial_check as check
     from cobot_calib_ros.bags.errors import BagError
-    if args.recapture:
-        return fail('replay --check: --recapture is for a teach bag (capture_joints); a trial '
-                    'bag is checked from its probe voltages', EXIT_USAGE)
-    rate = check.DEFAULT_RATE if args.rate is None else args.rate
-    if not 0 < rate <= check.MAX_RATE:
-        return fail(f'replay --check: a trial bag replays at a finite --rate up to '
-                    f'{check.MAX_RATE:g} (proximity_sensor takes probe/voltage best effort, '
-                    f'history 5); got {"max" if rate == 0 else f"{rate:g}"}', EXIT_USAGE)
+    rate = _check_rate(args, check, 'trial', 'is checked from its probe voltages',
+                       'proximity_sensor takes probe/voltage best effort, history 5')
+    if isinstance(rate, int):
+        return rate
 
     def say(text: str) -> None:
         print(text, flush=True)
