@@ -30,6 +30,7 @@ from numpy.typing import NDArray
 from cobot_calib_ros.core import frames, kinematics
 from cobot_calib_ros.core.landmarks.camera import CameraModel
 from cobot_calib_ros.core.landmarks.targets import BoardSpec, get_dictionary
+from cobot_calib_ros.core.robot_port import LandmarkImage, Sighting
 from cobot_calib_ros.sim.robot import SimRobot
 from cobot_calib_ros.sim.scenario import CameraTruth, Simulation
 
@@ -251,3 +252,57 @@ def true_targets(sim: Simulation) -> dict[tuple[str, int], tuple[MarkerTarget | 
         out['board', spec.first_id] = (
             BoardTarget(spec), T_base_user @ marks.T_user_board(surface_frame(sim, x, y)))
     return out
+
+
+class DirectCamera:
+    """core.robot_port.CameraPort on a SimCamera, in-process (no ROS): for tests.
+
+    An image is rendered at the arm's joints when asked for, and its markers (``boards``: and
+    the cell's ChArUco board) detected and posed by core.landmarks, as landmark_detector does.
+    The clock counts: every ``now_ns`` and every image is one nanosecond later.
+    """
+
+    def __init__(self, scene: SimCamera, robot: SimRobot, boards: bool = False) -> None:
+        self.scene, self.robot = scene, robot
+        marks = scene.sim.cell.landmarks
+        self._board = BoardSpec.parse(marks.board) if boards and marks.board else None
+        self._clock = 0
+        self.images = 0          # rendered so far
+
+    def now_ns(self) -> int:
+        self._clock += 1
+        return self._clock
+
+    def landmarks_after(self, t_ns: int, wanted, max_images: int,
+                        timeout: float) -> LandmarkImage:
+        self._clock = max(self._clock, t_ns)
+        image = self._image()
+        for _ in range(1, max_images):
+            if wanted(image):
+                break
+            image = self._image()
+        return image
+
+    def _image(self) -> LandmarkImage:
+        from cobot_calib_ros.core.landmarks.detect import detect_board, detect_markers
+        from cobot_calib_ros.core.landmarks.pose import estimate_board_pose, estimate_marker_pose
+        gray = self.scene.render(self.robot.q)
+        self.images += 1
+        camera, marks = self.scene.camera, self.scene.sim.cell.landmarks
+        b = self._board        # the board's own markers are not landmarks (landmark_detector)
+        board_ids = range(b.first_id, b.first_id + b.n_markers) if b is not None \
+            and b.dictionary == marks.dictionary else range(0)
+        seen = []
+        for marker in detect_markers(gray, marks.dictionary, camera=camera):
+            pose = estimate_marker_pose(marker.corners, marks.marker_length, camera)
+            if pose and marker.id not in board_ids:
+                seen.append(Sighting('marker', int(marker.id), pose.T_optical_target,
+                                     pose.covariance))
+        if self._board is not None:
+            detection = detect_board(gray, self._board, camera=camera)
+            pose = estimate_board_pose(detection, self._board, camera) if len(detection) \
+                else None
+            if pose:
+                seen.append(Sighting('board', self._board.first_id, pose.T_optical_target,
+                                     pose.covariance))
+        return LandmarkImage(self.now_ns(), tuple(seen))

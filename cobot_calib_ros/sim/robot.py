@@ -9,7 +9,6 @@ reproduces a run.
 """
 from __future__ import annotations
 
-import math
 import threading
 
 import numpy as np
@@ -18,8 +17,9 @@ from numpy.typing import NDArray
 from cobot_calib_ros.core import frames, kinematics
 from cobot_calib_ros.core.cell import tool_down_orientation
 from cobot_calib_ros.core.errors import Failure, MotionCode
-from cobot_calib_ros.core.repeatability.trial import Reading, TrialError
-from cobot_calib_ros.core.sensors.probe import ProbeCurve, read_distance, ReadingStatus
+from cobot_calib_ros.core.robot_port import Capture, CaptureFailed, MoveFailed
+from cobot_calib_ros.core.sensors.probe import (average, ProbeCurve, Reading, read_distance,
+                                                ReadingStatus)
 from cobot_calib_ros.sim.scenario import Simulation
 
 Array = NDArray[np.float64]
@@ -158,77 +158,72 @@ class SimRobot:
 
 
 class DirectRobot:
-    """core.repeatability.trial.Robot on a SimRobot, in-process (no ROS): for tests.
+    """core.robot_port.RobotPort on a SimRobot, in-process (no ROS): for tests.
 
-    Reads the probe through ``probe_table``, the user's calibration table (as
-    proximity_sensor does), averaging ``samples`` voltages per reading.
+    Moves settle at once (robot time: the largest joint step over ``joint_velocity``, as
+    mock_robot reports it), a touch is the simulated operator's hand-guiding (as mock_robot's
+    hand_guide), a capture averages encoder readings at the cell's joint_states rate, and the
+    probe reads ``samples`` voltages through ``probe_table``, the user's calibration table, and
+    averages them as proximity_sensor does (core.sensors.probe.average).
     """
 
     def __init__(self, sim: SimRobot, probe_table: ProbeCurve, samples: int = 4,
-                 saturation_margin: float = 2e-6, joint_velocity: float = 1.0,
-                 hand_eye: Array | None = None) -> None:
+                 saturation_margin: float = 2e-6, joint_velocity: float = 1.0) -> None:
         self.sim, self.table = sim, probe_table
         self.samples, self.margin = samples, saturation_margin
         self.joint_velocity = joint_velocity    # [rad/s] as mock_robot's default
         self.moves = 0
         self.robot_seconds = 0.0
-        self._camera = None
-        self.hand_eye = hand_eye    # T_flange_optical landmark frames use; None: the nominal
 
-    def _go(self, q: Array | Failure) -> None:
+    def _go(self, q: Array | Failure) -> Array:
         if isinstance(q, Failure):
-            raise TrialError('motion', q.message)
+            raise MoveFailed(q.message)
         self.robot_seconds += float(np.max(np.abs(q - self.sim.q))) / self.joint_velocity
         self.sim.settle(q)
         self.moves += 1
+        return self.sim.q
 
-    def touch(self, name: str) -> Array:
+    def move_joints(self, q: Array, *, compliant: bool = False) -> Array:
+        reached = self._go(self.sim.plan_joints(q))
+        if compliant:       # as mock_robot: settle at the target, then yield to the sphere
+            rest = self.sim.plan_compliant(reached)
+            if isinstance(rest, Failure):
+                raise MoveFailed(rest.message)
+            self.sim.set_joints(rest)
+        return self.sim.q
+
+    def move_to_pose(self, T_base_tool: Array) -> Array:
+        return self._go(self.sim.plan_pose(T_base_tool))
+
+    def touch(self, name: str) -> None:
         self._go(self.sim.plan_touch(name))
-        return kinematics.fk(self.sim.nominal, self.sim.q)
 
-    def move(self, T_base_tool: Array) -> None:
-        self._go(self.sim.plan_pose(T_base_tool))
+    def capture(self, duration: float) -> Capture:
+        count = max(1, round(duration * self.sim.sim.joint_states_hz))
+        readings = np.array([self.sim.joint_reading() for _ in range(count)])
+        self.robot_seconds += duration
+        return Capture(readings.mean(axis=0), readings.std(axis=0, ddof=1) if count > 1
+                       else np.zeros(readings.shape[1]), count)
 
-    def read(self) -> Reading:
-        readings = [read_distance(self.table, self.sim.probe_voltage(), self.margin)
-                    for _ in range(self.samples)]
-        self.robot_seconds += self.samples / self.sim.sim.probe_hz
-        ok = [r.distance for r in readings if r.status == ReadingStatus.OK]
-        if len(ok) > len(readings) / 2:
-            return Reading(float(np.mean(ok)), ReadingStatus.OK)
-        statuses = [r.status for r in readings if r.status != ReadingStatus.OK]
-        return Reading(math.nan, max(set(statuses), key=statuses.count))
+    def probe(self) -> Reading:
+        period_ns = round(1e9 / self.sim.sim.probe_hz)
+        window = [(k * period_ns, *_fields(read_distance(self.table, self.sim.probe_voltage(),
+                                                         self.margin)))
+                  for k in range(self.samples)]
+        duration = self.samples / self.sim.sim.probe_hz
+        self.robot_seconds += duration
+        result = average(window, duration)
+        reading = result.reading()
+        if reading is None:
+            raise CaptureFailed(f'probe: {result.message}')
+        return reading
 
-    def landmark_frame(self, method: str, T_base_user_guess: Array) -> Array:
-        """The landmark method's M_n as the ROS path measures it (core.landmarks.views): the
-        views planned with the nominal hand-eye, images rendered by sim.camera at the arm's
-        joints, markers detected and posed by core.landmarks, camera poses by the nominal
-        model and ``hand_eye`` at the encoder readings."""
-        from cobot_calib_ros.core.landmarks import views
-        from cobot_calib_ros.core.landmarks.detect import detect_markers
-        from cobot_calib_ros.core.landmarks.pose import estimate_marker_pose
-        from cobot_calib_ros.core.user_frame.plausibility import MAX_RMS_ERROR, MAX_SCALE_ERROR
-        from cobot_calib_ros.sim.camera import SimCamera
-        cell = self.sim.cell
-        if self._camera is None:
-            self._camera = SimCamera(self.sim.sim, self.sim)
-        camera, marks = self._camera.camera, cell.landmarks
-        X = cell.camera.T_flange_optical if self.hand_eye is None else self.hand_eye
-        chain = self.sim.model.chain(tool=X)
-        observations = []
-        for _, q in views.plan_views(method, cell, chain, T_base_user_guess, self.sim.q):
-            self._go(self.sim.plan_joints(q))
-            image = self._camera.render(self.sim.q)
-            T_base_optical = kinematics.fk(chain, self.sim.joint_reading())
-            for marker in detect_markers(image, marks.dictionary, camera=camera):
-                pose = estimate_marker_pose(marker.corners, marks.marker_length, camera)
-                if pose:
-                    observations.append(views.observation(marker.id, T_base_optical,
-                                                          pose.T_optical_target,
-                                                          pose.covariance))
-        result = views.landmark_frame(method, cell, observations, max_rms_error=MAX_RMS_ERROR,
-                                      max_scale_error=MAX_SCALE_ERROR)
-        if not result:
-            why = result.fit.message if hasattr(result, 'fit') else result.message
-            raise TrialError('invalid', f'{method}: {why}')
-        return result.fit.M
+    def measure_position(self) -> Array:
+        try:
+            return self.sim.laser_measurement()
+        except ValueError as e:
+            raise CaptureFailed(str(e))
+
+
+def _fields(reading: Reading) -> tuple[float, ReadingStatus]:
+    return reading.distance, reading.status

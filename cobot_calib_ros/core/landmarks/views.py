@@ -9,24 +9,29 @@ A landmark method measures the user frame with the wrist camera (issue 11):
 (the hand-eye), around a guess of the user frame. Each view then yields T_base_optical (FK of
 the joints captured there, on the model the frame is measured with) and the markers' poses in
 the optical frame: :func:`observation` puts one in the base frame, and :func:`landmark_frame`
-fits the frame (core.user_frame.landmarks). Who moves the robot and takes the picture is the
-caller's business: ros.landmark_views over ROS, sim.robot.DirectRobot in-process.
+fits the frame (core.user_frame.landmarks). :func:`measure_frame` is the whole procedure over
+the robot and camera ports (core.robot_port): ROS's RobotCalls and LandmarkWatch, or the
+simulation's DirectRobot and DirectCamera in-process.
 """
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
 
 from cobot_calib_ros.core import frames, kinematics
 from cobot_calib_ros.core.errors import ErrorCode, Failure
+from cobot_calib_ros.core.robot_port import (CameraPort, Capture, Cancelled, check_cancel,
+                                             LandmarkImage, never, PortError, RobotPort, Stopped)
 from cobot_calib_ros.core.user_frame import landmarks as landmark_frames
 
 Array = NDArray[np.float64]
 VIEW_DISTANCE = 0.35     # [m] camera above a marker's centre
 VIEW_TILTS = (0.0, np.radians(20.0), -np.radians(20.0))   # landmark_multi: views per marker
 VIEW_ROLLS = (0.0, np.pi / 2, -np.pi / 2, np.pi)          # about the view axis, tried in turn
+LANDMARK_IMAGES = 3      # images after a capture looked at before a marker counts as unseen
+LANDMARK_TIMEOUT = 5.0   # [s] of wall time for an image stamped after a capture
 LANDMARK_MAX_RMS = 5e-3  # [m] plausibility of landmark_multi: camera poses are mm-class (the
                          # nominal hand-eye alone is a few mm off at VIEW_DISTANCE)
 
@@ -97,3 +102,63 @@ def landmark_frame(method: str, cell, observations: Sequence[landmark_frames.Obs
     return landmark_frames.frame_from_landmarks(
         usable, T_um, max_rms_error=max(max_rms_error, LANDMARK_MAX_RMS),
         max_scale_error=max_scale_error)
+
+
+def setup_problem(cell) -> str:
+    """'' when the cell has a camera and landmarks, else what to add to the cell file."""
+    if cell.camera is None or cell.landmarks is None or not cell.landmarks.markers:
+        return (f'cell {cell.name!r} has no wrist camera or no landmarks; add camera: and '
+                'landmarks: markers: to the cell file')
+    return ''
+
+
+ViewMark = Callable[[int, Capture, int], None]   # marker id, the view's capture, t [ns]
+
+
+def measure_frame(method: str, cell, robot: RobotPort, camera: CameraPort, *,
+                  T_base_user_guess: Array, plan_chain: kinematics.Chain,
+                  chain: kinematics.Chain, capture_duration: float, max_rms_error: float,
+                  max_scale_error: float, cancelled: Cancelled = never,
+                  on_view: ViewMark | None = None) -> landmark_frames.LandmarkFit | Failure:
+    """A landmark method's frame, measured: the views of :func:`plan_views` (on ``plan_chain``,
+    its tool the hand-eye the views are planned with, from the cell's home), each visited
+    (move, capture the joints for ``capture_duration`` [s]), then the first image stamped after
+    the capture that shows the view's marker (else the last of LANDMARK_IMAGES) gives every
+    marker's T_optical_marker; T_base_optical = FK of the captured joints on ``chain`` (its
+    tool: the hand-eye the frame is measured with). ``on_view(marker id, capture, t)`` once
+    per view, before the images after ``t`` are looked at (ROS publishes its capture mark).
+
+    Failure: INVALID_INPUT without camera or landmarks, CAPTURE_FAILED when a view could not
+    be taken or a target was never seen; else :func:`landmark_frame`'s fit (falsy when refused).
+    Raises core.robot_port.Stopped when ``cancelled()`` between views."""
+    problem = setup_problem(cell)
+    if problem:
+        return Failure(ErrorCode.INVALID_INPUT, f'{method}: {problem}')
+    observations = []
+    for marker_id, q in plan_views(method, cell, plan_chain, T_base_user_guess, cell.home):
+        check_cancel(cancelled, f'the view of landmark {marker_id}')
+        try:
+            capture, image = _take_view(robot, camera, marker_id, q, capture_duration, on_view)
+        except Stopped:
+            raise
+        except PortError as e:
+            return Failure(ErrorCode.CAPTURE_FAILED, f'{method}: view of landmark {marker_id}: '
+                                                     f'{e}')
+        T_base_optical = kinematics.fk(chain, capture.q)
+        observations += [observation(s.id, T_base_optical, s.T_optical_target, s.covariance)
+                         for s in image.sightings if s.kind == 'marker']
+    return landmark_frame(method, cell, observations, max_rms_error=max_rms_error,
+                          max_scale_error=max_scale_error)
+
+
+def _take_view(robot: RobotPort, camera: CameraPort, marker_id: int, q: Array,
+               duration: float, on_view: ViewMark | None) -> tuple[Capture, LandmarkImage]:
+    """Move to ``q``, capture, and take the landmarks of an image stamped after the capture."""
+    robot.move_joints(q)
+    capture = robot.capture(duration)
+    t_ns = camera.now_ns()
+    if on_view is not None:
+        on_view(marker_id, capture, t_ns)
+    image = camera.landmarks_after(t_ns, lambda im: im.find('marker', marker_id) is not None,
+                                   LANDMARK_IMAGES, LANDMARK_TIMEOUT)
+    return capture, image

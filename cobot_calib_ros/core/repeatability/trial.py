@@ -23,7 +23,8 @@ MAX_FF_STEPS times in one direction), and the stored distance is corrected for t
 A stopped trial resumes at the start of its interrupted cycle (see :meth:`TrialRun.resume`).
 
 Everything here is in metres and radians; the robot, the probe and the store come in as
-objects (see :class:`Robot`), so this runs the same on the ROS nodes and in a plain test.
+objects (:class:`Robot`, built by :class:`PortRobot` over the core.robot_port ports), so this
+runs the same on the ROS nodes and in a plain test.
 """
 from __future__ import annotations
 
@@ -36,12 +37,18 @@ from typing import Protocol, TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from cobot_calib_ros.core import frames, user_frame
-from cobot_calib_ros.core.cell import Marker, tool_down_orientation
+from cobot_calib_ros.core import frames, kinematics, user_frame
+from cobot_calib_ros.core.cell import Cell, Marker, tool_down_orientation
+from cobot_calib_ros.core.errors import ErrorCode, Failure
+from cobot_calib_ros.core.landmarks import views
+from cobot_calib_ros.core.landmarks.views import ViewMark
 from cobot_calib_ros.core.repeatability.iso9283 import (
     AXES, point_statistics, PointStats, probe_offset, range_correction)
+from cobot_calib_ros.core.robot_port import (CameraPort, Cancelled, never, PortError,
+                                             RobotPort, Stopped)
 from cobot_calib_ros.core.sensors.probe import Reading, ReadingStatus
 from cobot_calib_ros.core.user_frame.landmarks import LANDMARK_METHODS
+from cobot_calib_ros.core.user_frame.plausibility import MAX_RMS_ERROR, MAX_SCALE_ERROR
 
 if TYPE_CHECKING:   # the store is passed in; core never does I/O itself
     from cobot_calib_ros.store.trials import TrialData, TrialStore
@@ -63,6 +70,8 @@ class TrialError(RuntimeError):
 
 
 class Robot(Protocol):
+    """What a trial needs of the cell; :class:`PortRobot` builds it over a RobotPort."""
+
     def touch(self, name: str) -> Array:
         """Hand-guide the tool onto a marker's top; the (4, 4) nominal tool pose read there."""
 
@@ -80,6 +89,81 @@ class Robot(Protocol):
 
     robot_seconds: float
     """Robot time spent so far [s]: moves (as the robot reports them) and holds."""
+
+
+@dataclass(frozen=True)
+class LandmarkRig:
+    """What a landmark method's frame M_n is measured with (core.landmarks.views)."""
+
+    camera: CameraPort
+    cell: Cell
+    plan_chain: kinematics.Chain     # the model, its tool the hand-eye views are planned with
+    chain: kinematics.Chain          # the model, its tool the hand-eye the frame is measured with
+    on_view: ViewMark | None = None  # called once a view is captured (ROS: the capture mark)
+
+
+class PortRobot:
+    """The trial's :class:`Robot` over a core.robot_port.RobotPort, on the trial's kinematic
+    model ``chain`` (nominal or calibrated; its tool: the probe): a pose goes to the robot as
+    the joints IK gives on ``chain`` (from the last joints reached; ``home`` for restarts), so
+    the controller's own model plays no part; a touch is followed by a joint capture of
+    ``capture_duration`` [s] read by FK on ``chain``; landmark frames are measured with
+    ``landmarks`` (core.landmarks.views.measure_frame). Port errors become TrialErrors."""
+
+    def __init__(self, port: RobotPort, chain: kinematics.Chain, home: Array,
+                 capture_duration: float, landmarks: LandmarkRig | None = None,
+                 cancelled: Cancelled = never) -> None:
+        self.port, self.chain, self.landmarks = port, chain, landmarks
+        self._home, self._q = np.asarray(home, dtype=float), np.asarray(home, dtype=float)
+        self._capture_duration, self._cancelled = capture_duration, cancelled
+
+    @property
+    def robot_seconds(self) -> float:
+        return self.port.robot_seconds
+
+    def touch(self, name: str) -> Array:
+        try:
+            self.port.touch(name)
+            self._q = self.port.capture(self._capture_duration).q
+        except PortError as e:
+            raise TrialError('motion', f'teaching {name}: {e}')
+        return kinematics.fk(self.chain, self._q)
+
+    def move(self, T_base_tool: Array) -> None:
+        ik = kinematics.solve_ik_with_restarts(self.chain, T_base_tool, self._q, self._home)
+        if not ik:
+            raise TrialError('motion', f'no inverse kinematics solution: {ik.message}')
+        try:
+            self._q = self.port.move_joints(ik.q)
+        except PortError as e:
+            raise TrialError('motion', str(e))
+
+    def read(self) -> Reading:
+        try:
+            return self.port.probe()
+        except PortError as e:
+            raise TrialError('probe', str(e))
+
+    def landmark_frame(self, method: str, T_base_user_guess: Array) -> Array:
+        rig = self.landmarks
+        if rig is None:
+            raise TrialError('invalid', f'{method}: the cell has no wrist camera or no '
+                             'landmarks; add camera: and landmarks: to the cell')
+        try:
+            result = views.measure_frame(
+                method, rig.cell, self.port, rig.camera, T_base_user_guess=T_base_user_guess,
+                plan_chain=rig.plan_chain, chain=rig.chain,
+                capture_duration=self._capture_duration, max_rms_error=MAX_RMS_ERROR,
+                max_scale_error=MAX_SCALE_ERROR, cancelled=self._cancelled,
+                on_view=rig.on_view)
+        except Stopped as e:
+            raise TrialError('canceled', f'{e}; send the same trial_id again to resume it')
+        if isinstance(result, Failure):
+            raise TrialError('invalid' if result.code == ErrorCode.INVALID_INPUT else 'motion',
+                             result.message)
+        if not result:
+            raise TrialError('invalid', f'{method}: {result.fit.message}')
+        return result.fit.M
 
 
 @dataclass(frozen=True)

@@ -74,3 +74,73 @@ def curve_from_lists(distance: list[float], voltage: list[float]) -> ProbeCurve:
     if not (np.all(np.diff(d) > 0) and (np.all(np.diff(v) > 0) or np.all(np.diff(v) < 0))):
         raise ValueError('calibration table must be strictly monotonic in distance and voltage')
     return ProbeCurve(tuple(d.tolist()), tuple(v.tolist()))
+
+
+class AverageCode(IntEnum):
+    """Matches cobot_calib_msgs/srv/AverageProximity's error codes."""
+
+    SUCCESS = 0
+    NO_DATA = 1
+    OUT_OF_RANGE = 2
+    BAD_REQUEST = 3
+
+
+@dataclass(frozen=True)
+class ProbeAverage:
+    """A window of readings averaged (what probe/average answers); truthy when SUCCESS."""
+
+    code: AverageCode
+    message: str
+    distance: float = math.nan     # mean of the in-range readings [m]; NaN unless SUCCESS
+    std: float = math.nan          # their standard deviation (n - 1) [m]; NaN unless SUCCESS
+    sample_count: int = 0          # in-range readings averaged
+    rejected_count: int = 0        # readings left out (out of range or invalid)
+    status: ReadingStatus = ReadingStatus.OK   # OUT_OF_RANGE: the status most rejected had
+
+    def __bool__(self) -> bool:
+        return self.code == AverageCode.SUCCESS
+
+    def reading(self) -> Reading | None:
+        """The averaged Reading (out of range: BELOW_RANGE / ABOVE_RANGE and NaN); None when
+        the window gave none: no readings, or mostly INVALID ones (a broken probe signal)."""
+        if self.code == AverageCode.SUCCESS:
+            return Reading(self.distance, ReadingStatus.OK)
+        if self.code == AverageCode.OUT_OF_RANGE and self.status in (
+                ReadingStatus.BELOW_RANGE, ReadingStatus.ABOVE_RANGE):
+            return Reading(math.nan, self.status)
+        return None
+
+
+Sample = tuple[int, float, ReadingStatus]    # (stamp [ns], distance [m], status)
+
+
+def average_window(samples, t0_ns: int, duration: float) -> list[Sample]:
+    """The samples, in their order, that a window opened at ``t0_ns`` [ns] lasting
+    ``duration`` [s] holds (both ends included)."""
+    t0 = t0_ns * 1e-9
+    t1 = t0 + duration
+    return [sample for sample in samples if t0 <= sample[0] * 1e-9 <= t1]
+
+
+def average(window: list[Sample], duration: float) -> ProbeAverage:
+    """The window's readings averaged, by the majority rule: the in-range readings must be
+    more than half of the window, else the window is OUT_OF_RANGE with the status most of the
+    rejected readings had (INVALID too: then :meth:`ProbeAverage.reading` is None)."""
+    valid = np.array([d for _, d, s in window if s == ReadingStatus.OK])
+    rejected = [s for _, _, s in window if s != ReadingStatus.OK]
+    counts = {'sample_count': int(valid.size), 'rejected_count': len(rejected)}
+    if not window:
+        return ProbeAverage(AverageCode.NO_DATA, f'no probe readings in {duration:.3f} s; '
+                            'is probe/voltage being published?', **counts)
+    if rejected and len(rejected) >= len(window) / 2:
+        status = max(set(rejected), key=rejected.count)
+        side = {ReadingStatus.BELOW_RANGE: 'the target is closer than the probe range; ',
+                ReadingStatus.ABOVE_RANGE: 'the target is beyond the probe range; '}.get(
+                    status, 'the probe signal is not a number; check the probe and its cable, '
+                    'then ')
+        return ProbeAverage(AverageCode.OUT_OF_RANGE, (
+            f'{len(rejected)} of {len(window)} readings out of range ({status.name}): '
+            f'{side}move the probe and measure again'), status=ReadingStatus(status), **counts)
+    return ProbeAverage(AverageCode.SUCCESS, f'{valid.size} readings, {len(rejected)} rejected',
+                        float(valid.mean()), float(valid.std(ddof=1)) if valid.size > 1 else 0.0,
+                        **counts)

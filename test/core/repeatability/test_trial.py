@@ -8,7 +8,8 @@ import pytest
 from cobot_calib_ros.core import user_frame
 from cobot_calib_ros.core.repeatability import AXES
 from cobot_calib_ros.core.repeatability.trial import (
-    goal_problem, METHODS, Plan, ProbeRange, resume_problem, retreat, TrialError, TrialRun)
+    goal_problem, LandmarkRig, METHODS, Plan, PortRobot, ProbeRange, resume_problem, retreat,
+    TrialError, TrialRun)
 from cobot_calib_ros.core.sensors.probe import Reading, ReadingStatus
 from cobot_calib_ros.paths import cell_file
 from cobot_calib_ros.sim.robot import DirectRobot, SimRobot
@@ -20,9 +21,20 @@ CELL = SIM.cell
 PROBE_RANGE = ProbeRange(SIM.probe.min_range, SIM.probe.max_range)
 
 
-def robot(seed: int, sim=SIM) -> DirectRobot:
-    """The simulated arm read through the user's probe table (here: the true curve)."""
-    return DirectRobot(SimRobot(sim, seed_offset=seed), sim.probe)
+CAPTURE_DURATION = 0.3     # [s] repeatability_trial's default
+
+
+def robot(seed: int, sim=SIM) -> PortRobot:
+    """The simulated arm read through the user's probe table (here: the true curve), driven
+    on the nominal model; landmark frames from its wrist camera with the nominal hand-eye."""
+    from cobot_calib_ros.sim.camera import DirectCamera, SimCamera
+    arm = SimRobot(sim, seed_offset=seed)
+    cell, model = sim.cell, arm.model
+    X = cell.camera.T_flange_optical
+    rig = LandmarkRig(DirectCamera(SimCamera(sim, arm), arm), cell, model.chain(tool=X),
+                      model.chain(tool=X))
+    return PortRobot(DirectRobot(arm, sim.probe), model.chain(tool=cell.tool_offset),
+                     cell.home, CAPTURE_DURATION, rig)
 
 
 def _plan(method: str, cycles: int, axis: str = 'z', trial_id: str | None = None,
@@ -123,7 +135,7 @@ def test_an_out_of_range_reading_is_corrected_by_ff(tmp_path, short_m, steps):
         reading = original_read()
         if state['n'] not in faked:
             return reading
-        back = retreat(arm.sim.true_tool(), 5e-3)      # the gap as if the marker were lower
+        back = retreat(arm.port.sim.true_tool(), 5e-3)      # the gap as if the marker were lower
         gap = SIM.world.probe_gap(back) - 5e-3 + short_m
         return (Reading(math.nan, ReadingStatus.ABOVE_RANGE) if gap > SIM.probe.max_range
                 else Reading(gap, ReadingStatus.OK))
@@ -205,7 +217,7 @@ def test_bad_plans_are_refused_before_moving(tmp_path, method, axis, cycles, mes
     arm = robot(1)
     with pytest.raises(TrialError, match=message):
         TrialRun(_plan(method, cycles, axis, trial_id='bad'), arm, TrialStore(tmp_path))
-    assert arm.moves == 0
+    assert arm.port.moves == 0
 
 
 @pytest.mark.parametrize('method, axis, cycles, message', [

@@ -1,0 +1,133 @@
+"""The robot and the wrist camera as calibration procedures see them: two ports (Protocols).
+
+A procedure in core (the trial, the landmark views, the hand-eye views, the sphere collection)
+drives the cell only through these, so it runs the same over ROS (``ros.robot_calls.RobotCalls``
+and ``ros.landmark_watch.LandmarkWatch``) and in-process on the simulation
+(``sim.robot.DirectRobot`` and ``sim.camera.DirectCamera``), where a test can assert the ground
+truth. SI units: joints [rad], poses (4, 4) in the base frame [m], durations [s], stamps [ns]
+in the camera's clock.
+
+Failures. A call that did not happen raises a :class:`PortError`: :class:`MoveFailed` for a
+move or a touch (unreachable, refused, timed out), :class:`CaptureFailed` for a joint capture,
+a probe reading, a tracker measurement or a camera that sends no images. The message says what
+to check; the procedure decides whether that skips a pose or ends the run.
+
+Cancelling. A procedure takes ``cancelled: Cancelled`` (default :func:`never`) and calls it
+between poses (never inside a port call): when it returns True the procedure stops at that pose
+boundary and reports what it has, or raises :class:`Stopped` via :func:`check_cancel`.
+"""
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+from numpy.typing import NDArray
+
+from cobot_calib_ros.core.sensors.probe import Reading
+
+Array = NDArray[np.float64]
+Cancelled = Callable[[], bool]     # True once the caller wants the procedure to stop
+
+
+def never() -> bool:
+    """The default ``cancelled``: never."""
+    return False
+
+
+class PortError(RuntimeError):
+    """A robot or camera call that did not happen; the message says what to check."""
+
+
+class MoveFailed(PortError):
+    """A move or a touch did not end where it was sent (unreachable, refused, timed out)."""
+
+
+class CaptureFailed(PortError):
+    """A joint capture, probe reading, tracker measurement or camera image did not come."""
+
+
+class Stopped(PortError):
+    """The caller cancelled the procedure (raised between poses by :func:`check_cancel`)."""
+
+
+def check_cancel(cancelled: Cancelled, where: str) -> None:
+    """Raise Stopped ('cancelled at <where>') when ``cancelled()`` is True."""
+    if cancelled():
+        raise Stopped(f'cancelled at {where}')
+
+
+@dataclass(frozen=True)
+class Capture:
+    """Joints averaged over a hold."""
+
+    q: Array                 # (n,) mean joint positions [rad], the model's joint order
+    std: Array               # (n,) their standard deviation over the hold [rad]
+    sample_count: int        # joint readings averaged
+
+
+class RobotPort(Protocol):
+    """The arm, its encoders, the proximity probe and the laser tracker."""
+
+    robot_seconds: float
+    """Robot time spent so far [s]: moves (as the robot reports them), holds, probe windows."""
+
+    def move_joints(self, q: Array, *, compliant: bool = False) -> Array:
+        """Move to joints ``q`` [rad] (``compliant``: under impedance control, so a coupling
+        near a sphere self-centres on it); the joints reached [rad]. MoveFailed."""
+
+    def move_to_pose(self, T_base_tool: Array) -> Array:
+        """Move the tool to a (4, 4) pose in the base frame, IK by the robot's own (nominal)
+        model; the joints reached [rad]. MoveFailed."""
+
+    def touch(self, name: str) -> None:
+        """Have the tool tip put onto the top of cell point ``name`` and return once it rests
+        there: a real cell waits for the operator's confirmation after hand-guiding, the
+        simulation hand-guides itself. Capture the joints afterwards. MoveFailed."""
+
+    def capture(self, duration: float) -> Capture:
+        """The joints averaged over a hold of ``duration`` [s]. CaptureFailed."""
+
+    def probe(self) -> Reading:
+        """One averaged proximity reading (core.sensors.probe.average); out of range: status
+        BELOW_RANGE / ABOVE_RANGE and a NaN distance. CaptureFailed when none came."""
+
+    def measure_position(self) -> Array:
+        """(3,) the tool position the laser tracker measures, in its frame [m]. CaptureFailed."""
+
+
+@dataclass(frozen=True)
+class Sighting:
+    """One fiducial posed in one image."""
+
+    kind: str                # 'marker' or 'board'
+    id: int                  # marker id; a board: its first marker id
+    T_optical_target: Array  # (4, 4) [m]
+    covariance: Array        # (6, 6) of the pose (x y z rx ry rz), optical axes
+
+
+@dataclass(frozen=True)
+class LandmarkImage:
+    """What the landmark detector found in one image, stamped with the camera's clock."""
+
+    stamp_ns: int
+    sightings: tuple[Sighting, ...]
+
+    def find(self, kind: str, target_id: int | None = None) -> Sighting | None:
+        """The first sighting of that kind (and id), else None."""
+        return next((s for s in self.sightings if s.kind == kind
+                     and (target_id is None or s.id == target_id)), None)
+
+
+class CameraPort(Protocol):
+    """The wrist camera with its landmark detector."""
+
+    def now_ns(self) -> int:
+        """The camera clock now [ns]: an image stamped after it shows the arm from now on."""
+
+    def landmarks_after(self, t_ns: int, wanted: Callable[[LandmarkImage], bool],
+                        max_images: int, timeout: float) -> LandmarkImage:
+        """The first image stamped after ``t_ns`` for which ``wanted`` is true; else the last
+        of the images looked at, when ``max_images`` were or ``timeout`` [s] passed. Raises
+        CaptureFailed when no image stamped after ``t_ns`` came within ``timeout``."""
