@@ -10,6 +10,7 @@ import sys
 EXIT_OK = 0
 EXIT_FAILED = 1      # the command ran and did not succeed (not found, timed out, refused)
 EXIT_USAGE = 2       # the user's input does not fit (as argparse uses 2)
+EXIT_INTERRUPTED = 130   # Ctrl-C (128 + SIGINT, as a shell reports it)
 
 
 def domain_id() -> str:

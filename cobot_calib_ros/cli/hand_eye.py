@@ -3,7 +3,8 @@ from __future__ import annotations
 
 import json
 
-from cobot_calib_ros.cli.common import EXIT_FAILED, EXIT_OK, fail, ros_node, say
+from cobot_calib_ros.cli.common import (EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK, fail, ros_node,
+                                        say)
 
 
 def add_parser(subparsers):
@@ -24,7 +25,7 @@ def add_parser(subparsers):
 
 def run(args) -> int:
     from geometry_msgs.msg import TransformStamped
-    from cobot_calib_ros.api.client import CallError
+    from cobot_calib_ros.api.client import CallError, Interrupted
     from cobot_calib_ros.api.hand_eye import calibrate_hand_eye, error_against_truth
     from cobot_calib_ros.core import frames
     from cobot_calib_ros.ros import convert
@@ -59,6 +60,9 @@ def run(args) -> int:
                            nominal_error_mrad=error.nominal_rotation_rad * 1e3)
         except CallError as e:
             return fail(f'hand-eye calibration failed: {e}', EXIT_FAILED)
+        except Interrupted as e:       # Ctrl-C: the goal is cancelled, nothing stored
+            return fail(f'hand-eye calibration cancelled (Ctrl-C): {e.message}',
+                        EXIT_INTERRUPTED)
     if args.json:
         print(json.dumps(out))
     else:

@@ -19,9 +19,8 @@ from __future__ import annotations
 
 import sys
 
-from cobot_calib_ros.cli.common import EXIT_OK, EXIT_USAGE, fail
+from cobot_calib_ros.cli.common import EXIT_INTERRUPTED, EXIT_OK, EXIT_USAGE, fail
 
-EXIT_INTERRUPTED = 130
 NODE_NAME = 'bag_player'
 
 

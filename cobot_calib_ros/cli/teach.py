@@ -16,9 +16,9 @@ import select
 import sys
 import time
 
-from cobot_calib_ros.cli.common import EXIT_OK, EXIT_USAGE, fail, ros_node, say
+from cobot_calib_ros.cli.common import (EXIT_INTERRUPTED, EXIT_OK, EXIT_USAGE, fail, ros_node,
+                                        say)
 
-EXIT_INTERRUPTED = 130   # as a shell reports Ctrl-C
 NODE_NAME = 'cobot_calib_teach'
 
 

@@ -180,6 +180,10 @@ class HandEyeCalibrator(Node):
         self._health.set(OK if code == Action.Result.SUCCESS else WARN, message)
         return result
 
+    def _cancelled(self, goal_handle, result, where: str):
+        return self._end(goal_handle, result, Action.Result.CANCELED,
+                         f'cancelled {where}; nothing stored or published')
+
     def _T_base_user(self) -> np.ndarray:
         if self._user_frame is not None:
             return self._user_frame
@@ -208,8 +212,7 @@ class HandEyeCalibrator(Node):
         feedback = Action.Feedback(total=count)
         for i, q in enumerate(plan):
             if goal_handle.is_cancel_requested:
-                return self._end(goal_handle, result, Action.Result.CANCELED,
-                                 f'canceled at view {i}; nothing stored')
+                return self._cancelled(goal_handle, result, f'at view {i + 1} of {count}')
             feedback.view_index = i
             try:
                 self._robot.move_joints(q, MOVE_TIMEOUT, speed_scale=self._p('speed_scale'))
@@ -250,6 +253,8 @@ class HandEyeCalibrator(Node):
             solved = solve_hand_eye(flange, boards, covariances=covariances)
         except (ValueError, np.linalg.LinAlgError) as e:
             return self._end(goal_handle, result, Action.Result.SOLVER_FAILED, str(e))
+        if goal_handle.is_cancel_requested:
+            return self._cancelled(goal_handle, result, f'after all {count} views')
         record = self._record(solved, joints, flange, boards, covariances, skipped, count)
         try:
             self._store.save(record)

@@ -2,13 +2,19 @@
 
 Renders (sim.camera.SimCamera) what the camera on the TRUE robot sees of the cell's fiducials at
 the joints of the latest ``joint_states`` and publishes ``wrist_camera/image_raw`` (mono8,
-frame_id the cell's camera frame, stamped with the node clock) and ``wrist_camera/camera_info``
+frame_id the cell's camera frame) and ``wrist_camera/camera_info``
 (the cell's nominal intrinsics, plumb_bob) at ``rate_hz``, sensor-data QoS. It shares no memory
 with mock_robot: it loads the same cell file and builds the same true robot (same seed), and
 follows the arm through joint_states. Those come at 1 kHz and a frame needs only the newest:
 they go to a depth-1 subscription of a hidden helper node that no executor spins, and each
 frame takes the newest one from it (handling all 1 kHz in callbacks cost 30 % of a core). A
 cell without a camera (cell: camera:, landmarks:) leaves the node idle, WARN on /diagnostics.
+
+Stamps: an image is stamped with the stamp of the joint_states it shows (as a real camera
+stamps the exposure), not with the clock after rendering: on a busy machine the newest
+joint_states here can be older than the arm, and a consumer that pairs images with the robot by
+stamp (hand_eye_calibrator: only images stamped after the arm came to rest) must not take an
+image of the arm before it arrived for one after.
 
 Parameters (read at start-up): cell_file, rate_hz (default 10), width and height (0: the
 cell's resolution; another one scales the lens to it, e.g. 1280 x 800).
@@ -20,6 +26,7 @@ from __future__ import annotations
 
 import time
 
+from builtin_interfaces.msg import Time
 import numpy as np
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data, QoSProfile
@@ -84,8 +91,9 @@ class MockCamera(Node):
             self._poll.destroy_node()
         return super().destroy_node()
 
-    def _positions(self) -> np.ndarray | None:
-        """The arm's joints [rad] from the newest joint_states, in the model's order."""
+    def _positions(self) -> tuple[np.ndarray, Time] | None:
+        """The arm's joints [rad] from the newest joint_states, in the model's order, and
+        that message's stamp."""
         sub = self._joint_sub
         with sub.handle:                # as an executor takes a message, but only the newest
             taken = sub.handle.take_message(sub.msg_type, sub.raw)
@@ -99,16 +107,16 @@ class MockCamera(Node):
             self.get_logger().warning(f'joint_states lack joints of {self._joint_names}',
                                       throttle_duration_sec=5.0)
             return None
-        return np.array([by_name[n] for n in self._joint_names])
+        return np.array([by_name[n] for n in self._joint_names]), msg.header.stamp
 
     def _tick(self) -> None:
-        q = self._positions()
-        if q is None:
+        joints = self._positions()
+        if joints is None:
             return
+        q, stamp = joints
         start = time.perf_counter()
         image = self._camera.render(q)
         self._render_s.append(time.perf_counter() - start)
-        stamp = self.get_clock().now().to_msg()
         self._info.header.stamp = stamp
         self._info_pub.publish(self._info)          # first: a detector needs it for the image
         self._image_pub.publish(gray_to_image(image, self._frame_id, stamp))

@@ -8,6 +8,9 @@ domain would answer its move_to goals.
 """
 from dataclasses import dataclass
 import os
+import select
+import signal
+import subprocess
 import time
 
 from cobot_calib_msgs.action import CalibrateHandEye
@@ -25,8 +28,10 @@ from cobot_calib_ros.api.client import run_action, spin_until
 from cobot_calib_ros.core import frames
 from cobot_calib_ros.paths import cell_file
 from cobot_calib_ros.ros import qos
+from cobot_calib_ros.ros.time import stamp_to_ns
 from cobot_calib_ros.sim.scenario import load_simulation
 from cobot_calib_ros.store.calibrations import CalibrationStore
+from rosutil import cli_command
 
 NODES = ('mock_robot', 'joint_state_monitor', 'mock_camera', 'landmark_detector',
          'hand_eye_calibrator')
@@ -46,6 +51,7 @@ class Client:
     executor: SingleThreadedExecutor
     suite: launcher.Suite
     data_dir: str
+    env: dict
 
 
 @pytest.fixture(scope='module')
@@ -64,7 +70,7 @@ def hand_eye_suite(tmp_path_factory):
         executor = SingleThreadedExecutor(context=context)
         executor.add_node(node)
         try:
-            yield Client(node, executor, suite, str(data))
+            yield Client(node, executor, suite, str(data), env)
         finally:
             executor.shutdown(timeout_sec=1.0)
             node.destroy_node()
@@ -75,6 +81,58 @@ def hand_eye_suite(tmp_path_factory):
 
 def _logs(suite) -> str:
     return '\n'.join(f'--- {n}\n{suite.log_tail(n)}' for n in suite.processes)
+
+
+def test_ctrl_c_cancels_the_calibration_and_nothing_is_stored(hand_eye_suite):
+    """Issue 22.2: `cobot-calib hand-eye --views 40`, SIGINT after the first view: the goal is
+    cancelled at the next view, the CLI says so and exits 130, nothing is stored, activated or
+    published (on 5252a67 the server took all 40 views and made the result active)."""
+    client = hand_eye_suite
+    store = CalibrationStore(client.data_dir, 'hand_eye')
+    ids_before, active_before = store.ids(), store.active()
+    latched = []
+    sub = client.node.create_subscription(TransformStamped, 'hand_eye', latched.append,
+                                          qos.LATCHED)
+    action = ActionClient(client.node, CalibrateHandEye, 'calibrate_hand_eye')
+    try:
+        if not spin_until(client.node, action.server_is_ready, STARTUP_TIMEOUT,
+                          client.executor):
+            pytest.fail(f'calibrate_hand_eye not available:\n{_logs(client.suite)}')
+        started_ns = client.node.get_clock().now().nanoseconds
+        proc = subprocess.Popen(cli_command('hand-eye', '--views', '40'), env=client.env,
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        lines = _lines_until(proc, 'view 1/40', STARTUP_TIMEOUT)
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=60)
+        # The goal has ended (its message is in err) and a publication would have come before
+        # its result; the spin delivers what is queued, a window for a wrong one, not a wait.
+        spin_until(client.node, lambda: False, 1.0, client.executor)
+    finally:
+        client.node.destroy_subscription(sub)
+        action.destroy()
+    out = ''.join(lines) + out
+    assert proc.returncode == 130, f'{out}\n{err}'
+    assert 'Traceback' not in out + err
+    assert err.startswith('hand-eye calibration cancelled (Ctrl-C): cancelled at view '), err
+    assert err.strip().endswith('of 40; nothing stored or published'), err
+    views = [line for line in out.splitlines() if line.strip().startswith('view ')]
+    assert 1 <= len(views) <= 3, f'views went on after the Ctrl-C:\n{out}'
+    assert store.ids() == ids_before and store.active() == active_before
+    assert not [m for m in latched if stamp_to_ns(m.header.stamp) > started_ns], \
+        'a hand-eye was published after the cancelled goal started'
+
+
+def _lines_until(proc: subprocess.Popen, text: str, timeout: float) -> list[str]:
+    """stdout lines of ``proc`` up to the first one containing ``text``."""
+    lines, deadline = [], time.monotonic() + timeout
+    while time.monotonic() < deadline and proc.poll() is None:
+        if select.select([proc.stdout], [], [], 0.2)[0]:
+            lines.append(proc.stdout.readline())
+            if text in lines[-1]:
+                return lines
+    proc.kill()
+    out, err = proc.communicate()
+    pytest.fail(f'no {text!r} within {timeout} s:\n{"".join(lines)}{out}\n{err}')
 
 
 def test_calibrate_hand_eye_recovers_the_true_hand_eye(hand_eye_suite):
