@@ -302,3 +302,61 @@ def solve_hand_eye(T_base_flange: Sequence[ArrayLike], T_optical_board: Sequence
         residual_mm=float(np.sqrt(np.mean(pos ** 2))),
         residual_mrad=float(np.sqrt(np.mean(rot ** 2))), residuals_mm=pos, residuals_mrad=rot,
         covariance=cov[:6, :6], initial=X0, method=method, n_views=len(F), nfev=nfev)
+
+
+# -- the gate before a hand-eye becomes active ----------------------------------------------
+
+# How far the residual may exceed what the views' own noise explains before a result is
+# refused [1]. Measured in-process on the mock Sawyer (test/core/landmarks/
+# test_hand_eye_capture.py, 6-20 views, five seeds): right results 0.34-0.50 (the detector's
+# covariances are conservative; the nominal model's kinematic error is inside); images of the
+# arm at the previous view in 3 of 12 views (issue 22.9): 294 (residual 39.9 mm). Exact
+# covariances on synthetic poses: 0.81-1.29; one image 2.6 mm / 10.8 mrad early: 10.6-24.6.
+# With covariances that fit, RMS / expected beyond 1.4 has odds below 1e-3 at 60 residuals.
+MAX_NOISE_RATIO = 3.0
+
+
+@dataclass(frozen=True)
+class NoiseCheck:
+    """The residual against what the views' board-pose covariances explain: ``expected_mm``/
+    ``expected_mrad`` the RMS residual that noise alone would leave (the same statistic as
+    HandEyeResult.residual_mm/_mrad), ``ratio`` the larger of residual / expected [1];
+    ``problem`` '' when the ratio is within ``max_ratio``, else why the result must not be
+    made active."""
+
+    expected_mm: float
+    expected_mrad: float
+    ratio: float
+    max_ratio: float
+    problem: str
+
+    def __bool__(self) -> bool:
+        return not self.problem
+
+
+def check_noise(result: HandEyeResult, covariances: Sequence[ArrayLike],
+                max_ratio: float = MAX_NOISE_RATIO) -> NoiseCheck:
+    """Does ``result`` fit its views as well as their noise allows? ``covariances``: the views'
+    board-pose 6x6 covariances [m, rad] (landmark_detector's), in the order solved. The noise
+    alone leaves E|dp_i|^2 = trace(C_i, position) (1 - 12 / 6n) at the solution (12 unknowns,
+    6n residuals), likewise the rotation; a residual RMS beyond ``max_ratio`` times that means
+    views that do not belong together (an image of another pose than its joints), not noise."""
+    C = np.asarray(covariances, dtype=float)
+    if C.shape != (result.n_views, 6, 6) or not np.all(np.isfinite(C)):
+        raise ValueError(f'covariances must be {result.n_views} finite 6x6 matrices, got '
+                         f'shape {C.shape}')
+    kept = max(1.0 - 12.0 / (6.0 * result.n_views), 1e-3)
+    pos = np.trace(C[:, :3, :3], axis1=1, axis2=2)
+    rot = np.trace(C[:, 3:, 3:], axis1=1, axis2=2)
+    expected_mm = float(np.sqrt(np.mean(pos) * kept)) * 1e3
+    expected_mrad = float(np.sqrt(np.mean(rot) * kept)) * 1e3
+    if expected_mm <= 0.0 or expected_mrad <= 0.0:
+        raise ValueError('covariances must be positive definite: no noise to compare with')
+    ratio = max(result.residual_mm / expected_mm, result.residual_mrad / expected_mrad)
+    problem = '' if ratio <= max_ratio else (
+        f'residual RMS {result.residual_mm:.3f} mm / {result.residual_mrad:.3f} mrad is '
+        f'{ratio:.1f}x what the views\' noise leaves ({expected_mm:.3f} mm / '
+        f'{expected_mrad:.3f} mrad; at most {max_ratio:g}x): some views do not fit the others '
+        '(an image of another pose than its joints, a board that moved); repeat the '
+        'calibration on a quiet machine and check that the robot rests at every view')
+    return NoiseCheck(expected_mm, expected_mrad, ratio, max_ratio, problem)

@@ -7,8 +7,9 @@ import pytest
 
 from cobot_calib_ros.core import frames, kinematics
 from cobot_calib_ros.core.cell import load_cell
-from cobot_calib_ros.core.landmarks.hand_eye import (board_in_image, DISTANCE_RANGE,
-                                                     hand_eye_views, park_martin,
+from cobot_calib_ros.core.landmarks.hand_eye import (board_in_image, check_noise,
+                                                     DISTANCE_RANGE, hand_eye_views,
+                                                     MAX_NOISE_RATIO, park_martin,
                                                      solve_hand_eye, TILT_RANGE_DEG)
 from cobot_calib_ros.core.landmarks.targets import BoardSpec
 from cobot_calib_ros.paths import cell_file
@@ -63,6 +64,64 @@ def test_noise_is_refined_below_the_closed_form_and_the_covariance_fits():
     assert result.covariance.shape == (6, 6) and np.all(np.isfinite(sigma))
     assert np.all(sigma[:3] < 5e-4) and np.all(sigma[3:] < 5e-3)
     assert 0.02 < result.residual_mm < 1.0 and 0.2 < result.residual_mrad < 5.0
+
+
+# A board pose's noise as PnP has it: depth (optical z) worse than across, rotation about z
+# better than about x and y [m, rad]. 1-sigma.
+BOARD_SIGMA = np.array([2e-5, 2e-5, 8e-5, 4e-4, 4e-4, 1e-4])
+
+
+def _noisy_boards(F: np.ndarray, rng) -> tuple[np.ndarray, np.ndarray]:
+    """Board poses with noise drawn from BOARD_SIGMA (position added in the optical frame,
+    rotation on the left: the covariances' convention), and those covariances."""
+    M = []
+    for m in _boards(F):
+        d = rng.normal(0.0, BOARD_SIGMA)
+        M.append(frames.make_transform(frames.from_vector(np.r_[0, 0, 0, d[3:]])[:3, :3]
+                                       @ m[:3, :3], m[:3, 3] + d[:3]))
+    return np.array(M), np.repeat(np.diag(BOARD_SIGMA ** 2)[None], len(F), axis=0)
+
+
+@pytest.mark.parametrize('seed', [0, 1, 2])
+def test_the_noise_gate_passes_views_that_fit_within_their_noise(seed):
+    rng = np.random.default_rng(seed)
+    F = _flange_poses(12, seed=seed)
+    M, cov = _noisy_boards(F, rng)
+    result = solve_hand_eye(F, M, covariances=cov)
+    check = check_noise(result, cov)
+    # E|dp|^2 = trace * (1 - 12/72): sqrt((2e-5^2 * 2 + 8e-5^2) * 5/6) = 0.0775 mm, and
+    # sqrt((4e-4^2 * 2 + 1e-4^2) * 5/6) = 0.5244 mrad
+    assert check.expected_mm == pytest.approx(0.07746, abs=1e-5)
+    assert check.expected_mrad == pytest.approx(0.52440, abs=1e-5)
+    assert check and check.problem == ''
+    assert 0.6 < check.ratio < 1.6, check.ratio
+
+
+def test_the_noise_gate_refuses_a_view_whose_image_shows_another_pose():
+    """Issue 22.9: one image of the arm 2.6 mm / 10.8 mrad before it came to rest, paired
+    with the joints at rest: the fit absorbs some of it, the residual gives it away."""
+    rng = np.random.default_rng(0)
+    F = _flange_poses(12, seed=0)
+    M, cov = _noisy_boards(F, rng)
+    early = F[5] @ frames.from_vector([0.002, -0.001, 0.0014, 0.006, 0.004, -0.008])
+    M[5] = _boards(early[None])[0]
+    result = solve_hand_eye(F, M, covariances=cov)
+    check = check_noise(result, cov)
+    assert not check and check.ratio > MAX_NOISE_RATIO
+    assert check.problem.startswith(f'residual RMS {result.residual_mm:.3f} mm / ')
+    assert 'some views do not fit the others' in check.problem
+    # the same views without the early image pass
+    keep = [i for i in range(12) if i != 5]
+    assert check_noise(solve_hand_eye(F[keep], M[keep], covariances=cov[keep]), cov[keep])
+
+
+def test_the_noise_gate_needs_one_finite_covariance_per_view():
+    F = _flange_poses(5)
+    result = solve_hand_eye(F, _boards(F))
+    with pytest.raises(ValueError, match='5 finite 6x6'):
+        check_noise(result, np.zeros((4, 6, 6)))
+    with pytest.raises(ValueError, match='positive definite'):
+        check_noise(result, np.zeros((5, 6, 6)))
 
 
 def test_fewer_than_three_views_are_refused():

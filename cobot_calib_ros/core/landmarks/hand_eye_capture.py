@@ -1,0 +1,118 @@
+"""The hand-eye views taken on the cell: move, wait for the board, capture, pair (a procedure
+over the robot and camera ports, core.robot_port).
+
+For each planned joint configuration (core.landmarks.hand_eye.hand_eye_views) the robot moves
+there; ``rest`` is the camera clock once the move has returned (the arm rests from then on).
+The first image stamped after ``rest`` that shows the board gives T_optical_board (a camera
+stamps the exposure: mock_camera the joint_states it rendered), then the joints are captured
+over ``hold``. The image lies between the two, so the view is *paired* (image and joints show
+the same pose) only when the captured joints agree with the joints the move reached, within
+PAIRING_TOLERANCE_RAD: an arm that had not come to rest, or that moved after, fails it. A view
+that is unreachable, shows no board, or cannot be paired is skipped and counted; a capture
+that fails ends the run (PortError), as does ``cancelled()`` (Stopped, checked before every
+view: the caller stores nothing). Runs the same over ROS (RobotCalls, LandmarkWatch) and
+in-process on the simulation (DirectRobot, DirectCamera).
+"""
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from cobot_calib_ros.core import kinematics
+from cobot_calib_ros.core.robot_port import (CameraPort, CaptureFailed, Cancelled,
+                                             check_cancel, MoveFailed, never, RobotPort)
+
+Array = NDArray[np.float64]
+# Captured joints further than this from the joints the move reached [rad] (any joint): the
+# arm was not at rest around the image. 0.1 mrad moves the flange ~0.1 mm at 1 m reach, the
+# size of a right hand-eye's residual; encoder noise averaged over a hold is ~1e-7 rad.
+PAIRING_TOLERANCE_RAD = 1e-4
+BOARD_IMAGES = 5         # images after the rest looked at before the board counts as unseen
+
+
+@dataclass
+class HandEyeViews:
+    """What the views gave, in view order: joints captured [rad], flange poses by FK on the
+    chain given, board poses T_optical_board and their 6x6 covariances [m, rad]; ``skipped``:
+    {'view': index, 'reason': ...} of the views left out, ``unpaired`` how many of them could
+    not be paired (image and joints from different poses)."""
+
+    planned: int
+    joints: list[Array] = field(default_factory=list)
+    flange: list[Array] = field(default_factory=list)
+    boards: list[Array] = field(default_factory=list)
+    covariances: list[Array] = field(default_factory=list)
+    skipped: list[dict] = field(default_factory=list)
+    unpaired: int = 0
+
+    @property
+    def used(self) -> int:
+        return len(self.boards)
+
+
+ViewDone = Callable[[int, bool, HandEyeViews], None]   # view index, board used, views so far
+
+
+def pairing_problem(reached: Array, captured: Array,
+                    tolerance: float = PAIRING_TOLERANCE_RAD) -> str:
+    """'' when the joints captured after the image agree with those reached at rest, else
+    which joint moved by how much."""
+    delta = np.abs(np.asarray(captured, dtype=float) - np.asarray(reached, dtype=float))
+    worst = int(np.argmax(delta))
+    if delta[worst] <= tolerance:
+        return ''
+    return (f'joint {worst + 1} captured {delta[worst] * 1e3:.3f} mrad from where the move '
+            f'ended (at most {tolerance * 1e3:.3f}): the arm was not at rest around the image')
+
+
+def take_hand_eye_views(plan: Sequence[Array], robot: RobotPort, camera: CameraPort,
+                        chain: kinematics.Chain, *, hold: float, landmark_timeout: float,
+                        cancelled: Cancelled = never,
+                        on_view: ViewDone | None = None) -> HandEyeViews:
+    """Visit every joint configuration of ``plan`` and keep the paired views (module
+    docstring). ``chain``: the model whose FK of the captured joints gives T_base_flange (no
+    tool); ``hold`` [s]: the joint capture; ``landmark_timeout`` [s]: for an image after the
+    rest. ``on_view`` after each view. Raises Stopped (cancelled) and CaptureFailed (a joint
+    capture that failed)."""
+    views = HandEyeViews(planned=len(plan))
+    for i, q in enumerate(plan):
+        check_cancel(cancelled, f'view {i + 1} of {len(plan)}')
+        why = _take_view(views, robot, camera, chain, q, hold, landmark_timeout)
+        if why:
+            views.skipped.append({'view': i, 'reason': why})
+        if on_view is not None:
+            on_view(i, not why, views)
+    return views
+
+
+def _take_view(views: HandEyeViews, robot: RobotPort, camera: CameraPort,
+               chain: kinematics.Chain, q: Array, hold: float, timeout: float) -> str:
+    """One view appended to ``views``: '' if it was used, else why it was skipped."""
+    try:
+        reached = robot.move_joints(q)
+    except MoveFailed as e:
+        return f'unreachable: {e}'
+    rest_ns = camera.now_ns()
+    try:
+        image = camera.landmarks_after(rest_ns, lambda im: im.find('board') is not None,
+                                       BOARD_IMAGES, timeout)
+    except CaptureFailed as e:
+        return f'no image: {e}'
+    board = image.find('board')
+    if board is None:
+        return f'no board seen in {BOARD_IMAGES} images'
+    capture = robot.capture(hold)
+    problem = pairing_problem(reached, capture.q)
+    if image.stamp_ns <= rest_ns:
+        problem = f'the image is stamped before the arm came to rest ({image.stamp_ns} ns)'
+    if problem:
+        views.unpaired += 1
+        return f'unpaired: {problem}'
+    views.joints.append(capture.q)
+    views.flange.append(kinematics.fk(chain, capture.q))
+    views.boards.append(board.T_optical_target)
+    views.covariances.append(board.covariance)
+    return ''
