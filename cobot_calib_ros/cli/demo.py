@@ -223,7 +223,8 @@ def _run(args, client: DemoClient) -> dict:
     true_by_name = dict(zip(truth.point_names, convert.points_to_array(truth.points_base)))
     p_true = np.array([true_by_name[n] for n in POINTS])
     true_chain = _truth_model(truth, cell)
-    records = [None] + ([] if args.kinematics == NOMINAL else [_kinematics(args, client)])
+    records = [None] + ([] if args.kinematics == NOMINAL else
+                        [_kinematics(args, client, cell.robot)])
     say(args, f'touching {", ".join(POINTS)} and capturing joints ...')
     captures = [client.touch_and_capture(n) for n in POINTS]
     p_user = cell.nominal_points_user()[[cell.point_names.index(n) for n in POINTS]]
@@ -255,19 +256,19 @@ def _run(args, client: DemoClient) -> dict:
     return result
 
 
-def _kinematics(args, client: DemoClient) -> dict:
-    """The kinematic calibration record --kinematics names; 'latest' with none stored
-    identifies one on the mock first."""
+def _kinematics(args, client: DemoClient, robot: str) -> dict:
+    """The kinematic calibration record --kinematics names for ``robot``; 'latest' with none
+    of that robot stored identifies one on the mock first."""
     from cobot_calib_ros.store.kinematics import KinematicStore
     from cobot_calib_ros.api import identification
     store = KinematicStore(data_dir(''))
     try:
-        record = store.resolve(args.kinematics)
+        record = store.resolve(args.kinematics, robot)
     except (KeyError, ValueError) as e:
         raise RuntimeError(f'--kinematics {args.kinematics}: {e}') from None
     if record is None:
-        say(args, f'no kinematic calibration in {store.directory}: identifying one on the '
-                  'mock first (as cobot-calib identify) ...')
+        say(args, f'no kinematic calibration of the {robot} in {store.directory}: identifying '
+                  'one on the mock first (as cobot-calib identify) ...')
         identifier = identification.IdentifyClient(client.node)
         try:
             report = identification.identify_on_suite(

@@ -375,7 +375,7 @@ class RepeatabilityTrial(Node):
         """Give the robot the chain of a kinematics choice; its label (id or nominal)."""
         data_dir = paths.data_dir(self._p('data_dir'))
         try:
-            record = KinematicStore(data_dir).resolve(choice)
+            record = KinematicStore(data_dir).resolve(choice, self._model.name)
             self._robot.chain = chain_of(record, self._model, self._cell.tool_offset)
             if self._cell.camera is not None:
                 X, _ = active_hand_eye(data_dir, self._cell)

@@ -310,7 +310,7 @@ class UserFrameSolver(Node):
         of the chain, default the cell's tool offset."""
         store = KinematicStore(paths.data_dir(self._p('data_dir')))
         try:
-            record = store.resolve(choice)
+            record = store.resolve(choice, self._model.name)
             chain = chain_of(record, self._model,
                              self._cell.tool_offset if tool is None else tool)
         except (KeyError, ValueError) as e:

@@ -1,5 +1,8 @@
 """Calibration records, one JSON file each under ``<root>/calibrations`` (see store.files),
-and which one is active: ``<root>/calibrations/active.json`` (chosen id, retired ids)."""
+and which one is active: ``<root>/calibrations/active.json`` (chosen ids, retired ids).
+
+Activation is scoped: a store built with ``scope_key`` (kinematics: ``'robot'``) keeps one
+active record per value of that key, so one robot's calibration never becomes another's."""
 from __future__ import annotations
 
 from collections.abc import Mapping
@@ -42,6 +45,11 @@ def _read_selection(path: Path) -> tuple[dict[str, Any], str]:
     chosen, retired = data.get('active_id'), data.get('retired', [])
     if chosen is not None and not (isinstance(chosen, str) and ID_PATTERN.fullmatch(chosen)):
         return {}, f'active_id must be null or a calibration id, got {chosen!r}'
+    scoped = data.get('active_ids', {})
+    if not isinstance(scoped, dict) or not all(
+            isinstance(k, str) and isinstance(v, str) and ID_PATTERN.fullmatch(v)
+            for k, v in scoped.items()):
+        return {}, f'active_ids must map scopes to calibration ids, got {scoped!r}'
     if not isinstance(retired, list) or not all(
             isinstance(r, str) and ID_PATTERN.fullmatch(r) for r in retired):
         return {}, f'retired must be a list of calibration ids, got {retired!r}'
@@ -63,16 +71,27 @@ class CalibrationStore(WarningLog):
     in the same directory, rewritten atomically on every change; the choice is kept only where
     it differs from the default, so activating the newest record (after each calibration)
     writes nothing in the common case.
+
+    ``scope_key``: the record key whose value scopes activation ('' : one scope). Each scope
+    (e.g. each robot) has its own active record, chosen or newest among that scope's records;
+    :meth:`active` takes the scope. In ``active.json`` a chosen id of scope '' is
+    ``active_id`` (the format before scopes; an ``active_id`` of a scoped record counts for
+    that record's scope), the others are in ``active_ids`` {scope: id}.
     """
 
-    def __init__(self, root: Path, subdir: str = 'calibrations') -> None:
+    def __init__(self, root: Path, subdir: str = 'calibrations', scope_key: str = '') -> None:
         super().__init__()
         self.root = Path(root)
         self.directory = self.root / subdir
         self.selection_path = self.directory / ACTIVE_FILE
+        self.scope_key = scope_key
         self._records: dict[str, dict[str, Any]] | None = None
-        self._chosen: str | None = None
+        self._chosen: dict[str, str] | None = None     # scope -> chosen id
         self._retired: frozenset[str] | None = None
+
+    def scope_of(self, record: Mapping[str, Any]) -> str:
+        """The activation scope ``record`` belongs to ('' in an unscoped store)."""
+        return str(record.get(self.scope_key) or '') if self.scope_key else ''
 
     def save(self, record: Mapping[str, Any]) -> Path:
         """Write ``record`` atomically and durably; returns its path."""
@@ -107,14 +126,14 @@ class CalibrationStore(WarningLog):
         """The ids of the readable records (no sorting: cheap on the calibration path)."""
         return frozenset(self._index())
 
-    def active(self) -> dict[str, Any] | None:
-        """The active record: the chosen one if it is stored and not retired, else the newest
-        non-retired one; None if there is none."""
+    def active(self, scope: str = '') -> dict[str, Any] | None:
+        """The active record of ``scope``: the chosen one if it is stored and not retired, else
+        the newest non-retired one of that scope; None if there is none."""
         retired = self.retired()
-        chosen = self._index().get(self._chosen or '')
-        if chosen is not None and chosen['id'] not in retired:
+        chosen = self._index().get(self._choices().get(scope, ''))
+        if chosen is not None and chosen['id'] not in retired and self.scope_of(chosen) == scope:
             return chosen
-        return next((r for r in self.history() if r['id'] not in retired), None)
+        return self._newest(scope, retired)
 
     def retired(self) -> frozenset[str]:
         """The ids of retired records (some may no longer be stored)."""
@@ -122,40 +141,63 @@ class CalibrationStore(WarningLog):
             self._load_selection()
         return self._retired
 
-    def activate(self, record_id: str | None) -> None:
-        """Make ``record_id`` (un-retired) the active record; None or '': no choice, the
-        newest non-retired record is active. KeyError if no such record, ValueError if not an
-        id, OSError if active.json cannot be written (then nothing changed)."""
-        retired = self.retired()
+    def activate(self, record_id: str | None, scope: str = '') -> None:
+        """Make ``record_id`` (un-retired) the active record of its scope; None or '': no
+        choice in ``scope``, its newest non-retired record is active. KeyError if no such
+        record, ValueError if not an id, OSError if active.json cannot be written (then nothing
+        changed)."""
+        retired, chosen = self.retired(), dict(self._choices())
         if record_id:
-            self._require(record_id)
+            scope = self.scope_of(self._require(record_id))
             retired = retired - {record_id}
-        self._select(record_id or None, retired)
+            chosen[scope] = record_id
+        else:
+            chosen.pop(scope, None)
+        self._select(chosen, retired)
 
     def retire(self, record_id: str) -> None:
         """Mark ``record_id`` retired: kept in the history, never active; if it was chosen,
-        the newest non-retired record becomes active. Errors as :meth:`activate`."""
-        self._require(record_id)
-        chosen = None if self._chosen == record_id else self._chosen
+        the newest non-retired record of its scope becomes active. Errors as
+        :meth:`activate`."""
+        scope = self.scope_of(self._require(record_id))
+        chosen = dict(self._choices())
+        if chosen.get(scope) == record_id:
+            del chosen[scope]
         self._select(chosen, self.retired() | {record_id})
 
-    def _require(self, record_id: str) -> None:
-        if self.get(record_id) is None:
+    def _require(self, record_id: str) -> dict[str, Any]:
+        record = self.get(record_id)
+        if record is None:
             raise KeyError(f'no calibration {record_id!r}')
+        return record
 
-    def _select(self, chosen: str | None, retired: frozenset[str]) -> None:
-        """Store the choice (only where it differs from the default) and the retired ids."""
-        newest = next((r['id'] for r in self.history() if r['id'] not in retired), None)
-        chosen = None if chosen == newest else chosen
-        if (chosen, retired) == (self._chosen, self.retired()):
+    def _newest(self, scope: str, retired: frozenset[str]) -> dict[str, Any] | None:
+        return next((r for r in self.history()
+                     if r['id'] not in retired and self.scope_of(r) == scope), None)
+
+    def _choices(self) -> dict[str, str]:
+        if self._chosen is None:
+            self._load_selection()
+        return self._chosen
+
+    def _select(self, chosen: dict[str, str], retired: frozenset[str]) -> None:
+        """Store the choices (only where they differ from the default) and the retired ids."""
+        kept = {}
+        for scope, record_id in chosen.items():
+            newest = self._newest(scope, retired)
+            if newest is None or newest['id'] != record_id:
+                kept[scope] = record_id
+        if (kept, retired) == (self._choices(), self.retired()):
             return
         ensure_dir(self.directory)
+        scoped = {scope: record_id for scope, record_id in sorted(kept.items()) if scope}
         atomic_write_text(self.selection_path, json.dumps(
-            {'active_id': chosen, 'retired': sorted(retired)}) + '\n')
-        self._chosen, self._retired = chosen, retired
+            {'active_id': kept.get(''), **({'active_ids': scoped} if scoped else {}),
+             'retired': sorted(retired)}) + '\n')
+        self._chosen, self._retired = kept, retired
 
     def _load_selection(self) -> None:
-        self._chosen, self._retired = None, frozenset()
+        self._chosen, self._retired = {}, frozenset()
         if not self.selection_path.exists():
             return
         data, problem = _read_selection(self.selection_path)
@@ -163,7 +205,11 @@ class CalibrationStore(WarningLog):
             self._warn(f'{self.selection_path}: ignored ({problem}); the newest calibration '
                        'is active and none is retired until set_active_calibration is called')
             return
-        self._chosen, self._retired = data.get('active_id'), frozenset(data.get('retired', []))
+        chosen = dict(data.get('active_ids', {}))
+        legacy = self._index().get(data.get('active_id') or '')
+        if legacy is not None:      # the id chosen in scope '', or before scopes existed
+            chosen.setdefault(self.scope_of(legacy), legacy['id'])
+        self._chosen, self._retired = chosen, frozenset(data.get('retired', []))
 
     def _index(self) -> dict[str, dict[str, Any]]:
         if self._records is None:

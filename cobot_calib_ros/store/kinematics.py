@@ -2,9 +2,11 @@
 
 Under ``<root>/kinematics``: ``<id>.json`` (the record, what the suite reads), ``<id>.yaml``
 (the same for people: the identified table as the paper's Table 6, validation figures) and
-``<id>.urdf`` (the calibrated model for MoveIt, RViz, robot_state_publisher). The active one
-(:class:`CalibrationStore` rules: chosen, else the newest non-retired) is what
-user_frame_solver and repeatability_trial use with ``kinematics: latest``.
+``<id>.urdf`` (the calibrated model for MoveIt, RViz, robot_state_publisher). Activation is
+per robot (the record's ``robot``): a plant keeps many robots' results in one data dir, and
+``kinematics: latest`` in user_frame_solver and repeatability_trial is the active calibration
+*of the cell's robot* (:class:`CalibrationStore` rules within that robot: chosen, else the
+newest non-retired), nominal when that robot has none.
 """
 from __future__ import annotations
 
@@ -25,10 +27,11 @@ LATEST = 'latest'
 
 class KinematicStore(CalibrationStore):
     def __init__(self, root: Path) -> None:
-        super().__init__(root, 'kinematics')
+        super().__init__(root, 'kinematics', scope_key='robot')
 
     def save_outcome(self, outcome, activate: bool = True) -> dict[str, Path]:
-        """Write the outcome's record (JSON), its YAML and URDF; make it active."""
+        """Write the outcome's record (JSON), its YAML and URDF; make it its robot's active
+        one."""
         record = to_plain(outcome.record)
         result = record['result']
         paths = {'yaml': self.directory / f'{record["id"]}.yaml',
@@ -44,13 +47,14 @@ class KinematicStore(CalibrationStore):
             self.activate(record['id'])
         return {'json': json_path, **paths}
 
-    def resolve(self, choice: str) -> dict[str, Any] | None:
-        """The record ``choice`` names: 'latest' (the active one, None if there is none),
-        'nominal' (None) or an id (KeyError if not stored)."""
+    def resolve(self, choice: str, robot: str) -> dict[str, Any] | None:
+        """The record ``choice`` names for ``robot`` (a model name): 'latest' (that robot's
+        active one, None if it has none), 'nominal' (None) or an id (KeyError if not stored;
+        :func:`chain_of` refuses one of another robot)."""
         if choice in ('', NOMINAL):
             return None
         if choice == LATEST:
-            return self.active()
+            return self.active(robot)
         record = self.get(choice)
         if record is None:
             raise KeyError(f'no kinematic calibration {choice!r} in {self.directory}')

@@ -3,6 +3,7 @@ and capture_joints, resume after a cancel, identify, store YAML + URDF, and the 
 the result (issue 10)."""
 import json
 import os
+import time
 from pathlib import Path
 
 import numpy as np
@@ -10,7 +11,7 @@ import pytest
 from rclpy.action import ActionClient
 
 from cobot_calib_msgs.action import CollectSphereData, IdentifyKinematics
-from cobot_calib_msgs.srv import CalibrateUserFrame
+from cobot_calib_msgs.srv import CalibrateUserFrame, SetActiveCalibration
 from cobot_calib_ros.api.client import run_action, spin_until
 from cobot_calib_ros.core.kinematics import fk, model_by_name, plans
 from cobot_calib_ros.core.kinematics.identification import SphereObservations
@@ -111,7 +112,7 @@ def test_identification_is_validated_stored_and_exported_as_urdf(ros, actions, c
         assert nominal.count == calibrated.count == 30
         assert calibrated.max < nominal.max
         record = KinematicStore(trial_data).get(result.calibration_id)
-        assert record is not None and KinematicStore(trial_data).active()['id'] == \
+        assert record is not None and KinematicStore(trial_data).active('sawyer')['id'] == \
             result.calibration_id
         assert 'table6' in Path(result.yaml_path).read_text()
         urdf = model_from_urdf(Path(result.urdf_path).read_text(), 'base_link', 'tool0',
@@ -192,3 +193,26 @@ def test_demo_with_kinematics_cuts_the_kinematic_part_of_the_frame_error(ros, tr
     assert rigid['kinematic_factor'] >= 3.0
     assert rigid['after_mm'] < rigid['before_mm']
     assert result['kinematics'] == calibration_id and result['nominal']['kinematics'] == 'nominal'
+
+
+def test_an_iiwa7_calibration_in_the_data_dir_leaves_the_sawyer_working(ros, trial_data):
+    """Issue 16.1: on 5252a67 an iiwa7 result (cobot-calib identify --robot iiwa7 in the same
+    data dir) became 'latest' for every robot, and this Sawyer calibration was refused with
+    "... is for robot 'iiwa7', not 'sawyer'". Left active here: later Sawyer tests run with it."""
+    iiwa = model_by_name('iiwa7')
+    KinematicStore(trial_data).save({
+        'id': 'iiwa7-elsewhere-nelder-mead', 'stamp_ns': time.time_ns(), 'robot': 'iiwa7',
+        'method': 'relative-nelder-mead', 'inputs': {'source': 'another cell'},
+        'result': {'parameter_names': list(iiwa.parameter_names),
+                   'params': list(iiwa.nominal), 'tool_xyz': [0.0, 0.0, 0.1]}})
+    res = call(ros, CalibrateUserFrame, 'calibrate_user_frame', 120.0, method='rigid',
+               point_names=['P1', 'P2', 'P3'])
+    try:
+        assert res.error_code == CalibrateUserFrame.Response.SUCCESS, res.message
+        sawyer = KinematicStore(trial_data).resolve('latest', 'sawyer')
+        assert res.calibration.kinematics == ('nominal' if sawyer is None else sawyer['id'])
+        assert res.calibration.rms_residual < 1e-3
+    finally:
+        if res.calibration.id:      # the live frame is not what later tests expect active
+            call(ros, SetActiveCalibration, 'set_active_calibration',
+                 calibration_id=res.calibration.id, action=SetActiveCalibration.Request.RETIRE)

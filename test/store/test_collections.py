@@ -81,12 +81,12 @@ def test_kinematic_records_resolve_and_build_their_chain(tmp_path):
                                        'params': params}}
     store.save(record)
     fresh = KinematicStore(tmp_path)
-    assert fresh.resolve('nominal') is None
-    assert fresh.resolve('latest')['id'] == 'k1' == fresh.resolve('k1')['id']
+    assert fresh.resolve('nominal', 'iiwa7') is None
+    assert fresh.resolve('latest', 'iiwa7')['id'] == 'k1' == fresh.resolve('k1', 'iiwa7')['id']
     with pytest.raises(KeyError, match='no kinematic calibration'):
-        fresh.resolve('k2')
-    chain = chain_of(fresh.resolve('latest'), model, np.eye(4))
+        fresh.resolve('k2', 'iiwa7')
+    chain = chain_of(fresh.resolve('latest', 'iiwa7'), model, np.eye(4))
     np.testing.assert_allclose(chain.placements, model.chain(params).placements, atol=0)
     with pytest.raises(ValueError, match="not 'sawyer'"):
         chain_of(fresh.get('k1'), model_by_name('sawyer'), np.eye(4))
-    assert KinematicStore(tmp_path / 'empty').resolve('latest') is None
+    assert KinematicStore(tmp_path / 'empty').resolve('latest', 'iiwa7') is None
