@@ -21,6 +21,8 @@ from rclpy.action import ActionClient
 from rclpy.action.graph import get_action_names_and_types
 from rclpy.node import Node
 
+from cobot_calib_ros.ros import interrupts
+
 
 class CallError(RuntimeError):
     """A call that did not complete: not available, timed out, refused."""
@@ -249,9 +251,11 @@ def _shown(value: Any) -> str:
 
 
 def spin_until(node: Node, done, timeout: float, executor=None) -> bool:
-    """Spin `node` until done() or the timeout [s]; returns done()."""
+    """Spin `node` until done() or the timeout [s]; returns done(). A Ctrl-C noted by
+    ros.interrupts.deferred() is raised here, between two spins (KeyboardInterrupt)."""
     deadline = time.monotonic() + timeout
     while not done():
+        interrupts.check()
         remaining = deadline - time.monotonic()
         if remaining <= 0:
             return False

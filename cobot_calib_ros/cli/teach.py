@@ -18,6 +18,7 @@ import time
 
 from cobot_calib_ros.cli.common import (EXIT_INTERRUPTED, EXIT_OK, EXIT_USAGE, fail, ros_node,
                                         say)
+from cobot_calib_ros.ros import interrupts
 
 NODE_NAME = 'cobot_calib_teach'
 
@@ -141,6 +142,7 @@ class TeachSession:
         self._confirmed = False
         deadline = time.monotonic() + self.args.timeout
         while not self._confirmed:
+            interrupts.check()
             if time.monotonic() > deadline:
                 raise TeachError(f'no confirmation within {self.args.timeout:.0f} s')
             self.executor.spin_once(timeout_sec=0.02)

@@ -76,14 +76,17 @@ def test_teach_quit_stores_nothing_and_unknown_points_are_refused(ros, trial_dat
     assert bad.returncode == 2 and "unknown point(s) ['P9']" in err
 
 
-@pytest.mark.xfail(strict=False, reason='known defect, not understood: in 2 of 3 fresh-clone '
-                   'runs with the 9-process suite, teach did not exit within 90 s of Ctrl-C')
-def test_teach_interrupted_says_so_and_stores_nothing(ros, trial_data):
+@pytest.mark.parametrize('after', ['guide the tool tip', 'hand guided the tool onto P1'])
+def test_teach_interrupted_says_so_and_stores_nothing(ros, trial_data, after):
+    """Ctrl-C during the (simulated) touch and during the wait for Enter. On 5252a67 a Ctrl-C
+    that arrived while the garbage collector closed one of rclpy's executor generators was
+    swallowed ("Exception ignored in ... _wait_for_ready_callbacks"), and teach waited for
+    its confirmation for --timeout s (2 of 40 Ctrl-Cs at random moments of the touch):
+    ros.interrupts now delivers it at the next wait (test/ros/test_interrupts.py)."""
     before = len(CalibrationStore(trial_data).history())
     teach = _teach('--hold', '0.2', stdin=subprocess.PIPE)
     deadline = time.monotonic() + 120
-    while 'guide the tool tip' not in (teach.stdout.readline() or '') and \
-            time.monotonic() < deadline:
+    while after not in (teach.stdout.readline() or '') and time.monotonic() < deadline:
         pass
     teach.send_signal(signal.SIGINT)
     try:
@@ -92,4 +95,5 @@ def test_teach_interrupted_says_so_and_stores_nothing(ros, trial_data):
         if teach.poll() is None:
             teach.kill()
     assert teach.returncode == 130 and 'teach interrupted; nothing was stored' in err, err
+    assert 'Traceback' not in err and 'Exception ignored' not in err, err
     assert len(CalibrationStore(trial_data).history()) == before
