@@ -5,12 +5,17 @@ of the cell's ChArUco board (core.landmarks.hand_eye.hand_eye_views: IK on the n
 through the nominal hand-eye), and for each one moves there (``move_to``, joints), waits for the
 first ``landmarks`` message with a board in an image stamped after the arrival, captures the
 joints (``capture_joints``, ``hold`` seconds) and takes the flange pose by nominal FK. A view
-that cannot be reached or shows no board within ``landmark_timeout`` is skipped and counted.
+that cannot be reached or shows no board within ``landmark_timeout`` is skipped and counted,
+and so is one whose captured joints are not where the move ended (unpaired: the image may show
+another pose; core.landmarks.hand_eye_capture.pairing_problem).
 With at least three views, core.landmarks.hand_eye.solve_hand_eye (closed form, then the joint
 least-squares refinement of T_flange_optical and T_base_board, weighted by the landmarks'
 covariances) gives the result; it is stored under ``<data_dir>/hand_eye`` (CalibrationStore:
 atomic JSON, history, the newest active) and published latched on ``hand_eye``
 (geometry_msgs/TransformStamped, flange_frame -> the camera's optical frame) and /tf_static.
+A result whose residual is beyond what the views' noise allows (core.landmarks.hand_eye.
+check_noise) is stored with its ``gate_problem``, retired (never active), not published, and
+the goal ends with SOLVER_FAILED saying so.
 
 Where the board is: the cell gives it in the user frame, so the views need T_base_user: the
 ``user_frame`` parameter ("x y z roll pitch yaw" [m, rad]) or, when empty, the active user-frame
@@ -35,7 +40,8 @@ from rclpy.node import Node
 from cobot_calib_ros import paths
 from cobot_calib_ros.core import frames, kinematics
 from cobot_calib_ros.core.cell import load_cell
-from cobot_calib_ros.core.landmarks.hand_eye import hand_eye_views, solve_hand_eye
+from cobot_calib_ros.core.landmarks.hand_eye import check_noise, hand_eye_views, solve_hand_eye
+from cobot_calib_ros.core.landmarks.hand_eye_capture import pairing_problem
 from cobot_calib_ros.core.ids import record_id
 from cobot_calib_ros.ros import convert, qos, spin
 from cobot_calib_ros.ros.diagnostics import Diagnostics, OK, WARN
@@ -78,6 +84,15 @@ class BoardWatch:
                 if remaining <= 0:
                     return None
                 self._cond.wait(remaining)
+
+
+def _gate_problem(solved, covariances) -> str:
+    """'' when the hand-eye may become active (core.landmarks.hand_eye.check_noise), else
+    why not."""
+    try:
+        return check_noise(solved, covariances).problem
+    except ValueError as e:
+        return f'cannot check the residual against the views\' noise: {e}'
 
 
 def parse_user_frame(text: str) -> np.ndarray | None:
@@ -215,7 +230,8 @@ class HandEyeCalibrator(Node):
                 return self._cancelled(goal_handle, result, f'at view {i + 1} of {count}')
             feedback.view_index = i
             try:
-                self._robot.move_joints(q, MOVE_TIMEOUT, speed_scale=self._p('speed_scale'))
+                reached = self._robot.move_joints(q, MOVE_TIMEOUT,
+                                                  speed_scale=self._p('speed_scale'))
             except RobotCallError as e:
                 skipped.append({'view': i, 'reason': str(e)})
                 self.get_logger().warning(f'view {i}: skipped: {e}')
@@ -237,10 +253,17 @@ class HandEyeCalibrator(Node):
                     return self._end(goal_handle, result, Action.Result.CAPTURE_FAILED,
                                      f'view {i}: {e}')
                 q_meas = np.asarray(capture.position, dtype=float)
-                joints.append(q_meas)
-                flange.append(kinematics.fk(self._chain, q_meas))
-                boards.append(convert.pose_to_matrix(board.pose.pose))
-                covariances.append(np.array(board.pose.covariance, dtype=float).reshape(6, 6))
+                unpaired = pairing_problem(reached, q_meas)
+                if unpaired:        # image and joints may show different poses
+                    skipped.append({'view': i, 'reason': f'unpaired: {unpaired}'})
+                    self.get_logger().warning(f'view {i}: {unpaired}; skipped')
+                    feedback.board_seen = False
+                else:
+                    joints.append(q_meas)
+                    flange.append(kinematics.fk(self._chain, q_meas))
+                    boards.append(convert.pose_to_matrix(board.pose.pose))
+                    covariances.append(np.array(board.pose.covariance,
+                                                dtype=float).reshape(6, 6))
             feedback.used, feedback.skipped = len(boards), len(skipped)
             goal_handle.publish_feedback(feedback)
         result.views_used, result.views_skipped = len(boards), len(skipped)
@@ -256,18 +279,28 @@ class HandEyeCalibrator(Node):
         if goal_handle.is_cancel_requested:
             return self._cancelled(goal_handle, result, f'after all {count} views')
         record = self._record(solved, joints, flange, boards, covariances, skipped, count)
+        gate = _gate_problem(solved, covariances)
+        if gate:
+            record['gate_problem'] = gate
         try:
             self._store.save(record)
-            self._store.activate(None)
+            if gate:        # kept in the history as rejected, never active
+                self._store.retire(record['id'])
+            else:
+                self._store.activate(None)
         except (OSError, ValueError) as e:
             return self._end(goal_handle, result, Action.Result.STORAGE_FAILED,
                              f'could not store the hand-eye calibration: {e}')
-        self._publish(record)
         result.calibration_id = record['id']
         result.t_flange_optical = convert.matrix_to_transform(
             solved.T_flange_optical, '', '').transform
         result.residual_mm, result.residual_mrad = solved.residual_mm, solved.residual_mrad
         result.covariance = [float(v) for v in solved.covariance.ravel()]
+        if gate:
+            return self._end(goal_handle, result, Action.Result.SOLVER_FAILED, (
+                f'{record["id"]} rejected, stored as rejected and not made active (the active '
+                f'hand-eye is unchanged): {gate}'))
+        self._publish(record)
         nominal = frames.transform_error(solved.T_flange_optical,
                                          self._cell.camera.T_flange_optical)
         return self._end(goal_handle, result, Action.Result.SUCCESS, (
