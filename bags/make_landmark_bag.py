@@ -40,15 +40,16 @@ import time
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 sys.path.insert(0, str(ROOT))
+from cobot_calib_ros.paths import DEFAULT_CELL  # noqa: E402 - after ROOT is on the path
+from cobot_calib_ros.ros.marks import CAPTURES_TOPIC  # noqa: E402
 
 NAME = 'landmark_multi_close'
-CELL = 'sawyer_close'
+CELL = DEFAULT_CELL
 POINTS = ['P1', 'P2', 'P3', 'P4', 'P5']
 METHOD = 'landmark_multi'
 KINEMATICS = 'nominal'
 IMAGE_TOPIC = '/wrist_camera/image_raw'
 INFO_TOPIC = '/wrist_camera/camera_info'
-CAPTURES_TOPIC = '/cobot_calib/captures'
 USER_FRAME_TOPIC = '/user_frame'
 LANDMARKS_TOPIC = '/landmarks'
 RECORDED = [IMAGE_TOPIC, INFO_TOPIC, CAPTURES_TOPIC, USER_FRAME_TOPIC, LANDMARKS_TOPIC]
@@ -96,11 +97,11 @@ def main(argv=None) -> int:
 def record(raw: Path, tmp: Path, domain: int) -> dict:
     """Run the session and record it into ``raw``; the live calibrations and the solver's
     parameters."""
-    import rclpy
     from rclpy.executors import SingleThreadedExecutor
     from cobot_calib_msgs.srv import CalibrateUserFrame, CaptureJoints
 
-    from cobot_calib_ros.api.client import call_service, spin_until
+    from cobot_calib_ros.ros.calls import call_service, spin_until
+    from cobot_calib_ros.ros.session import session
     from cobot_calib_ros.api.launcher import Suite, suite_specs
     from cobot_calib_ros.bags.recorder import BagRecorder
 
@@ -110,18 +111,17 @@ def record(raw: Path, tmp: Path, domain: int) -> dict:
         'user_frame_solver': {'kinematics': KINEMATICS, 'data_dir': str(tmp / 'data')}}),
         env=env)
     print(f'suite on ROS_DOMAIN_ID={domain}, logs in {suite.log_dir}', flush=True)
-    rclpy.init(domain_id=domain)
-    node = rclpy.create_node('landmark_bag_maker')
-    executor = SingleThreadedExecutor()
-    executor.add_node(node)
-    recorder = BagRecorder(str(raw), RECORDED, report=lambda s: print(s, flush=True))
-    rec_executor = SingleThreadedExecutor()
+    ros = contextlib.ExitStack()
+    node, executor = ros.enter_context(session('landmark_bag_maker', domain_id=domain))
+    recorder = BagRecorder(str(raw), RECORDED, report=lambda s: print(s, flush=True),
+                           context=node.context)
+    rec_executor = SingleThreadedExecutor(context=node.context)
     rec_executor.add_node(recorder)
     running = threading.Event()
     running.set()
 
     def spin_recorder() -> None:
-        while running.is_set() and rclpy.ok():
+        while running.is_set() and node.context.ok():
             rec_executor.spin_once(timeout_sec=0.05)
     spinner = threading.Thread(target=spin_recorder, daemon=True)
     spinner.start()
@@ -166,9 +166,7 @@ def record(raw: Path, tmp: Path, domain: int) -> dict:
         running.clear()
         spinner.join(timeout=2.0)
         recorder.destroy_node()
-        executor.shutdown(timeout_sec=1.0)
-        node.destroy_node()
-        rclpy.try_shutdown()
+        ros.close()
         suite.stop()
     return {'calibrations': results, 'params': params}
 
@@ -208,10 +206,6 @@ def zstd_level(level: int):
         mcap.writer.zstandard = saved
 
 
-def stamp_ns(msg) -> int:
-    return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-
-
 def write_sample(raw: Path, out: Path, live: dict) -> None:
     """Check the recording against the live frame; write the light sample bag and
     expected.yaml."""
@@ -220,6 +214,7 @@ def write_sample(raw: Path, out: Path, live: dict) -> None:
     from cobot_calib_ros.api import replay_check, replay_landmark_check as check
     from cobot_calib_ros.bags.reader import open_bag
     from cobot_calib_ros.bags.writer import BagWriter
+    from cobot_calib_ros.ros.time import header_ns
 
     cal = live['calibrations'][METHOD]
     rigid = live['calibrations']['rigid']
@@ -233,23 +228,23 @@ def write_sample(raw: Path, out: Path, live: dict) -> None:
         frames = [bag.deserialize(m.rawdata, m.msgtype) for m in bag.messages([USER_FRAME_TOPIC])]
         images = {}                 # header stamp -> BagMessage
         for m in bag.messages([IMAGE_TOPIC]):
-            images.setdefault(stamp_ns(bag.deserialize(m.rawdata, m.msgtype)), m)
-        infos = [(stamp_ns(bag.deserialize(m.rawdata, m.msgtype)), m)
+            images.setdefault(header_ns(bag.deserialize(m.rawdata, m.msgtype)), m)
+        infos = [(header_ns(bag.deserialize(m.rawdata, m.msgtype)), m)
                  for m in bag.messages([INFO_TOPIC])]
         if not frames or frames[-1].id != cal.id:
             raise SystemExit(f'the last {USER_FRAME_TOPIC} recorded is not {cal.id}')
         # which images the live solver looked at and used (ros.landmark_views' rule)
         picks = check.pair(marks, landmarks)
-        processed = sorted(stamp_ns(lm) for lm in landmarks)
+        processed = sorted(header_ns(lm) for lm in landmarks)
         wanted, dropped = set(), 0
         for k, (mark, (used, _)) in enumerate(zip(marks, picks)):
-            looked = [s for s in processed if stamp_ns(mark) < s <= used]
+            looked = [s for s in processed if header_ns(mark) < s <= used]
             lost = [s for s in looked if s not in images]
             if lost:
                 raise SystemExit(f'mark #{k}: the recorder lost the image stamped {lost[0]}; '
                                  'make the bag again')
             wanted.update(looked)
-            dropped += sum(1 for s in images if stamp_ns(mark) < s < used and s not in looked)
+            dropped += sum(1 for s in images if header_ns(mark) < s < used and s not in looked)
         print(f'{len(marks)} marks; {len(wanted)} images kept; {dropped} image(s) between a '
               'mark and the one used never reached the live solver (left out)', flush=True)
         # the live landmarks, fitted again by the check's own code: the live frame exactly

@@ -15,6 +15,7 @@ live result on ``/user_frame`` (latched) and in ``expected.yaml``.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 from pathlib import Path
 import shutil
@@ -22,9 +23,11 @@ import sys
 import tempfile
 import time
 
+from cobot_calib_ros.paths import DEFAULT_CELL
+
 HERE = Path(__file__).resolve().parent
 NAME = 'five_point_close'
-CELL = 'sawyer_close'
+CELL = DEFAULT_CELL
 POINTS = ['P1', 'P2', 'P3', 'P4', 'P5']
 METHOD = 'rigid'
 HOLD = 0.5                  # [s] capture window
@@ -54,8 +57,6 @@ def main(argv=None) -> int:
 
 
 def make(out: Path, tmp: Path, domain: int) -> None:
-    import rclpy
-    from rclpy.executors import SingleThreadedExecutor
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from rclpy.serialization import serialize_message
     from sensor_msgs.msg import JointState
@@ -64,7 +65,9 @@ def make(out: Path, tmp: Path, domain: int) -> None:
     from cobot_calib_msgs.srv import CalibrateUserFrame, CaptureJoints
     from rclpy.action import ActionClient
 
-    from cobot_calib_ros.api.client import call_service, run_action, spin_until
+    from cobot_calib_ros.ros.calls import call_service, run_action, spin_until
+    from cobot_calib_ros.ros.session import session
+    from cobot_calib_ros.ros.time import ns_to_stamp, s_to_ns
     from cobot_calib_ros.api.launcher import NodeSpec, Suite
     from cobot_calib_ros import paths
     from cobot_calib_ros.bags import metadata
@@ -98,10 +101,8 @@ def make(out: Path, tmp: Path, domain: int) -> None:
         NodeSpec('user_frame_solver', {'cell_file': cell, 'kinematics': KINEMATICS,
                                        'data_dir': str(tmp / 'data')}),
     ], env=env)
-    rclpy.init(domain_id=domain)
-    node = rclpy.create_node('sample_bag_maker')
-    executor = SingleThreadedExecutor()
-    executor.add_node(node)
+    ros = contextlib.ExitStack()
+    node, executor = ros.enter_context(session('sample_bag_maker', domain_id=domain))
     writer = BagWriter(out, compression='zstd')
     try:
         writer.add_topic('/joint_states', 'sensor_msgs/msg/JointState', [metadata.qos()])
@@ -141,13 +142,13 @@ def make(out: Path, tmp: Path, domain: int) -> None:
             start_ns = time.time_ns()       # the monitor opens its window on arrival
             res = call_service(node, capture, CaptureJoints.Request(duration=HOLD),
                                HOLD + 10.0, executor)
-            end_ns = start_ns + round(HOLD * 1e9)
+            end_ns = start_ns + s_to_ns(HOLD)
             if res.error_code != CaptureJoints.Response.SUCCESS:
                 raise SystemExit(f'capture {name}: {res.message}')
             mark = JointState(name=list(res.name), position=list(res.position),
                               velocity=[0.0] * len(res.name), effort=list(res.std))
             mark.header.frame_id = name
-            mark.header.stamp.sec, mark.header.stamp.nanosec = divmod(end_ns, 10**9)
+            mark.header.stamp = ns_to_stamp(end_ns)
             captures.append(mark)
             spin_until(node, lambda: False, SETTLE, executor)
             recording[0] = False
@@ -181,9 +182,7 @@ def make(out: Path, tmp: Path, domain: int) -> None:
         print(f'calibration {cal.id}: rms {cal.rms_residual * 1e3:.4f} mm', flush=True)
     finally:
         writer.close()
-        executor.shutdown(timeout_sec=1.0)
-        node.destroy_node()
-        rclpy.try_shutdown()
+        ros.close()
         suite.stop()
     size = sum(p.stat().st_size for p in out.iterdir())
     print(f'{out}: {writer.message_count} messages, {size} bytes')

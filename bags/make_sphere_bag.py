@@ -5,12 +5,14 @@ suite on a private ROS_DOMAIN_ID with a temporary data_dir, ``cobot-calib record
 ``/cobot_calib/captures`` (every pose kinematic_identifier records: sensor_msgs/JointState,
 frame_id = sphere name, position = the joints averaged over the hold, effort = their standard
 deviation), and ``cobot-calib identify --attach`` collects POSES of the 3 x 625 grid and
-identifies. Its JSON report is stored as ``expected.json``: ``cobot-calib identify --source
-bags/iiwa_spheres`` must give the same parameters from the bag.
+identifies. Its JSON report, with the ``cell``, is stored as ``expected.json``: ``cobot-calib
+replay bags/iiwa_spheres --check`` (and ``identify --source bags/iiwa_spheres``) must give the
+same parameters from the bag.
 """
 from __future__ import annotations
 
 import argparse
+import json
 import os
 from pathlib import Path
 import shutil
@@ -20,8 +22,11 @@ import sys
 import tempfile
 import time
 
+from cobot_calib_ros.ros.marks import CAPTURES_TOPIC
+
 HERE = Path(__file__).resolve().parent
 NAME = 'iiwa_spheres'
+CELL = 'iiwa7_close'
 POSES = 150
 HOLD = 0.05
 CLI = [sys.executable, '-m', 'cobot_calib_ros.cli.main']
@@ -42,11 +47,11 @@ def main(argv=None) -> int:
             tempfile.TemporaryDirectory(prefix='cobot_calib_sample_') as tmp:
         env = dict(os.environ, ROS_DOMAIN_ID=str(domain), COBOT_CALIB_DATA=tmp,
                    ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
-        up = subprocess.Popen(CLI + ['up', '--cell', 'iiwa7_close'], env=env,
+        up = subprocess.Popen(CLI + ['up', '--cell', CELL], env=env,
                               stdout=subprocess.DEVNULL)
         try:
             time.sleep(10.0)            # the suite's nodes, and their publishers, are up
-            record = subprocess.Popen(CLI + ['record', '-o', str(out), '/cobot_calib/captures',
+            record = subprocess.Popen(CLI + ['record', '-o', str(out), CAPTURES_TOPIC,
                                              '--compress', 'zstd'], env=env)
             time.sleep(3.0)
             report = subprocess.run(
@@ -59,7 +64,8 @@ def main(argv=None) -> int:
         finally:
             up.send_signal(signal.SIGINT)
             up.wait(60)
-    (out / 'expected.json').write_text(report.stdout)
+    expected = {'cell': CELL, **json.loads(report.stdout)}
+    (out / 'expected.json').write_text(json.dumps(expected, indent=2) + '\n')
     print(f'{out}: {sum(p.stat().st_size for p in out.iterdir())} bytes')
     return 0
 

@@ -45,10 +45,13 @@ import sys
 import tempfile
 import time
 
+from cobot_calib_ros.paths import DEFAULT_CELL
+from cobot_calib_ros.ros.marks import PROBE_AVERAGES_TOPIC
+
 HERE = Path(__file__).resolve().parent
 REPO = HERE.parent
 NAME = 'trial_close'
-CELL = 'sawyer_close'
+CELL = DEFAULT_CELL
 METHOD = 'five_point_lsq'
 AXIS = 'z'
 CYCLES = 4
@@ -56,7 +59,7 @@ TRIAL_ID = 'sample-five_point_lsq-z'
 MARGIN = 0.05               # [s] of /probe/voltage kept on each side of a probe window
 CLI = [sys.executable, '-m', 'cobot_calib_ros.cli.main']
 VOLTAGE_TOPIC = '/probe/voltage'
-MARKS_TOPIC = '/cobot_calib/probe_averages'
+MARKS_TOPIC = PROBE_AVERAGES_TOPIC
 STATS_TOPIC = '/repeatability'
 
 
@@ -121,6 +124,7 @@ def build(out: Path, raw: Path, data: Path) -> None:
 
     from cobot_calib_ros.api import replay_trial_check as check
     from cobot_calib_ros.bags.reader import open_bag
+    from cobot_calib_ros.ros.time import header_ns, s_to_ns
     from cobot_calib_ros.bags.writer import BagWriter
     from cobot_calib_ros.core.repeatability import point_statistics
 
@@ -175,8 +179,8 @@ def build(out: Path, raw: Path, data: Path) -> None:
               f'the recorded voltages vs the live ones: RP differs by at most {worst:.3e} m',
               flush=True)
         # 3. the sample bag
-        windows = [(mk.t0_ns - round(MARGIN * 1e9),
-                    mk.t0_ns + round((mk.duration + MARGIN) * 1e9)) for mk in marks]
+        windows = [(mk.t0_ns - s_to_ns(MARGIN), mk.t0_ns + s_to_ns(mk.duration + MARGIN))
+                   for mk in marks]
         writer = BagWriter(out, compression='zstd')
         kept = 0
         try:
@@ -185,7 +189,7 @@ def build(out: Path, raw: Path, data: Path) -> None:
                 writer.add_topic(topic, info.type, info.offered_qos, type_hash=info.type_hash)
             for msg in bag.messages([VOLTAGE_TOPIC, MARKS_TOPIC, STATS_TOPIC]):
                 if msg.topic == VOLTAGE_TOPIC:
-                    stamp = check.header_ns(bag.deserialize(msg.rawdata, msg.msgtype))
+                    stamp = header_ns(bag.deserialize(msg.rawdata, msg.msgtype))
                     if not any(lo <= stamp <= hi for lo, hi in windows):
                         continue
                     kept += 1

@@ -52,7 +52,6 @@ from bag_source import BASE_S  # noqa: E402 - the source's numbering
 
 T0 = 1_795_000_000_000_000_000
 STAMP = struct.Struct('<iI')
-NS_PER_S = 1_000_000_000
 PUBLISHED = re.compile(r'published (\d+) messages in ([\d.]+) s \(([\d.]+|inf)x real time\)')
 PUBLISH_CALLS = 20_000
 RATES = ('4', '8', '16', 'max')

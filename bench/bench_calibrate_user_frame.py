@@ -22,6 +22,7 @@ from std_srvs.srv import Trigger
 
 import benchlib
 from benchlib import BenchFailed, Figures, Ros
+from cobot_calib_ros import paths
 from cobot_calib_ros.api import launcher
 
 SOLVER = 'user_frame_solver'
@@ -106,7 +107,7 @@ def measure_interleaved(ros: Ros, targets: list[Target]) -> Figures:
 
 def specs(kind: str, disk_dir: str, ram_dir: str) -> list[launcher.NodeSpec]:
     """Trigger server, solver on disk and solver on tmpfs, in namespace /<kind>."""
-    solver = launcher.suite_specs('sawyer_close', (SOLVER,))[0]
+    solver = launcher.suite_specs(paths.DEFAULT_CELL, (SOLVER,))[0]
     return [benchlib.ScriptSpec(TRIGGER, namespace=kind),
             launcher.NodeSpec(SOLVER, {**solver.params, 'data_dir': disk_dir}, namespace=kind),
             launcher.NodeSpec(SOLVER, {**solver.params, 'data_dir': ram_dir},

@@ -41,6 +41,7 @@ from sensor_msgs.msg import CameraInfo, Image
 
 import benchlib
 from benchlib import BenchFailed, Figures, Ros
+from cobot_calib_ros import paths
 from cobot_calib_ros.api import launcher
 from cobot_calib_ros.core import frames, kinematics
 from cobot_calib_ros.paths import cell_file
@@ -50,7 +51,7 @@ from cobot_calib_ros.sim.camera import Renderer, scaled_camera, SimCamera
 from cobot_calib_ros.sim.robot import SimRobot
 from cobot_calib_ros.sim.scenario import load_simulation
 
-CELL = 'sawyer_close'
+CELL = paths.DEFAULT_CELL
 NODE = 'landmark_detector'
 RESOLUTIONS = ((752, 480), (1280, 800))
 # target -> (node parameters, goal rate [Hz], camera above user (x, y) [m] or the board, height)

@@ -26,7 +26,8 @@ from rclpy.action import ActionClient
 import benchlib
 from benchlib import BenchFailed, Figures
 from cobot_calib_ros.api import launcher
-from cobot_calib_ros.api.client import CallError, run_action, wait_for_suite
+from cobot_calib_ros.ros.calls import CallError, run_action
+from cobot_calib_ros.api.client import wait_for_suite
 from cobot_calib_ros.core import kinematics
 from cobot_calib_ros.core.kinematics import plans
 from cobot_calib_ros.core.kinematics.identification import (all_pairs, register_rigid,

@@ -31,8 +31,10 @@ from sensor_msgs.msg import JointState
 
 import benchlib
 from benchlib import BenchFailed, Figures, Ros
+from cobot_calib_ros import paths
 from cobot_calib_ros.api import launcher
 from cobot_calib_ros.ros import spin
+from cobot_calib_ros.ros.time import NS_PER_S
 
 CAPTURE_CALLS = 50
 CAPTURE_WARMUP = 5          # not counted
@@ -44,7 +46,6 @@ STATUS = {ROBOT: 'mock_robot: health', MONITOR: 'joint_state_monitor: health'}
 COUNT_BEFORE_MARK = {ROBOT: 'published_before_mark', MONITOR: 'received_before_mark'}
 SETTLE_S = 2.0              # [s] of flow before the measured interval starts
 CDR_STAMP = struct.Struct('<iI')  # header.stamp after the 4-byte encapsulation header (LE)
-NS_PER_S = 1_000_000_000
 
 
 @dataclass(frozen=True)
@@ -85,7 +86,7 @@ class Probe:
 
     def _on_joint_state(self, data: bytes) -> None:
         sec, nanosec = CDR_STAMP.unpack_from(data, 4)
-        self.stamps_ns.append(sec * NS_PER_S + nanosec)
+        self.stamps_ns.append(sec * NS_PER_S + nanosec)   # a CDR stamp, read raw
 
     def _on_diagnostics(self, msg: DiagnosticArray) -> None:
         for status in msg.status:
@@ -224,7 +225,7 @@ def measure_capture(ros: Ros, client) -> Figures:
 
 def run_executor(kind: str, seconds: float) -> Figures:
     """The flow and capture figures with every node on executor `kind`."""
-    specs = launcher.suite_specs('sawyer_close', NODES)
+    specs = launcher.suite_specs(paths.DEFAULT_CELL, NODES)
     with benchlib.private_domain() as (domain, env), \
             benchlib.running_suite(f'joint_states_{kind}', specs,
                                    benchlib.executor_env(env, kind)) as suite, \

@@ -17,8 +17,10 @@ from rclpy.action import ActionClient
 
 import benchlib
 from benchlib import BenchFailed, Figures
+from cobot_calib_ros import paths
 from cobot_calib_ros.api import launcher
-from cobot_calib_ros.api.client import CallError, run_action, wait_for_suite
+from cobot_calib_ros.ros.calls import CallError, run_action
+from cobot_calib_ros.api.client import wait_for_suite
 
 CYCLES = 30
 METHODS = ('reference', 'rigid')
@@ -28,7 +30,7 @@ def run_executor(kind: str) -> Figures:
     """Both trials with every node on executor `kind`."""
     figures: Figures = {}
     with benchlib.private_domain() as (domain, env):
-        specs = launcher.suite_specs('sawyer_close', overrides={
+        specs = launcher.suite_specs(paths.DEFAULT_CELL, overrides={
             'repeatability_trial': {'data_dir': env['COBOT_CALIB_DATA']}})
         with benchlib.running_suite(f'trial_{kind}', specs,
                                     benchlib.executor_env(env, kind)) as suite, \

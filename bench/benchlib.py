@@ -2,7 +2,7 @@
 
 Every bench module `bench/bench_*.py` has `run() -> dict[str, tuple[float, str]]` (figure name
 -> (value, unit)); `bench/run_all.py` runs them all. Waits use `call_async` and a `spin_once`
-loop (`cobot_calib_ros.api.client.spin_until`), never `spin_until_future_complete`.
+loop (`cobot_calib_ros.ros.calls.spin_until`), never `spin_until_future_complete`.
 
 Figure names end with their unit (`_ms`, `_hz`, `_percent`, ...; counts say what they count),
 then, for figures measured once per node executor, `_single` or `_events`. The executors are
@@ -22,14 +22,13 @@ from typing import Callable, Iterator
 
 import domain_coordinator
 import numpy as np
-import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
-from rclpy.signals import SignalHandlerOptions
 
 from cobot_calib_ros.api import launcher
-from cobot_calib_ros.api.client import spin_until
+from cobot_calib_ros.ros.calls import spin_until
 from cobot_calib_ros.ros import spin
+from cobot_calib_ros.ros.session import session
 
 BENCH_DIR = Path(__file__).resolve().parent
 REPO_ROOT = BENCH_DIR.parent
@@ -116,19 +115,10 @@ def private_domain() -> Iterator[tuple[int, dict[str, str]]]:
 
 @contextmanager
 def ros_node(name: str, domain: int) -> Iterator[Ros]:
-    """An rclpy context, node and single-threaded executor of the bench process."""
-    context = rclpy.Context()
-    rclpy.init(context=context, domain_id=domain,
-               signal_handler_options=SignalHandlerOptions.NO)
-    node = rclpy.create_node(name, context=context, start_parameter_services=False)
-    executor = SingleThreadedExecutor(context=context)
-    executor.add_node(node)
-    try:
+    """An rclpy context, node and single-threaded executor of the bench process
+    (ros.session on ``domain``)."""
+    with session(name, domain_id=domain) as (node, executor):
         yield Ros(node, executor)
-    finally:
-        executor.shutdown(timeout_sec=1.0)
-        node.destroy_node()
-        context.try_shutdown()
 
 
 @contextmanager

@@ -16,11 +16,14 @@ def share_dir() -> Path:
         return Path(__file__).resolve().parent.parent
 
 
+DEFAULT_CELL = 'sawyer_close'     # the cell every command and node uses unless told
+
+
 def config_dir() -> Path:
     return share_dir() / 'config'
 
 
-def cell_file(name_or_path: str = 'sawyer_close') -> Path:
+def cell_file(name_or_path: str = DEFAULT_CELL) -> Path:
     """A cell YAML by path, or by name from config/cells/."""
     path = Path(name_or_path)
     if path.suffix in ('.yaml', '.yml') or path.exists():

@@ -9,7 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 import numpy as np
 
-from cobot_calib_ros.api.client import call_service, CallError, run_action
+from cobot_calib_ros.ros.calls import call_service, CallError, run_action
 from cobot_calib_ros.core import frames
 
 HAND_EYE_TIMEOUT = 600.0    # [s] for the whole calibration (12 views take 5-60 s here)

@@ -18,28 +18,25 @@ class IdentificationFailed(RuntimeError):
 
 class IdentifyClient:
     """Action calls of an identification on one rclpy node: ``node`` if given, else one of its
-    own (rclpy initialised here and shut down by close())."""
+    own (a ros.session, ended by close())."""
 
     def __init__(self, node=None) -> None:
-        import rclpy
         from rclpy.action import ActionClient
         from cobot_calib_msgs.action import CollectSphereData, IdentifyKinematics
-        self._own = node is None
-        if self._own:
-            rclpy.init(signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
-            node = rclpy.create_node('cobot_calib_identify', start_parameter_services=False)
+        from cobot_calib_ros.ros.session import session
+        self._session = session('cobot_calib_identify') if node is None else None
+        if self._session is not None:
+            node, _ = self._session.__enter__()
         self.node = node
         self.Collect, self.Identify = CollectSphereData, IdentifyKinematics
         self.collect = ActionClient(node, CollectSphereData, 'collect_sphere_data')
         self.identify = ActionClient(node, IdentifyKinematics, 'identify_kinematics')
 
     def close(self) -> None:
-        import rclpy
         self.collect.destroy()
         self.identify.destroy()
-        if self._own:
-            self.node.destroy_node()
-            rclpy.try_shutdown()
+        if self._session is not None:
+            self._session.__exit__(None, None, None)
 
 
 def identify_on_suite(client: IdentifyClient, *, say: Callable[[str], None],
@@ -47,7 +44,9 @@ def identify_on_suite(client: IdentifyClient, *, say: Callable[[str], None],
                       max_configs: int = 0, hold: float = 0.05,
                       validation_configs: int = 125, dry_run: bool = False) -> dict:
     """Collect (source 'mock') or take a collection folder, identify; the report (mm)."""
-    from cobot_calib_ros.api.client import run_action, to_dict, wait_for_suite
+    from cobot_calib_ros.ros.calls import run_action
+    from cobot_calib_ros.ros.types import to_dict
+    from cobot_calib_ros.api.client import wait_for_suite
     wait_for_suite(client.node)
     collections, collect_seconds = {}, {}
     if source == 'mock':
@@ -118,3 +117,29 @@ def _progress(say):
             say(f'  pose {fb.index + 1}/{fb.total} ({fb.target}): {fb.recorded} '
                 f'recorded, {fb.skipped} skipped')
     return on_feedback
+
+
+def identify_from_bag(folder: str | Path, cell_name: str, *, solver: str = 'lm',
+                      loss: str = 'soft_l1', max_configs: int = 0):
+    """(report, outcome) of a recorded sphere session identified offline: the poses
+    kinematic_identifier published on /cobot_calib/captures (frame_id = sphere name), by the
+    same core job as the node. BagError for an unreadable bag; ValueError (or KeyError) when
+    it holds no usable pose or the job refuses the data."""
+    from cobot_calib_ros.bags.sphere_captures import sphere_observations
+    from cobot_calib_ros.core.cell import load_cell
+    from cobot_calib_ros.core.kinematics import model_by_name
+    from cobot_calib_ros.core.kinematics.kinematic_calibration import CalibrationJob
+    from cobot_calib_ros.paths import cell_file
+    cell = load_cell(cell_file(cell_name))
+    model = model_by_name(cell.robot)
+    data, poses = sphere_observations(folder, cell, model)
+    outcome = CalibrationJob(cell, model, data, source=str(folder), solver=solver, loss=loss,
+                             max_configs=max_configs).run()
+    r = outcome.result
+    report = {'source': str(folder), 'poses': poses, 'message': outcome.summary(),
+              'dropped_parameters': [d.name for d in outcome.identifiability.dropped],
+              'identified': [{'name': n, 'value': float(v), 'std': float(sd)} for n, v, sd in
+                             zip(r.free, outcome.free_values, r.std)],
+              'validation': {}, 'validation_workspace': {}, 'solve_seconds': r.solve_seconds,
+              'rms_mm': r.rms_m * 1e3, 'calibration_id': '', 'table6': outcome.table}
+    return report, outcome

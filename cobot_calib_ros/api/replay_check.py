@@ -29,57 +29,35 @@ from dataclasses import dataclass
 import math
 import os
 from pathlib import Path
-import tempfile
 import threading
 import time
 from typing import Callable
 
 import numpy as np
 
-CAPTURES_TOPIC = '/cobot_calib/captures'
+from cobot_calib_ros.api import replay_harness
+from cobot_calib_ros.ros.marks import CAPTURES_TOPIC
+from cobot_calib_ros.ros.time import header_ns, s_to_ns
+
 EXPECTED_FILE = 'expected.yaml'
 TOL_M = 1e-6
 TOL_RAD = 1e-6
-SERVICE_TIMEOUT = 30.0   # [s] for the nodes to come up
+SERVICE_TIMEOUT = replay_harness.SERVICE_TIMEOUT
 MARKS_TIMEOUT = 10.0     # [s] after play for the last marks to arrive
 
 
-class CheckError(RuntimeError):
-    """The check could not run (a missing file, a node that did not come up)."""
+CheckError = replay_harness.CheckError
+
+
+def is_teach_bag(bag) -> bool:
+    """A bag this check applies to: joint states and the capture marks."""
+    return '/joint_states' in bag.topics and CAPTURES_TOPIC in bag.topics
 
 
 def matrix(calibration) -> list[list[float]]:
     """UserFrameCalibration.matrix (row-major 16) as a 4x4 list."""
     m = [float(v) for v in calibration.matrix]
     return [m[4 * i:4 * i + 4] for i in range(4)]
-
-
-def shut_down(player, node, context, suite) -> None:
-    """End a check: its player and client node (either may not exist yet), their rclpy context
-    and the suite of nodes it started."""
-    import rclpy
-    if player is not None:
-        player.destroy_node()
-    if node is not None:
-        node.destroy_node()
-    rclpy.try_shutdown(context=context)
-    suite.stop()
-
-
-def spin_in_background(executor, context) -> Callable[[], None]:
-    """Spin ``executor`` on a thread of its own until the returned function is called."""
-    stop = threading.Event()
-
-    def spin() -> None:
-        while not stop.is_set() and context.ok():
-            executor.spin_once(timeout_sec=0.005)
-    spinner = threading.Thread(target=spin, daemon=True)
-    spinner.start()
-
-    def stop_spinning() -> None:
-        stop.set()
-        spinner.join(timeout=2.0)
-    return stop_spinning
 
 
 def write_expected(path: Path, data: dict, comment: str = '') -> None:
@@ -143,24 +121,18 @@ class CheckResult:
 def run_check(bag_path: str, rate: float = 0.0, say: Callable[[str], None] = print,
               clock_hz: float = 40.0, recapture: bool = False) -> CheckResult:
     """Replay ``bag_path`` through the nodes and compare; see the module doc."""
-    import domain_coordinator
-
     from cobot_calib_ros.bags.reader import open_bag
     expected_path, expected = read_expected(bag_path)
     started = time.monotonic()
-    os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
-    with open_bag(bag_path) as bag, domain_coordinator.domain_id() as domain, \
-            tempfile.TemporaryDirectory(prefix='cobot_calib_check_') as tmp:
+    with open_bag(bag_path) as bag:
         if CAPTURES_TOPIC not in bag.topics or not bag.topics[CAPTURES_TOPIC].count:
             raise CheckError(f'{bag.path}: no {CAPTURES_TOPIC} marks to re-run')
         for warning in bag.warnings:
             say(f'warning: {warning}')
-        wanted = bag.topics[CAPTURES_TOPIC].count
-        holds = [bag.deserialize(m.rawdata, m.msgtype).header.stamp
+        holds = [header_ns(bag.deserialize(m.rawdata, m.msgtype))
                  for m in bag.messages([CAPTURES_TOPIC])]
-        holds = [s.sec * 10**9 + s.nanosec for s in holds]
-        T, rms, marks = _replay_and_calibrate(bag, expected, domain, Path(tmp), rate,
-                                              clock_hz, wanted, say, recapture, holds)
+        T, rms, marks = _replay_and_calibrate(bag, expected, rate, clock_hz, say, recapture,
+                                              holds)
     dt, dr = difference(T, expected['T_base_user'])
     ok = dt < TOL_M and dr < TOL_RAD
     say(f'replayed {marks} captures from {bag_path}; {expected.get("method", "rigid")} frame '
@@ -170,77 +142,49 @@ def run_check(bag_path: str, rate: float = 0.0, say: Callable[[str], None] = pri
                        time.monotonic() - started)
 
 
-def _replay_and_calibrate(bag, expected: dict, domain: int, tmp: Path, rate: float,
-                          clock_hz: float, wanted: int, say, recapture: bool = False,
-                          holds: list[int] = ()):
-    import rclpy
-    from rclpy.context import Context
-    from rclpy.executors import SingleThreadedExecutor
-    from rclpy.parameter import Parameter
+def _replay_and_calibrate(bag, expected: dict, rate: float, clock_hz: float, say,
+                          recapture: bool, holds: list[int]):
     from rclpy.qos import QoSProfile, ReliabilityPolicy
-    from rclpy.signals import SignalHandlerOptions
     from sensor_msgs.msg import JointState
     from cobot_calib_msgs.srv import CalibrateUserFrame
 
     from cobot_calib_ros import paths
-    from cobot_calib_ros.api.client import call_service, CallError, spin_until
-    from cobot_calib_ros.api.launcher import NodeSpec, Suite
-    from cobot_calib_ros.bags.player import BagPlayer, spinning
+    from cobot_calib_ros.api.launcher import NodeSpec
+    from cobot_calib_ros.ros.calls import call_service, CallError
 
-    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), COBOT_CALIB_DATA=str(tmp / 'data'))
-    env.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
-    cell = str(paths.cell_file(expected.get('cell', 'sawyer_close')))
     kinematics = str(expected.get('kinematics', 'nominal'))
-    sim = {'use_sim_time': 'true'}
-    suite = Suite(tmp / 'log')
-    suite.start([
-        NodeSpec('joint_state_monitor',
-                 {**sim, 'expected_rate_hz': str(expected.get('joint_states_hz', 1000.0))}),
-        NodeSpec('user_frame_solver', {**sim, 'cell_file': cell, 'kinematics': kinematics,
-                                       'data_dir': str(tmp / 'data')}),
-    ], env=env)
-    say(f'joint_state_monitor and user_frame_solver on ROS_DOMAIN_ID={domain} (sim time)')
-    context = Context()
-    rclpy.init(context=context, domain_id=domain,
-               signal_handler_options=SignalHandlerOptions.NO)
-    node = player = None
-    try:
-        node = rclpy.create_node('cobot_calib_replay_check', context=context,
-                                 parameter_overrides=[Parameter('use_sim_time', value=True)])
-        executor = SingleThreadedExecutor(context=context)
-        executor.add_node(node)
+    wanted = len(holds)
+
+    def specs(tmp: Path) -> list:
+        return [NodeSpec('joint_state_monitor',
+                         {'expected_rate_hz': str(expected.get('joint_states_hz', 1000.0))}),
+                NodeSpec('user_frame_solver', {
+                    'cell_file': str(paths.cell_file(expected.get('cell', paths.DEFAULT_CELL))),
+                    'kinematics': kinematics, 'data_dir': str(tmp / 'data')})]
+    with replay_harness.replay_suite(specs, 'cobot_calib_replay_check', say,
+                                     data_dir=True) as harness:
+        node = harness.node
         marks: list[JointState] = []
         node.create_subscription(JointState, CAPTURES_TOPIC, marks.append,
                                  QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE))
         calibrate = node.create_client(CalibrateUserFrame, 'calibrate_user_frame')
-        if not spin_until(node, calibrate.service_is_ready, SERVICE_TIMEOUT, executor):
-            raise CheckError(f'calibrate_user_frame did not come up; logs in {suite.log_dir}'
-                             + _failed(suite))
-        player = BagPlayer(bag, rate=rate, topics=['/joint_states', CAPTURES_TOPIC],
-                           clock_hz=clock_hz, wait_subscribers=10.0, report=say,
-                           context=context)
-        stop_spinning = spin_in_background(executor, context)
+        harness.wait_for(calibrate.service_is_ready, 'calibrate_user_frame')
         played: dict = {}
-
-        def play() -> None:
-            try:
-                with spinning(player):
-                    played['result'] = player.play()
-            except Exception as exc:  # noqa: BLE001 - reported by the caller
-                played['error'] = exc
         recaptured = None
-        try:
+        with harness.playing(bag, ['/joint_states', CAPTURES_TOPIC], rate, clock_hz) as player:
+            def play() -> None:
+                try:
+                    played['result'] = player.play()
+                except Exception as exc:  # noqa: BLE001 - reported by the caller
+                    played['error'] = exc
             playing = threading.Thread(target=play, daemon=True)
             playing.start()
             if recapture:
                 recaptured = _recapture(node, holds, float(expected.get('hold_s', 0.5)),
                                         playing, say)
             playing.join()
-            deadline = time.monotonic() + MARKS_TIMEOUT
-            while len(marks) < wanted and time.monotonic() < deadline:
-                time.sleep(0.02)
-        finally:
-            stop_spinning()
+            replay_harness.drain(lambda: len(marks), lambda: len(marks) >= wanted,
+                                 MARKS_TIMEOUT)
         if 'error' in played:
             raise CheckError(f'replay failed: {played["error"]}')
         result = played['result']
@@ -264,7 +208,7 @@ def _replay_and_calibrate(bag, expected: dict, domain: int, tmp: Path, rate: flo
             joint_captures=[JointState(name=list(m.name), position=list(m.position))
                             for m in marks])
         try:
-            res = call_service(node, calibrate, request, 60.0, executor)
+            res = call_service(node, calibrate, request, 60.0, harness.executor)
         except CallError as exc:
             raise CheckError(str(exc)) from None
         if res.error_code != CalibrateUserFrame.Response.SUCCESS:
@@ -272,8 +216,6 @@ def _replay_and_calibrate(bag, expected: dict, domain: int, tmp: Path, rate: flo
                              f'{res.message}')
         return (np.array(matrix(res.calibration)), float(res.calibration.rms_residual),
                 len(marks))
-    finally:
-        shut_down(player, node, context, suite)
 
 
 def _recapture(node, holds: list[int], hold_s: float, playing, say) -> list:
@@ -289,7 +231,7 @@ def _recapture(node, holds: list[int], hold_s: float, playing, say) -> list:
         time.sleep(0.01)
     out = []
     for end_ns in holds:
-        start_ns = end_ns - round(hold_s * 1e9)
+        start_ns = end_ns - s_to_ns(hold_s)
         while node.get_clock().now().nanoseconds < start_ns:
             if not playing.is_alive():
                 raise CheckError('the replay ended before a hold window started; '
@@ -306,14 +248,6 @@ def _recapture(node, holds: list[int], hold_s: float, playing, say) -> list:
             raise CheckError(f'capture_joints on the replay: {res.message}')
         out.append(JointState(name=list(res.name), position=list(res.position)))
     return out
-
-
-def _failed(suite) -> str:
-    failed = suite.failed()
-    if not failed:
-        return ''
-    return '; exited: ' + ', '.join(f'{n} ({c}): {suite.log_tail(n, 5)}'
-                                    for n, c in failed.items())
 
 
 def format_matrix(T: np.ndarray) -> str:

@@ -30,21 +30,19 @@ image and deterministic, so which pass brought an image's landmarks does not cha
 from __future__ import annotations
 
 from dataclasses import dataclass
-import os
-from pathlib import Path
 import re
-import tempfile
 import threading
 import time
 from typing import Callable
 
 import numpy as np
 
-from cobot_calib_ros.api import replay_check
+from cobot_calib_ros.api import replay_check, replay_harness
+from cobot_calib_ros.ros.marks import CAPTURES_TOPIC as MARKS_TOPIC
+from cobot_calib_ros.ros.time import header_ns
 
 IMAGE_TOPIC = '/wrist_camera/image_raw'
 INFO_TOPIC = '/wrist_camera/camera_info'
-MARKS_TOPIC = '/cobot_calib/captures'
 USER_FRAME_TOPIC = '/user_frame'
 EXPECTED_FILE = replay_check.EXPECTED_FILE
 TOL_M = 1e-6
@@ -54,7 +52,6 @@ MAX_RATE = 20.0
 PASSES = 4
 MIN_RATE = 0.5
 WARMUP = 1.0             # [s] after the player sees the detector's subscriptions
-SERVICE_TIMEOUT = 30.0   # [s] for landmark_detector to come up
 DRAIN_TIMEOUT = 2.0      # [s] after a pass without a new landmarks message: the rest is lost
 DEFAULT_MAX_RMS = 1e-3   # user_frame_solver's defaults, when expected.yaml does not say
 DEFAULT_MAX_SCALE = 0.01
@@ -62,10 +59,6 @@ MARKER = re.compile(r'landmark_(\d+)$')
 
 
 CheckError = replay_check.CheckError
-
-
-def header_ns(msg) -> int:
-    return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
 
 
 def marker_of(mark) -> int:
@@ -164,8 +157,6 @@ class LandmarkCheckResult:
 def run_check(bag_path: str, rate: float = DEFAULT_RATE, say: Callable[[str], None] = print,
               clock_hz: float = 40.0) -> LandmarkCheckResult:
     """Replay the bag's images through landmark_detector, fit, compare; see the module doc."""
-    import domain_coordinator
-
     from cobot_calib_ros.api.replay_check import difference
     from cobot_calib_ros.bags.reader import open_bag
     if not 0 < rate <= MAX_RATE:
@@ -177,7 +168,6 @@ def run_check(bag_path: str, rate: float = DEFAULT_RATE, say: Callable[[str], No
         raise CheckError(f'{expected_path}: hand_eye {expected["hand_eye"]!r}; only the '
                          "cell's nominal hand-eye can be checked")
     started = time.monotonic()
-    os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     with open_bag(bag_path) as bag:
         for topic in (IMAGE_TOPIC, INFO_TOPIC, MARKS_TOPIC):
             if topic not in bag.topics or not bag.topics[topic].count:
@@ -188,10 +178,7 @@ def run_check(bag_path: str, rate: float = DEFAULT_RATE, say: Callable[[str], No
         stamps = {(m.topic, m.timestamp_ns): header_ns(bag.deserialize(m.rawdata, m.msgtype))
                   for m in bag.messages([IMAGE_TOPIC, INFO_TOPIC])}
         needed = {s for (topic, _), s in stamps.items() if topic == IMAGE_TOPIC}
-        with domain_coordinator.domain_id() as domain, \
-                tempfile.TemporaryDirectory(prefix='cobot_calib_check_') as tmp:
-            received, passes = _replay(bag, expected, domain, Path(tmp), rate, clock_hz,
-                                       needed, stamps, say)
+        received, passes = _replay(bag, expected, rate, clock_hz, needed, stamps, say)
     landmarks = [received[s] for s in sorted(needed)]
     pairs = pair(marks, landmarks)
     views = expected.get('views') or []
@@ -248,109 +235,58 @@ class _Missing:
                 if self._stamps.get((m.topic, m.timestamp_ns)) in self._missing)
 
 
-def _replay(bag, expected: dict, domain: int, tmp: Path, rate: float, clock_hz: float,
-            needed: set[int], stamps: dict, say) -> tuple[dict, int]:
+def _replay(bag, expected: dict, rate: float, clock_hz: float, needed: set[int], stamps: dict,
+            say) -> tuple[dict, int]:
     """Play the images and camera_info into a landmark_detector, pass after pass until every
     image stamped ``needed`` came back as a landmarks message (at most PASSES; a later pass
     plays only the images still missing, with their camera_info): ({image stamp [ns]: the first
     landmarks message for it}, passes). ``stamps``: (topic, log time) -> header stamp."""
-    import rclpy
-    from rclpy.context import Context
-    from rclpy.executors import SingleThreadedExecutor
-    from rclpy.parameter import Parameter
     from rclpy.qos import QoSProfile, ReliabilityPolicy
-    from rclpy.signals import SignalHandlerOptions
     from cobot_calib_msgs.msg import Landmarks
 
     from cobot_calib_ros import paths
-    from cobot_calib_ros.api.client import spin_until
-    from cobot_calib_ros.api.launcher import NodeSpec, Suite
-    from cobot_calib_ros.bags.player import BagPlayer, spinning
+    from cobot_calib_ros.api.launcher import NodeSpec
 
-    env = dict(os.environ, ROS_DOMAIN_ID=str(domain))
-    env.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
-    cell = str(paths.cell_file(str(expected.get('cell', 'sawyer_close'))))
-    suite = Suite(tmp / 'log')
-    suite.start([NodeSpec('landmark_detector', {'use_sim_time': 'true', 'cell_file': cell})],
-                env=env)
-    say(f'landmark_detector on ROS_DOMAIN_ID={domain} (sim time)')
-    context = Context()
-    rclpy.init(context=context, domain_id=domain, signal_handler_options=SignalHandlerOptions.NO)
-    node = player = None
     received: dict[int, object] = {}
     lock = threading.Lock()
-    try:
-        node = rclpy.create_node('cobot_calib_replay_landmark_check', context=context,
-                                 parameter_overrides=[Parameter('use_sim_time', value=True)])
-        executor = SingleThreadedExecutor(context=context)
-        executor.add_node(node)
 
-        def on_landmarks(msg: Landmarks) -> None:
-            with lock:
-                received.setdefault(header_ns(msg), msg)
-        sub = node.create_subscription(Landmarks, 'landmarks', on_landmarks,
-                                       QoSProfile(depth=100,
-                                                  reliability=ReliabilityPolicy.RELIABLE))
-        if not spin_until(node, lambda: sub.get_publisher_count() > 0, SERVICE_TIMEOUT,
-                          executor):
-            raise CheckError(f'landmark_detector did not come up; logs in {suite.log_dir}'
-                             + _failed(suite))
-        player = BagPlayer(bag, rate=rate, topics=[IMAGE_TOPIC, INFO_TOPIC], clock_hz=clock_hz,
-                           wait_subscribers=10.0, report=say, context=context)
-        stop_spinning = replay_check.spin_in_background(executor, context)
-        passes = 0
-        try:
-            with spinning(player):
-                if player.wait_for_subscribers():
-                    raise CheckError('landmark_detector did not subscribe to the camera '
-                                     f'within 10 s; logs in {suite.log_dir}' + _failed(suite))
-                time.sleep(WARMUP)
-                for passes in range(1, PASSES + 1):
-                    if passes > 1:
-                        player.rate = max(min(rate, MIN_RATE), player.rate / 2)
-                        with lock:
-                            player.bag = _Missing(bag, stamps, needed - set(received))
-                    result = player.play()
-                    _drain(received, lock, needed)
-                    with lock:
-                        missing = len(needed - set(received))
-                    say(f'pass {passes}: replayed {result.published} messages in '
-                        f'{result.wall_s:.2f} s ({result.speed:.1f}x real time, rate '
-                        f'{player.rate:g}); '
-                        + (f'{missing} of {len(needed)} images without landmarks yet'
-                           if missing else f'landmarks of all {len(needed)} images in'))
-                    if not missing:
-                        break
-        finally:
-            stop_spinning()
+    def on_landmarks(msg: Landmarks) -> None:
         with lock:
-            lost = sorted(needed - set(received))
+            received.setdefault(header_ns(msg), msg)
+
+    def missing() -> set[int]:
+        with lock:
+            return needed - set(received)
+    cell = str(paths.cell_file(str(expected.get('cell', paths.DEFAULT_CELL))))
+    with replay_harness.replay_suite(
+            lambda tmp: [NodeSpec('landmark_detector', {'cell_file': cell})],
+            'cobot_calib_replay_landmark_check', say) as harness:
+        sub = harness.node.create_subscription(
+            Landmarks, 'landmarks', on_landmarks,
+            QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE))
+        harness.wait_for(lambda: sub.get_publisher_count() > 0, 'landmark_detector')
+        passes = 0
+        with harness.playing(bag, [IMAGE_TOPIC, INFO_TOPIC], rate, clock_hz,
+                             waits_for='landmark_detector') as player:
+            time.sleep(WARMUP)
+            for passes in replay_harness.passes(player, rate, PASSES, MIN_RATE):
+                if passes > 1:
+                    player.bag = _Missing(bag, stamps, missing())
+                result = player.play()
+                replay_harness.drain(lambda: len(received), lambda: not missing(),
+                                     DRAIN_TIMEOUT)
+                lost = len(missing())
+                say(f'pass {passes}: replayed {result.published} messages in '
+                    f'{result.wall_s:.2f} s ({result.speed:.1f}x real time, rate '
+                    f'{player.rate:g}); '
+                    + (f'{lost} of {len(needed)} images without landmarks yet'
+                       if lost else f'landmarks of all {len(needed)} images in'))
+                if not lost:
+                    break
+        lost = sorted(missing())
         if lost:
             raise CheckError(f'{len(lost)} of {len(needed)} images (first stamped {lost[0]} ns) '
                              f'gave no landmarks in {PASSES} passes; replay at a lower --rate; '
-                             f'logs in {suite.log_dir}')
-        return dict(received), passes
-    finally:
-        replay_check.shut_down(player, node, context, suite)
-
-
-def _drain(received: dict, lock, needed: set[int]) -> None:
-    """Wait until every needed image is in, or none came for DRAIN_TIMEOUT."""
-    with lock:
-        count = len(received)
-    quiet = time.monotonic()
-    while time.monotonic() - quiet < DRAIN_TIMEOUT:
-        time.sleep(0.02)
+                             f'logs in {harness.suite.log_dir}')
         with lock:
-            if needed <= set(received):
-                return
-            if len(received) != count:
-                count, quiet = len(received), time.monotonic()
-
-
-def _failed(suite) -> str:
-    failed = suite.failed()
-    if not failed:
-        return ''
-    return '; exited: ' + ', '.join(f'{n} ({c}): {suite.log_tail(n, 5)}'
-                                    for n, c in failed.items())
+            return dict(received), passes

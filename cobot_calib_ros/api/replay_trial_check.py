@@ -37,16 +37,17 @@ from dataclasses import dataclass
 import math
 import os
 from pathlib import Path
-import tempfile
 import time
 from typing import Callable
 
 import numpy as np
 
-from cobot_calib_ros.api import replay_check
+from cobot_calib_ros.api import replay_check, replay_harness
+from cobot_calib_ros.ros import marks
+from cobot_calib_ros.ros.time import header_ns
 
 VOLTAGE_TOPIC = '/probe/voltage'
-MARKS_TOPIC = '/cobot_calib/probe_averages'
+MARKS_TOPIC = marks.PROBE_AVERAGES_TOPIC
 STATS_TOPIC = '/repeatability'
 EXPECTED_FILE = replay_check.EXPECTED_FILE
 TOL_M = 1e-6
@@ -55,7 +56,6 @@ MAX_RATE = 20.0
 PASSES = 4               # replays of the bag at most, until every averaged reading came back
 MIN_RATE = 1.0           # a pass after a lossy one goes at half the rate, down to this
 WARMUP = 1.0             # [s] after the player sees proximity_sensor's subscription
-SERVICE_TIMEOUT = 30.0   # [s] for proximity_sensor to come up
 DRAIN_TIMEOUT = 1.0      # [s] after a pass without a new distance: the rest is lost
 TABLE_KEYS = ('calibration_distance', 'calibration_voltage', 'saturation_margin')
 
@@ -63,41 +63,15 @@ TABLE_KEYS = ('calibration_distance', 'calibration_voltage', 'saturation_margin'
 CheckError = replay_check.CheckError
 
 
-@dataclass(frozen=True)
-class Mark:
-    """One probe/average proximity_sensor served (a MARKS_TOPIC message)."""
-
-    t0_ns: int              # window start, the node clock [ns]
-    duration: float         # [s]
-    distance: float         # [m]
-    std: float              # [m]
-    sample_count: int
-    rejected_count: int
-    error_code: int
-    reading_status: int
-    stamps_ns: tuple[int, ...]   # of the readings the window held, in their live order
-
-    @property
-    def ok(self) -> bool:
-        return self.error_code == 0          # AverageProximity.Response.SUCCESS
-
-
-def header_ns(msg) -> int:
-    return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+Mark = marks.AverageMark
 
 
 def mark_of(msg) -> Mark:
-    """A MARKS_TOPIC message (sensor_msgs/JointState: name = AVERAGE_FIELDS) as a Mark."""
-    values = dict(zip(msg.name, msg.position))
+    """A MARKS_TOPIC message as a Mark (ros.marks.read_average_mark); CheckError if malformed."""
     try:
-        return Mark(header_ns(msg), float(values['duration']), float(values['distance']),
-                    float(values['std']), int(values['sample_count']),
-                    int(values['rejected_count']), int(values['error_code']),
-                    int(values['reading_status']),
-                    tuple(header_ns(msg) + round(v) for v in msg.velocity))
-    except KeyError as exc:
-        raise CheckError(f'a {MARKS_TOPIC} message without {exc.args[0]!r} (names: '
-                         f'{list(msg.name)})') from None
+        return marks.read_average_mark(msg)
+    except ValueError as exc:
+        raise CheckError(str(exc)) from None
 
 
 def read_marks(bag) -> list[Mark]:
@@ -224,8 +198,6 @@ class TrialCheckResult:
 def run_check(bag_path: str, rate: float = DEFAULT_RATE, say: Callable[[str], None] = print,
               clock_hz: float = 40.0) -> TrialCheckResult:
     """Replay the bag's voltages through proximity_sensor and compare RP; see the module doc."""
-    import domain_coordinator
-
     from cobot_calib_ros.bags.reader import open_bag
     from cobot_calib_ros.core.repeatability import point_statistics
     if not 0 < rate <= MAX_RATE:
@@ -233,7 +205,6 @@ def run_check(bag_path: str, rate: float = DEFAULT_RATE, say: Callable[[str], No
                          f'(proximity_sensor takes the probe best effort); got {rate:g}')
     expected_path, expected = read_expected(bag_path)
     started = time.monotonic()
-    os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     with open_bag(bag_path) as bag:
         for topic in (VOLTAGE_TOPIC, MARKS_TOPIC):
             if topic not in bag.topics or not bag.topics[topic].count:
@@ -248,11 +219,8 @@ def run_check(bag_path: str, rate: float = DEFAULT_RATE, say: Callable[[str], No
         if bad:
             raise CheckError(f'{expected_path}: readings refer to mark #{bad[0]}, the bag has '
                              f'{len(marks)} marks')
-        with domain_coordinator.domain_id() as domain, \
-                tempfile.TemporaryDirectory(prefix='cobot_calib_check_') as tmp:
-            needed = {stamp for mark in marks for stamp in mark.stamps_ns}
-            samples = _replay(bag, expected, domain, Path(tmp), rate, clock_hz, wanted, needed,
-                              say)
+        needed = {stamp for mark in marks for stamp in mark.stamps_ns}
+        samples = _replay(bag, expected, rate, clock_hz, wanted, needed, say)
     try:
         rebuilt = rebuild_marks(marks, samples)
     except LostReading as exc:
@@ -288,102 +256,53 @@ def run_check(bag_path: str, rate: float = DEFAULT_RATE, say: Callable[[str], No
                             len(samples), time.monotonic() - started)
 
 
-def _replay(bag, expected: dict, domain: int, tmp: Path, rate: float, clock_hz: float,
-            wanted: int, needed: set[int], say) -> list[tuple[int, float, int]]:
+def _replay(bag, expected: dict, rate: float, clock_hz: float, wanted: int, needed: set[int],
+            say) -> list[tuple[int, float, int]]:
     """Play /probe/voltage into a proximity_sensor, pass after pass until the readings
     stamped ``needed`` [ns] came back (at most PASSES); its probe/distance readings as
     (stamp [ns], distance [m], status), in the order they arrived (all passes)."""
-    import rclpy
-    from rclpy.context import Context
-    from rclpy.executors import SingleThreadedExecutor
-    from rclpy.parameter import Parameter
     from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
-    from rclpy.signals import SignalHandlerOptions
     from cobot_calib_msgs.msg import ProximityReading
 
-    from cobot_calib_ros.api.client import spin_until
-    from cobot_calib_ros.api.launcher import NodeSpec, Suite
-    from cobot_calib_ros.bags.player import BagPlayer, spinning
+    from cobot_calib_ros.api.launcher import NodeSpec
     from cobot_calib_ros.core.sensors.probe import ReadingStatus
 
-    env = dict(os.environ, ROS_DOMAIN_ID=str(domain))
-    env.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
-    params = {'use_sim_time': 'true'}
+    params = {}
     table = expected.get('proximity_sensor') or {}
     for key in TABLE_KEYS:
         if key in table:
             value = table[key]
             params[key] = (('[' + ', '.join(repr(float(v)) for v in value) + ']')
                            if isinstance(value, list) else repr(float(value)))
-    suite = Suite(tmp / 'log')
-    suite.start([NodeSpec('proximity_sensor', params)], env=env)
-    say(f'proximity_sensor on ROS_DOMAIN_ID={domain} (sim time)')
-    context = Context()
-    rclpy.init(context=context, domain_id=domain, signal_handler_options=SignalHandlerOptions.NO)
-    node = player = None
-    try:
-        node = rclpy.create_node('cobot_calib_replay_trial_check', context=context,
-                                 parameter_overrides=[Parameter('use_sim_time', value=True)])
-        executor = SingleThreadedExecutor(context=context)
-        executor.add_node(node)
-        samples: list[tuple[int, float, int]] = []
+    samples: list[tuple[int, float, int]] = []
 
-        def on_distance(msg: ProximityReading) -> None:
-            samples.append((header_ns(msg), msg.distance, ReadingStatus(msg.status)))
-        sub = node.create_subscription(
+    def on_distance(msg: ProximityReading) -> None:
+        samples.append((header_ns(msg), msg.distance, ReadingStatus(msg.status)))
+    with replay_harness.replay_suite(lambda tmp: [NodeSpec('proximity_sensor', params)],
+                                     'cobot_calib_replay_trial_check', say) as harness:
+        sub = harness.node.create_subscription(
             ProximityReading, 'probe/distance', on_distance,
             QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=wanted + 100,
                        reliability=ReliabilityPolicy.BEST_EFFORT))
-        if not spin_until(node, lambda: sub.get_publisher_count() > 0, SERVICE_TIMEOUT,
-                          executor):
-            raise CheckError(f'proximity_sensor did not come up; logs in {suite.log_dir}'
-                             + _failed(suite))
-        player = BagPlayer(bag, rate=rate, topics=[VOLTAGE_TOPIC], clock_hz=clock_hz,
-                           wait_subscribers=10.0, report=say, context=context)
-        stop_spinning = replay_check.spin_in_background(executor, context)
-        try:
-            with spinning(player):
-                if player.wait_for_subscribers():
-                    raise CheckError('proximity_sensor did not subscribe to probe/voltage '
-                                     f'within 10 s; logs in {suite.log_dir}' + _failed(suite))
-                time.sleep(WARMUP)
-                for attempt in range(1, PASSES + 1):
-                    if attempt > 1:
-                        player.rate = max(min(rate, MIN_RATE), player.rate / 2)
-                    before = len(samples)
-                    result = player.play()
-                    _drain(samples, before + wanted)
-                    missing = len(needed - {x[0] for x in samples})
-                    say(f'pass {attempt}: replayed {result.published} voltages in '
-                        f'{result.wall_s:.2f} s ({result.speed:.1f}x real time), '
-                        f'{len(samples) - before}/{wanted} distances back; '
-                        + (f'{missing} of the {len(needed)} readings the averages need still '
-                           'missing' if missing else
-                           f'all {len(needed)} readings the averages need are in'))
-                    if not missing:
-                        break
-        finally:
-            stop_spinning()
+        harness.wait_for(lambda: sub.get_publisher_count() > 0, 'proximity_sensor')
+        with harness.playing(bag, [VOLTAGE_TOPIC], rate, clock_hz,
+                             waits_for='proximity_sensor') as player:
+            time.sleep(WARMUP)
+            for attempt in replay_harness.passes(player, rate, PASSES, MIN_RATE):
+                before = len(samples)
+                result = player.play()
+                replay_harness.drain(lambda: len(samples),
+                                     lambda: len(samples) >= before + wanted, DRAIN_TIMEOUT)
+                missing = len(needed - {x[0] for x in samples})
+                say(f'pass {attempt}: replayed {result.published} voltages in '
+                    f'{result.wall_s:.2f} s ({result.speed:.1f}x real time), '
+                    f'{len(samples) - before}/{wanted} distances back; '
+                    + (f'{missing} of the {len(needed)} readings the averages need still '
+                       'missing' if missing else
+                       f'all {len(needed)} readings the averages need are in'))
+                if not missing:
+                    break
         return list(samples)
-    finally:
-        replay_check.shut_down(player, node, context, suite)
-
-
-def _drain(samples: list, wanted: int) -> None:
-    """Wait until ``wanted`` readings are in, or none came for DRAIN_TIMEOUT."""
-    count, quiet = len(samples), time.monotonic()
-    while len(samples) < wanted and time.monotonic() - quiet < DRAIN_TIMEOUT:
-        time.sleep(0.02)
-        if len(samples) != count:
-            count, quiet = len(samples), time.monotonic()
-
-
-def _failed(suite) -> str:
-    failed = suite.failed()
-    if not failed:
-        return ''
-    return '; exited: ' + ', '.join(f'{n} ({c}): {suite.log_tail(n, 5)}'
-                                    for n, c in failed.items())
 
 
 def format_rp(values) -> str:

@@ -19,9 +19,9 @@ from rosbags.interfaces import Qos
 
 from cobot_calib_ros.bags.metadata import duration_ns
 from cobot_calib_ros.bags.reader import Bag, TopicInfo
+from cobot_calib_ros.ros.time import split_ns
 
 INDENT = 19            # "Topic information: " (the longest label) is 19 wide
-NS_PER_S = 1_000_000_000
 TIME_MAX = 2**63 - 1
 
 
@@ -104,13 +104,13 @@ def service_type(msgtype: str) -> str:
 
 
 def _seconds(ns: int) -> str:
-    sec, frac = divmod(int(ns), NS_PER_S)
+    sec, frac = split_ns(ns)
     return f'{sec}.{frac:09d}'
 
 
 def format_time_point(ns: int) -> str:
     """``%b %e %Y %H:%M:%S.nnnnnnnnn (s.nnnnnnnnn)`` in local time, as rosbag2 prints it."""
-    sec, frac = divmod(int(ns), NS_PER_S)
+    sec, frac = split_ns(ns)
     try:
         local = time.localtime(sec)
         date = time.strftime('%b %e %Y', local)

@@ -17,6 +17,8 @@ from dataclasses import dataclass, field
 from rosbags.interfaces import (Qos, QosDurability, QosHistory, QosLiveliness, QosReliability,
                                 QosTime)
 
+from cobot_calib_ros.ros.time import NS_PER_S
+
 VERSION = 9                      # Jazzy's rosbag2 metadata version
 DEFAULT_DISTRO = 'jazzy'
 INFINITE = QosTime(9223372036, 854775807)   # RMW_DURATION_INFINITE as rmw_time_t
@@ -45,7 +47,7 @@ def is_infinite(value: QosTime) -> bool:
 
 def duration_ns(value: QosTime) -> int | None:
     """A finite, non-zero QoS duration in ns; None for infinite/default."""
-    return None if is_infinite(value) else value.sec * 1_000_000_000 + value.nsec
+    return None if is_infinite(value) else value.sec * NS_PER_S + value.nsec
 
 
 def _policy(value) -> str:

@@ -56,7 +56,7 @@ from cobot_calib_ros.bags.metadata import duration_ns
 from cobot_calib_ros.bags.reader import Bag, open_bag
 from cobot_calib_ros.bags.recorder import declare_strings
 from cobot_calib_ros.ros.params import read_once
-from cobot_calib_ros.ros.time import ns_to_stamp
+from cobot_calib_ros.ros.time import ns_to_stamp, NS_PER_S
 
 NODE_NAME = 'bag_player'
 DEPTH = 1000                 # keep-last depth of every replay publisher
@@ -65,7 +65,6 @@ FINAL_ACK_TIMEOUT = 5.0      # [s] after the last message (Fast DDS acknowledges
                              # 3 s heartbeat period)
 LATCHED_TOPICS = ('/tf_static',)
 SPIN_PERIOD = 0.05           # [s]
-NS_PER_S = 1_000_000_000
 
 
 def replay_qos(topic: str, offered: list[Qos], depth: int = DEPTH) -> QoSProfile:
@@ -330,7 +329,7 @@ class BagPlayer(Node):
 
 
 def _message_class(bag: Bag, topic: str):
-    from cobot_calib_ros.api.client import import_type
+    from cobot_calib_ros.ros.types import import_type
     msgtype = bag.topics[topic].type
     try:
         return import_type(msgtype)

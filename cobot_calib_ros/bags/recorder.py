@@ -5,7 +5,7 @@ such as action and service-event topics, only with ``include_hidden``). The grap
 every SCAN_PERIOD (faster while the recording starts), so topics whose first publisher shows up
 later are recorded from then on. Each topic is subscribed raw (serialized bytes, never
 deserialised) with a QoS every publisher can match (best effort if any offers it, transient
-local only if all do: api.client.subscription_qos) and keep-last DEPTH; the bag stores the QoS
+local only if all do: ros.graph.subscription_qos) and keep-last DEPTH; the bag stores the QoS
 each publisher offered and the type hash the graph reports.
 
 Timestamps as Jazzy's recorder takes them: receive time from the middleware (the node clock
@@ -41,13 +41,13 @@ from cobot_calib_ros.bags.errors import BagError
 from cobot_calib_ros.bags.writer import BagWriter
 from cobot_calib_ros.ros import spin
 from cobot_calib_ros.ros.params import read_once
+from cobot_calib_ros.ros.time import NS_PER_S
 
 NODE_NAME = 'bag_recorder'
 DEPTH = 1000                  # keep-last depth of each subscription (1 kHz bursts)
 SCAN_PERIOD = 1.0             # [s] between graph scans ...
 STARTUP_SCAN_PERIOD = 0.25    # [s] ... and during the first STARTUP_SCANS_S
 STARTUP_SCANS_S = 3.0
-NS_PER_S = 1_000_000_000
 
 
 def bag_qos(profile) -> Qos:
@@ -156,7 +156,8 @@ class BagRecorder(Node):
             self._subscribe(name)
 
     def _subscribe(self, topic: str) -> None:
-        from cobot_calib_ros.api.client import import_type, subscription_qos
+        from cobot_calib_ros.ros.types import import_type
+        from cobot_calib_ros.ros.graph import subscription_qos
         publishers = self.get_publishers_info_by_topic(topic)
         if not publishers:
             return                              # no publisher yet: the type is not settled

@@ -11,8 +11,8 @@ from pathlib import Path
 
 from cobot_calib_ros.bags.reader import open_bag
 from cobot_calib_ros.core.kinematics.identification import SphereObservations
+from cobot_calib_ros.ros.marks import captured_joints, CAPTURES_TOPIC
 
-CAPTURES_TOPIC = '/cobot_calib/captures'
 
 
 def is_bag(folder: str | Path) -> bool:
@@ -32,7 +32,7 @@ def sphere_observations(folder: str | Path, cell, model) -> tuple[SphereObservat
                          f'cell {cell.name}; record that topic during collect_sphere_data')
     order = list(model.joint_names)
     try:
-        q = [[dict(zip(c.name, c.position))[j] for j in order] for c in rows]
+        q = [captured_joints(c, order) for c in rows]
     except KeyError as e:
         raise ValueError(f'{folder}: a capture lacks joint {e} of {order}') from None
     return SphereObservations(q, [names.index(c.header.frame_id) for c in rows],

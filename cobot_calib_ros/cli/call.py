@@ -33,7 +33,7 @@ def add_parser(subparsers):
 
 
 def run(args) -> int:
-    from cobot_calib_ros.api.client import FieldError
+    from cobot_calib_ros.ros.fields import FieldError
     try:
         type_name, values = _positionals(args)
         data = _load_yaml(values)
@@ -57,7 +57,7 @@ def _positionals(args) -> tuple[str | None, str | None]:
 
 
 def _srv(type_name: str) -> str:
-    from cobot_calib_ros.api.client import service_type_name
+    from cobot_calib_ros.ros.types import service_type_name
     try:
         return service_type_name(type_name)
     except ValueError as e:
@@ -77,7 +77,7 @@ def _load_yaml(text: str | None):
 
 
 def _service_class(type_name: str):
-    from cobot_calib_ros.api.client import import_service
+    from cobot_calib_ros.ros.types import import_service
     try:
         return import_service(type_name)
     except ValueError as e:
@@ -86,7 +86,7 @@ def _service_class(type_name: str):
 
 def _advertised(node, service: str, timeout: float) -> list[str]:
     """The service's types once discovery finds it (empty if not within `timeout` s)."""
-    from cobot_calib_ros.api.client import spin_until
+    from cobot_calib_ros.ros.calls import spin_until
     found: list[str] = []
 
     def seen() -> bool:
@@ -97,7 +97,9 @@ def _advertised(node, service: str, timeout: float) -> list[str]:
 
 
 def _call(node, service: str, type_name: str | None, data, args) -> int:
-    from cobot_calib_ros.api.client import call_service, CallError, FieldError, set_fields, to_dict
+    from cobot_calib_ros.ros.calls import call_service, CallError
+    from cobot_calib_ros.ros.fields import FieldError, set_fields
+    from cobot_calib_ros.ros.types import to_dict
     advertised = _advertised(node, service, args.timeout)
     if not advertised:
         return fail(f'service {service} not found within {args.timeout:g} s; '

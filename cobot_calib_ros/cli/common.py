@@ -25,19 +25,13 @@ def fail(message: str, code: int = EXIT_FAILED) -> int:
 
 @contextlib.contextmanager
 def ros_node(name: str):
-    """An rclpy context and node for one CLI command. Ctrl-C comes as a KeyboardInterrupt
-    from the command's waits (api.client.spin_until), never from inside rclpy, and the
-    teardown finishes before it goes on (see ros.interrupts)."""
-    import rclpy
+    """The rclpy node of one CLI command (ros.session: spun by its own executor). Ctrl-C comes
+    as a KeyboardInterrupt from the command's waits (ros.calls.spin_until), never from inside
+    rclpy, and the teardown finishes before it goes on (see ros.interrupts)."""
     from cobot_calib_ros.ros import interrupts
-    with interrupts.deferred():
-        rclpy.init(args=None, signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
-        node = rclpy.create_node(name, start_parameter_services=False)
-        try:
-            yield node
-        finally:
-            node.destroy_node()
-            rclpy.try_shutdown()
+    from cobot_calib_ros.ros.session import session
+    with interrupts.deferred(), session(name) as (node, _):
+        yield node
 
 
 def say(args, text: str) -> None:

@@ -16,6 +16,7 @@ import sys
 import numpy as np
 
 from cobot_calib_ros.api import launcher
+from cobot_calib_ros.api.demo import DemoClient
 from cobot_calib_ros.cli.common import say
 from cobot_calib_ros.ros import convert
 from cobot_calib_ros.core import cell as cellmod
@@ -35,62 +36,6 @@ def _suite(args):
         return
     with launcher.private_suite(args.cell, say=lambda text: say(args, text)):
         yield
-
-
-class DemoClient:
-    """Service and action calls of the demo (one rclpy node)."""
-
-    def __init__(self) -> None:
-        import rclpy
-        from rclpy.action import ActionClient
-        from cobot_calib_msgs.action import MoveTo
-        from cobot_calib_msgs.srv import CalibrateUserFrame, CaptureJoints, GetGroundTruth
-        rclpy.init()
-        self.node = rclpy.create_node('cobot_calib_demo')
-        self.MoveTo, self.Calibrate = MoveTo, CalibrateUserFrame
-        self._truth = self.node.create_client(GetGroundTruth, 'get_ground_truth')
-        self._capture = self.node.create_client(CaptureJoints, 'capture_joints')
-        self._calibrate = self.node.create_client(CalibrateUserFrame, 'calibrate_user_frame')
-        self._move = ActionClient(self.node, MoveTo, 'move_to')
-
-    def close(self) -> None:
-        import rclpy
-        self.node.destroy_node()
-        rclpy.try_shutdown()
-
-    def ground_truth(self):
-        from cobot_calib_ros.api.client import call_service
-        return call_service(self.node, self._truth, self._truth.srv_type.Request(), 30.0)
-
-    def calibrate(self, method: str, names=(), p_user=None, p_base=None, captures=(),
-                  kinematics: str = ''):
-        from cobot_calib_ros.api.client import call_service
-        req = self.Calibrate.Request(method=method, point_names=list(names),
-                                     joint_captures=list(captures), kinematics=kinematics)
-        if p_user is not None:
-            req.points_user = convert.array_to_points(p_user)
-            req.points_base = convert.array_to_points(p_base)
-        return call_service(self.node, self._calibrate, req, 120.0)
-
-    def touch_and_capture(self, name: str, hold: float = 0.5):
-        """The operator guides the tool onto ``name``; the joints held there (JointState)."""
-        from sensor_msgs.msg import JointState
-        from cobot_calib_ros.api.client import call_service, run_action
-        goal = self.MoveTo.Goal(target_type=self.MoveTo.Goal.TARGET_TOUCH, point_name=name)
-        result = run_action(self.node, self._move, goal, 60.0)[1]
-        if result.error_code != self.MoveTo.Result.SUCCESS:
-            raise RuntimeError(f'touching {name}: {result.message}')
-        res = call_service(self.node, self._capture,
-                           self._capture.srv_type.Request(duration=hold), 30.0)
-        if res.error_code != 0:
-            raise RuntimeError(f'capture at {name}: {res.message}')
-        return JointState(name=list(res.name), position=list(res.position))
-
-    def move_to_joints(self, q: np.ndarray):
-        from cobot_calib_ros.api.client import run_action
-        goal = self.MoveTo.Goal(target_type=self.MoveTo.Goal.TARGET_JOINTS,
-                                positions=[float(v) for v in q])
-        return run_action(self.node, self._move, goal, 60.0)[1]
 
 
 def _truth_model(truth, cell):
@@ -309,7 +254,7 @@ def _reduction(before: list[dict], after: list[dict]) -> dict:
 
 
 def run(args) -> int:
-    from cobot_calib_ros.api.client import CallError
+    from cobot_calib_ros.ros.calls import CallError
     try:
         with _suite(args):
             client = DemoClient()

@@ -1,6 +1,8 @@
 """`cobot-calib demo`: parser of the demo; the work is in cli/demo.py."""
 from __future__ import annotations
 
+from cobot_calib_ros.paths import DEFAULT_CELL
+
 
 def add_parser(subparsers):
     p = subparsers.add_parser(
@@ -10,7 +12,7 @@ def add_parser(subparsers):
                     'ROS_DOMAIN_ID (printed) and ignores the exported ROS_DOMAIN_ID; --attach '
                     'uses the suite already running on the exported ROS_DOMAIN_ID '
                     '(cobot-calib up) instead.')
-    p.add_argument('--cell', default='sawyer_close', help='cell YAML path or name')
+    p.add_argument('--cell', default=DEFAULT_CELL, help='cell YAML path or name')
     p.add_argument('--kinematics', default='nominal',
                    help='kinematic model for the captured joints: nominal (default), latest '
                         '(the active kinematic calibration; identified on the mock first if '

@@ -19,7 +19,8 @@ def add_parser(subparsers):
 
 
 def run(args) -> int:
-    from cobot_calib_ros.api.client import import_type, subscription_qos, wait_for_publishers
+    from cobot_calib_ros.ros.types import import_type
+    from cobot_calib_ros.ros.graph import subscription_qos, wait_for_publishers
     topic = absolute(args.topic)
     with ros_node('cobot_calib_echo') as node:
         publishers = wait_for_publishers(node, topic, args.timeout)
@@ -52,7 +53,8 @@ def _known_type(node, topic: str) -> str | None:
 
 
 def _print_received(node, received: list, topic: str, args) -> int:
-    from cobot_calib_ros.api.client import spin_until, to_dict
+    from cobot_calib_ros.ros.calls import spin_until
+    from cobot_calib_ros.ros.types import to_dict
     deadline = time.monotonic() + args.timeout if args.once else float('inf')
     while time.monotonic() < deadline:
         spin_until(node, lambda: bool(received), min(1.0, deadline - time.monotonic()))

@@ -2,6 +2,8 @@
 cli/experiment.py."""
 from __future__ import annotations
 
+from cobot_calib_ros.paths import DEFAULT_CELL
+
 
 def add_parser(subparsers):
     p = subparsers.add_parser(
@@ -25,7 +27,7 @@ def add_parser(subparsers):
                         'five-point user frame to find the board, then calibrate_hand_eye; '
                         'its error against the mock\'s truth is printed), or use the cell\'s '
                         'nominal hand-eye')
-    p.add_argument('--cell', default='sawyer_close', help='cell YAML path or name')
+    p.add_argument('--cell', default=DEFAULT_CELL, help='cell YAML path or name')
     p.add_argument('--data-dir', help='where trials are stored (default ~/.ros/cobot_calib)')
     p.add_argument('--out', help='report folder (default <data dir>/reports)')
     p.add_argument('--json', action='store_true')

@@ -25,7 +25,7 @@ def add_parser(subparsers):
 
 def run(args) -> int:
     from geometry_msgs.msg import TransformStamped
-    from cobot_calib_ros.api.client import CallError, Interrupted
+    from cobot_calib_ros.ros.calls import CallError, Interrupted
     from cobot_calib_ros.api.hand_eye import calibrate_hand_eye, error_against_truth
     from cobot_calib_ros.core import frames
     from cobot_calib_ros.ros import convert

@@ -71,7 +71,7 @@ def run(args) -> int:
                         '(metadata.yaml) or MUKCa data (<location>/hole_0.csv)', EXIT_USAGE)
     cell = args.cell or CELLS[args.robot or 'iiwa7']
     from cobot_calib_ros.api import identification, launcher
-    from cobot_calib_ros.api.client import CallError
+    from cobot_calib_ros.ros.calls import CallError
     suite = contextlib.nullcontext() if args.attach else launcher.private_suite(
         cell, say=lambda text: say(args, text))
     try:
@@ -123,34 +123,17 @@ def _print(args, report: dict) -> None:
 
 
 def _bag(args, folder: Path) -> int:
-    """A recorded sphere session: the poses kinematic_identifier published on
-    /cobot_calib/captures (frame_id = sphere name), identified offline by the same core job."""
+    """A recorded sphere session (api.identification.identify_from_bag)."""
+    from cobot_calib_ros.api.identification import identify_from_bag
     from cobot_calib_ros.bags.errors import BagError
-    from cobot_calib_ros.bags.sphere_captures import sphere_observations
-    from cobot_calib_ros.core.cell import load_cell
-    from cobot_calib_ros.core.kinematics import model_by_name
-    from cobot_calib_ros.core.kinematics.kinematic_calibration import CalibrationJob
-    from cobot_calib_ros.paths import cell_file
-    cell = load_cell(cell_file(args.cell or CELLS[args.robot or 'iiwa7']))
-    model = model_by_name(cell.robot)
     try:
-        data, poses = sphere_observations(folder, cell, model)
+        report, outcome = identify_from_bag(folder, args.cell or CELLS[args.robot or 'iiwa7'],
+                                            solver=args.solver, loss=args.loss,
+                                            max_configs=args.max_configs)
     except BagError as e:
         return fail(f'identify: {e}')
-    except ValueError as e:
-        return fail(str(e), EXIT_FAILED)
-    try:
-        outcome = CalibrationJob(cell, model, data, source=str(folder), solver=args.solver,
-                                 loss=args.loss, max_configs=args.max_configs).run()
     except (KeyError, ValueError) as e:
-        return fail(f'{folder}: {e}', EXIT_FAILED)
-    r = outcome.result
-    report = {'source': str(folder), 'poses': poses, 'message': outcome.summary(),
-              'dropped_parameters': [d.name for d in outcome.identifiability.dropped],
-              'identified': [{'name': n, 'value': float(v), 'std': float(sd)} for n, v, sd in
-                             zip(r.free, outcome.free_values, r.std)],
-              'validation': {}, 'validation_workspace': {}, 'solve_seconds': r.solve_seconds,
-              'rms_mm': r.rms_m * 1e3, 'calibration_id': '', 'table6': outcome.table}
+        return fail(str(e) if str(folder) in str(e) else f'{folder}: {e}', EXIT_FAILED)
     if args.json:
         print(json.dumps(report, indent=2))
     else:

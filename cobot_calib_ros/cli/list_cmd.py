@@ -18,7 +18,7 @@ def add_parser(subparsers):
 
 
 def run(args) -> int:
-    from cobot_calib_ros.api.client import DISCOVERY_MIN_WAIT, graph
+    from cobot_calib_ros.ros.graph import DISCOVERY_MIN_WAIT, graph
     with ros_node('cobot_calib_list') as node:
         g = graph(node, args.wait, min(DISCOVERY_MIN_WAIT, args.wait))
     if args.json:

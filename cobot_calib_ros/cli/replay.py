@@ -13,7 +13,11 @@ user_frame_solver, calibrate_user_frame is re-run with the replayed captures: th
 1e-6 m / 1e-6 rad (api.replay_check). A repeatability-trial bag (bags/trial_close: it has
 /cobot_calib/probe_averages) goes through proximity_sensor, every probe average the trial took
 is rebuilt from the replayed distances and the ISO 9283 statistics recomputed: RP_i and RP_all
-within 1e-6 m (api.replay_trial_check; --rate 2 unless given, at most 20).
+within 1e-6 m (api.replay_trial_check; --rate 2 unless given, at most 20). A landmark bag
+(bags/landmark_multi_close) goes through landmark_detector, the frame within 1e-6 m / 1e-6 rad
+(api.replay_landmark_check). A sphere bag (bags/iiwa_spheres: only /cobot_calib/captures) is
+identified again from its captures, every parameter within 1e-9 of expected.json
+(api.replay_sphere_check).
 """
 from __future__ import annotations
 
@@ -22,6 +26,10 @@ import sys
 from cobot_calib_ros.cli.common import EXIT_INTERRUPTED, EXIT_OK, EXIT_USAGE, fail
 
 NODE_NAME = 'bag_player'
+KINDS = ('a teach bag (/joint_states and /cobot_calib/captures, bags/five_point_close)',
+         'a trial bag (/cobot_calib/probe_averages, bags/trial_close)',
+         'a landmark bag (camera images and /cobot_calib/captures, bags/landmark_multi_close)',
+         'a sphere bag (only /cobot_calib/captures, bags/iiwa_spheres)')
 
 
 def _rate(text: str) -> float:
@@ -55,10 +63,11 @@ def add_parser(subparsers):
     p.add_argument('--wait-subscribers', type=float, default=2.0, metavar='SECONDS',
                    help='longest wait for subscribers to match before playing (default 2)')
     p.add_argument('--check', action='store_true',
-                   help='replay a sample bag through the pipeline (own domain, sim time) and '
-                        'compare with BAG/expected.yaml: a teach bag\'s frame (1e-6 m / 1e-6 '
-                        'rad), a trial bag\'s RP_i and RP_all (1e-6 m); exit 0 if it matches, '
-                        'else 1')
+                   help='check a sample bag (every one under bags/) against its expected '
+                        'result: a teach or landmark bag\'s frame (1e-6 m / 1e-6 rad), a '
+                        'trial bag\'s RP_i and RP_all (1e-6 m), replayed through the pipeline '
+                        '(own domain, sim time); a sphere bag\'s identified parameters (1e-9, '
+                        'expected.json); exit 0 if it matches, else 1')
     p.add_argument('--recapture', action='store_true',
                    help='with --check: average each hold again with capture_joints on the '
                         'replayed /clock instead of using the recorded means (needs a finite '
@@ -95,6 +104,7 @@ def _replay(bag, args) -> int:
 
     from cobot_calib_ros.bags.errors import BagError
     from cobot_calib_ros.bags.player import BagPlayer, spinning
+    from cobot_calib_ros.ros.time import ns_to_s
 
     def say(text: str) -> None:
         print(text, flush=True)
@@ -108,7 +118,7 @@ def _replay(bag, args) -> int:
         count = sum(bag.topics[t].count for t in player.topics)
         speed = 'as fast as possible' if args.rate == 0 else f'at {args.rate:g}x'
         say(f'replaying {bag.path}: {count} messages on {len(player.topics)} topics, '
-            f'{bag.duration_ns / 1e9:.3f} s recorded, {speed}'
+            f'{ns_to_s(bag.duration_ns):.3f} s recorded, {speed}'
             + (', looping' if args.loop else '') + ' (Ctrl-C to stop)')
         with spinning(player):
             try:
@@ -136,19 +146,27 @@ def _check(args) -> int:
                     EXIT_USAGE)
     if args.clock is not None and not args.clock > 0:
         return fail('replay: --clock HZ must be > 0', EXIT_USAGE)
-    from cobot_calib_ros.api import replay_landmark_check, replay_trial_check
+    from cobot_calib_ros.api import (replay_check, replay_landmark_check, replay_sphere_check,
+                                     replay_trial_check)
     from cobot_calib_ros.bags.errors import BagError
     from cobot_calib_ros.bags.reader import open_bag
     try:
         with open_bag(args.bag) as bag:
             trial = replay_trial_check.is_trial_bag(bag)
             landmark = replay_landmark_check.is_landmark_bag(bag)
+            spheres = replay_sphere_check.is_sphere_bag(bag)
+            teach = replay_check.is_teach_bag(bag)
     except BagError as exc:
         return fail(f'replay --check: {exc}')
     if trial:
         return _check_trial(args)
     if landmark:
         return _check_landmarks(args)
+    if spheres:
+        return _check_spheres(args)
+    if not teach:
+        return fail(f'replay --check: {args.bag} is none of the sample bags --check knows: '
+                    + '; '.join(KINDS), EXIT_USAGE)
     if args.rate is None:
         args.rate = 1.0
     if args.recapture and args.rate == 0:
@@ -214,6 +232,25 @@ def _check_landmarks(args) -> int:
     if ok:
         return EXIT_OK
     print(report, file=sys.stderr, flush=True)
+    return 1
+
+
+def _check_spheres(args) -> int:
+    """--check of a sphere-coupling bag (api.replay_sphere_check): identified offline."""
+    from cobot_calib_ros.api import replay_sphere_check as check
+    from cobot_calib_ros.bags.errors import BagError
+    if args.recapture or args.rate is not None or args.clock is not None:
+        return fail('replay --check: a sphere bag is identified from its captures, not '
+                    'replayed: --rate, --clock and --recapture do not apply', EXIT_USAGE)
+    try:
+        result = check.run_check(args.bag, say=lambda text: print(text, flush=True))
+    except (check.CheckError, BagError) as exc:
+        return fail(f'replay --check: {exc}')
+    if result.ok:
+        print(f'check passed in {result.wall_s:.1f} s', flush=True)
+        return EXIT_OK
+    print('check FAILED: the identification differs from the expected one\n  '
+          + result.report, file=sys.stderr, flush=True)
     return 1
 
 

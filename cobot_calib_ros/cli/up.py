@@ -6,6 +6,7 @@ import sys
 import time
 
 from cobot_calib_ros.cli.common import domain_id, EXIT_FAILED, EXIT_USAGE, fail, ros_node
+from cobot_calib_ros.paths import DEFAULT_CELL
 
 # Discovery before starting: the first node of a running suite showed up within 0.1 s in
 # most runs, after 1.6 s at worst (25 runs).
@@ -18,7 +19,7 @@ def add_parser(subparsers):
         'up', help='start the node suite (Ctrl-C stops it)',
         description='Start the node suite on the exported ROS_DOMAIN_ID (Ctrl-C stops it). '
                     'Refuses if suite nodes already run on that domain.')
-    p.add_argument('--cell', default='sawyer_close', help='cell YAML path or name '
+    p.add_argument('--cell', default=DEFAULT_CELL, help='cell YAML path or name '
                    '(sawyer_close, iiwa7_close)')
     p.add_argument('--layout', default='', help='marker layout of the cell (close, wide); '
                    'default: the cell file\'s own')
@@ -66,7 +67,7 @@ def cell_problem(path, layout: str) -> str:
 
 def running_nodes(names: list[str]) -> list[str]:
     """Which of these nodes a short discovery finds on the domain."""
-    from cobot_calib_ros.api.client import DISCOVERY_MIN_WAIT, graph
+    from cobot_calib_ros.ros.graph import DISCOVERY_MIN_WAIT, graph
     with ros_node('cobot_calib_up') as node:
         found = graph(node, CHECK_MAX_WAIT, CHECK_MIN_WAIT,
                       done=lambda g: any(n in g['nodes'] for n in names))['nodes']

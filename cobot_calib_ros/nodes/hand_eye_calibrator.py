@@ -146,7 +146,7 @@ class HandEyeCalibrator(Node):
         return super().destroy_node()
 
     def _declare_parameters(self) -> None:
-        read_once(self, 'cell_file', 'sawyer_close',
+        read_once(self, 'cell_file', paths.DEFAULT_CELL,
                   'Cell YAML (path or name): robot, camera (nominal hand-eye), board')
         read_once(self, 'layout', '', 'Marker layout; empty = the cell default')
         read_once(self, 'data_dir', '', 'Results go to <data_dir>/hand_eye; empty = '

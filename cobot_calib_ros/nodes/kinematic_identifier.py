@@ -37,10 +37,11 @@ from cobot_calib_ros.core.kinematics.kinematic_calibration import CalibrationJob
 from cobot_calib_ros.bags.errors import BagError
 from cobot_calib_ros.bags.sphere_captures import is_bag, sphere_observations
 from cobot_calib_ros.core.ids import record_id
-from cobot_calib_ros.ros import spin
+from cobot_calib_ros.ros import marks, spin
 from cobot_calib_ros.ros.diagnostics import Diagnostics, OK, WARN
 from cobot_calib_ros.ros.params import declare, read_once
 from cobot_calib_ros.ros.robot_calls import RobotCallError, RobotCalls
+from cobot_calib_ros.ros.time import now_ns
 from cobot_calib_ros.store.collections import Collection, CollectionStore
 from cobot_calib_ros.store.files import check_id
 from cobot_calib_ros.store.kinematics import KinematicStore
@@ -89,7 +90,7 @@ class KinematicIdentifier(Node):
         self._health = Diagnostics(self)
         self._health.set(OK, 'idle', job='')
         # every recorded pose, for recording a session (cobot-calib record); frame_id = target
-        self._captures = self.create_publisher(JointState, 'cobot_calib/captures', 100)
+        self._captures = self.create_publisher(JointState, marks.CAPTURES, 100)
         group = ReentrantCallbackGroup()
         self._collect = ActionServer(
             self, Collect, 'collect_sphere_data', execute_callback=self._on_collect,
@@ -108,7 +109,7 @@ class KinematicIdentifier(Node):
         return super().destroy_node()
 
     def _declare_parameters(self) -> None:
-        read_once(self, 'cell_file', 'sawyer_close',
+        read_once(self, 'cell_file', paths.DEFAULT_CELL,
                   'Cell YAML (path or name): robot, home, the sphere plate and coupling')
         read_once(self, 'layout', '', 'Marker layout; empty = the cell default')
         read_once(self, 'data_dir', '', 'Collections go to <data_dir>/kinematic_data, results '
@@ -266,13 +267,9 @@ class KinematicIdentifier(Node):
         return Collect.Result.SUCCESS, f'per pose: {per_pose}'
 
     def _publish_capture(self, target: str, capture) -> None:
-        msg = JointState(name=list(self._model.joint_names),
-                         position=[float(v) for v in capture.position],
-                         velocity=[0.0] * len(capture.position),  # see bags/README.md
-                         effort=[float(v) for v in capture.std])
-        msg.header.stamp = self.get_clock().now().to_msg()
-        msg.header.frame_id = target
-        self._captures.publish(msg)
+        self._captures.publish(marks.capture_mark(target, self._model.joint_names,
+                                                  capture.position, capture.std,
+                                                  now_ns(self)))
 
     # -- identification -------------------------------------------------------------------
     def _on_identify(self, goal_handle):

@@ -302,7 +302,7 @@ class LandmarkDetector(Node):
 
     def _configure(self) -> tuple[Config | None, str, int]:
         values = (
-            read_once(self, 'cell_file', 'sawyer_close',
+            read_once(self, 'cell_file', paths.DEFAULT_CELL,
                       'Cell YAML whose landmarks: give the defaults: a path or a name in '
                       'config/cells'),
             read_once(self, 'dictionary', '',

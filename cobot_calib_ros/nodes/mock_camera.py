@@ -48,7 +48,7 @@ LATEST_ONLY = QoSProfile(depth=1, reliability=qos_profile_sensor_data.reliabilit
 class MockCamera(Node):
     def __init__(self, **kwargs) -> None:
         super().__init__('mock_camera', **kwargs)
-        cell_file = read_once(self, 'cell_file', 'sawyer_close',
+        cell_file = read_once(self, 'cell_file', paths.DEFAULT_CELL,
                               'Cell scenario YAML (cell: camera/landmarks, simulation: camera): '
                               'a path or a name in config/cells')
         rate = read_once(self, 'rate_hz', 10.0, 'Image rate [Hz]', 0.1, 200.0)

@@ -33,12 +33,12 @@ from cobot_calib_ros.core.sensors.joint_buffer import StampGaps, StampMarks
 from cobot_calib_ros.ros import convert, qos, spin
 from cobot_calib_ros.ros.diagnostics import Diagnostics, ERROR, OK, RateMeter, WARN
 from cobot_calib_ros.ros.params import declare, read_once
+from cobot_calib_ros.ros.time import NS_PER_S
 from cobot_calib_ros.sim.robot import SimRobot
 from cobot_calib_ros.sim.scenario import load_simulation
 
 FEEDBACK_PERIOD = 0.02  # [s] of wall time between motion steps (each with a feedback message)
 SLOW_RATE_FRACTION = 0.9  # [1] of the nominal joint_states rate: below it, WARN
-NS_PER_S = 1_000_000_000
 
 
 class PacedLoop:
@@ -125,7 +125,7 @@ class MockRobot(Node):
 
     # -- set-up ---------------------------------------------------------------------------
     def _declare_parameters(self) -> None:
-        read_once(self, 'cell_file', 'sawyer_close',
+        read_once(self, 'cell_file', paths.DEFAULT_CELL,
                   'Cell scenario YAML (cell: and simulation:): a path or a name in config/cells')
         read_once(self, 'layout', '',
                   'Marker layout of the cell (close, wide, ...); empty = the cell default')

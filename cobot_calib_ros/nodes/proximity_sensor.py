@@ -8,14 +8,9 @@ readings taken during a motion and delivered late never count as the hold that f
 ``last_voltage_v``, ``reading_rate_hz`` over the last second, ``last_reading_age_s``. WARN when
 no probe/voltage came for more than NO_DATA_TIMEOUT.
 
-Marks on ``cobot_calib/probe_averages`` (MARKS_TOPIC, sensor_msgs/JointState, reliable, depth
-100): one per probe/average served, so a recording can tie each reading of a trial to the
-probe readings it averaged (bags/make_trial_bag.py, api.replay_trial_check). ``header.stamp`` =
-the window start t0 (node clock), ``header.frame_id`` = 'probe', ``name`` = AVERAGE_FIELDS and
-``position`` their values: the window's duration [s], then the response's distance and std [m],
-sample_count, rejected_count, error_code, reading_status, min_range and max_range [m];
-``velocity`` = the header stamps of the readings the window held, in the order they arrived,
-as nanoseconds after t0 (exact in float64). A reading the subscription dropped (best effort,
+Marks on ``cobot_calib/probe_averages`` (ros.marks: PROBE_AVERAGES, its encoding there): one
+per probe/average served, so a recording can tie each reading of a trial to the probe readings
+it averaged (bags/make_trial_bag.py, api.replay_trial_check). A reading the subscription dropped (best effort,
 history 5) is not among them, so a replay can average exactly the readings this node did.
 ``average_window`` and ``fill_average`` are what probe/average computes, for a replay to use.
 """
@@ -34,16 +29,13 @@ from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import JointState
 
 from cobot_calib_ros.core.sensors.probe import curve_from_lists, read_distance, ReadingStatus
-from cobot_calib_ros.ros import spin
+from cobot_calib_ros.ros import marks, spin
 from cobot_calib_ros.ros.diagnostics import Diagnostics, OK, RateMeter, status_name, WARN
 from cobot_calib_ros.ros.params import declare, read_once
-from cobot_calib_ros.ros.time import now_ns, ns_to_stamp, stamp_or_now_ns, wait_past
+from cobot_calib_ros.ros.time import now_ns, stamp_or_now_ns, wait_past
 
 STALL_TIMEOUT = 1.0     # [s] of wall time without a new reading: the probe stream has stopped
 NO_DATA_TIMEOUT = 1.0   # [s] of wall time without probe/voltage: /diagnostics warns
-MARKS_TOPIC = 'cobot_calib/probe_averages'
-AVERAGE_FIELDS = ('duration', 'distance', 'std', 'sample_count', 'rejected_count', 'error_code',
-                  'reading_status', 'min_range', 'max_range')
 
 
 def average_window(samples, t0_ns: int, duration: float) -> list:
@@ -81,17 +73,6 @@ def fill_average(response, window, duration: float):
     return response
 
 
-def average_mark(t0_ns: int, duration: float, response, window) -> JointState:
-    """The MARKS_TOPIC message of one probe/average (see the module doc)."""
-    mark = JointState(name=list(AVERAGE_FIELDS))
-    mark.header.stamp = ns_to_stamp(t0_ns)
-    mark.header.frame_id = 'probe'
-    mark.position = [float(duration), *(float(getattr(response, f))
-                                        for f in AVERAGE_FIELDS[1:])]
-    mark.velocity = [float(stamp - t0_ns) for stamp, _, _ in window]
-    return mark
-
-
 class ProximitySensor(Node):
     def __init__(self, **kwargs) -> None:
         super().__init__('proximity_sensor', **kwargs)
@@ -112,7 +93,7 @@ class ProximitySensor(Node):
                                         name=status_name(self), update=self._diagnose)
         self._receiver.node.create_subscription(
             ProbeVoltage, 'probe/voltage', self._on_voltage, qos_profile_sensor_data)
-        self._marks = self.create_publisher(JointState, MARKS_TOPIC, 100)
+        self._marks = self.create_publisher(JointState, marks.PROBE_AVERAGES, 100)
         self.create_service(AverageProximity, 'probe/average', self._on_average)
         self.get_logger().info(
             f'probe range {self._curve.min_range * 1e3:.2f}-{self._curve.max_range * 1e3:.2f} mm')
@@ -187,7 +168,7 @@ class ProximitySensor(Node):
             window = average_window(self._recent, t0_ns, duration)
         response.min_range, response.max_range = self._curve.min_range, self._curve.max_range
         fill_average(response, window, duration)
-        self._marks.publish(average_mark(t0_ns, duration, response, window))
+        self._marks.publish(marks.average_mark(t0_ns, duration, response, window))
         return response
 
     def _newest(self) -> tuple[float, int]:

@@ -201,7 +201,7 @@ class RepeatabilityTrial(Node):
         return super().destroy_node()
 
     def _declare_parameters(self) -> None:
-        read_once(self, 'cell_file', 'sawyer_close',
+        read_once(self, 'cell_file', paths.DEFAULT_CELL,
                   'Cell YAML (path or name): markers, layouts, nominal tool')
         read_once(self, 'layout', '', 'Marker layout (close | wide); empty = the cell default')
         read_once(self, 'data_dir', '', 'Trials go to <data_dir>/trials; empty = '

@@ -39,7 +39,7 @@ from cobot_calib_ros.ros.diagnostics import Diagnostics, OK, WARN
 from cobot_calib_ros.ros.params import declare, read_once
 from cobot_calib_ros.ros.landmark_views import active_hand_eye, LandmarkViewError, LandmarkViews
 from cobot_calib_ros.ros.robot_calls import RobotCallError, RobotCalls
-from cobot_calib_ros.ros.time import now_ns
+from cobot_calib_ros.ros.time import now_ns, ns_to_stamp
 from cobot_calib_ros.ros.tf_static import StaticBroadcaster
 from cobot_calib_ros.store.calibrations import CalibrationStore
 from cobot_calib_ros.store.kinematics import chain_of, KinematicStore, NOMINAL
@@ -89,7 +89,7 @@ def record_to_msg(record: dict) -> UserFrameCalibration:
     inputs = record['inputs']
     msg = UserFrameCalibration(id=record['id'], method=record['method'],
                                kinematics=record.get('kinematics', ''))
-    msg.stamp.sec, msg.stamp.nanosec = divmod(int(record['stamp_ns']), 1_000_000_000)
+    msg.stamp = ns_to_stamp(record['stamp_ns'])
     msg.transform = convert.matrix_to_transform(
         np.array(r['T_base_user']), record['base_frame'], record['user_frame'], msg.stamp)
     msg.matrix = [float(v) for v in np.ravel(r['M'])]
@@ -164,7 +164,7 @@ class UserFrameSolver(Node):
         return super().destroy_node()
 
     def _declare_parameters(self) -> None:
-        read_once(self, 'cell_file', 'sawyer_close',
+        read_once(self, 'cell_file', paths.DEFAULT_CELL,
                   'Cell YAML (path or name): named points and the nominal tool offset')
         read_once(self, 'layout', '', 'Marker layout of the named points (close | wide); '
                   'empty = the cell file default')

@@ -5,7 +5,7 @@ client that is almost always inside rclpy (an executor's wait set, a future's ca
 ActionClient's goal bookkeeping). Interrupted there, rclpy can be left holding a handle or a
 half-registered request, and the session's teardown then hangs (``teach`` once did not exit
 within 90 s of a Ctrl-C). Inside ``deferred()`` a SIGINT only sets a flag; ``check()``, which
-every client wait loop calls between two spins (api.client.spin_until), raises the
+every client wait loop calls between two spins (ros.calls.spin_until), raises the
 KeyboardInterrupt there, outside rclpy. The flag is taken by the raise, so a client that
 catches it to cancel a goal can wait for the cancel's answer, and a second Ctrl-C ends that
 wait too. Leaving ``deferred()`` (after the session's teardown) raises an interrupt that no

@@ -24,12 +24,12 @@ from cobot_calib_ros.core import kinematics
 from cobot_calib_ros.core.errors import ErrorCode, Failure
 from cobot_calib_ros.core.landmarks import views
 from cobot_calib_ros.core.user_frame import landmarks as landmark_frames
-from cobot_calib_ros.ros import convert
+from cobot_calib_ros.ros import convert, marks
 from cobot_calib_ros.ros.robot_calls import RobotCallError, RobotCalls
 from cobot_calib_ros.ros.spin import Companion
+from cobot_calib_ros.ros.time import header_ns
 from cobot_calib_ros.store.calibrations import CalibrationStore
 
-CAPTURES_TOPIC = 'cobot_calib/captures'
 LANDMARK_TIMEOUT = 5.0   # [s] of wall time for a landmarks message stamped after a capture
 LANDMARK_MESSAGES = 3    # messages after a capture looked at before a marker counts as unseen
 MOVE_TIMEOUT = 60.0      # [s] for one view's move
@@ -70,7 +70,7 @@ class LandmarkViews:
         self._sub = None
         # every view's capture, as kinematic_identifier publishes its poses: a recorded session
         # (images, camera_info, these marks) can be fitted again (bags/README.md)
-        self._captures = answers.node.create_publisher(JointState, CAPTURES_TOPIC, 100)
+        self._captures = answers.node.create_publisher(JointState, marks.CAPTURES, 100)
 
     def problem(self) -> str:
         """'' when the cell has a camera and landmarks, else what to add to the cell file."""
@@ -132,7 +132,7 @@ class LandmarkViews:
                     self._cond.wait(remaining)
                     continue
                 msg = self._msgs.pop(0)
-                stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+                stamp = header_ns(msg)
                 if stamp <= t0:
                     continue
                 seen, last = seen + 1, msg
@@ -150,13 +150,9 @@ class LandmarkViews:
         """The view's mark: header.stamp = the time after which landmarks count (ROS time),
         frame_id = 'landmark_<id>' (the marker the view is planned for), name/position = the
         captured joints [rad], effort = their standard deviation."""
-        msg = JointState(name=list(self._model.joint_names),
-                         position=[float(v) for v in capture.position],
-                         velocity=[0.0] * len(capture.position),
-                         effort=[float(v) for v in capture.std])
-        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
-        msg.header.frame_id = f'landmark_{marker_id}'
-        self._captures.publish(msg)
+        self._captures.publish(marks.capture_mark(f'landmark_{marker_id}',
+                                                  self._model.joint_names, capture.position,
+                                                  capture.std, stamp_ns))
 
     def _subscribe(self) -> None:
         """The landmarks subscription on the answers' thread (made on first use)."""

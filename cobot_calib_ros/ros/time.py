@@ -2,25 +2,50 @@
 
 Every stamp and every capture window comes from the node's clock, so ``use_sim_time`` with a
 ``/clock`` publisher (bag replay) works; core code sees int nanoseconds or float seconds.
+The one home of NS_PER_S and of every stamp <-> ns <-> s conversion (test/test_facts.py
+keeps it so); importing it loads no rclpy (bag tools use it too).
 """
 from __future__ import annotations
 
 from collections.abc import Callable
 import threading
+from typing import TYPE_CHECKING
 
-from builtin_interfaces.msg import Time
-from rclpy.node import Node
+if TYPE_CHECKING:
+    from builtin_interfaces.msg import Time
+    from rclpy.node import Node
 
 NS_PER_S = 1_000_000_000
 
 
 def stamp_to_ns(stamp: Time) -> int:
+    """A builtin_interfaces Time (or anything with sec, nanosec) [ns]."""
     return stamp.sec * NS_PER_S + stamp.nanosec
 
 
+def header_ns(msg) -> int:
+    """A stamped message's header stamp [ns]."""
+    return stamp_to_ns(msg.header.stamp)
+
+
+def split_ns(ns: int) -> tuple[int, int]:
+    """(sec, nanosec) of ``ns``, as a stamp holds it."""
+    return divmod(int(ns), NS_PER_S)
+
+
 def ns_to_stamp(ns: int) -> Time:
-    sec, nanosec = divmod(int(ns), NS_PER_S)
+    from builtin_interfaces.msg import Time
+    sec, nanosec = split_ns(ns)
     return Time(sec=sec, nanosec=nanosec)
+
+
+def s_to_ns(seconds: float) -> int:
+    """A duration or time [s] as int nanoseconds (rounded)."""
+    return round(seconds * NS_PER_S)
+
+
+def ns_to_s(ns: int) -> float:
+    return ns / NS_PER_S
 
 
 def now_ns(node: Node) -> int:

@@ -10,6 +10,7 @@ import yaml
 
 from cobot_calib_ros.api import replay_landmark_check as check
 from cobot_calib_ros.bags.reader import open_bag
+from cobot_calib_ros.ros.time import header_ns
 
 SAMPLE = Path(__file__).resolve().parents[2] / 'bags' / 'landmark_multi_close'
 
@@ -23,7 +24,7 @@ def test_sample_bag_is_light_and_complete():
                                    check.USER_FRAME_TOPIC}
         assert check.is_landmark_bag(bag)
         marks = [bag.deserialize(m.rawdata, m.msgtype) for m in bag.messages([check.MARKS_TOPIC])]
-        images = {check.header_ns(bag.deserialize(m.rawdata, m.msgtype))
+        images = {header_ns(bag.deserialize(m.rawdata, m.msgtype))
                   for m in bag.messages([check.IMAGE_TOPIC])}
         [frame] = [bag.deserialize(m.rawdata, m.msgtype)
                    for m in bag.messages([check.USER_FRAME_TOPIC])]

@@ -34,7 +34,7 @@ def test_the_identify_kinematics_goal_takes_the_bag_too(bag_domain, tmp_path):
     from rclpy.executors import SingleThreadedExecutor
     from cobot_calib_msgs.action import IdentifyKinematics
     from cobot_calib_ros.api import launcher
-    from cobot_calib_ros.api.client import run_action
+    from cobot_calib_ros.ros.calls import run_action
     expected = json.loads((BAG / 'expected.json').read_text())
     domain, env = bag_domain
     suite = launcher.Suite(tmp_path / 'logs')

@@ -7,7 +7,7 @@ from types import SimpleNamespace
 import pytest
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
-from cobot_calib_ros.api import client
+from cobot_calib_ros.ros import graph as ros_graph
 from cobot_calib_ros.cli import main
 
 CAPTURE = 'cobot_calib_msgs/srv/CaptureJoints'
@@ -109,9 +109,9 @@ class _Timeline:
 
     def __init__(self, monkeypatch, changes: dict[float, str]):
         self.now, self.changes = 0.0, changes
-        monkeypatch.setattr(client.time, 'monotonic', lambda: self.now)
-        monkeypatch.setattr(client, 'spin_until', self._spin)
-        monkeypatch.setattr(client, 'graph_now', self._graph)
+        monkeypatch.setattr(ros_graph.time, 'monotonic', lambda: self.now)
+        monkeypatch.setattr(ros_graph, 'spin_until', self._spin)
+        monkeypatch.setattr(ros_graph, 'graph_now', self._graph)
 
     def _spin(self, node, done, timeout, executor=None):
         self.now += timeout
@@ -125,25 +125,25 @@ class _Timeline:
 def test_graph_waits_past_a_quiet_gap_before_a_late_node(monkeypatch):
     """As measured: most nodes at once, the last one 2.4 s later."""
     clock = _Timeline(monkeypatch, {0.0: '/a', 0.1: '/b', 2.5: '/late'})
-    assert list(client.graph(None, max_wait=10.0)['nodes']) == ['/a', '/b', '/late']
-    assert client.DISCOVERY_MIN_WAIT <= clock.now < client.DISCOVERY_MIN_WAIT + 0.2
+    assert list(ros_graph.graph(None, max_wait=10.0)['nodes']) == ['/a', '/b', '/late']
+    assert ros_graph.DISCOVERY_MIN_WAIT <= clock.now < ros_graph.DISCOVERY_MIN_WAIT + 0.2
 
 
 def test_graph_waits_for_a_change_to_settle_and_stops_at_the_max(monkeypatch):
     clock = _Timeline(monkeypatch, {0.0: '/a', 3.9: '/b'})
-    assert list(client.graph(None, max_wait=10.0, min_wait=1.0)['nodes']) == ['/a']
+    assert list(ros_graph.graph(None, max_wait=10.0, min_wait=1.0)['nodes']) == ['/a']
     assert clock.now == pytest.approx(1.0, abs=0.15)
     clock = _Timeline(monkeypatch, {0.0: '/a', 3.9: '/b'})
-    assert list(client.graph(None, max_wait=10.0, min_wait=4.0)['nodes']) == ['/a', '/b']
-    assert clock.now == pytest.approx(3.9 + client.GRAPH_SETTLE, abs=0.15)
+    assert list(ros_graph.graph(None, max_wait=10.0, min_wait=4.0)['nodes']) == ['/a', '/b']
+    assert clock.now == pytest.approx(3.9 + ros_graph.GRAPH_SETTLE, abs=0.15)
     clock = _Timeline(monkeypatch, {t / 10: f'/n{t}' for t in range(100)})
-    client.graph(None, max_wait=2.0)
+    ros_graph.graph(None, max_wait=2.0)
     assert clock.now == pytest.approx(2.0, abs=0.15)
 
 
 def test_graph_stops_early_when_done(monkeypatch):
     clock = _Timeline(monkeypatch, {0.0: '/a', 0.3: '/b'})
-    client.graph(None, max_wait=10.0, done=lambda g: '/b' in g['nodes'])
+    ros_graph.graph(None, max_wait=10.0, done=lambda g: '/b' in g['nodes'])
     assert clock.now == pytest.approx(0.3, abs=0.15)
 
 
@@ -161,5 +161,5 @@ V, T = DurabilityPolicy.VOLATILE, DurabilityPolicy.TRANSIENT_LOCAL
     ([(R, T), (R, V)], R, V), ([(B, T), (B, T)], B, T)])
 def test_echo_qos_matches_every_publisher_as_ros2_topic_echo(publishers, reliability,
                                                               durability):
-    qos = client.subscription_qos([_publisher(*p) for p in publishers])
+    qos = ros_graph.subscription_qos([_publisher(*p) for p in publishers])
     assert (qos.reliability, qos.durability) == (reliability, durability)

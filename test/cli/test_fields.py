@@ -10,7 +10,7 @@ from rclpy.serialization import deserialize_message, serialize_message
 from rosidl_parser import definition as d
 import yaml
 
-from cobot_calib_ros.api.client import FieldError, set_fields
+from cobot_calib_ros.ros.fields import FieldError, set_fields
 
 
 def _fill(msg_type, text: str):

@@ -5,7 +5,8 @@ from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 
 from cobot_calib_ros.api import launcher
-from cobot_calib_ros.api.client import CallError, spin_until, wait_for_suite
+from cobot_calib_ros.ros.calls import CallError, spin_until
+from cobot_calib_ros.api.client import wait_for_suite
 
 STARTUP_TIMEOUT = 30.0
 

@@ -3,7 +3,7 @@ import os
 import subprocess
 import sys
 
-from cobot_calib_ros.api.client import call_service, spin_until
+from cobot_calib_ros.ros.calls import call_service, spin_until
 
 
 def call(node, srv_type, name, timeout=10.0, **fields):

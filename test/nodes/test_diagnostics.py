@@ -3,7 +3,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 import pytest
 
 from cobot_calib_ros.api import launcher
-from cobot_calib_ros.api.client import spin_until
+from cobot_calib_ros.ros.calls import spin_until
 
 TIMEOUT = 10.0  # [s] for every node's status to arrive (they publish at 1 Hz)
 EXPECTED_KEYS = {

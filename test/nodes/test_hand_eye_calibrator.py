@@ -24,7 +24,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
 from cobot_calib_ros.api import launcher
-from cobot_calib_ros.api.client import run_action, spin_until
+from cobot_calib_ros.ros.calls import run_action, spin_until
 from cobot_calib_ros.core import frames
 from cobot_calib_ros.paths import cell_file
 from cobot_calib_ros.ros import qos

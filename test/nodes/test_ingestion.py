@@ -14,7 +14,7 @@ from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import JointState
 
 from cobot_calib_ros.ros import convert
-from cobot_calib_ros.api.client import run_action, spin_until
+from cobot_calib_ros.ros.calls import run_action, spin_until
 from cobot_calib_ros.core import cell as cellmod
 from cobot_calib_ros.core import frames
 from cobot_calib_ros.paths import cell_file

@@ -12,7 +12,7 @@ from rclpy.action import ActionClient
 
 from cobot_calib_msgs.action import CollectSphereData, IdentifyKinematics
 from cobot_calib_msgs.srv import CalibrateUserFrame, SetActiveCalibration
-from cobot_calib_ros.api.client import run_action, spin_until
+from cobot_calib_ros.ros.calls import run_action, spin_until
 from cobot_calib_ros.core.kinematics import fk, model_by_name, plans
 from cobot_calib_ros.core.kinematics.identification import SphereObservations
 from cobot_calib_ros.core.kinematics.kinematic_calibration import CalibrationJob

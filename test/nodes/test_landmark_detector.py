@@ -25,7 +25,7 @@ from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import Image
 
 from cobot_calib_ros.api import launcher
-from cobot_calib_ros.api.client import run_action, spin_until
+from cobot_calib_ros.ros.calls import run_action, spin_until
 from cobot_calib_ros.core import frames
 from cobot_calib_ros.nodes.landmark_detector import (configure, FrameSlot, Handoff,
                                                      LandmarkDetector, NotConfigured)

@@ -7,7 +7,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image, JointState
 
-from cobot_calib_ros.api.client import spin_until
+from cobot_calib_ros.ros.calls import spin_until
 from cobot_calib_ros.core import kinematics
 from cobot_calib_ros.core.cell import load_cell
 from cobot_calib_ros.nodes.mock_camera import MockCamera

@@ -14,7 +14,7 @@ from rclpy.action import ActionClient
 from rosgraph_msgs.msg import Clock
 
 from cobot_calib_ros.api import launcher
-from cobot_calib_ros.api.client import run_action, spin_until
+from cobot_calib_ros.ros.calls import run_action, spin_until
 from cobot_calib_ros.core import frames
 from cobot_calib_ros.core.cell import tool_down_orientation
 from cobot_calib_ros.ros import convert

@@ -11,7 +11,7 @@ import pytest
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
-from cobot_calib_ros.api.client import CallError
+from cobot_calib_ros.ros.calls import CallError
 from cobot_calib_ros.store.calibrations import CalibrationStore
 from rosutil import call, cli_command
 

@@ -28,7 +28,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from tf2_msgs.msg import TFMessage
 
 from cobot_calib_ros.api import launcher
-from cobot_calib_ros.api.client import spin_until
+from cobot_calib_ros.ros.calls import spin_until
 from cobot_calib_ros.core import frames
 from cobot_calib_ros.paths import cell_file
 from cobot_calib_ros.ros import convert, qos

@@ -14,7 +14,7 @@ from tf2_msgs.msg import TFMessage
 
 from cobot_calib_ros.api import launcher
 from cobot_calib_ros.ros import convert
-from cobot_calib_ros.api.client import spin_until
+from cobot_calib_ros.ros.calls import spin_until
 from cobot_calib_ros.core import frames
 from cobot_calib_ros.paths import cell_file
 from rosutil import call, listen_late

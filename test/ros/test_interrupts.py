@@ -6,7 +6,7 @@ import signal
 
 import pytest
 
-from cobot_calib_ros.api.client import spin_until
+from cobot_calib_ros.ros.calls import spin_until
 from cobot_calib_ros.cli.common import ros_node
 from cobot_calib_ros.ros import interrupts
 

@@ -1,0 +1,97 @@
+"""`cobot-calib replay BAG --check` of a sphere-coupling bag: identify again, compare.
+
+A sphere bag (bags/make_sphere_bag.py) holds only ``/cobot_calib/captures``: every pose
+kinematic_identifier collected (sensor_msgs/JointState, frame_id = the sphere's name,
+position = the joints averaged over the hold). Next to it ``expected.json``: the live
+``cobot-calib identify --json`` report and the ``cell`` it ran on.
+
+The check identifies the bag's poses offline with the node's own core job
+(api.identification.identify_from_bag, as ``identify --source BAG`` does) and compares with
+``expected.json``: the same dropped parameters, the same identified ones, every value within
+TOL (measured on bags/iiwa_spheres: 0, bit for bit). The captures are the identification's
+whole input (the node reads them from the bag, not from a stream), so nothing is replayed
+over DDS.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+import json
+import os
+from pathlib import Path
+import time
+from typing import Callable
+
+from cobot_calib_ros.ros.marks import CAPTURES_TOPIC
+
+EXPECTED_FILE = 'expected.json'
+TOL = 1e-9          # [m] or [rad] per identified parameter
+
+
+class CheckError(RuntimeError):
+    """The check could not run (a missing or malformed expected.json)."""
+
+
+def is_sphere_bag(bag) -> bool:
+    """A bag this check applies to: captures and nothing else (a teach bag also has
+    /joint_states, a landmark bag images)."""
+    return set(bag.topics) == {CAPTURES_TOPIC}
+
+
+def read_expected(bag_path: str | os.PathLike) -> tuple[Path, dict]:
+    """(path, report) of the bag's expected.json; CheckError when unreadable or incomplete."""
+    folder = Path(bag_path)
+    if not folder.is_dir():
+        folder = folder.parent
+    path = folder / EXPECTED_FILE
+    try:
+        data = json.loads(path.read_text())
+    except OSError as exc:
+        raise CheckError(f'{path}: cannot read the expected result: {exc.strerror}') from None
+    except json.JSONDecodeError as exc:
+        raise CheckError(f'{path}: not JSON: {exc}') from None
+    missing = [k for k in ('cell', 'dropped_parameters', 'identified')
+               if not isinstance(data, dict) or k not in data]
+    if missing:
+        raise CheckError(f'{path}: missing {", ".join(missing)}')
+    return path, data
+
+
+@dataclass
+class SphereCheckResult:
+    ok: bool
+    poses: int
+    worst: float                # largest |replayed - expected| over the identified values
+    worst_name: str
+    differences: list[str]      # what differs besides the values (dropped or identified sets)
+    wall_s: float
+    report: str
+
+
+def run_check(bag_path: str, say: Callable[[str], None] = print) -> SphereCheckResult:
+    """Identify the bag's captures, compare with expected.json; see the module doc."""
+    from cobot_calib_ros.api.identification import identify_from_bag
+    started = time.monotonic()
+    path, expected = read_expected(bag_path)
+    try:
+        got, _ = identify_from_bag(bag_path, str(expected['cell']))
+    except (KeyError, ValueError) as exc:
+        raise CheckError(f'{bag_path}: {exc}') from None
+    differences = []
+    if got['dropped_parameters'] != expected['dropped_parameters']:
+        differences.append(f'dropped {got["dropped_parameters"]}, expected '
+                           f'{expected["dropped_parameters"]}')
+    mine = {p['name']: p['value'] for p in got['identified']}
+    live = {p['name']: p['value'] for p in expected['identified']}
+    if list(mine) != list(live):
+        differences.append(f'identified {list(mine)}, expected {list(live)}')
+    gaps = {n: abs(mine[n] - live[n]) for n in mine.keys() & live.keys()}
+    worst_name = max(gaps, key=gaps.get, default='')
+    worst = gaps.get(worst_name, float('inf'))
+    ok = not differences and worst <= TOL
+    report = (f'identified {got["poses"]} poses of {bag_path} on cell {expected["cell"]}: '
+              f'{len(mine)} parameters, largest difference from {path} {worst:.3e}'
+              + (f' ({worst_name})' if worst > 0 else '') + f' (tolerance {TOL:g})'
+              + ''.join(f'; {d}' for d in differences))
+    say(report)
+    return SphereCheckResult(ok, int(got['poses']), worst, worst_name, differences,
+                             time.monotonic() - started, report)

@@ -1,0 +1,38 @@
+"""One rclpy session for a client (a CLI command, a replay check, a bench, a bag maker).
+
+``session(name)`` yields ``(node, executor)``: a node with a single-threaded executor of its
+own, on the process's default context (``domain_id`` None: ROS_DOMAIN_ID) or on a private
+context for ``domain_id`` (a replay check's own domain beside the caller's), optionally on
+sim time. rclpy's signal handlers are not installed (Ctrl-C stays a KeyboardInterrupt the
+caller handles). On exit the node is destroyed and its context shut down.
+"""
+from __future__ import annotations
+
+from collections.abc import Iterator
+import contextlib
+
+
+@contextlib.contextmanager
+def session(name: str, *, domain_id: int | None = None, sim_time: bool = False,
+            parameter_services: bool = False) -> Iterator[tuple]:
+    """(node, executor) for one client; see the module doc."""
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.parameter import Parameter
+    from rclpy.signals import SignalHandlerOptions
+    context = None if domain_id is None else Context()
+    rclpy.init(context=context, domain_id=domain_id,
+               signal_handler_options=SignalHandlerOptions.NO)
+    node = None
+    try:
+        node = rclpy.create_node(
+            name, context=context, start_parameter_services=parameter_services,
+            parameter_overrides=[Parameter('use_sim_time', value=True)] if sim_time else [])
+        executor = SingleThreadedExecutor(context=context)
+        executor.add_node(node)
+        yield node, executor
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown(context=context)
