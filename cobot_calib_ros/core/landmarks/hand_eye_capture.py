@@ -76,11 +76,15 @@ def take_hand_eye_views(plan: Sequence[Array], robot: RobotPort, camera: CameraP
     docstring). ``chain``: the model whose FK of the captured joints gives T_base_flange (no
     tool); ``hold`` [s]: the joint capture; ``landmark_timeout`` [s]: for an image after the
     rest. ``on_view`` after each view. Raises Stopped (cancelled) and CaptureFailed (a joint
-    capture that failed)."""
+    capture that failed; the message names the view)."""
     views = HandEyeViews(planned=len(plan))
     for i, q in enumerate(plan):
-        check_cancel(cancelled, f'view {i + 1} of {len(plan)}')
-        why = _take_view(views, robot, camera, chain, q, hold, landmark_timeout)
+        where = f'view {i + 1} of {len(plan)}'
+        check_cancel(cancelled, where)
+        try:
+            why = _take_view(views, robot, camera, chain, q, hold, landmark_timeout)
+        except CaptureFailed as e:
+            raise CaptureFailed(f'{where}: {e}') from e
         if why:
             views.skipped.append({'view': i, 'reason': why})
         if on_view is not None:

@@ -10,7 +10,7 @@ from cobot_calib_ros.core.landmarks.hand_eye import check_noise, hand_eye_views,
 from cobot_calib_ros.core.landmarks.hand_eye_capture import (pairing_problem,
                                                              PAIRING_TOLERANCE_RAD,
                                                              take_hand_eye_views)
-from cobot_calib_ros.core.robot_port import Capture, Stopped
+from cobot_calib_ros.core.robot_port import Capture, CaptureFailed, Stopped
 from cobot_calib_ros.paths import cell_file
 from cobot_calib_ros.sim.camera import DirectCamera, SimCamera
 from cobot_calib_ros.sim.robot import DirectRobot, SimRobot
@@ -136,6 +136,19 @@ def test_a_view_without_the_board_is_skipped_and_the_others_kept(plan):
     views = _take(plan[:3], _Robot(arm), camera)
     assert views.used == 0 and views.unpaired == 0
     assert [s['reason'] for s in views.skipped] == ['no board seen in 5 images'] * 3
+
+
+def test_a_failed_joint_capture_ends_the_views_naming_the_view(plan):
+    arm = SimRobot(SIM, seed_offset=4)
+
+    class Starved(_Robot):
+        def capture(self, duration):
+            if self.view == 1:
+                raise CaptureFailed('capture_joints: only 3 joint_states samples in 0.100 s')
+            return super().capture(duration)
+
+    with pytest.raises(CaptureFailed, match=f'^view 2 of {VIEWS}: capture_joints: only 3 '):
+        _take(plan, Starved(arm), DirectCamera(SimCamera(SIM, arm), arm, boards=True))
 
 
 def test_pairing_compares_every_joint():
