@@ -13,7 +13,12 @@ PAPER_RATIO_PERCENT = 41.6     # the paper's max error, calibrated / nominal (0.
 
 
 class IdentificationFailed(RuntimeError):
-    """A collection or identification that did not succeed; the message says why."""
+    """A collection or identification that did not succeed; the message says why.
+    ``collection_id``: the sphere collection to resume, when it failed while collecting."""
+
+    def __init__(self, message: str, collection_id: str = '') -> None:
+        super().__init__(message)
+        self.collection_id = collection_id
 
 
 class IdentifyClient:
@@ -39,35 +44,51 @@ class IdentifyClient:
             self._session.__exit__(None, None, None)
 
 
+class CollectionStopped(KeyboardInterrupt):
+    """Ctrl-C during a collection: its goal was cancelled. The sphere collection
+    ``collection_id`` is stored up to its last pose and resumes with that id."""
+
+    def __init__(self, collection_id: str, message: str) -> None:
+        super().__init__(message)
+        self.collection_id, self.message = collection_id, message
+
+
 def identify_on_suite(client: IdentifyClient, *, say: Callable[[str], None],
                       source: str = 'mock', solver: str = 'lm', loss: str = 'soft_l1',
                       max_configs: int = 0, hold: float = 0.05,
-                      validation_configs: int = 125, dry_run: bool = False) -> dict:
-    """Collect (source 'mock') or take a collection folder, identify; the report (mm)."""
-    from cobot_calib_ros.ros.calls import run_action
-    from cobot_calib_ros.ros.types import to_dict
+                      validation_configs: int = 125, dry_run: bool = False,
+                      resume: str = '', collected: bool = False) -> dict:
+    """Collect (source 'mock') or take a collection folder, identify; the report (mm).
+
+    ``resume``: the id of a sphere collection to carry on from its first pose without a row
+    (``collected``: it is complete, go on with the validation sets). The sphere collection's
+    id is chosen here, so a Ctrl-C (CollectionStopped) or a node that dies (IdentificationFailed)
+    can always say which collection to resume."""
     from cobot_calib_ros.api.client import wait_for_suite
+    from cobot_calib_ros.ros.calls import CallError, run_action
+    from cobot_calib_ros.ros.types import to_dict
+    from cobot_calib_ros.core.ids import record_id
     wait_for_suite(client.node)
     collections, collect_seconds = {}, {}
     if source == 'mock':
-        jobs = [('spheres', 'spheres', '', max_configs)]
+        spheres = resume or record_id('spheres')
+        jobs = [] if collected else [('spheres', 'spheres', '', max_configs, spheres)]
         if validation_configs:
-            jobs += [('volume', 'laser_tracker', 'volume', validation_configs),
-                     ('workspace', 'laser_tracker', 'workspace', validation_configs)]
-        for key, kind, region, count in jobs:
-            say(f'collecting {key} ({kind}{" " + region if region else ""}) ...')
+            jobs += [(region, 'laser_tracker', region, validation_configs,
+                      record_id(f'tracker-{region}')) for region in ('volume', 'workspace')]
+        for key, kind, region, count, collection_id in jobs:
+            say(f'{"resuming" if collection_id == resume else "collecting"} {key} ({kind}'
+                f'{" " + region if region else ""}) {collection_id} ...')
             start = time.perf_counter()
-            goal = client.Collect.Goal(source=kind, region=region, max_configs=count,
-                                       hold=hold, seed=1 if region == 'workspace' else 0)
-            _, result = run_action(client.node, client.collect, goal, 3600.0,
-                                   feedback=_progress(say))
-            if result.error_code != 0:
-                raise IdentificationFailed(f'collect_sphere_data ({key}) failed: '
-                                           f'{result.message}')
+            goal = client.Collect.Goal(collection_id=collection_id, source=kind, region=region,
+                                       max_configs=count, hold=hold,
+                                       seed=1 if region == 'workspace' else 0)
+            result = _collect(client, goal, say, spheres)
             collect_seconds[key] = time.perf_counter() - start
             collections[key] = {'id': result.collection_id, 'recorded': result.recorded,
                                 'skipped': result.skipped, 'path': result.path}
             say(f'  {result.message} in {collect_seconds[key]:.1f} s')
+        collections.setdefault('spheres', {'id': spheres})
     say(f'identifying ({solver}) ...')
     goal = client.Identify.Goal(
         collection_id=collections.get('spheres', {}).get('id', ''),
@@ -76,7 +97,10 @@ def identify_on_suite(client: IdentifyClient, *, say: Callable[[str], None],
         validation_volume=collections.get('volume', {}).get('id', ''),
         validation_workspace=collections.get('workspace', {}).get('id', ''),
         dry_run=dry_run)
-    _, result = run_action(client.node, client.identify, goal, 3600.0)
+    try:
+        _, result = run_action(client.node, client.identify, goal, 3600.0)
+    except CallError as e:
+        raise IdentificationFailed(f'identify_kinematics: {e}') from None
     if result.error_code != 0:
         raise IdentificationFailed(f'identify_kinematics failed: {result.message}')
     data = to_dict(result)
@@ -93,6 +117,23 @@ def identify_on_suite(client: IdentifyClient, *, say: Callable[[str], None],
         'solve_seconds': result.solve_seconds, 'collections': collections,
         'collect_seconds': collect_seconds, 'yaml_path': result.yaml_path,
         'urdf_path': result.urdf_path, 'paper_ratio_percent': PAPER_RATIO_PERCENT}
+
+
+def _collect(client: IdentifyClient, goal, say, spheres: str):
+    """One collect_sphere_data goal to its end; its result. Ctrl-C cancels it
+    (CollectionStopped), a failure or a node that is gone raises IdentificationFailed."""
+    from cobot_calib_ros.ros.calls import CallError, Interrupted, run_action
+    what = f'collect_sphere_data ({goal.source} {goal.collection_id})'
+    try:
+        _, result = run_action(client.node, client.collect, goal, 3600.0,
+                               feedback=_progress(say))
+    except Interrupted as e:
+        raise CollectionStopped(spheres, e.message) from None
+    except CallError as e:
+        raise IdentificationFailed(f'{what}: {e}', spheres) from None
+    if result.error_code != 0:
+        raise IdentificationFailed(f'{what} failed: {result.message}', spheres)
+    return result
 
 
 def _stats_pair(nominal: dict, calibrated: dict) -> dict:

@@ -15,7 +15,8 @@ import json
 from pathlib import Path
 
 from cobot_calib_ros.api.identification import PAPER_RATIO_PERCENT
-from cobot_calib_ros.cli.common import EXIT_FAILED, EXIT_OK, EXIT_USAGE, fail, say
+from cobot_calib_ros.cli.common import (EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK, EXIT_USAGE,
+                                        fail, say)
 
 CELLS = {'iiwa7': 'iiwa7_close', 'sawyer': 'sawyer_close'}
 MUKCA_PUBLISHED_MM = 0.2       # MUKCa paper: mean error after calibration
@@ -47,6 +48,9 @@ def add_parser(subparsers):
                    help='MUKCa data: nominal URDF (default: iiwa14.urdf beside the data folder)')
     p.add_argument('--ball', type=float, nargs=3, default=(0.0, 0.0, 0.04), metavar=('X', 'Y', 'Z'),
                    help='MUKCa data: nominal ball centre in tool0 [m] (default 0 0 0.04)')
+    p.add_argument('--resume', nargs='?', const='', default=None, metavar='ID',
+                   help='carry on the sphere collection ID (default: the newest unfinished one '
+                        'of the robot) from its last stored pose, then validate and identify')
     p.add_argument('--attach', action='store_true',
                    help='use the suite running on ROS_DOMAIN_ID instead of starting one')
     p.add_argument('--json', action='store_true')
@@ -71,24 +75,67 @@ def run(args) -> int:
                         '(metadata.yaml) or MUKCa data (<location>/hole_0.csv)', EXIT_USAGE)
     cell = args.cell or CELLS[args.robot or 'iiwa7']
     from cobot_calib_ros.api import identification, launcher
-    from cobot_calib_ros.ros.calls import CallError
+    from cobot_calib_ros.ros.calls import CallError, Interrupted
+    from cobot_calib_ros.ros import interrupts
+    resume, collected = '', False
+    if args.resume is not None:
+        try:
+            resume, collected = _resumable(args.resume, cell)
+        except ValueError as e:
+            return fail(f'identify --resume: {e}', EXIT_USAGE)
     suite = contextlib.nullcontext() if args.attach else launcher.private_suite(
         cell, say=lambda text: say(args, text))
     try:
-        with suite:
+        with interrupts.deferred(), suite:
             client = identification.IdentifyClient()
             try:
                 report = identification.identify_on_suite(
                     client, say=lambda text: say(args, text), source=args.source,
                     solver=args.solver, loss=args.loss, max_configs=args.max_configs,
                     hold=args.hold, validation_configs=args.validation_configs,
-                    dry_run=args.dry_run)
+                    dry_run=args.dry_run, resume=resume, collected=collected)
             finally:
                 client.close()
+    except identification.CollectionStopped as e:
+        return fail(f'identify stopped (Ctrl-C): {e.message}; the poses measured so far are '
+                    f'stored: resume with: {_resume_command(args, e.collection_id)}',
+                    EXIT_INTERRUPTED)
+    except Interrupted as e:
+        return fail(f'identify stopped (Ctrl-C): {e.message}', EXIT_INTERRUPTED)
     except (CallError, identification.IdentificationFailed) as e:
-        return fail(f'identify failed: {e}')
+        hint = f'; then resume with: {_resume_command(args, e.collection_id)}' if getattr(
+            e, 'collection_id', '') else ''
+        return fail(f'identify failed: {e}{hint}')
     _print(args, report)
     return EXIT_OK
+
+
+def _resume_command(args, collection_id: str) -> str:
+    robot = f' --cell {args.cell}' if args.cell else f' --robot {args.robot}' if args.robot \
+        else ''
+    return f'cobot-calib identify{robot}{" --attach" if args.attach else ""} --resume ' \
+        f'{collection_id}'
+
+
+def _resumable(given: str, cell: str) -> tuple[str, bool]:
+    """(collection id, complete?) for --resume [ID]: the given id, else the newest unfinished
+    sphere collection of the cell's robot in the data dir ($COBOT_CALIB_DATA, the suite's
+    default). An id not in this data dir is sent as it is (an attached suite may store
+    elsewhere). ValueError when there is nothing to resume."""
+    from cobot_calib_ros import paths
+    from cobot_calib_ros.core.cell import load_cell
+    from cobot_calib_ros.store.collections import CollectionStore
+    from cobot_calib_ros.store.files import check_id
+    store = CollectionStore(paths.data_dir(''))
+    if given:
+        stored = store.load(check_id(given))
+        return given, stored is not None and stored.meta['status'] == 'done'
+    robot = load_cell(paths.cell_file(cell)).robot
+    for meta in store.list_collections():
+        if meta['source'] == 'spheres' and meta['robot'] == robot and meta['status'] != 'done':
+            return meta['id'], False
+    raise ValueError(f'no unfinished {robot} sphere collection in {store.directory}; give '
+                     'its id (--resume ID)')
 
 
 def _print(args, report: dict) -> None:

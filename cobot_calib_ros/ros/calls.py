@@ -6,6 +6,7 @@ executor (ros.session) is spun by that executor unless another is given.
 """
 from __future__ import annotations
 
+import contextlib
 import time
 
 import rclpy
@@ -67,7 +68,7 @@ def run_action(node: Node, client: ActionClient, goal, timeout: float = 60.0,
                feedback=None, executor=None):
     """Send a goal, wait for its result; returns (status, result). Ctrl-C (KeyboardInterrupt)
     while it runs cancels the goal, waits up to CANCEL_WAIT s for it to end and raises
-    Interrupted."""
+    Interrupted. A server that leaves the graph meanwhile ends the wait (ServerWatch)."""
     if not spin_until(node, client.server_is_ready, min(timeout, 10.0), executor):
         raise CallError(f'action {client._action_name} is not available; '
                         'is the node suite up (cobot-calib up)?')
@@ -79,13 +80,63 @@ def run_action(node: Node, client: ActionClient, goal, timeout: float = 60.0,
         if not handle.accepted:
             raise CallError(f'action {client._action_name} rejected the goal (busy?)')
         result = handle.get_result_async()
-        if not spin_until(node, result.done, timeout, executor):
-            handle.cancel_goal_async()
-            raise CallError(f'action {client._action_name} did not finish within '
-                            f'{timeout:.0f} s')
+        watch = ServerWatch(node, client)
+        deadline = time.monotonic() + timeout
+        while not spin_until(node, result.done, min(WATCH_PERIOD, deadline - time.monotonic()),
+                             executor):
+            if watch.gone():
+                raise CallError(watch.gone_line())
+            if time.monotonic() >= deadline:
+                handle.cancel_goal_async()
+                raise CallError(f'action {client._action_name} did not finish within '
+                                f'{timeout:.0f} s')
     except KeyboardInterrupt:
         raise _cancelled(node, client, send, executor) from None
     return result.result().status, result.result().result
+
+
+WATCH_PERIOD = 0.25       # [s] between two looks at the graph while a goal runs
+
+
+class ServerWatch:
+    """Whether an action's server is still on the graph, for a client waiting on a goal.
+
+    A node that exits cleanly leaves the graph at once; a killed one (kill -9, a crash) only
+    when DDS's participant lease runs out (Fast DDS: 20 s). The server counts as gone once it
+    has been out of the graph for GONE_AFTER s; gone_line() names its node (found on the graph
+    when the watch starts) and says how to go on.
+    """
+
+    GONE_AFTER = 3.0      # [s] unseen before the server counts as gone
+
+    def __init__(self, node: Node, client: ActionClient) -> None:
+        self._client, self.action = client, client._action_name
+        self.server_node = action_server_node(node, self.action) or 'server'
+        self._seen = time.monotonic()
+
+    def gone(self) -> bool:
+        now = time.monotonic()
+        if self._client.server_is_ready():
+            self._seen = now
+        return now - self._seen > self.GONE_AFTER
+
+    def gone_line(self) -> str:
+        return (f'the {self.server_node} node is gone ({self.action} unavailable for '
+                f'{self.GONE_AFTER:.0f} s): restart it (cobot-calib up starts the suite; its '
+                'log is in ~/.ros/log)')
+
+
+def action_server_node(node: Node, action: str) -> str:
+    """The name of the node that serves ``action`` (a relative name: in the root namespace,
+    as the CLI's nodes resolve it) on the graph now, '' if none."""
+    from rclpy.action.graph import get_action_server_names_and_types_by_node
+    wanted = '/' + action.lstrip('/')
+    for name, namespace in node.get_node_names_and_namespaces():
+        with contextlib.suppress(Exception):      # a node that left meanwhile
+            served = get_action_server_names_and_types_by_node(node, name, namespace)
+            if any(n == wanted for n, _ in served):
+                return name
+    return ''
 
 
 def _cancelled(node: Node, client: ActionClient, send, executor) -> Interrupted:

@@ -1,0 +1,114 @@
+"""`cobot-calib identify --attach` against the faults a cell has (issue 22.1, 22.4, 22.5): real
+processes, real signals. Ctrl-C cancels the collection at the next pose boundary and keeps its
+poses; --resume carries it on; a kinematic_identifier killed under it is named."""
+import os
+from pathlib import Path
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+from cobot_calib_ros.api import launcher
+from cobot_calib_ros.store.collections import CollectionStore
+
+NODES = ('mock_robot', 'joint_state_monitor', 'proximity_sensor', 'kinematic_identifier')
+
+
+@pytest.fixture
+def cell(tmp_path):
+    """The four nodes a sphere collection needs, on a domain of their own, storing in
+    tmp_path; the environment for a CLI that attaches to them (same data dir)."""
+    import domain_coordinator
+    with domain_coordinator.domain_id() as domain:
+        env = dict(os.environ, ROS_DOMAIN_ID=str(domain), COBOT_CALIB_DATA=str(tmp_path),
+                   ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
+        suite = launcher.Suite(tmp_path / 'logs')
+        suite.start(launcher.suite_specs('sawyer_close', NODES, overrides={
+            'mock_robot': {'time_scale': '0.2'},
+            'kinematic_identifier': {'data_dir': str(tmp_path)}}), env=env)
+        try:
+            yield suite, env, CollectionStore(tmp_path)
+        finally:
+            suite.stop()
+
+
+def _identify(env, *args) -> subprocess.Popen:
+    return subprocess.Popen(
+        [sys.executable, '-m', 'cobot_calib_ros.cli.main', 'identify', '--robot', 'sawyer',
+         '--attach', '--hold', '0.02', '--validation-configs', '0', '--dry-run', *args],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+
+
+def _until_poses_come(proc: subprocess.Popen) -> list[str]:
+    """stdout lines up to the first progress line ('  pose i/N ...'), which the client prints
+    at the collection's first feedback."""
+    lines, deadline = [], time.monotonic() + 120
+    while time.monotonic() < deadline:
+        line = proc.stdout.readline()
+        if not line:
+            break
+        lines.append(line)
+        if line.lstrip().startswith('pose '):
+            return lines
+    pytest.fail(f'no collection progress: {"".join(lines)}{proc.stderr.read()}')
+
+
+def test_ctrl_c_cancels_the_collection_keeps_its_poses_and_resume_finishes_it(cell):
+    suite, env, store = cell
+    proc = _identify(env, '--max-configs', '120')
+    started = _until_poses_come(proc)
+    proc.send_signal(signal.SIGINT)
+    interrupted = time.monotonic()
+    _, err = proc.communicate(timeout=60)
+    assert time.monotonic() - interrupted < 20.0, err
+    assert proc.returncode == 130, err
+    (collection_id,) = [m['id'] for m in store.list_collections()]
+    assert collection_id in ''.join(started)            # named before the first pose
+    assert 'identify stopped (Ctrl-C)' in err and 'canceled at pose' in err, err
+    assert err.strip().endswith('resume with: cobot-calib identify --robot sawyer --attach '
+                                f'--resume {collection_id}'), err
+    assert 'Traceback' not in err
+    stopped = store.load(collection_id)
+    # the node ended the goal before the client exited: status written after the last pose
+    assert stopped.meta['status'] == 'aborted'
+    kept = len(stopped.q) + len(stopped.skipped)
+    assert 1 <= kept < 120
+    # the next goal is accepted: --resume (no id: the newest unfinished) carries it on
+    resumed = _identify(env, '--resume', '--json')
+    out, err = resumed.communicate(timeout=600)
+    assert resumed.returncode == 0, err
+    assert f'resuming spheres (spheres) {collection_id}' in err
+    done = store.load(collection_id)
+    assert done.meta['status'] == 'done' and len(done.q) + len(done.skipped) == 120
+    # the poses of the first run are kept, not measured again
+    first_poses = {int(i): tuple(q) for i, q in zip(stopped.index, stopped.q)}
+    assert all(tuple(done.q[list(done.index).index(i)]) == q for i, q in first_poses.items())
+    assert [m['id'] for m in store.list_collections()] == [collection_id]
+
+
+def test_a_killed_kinematic_identifier_is_named_not_waited_on(cell):
+    suite, env, store = cell
+    proc = _identify(env)                               # 3 x 625 poses: minutes of work
+    _until_poses_come(proc)
+    suite.processes['kinematic_identifier'].kill()
+    killed = time.monotonic()
+    _, err = proc.communicate(timeout=120)
+    # DDS drops a killed node from the graph after its 20 s lease; + 3 s unseen
+    assert time.monotonic() - killed < 40.0, err
+    assert proc.returncode == 1, err
+    assert 'the kinematic_identifier node is gone' in err and 'restart it' in err, err
+    (collection_id,) = [m['id'] for m in store.list_collections()]
+    assert err.strip().endswith(f'--attach --resume {collection_id}'), err
+    assert 'Traceback' not in err
+
+
+def test_resume_says_what_it_needs(tmp_path):
+    env = dict(os.environ, COBOT_CALIB_DATA=str(tmp_path))
+    out = subprocess.run([sys.executable, '-m', 'cobot_calib_ros.cli.main', 'identify',
+                          '--robot', 'sawyer', '--attach', '--resume'], capture_output=True,
+                         text=True, env=env, timeout=60)
+    assert out.returncode == 2
+    assert f'no unfinished sawyer sphere collection in {Path(tmp_path) / "kinematic_data"}' \
+        in out.stderr
