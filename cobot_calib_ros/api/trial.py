@@ -24,7 +24,8 @@ class TrialClient:
             super().__init__(line)
             self.line = line
 
-    def __init__(self, say, stall_timeout: float = STALL_TIMEOUT) -> None:
+    def __init__(self, say, stall_timeout: float = STALL_TIMEOUT,
+                 each_reading: bool = True) -> None:
         from rclpy.action import ActionClient
         from cobot_calib_msgs.action import RunTrial
         from cobot_calib_ros.ros.session import session
@@ -33,8 +34,10 @@ class TrialClient:
         self.RunTrial = RunTrial
         self._client = ActionClient(self.node, RunTrial, 'run_trial')
         self._say, self._stall_timeout = say, stall_timeout
+        self._each_reading = each_reading    # a line per reading, not only per cycle
         self._interrupts = 0
         self._last = None           # the latest feedback
+        self._reading = None        # (cycle, point) of the latest reading printed
         self._heard = 0.0           # time.monotonic() of the latest feedback
         self._seen = 0.0            # time.monotonic() the action server was last seen
 
@@ -95,7 +98,7 @@ class TrialClient:
                 raise self.Stopped(f'trial {goal.trial_id} not started (Ctrl-C)')
             raise CallError('action run_trial is not available; is the node suite up '
                             '(cobot-calib up) on the same ROS_DOMAIN_ID?')
-        self._last = None
+        self._last = self._reading = None
         self._heard = self._seen = time.monotonic()
         send = self._client.send_goal_async(goal, feedback_callback=self._feedback)
         self._answered(send, goal.trial_id)
@@ -198,7 +201,12 @@ class TrialClient:
         s = fb.statistics
         if previous is None:                  # the first one, sent before the robot moves
             self._say(self._started_line(fb))
-        elif s.cycles_done != previous.statistics.cycles_done and s.cycles_done >= 2:
+        if self._each_reading and fb.point_name and (fb.cycle, fb.point_index) != self._reading:
+            self._reading = (fb.cycle, fb.point_index)       # not a heartbeat's repeat
+            self._say(f'  cycle {fb.cycle + 1}/{s.cycles_total} {fb.point_name}: '
+                      f'{fb.distance * 1e3:.4f} mm')
+        if previous is not None and s.cycles_done != previous.statistics.cycles_done \
+                and s.cycles_done >= 2:
             self._say(f'  {s.method}: cycle {s.cycles_done}/{s.cycles_total}  '
                       f'RP_all {s.rp_all_mm:.4f} mm')
 

@@ -57,10 +57,20 @@ def run_trial(args) -> int:
     s = result.statistics
     out = {'trial_id': result.trial_id, 'method': s.method, 'axis': s.axis,
            'cycles': s.cycles_total, 'message': result.message, 'rp_mm': list(s.rp_mm),
-           'rp_all_mm': s.rp_all_mm, 'csv': result.csv_path}
+           'rp_all_mm': s.rp_all_mm, 'csv': result.csv_path,
+           'capture_retries': result.capture_retries, 'probe_retries': result.probe_retries}
     print(json.dumps(out) if args.json else
-          f'trial {result.trial_id}: {result.message}\n  data: {result.csv_path}')
+          f'trial {result.trial_id}: {result.message}\n  data: {result.csv_path}'
+          + _retries_line(result))
     return 0
+
+
+def _retries_line(result) -> str:
+    """Retries after NO_DATA (a starved joint_states or probe stream), when there were any."""
+    if not (result.capture_retries or result.probe_retries):
+        return ''
+    return (f'\n  retried after NO_DATA: {result.capture_retries} joint captures, '
+            f'{result.probe_retries} probe readings (a stalling stream: see /diagnostics)')
 
 
 def run_experiment(args) -> int:
@@ -77,7 +87,7 @@ def run_experiment(args) -> int:
     rows, trial_ids, hand_eye = [], [], None
     try:
         with launcher.private_suite(args.cell, overrides, say):
-            client = TrialClient(say)
+            client = TrialClient(say, each_reading=False)      # six trials: a line per cycle
             try:
                 wait_for_suite(client.node)
                 for method in methods:

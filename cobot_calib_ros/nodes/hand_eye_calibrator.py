@@ -127,6 +127,7 @@ class HandEyeCalibrator(Node):
         self._tf = StaticBroadcaster(self)
         self._busy = threading.Lock()
         self._health = Diagnostics(self)
+        self._health.watch(capture_retries=lambda: self._robot.capture_retries)
         self._server = ActionServer(
             self, Action, 'calibrate_hand_eye', execute_callback=self._on_goal,
             goal_callback=self._accept, cancel_callback=lambda _: CancelResponse.ACCEPT,

@@ -88,6 +88,7 @@ class KinematicIdentifier(Node):
         self._robot = RobotCalls(self._answers)
         self._busy = threading.Lock()
         self._health = Diagnostics(self)
+        self._health.watch(capture_retries=lambda: self._robot.capture_retries)
         self._health.set(OK, 'idle', job='')
         # every recorded pose, for recording a session (cobot-calib record); frame_id = target
         self._captures = self.create_publisher(JointState, marks.CAPTURES, 100)

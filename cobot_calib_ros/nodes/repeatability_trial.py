@@ -10,6 +10,7 @@ starts.
 """
 from __future__ import annotations
 
+from dataclasses import replace
 import threading
 
 from cobot_calib_msgs.action import RunTrial
@@ -55,6 +56,7 @@ class RosRobot:
         self.hand_eye = np.eye(4)   # the hand-eye landmark views are planned with
         self._views = views
         self._probe_seconds = 0.0
+        self.probe_retries = 0      # probe windows read again after NO_DATA (a lost burst)
         self._home, self._q = home, home.copy()    # where IK starts: the last known joints
         self._probe_window, self._capture_duration = probe_window, capture_duration
         self._probe = answers.node.create_client(AverageProximity, 'probe/average')
@@ -106,6 +108,12 @@ class RosRobot:
         except RobotCallError as e:
             raise trialmod.TrialError('motion', str(e))
 
+    def retries(self) -> dict[str, int]:
+        """The retries so far: capture_joints holds after NO_DATA, probe re-reads after
+        NO_DATA (what a stalling joint_states or probe stream costs)."""
+        return {'capture_joints': self._calls.capture_retries,
+                'probe_average': self.probe_retries}
+
     @property
     def robot_seconds(self) -> float:
         """Robot time of this node's moves, holds and probe windows so far [s]."""
@@ -131,6 +139,7 @@ class RosRobot:
         self._probe_seconds += self._probe_window
         res = self._average(self._probe_window)
         if res.error_code == AverageProximity.Response.NO_DATA:   # a lost burst: once more
+            self.probe_retries += 1
             res = self._average(4 * self._probe_window)
         if res.error_code == AverageProximity.Response.SUCCESS:
             return Reading(res.distance, ReadingStatus.OK)
@@ -182,6 +191,8 @@ class RepeatabilityTrial(Node):
                                self._p('capture_duration'), None if views.problem() else views)
         self._pub = self.create_publisher(Repeatability, 'repeatability', qos.LATCHED)
         self._health = Diagnostics(self)
+        self._health.watch(capture_retries=lambda: calls.capture_retries,
+                           probe_retries=lambda: self._robot.probe_retries)
         self._health.set(OK, 'idle', trial_id='', method='', axis='', cycles_done=0,
                          cycles_total=0, rp_all_mm='nan')      # the keys while running
         self._busy = threading.Lock()
@@ -288,7 +299,7 @@ class RepeatabilityTrial(Node):
                 self._live[0].publish_feedback(self._live[1])
 
     def _run(self, goal_handle):
-        trial = _Goal(goal_handle.request)
+        trial = _Goal(goal_handle.request, self._robot.retries())
         try:
             run, resume = self._prepare(trial, goal_handle)
             data = run.resume(resume) if resume is not None else run.start()
@@ -330,9 +341,14 @@ class RepeatabilityTrial(Node):
     def _result(self, trial: _Goal, code: int, message: str, data=None):
         """The result with what is known of the trial: its stored method, axis, cycles, RP."""
         result = RunTrial.Result(error_code=code, message=message, trial_id=trial.trial_id)
+        retries = trial.retries_since(self._robot.retries())
+        result.capture_retries = retries['capture_joints']
+        result.probe_retries = retries['probe_average']
         trial_dir = self._store.directory / trial.trial_id
         if data is None and (trial_dir / 'trial.yaml').exists():
             data = self._store.load(trial.trial_id)
+        if data is not None:
+            data = self._with_retries(data, retries)
         stamp = self.get_clock().now().to_msg()
         result.calibration_seconds = float('nan')
         if data is not None:
@@ -345,6 +361,14 @@ class RepeatabilityTrial(Node):
         elif trial.meta:                         # a new trial that failed before it was stored
             result.statistics = stats_msg(trial.trial_id, trial.meta, 0, None, stamp)
         return result
+
+    def _with_retries(self, data, retries: dict[str, int]):
+        """The trial with this goal's retries added to its stored ``retries``."""
+        try:
+            return replace(data, meta=self._store.record_retries(data.meta['id'], retries))
+        except (OSError, ValueError) as e:
+            self.get_logger().warning(f'trial {data.meta["id"]}: retries not stored: {e}')
+            return data
 
     def _prepare(self, trial: _Goal, goal_handle) -> tuple[trialmod.TrialRun, object]:
         goal = trial.goal
@@ -476,12 +500,17 @@ class _Goal:
     """One run_trial goal as it is worked out: its id, the trial's metadata once known (the
     stored one on resume), and the (cycle, point) reached."""
 
-    def __init__(self, goal) -> None:
+    def __init__(self, goal, retries: dict[str, int]) -> None:
         self.goal = goal
+        self._retries_before = retries      # the node's retry counts when the goal came
         self.trial_id = goal.trial_id or trialmod.new_trial_id(goal.method, goal.axis)
         self.meta: dict = {}
         self.progress: tuple[int, int] = (0, 0)
         self.resumed = False
+
+    def retries_since(self, retries: dict[str, int]) -> dict[str, int]:
+        """The retries this goal made (the node's counts now minus those at its start)."""
+        return {k: n - self._retries_before.get(k, 0) for k, n in retries.items()}
 
 
 def main(args=None) -> None:

@@ -143,6 +143,7 @@ class UserFrameSolver(Node):
         self._answers = spin.Companion(self, 'clients')
         self._calibrator = spin.Companion(self, 'calibrator')
         self._robot = RobotCalls(self._answers)
+        self._health.watch(capture_retries=lambda: self._robot.capture_retries)
         self._views = LandmarkViews(self._answers, self._robot, self._cell, self._model,
                                     lambda: now_ns(self))
         self._pub = self.create_publisher(UserFrameCalibration, 'user_frame', qos.LATCHED)

@@ -3,7 +3,8 @@
 A node makes one ``Diagnostics`` and keeps its status current with ``set``; the timer stamps
 each message with the node clock (use_sim_time works) and publishes the latest status. Counters
 that change at a high rate are better read once per message: give ``update``, a function the
-timer calls just before it publishes (on the timer's executor thread), which calls ``set``.
+timer calls just before it publishes (on the timer's executor thread), which calls ``set``;
+or ``watch`` a figure, which every message then reads afresh (e.g. a retry count).
 
 The status is named ``<node>: health`` after the node's fully qualified name without the
 leading slash (``iso/proximity_sensor: health``), so the same node in two namespaces gives two
@@ -37,6 +38,7 @@ class Diagnostics:
         self._status = DiagnosticStatus(level=OK, name=name or status_name(node),
                                         message='starting', hardware_id=hardware_id)
         self._values: dict[str, str] = {}
+        self._watched: dict[str, Callable[[], object]] = {}
         self._pub = node.create_publisher(DiagnosticArray, TOPIC, 10)
         node.create_timer(period, self.publish)
 
@@ -47,6 +49,12 @@ class Diagnostics:
             self._status.message = message
             self._values.update({k: str(v) for k, v in values.items()})
 
+    def watch(self, **figures: Callable[[], object]) -> None:
+        """Key figures read at every message (``capture_retries=lambda: calls.capture_retries``),
+        whatever the level and message are."""
+        with self._lock:
+            self._watched.update(figures)
+
     def publish(self) -> None:
         if self._update is not None:
             try:
@@ -56,6 +64,7 @@ class Diagnostics:
         msg = DiagnosticArray()
         msg.header.stamp = self._node.get_clock().now().to_msg()
         with self._lock:
+            self._values.update({k: str(read()) for k, read in self._watched.items()})
             self._status.values = [KeyValue(key=k, value=v) for k, v in self._values.items()]
             msg.status = [self._status]
             self._pub.publish(msg)

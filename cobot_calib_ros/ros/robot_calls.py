@@ -32,6 +32,7 @@ class RobotCalls:
         self.capture_client = answers.node.create_client(CaptureJoints, 'capture_joints')
         self._laser_client = None
         self.robot_seconds = 0.0    # robot time of the moves (as move_to reports) and holds [s]
+        self.capture_retries = 0    # holds tried again after NO_DATA (a starved joint_states)
 
     def move(self, goal: MoveTo.Goal, result_timeout: float) -> MoveTo.Result:
         """Run a move_to goal to its end; RobotCallError unless it succeeded."""
@@ -68,7 +69,9 @@ class RobotCalls:
         """Joints averaged over a hold of ``duration`` [s] (``position``, ``std`` [rad]).
 
         A hold with too few samples (NO_DATA: a busy machine starved the 1 kHz joint_states
-        for a moment) is tried again, up to CAPTURE_ATTEMPTS times, after a growing pause."""
+        for a moment) is tried again, up to CAPTURE_ATTEMPTS times, after a growing pause;
+        every such retry counts in ``capture_retries`` (the nodes show it on /diagnostics and
+        in their results, so a stalling stream shows)."""
         if not self.capture_client.wait_for_service(timeout_sec=SERVER_WAIT):
             raise RobotCallError('capture_joints not available (is joint_state_monitor up?)')
         req = CaptureJoints.Request(duration=duration)
@@ -79,6 +82,7 @@ class RobotCalls:
                 raise RobotCallError(f'capture_joints: {e}; is joint_state_monitor up?')
             if res.error_code != CaptureJoints.Response.NO_DATA or attempt == CAPTURE_ATTEMPTS:
                 break
+            self.capture_retries += 1
             self._answers.node.get_logger().warning(
                 f'capture_joints: {res.message}; trying again ({attempt}/{CAPTURE_ATTEMPTS})')
             time.sleep(CAPTURE_RETRY_PAUSE * attempt)

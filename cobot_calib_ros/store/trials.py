@@ -181,6 +181,20 @@ class TrialStore(WarningLog):
         times[cycle] = float(seconds)
         self._write_meta({**meta, 'calibration_s': times})
 
+    def record_retries(self, trial_id: str, retries: dict[str, int]) -> dict[str, Any]:
+        """Add one goal's retries (``{'capture_joints': n, 'probe_average': n}``: holds and
+        probe windows tried again after NO_DATA) to the trial's ``retries`` in the metadata;
+        the updated metadata."""
+        meta = self._read_meta(check_id(trial_id))
+        if meta is None:
+            raise ValueError(f'trial {trial_id!r} is missing or unreadable')
+        total = dict(meta.get('retries') or {})
+        for key, count in retries.items():
+            total[key] = int(total.get(key, 0)) + int(count)
+        meta = {**meta, 'retries': total}
+        self._write_meta(meta)
+        return meta
+
     def load(self, trial_id: str) -> TrialData | None:
         """Rebuild a trial from disk, or None if its metadata is unreadable (see warnings)."""
         meta = self._read_meta(check_id(trial_id))

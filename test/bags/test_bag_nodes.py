@@ -5,7 +5,6 @@ from pathlib import Path
 import signal
 import subprocess
 import sys
-import time
 
 import pytest
 import rclpy
@@ -63,11 +62,10 @@ def test_recorder_records_what_the_player_plays(bag_domain, tmp_path):
     rec = subprocess.Popen([recorder, '--ros-args', '-p', f'output:={out}',
                             '-p', f'topics:=[{MARKS}, {STATS}]', '-p', 'compression:=zstd'],
                            env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    try:
-        time.sleep(1.5)
+    try:     # the player waits until the recorder (starting meanwhile) matches every topic
         play = subprocess.run([player, '--ros-args', '-p', f'bag:={SAMPLE}', '-p', 'rate:=0.0',
                                '-p', f'topics:=[{MARKS}, {STATS}]',
-                               '-p', 'wait_subscribers:=10.0'],
+                               '-p', 'wait_subscribers:=60.0'],
                               env=env, capture_output=True, text=True, timeout=60)
         assert play.returncode == 0, play.stdout + play.stderr
         assert 'published 50 messages' in play.stdout + play.stderr

@@ -36,8 +36,7 @@ def test_all_topics_late_ones_too_hidden_ones_not(bag_domain, tmp_path):
     thread = threading.Thread(target=spin, daemon=True)
     thread.start()
     node = rclpy.create_node('late_publisher', context=context)
-    try:
-        time.sleep(0.5)                                   # the recorder is running already
+    try:     # the recorder's first scan (in its constructor) ran before this topic existed
         reliable = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
         late = node.create_publisher(String, '/late_topic', reliable)
         hidden = node.create_publisher(String, '/_hidden/topic', reliable)

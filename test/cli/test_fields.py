@@ -26,7 +26,8 @@ def _refused(msg_type, text: str) -> str:
 
 
 @pytest.mark.parametrize('text, value', [
-    ('{duration: 1}', 1.0), ('{duration: 1e9}', 1e9), ('{duration: 1.0e9}', 1e9),
+    ('{duration: 1}', 1.0), ('{duration: 0.2e0}', 0.2), ('{duration: 1e9}', 1e9),
+    ('{duration: 1.0e9}', 1e9),
     ('{duration: -2.5E-3}', -2.5e-3), ('{duration: "0.5"}', 0.5), ('{duration: 0.5}', 0.5)])
 def test_numbers_become_floats_for_float_fields(text, value):
     request = set_fields(CaptureJoints.Request(), yaml.safe_load(text))

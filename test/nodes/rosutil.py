@@ -35,3 +35,40 @@ def cli(*args, timeout=30.0) -> subprocess.CompletedProcess:
     """Run `cobot-calib ARGS` on the session's domain; its completed process."""
     return subprocess.run(cli_command(*args), capture_output=True, text=True,
                           timeout=timeout, env=dict(os.environ))
+
+
+ACTIVE_GOAL = (1, 2, 3)     # action_msgs/GoalStatus ACCEPTED, EXECUTING, CANCELING
+
+
+def wait_goals_ended(node, action: str, timeout: float = 30.0) -> bool:
+    """Until the action server's status lists no goal that is still accepted, executing or
+    canceling (what it latches on <action>/_action/status); True if so within ``timeout``."""
+    from action_msgs.msg import GoalStatusArray
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    latest = []
+
+    def keep(msg) -> None:
+        latest[:] = [msg]
+    profile = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    sub = node.create_subscription(GoalStatusArray, f'{action}/_action/status', keep, profile)
+    try:
+        return spin_until(node, lambda: bool(latest) and not any(
+            s.status in ACTIVE_GOAL for s in latest[0].status_list), timeout,
+            node.executor_for_tests)
+    finally:
+        node.destroy_subscription(sub)
+
+
+def wait_subscribed(node, topic: str, subscriber: str, timeout: float = 30.0) -> bool:
+    """Until node ``subscriber`` (a name) has a subscription on ``topic`` in the graph."""
+    return spin_until(node, lambda: any(
+        info.node_name == subscriber for info in node.get_subscriptions_info_by_topic(topic)),
+        timeout, node.executor_for_tests)
+
+
+def machine_unloaded() -> bool:
+    """The 1-minute load average is below the number of cores: nothing else competes with the
+    suite's 1 kHz streams, so a retry after NO_DATA (a starved stream) would be a defect. On a
+    loaded machine starved streams are real (retries then show in /diagnostics and results)."""
+    return os.getloadavg()[0] < (os.cpu_count() or 1)

@@ -12,13 +12,14 @@ from cobot_calib_msgs.srv import AverageProximity, CaptureJoints, GetGroundTruth
 import pytest
 from rclpy.action import ActionClient
 from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import JointState
 
 from cobot_calib_ros.api import launcher
 from cobot_calib_ros.ros.calls import run_action, spin_until
 from cobot_calib_ros.core import frames
 from cobot_calib_ros.core.cell import tool_down_orientation
 from cobot_calib_ros.ros import convert
-from cobot_calib_ros.ros.time import ns_to_stamp
+from cobot_calib_ros.ros.time import ns_to_stamp, stamp_to_ns
 from rosutil import call
 
 NS = 'simtime'
@@ -75,10 +76,22 @@ def _capture(ros, duration):
     return res, time.monotonic() - started
 
 
+def _wait_stamped_after(ros, sim_ns: int) -> None:
+    """Until a /simtime/joint_states message stamped after ``sim_ns`` arrives."""
+    got = []
+    sub = ros.create_subscription(
+        JointState, f'/{NS}/joint_states',
+        lambda msg: got.append(stamp_to_ns(msg.header.stamp) > sim_ns), 100)
+    try:
+        assert spin_until(ros, lambda: any(got), 30.0, ros.executor_for_tests)
+    finally:
+        ros.destroy_subscription(sub)
+
+
 @pytest.mark.parametrize('rate', [2.0, 0.5])
 def test_a_capture_window_is_in_ros_time(ros, sim_clock, rate):
     sim_clock.rate = rate
-    time.sleep(0.3)
+    _wait_stamped_after(ros, sim_clock.sim_ns)    # joint_states on the clock at this rate
     _capture(ros, 0.1)       # the monitor's first samples on this clock
     for _ in range(3):       # a stall of the stream on a loaded machine: NO_DATA, again
         res, wall = _capture(ros, 0.5)
