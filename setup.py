@@ -1,12 +1,20 @@
+import ast
 from glob import glob
+from pathlib import Path
 
 from setuptools import find_packages, setup
 
 package_name = 'cobot_calib_ros'
 
-NODES = ['mock_robot', 'proximity_sensor', 'joint_state_monitor', 'user_frame_solver',
-         'repeatability_trial', 'kinematic_identifier', 'mock_camera', 'landmark_detector',
-         'hand_eye_calibrator']
+
+def node_registry() -> tuple[str, ...]:
+    """cobot_calib_ros.nodes.NODES, the one node list, read without importing the package."""
+    tree = ast.parse((Path(__file__).parent / package_name / 'nodes' / '__init__.py').read_text())
+    return next(ast.literal_eval(node.value) for node in tree.body if isinstance(node, ast.Assign)
+                and [t.id for t in node.targets if isinstance(t, ast.Name)] == ['NODES'])
+
+
+NODES = node_registry()
 # rosbag2 record / play on rclpy (cobot_calib_ros.bags): `ros2 run cobot_calib_ros bag_player`
 BAG_NODES = ['bag_player', 'bag_recorder']
 

@@ -214,6 +214,7 @@ def write_sample(raw: Path, out: Path, live: dict) -> None:
     from cobot_calib_ros.api import replay_check, replay_landmark_check as check
     from cobot_calib_ros.bags.reader import open_bag
     from cobot_calib_ros.bags.writer import BagWriter
+    from cobot_calib_ros.core.frames import transform_error
     from cobot_calib_ros.ros.time import header_ns
 
     cal = live['calibrations'][METHOD]
@@ -252,7 +253,7 @@ def write_sample(raw: Path, out: Path, live: dict) -> None:
                               max_rms_error=params['max_rms_error'],
                               max_scale_error=params['max_scale_error'])
         T_live = np.array(replay_check.matrix(cal))
-        dt, dr = replay_check.difference(np.asarray(fit.fit.M), T_live)
+        dt, dr = transform_error(np.asarray(fit.fit.M), T_live)
         print(f'offline fit of the live landmarks vs the live frame: {dt:.3e} m, {dr:.3e} rad',
               flush=True)
         if dt > 1e-12 or dr > 1e-12:

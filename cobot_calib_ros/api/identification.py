@@ -167,12 +167,12 @@ def identify_from_bag(folder: str | Path, cell_name: str, *, solver: str = 'lm',
     same core job as the node. BagError for an unreadable bag; ValueError (or KeyError) when
     it holds no usable pose or the job refuses the data."""
     from cobot_calib_ros.bags.sphere_captures import sphere_observations
-    from cobot_calib_ros.core.cell import load_cell
-    from cobot_calib_ros.core.kinematics import model_by_name
+    from cobot_calib_ros.loaders import load_cell
+    from cobot_calib_ros.core.kinematics import model_for
     from cobot_calib_ros.core.kinematics.kinematic_calibration import CalibrationJob
     from cobot_calib_ros.paths import cell_file
     cell = load_cell(cell_file(cell_name))
-    model = model_by_name(cell.robot)
+    model = model_for(cell)
     data, poses = sphere_observations(folder, cell, model)
     outcome = CalibrationJob(cell, model, data, source=str(folder), solver=solver, loss=loss,
                              max_configs=max_configs).run()

@@ -17,10 +17,9 @@ import sys
 import time
 
 from cobot_calib_ros import paths
+from cobot_calib_ros.nodes import NODES
 
-SUITE = ('mock_robot', 'joint_state_monitor', 'proximity_sensor', 'user_frame_solver',
-         'repeatability_trial', 'kinematic_identifier', 'mock_camera', 'landmark_detector',
-         'hand_eye_calibrator')
+SUITE = NODES                 # the whole suite, in launch order
 PR_SET_PDEATHSIG = 1
 
 

@@ -26,7 +26,6 @@ Two modes:
 from __future__ import annotations
 
 from dataclasses import dataclass
-import math
 import os
 from pathlib import Path
 import threading
@@ -36,6 +35,7 @@ from typing import Callable
 import numpy as np
 
 from cobot_calib_ros.api import replay_harness
+from cobot_calib_ros.core.frames import transform_error
 from cobot_calib_ros.ros.marks import CAPTURES_TOPIC
 from cobot_calib_ros.ros.time import header_ns, s_to_ns
 
@@ -97,15 +97,6 @@ def read_expected(bag_path: str | os.PathLike) -> tuple[Path, dict]:
     return path, data
 
 
-def difference(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
-    """(translation [m], rotation angle [rad]) between two 4x4 transforms."""
-    dt = float(np.linalg.norm(a[:3, 3] - b[:3, 3]))
-    R = a[:3, :3].T @ b[:3, :3]
-    skew = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
-    angle = math.atan2(float(np.linalg.norm(skew)) / 2.0, (float(np.trace(R)) - 1.0) / 2.0)
-    return dt, abs(angle)
-
-
 @dataclass
 class CheckResult:
     ok: bool
@@ -133,7 +124,7 @@ def run_check(bag_path: str, rate: float = 0.0, say: Callable[[str], None] = pri
                  for m in bag.messages([CAPTURES_TOPIC])]
         T, rms, marks = _replay_and_calibrate(bag, expected, rate, clock_hz, say, recapture,
                                               holds)
-    dt, dr = difference(T, expected['T_base_user'])
+    dt, dr = transform_error(T, expected['T_base_user'])
     ok = dt < TOL_M and dr < TOL_RAD
     say(f'replayed {marks} captures from {bag_path}; {expected.get("method", "rigid")} frame '
         f'vs {expected_path}: translation differs by {dt:.3e} m (tolerance {TOL_M:g}), '

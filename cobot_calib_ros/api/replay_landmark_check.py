@@ -101,7 +101,7 @@ def fit_frame(marks: list, landmarks: list, *, cell_name: str, kinematics: str =
     fit fails."""
     from cobot_calib_ros import paths
     from cobot_calib_ros.core import kinematics as kin
-    from cobot_calib_ros.core.cell import load_cell
+    from cobot_calib_ros.loaders import load_cell
     from cobot_calib_ros.core.errors import Failure
     from cobot_calib_ros.core.landmarks import views
     from cobot_calib_ros.ros import convert
@@ -109,7 +109,7 @@ def fit_frame(marks: list, landmarks: list, *, cell_name: str, kinematics: str =
         raise CheckError(f'kinematics {kinematics!r}: a landmark bag is checked on the nominal '
                          'model only')
     cell = load_cell(paths.cell_file(cell_name))
-    model = kin.model_by_name(cell.robot)
+    model = kin.model_for(cell)
     chain = model.chain(tool=np.asarray(cell.camera.T_flange_optical, dtype=float))
     order = list(model.joint_names)
     observations = []
@@ -157,7 +157,7 @@ class LandmarkCheckResult:
 def run_check(bag_path: str, rate: float = DEFAULT_RATE, say: Callable[[str], None] = print,
               clock_hz: float = 40.0) -> LandmarkCheckResult:
     """Replay the bag's images through landmark_detector, fit, compare; see the module doc."""
-    from cobot_calib_ros.api.replay_check import difference
+    from cobot_calib_ros.core.frames import transform_error
     from cobot_calib_ros.bags.reader import open_bag
     if not 0 < rate <= MAX_RATE:
         raise CheckError(f'a landmark bag replays at a finite rate up to {MAX_RATE:g} '
@@ -190,7 +190,7 @@ def run_check(bag_path: str, rate: float = DEFAULT_RATE, say: Callable[[str], No
                     max_scale_error=float(expected.get('max_scale_error', DEFAULT_MAX_SCALE)),
                     method=method)
     T = np.asarray(fit.fit.M, dtype=float)
-    dt, dr = difference(T, expected['T_base_user'])
+    dt, dr = transform_error(T, expected['T_base_user'])
     ok = bool(dt <= TOL_M and dr <= TOL_RAD and np.isfinite(dt) and np.isfinite(dr))
     report = (f'replayed {len(needed)} images through landmark_detector ({passes} pass'
               f'{"es" if passes > 1 else ""}), {len(marks)} views paired'

@@ -21,10 +21,10 @@ from cobot_calib_ros.cli.common import say
 from cobot_calib_ros.ros import convert
 from cobot_calib_ros.core import cell as cellmod
 from cobot_calib_ros.core import frames, kinematics, user_frame
+from cobot_calib_ros.loaders import load_cell
 from cobot_calib_ros.paths import cell_file, data_dir
 from cobot_calib_ros.store.kinematics import chain_of, NOMINAL
 
-METHODS = ('three_point', 'five_point_lsq', 'rigid', 'robust')
 POINTS = ('P1', 'P2', 'P3', 'P4', 'P5')
 
 
@@ -40,7 +40,7 @@ def _suite(args):
 
 def _truth_model(truth, cell):
     """The true robot (simulation only): nominal model with the mock's true parameters."""
-    model = kinematics.model_by_name(cell.robot)
+    model = kinematics.model_for(cell)
     return model.chain(np.array(truth.true_parameters), tool=cell.tool_offset)
 
 
@@ -161,7 +161,7 @@ def _report_run(run: dict, title: str) -> None:
 
 def _run(args, client: DemoClient) -> dict:
     from cobot_calib_ros.api.client import wait_for_suite
-    cell = cellmod.load_cell(cell_file(args.cell))
+    cell = load_cell(cell_file(args.cell))
     wait_for_suite(client.node)
     truth = client.ground_truth()
     T_true = convert.transform_to_matrix(truth.user_frame)
@@ -179,7 +179,7 @@ def _run(args, client: DemoClient) -> dict:
     for record in records:
         model = _model_entry(record, cell, truth, true_chain, p_true, p_user)
         rows = []
-        for method in METHODS:
+        for method in user_frame.METHODS:
             say(args, f'{method} ({model["label"]} kinematics): fitting and visiting the five '
                       'points through the frame ...')
             rows.append(_method_row(client, method, captures, model, T_true, p_true,
@@ -229,7 +229,7 @@ def _kinematics(args, client: DemoClient, robot: str) -> dict:
 
 def _model_entry(record, cell, truth, true_chain, p_true, p_user) -> dict:
     """A kinematic model the demo maps captures through: label, chain, apparent points."""
-    model = kinematics.model_by_name(cell.robot)
+    model = kinematics.model_for(cell)
     chain = chain_of(record, model, cell.tool_offset)
     return {'label': NOMINAL if record is None else record['id'], 'chain': chain,
             'home': cell.home, 'p_user': p_user,

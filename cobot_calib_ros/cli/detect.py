@@ -65,7 +65,8 @@ class _Setup:
     """What every image shares: validated arguments, built once."""
 
     def __init__(self, args):
-        from cobot_calib_ros.core.landmarks.camera import CameraInfoError, load_camera_info_yaml
+        from cobot_calib_ros.core.landmarks.camera import CameraInfoError
+        from cobot_calib_ros.loaders import load_camera_info_yaml
         from cobot_calib_ros.core.landmarks.targets import (MAX_LENGTH_M, BoardSpec,
                                                             canonical_dictionary_name)
         self.args = args

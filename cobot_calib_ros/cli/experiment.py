@@ -17,11 +17,12 @@ from cobot_calib_ros import paths
 from cobot_calib_ros.api import launcher, report
 from cobot_calib_ros.api.trial import TrialClient
 from cobot_calib_ros.cli import common
+from cobot_calib_ros.core.repeatability.trial import METHODS
+from cobot_calib_ros.core.user_frame.landmarks import LANDMARK_METHODS
 from cobot_calib_ros.store.trials import TrialStore
 
-EXPERIMENT_METHODS = ('reference', 'three_point', 'five_point_lsq', 'rigid', 'landmark_single',
-                      'landmark_multi')
-LANDMARK_METHODS = ('landmark_single', 'landmark_multi')
+# the paper's comparison: every trial method but robust (this project's, not the paper's)
+EXPERIMENT_METHODS = tuple(m for m in METHODS if m != 'robust')
 
 
 def run_trial(args) -> int:
@@ -128,7 +129,7 @@ def _calibrate_hand_eye(node, cell: str, say) -> dict:
     from geometry_msgs.msg import TransformStamped
     from cobot_calib_ros.ros.calls import call_service
     from cobot_calib_ros.api.hand_eye import calibrate_hand_eye, error_against_truth
-    from cobot_calib_ros.core.cell import load_cell
+    from cobot_calib_ros.loaders import load_cell
     from cobot_calib_ros.ros import convert
     nominal_cell = load_cell(paths.cell_file(cell))
     say('landmark rows: a five-point user frame (to find the board), then the hand-eye ...')

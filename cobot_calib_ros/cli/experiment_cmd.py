@@ -17,7 +17,8 @@ def add_parser(subparsers):
                     'method, then `cobot-calib report`.')
     p.add_argument('which', choices=('user-frame',))
     p.add_argument('--setup', default='close', choices=('close', 'wide'))
-    p.add_argument('--axis', default='z', choices=('x', 'y', 'z'))
+    from cobot_calib_ros.core.repeatability.iso9283 import AXES
+    p.add_argument('--axis', default='z', choices=AXES)
     p.add_argument('--cycles', type=int, default=30)
     p.add_argument('--methods', type=_methods, default=None, metavar='M[,M...]',
                    help='trials to run, in this order (default: reference, three_point, '

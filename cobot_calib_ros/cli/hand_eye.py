@@ -49,7 +49,7 @@ def run(args) -> int:
                    'T_flange_optical': X.tolist(),
                    'rotvec_rad': frames.to_vector(X)[3:].tolist()}
             if args.against_truth:
-                from cobot_calib_ros.core.cell import load_cell
+                from cobot_calib_ros.loaders import load_cell
                 from cobot_calib_ros import paths
                 cell = load_cell(paths.cell_file(args.against_truth))
                 if cell.camera is None:

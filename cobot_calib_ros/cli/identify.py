@@ -17,8 +17,9 @@ from pathlib import Path
 from cobot_calib_ros.api.identification import PAPER_RATIO_PERCENT
 from cobot_calib_ros.cli.common import (EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK, EXIT_USAGE,
                                         fail, say)
+from cobot_calib_ros.paths import DEFAULT_CELL
 
-CELLS = {'iiwa7': 'iiwa7_close', 'sawyer': 'sawyer_close'}
+CELLS = {'iiwa7': 'iiwa7_close', 'sawyer': DEFAULT_CELL}   # --robot: its default cell
 MUKCA_PUBLISHED_MM = 0.2       # MUKCa paper: mean error after calibration
 
 
@@ -123,7 +124,7 @@ def _resumable(given: str, cell: str) -> tuple[str, bool]:
     default). An id not in this data dir is sent as it is (an attached suite may store
     elsewhere). ValueError when there is nothing to resume."""
     from cobot_calib_ros import paths
-    from cobot_calib_ros.core.cell import load_cell
+    from cobot_calib_ros.loaders import load_cell
     from cobot_calib_ros.store.collections import CollectionStore
     from cobot_calib_ros.store.files import check_id
     store = CollectionStore(paths.data_dir(''))
@@ -193,12 +194,13 @@ def _mukca(args, folder: Path) -> int:
     """Real MUKCa sphere-socket data: identify on two locations, evaluate on the third, each in
     turn (MUKCa's metric: mean distance of the ball centre from its socket's centroid)."""
     from cobot_calib_ros.core.kinematics.identification import sockets
+    from cobot_calib_ros.loaders import load_socket_data
     from cobot_calib_ros.core.kinematics.urdf import model_from_urdf
     urdf = Path(args.urdf) if args.urdf else folder.parent / 'iiwa14.urdf'
     try:
         model = model_from_urdf(urdf.read_text(encoding='utf-8'), 'base_link', 'tool0',
                                 urdf.stem)
-        data = sockets.load_socket_data(folder)
+        data = load_socket_data(folder)
         loo = sockets.leave_one_location_out(model, data, args.ball, solver=args.solver,
                                              loss=args.loss)
     except OSError as e:

@@ -41,7 +41,8 @@ def add_parser(subparsers):
 
 
 def run(args) -> int:
-    from cobot_calib_ros.core.cell import CellFileError, load_cell
+    from cobot_calib_ros.core.cell import CellFileError
+    from cobot_calib_ros.loaders import load_cell
     from cobot_calib_ros.paths import cell_file
     try:
         cell = load_cell(cell_file(args.cell), args.layout or None)

@@ -13,7 +13,8 @@ def add_parser(subparsers):
                         'landmark_single | landmark_multi (wrist camera; calibrate the hand-eye '
                         'first: cobot-calib hand-eye) (default reference; a resumed trial keeps '
                         'its own)')
-    p.add_argument('--axis', default=None, choices=('x', 'y', 'z'),
+    from cobot_calib_ros.core.repeatability.iso9283 import AXES
+    p.add_argument('--axis', default=None, choices=AXES,
                    help='probed axis (default z; a resumed trial keeps its own)')
     p.add_argument('--cycles', type=int, default=None,
                    help='2..10000 (default 30; a resumed trial keeps its own)')

@@ -21,9 +21,9 @@ from numpy.typing import NDArray
 import yaml
 
 from cobot_calib_ros.core import frames
+from cobot_calib_ros.core.kinematics.robots import ROBOTS, UrdfRobot
 
 Array = NDArray[np.float64]
-ROBOTS = ('sawyer', 'iiwa7', 'iiwa14')
 FRAME_ID_CHARS = frozenset('abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_/')
 
 
@@ -50,7 +50,7 @@ class Cell:
     """The nominal cell of one file, with one layout of markers chosen."""
 
     name: str
-    robot: str
+    robot: str                  # the robot's model name (a built-in one, or the URDF's)
     base_frame: str
     tool_frame: str
     user_frame: str
@@ -62,6 +62,7 @@ class Cell:
     spheres: SpherePlate | None = None   # kinematic calibration plate, if the cell has one
     camera: WristCamera | None = None    # the wrist camera, if the cell has one
     landmarks: Landmarks | None = None   # fiducials on the table, if the cell has them
+    urdf_robot: UrdfRobot | None = None  # the robot's URDF chain, when not a built-in model
 
     def marker(self, name: str) -> Marker | None:
         return next((m for m in self.markers if m.name == name), None)
@@ -248,22 +249,12 @@ class CellReader:
         return value
 
 
-def read_cell_text(path: str | Path) -> tuple[Path, str]:
-    path = Path(path)
-    try:
-        return path, path.read_text(encoding='utf-8')
-    except OSError as e:
-        raise CellFileError(f'{path}: cannot read the cell file ({e.strerror}); give a path or '
-                            'a name in config/cells (sawyer_close, iiwa7_close)') from None
-
-
-def load_cell(path: str | Path, layout: str | None = None) -> Cell:
-    """The nominal cell of a cell file, with ``layout`` (default: the file's ``layout``)."""
-    path, text = read_cell_text(path)
-    r = CellReader(path, text, 'cell')
-    robot = r.name('robot')
-    if robot not in ROBOTS:
-        raise r.fail(('robot',), f'unknown robot {robot!r}; use one of {", ".join(ROBOTS)}')
+def parse_cell(text: str, path: str | Path, layout: str | None = None) -> Cell:
+    """The nominal cell of a cell file's text (``path`` names it in messages; loaders.load_cell
+    reads the file, and the URDF of a URDF robot), with ``layout`` (default: the file's
+    ``layout``)."""
+    r = CellReader(Path(path), text, 'cell')
+    robot, urdf_robot = _robot(r)
     frames_ = {k: r.name(k, default=d) for k, d in (
         ('base_frame', 'base_link'), ('tool_frame', 'tool0'), ('user_frame', 'user_frame'))}
     for key, value in frames_.items():
@@ -277,12 +268,29 @@ def load_cell(path: str | Path, layout: str | None = None) -> Cell:
         raise r.fail(('layout',), f'layout {chosen!r} is not in the cell; choose one of '
                      f'{", ".join(layouts)}')
     return Cell(
-        name=r.name('name', default=path.stem), robot=robot, **frames_,
+        name=r.name('name', default=Path(path).stem), robot=robot, urdf_robot=urdf_robot,
+        **frames_,
         tool_offset=frames.from_xyz_rpy(r.vector('tool_offset', 'xyz', length=3),
                                         r.vector('tool_offset', 'rpy', length=3)),
         home=r.vector('home'), layout=chosen, layouts=tuple(layouts),
         markers=_markers(r, chosen), spheres=_spheres(r), camera=_camera(r),
         landmarks=_landmarks(r))
+
+
+def _robot(r: CellReader) -> tuple[str, UrdfRobot | None]:
+    """(model name, None) of a built-in robot, or (name, UrdfRobot without its text yet) of
+    ``robot: {urdf: FILE, base_link: LINK, tip_link: LINK[, name: NAME]}``."""
+    robot = r.get('robot')
+    if isinstance(robot, dict):
+        urdf = r.name('robot', 'urdf')
+        name = r.name('robot', 'name', default=Path(urdf).stem)
+        return name, UrdfRobot(name, urdf, r.name('robot', 'base_link'),
+                               r.name('robot', 'tip_link'))
+    robot = r.name('robot')
+    if robot not in ROBOTS:
+        raise r.fail(('robot',), f'unknown robot {robot!r}; use one of {", ".join(ROBOTS)}, or '
+                     'give {urdf: FILE, base_link: LINK, tip_link: LINK}')
+    return robot, None
 
 
 def _spheres(r: CellReader) -> SpherePlate | None:

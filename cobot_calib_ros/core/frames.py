@@ -7,6 +7,8 @@ angles radians, quaternions (x, y, z, w) as in geometry_msgs.
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
@@ -82,8 +84,43 @@ def to_vector(T: Array) -> Array:
     return np.concatenate([T[:3, 3], Rotation.from_matrix(T[:3, :3]).as_rotvec()])
 
 
+def rotation_angle(R: ArrayLike) -> float:
+    """Angle [rad] in [0, pi] of a rotation matrix (its rotation vector's norm), accurate near
+    0 and pi: atan2(|vee(R - R^T)| / 2, (trace R - 1) / 2)."""
+    R = np.asarray(R, dtype=float)[:3, :3]
+    axis = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+    return abs(math.atan2(float(np.linalg.norm(axis)) / 2.0, (float(np.trace(R)) - 1.0) / 2.0))
+
+
 def transform_error(T_est: Array, T_true: Array) -> tuple[float, float]:
     """Translation [m] and rotation [rad] between two poses of the same frame."""
-    dT = invert(T_true) @ T_est
-    angle = float(np.linalg.norm(Rotation.from_matrix(dT[:3, :3]).as_rotvec()))
-    return float(np.linalg.norm(T_est[:3, 3] - T_true[:3, 3])), angle
+    return (float(np.linalg.norm(T_est[:3, 3] - T_true[:3, 3])),
+            rotation_angle(T_true[:3, :3].T @ T_est[:3, :3]))
+
+
+def skew(v: ArrayLike) -> Array:
+    """Cross-product matrix [v]x of a (3,) vector, or (..., 3, 3) of a stack (..., 3):
+    skew(a) @ b == cross(a, b)."""
+    v = np.asarray(v, dtype=float)
+    if v.ndim == 1:
+        return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+    S = np.zeros(v.shape[:-1] + (3, 3))
+    S[..., 0, 1], S[..., 0, 2], S[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
+    return S - np.swapaxes(S, -1, -2)
+
+
+def kabsch_rotation(a: ArrayLike, b: ArrayLike) -> Array:
+    """The rotation R minimising sum |R a_i - b_i|^2 over (n, 3) vectors (not centred here),
+    det R = +1 even when the vectors are coplanar (Kabsch)."""
+    U, _, Vt = np.linalg.svd(np.asarray(a, dtype=float).T @ np.asarray(b, dtype=float))
+    d = np.sign(np.linalg.det(Vt.T @ U.T))
+    return Vt.T @ np.diag([1.0, 1.0, d]) @ U.T
+
+
+def kabsch(p_from: ArrayLike, p_to: ArrayLike) -> Array:
+    """Least-squares rigid (4, 4) T with p_to ~ T p_from for (n, 3) points [m] (Kabsch),
+    det R = +1 even for coplanar points: T_base_user from user and base points."""
+    pf, pt = np.asarray(p_from, dtype=float), np.asarray(p_to, dtype=float)
+    cf, ct = pf.sum(axis=0) / len(pf), pt.sum(axis=0) / len(pt)   # (.mean: slow at N ~ 5)
+    R = kabsch_rotation(pf - cf, pt - ct)
+    return make_transform(R, ct - R @ cf)

@@ -39,21 +39,20 @@ from rclpy.node import Node
 
 from cobot_calib_ros import paths
 from cobot_calib_ros.core import frames, kinematics
-from cobot_calib_ros.core.cell import load_cell
 from cobot_calib_ros.core.landmarks.hand_eye import check_noise, hand_eye_views, solve_hand_eye
 from cobot_calib_ros.core.landmarks.hand_eye_capture import pairing_problem
 from cobot_calib_ros.core.ids import record_id
+from cobot_calib_ros.loaders import load_cell
 from cobot_calib_ros.ros import convert, qos, spin
 from cobot_calib_ros.ros.diagnostics import Diagnostics, OK, WARN
 from cobot_calib_ros.ros.params import declare, read_once
-from cobot_calib_ros.ros.robot_calls import RobotCallError, RobotCalls
+from cobot_calib_ros.ros.robot_calls import MOVE_TIMEOUT, RobotCallError, RobotCalls
 from cobot_calib_ros.ros.tf_static import StaticBroadcaster
 from cobot_calib_ros.ros.time import now_ns, stamp_to_ns
 from cobot_calib_ros.store.calibrations import CalibrationStore
 
 Action = CalibrateHandEye
 DEFAULT_VIEWS = 12
-MOVE_TIMEOUT = 60.0        # [s] for one move_to
 
 
 class BoardWatch:
@@ -113,7 +112,7 @@ class HandEyeCalibrator(Node):
         super().__init__('hand_eye_calibrator', **kwargs)
         self._declare_parameters()
         self._cell = load_cell(paths.cell_file(self._p('cell_file')), self._p('layout') or None)
-        self._model = kinematics.model_by_name(self._cell.robot)
+        self._model = kinematics.model_for(self._cell)
         self._chain = self._model.chain()
         self._root = paths.data_dir(self._p('data_dir'))
         self._store = CalibrationStore(self._root, 'hand_eye')

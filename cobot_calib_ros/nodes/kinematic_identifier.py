@@ -28,7 +28,6 @@ from sensor_msgs.msg import JointState
 
 from cobot_calib_ros import paths
 from cobot_calib_ros.core import kinematics
-from cobot_calib_ros.core.cell import load_cell
 from cobot_calib_ros.core.kinematics import plans
 from cobot_calib_ros.core.kinematics.identification.observations import (
     PositionObservations, SphereObservations)
@@ -37,17 +36,17 @@ from cobot_calib_ros.core.kinematics.kinematic_calibration import CalibrationJob
 from cobot_calib_ros.bags.errors import BagError
 from cobot_calib_ros.bags.sphere_captures import is_bag, sphere_observations
 from cobot_calib_ros.core.ids import record_id
+from cobot_calib_ros.loaders import load_cell
 from cobot_calib_ros.ros import marks, spin
 from cobot_calib_ros.ros.diagnostics import Diagnostics, OK, WARN
 from cobot_calib_ros.ros.params import declare, read_once
-from cobot_calib_ros.ros.robot_calls import RobotCallError, RobotCalls
+from cobot_calib_ros.ros.robot_calls import MOVE_TIMEOUT, RobotCallError, RobotCalls
 from cobot_calib_ros.ros.time import now_ns
 from cobot_calib_ros.store.collections import Collection, CollectionStore
 from cobot_calib_ros.store.files import check_id
 from cobot_calib_ros.store.kinematics import KinematicStore
 
 Collect, Identify = CollectSphereData, IdentifyKinematics
-MOVE_TIMEOUT = 60.0        # [s] for one move_to
 MAX_SKIPPED_IN_A_ROW = 20  # more unreachable poses in a row than this ends the collection
 
 
@@ -80,7 +79,7 @@ class KinematicIdentifier(Node):
         super().__init__('kinematic_identifier', **kwargs)
         self._declare_parameters()
         self._cell = load_cell(paths.cell_file(self._p('cell_file')), self._p('layout') or None)
-        self._model = kinematics.model_by_name(self._cell.robot)
+        self._model = kinematics.model_for(self._cell)
         root = paths.data_dir(self._p('data_dir'))
         self._collections = CollectionStore(root)
         self._calibrations = KinematicStore(root)

@@ -49,7 +49,8 @@ from scipy.spatial.transform import Rotation
 from sensor_msgs.msg import CameraInfo, Image
 
 from cobot_calib_ros import paths
-from cobot_calib_ros.core.cell import CellFileError, load_cell
+from cobot_calib_ros.core.cell import CellFileError
+from cobot_calib_ros.loaders import load_cell
 from cobot_calib_ros.core.landmarks.camera import CameraModel
 from cobot_calib_ros.core.landmarks.detect import (BoardFinder, DEFAULT_REFINE, MarkerFinder,
                                                    REFINE_METHODS)

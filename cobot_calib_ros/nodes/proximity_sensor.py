@@ -10,8 +10,9 @@ no probe/voltage came for more than NO_DATA_TIMEOUT.
 
 Marks on ``cobot_calib/probe_averages`` (ros.marks: PROBE_AVERAGES, its encoding there): one
 per probe/average served, so a recording can tie each reading of a trial to the probe readings
-it averaged (bags/make_trial_bag.py, api.replay_trial_check). A reading the subscription dropped (best effort,
-history 5) is not among them, so a replay can average exactly the readings this node did.
+it averaged (bags/make_trial_bag.py, api.replay_trial_check). A reading the subscription
+dropped (best effort, history 5) is not among them, so a replay can average exactly the
+readings this node did.
 ``average_window`` and ``fill_average`` are what probe/average computes, for a replay to use.
 """
 from __future__ import annotations

@@ -22,12 +22,12 @@ from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 
 from cobot_calib_ros import paths
-from cobot_calib_ros.core.cell import load_cell
 from cobot_calib_ros.core import kinematics
 from cobot_calib_ros.core.repeatability import trial as trialmod
 from cobot_calib_ros.core.repeatability import PointStats
 from cobot_calib_ros.core.sensors.probe import Reading, ReadingStatus
 from cobot_calib_ros.core.user_frame.plausibility import MAX_RMS_ERROR, MAX_SCALE_ERROR
+from cobot_calib_ros.loaders import load_cell
 from cobot_calib_ros.store.files import check_id
 from cobot_calib_ros.store.kinematics import chain_of, KinematicStore, NOMINAL
 from cobot_calib_ros.store.trials import TrialStore
@@ -35,12 +35,11 @@ from cobot_calib_ros.ros import qos, spin
 from cobot_calib_ros.ros.diagnostics import Diagnostics, OK, WARN
 from cobot_calib_ros.ros.params import declare, read_once
 from cobot_calib_ros.ros.landmark_views import active_hand_eye, LandmarkViewError, LandmarkViews
-from cobot_calib_ros.ros.robot_calls import RobotCallError, RobotCalls
+from cobot_calib_ros.ros.robot_calls import MOVE_TIMEOUT, RobotCallError, RobotCalls
 from cobot_calib_ros.ros.time import now_ns
 
 RESULT_CODE = {'invalid': RunTrial.Result.INVALID_GOAL, 'motion': RunTrial.Result.MOTION_FAILED,
                'probe': RunTrial.Result.PROBE_FAILED, 'canceled': RunTrial.Result.CANCELED}
-MOVE_TIMEOUT = 120.0    # [s] for one move_to to finish
 HEARTBEAT = 2.0         # [s] feedback at least this often while a trial runs (see RunTrial)
 
 
@@ -179,7 +178,7 @@ class RepeatabilityTrial(Node):
         super().__init__('repeatability_trial', **kwargs)
         self._declare_parameters()
         self._cell = load_cell(paths.cell_file(self._p('cell_file')), self._p('layout') or None)
-        self._model = kinematics.model_by_name(self._cell.robot)
+        self._model = kinematics.model_for(self._cell)
         self._store = TrialStore(paths.data_dir(self._p('data_dir')))
         self._answers = spin.Companion(self, 'clients')
         calls = RobotCalls(self._answers)

@@ -30,15 +30,16 @@ from rclpy.node import Node
 
 from cobot_calib_ros import paths
 from cobot_calib_ros.core import frames, kinematics, user_frame
-from cobot_calib_ros.core.cell import check_frame_id, load_cell
+from cobot_calib_ros.core.cell import check_frame_id
 from cobot_calib_ros.core.errors import ErrorCode
 from cobot_calib_ros.core.ids import record_id
 from cobot_calib_ros.core.user_frame import landmarks as landmark_frames
+from cobot_calib_ros.loaders import load_cell
 from cobot_calib_ros.ros import convert, qos, spin
 from cobot_calib_ros.ros.diagnostics import Diagnostics, OK, WARN
 from cobot_calib_ros.ros.params import declare, read_once
 from cobot_calib_ros.ros.landmark_views import active_hand_eye, LandmarkViewError, LandmarkViews
-from cobot_calib_ros.ros.robot_calls import RobotCallError, RobotCalls
+from cobot_calib_ros.ros.robot_calls import MOVE_TIMEOUT, RobotCallError, RobotCalls
 from cobot_calib_ros.ros.time import now_ns, ns_to_stamp
 from cobot_calib_ros.ros.tf_static import StaticBroadcaster
 from cobot_calib_ros.store.calibrations import CalibrationStore
@@ -130,7 +131,7 @@ class UserFrameSolver(Node):
         super().__init__('user_frame_solver', **kwargs)
         self._declare_parameters()
         self._cell = load_cell(paths.cell_file(self._p('cell_file')), self._p('layout') or None)
-        self._model = kinematics.model_by_name(self._cell.robot)
+        self._model = kinematics.model_for(self._cell)
         self._store = CalibrationStore(paths.data_dir(self._p('data_dir')))
         self._store_lock = threading.Lock()     # the calibrator thread writes, this one reads
         self._health = Diagnostics(self)
@@ -328,7 +329,7 @@ class UserFrameSolver(Node):
 
     def _capture_live(self, name: str) -> np.ndarray:
         try:
-            return self._robot.touch_and_capture(name, self._p('capture_duration'), 60.0)
+            return self._robot.touch_and_capture(name, self._p('capture_duration'), MOVE_TIMEOUT)
         except RobotCallError as e:
             raise _RequestError(ErrorCode.CAPTURE_FAILED, f'capture at {name} failed: {e}')
 

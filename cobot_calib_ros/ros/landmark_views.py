@@ -25,14 +25,13 @@ from cobot_calib_ros.core.errors import ErrorCode, Failure
 from cobot_calib_ros.core.landmarks import views
 from cobot_calib_ros.core.user_frame import landmarks as landmark_frames
 from cobot_calib_ros.ros import convert, marks
-from cobot_calib_ros.ros.robot_calls import RobotCallError, RobotCalls
+from cobot_calib_ros.ros.robot_calls import MOVE_TIMEOUT, RobotCallError, RobotCalls
 from cobot_calib_ros.ros.spin import Companion
 from cobot_calib_ros.ros.time import header_ns
 from cobot_calib_ros.store.calibrations import CalibrationStore
 
 LANDMARK_TIMEOUT = 5.0   # [s] of wall time for a landmarks message stamped after a capture
 LANDMARK_MESSAGES = 3    # messages after a capture looked at before a marker counts as unseen
-MOVE_TIMEOUT = 60.0      # [s] for one view's move
 
 
 class LandmarkViewError(RuntimeError):

@@ -17,6 +17,7 @@ from rclpy.action import ActionClient
 from cobot_calib_ros.ros.spin import Companion, wait
 
 SERVER_WAIT = 5.0       # [s] for move_to / capture_joints to be discovered
+MOVE_TIMEOUT = 120.0    # [s] for one move_to to finish (every caller's bound on a hung move)
 CAPTURE_ATTEMPTS = 4
 CAPTURE_RETRY_PAUSE = 0.2   # [s], times the attempt: lets a starved joint_states stream recover
 

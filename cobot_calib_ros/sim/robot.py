@@ -31,7 +31,7 @@ class SimRobot:
 
     def __init__(self, sim: Simulation, seed_offset: int = 1000) -> None:
         self.sim, self.cell = sim, sim.cell
-        self.model = kinematics.model_by_name(self.cell.robot)
+        self.model = kinematics.model_for(self.cell)
         self.true_parameters = sim.true_parameters(self.model)
         self.nominal = self.model.chain(tool=self.cell.tool_offset)
         self.true = self.model.chain(self.true_parameters, tool=self.cell.tool_offset)

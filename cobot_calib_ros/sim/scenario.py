@@ -12,7 +12,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from cobot_calib_ros.core import frames
-from cobot_calib_ros.core.cell import Cell, CellReader, load_cell, read_cell_text
+from cobot_calib_ros.core.cell import Cell, CellReader
+from cobot_calib_ros.loaders import load_cell, read_cell_text
 from cobot_calib_ros.core.kinematics import KinematicModel
 from cobot_calib_ros.core.sensors.probe import ProbeCurve
 from cobot_calib_ros.sim.spheres import LaserTracker, SphereTruth

@@ -2,7 +2,8 @@
 import numpy as np
 import pytest
 
-from cobot_calib_ros.core.cell import CellFileError, check_frame_id, load_cell
+from cobot_calib_ros.core.cell import CellFileError, check_frame_id
+from cobot_calib_ros.loaders import load_cell
 from cobot_calib_ros.paths import cell_file
 
 SAWYER = cell_file('sawyer_close')

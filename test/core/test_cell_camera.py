@@ -3,7 +3,8 @@ import numpy as np
 import pytest
 
 from cobot_calib_ros.core import frames
-from cobot_calib_ros.core.cell import CellFileError, load_cell
+from cobot_calib_ros.core.cell import CellFileError
+from cobot_calib_ros.loaders import load_cell
 from cobot_calib_ros.core.landmarks.targets import BoardSpec
 from cobot_calib_ros.paths import cell_file
 

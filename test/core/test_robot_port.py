@@ -165,7 +165,7 @@ def test_a_cell_without_a_camera_is_refused_before_moving():
 def test_the_camera_sees_the_board_when_asked():
     arm, robot, camera = _ports(boards=True)
     T_base_user = SIM.world.T_base_user
-    plan = kinematics.model_by_name(SIM.cell.robot)
+    plan = kinematics.model_for(SIM.cell)
     from cobot_calib_ros.core.landmarks.hand_eye import hand_eye_views
     q = hand_eye_views(SIM.cell, plan, 3, 0, T_base_user=T_base_user)[0]
     robot.move_joints(q)

@@ -16,11 +16,12 @@ from sensor_msgs.msg import JointState
 from cobot_calib_ros.ros import convert
 from cobot_calib_ros.ros.calls import run_action, spin_until
 from cobot_calib_ros.core import cell as cellmod
+from cobot_calib_ros.loaders import load_cell
 from cobot_calib_ros.core import frames
-from cobot_calib_ros.paths import cell_file
+from cobot_calib_ros.paths import cell_file, DEFAULT_CELL
 from rosutil import call, cli
 
-CELL = cellmod.load_cell(cell_file('sawyer_close'))
+CELL = load_cell(cell_file(DEFAULT_CELL))
 
 
 def _move(node, **goal_fields):

@@ -9,7 +9,7 @@ from sensor_msgs.msg import CameraInfo, Image, JointState
 
 from cobot_calib_ros.ros.calls import spin_until
 from cobot_calib_ros.core import kinematics
-from cobot_calib_ros.core.cell import load_cell
+from cobot_calib_ros.loaders import load_cell
 from cobot_calib_ros.nodes.mock_camera import MockCamera
 from cobot_calib_ros.paths import cell_file
 from cobot_calib_ros.ros import qos
@@ -31,7 +31,7 @@ def test_an_image_is_stamped_with_the_joint_states_it_shows(context):
     stamp (as a real camera stamps the exposure), not the clock after rendering; on 5252a67 it
     was the clock, later than the joints it showed."""
     cell = load_cell(cell_file('sawyer_close'))
-    names = list(kinematics.model_by_name(cell.robot).joint_names)
+    names = list(kinematics.model_for(cell).joint_names)
     camera = MockCamera(context=context, parameter_overrides=[
         rclpy.parameter.Parameter('rate_hz', value=20.0)])
     node = rclpy.create_node('test_mock_camera', context=context)

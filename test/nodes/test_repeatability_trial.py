@@ -19,7 +19,7 @@ from rclpy.action import ActionClient
 from cobot_calib_ros import paths
 from cobot_calib_ros.api import launcher
 from cobot_calib_ros.ros.calls import CallError, run_action, spin_until
-from cobot_calib_ros.core.cell import load_cell
+from cobot_calib_ros.loaders import load_cell
 from cobot_calib_ros.core.repeatability import point_statistics
 from cobot_calib_ros.ros import qos
 from cobot_calib_ros.sim.scenario import load_simulation

@@ -6,7 +6,7 @@ import json
 import numpy as np
 import pytest
 
-from cobot_calib_ros.core.kinematics.model import fk, model_by_name
+from cobot_calib_ros.core.kinematics import fk, model_by_name
 from cobot_calib_ros.store.kinematics import chain_of, KinematicStore, LATEST, NOMINAL
 
 

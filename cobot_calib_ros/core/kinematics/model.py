@@ -236,17 +236,6 @@ def sawyer() -> KinematicModel:
     return _model('sawyer', 'origin', names, rows, [j[3] for j in _SAWYER], flange)
 
 
-_MODELS = {'iiwa7': iiwa7, 'iiwa14': iiwa14, 'sawyer': sawyer, 'ur10': ur10_pybotics}
-
-
-def model_by_name(name: str) -> KinematicModel:
-    """One of 'iiwa7', 'iiwa14', 'sawyer', 'ur10'; ValueError otherwise."""
-    try:
-        return _MODELS[name]()
-    except KeyError:
-        raise ValueError(f'unknown robot model {name!r}; known: {sorted(_MODELS)}') from None
-
-
 def position_jacobian_wrt_params(model: KinematicModel, params: ArrayLike | None,
                                  q_batch: ArrayLike, tool: ArrayLike | None = None) -> Array:
     """Analytic d(tool position)/d(params), shape (m, 3, P) [m/m or m/rad].

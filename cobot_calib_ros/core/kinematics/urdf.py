@@ -24,6 +24,7 @@ import xml.etree.ElementTree as ET
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from cobot_calib_ros.core.frames import from_xyz_rpy, invert, skew
 from cobot_calib_ros.core.kinematics.model import _model, KinematicModel
 
 Array = NDArray[np.float64]
@@ -33,24 +34,6 @@ _XACRO_NS = 'http://www.ros.org/wiki/xacro'
 
 
 # --- small geometry ----------------------------------------------------------------------
-
-def _rpy_matrix(roll: float, pitch: float, yaw: float) -> Array:
-    """URDF convention R = Rz(yaw) Ry(pitch) Rx(roll)."""
-    cr, sr = math.cos(roll), math.sin(roll)
-    cp, sp = math.cos(pitch), math.sin(pitch)
-    cy, sy = math.cos(yaw), math.sin(yaw)
-    return np.array([[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-                     [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-                     [-sp, cp * sr, cp * cr]])
-
-
-def _origin_matrix(xyz: ArrayLike, rpy: ArrayLike) -> Array:
-    """(4, 4) Trans(xyz) Rz(yaw) Ry(pitch) Rx(roll)."""
-    T = np.eye(4)
-    T[:3, :3] = _rpy_matrix(*rpy)
-    T[:3, 3] = xyz
-    return T
-
 
 def rpy_from_matrix(R: ArrayLike) -> tuple[float, float, float]:
     """(roll, pitch, yaw) [rad] with Rz(yaw) Ry(pitch) Rx(roll) = R, exact near gimbal lock too.
@@ -81,17 +64,9 @@ def _axis_frame(axis: Array) -> Array:
     if c < -1.0 + 1e-15:
         R[1, 1] = R[2, 2] = -1.0  # Rx(pi)
         return R
-    v = np.array([-a[1], a[0], 0.0])  # z x a
-    V = np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+    V = skew([-a[1], a[0], 0.0])  # [z x a]x
     R[:3, :3] = np.eye(3) + V + V @ V / (1.0 + c)  # Rodrigues, rotation taking z onto a
     return R
-
-
-def _inv(T: Array) -> Array:
-    out = np.eye(4)
-    out[:3, :3] = T[:3, :3].T
-    out[:3, 3] = -T[:3, :3].T @ T[:3, 3]
-    return out
 
 
 def _fmt(values: ArrayLike) -> str:
@@ -116,7 +91,7 @@ class _Joint:
 
     @property
     def origin(self) -> Array:
-        return _origin_matrix(self.xyz, self.rpy)
+        return from_xyz_rpy(self.xyz, self.rpy)
 
 
 @dataclass
@@ -438,7 +413,7 @@ def _rewrite_urdf(model: KinematicModel, rows: Array, placements: Array, end: Ar
         if literal:  # the parameters are this joint's xyz/rpy: write them as they are
             _set_origin(joint.element, xyz_rpy=(row[:3], row[3:]))
         else:
-            _set_origin(joint.element, _inv(F) @ prev @ P @ R.T)  # F^-1 R_{i-1} P_i R_i^T
+            _set_origin(joint.element, invert(F) @ prev @ P @ R.T)  # F^-1 R_{i-1} P_i R_i^T
         prev = R
     target = serial.axes[-1] @ end  # T_last_child_tool
     _place_tool(urdf, last_child, tool_link, target)
@@ -475,4 +450,4 @@ def _place_tool(urdf: _Urdf, last_child: str, tool_link: str, target: Array) -> 
     above = np.eye(4)
     for joint in reversed(chain[1:]):
         above = above @ joint.origin
-    _set_origin(chain[0].element, _inv(above) @ target)
+    _set_origin(chain[0].element, invert(above) @ target)

@@ -132,8 +132,9 @@ class CameraModel:
         return px.reshape(-1, 2)
 
 
-def load_camera_info_yaml(path: str | Path) -> CameraModel:
-    """CameraModel from a camera-info file; CameraInfoError names the file and the key.
+def parse_camera_info(text: str, source: str | Path) -> CameraModel:
+    """CameraModel from the text of a camera-info file (``source`` names it in messages;
+    loaders.load_camera_info_yaml reads the file); CameraInfoError names the key.
 
     Reads the ROS camera_calibration YAML (image_width, image_height, camera_name,
     camera_matrix {rows, cols, data}, distortion_model, distortion_coefficients, ...), a
@@ -141,17 +142,12 @@ def load_camera_info_yaml(path: str | Path) -> CameraModel:
     distortion_model), and OpenCV FileStorage YAML (``%YAML:1.0``, ``!!opencv-matrix``
     camera_matrix and distortion_coefficients, optional image_width / image_height).
     """
-    path = Path(path)
-    try:
-        text = path.read_text()
-    except (OSError, UnicodeDecodeError) as e:
-        raise CameraInfoError(f'{path}: cannot read camera info: {e}') from None
     if text.lstrip().startswith('%YAML') or '!!opencv-matrix' in text:
-        return _from_opencv_storage(path)
-    return _from_ros_yaml(path, text)
+        return _from_opencv_storage(source, text)
+    return _from_ros_yaml(source, text)
 
 
-def _from_ros_yaml(path: Path, text: str) -> CameraModel:
+def _from_ros_yaml(path: str | Path, text: str) -> CameraModel:
     import yaml
     try:
         docs = [d for d in yaml.safe_load_all(text) if d is not None]
@@ -209,9 +205,9 @@ def _from_ros_yaml(path: Path, text: str) -> CameraModel:
         raise CameraInfoError(f'{path}: {e}') from None
 
 
-def _from_opencv_storage(path: Path) -> CameraModel:
+def _from_opencv_storage(path: str | Path, text: str) -> CameraModel:
     try:
-        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+        fs = cv2.FileStorage(text, cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY)
     except cv2.error as e:
         raise CameraInfoError(f'{path}: not a readable OpenCV FileStorage file: '
                               f'{e.err or e}') from None

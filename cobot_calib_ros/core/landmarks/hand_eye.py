@@ -241,9 +241,7 @@ def park_martin(F: Array, M: Array) -> Array:
         Bm = M[i] @ np.linalg.inv(M[j])              # camera motion
         alphas.append(Rotation.from_matrix(A[:3, :3]).as_rotvec())
         betas.append(Rotation.from_matrix(Bm[:3, :3]).as_rotvec())
-    H = np.array(betas).T @ np.array(alphas)         # sum beta alpha^T
-    U, _, Vt = np.linalg.svd(H)
-    R = Vt.T @ np.diag([1.0, 1.0, np.linalg.det(Vt.T @ U.T)]) @ U.T   # alpha = R beta
+    R = frames.kabsch_rotation(np.array(betas), np.array(alphas))   # alpha = R beta
     for i, j in pairs:
         A = np.linalg.inv(F[i]) @ F[j]
         Bm = M[i] @ np.linalg.inv(M[j])

@@ -15,7 +15,8 @@ from scipy.spatial.transform import Rotation
 
 from cobot_calib_ros.core.user_frame.checks import _check_points, point_names
 from cobot_calib_ros.core.user_frame.estimators import _estimator, DEFAULT_METHOD
-from cobot_calib_ros.core.user_frame.geometry import _as_points, _rms, _skew, Array, Estimator
+from cobot_calib_ros.core.frames import skew
+from cobot_calib_ros.core.user_frame.geometry import _as_points, _rms, Array, Estimator
 
 LIMIT_FACTOR = 3.0
 """An achieved frame error above ``LIMIT_FACTOR`` times :func:`estimation_limit` is suspect:
@@ -32,7 +33,7 @@ def pose_covariance(p_user: ArrayLike, R: Array, sigma: float) -> Array:
     diagonal (and zeros elsewhere), never NaN.
     """
     q = _as_points(p_user, 'p_user') @ R.T
-    total = _skew(q.sum(axis=0))
+    total = skew(q.sum(axis=0))
     JtJ = np.zeros((6, 6))
     JtJ[:3, :3] = len(q) * np.eye(3)
     JtJ[:3, 3:] = -total
@@ -105,7 +106,7 @@ def _effective_dof(J: Array, pu: Array, R: Array) -> float:
 
     A stacks the rows [I, -[R p]x] (residual w.r.t. pose); for least squares this is 3N - 6.
     """
-    A = np.concatenate([np.hstack([np.eye(3), -_skew(q)]) for q in pu @ R.T])
+    A = np.concatenate([np.hstack([np.eye(3), -skew(q)]) for q in pu @ R.T])
     return float(np.sum((A @ J - np.eye(len(A))) ** 2))
 
 

@@ -7,21 +7,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from cobot_calib_ros.core.frames import make_transform
+from cobot_calib_ros.core.frames import kabsch, make_transform
 from cobot_calib_ros.core.user_frame.geometry import Array, Estimator
 
 METHODS = ('three_point', 'five_point_lsq', 'rigid', 'robust')
 DEFAULT_METHOD = 'rigid'
 PLANAR_TOL = 1e-6         # s3 / s1 of the user points below this: coplanar layout
-
-
-def _kabsch(pu: Array, pb: Array) -> Array:
-    """Least-squares rigid T_base_user (Kabsch), det R = +1 even for coplanar points."""
-    cu, cb = pu.sum(axis=0) / len(pu), pb.sum(axis=0) / len(pb)   # (.mean: slow at N ~ 5)
-    U, _, Vt = np.linalg.svd((pu - cu).T @ (pb - cb))
-    d = np.sign(np.linalg.det(Vt.T @ U.T))
-    R = Vt.T @ np.diag([1.0, 1.0, d]) @ U.T
-    return make_transform(R, cb - R @ cu)
 
 
 def _triad(p: Array) -> Array:
@@ -90,7 +81,7 @@ def _affine_pose(pu: Array, pb: Array) -> Array:
 def _estimator(method: str) -> Estimator:
     estimators: dict[str, Estimator] = {
         'three_point': _three_point_pose, 'five_point_lsq': _affine_pose,
-        'rigid': _kabsch, 'robust': _kabsch}
+        'rigid': kabsch, 'robust': kabsch}
     if method not in estimators:
         raise ValueError(f'unknown method {method!r}; use one of: {", ".join(METHODS)}')
     return estimators[method]

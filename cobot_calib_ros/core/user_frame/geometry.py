@@ -28,10 +28,6 @@ def _spread(points: Array) -> Array:
     return np.linalg.svd(points - points.sum(axis=0) / len(points), compute_uv=False)
 
 
-def _skew(v: Array) -> Array:
-    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
-
-
 def _rms(values: Array) -> float:
     """RMS of vector norms (rows of a 2-D array) or of scalars [same unit]."""
     v = np.asarray(values, dtype=float)

@@ -26,7 +26,8 @@ from scipy.spatial.transform import Rotation
 from cobot_calib_ros.core.errors import ErrorCode, Failure
 from cobot_calib_ros.core.frames import apply, invert
 from cobot_calib_ros.core.user_frame.fit import calibrate
-from cobot_calib_ros.core.user_frame.geometry import _skew, Array
+from cobot_calib_ros.core.frames import skew
+from cobot_calib_ros.core.user_frame.geometry import Array
 from cobot_calib_ros.core.user_frame.plausibility import MAX_RMS_ERROR, MAX_SCALE_ERROR
 from cobot_calib_ros.core.user_frame.result import _assemble, _failure, FrameFit
 
@@ -84,7 +85,7 @@ def frame_from_single(T_base_marker: ArrayLike, T_user_marker: ArrayLike, *,
     else:
         # rho_user = rho_marker + phi x (t_user - t_marker); phi unchanged
         J = np.eye(6)
-        J[:3, 3:] = -_skew(T[:3, 3] - Tbm[:3, 3])
+        J[:3, 3:] = -skew(T[:3, 3] - Tbm[:3, 3])
         cov = J @ np.asarray(covariance, dtype=float) @ J.T
     fit = _assemble(LANDMARK_SINGLE, T, T, apply(T, pu) - pb, (pu, pb), cov, float('nan'),
                     f'one view of marker {marker_id}')

@@ -9,7 +9,7 @@ import numpy as np
 from cobot_calib_ros.core.errors import ErrorCode, Failure
 from cobot_calib_ros.core.frames import apply
 from cobot_calib_ros.core.user_frame.covariance import _noise_sigma, _scaled, pose_covariance
-from cobot_calib_ros.core.user_frame.estimators import _kabsch
+from cobot_calib_ros.core.frames import kabsch
 from cobot_calib_ros.core.user_frame.geometry import _join, _rms, _spread, Array, collinearity
 
 
@@ -47,7 +47,7 @@ class FrameFit:
 
 def _rigid_fit(method: str, pu: Array, pb: Array, keep: Array, sigma_prior: float | None,
                outliers: tuple[int, ...] = (), message: str = '') -> FrameFit:
-    T = _kabsch(pu[keep], pb[keep])
+    T = kabsch(pu[keep], pb[keep])
     residuals = apply(T, pu) - pb
     sigma, note = _noise_sigma(residuals[keep], 3 * keep.sum() - 6, sigma_prior)
     cov = pose_covariance(pu[keep], T[:3, :3], sigma)

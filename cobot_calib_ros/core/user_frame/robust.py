@@ -35,6 +35,7 @@ from numpy.typing import ArrayLike
 from scipy.stats import chi2, f
 
 from cobot_calib_ros.core.errors import ErrorCode, Failure
+from cobot_calib_ros.core.frames import skew
 from cobot_calib_ros.core.user_frame.checks import _prepare, MIN_COLLINEARITY, Names
 from cobot_calib_ros.core.user_frame.geometry import _join, Array
 from cobot_calib_ros.core.user_frame.result import _failure, _rigid_fit, FrameFit
@@ -167,7 +168,7 @@ def _spans(W: Array, Wu: Array, pu: Array, pb: Array, cu: Array, cb: Array, k: A
 def _unit_covariance(W: Array, q: Array, k: Array, spans: Array) -> Array:
     """(b, 6, 6) (J^T J)^-1 of each subset, J rows [I, -[q]x]; identity where it does not span."""
     Wq = W[:, :, None] * q
-    total = _skew(Wq.sum(axis=1))
+    total = skew(Wq.sum(axis=1))
     qq = Wq.transpose(0, 2, 1) @ q
     JtJ = np.zeros((len(k), 6, 6))
     JtJ[:, :3, :3] = k[:, None, None] * _I3
@@ -178,13 +179,6 @@ def _unit_covariance(W: Array, q: Array, k: Array, spans: Array) -> Array:
     return np.linalg.inv(JtJ)
 
 
-def _skew(v: Array) -> Array:
-    """(b, 3, 3) cross-product matrices of the rows of v."""
-    S = np.zeros((len(v), 3, 3))
-    S[:, 0, 1], S[:, 0, 2], S[:, 1, 2] = -v[:, 2], v[:, 1], -v[:, 0]
-    return S - S.transpose(0, 2, 1)
-
-
 def _predict(fits: _Fits, which: Array, points: Array, pu: Array, pb: Array
              ) -> tuple[Array, Array]:
     """|d| [m] and t^2 of ``points[i]`` against fit ``which[i]``; t^2 nan where none spans."""
@@ -192,7 +186,7 @@ def _predict(fits: _Fits, which: Array, points: Array, pu: Array, pb: Array
     d = pb[points] - q - fits.t[which]
     A = np.zeros((len(q), 3, 6))
     A[:, :, :3] = _I3
-    A[:, :, 3:] = -_skew(q)
+    A[:, :, 3:] = -skew(q)
     S = _I3 + A @ fits.C[which] @ A.transpose(0, 2, 1)
     t2 = (d * np.linalg.solve(S, d[:, :, None])[:, :, 0]).sum(axis=1) / fits.s2[which]
     return np.linalg.norm(d, axis=1), np.where(fits.spans[which], t2, np.nan)

@@ -4,8 +4,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cobot_calib_ros.core.landmarks.camera import (CameraInfoError, CameraModel,
-                                                   load_camera_info_yaml)
+from cobot_calib_ros.core.landmarks.camera import CameraInfoError, CameraModel
+from cobot_calib_ros.loaders import load_camera_info_yaml
 
 TUTORIAL = Path(__file__).resolve().parents[2] / 'data' / 'opencv-aruco-tutorial'
 

@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 import pytest
 
-from cobot_calib_ros.core.landmarks.camera import load_camera_info_yaml
+from cobot_calib_ros.loaders import load_camera_info_yaml
 from cobot_calib_ros.core.landmarks.detect import detect_board, detect_markers
 from cobot_calib_ros.core.landmarks.pose import estimate_board_pose, estimate_marker_pose
 from cobot_calib_ros.core.landmarks.targets import BoardSpec

@@ -6,12 +6,12 @@ import numpy as np
 import pytest
 
 from cobot_calib_ros.core import frames, kinematics
-from cobot_calib_ros.core.cell import load_cell
 from cobot_calib_ros.core.landmarks.hand_eye import (board_in_image, check_noise,
                                                      DISTANCE_RANGE, hand_eye_views,
                                                      MAX_NOISE_RATIO, park_martin,
                                                      solve_hand_eye, TILT_RANGE_DEG)
 from cobot_calib_ros.core.landmarks.targets import BoardSpec
+from cobot_calib_ros.loaders import load_cell
 from cobot_calib_ros.paths import cell_file
 
 X_TRUE = frames.from_xyz_rpy([0.0758, -0.0006, 0.0213], [0.004, -0.003, 1.5772])
@@ -158,7 +158,7 @@ def test_pure_translations_are_degenerate():
 
 def test_views_look_at_the_board_from_different_angles():
     cell = load_cell(cell_file('sawyer_close'))
-    model = kinematics.model_by_name(cell.robot)
+    model = kinematics.model_for(cell)
     views = hand_eye_views(cell, model, 12, seed=0, T_base_user=T_BASE_USER)
     assert len(views) == 12
     chain = model.chain(tool=cell.camera.T_flange_optical)
@@ -185,7 +185,7 @@ def test_views_look_at_the_board_from_different_angles():
 
 def test_views_need_a_user_frame_and_a_board():
     cell = load_cell(cell_file('sawyer_close'))
-    model = kinematics.model_by_name(cell.robot)
+    model = kinematics.model_for(cell)
     with pytest.raises(ValueError, match='T_base_user'):
         hand_eye_views(cell, model)
     with pytest.raises(ValueError, match='at least 3'):

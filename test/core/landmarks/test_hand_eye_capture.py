@@ -17,7 +17,7 @@ from cobot_calib_ros.sim.robot import DirectRobot, SimRobot
 from cobot_calib_ros.sim.scenario import load_simulation
 
 SIM = load_simulation(cell_file('sawyer_close'))
-MODEL = kinematics.model_by_name(SIM.cell.robot)
+MODEL = kinematics.model_for(SIM.cell)
 # the user frame as a user-frame calibration knows it: a few mm and mrad off the truth
 T_BASE_USER = frames.from_xyz_rpy([0.352, -0.048, 0.0], [0.0, 0.0, 0.03])
 VIEWS = 12

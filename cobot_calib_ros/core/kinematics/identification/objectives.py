@@ -32,7 +32,7 @@ from cobot_calib_ros.core.kinematics.identification.observations import (
     PositionObservations, SphereObservations)
 from cobot_calib_ros.core.kinematics.identification.parameters import ParameterSet
 from cobot_calib_ros.core.kinematics.identification.validation import register_rigid
-from cobot_calib_ros.core.user_frame.geometry import _skew
+from cobot_calib_ros.core.frames import skew
 
 Array = NDArray[np.float64]
 
@@ -235,7 +235,7 @@ class PairsObjective:
 def _left_jacobian_so3(w: Array) -> Array:
     """(3, 3) left Jacobian of SO(3): Exp(w + dw) = Exp(J_l(w) dw) Exp(w) to first order."""
     theta = float(np.linalg.norm(w))
-    W = _skew(w)
+    W = skew(w)
     if theta < 1e-6:
         return np.eye(3) + W / 2.0 + W @ W / 6.0
     return (np.eye(3) + (1.0 - math.cos(theta)) / theta ** 2 * W

@@ -1,4 +1,4 @@
-"""MUKCa sphere-socket data: loading, MUKCa's consistency metric, leave-one-location-out.
+"""MUKCa sphere-socket data: its tables, MUKCa's consistency metric, leave-one-location-out.
 
 The core identification modules are imported directly (not through the package
 ``__init__``), so that the package may re-export this module.
@@ -14,7 +14,6 @@ are a known 0.050 m apart. Lengths are metres except in names ending ``_mm``.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Sequence
 
 import numpy as np
@@ -31,7 +30,7 @@ from cobot_calib_ros.core.kinematics.model import KinematicModel
 Array = NDArray[np.float64]
 
 SOCKET_DISTANCE = 0.050  # [m] between the two socket centres of the MUKCa tool
-_FILES = ('hole_0.csv', 'hole_1.csv')
+SOCKET_FILES = ('hole_0.csv', 'hole_1.csv')   # per location folder, socket 0 and 1
 
 
 @dataclass(frozen=True, eq=False)
@@ -82,36 +81,27 @@ class SocketData:
         return SphereObservations(self.q[mask], sphere, known)
 
 
-def load_socket_data(folder: str | Path, distance: float = SOCKET_DISTANCE) -> SocketData:
-    """Read ``folder/<location>/hole_{0,1}.csv`` for every sub-folder holding both files.
-
-    ValueError for a folder without such sub-folders or a file that is not a numeric table
-    with the same number of columns everywhere.
-    """
-    root = Path(folder)
-    if not root.is_dir():
-        raise ValueError(f'socket data folder {str(root)!r} does not exist')
-    names = sorted(p.name for p in root.iterdir()
-                   if p.is_dir() and all((p / f).is_file() for f in _FILES))
-    if not names:
-        raise ValueError(f'no <location>/hole_0.csv + hole_1.csv under {str(root)!r}')
+def socket_data(tables: dict[str, Sequence[tuple[str, ArrayLike]]],
+                distance: float = SOCKET_DISTANCE) -> SocketData:
+    """SocketData of ``{location: [(source, hole_0 table), (source, hole_1 table)]}`` (the
+    tables as read from ``<location>/hole_{0,1}.csv``, ``source`` naming the file for messages;
+    loaders.load_socket_data reads them). ValueError for no location, or a table that is
+    empty, not finite, or has another number of columns than the first."""
+    if not tables:
+        raise ValueError('no socket data: no <location>/hole_0.csv + hole_1.csv')
     q, location, socket = [], [], []
-    for i, name in enumerate(names):
-        for s, file in enumerate(_FILES):
-            path = root / name / file
-            try:
-                table = np.loadtxt(path, delimiter=',', ndmin=2)
-            except ValueError as exc:
-                raise ValueError(f'{path}: not a comma-separated numeric table ({exc})') from None
-            if len(table) == 0 or not np.all(np.isfinite(table)):
-                raise ValueError(f'{path}: empty or not finite')
+    for i, name in enumerate(tables):
+        for s, (source, values) in enumerate(tables[name]):
+            table = np.asarray(values, dtype=float)
+            if table.ndim != 2 or len(table) == 0 or not np.all(np.isfinite(table)):
+                raise ValueError(f'{source}: empty or not finite')
             if q and table.shape[1] != q[0].shape[1]:
-                raise ValueError(f'{path}: {table.shape[1]} columns, expected {q[0].shape[1]} '
-                                 '(one per joint, radians)')
+                raise ValueError(f'{source}: {table.shape[1]} columns, expected '
+                                 f'{q[0].shape[1]} (one per joint, radians)')
             q.append(table)
             location.append(np.full(len(table), i))
             socket.append(np.full(len(table), s))
-    return SocketData(tuple(names), np.vstack(q), np.concatenate(location),
+    return SocketData(tuple(tables), np.vstack(q), np.concatenate(location),
                       np.concatenate(socket), float(distance))
 
 

@@ -10,7 +10,7 @@ from numpy.typing import ArrayLike, NDArray
 from cobot_calib_ros.core.frames import apply
 from cobot_calib_ros.core.kinematics.identification.parameters import tool_kinematics
 from cobot_calib_ros.core.kinematics.model import KinematicModel
-from cobot_calib_ros.core.user_frame.estimators import _kabsch
+from cobot_calib_ros.core.frames import kabsch
 
 Array = NDArray[np.float64]
 
@@ -34,7 +34,7 @@ def register_rigid(p_model: ArrayLike, p_measured: ArrayLike) -> Array:
     pw = np.asarray(p_measured, dtype=float)
     if pm.shape != pw.shape or pm.ndim != 2 or pm.shape[1] != 3 or len(pm) < 3:
         raise ValueError(f'need two (m, 3) point sets with m >= 3, got {pm.shape} and {pw.shape}')
-    return _kabsch(pm, pw)
+    return kabsch(pm, pw)
 
 
 def absolute_errors(model: KinematicModel, params: ArrayLike, tool_xyz: ArrayLike,

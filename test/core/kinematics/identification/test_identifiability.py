@@ -8,7 +8,8 @@ from cobot_calib_ros.core import frames
 from cobot_calib_ros.core.kinematics.identification import (
     base_motion_columns, default_candidates, find_redundant, ParameterSet,
     uniform_configurations)
-from cobot_calib_ros.core.kinematics.model import iiwa7, model_by_name
+from cobot_calib_ros.core.kinematics.model import iiwa7
+from cobot_calib_ros.core.kinematics.robots import model_by_name
 
 MODEL = iiwa7()
 ECCENTRIC_TOOL = np.array([0.030, -0.010, 0.060])  # [m]

@@ -11,7 +11,8 @@ from cobot_calib_ros.core.kinematics import fk
 from cobot_calib_ros.core.kinematics.identification import (
     default_candidates, identify, ParameterSet, SphereObservations, TOOL_NAMES)
 from cobot_calib_ros.core.kinematics.identification.sockets import (
-    leave_one_location_out, load_socket_data, location_metrics, mukca_metrics, SocketData)
+    leave_one_location_out, location_metrics, mukca_metrics, SocketData)
+from cobot_calib_ros.loaders import load_socket_data
 from cobot_calib_ros.core.kinematics.urdf import model_from_urdf
 
 MUKCA = Path(__file__).resolve().parents[3] / 'data' / 'mukca-kuka-iiwa14'

@@ -1,0 +1,79 @@
+"""Files into the core: read a configuration or data file, hand its text to the core parser.
+
+The core never touches files (test/test_layering.py); its parsers take text or arrays and the
+file's name for messages. Here: cell files (and the URDF a cell's robot may name, relative to
+the cell file), camera-info files, and MUKCa sphere-socket data folders.
+"""
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+from cobot_calib_ros.core.cell import Cell, CellFileError, parse_cell
+
+
+def read_cell_text(path: str | Path) -> tuple[Path, str]:
+    """(path, text) of a cell file; CellFileError when it cannot be read."""
+    path = Path(path)
+    try:
+        return path, path.read_text(encoding='utf-8')
+    except OSError as e:
+        raise CellFileError(f'{path}: cannot read the cell file ({e.strerror}); give a path or '
+                            'a name in config/cells (sawyer_close, iiwa7_close)') from None
+
+
+def load_cell(path: str | Path, layout: str | None = None) -> Cell:
+    """The nominal cell of a cell file, with ``layout`` (default: the file's ``layout``); a
+    URDF robot's file is read too (a relative path is relative to the cell file)."""
+    path, text = read_cell_text(path)
+    cell = parse_cell(text, path, layout)
+    if cell.urdf_robot is None:
+        return cell
+    urdf = Path(cell.urdf_robot.urdf_file).expanduser()
+    urdf = urdf if urdf.is_absolute() else path.parent / urdf
+    try:
+        robot = dataclasses.replace(cell.urdf_robot, urdf=urdf.read_text(encoding='utf-8'))
+    except OSError as e:
+        raise CellFileError(f'{path}: cell.robot.urdf: cannot read {urdf} ({e.strerror})') \
+            from None
+    return dataclasses.replace(cell, urdf_robot=robot)
+
+
+def load_camera_info_yaml(path: str | Path):
+    """CameraModel of a camera-info file (core.landmarks.camera.parse_camera_info: ROS
+    camera_calibration YAML, a CameraInfo message, OpenCV FileStorage YAML); CameraInfoError
+    names the file and the key."""
+    from cobot_calib_ros.core.landmarks.camera import CameraInfoError, parse_camera_info
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except (OSError, UnicodeDecodeError) as e:
+        raise CameraInfoError(f'{path}: cannot read camera info: {e}') from None
+    return parse_camera_info(text, path)
+
+
+def load_socket_data(folder: str | Path, distance: float | None = None):
+    """SocketData of ``folder/<location>/hole_{0,1}.csv`` for every sub-folder holding both
+    files (core.kinematics.identification.sockets.socket_data). ValueError for a folder without
+    such sub-folders or a file that is not a numeric table with the same number of columns
+    everywhere."""
+    import numpy as np
+    from cobot_calib_ros.core.kinematics.identification import sockets
+    root = Path(folder)
+    if not root.is_dir():
+        raise ValueError(f'socket data folder {str(root)!r} does not exist')
+    names = sorted(p.name for p in root.iterdir()
+                   if p.is_dir() and all((p / f).is_file() for f in sockets.SOCKET_FILES))
+    if not names:
+        raise ValueError(f'no <location>/hole_0.csv + hole_1.csv under {str(root)!r}')
+    tables = {}
+    for name in names:
+        tables[name] = []
+        for file in sockets.SOCKET_FILES:
+            path = root / name / file
+            try:
+                tables[name].append((str(path), np.loadtxt(path, delimiter=',', ndmin=2)))
+            except ValueError as exc:
+                raise ValueError(f'{path}: not a comma-separated numeric table ({exc})') from None
+    return sockets.socket_data(
+        tables, sockets.SOCKET_DISTANCE if distance is None else distance)
