@@ -190,8 +190,9 @@ class UserFrameSolver(Node):
                 'point order?) is refused with IMPLAUSIBLE_FIT, and so is a single residual '
                 'above 3 times this [m]', 1e-6, 0.1)
         declare(self, 'max_scale_error', 0.01,
-                'Largest |scale - 1| of the fitted matrix (five_point_lsq) that is accepted; '
-                'more is refused with IMPLAUSIBLE_FIT [1]', 1e-4, 1.0)
+                'Tolerance of |scale - 1| of the fitted matrix (five_point_lsq): a scale off 1 by '
+                'more than this AND by more than its noise allows (k standard errors, 0.5 % '
+                'false refusals) is refused with IMPLAUSIBLE_FIT [1]', 1e-4, 1.0)
 
     def _p(self, name: str):
         return self.get_parameter(name).value

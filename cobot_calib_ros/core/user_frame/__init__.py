@@ -9,7 +9,8 @@ from cobot_calib_ros.core.user_frame.fit import (
     calibrate, fit_five_point_lsq, fit_rigid, fit_three_point)
 from cobot_calib_ros.core.user_frame.geometry import collinearity
 from cobot_calib_ros.core.user_frame.plausibility import (
-    check_plausible, MAX_RESIDUAL_FACTOR, MAX_RMS_ERROR, MAX_SCALE_ERROR)
+    check_plausible, MAX_RESIDUAL_FACTOR, MAX_RMS_ERROR, MAX_SCALE_ERROR, SCALE_FALSE_REFUSAL,
+    scale_significance)
 from cobot_calib_ros.core.user_frame.result import FrameFit
 from cobot_calib_ros.core.user_frame.robust import (
     fit_robust, MIN_INLIERS, ROBUST_FALSE_REJECTION, ROBUST_THRESHOLD)
@@ -22,4 +23,4 @@ __all__ = [
     'fit_three_point', 'FrameFit', 'LIMIT_FACTOR', 'MAX_COORDINATE', 'MAX_RESIDUAL_FACTOR',
     'MAX_RMS_ERROR', 'MAX_SCALE_ERROR', 'METHODS', 'MIN_INLIERS', 'nearest_rigid',
     'point_names', 'pose_covariance', 'ROBUST_FALSE_REJECTION', 'ROBUST_THRESHOLD',
-    'SurfaceModel', 'user_to_base']
+    'SCALE_FALSE_REFUSAL', 'scale_significance', 'SurfaceModel', 'user_to_base']

@@ -28,13 +28,15 @@ from cobot_calib_ros.core.errors import ErrorCode, Failure
 from cobot_calib_ros.core.frames import apply
 from cobot_calib_ros.core.user_frame.checks import _prepare
 from cobot_calib_ros.core.user_frame.covariance import (
-    _effective_dof, _noise_sigma, _pose_jacobian, _propagated_covariance, _scaled)
+    _effective_dof, _noise_sigma, _pose_jacobian, _propagated_covariance, _scale_standard_errors,
+    _scaled)
 from cobot_calib_ros.core.user_frame.estimators import (
     _affine_fit, _affine_pose, _three_point_pose, DEFAULT_METHOD, METHODS, nearest_rigid)
 from cobot_calib_ros.core.user_frame.geometry import _join, _spread
 from cobot_calib_ros.core.user_frame.plausibility import (
     check_plausible, MAX_RMS_ERROR, MAX_SCALE_ERROR)
-from cobot_calib_ros.core.user_frame.result import _assemble, _failure, _rigid_fit, FrameFit
+from cobot_calib_ros.core.user_frame.result import (
+    _assemble, _failure, _noise_dof, _rigid_fit, FrameFit)
 from cobot_calib_ros.core.user_frame.robust import fit_robust
 
 _COMPLETED = ('user points are coplanar: the column of M along their normal is unobservable, '
@@ -83,9 +85,11 @@ def fit_three_point(p_user: ArrayLike, p_base: ArrayLike, *, sigma_prior: float 
     T = _three_point_pose(pu, pb)
     residuals = apply(T, pu) - pb
     J = _pose_jacobian(_three_point_pose, pu, pb)
-    sigma, note = _noise_sigma(residuals, _effective_dof(J, pu, T[:3, :3]), sigma_prior)
+    dof = _effective_dof(J, pu, T[:3, :3])
+    sigma, note = _noise_sigma(residuals, dof, sigma_prior)
     cov = _scaled(J @ J.T, sigma)
-    return _assemble('three_point', T, T, residuals, (pu[:3], pb[:3]), cov, sigma, note)
+    return _assemble('three_point', T, T, residuals, (pu[:3], pb[:3]), cov, sigma, note,
+                     noise_dof=_noise_dof(dof, sigma_prior))
 
 
 def fit_five_point_lsq(p_user: ArrayLike, p_base: ArrayLike, *,
@@ -95,14 +99,16 @@ def fit_five_point_lsq(p_user: ArrayLike, p_base: ArrayLike, *,
 
     On a coplanar user layout the column along the normal is completed (see module doc) and the
     message says so. ``T_base_user`` is the nearest rotation to M's 3x3 (SVD) with M's
-    translation; residuals, scale and shear come from M itself.
+    translation; residuals, scale and shear come from M itself, and ``scale_se`` propagates the
+    noise estimate (or ``sigma_prior``) to the scale, which the plausibility gate judges it by.
     """
     pu, pb, _, failure = _prepare(p_user, p_base, names)
     if failure is not None:
         return _failure('five_point_lsq', failure)
     M, completed = _affine_fit(pu, pb)
     residuals = apply(M, pu) - pb
-    sigma, note = _noise_sigma(residuals, residuals.size - (9 if completed else 12), sigma_prior)
+    dof = residuals.size - (9 if completed else 12)
+    sigma, note = _noise_sigma(residuals, dof, sigma_prior)
     cov = _propagated_covariance(_affine_pose, pu, pb, sigma)
     s = _spread(pu)
     cond = s[0] / s[1] if completed else s[0] / s[2]
@@ -111,7 +117,8 @@ def fit_five_point_lsq(p_user: ArrayLike, p_base: ArrayLike, *,
         'their normal is poorly determined')
     message = _join(_COMPLETED if completed else '', nearly, note)
     return _assemble('five_point_lsq', nearest_rigid(M), M, residuals, (pu, pb), cov, sigma,
-                     message, condition=cond)
+                     message, condition=cond, scale_se=_scale_standard_errors(pu, pb, sigma),
+                     noise_dof=_noise_dof(dof, sigma_prior))
 
 
 def fit_rigid(p_user: ArrayLike, p_base: ArrayLike, *, sigma_prior: float | None = None,

@@ -36,6 +36,8 @@ class FrameFit:
     covariance: Array           # (6, 6) row-major (x y z rx ry rz) [m^2, m rad, rad^2]
     sigma: float                # point noise behind the covariance, estimated or given [m]
     scale: Array                # (3,) column norms of M's 3x3 (1 for rigid methods)
+    scale_se: Array             # (3,) their standard errors from sigma (0 rigid; inf: no dof)
+    noise_dof: float            # residual degrees of freedom behind sigma (inf: sigma_prior)
     shear: Array                # (3,) xy, xz, yz angles between M's columns - pi/2 [rad]
     outliers: tuple[int, ...]   # indices rejected by the robust method
     code: ErrorCode = ErrorCode.SUCCESS
@@ -49,15 +51,18 @@ def _rigid_fit(method: str, pu: Array, pb: Array, keep: Array, sigma_prior: floa
                outliers: tuple[int, ...] = (), message: str = '') -> FrameFit:
     T = kabsch(pu[keep], pb[keep])
     residuals = apply(T, pu) - pb
-    sigma, note = _noise_sigma(residuals[keep], 3 * keep.sum() - 6, sigma_prior)
+    dof = 3 * keep.sum() - 6
+    sigma, note = _noise_sigma(residuals[keep], dof, sigma_prior)
     cov = pose_covariance(pu[keep], T[:3, :3], sigma)
     return _assemble(method, T, T, residuals, (pu[keep], pb[keep]), cov, sigma,
-                     _join(message, note), outliers=outliers, keep=keep)
+                     _join(message, note), outliers=outliers, keep=keep,
+                     noise_dof=_noise_dof(dof, sigma_prior))
 
 
 def _assemble(method: str, T: Array, M: Array, residuals: Array, used: tuple[Array, Array],
-              cov: Array, sigma: float, message: str, *, condition: float | None = None,
-              outliers: tuple[int, ...] = (), keep: Array | None = None) -> FrameFit:
+              cov: Array, sigma: float, message: str, *, noise_dof: float = 0.0,
+              condition: float | None = None, outliers: tuple[int, ...] = (),
+              keep: Array | None = None, scale_se: Array | None = None) -> FrameFit:
     norms = np.linalg.norm(residuals if keep is None else residuals[keep], axis=1)
     s = _spread(used[0])
     scale, shear = _scale_shear(M[:3, :3])
@@ -67,7 +72,8 @@ def _assemble(method: str, T: Array, M: Array, residuals: Array, used: tuple[Arr
         condition_number=float(s[0] / s[1]) if condition is None else float(condition),
         collinearity=min(float(s[1] / s[0]) if s[0] > 0.0 else 0.0, collinearity(used[1])),
         covariance=cov,
-        sigma=sigma, scale=scale, shear=shear, outliers=outliers, message=message)
+        sigma=sigma, scale=scale, shear=shear, outliers=outliers, message=message,
+        scale_se=np.zeros(3) if scale_se is None else scale_se, noise_dof=float(noise_dof))
 
 
 def _failure(method: str, failure: Failure) -> FrameFit:
@@ -75,7 +81,13 @@ def _failure(method: str, failure: Failure) -> FrameFit:
         method=method, T_base_user=None, M=None, residuals=np.zeros((0, 3)), rms=math.inf,
         max_residual=math.inf, condition_number=math.inf, collinearity=0.0,
         covariance=_scaled(np.eye(6), math.inf), sigma=math.inf, scale=np.ones(3),
-        shear=np.zeros(3), outliers=(), code=failure.code, message=failure.message)
+        scale_se=np.full(3, math.inf), noise_dof=0.0, shear=np.zeros(3), outliers=(),
+        code=failure.code, message=failure.message)
+
+
+def _noise_dof(dof: float, sigma_prior: float | None) -> float:
+    """Degrees of freedom of the noise estimate: ``dof``, or inf when sigma is a prior."""
+    return math.inf if sigma_prior is not None else float(dof)
 
 
 def _scale_shear(M3: Array) -> tuple[Array, Array]:
