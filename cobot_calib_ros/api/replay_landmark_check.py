@@ -102,7 +102,6 @@ def fit_frame(marks: list, landmarks: list, *, cell_name: str, kinematics: str =
     from cobot_calib_ros import paths
     from cobot_calib_ros.core import kinematics as kin
     from cobot_calib_ros.loaders import load_cell
-    from cobot_calib_ros.core.errors import Failure
     from cobot_calib_ros.core.landmarks import views
     from cobot_calib_ros.ros import convert
     if kinematics != 'nominal':
@@ -123,7 +122,7 @@ def fit_frame(marks: list, landmarks: list, *, cell_name: str, kinematics: str =
                          for lm in msg.landmarks if lm.kind == lm.KIND_MARKER]
     result = views.landmark_frame(method, cell, observations, max_rms_error=max_rms_error,
                                   max_scale_error=max_scale_error)
-    if isinstance(result, Failure) or not result:
+    if not result:
         raise CheckError(f'the landmark fit failed: {result.message}')
     return result
 

@@ -21,7 +21,7 @@ import numpy as np
 from sensor_msgs.msg import JointState
 
 from cobot_calib_ros.core import kinematics
-from cobot_calib_ros.core.errors import ErrorCode, Failure
+from cobot_calib_ros.core.errors import ErrorCode
 from cobot_calib_ros.core.landmarks import views
 from cobot_calib_ros.core.user_frame import landmarks as landmark_frames
 from cobot_calib_ros.ros import convert, marks
@@ -100,7 +100,7 @@ class LandmarkViews:
         result = views.landmark_frame(method, self._cell, observations,
                                       max_rms_error=max_rms_error,
                                       max_scale_error=max_scale_error)
-        if isinstance(result, Failure):
+        if result.code in (ErrorCode.INVALID_INPUT, ErrorCode.CAPTURE_FAILED):
             raise LandmarkViewError(result.code, result.message)
         return result
 

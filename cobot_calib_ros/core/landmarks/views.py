@@ -83,18 +83,17 @@ def observation(marker_id: int, T_base_optical: Array, T_optical_marker: Array,
 
 
 def landmark_frame(method: str, cell, observations: Sequence[landmark_frames.Observation], *,
-                   max_rms_error: float, max_scale_error: float
-                   ) -> landmark_frames.LandmarkFit | Failure:
+                   max_rms_error: float, max_scale_error: float) -> landmark_frames.LandmarkFit:
     """The method's frame from the observations (ids outside the method's targets ignored);
-    Failure (CAPTURE_FAILED) naming the targets never seen."""
+    falsy with CAPTURE_FAILED naming the targets never seen, or with the fit's failure."""
     targets = target_ids(method, cell)
     usable = [o for o in observations if o[0] in targets]
     unseen = sorted(set(targets) - {o[0] for o in usable})
     if unseen:
-        return Failure(ErrorCode.CAPTURE_FAILED, (
+        return landmark_frames.LandmarkFit.failed(method, Failure(ErrorCode.CAPTURE_FAILED, (
             f'{method}: landmark(s) {unseen} never seen (or no view of them was reachable); '
             'check the camera, the landmarks topic and the user frame the views are planned '
-            'by'))
+            'by')))
     T_um = {i: cell.landmarks.T_user_marker(i) for i in sorted(cell.landmarks.markers)}
     if method == landmark_frames.LANDMARK_SINGLE:
         i, T, C = usable[-1]
@@ -119,7 +118,7 @@ def measure_frame(method: str, cell, robot: RobotPort, camera: CameraPort, *,
                   T_base_user_guess: Array, plan_chain: kinematics.Chain,
                   chain: kinematics.Chain, capture_duration: float, max_rms_error: float,
                   max_scale_error: float, cancelled: Cancelled = never,
-                  on_view: ViewMark | None = None) -> landmark_frames.LandmarkFit | Failure:
+                  on_view: ViewMark | None = None) -> landmark_frames.LandmarkFit:
     """A landmark method's frame, measured: the views of :func:`plan_views` (on ``plan_chain``,
     its tool the hand-eye the views are planned with, from the cell's home), each visited
     (move, capture the joints for ``capture_duration`` [s]), then the first image stamped after
@@ -128,12 +127,13 @@ def measure_frame(method: str, cell, robot: RobotPort, camera: CameraPort, *,
     tool: the hand-eye the frame is measured with). ``on_view(marker id, capture, t)`` once
     per view, before the images after ``t`` are looked at (ROS publishes its capture mark).
 
-    Failure: INVALID_INPUT without camera or landmarks, CAPTURE_FAILED when a view could not
+    Falsy with INVALID_INPUT without camera or landmarks, CAPTURE_FAILED when a view could not
     be taken or a target was never seen; else :func:`landmark_frame`'s fit (falsy when refused).
     Raises core.robot_port.Stopped when ``cancelled()`` between views."""
     problem = setup_problem(cell)
     if problem:
-        return Failure(ErrorCode.INVALID_INPUT, f'{method}: {problem}')
+        return landmark_frames.LandmarkFit.failed(
+            method, Failure(ErrorCode.INVALID_INPUT, f'{method}: {problem}'))
     observations = []
     for marker_id, q in plan_views(method, cell, plan_chain, T_base_user_guess, cell.home):
         check_cancel(cancelled, f'the view of landmark {marker_id}')
@@ -142,8 +142,8 @@ def measure_frame(method: str, cell, robot: RobotPort, camera: CameraPort, *,
         except Stopped:
             raise
         except PortError as e:
-            return Failure(ErrorCode.CAPTURE_FAILED, f'{method}: view of landmark {marker_id}: '
-                                                     f'{e}')
+            return landmark_frames.LandmarkFit.failed(method, Failure(
+                ErrorCode.CAPTURE_FAILED, f'{method}: view of landmark {marker_id}: {e}'))
         T_base_optical = kinematics.fk(chain, capture.q)
         observations += [observation(s.id, T_base_optical, s.T_optical_target, s.covariance)
                          for s in image.sightings if s.kind == 'marker']

@@ -39,7 +39,7 @@ from numpy.typing import NDArray
 
 from cobot_calib_ros.core import frames, kinematics, user_frame
 from cobot_calib_ros.core.cell import Cell, Marker, tool_down_orientation
-from cobot_calib_ros.core.errors import ErrorCode, Failure
+from cobot_calib_ros.core.errors import ErrorCode
 from cobot_calib_ros.core.landmarks import views
 from cobot_calib_ros.core.landmarks.views import ViewMark
 from cobot_calib_ros.core.repeatability.iso9283 import (
@@ -158,11 +158,11 @@ class PortRobot:
                 on_view=rig.on_view)
         except Stopped as e:
             raise TrialError('canceled', f'{e}; send the same trial_id again to resume it')
-        if isinstance(result, Failure):
+        if result.code in (ErrorCode.INVALID_INPUT, ErrorCode.CAPTURE_FAILED):
             raise TrialError('invalid' if result.code == ErrorCode.INVALID_INPUT else 'motion',
                              result.message)
         if not result:
-            raise TrialError('invalid', f'{method}: {result.fit.message}')
+            raise TrialError('invalid', f'{method}: {result.message}')
         return result.fit.M
 
 

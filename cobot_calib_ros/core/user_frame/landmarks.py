@@ -42,7 +42,8 @@ Observation = tuple[int, ArrayLike, ArrayLike]   # (marker id, T_base_marker, 6x
 
 @dataclasses.dataclass(frozen=True)
 class LandmarkFit:
-    """A landmark method's result: the fit and the point pairs behind it."""
+    """A landmark method's result: the fit and the point pairs behind it; falsy on failure,
+    with the failure's ``code`` and ``message`` (those of the fit)."""
 
     fit: FrameFit
     names: list[str]        # one per point pair: 'L<id>', and 'L<id>+x' / 'L<id>+y'
@@ -52,6 +53,19 @@ class LandmarkFit:
 
     def __bool__(self) -> bool:
         return bool(self.fit)
+
+    @property
+    def code(self) -> ErrorCode:
+        return self.fit.code
+
+    @property
+    def message(self) -> str:
+        return self.fit.message
+
+    @classmethod
+    def failed(cls, method: str, failure: Failure) -> 'LandmarkFit':
+        """A falsy result of ``method`` carrying ``failure``, with no point pairs."""
+        return cls(_failure(method, failure), [], np.zeros((0, 3)), np.zeros((0, 3)), {})
 
 
 def _axis_points(T: Array) -> Array:
@@ -75,9 +89,8 @@ def frame_from_single(T_base_marker: ArrayLike, T_user_marker: ArrayLike, *,
     if Tbm.shape != (4, 4) or Tum.shape != (4, 4):
         raise ValueError('T_base_marker and T_user_marker must be (4, 4)')
     if not (np.all(np.isfinite(Tbm)) and np.all(np.isfinite(Tum))):
-        return LandmarkFit(_failure(LANDMARK_SINGLE, Failure(
-            ErrorCode.INVALID_INPUT, f'marker {marker_id}: pose contains NaN or inf')),
-            _names(marker_id), np.zeros((0, 3)), np.zeros((0, 3)), {})
+        return LandmarkFit.failed(LANDMARK_SINGLE, Failure(
+            ErrorCode.INVALID_INPUT, f'marker {marker_id}: pose contains NaN or inf'))
     T = Tbm @ invert(Tum)
     pu, pb = _axis_points(Tum), _axis_points(Tbm)
     if covariance is None:
@@ -130,9 +143,8 @@ def frame_from_landmarks(observations: Sequence[Observation],
             by_id.setdefault(int(marker_id), []).append((T, C))
     ids = sorted(by_id)
     if not ids:
-        return LandmarkFit(_failure(LANDMARK_MULTI, Failure(
-            ErrorCode.TOO_FEW_POINTS, 'no landmark of the cell was observed')),
-            [], np.zeros((0, 3)), np.zeros((0, 3)), {})
+        return LandmarkFit.failed(LANDMARK_MULTI, Failure(
+            ErrorCode.TOO_FEW_POINTS, 'no landmark of the cell was observed'))
     names, pu, pb = [], [], []
     for i in ids:
         views = by_id[i]
