@@ -14,8 +14,10 @@ from rclpy.node import Node
 from cobot_calib_ros.ros.calls import call_service, CallError
 
 
-def wait_for_suite(node: Node, timeout: float = 60.0, executor=None) -> None:
-    """Until joint_states and probe readings flow (a short capture and a probe average work)."""
+def wait_for_suite(node: Node, timeout: float = 60.0, executor=None,
+                   stop=lambda: False) -> None:
+    """Until joint_states and probe readings flow (a short capture and a probe average work),
+    or stop()."""
     from cobot_calib_msgs.srv import AverageProximity, CaptureJoints
     checks = [(CaptureJoints, 'capture_joints', CaptureJoints.Response.NO_DATA),
               (AverageProximity, 'probe/average', AverageProximity.Response.NO_DATA)]
@@ -24,6 +26,8 @@ def wait_for_suite(node: Node, timeout: float = 60.0, executor=None) -> None:
         client = node.create_client(srv_type, name)
         try:
             while not _flows(node, client, no_data, executor):
+                if stop():
+                    return
                 if time.monotonic() > deadline:
                     raise CallError(f'{name} had no data within {timeout:.0f} s; is the node '
                                     f'suite up (ROS_DOMAIN_ID='

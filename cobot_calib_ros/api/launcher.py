@@ -2,7 +2,9 @@
 
 `launch` / `launch_ros` are not on PyPI; this is the project's own minimal launcher. Each node
 runs as `python -m cobot_calib_ros.nodes.<name> --ros-args --params-file config/<name>.yaml`,
-which is what `ros2 run` does with the installed executable on a full ROS install.
+which is what `ros2 run` does with the installed executable on a full ROS install. A node that
+exits can be started again with the same command (`restart`, as launch's ``respawn``; its log
+goes on in the same file), and `AnswerCheck` tells whether a node answers yet.
 """
 from __future__ import annotations
 
@@ -37,6 +39,17 @@ class NodeSpec:
     params: dict[str, str] = field(default_factory=dict)
     namespace: str = ''
 
+    @property
+    def key(self) -> str:
+        """'name', or 'namespace.name': the node's key in Suite.processes and its log's name."""
+        return f'{self.namespace.strip("/")}.{self.name}' if self.namespace else self.name
+
+    @property
+    def full_name(self) -> str:
+        """'/namespace/name' as the ROS graph shows the node."""
+        ns = self.namespace.strip('/')
+        return f'/{ns}/{self.name}' if ns else f'/{self.name}'
+
     def command(self) -> list[str]:
         cmd = [sys.executable, '-m', f'cobot_calib_ros.nodes.{self.name}', '--ros-args']
         params_file = paths.config_dir() / f'{self.name}.yaml'
@@ -55,23 +68,39 @@ class Suite:
 
     log_dir: Path
     processes: dict[str, subprocess.Popen] = field(default_factory=dict)
+    specs: dict[str, NodeSpec] = field(default_factory=dict)
+    # own_group: each node in a process group of its own, so a Ctrl-C at the terminal reaches
+    # only the launcher, which then stops every node with exactly one SIGINT (`cobot-calib up`)
+    own_group: bool = False
+    _env: dict[str, str] | None = None
 
     def start(self, specs: list[NodeSpec], env: dict[str, str] | None = None) -> None:
         self.log_dir.mkdir(parents=True, exist_ok=True)
+        self._env = env
         for spec in specs:
-            key = f'{spec.namespace.strip("/")}.{spec.name}' if spec.namespace else spec.name
-            log = open(self.log_dir / f'{key.replace("/", ".")}.log', 'wb')
-            self.processes[key] = subprocess.Popen(
+            self.specs[spec.key] = spec
+            self._launch(spec, 'wb')
+
+    def restart(self, key: str) -> None:
+        """Start node ``key`` again (it has exited); its log goes on in the same file."""
+        self._launch(self.specs[key], 'ab')
+
+    def _launch(self, spec: NodeSpec, mode: str) -> None:
+        with open(self.log_path(spec.key), mode) as log:
+            self.processes[spec.key] = subprocess.Popen(
                 spec.command(), stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-                env=env, preexec_fn=_die_with_parent)
-            log.close()
+                env=self._env, preexec_fn=_die_with_parent,
+                process_group=0 if self.own_group else None)
+
+    def log_path(self, key: str) -> Path:
+        return self.log_dir / f'{key.replace("/", ".")}.log'
 
     def failed(self) -> dict[str, int]:
         """Nodes that have exited, with their exit codes."""
         return {n: p.returncode for n, p in self.processes.items() if p.poll() is not None}
 
     def log_tail(self, name: str, lines: int = 20) -> str:
-        path = self.log_dir / f'{name}.log'
+        path = self.log_path(name)
         return '\n'.join(path.read_text(errors='replace').splitlines()[-lines:])
 
     def stop(self, timeout: float = 5.0) -> dict[str, int]:
@@ -87,6 +116,35 @@ class Suite:
                 except subprocess.TimeoutExpired:
                     pass
         return {n: p.returncode for n, p in self.processes.items()}
+
+
+class AnswerCheck:
+    """Whether a node (full name, '/mock_robot') has answered a call to its parameter service;
+    ``answered()`` never blocks (spin the node between looks). An answer means the node process
+    is up and spinning, so every service and action server it offers is there. A node killed
+    and started again stays in the graph until DDS's lease ends: a call that went to the dead
+    one never answers, so an unanswered call is sent again every ASK_AGAIN s."""
+
+    ASK_AGAIN = 2.0     # [s]
+
+    def __init__(self, node, full_name: str) -> None:
+        from rcl_interfaces.srv import ListParameters
+        self._node, self._request = node, ListParameters.Request(depth=1)
+        self._client = node.create_client(ListParameters, f'{full_name}/list_parameters')
+        self._call, self._asked = None, 0.0
+
+    def answered(self) -> bool:
+        if self._call is not None and self._call.done():
+            return True
+        now = time.monotonic()
+        if now - self._asked >= self.ASK_AGAIN and self._client.service_is_ready():
+            if self._call is not None:
+                self._client.remove_pending_request(self._call)
+            self._call, self._asked = self._client.call_async(self._request), now
+        return False
+
+    def close(self) -> None:
+        self._node.destroy_client(self._client)
 
 
 def suite_specs(cell: str, nodes: tuple[str, ...] = SUITE,

@@ -5,13 +5,18 @@ import signal
 import sys
 import time
 
-from cobot_calib_ros.cli.common import domain_id, EXIT_FAILED, EXIT_USAGE, fail, ros_node
+from cobot_calib_ros.cli.common import domain_id, EXIT_USAGE, fail, ros_node
 from cobot_calib_ros.paths import DEFAULT_CELL
 
 # Discovery before starting: the first node of a running suite showed up within 0.1 s in
 # most runs, after 1.6 s at worst (25 runs).
 CHECK_MIN_WAIT = 2.5     # [s]
 CHECK_MAX_WAIT = 3.0     # [s]
+READY_TIMEOUT = 120.0    # [s] for every node to answer after the start (9 processes, 2 cores)
+WATCH_PERIOD = 0.2       # [s] between looks at the node processes
+STOP_TIMEOUT = 6.0       # [s] after the SIGINT before SIGTERM, 2 s, SIGKILL: down in 10 s
+QUICK_EXIT = 10.0        # [s] an exit this soon after the start counts as a failed start
+QUICK_EXITS = 3          # failed starts in a row before a node is left down
 
 
 def add_parser(subparsers):
@@ -48,7 +53,7 @@ def run(args) -> int:
             return fail(f'the node suite already runs on ROS_DOMAIN_ID={domain_id()} '
                         f'({", ".join(running)}); stop it, export another ROS_DOMAIN_ID, '
                         'or pass --force to start a second one anyway')
-    return _serve(launcher.Suite(launcher.default_log_dir()), specs)
+    return _serve(launcher.Suite(launcher.default_log_dir(), own_group=True), specs)
 
 
 def cell_problem(path, layout: str) -> str:
@@ -78,21 +83,132 @@ def running_nodes(names: list[str]) -> list[str]:
 
 
 def _serve(suite, specs) -> int:
+    """Run the suite until Ctrl-C (or SIGTERM): 'ready' once every node answers; a node that
+    exits is started again (launch's respawn), the others keep running. The nodes run in
+    process groups of their own: a Ctrl-C at the terminal reaches `up` alone, which then sends
+    each node one SIGINT."""
+    from cobot_calib_ros.ros.calls import spin_until
     stop = []
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.append(True))
+    signal.signal(signal.SIGTERM, lambda *_: stop.append(True))
     suite.start(specs)
-    print(f'node suite up on ROS_DOMAIN_ID={domain_id()}: {", ".join(suite.processes)}')
+    print(f'node suite starting on ROS_DOMAIN_ID={domain_id()}: {", ".join(suite.processes)}')
     print(f'logs: {suite.log_dir}   (Ctrl-C stops every node)', flush=True)
-    while not stop:
-        failed = suite.failed()
-        if failed:
-            for name, code in failed.items():
-                print(f'{name} exited with {code}; last log lines:\n{suite.log_tail(name)}',
-                      file=sys.stderr)
-            suite.stop()
-            return EXIT_FAILED
-        time.sleep(0.2)
-    codes = suite.stop()
-    print('stopped: ' + ', '.join(f'{n} ({c})' for n, c in codes.items()))
+    try:
+        with ros_node('_cobot_calib_up') as node:     # Ctrl-C: a KeyboardInterrupt in a wait
+            respawn, ready = _Respawn(suite, node), _Ready(suite, node)
+            try:
+                while not stop:
+                    ready.forget(respawn.check())
+                    ready.check(lambda: bool(stop))
+                    spin_until(node, lambda: bool(stop), WATCH_PERIOD)
+            finally:
+                ready.close()
+                respawn.forget_all()
+    except KeyboardInterrupt:
+        pass
+    started = time.monotonic()
+    codes = suite.stop(timeout=STOP_TIMEOUT)
+    print(f'stopped in {time.monotonic() - started:.1f} s: '
+          + ', '.join(f'{n} ({c})' for n, c in codes.items()), flush=True)
     return 0
+
+
+class _Ready:
+    """Prints 'ready' once every node answers (launcher.AnswerCheck) and joint_states and probe
+    readings flow; or, after READY_TIMEOUT, which nodes do not answer."""
+
+    def __init__(self, suite, node) -> None:
+        self._suite, self._node = suite, node
+        self._pending: dict | None = {}
+        self.forget(list(suite.specs))
+        self._deadline = time.monotonic() + READY_TIMEOUT
+
+    def forget(self, keys: list[str]) -> None:
+        """Ask these nodes again (restarted: a call to the old process never answers)."""
+        from cobot_calib_ros.api.launcher import AnswerCheck
+        for key in keys:
+            if self._pending is not None:
+                if key in self._pending:
+                    self._pending[key].close()
+                self._pending[key] = AnswerCheck(self._node, self._suite.specs[key].full_name)
+
+    def close(self) -> None:
+        for check in (self._pending or {}).values():
+            check.close()
+        self._pending = None
+
+    def check(self, stop) -> None:
+        from cobot_calib_ros.api.client import CallError, wait_for_suite
+        if self._pending is None:
+            return
+        for key in [k for k, c in self._pending.items() if c.answered()]:
+            self._pending.pop(key).close()
+        if self._pending and time.monotonic() > self._deadline:
+            self._deadline = float('inf')
+            print(f'not ready after {READY_TIMEOUT:.0f} s: {", ".join(self._pending)} do not '
+                  f'answer (see their logs in {self._suite.log_dir})', file=sys.stderr,
+                  flush=True)
+        if self._pending:
+            return
+        self._pending = None
+        try:
+            wait_for_suite(self._node, READY_TIMEOUT, stop=stop)
+        except CallError as e:
+            print(f'not ready: {e}', file=sys.stderr, flush=True)
+            return
+        if not stop():
+            print(f'ready: all {len(self._suite.specs)} nodes answer', flush=True)
+
+
+class _Respawn:
+    """A node that exits is started again, as launch's respawn, and said so; one that exits
+    QUICK_EXITS times in a row within QUICK_EXIT s of its start is left down (named)."""
+
+    def __init__(self, suite, node) -> None:
+        self._suite, self._node = suite, node
+        self._started = {key: time.monotonic() for key in suite.processes}
+        self._quick = dict.fromkeys(suite.processes, 0)
+        self._restarts = dict.fromkeys(suite.processes, 0)
+        self._down: set[str] = set()
+        self._coming_back: dict = {}     # restarted, not answering yet: key -> AnswerCheck
+
+    def check(self) -> list[str]:
+        """Restart the nodes that exited; the keys of those restarted."""
+        restarted = [key for key, code in self._suite.failed().items()
+                     if key not in self._down and self._exited(key, code)]
+        for key, answer in list(self._coming_back.items()):
+            if answer.answered():
+                answer.close()
+                del self._coming_back[key]
+                print(f'{key}: restarted and answering again', flush=True)
+        return restarted
+
+    def forget_all(self) -> None:
+        for key in list(self._coming_back):
+            self._forget(key)
+
+    def _forget(self, key: str) -> None:
+        if key in self._coming_back:
+            self._coming_back.pop(key).close()
+
+    def _exited(self, key: str, code: int) -> bool:
+        quick = time.monotonic() - self._started[key] < QUICK_EXIT
+        self._quick[key] = self._quick[key] + 1 if quick else 0
+        print(f'{key} exited with code {code}; last log lines:\n{self._suite.log_tail(key)}',
+              file=sys.stderr, flush=True)
+        if self._quick[key] >= QUICK_EXITS:
+            self._down.add(key)
+            self._forget(key)
+            print(f'{key} exited {QUICK_EXITS} times within {QUICK_EXIT:.0f} s of its start: '
+                  f'not restarted again; the other nodes keep running (log: '
+                  f'{self._suite.log_path(key)})', file=sys.stderr, flush=True)
+            return False
+        from cobot_calib_ros.api.launcher import AnswerCheck
+        self._restarts[key] += 1
+        self._forget(key)
+        self._suite.restart(key)
+        self._started[key] = time.monotonic()
+        self._coming_back[key] = AnswerCheck(self._node, self._suite.specs[key].full_name)
+        print(f'{key}: restarting (restart {self._restarts[key]}); the other nodes keep '
+              'running', file=sys.stderr, flush=True)
+        return True

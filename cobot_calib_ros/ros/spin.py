@@ -11,8 +11,15 @@ a core against 23-30 %) and lost none where the SingleThreadedExecutor once lost
 a loaded machine, but rclpy 7.1.6's build misbehaves: spin() and spin_once() without a timeout
 hang (no timer or subscription callback runs, SIGINT does not stop it), it installs its own
 SIGINT/SIGTERM handling (rclpy's signal options do not apply), and a Ctrl-C once ended in exit
-code 130. spin_until_shutdown and _teardown work around all three, but being experimental
-upstream and misbehaving here, it is not the default.
+code 130. run (spin_once with a timeout, in a loop) and _teardown work around all three, but
+being experimental upstream and misbehaving here, it is not the default.
+
+On Ctrl-C or SIGTERM a node's work in flight ends first: every ``wait`` for an answer raises
+``Stopping`` (a TimeoutError), so a goal that waits on the robot fails the way a lost robot
+makes it fail (a trial or collection is marked aborted, resumable, its data on disk, and the
+goal ends aborted for its client), while the executor still spins, for up to STOP_GRACE s;
+then the node is destroyed. rclpy's own signal handlers are not installed for this: they shut
+the context down first, and every goal still running then failed with a traceback.
 """
 from __future__ import annotations
 
@@ -20,6 +27,7 @@ import os
 import signal
 import sys
 import threading
+import time
 from typing import Callable
 
 import rclpy
@@ -28,11 +36,19 @@ from rclpy.executors import (Executor, ExternalShutdownException, MultiThreadedE
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.logging import LoggingSeverity
 from rclpy.node import Node
+from rclpy.signals import SignalHandlerOptions
 
 EXECUTOR_ENV = 'COBOT_CALIB_EXECUTOR'
 EXECUTORS = ('events', 'single')
 DEFAULT_EXECUTOR = 'single'
 WAKE_PERIOD = 0.1     # [s] longest wait of one spin_once of a loop that checks for a stop
+STOP_GRACE = 3.0      # [s] for callbacks in flight to end after a stop, before the teardown
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+_stopping = threading.Event()     # set once this process is shutting down
+
+
+class Stopping(TimeoutError):
+    """A wait ended because the process is shutting down (Ctrl-C, SIGTERM)."""
 
 
 def executor_kind() -> str:
@@ -52,40 +68,60 @@ def make_executor(context=None, kind: str | None = None) -> Executor:
     return SingleThreadedExecutor(context=context)
 
 
-def spin_until_shutdown(executor: Executor, context) -> None:
-    """Process callbacks until the context shuts down (Ctrl-C, SIGTERM, rclpy.shutdown).
-
-    The EventsExecutor of rclpy 7.1.6 (PyPI wheels) hangs in spin() and in spin_once() without
-    a timeout: no timer or subscription callback ran, and a publish() from another thread of
-    the process blocked. spin_once(timeout_sec=...) works, so it is spun that way.
-    """
-    if isinstance(executor, (SingleThreadedExecutor, MultiThreadedExecutor)):
-        executor.spin()
-        return
-    while context.ok():
-        executor.spin_once(timeout_sec=WAKE_PERIOD)
-
-
 def run(make_node: Callable[[], Node], args=None, threads: int = 1) -> None:
     """Spin the node built by `make_node`; `threads` > 1 uses a MultiThreadedExecutor, else
-    the executor of executor_kind()."""
-    rclpy.init(args=args)
-    node = None
+    the executor of executor_kind(). Ctrl-C and SIGTERM stop it in two steps: the work in
+    flight ends first (see _finish_work_in_flight), with the executor still spinning, then the
+    node is destroyed."""
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    stop = threading.Event()
+    previous = {sig: signal.signal(sig, _stop_handler(stop)) for sig in STOP_SIGNALS}
+    node = executor = None
     try:
         node = make_node()
         executor = (MultiThreadedExecutor(num_threads=threads) if threads > 1
                     else make_executor())
         executor.add_node(node)
-        spin_until_shutdown(executor, node.context)
+        while node.context.ok() and not stop.is_set():
+            executor.spin_once(timeout_sec=WAKE_PERIOD)
+        _finish_work_in_flight(executor, node.context)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except _rclpy.RCLError:
-        # SIGTERM shuts the context down from the signal handler; an executor building its
-        # next wait set then fails with "context is not valid": that is the shutdown asked for
+        # the context shut down under the executor (the EventsExecutor's own signal handling,
+        # or rclpy.shutdown from a node): an executor building its next wait set then fails
+        # with "context is not valid": that is the shutdown asked for
         if node is None or node.context.ok():
             raise
     finally:
         _teardown(node)
+        for sig, handler in previous.items():
+            if sig != signal.SIGINT:        # _teardown keeps a late Ctrl-C away
+                signal.signal(sig, handler)
+
+
+def _stop_handler(stop: threading.Event):
+    """SIGINT / SIGTERM: ask the node to stop, and every wait to give up."""
+    def on_signal(_signum, _frame) -> None:
+        stop.set()
+        _stopping.set()
+    return on_signal
+
+
+def _finish_work_in_flight(executor, context) -> None:
+    """Every wait for an answer gives up now (Stopping), so a callback that waits on the robot
+    ends the way a lost robot makes it end (store what it has, abort its goal). The executor
+    keeps spinning, so goal states, results and responses still go out, until no callback is
+    running any more or STOP_GRACE s have passed."""
+    _stopping.set()
+    # the callbacks a MultiThreadedExecutor is running now (a single-threaded one runs its
+    # callbacks inside spin_once: none is running between two calls); later ones (timers) are
+    # run meanwhile but not waited for
+    in_flight = [f for f in list(getattr(executor, '_futures', ())) if not f.done()]
+    deadline = time.monotonic() + STOP_GRACE
+    while context.ok() and time.monotonic() < deadline and not all(
+            f.done() for f in in_flight):
+        executor.spin_once(timeout_sec=WAKE_PERIOD)
 
 
 def _teardown(node: Node | None) -> None:
@@ -174,10 +210,14 @@ def log_info(logger, message: str) -> None:
 def wait(future, timeout: float):
     """Block this thread until ``future`` is done (another executor completes it); its result.
 
-    Raises TimeoutError after ``timeout`` [s].
+    Raises TimeoutError after ``timeout`` [s], Stopping as soon as the process shuts down.
     """
     done = threading.Event()
     future.add_done_callback(lambda _: done.set())
-    if not done.wait(timeout):
-        raise TimeoutError(f'no answer within {timeout:.0f} s')
+    deadline = time.monotonic() + timeout
+    while not done.wait(min(WAKE_PERIOD, max(0.0, deadline - time.monotonic()))):
+        if _stopping.is_set():
+            raise Stopping('the node is shutting down')
+        if time.monotonic() >= deadline:
+            raise TimeoutError(f'no answer within {timeout:.0f} s')
     return future.result()

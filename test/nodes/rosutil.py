@@ -4,6 +4,7 @@ import subprocess
 import sys
 
 from cobot_calib_ros.ros.calls import call_service, spin_until
+from machine import machine_unloaded  # noqa: F401 - the node tests import it from here
 
 
 def call(node, srv_type, name, timeout=10.0, **fields):
@@ -66,9 +67,3 @@ def wait_subscribed(node, topic: str, subscriber: str, timeout: float = 30.0) ->
         info.node_name == subscriber for info in node.get_subscriptions_info_by_topic(topic)),
         timeout, node.executor_for_tests)
 
-
-def machine_unloaded() -> bool:
-    """The 1-minute load average is below the number of cores: nothing else competes with the
-    suite's 1 kHz streams, so a retry after NO_DATA (a starved stream) would be a defect. On a
-    loaded machine starved streams are real (retries then show in /diagnostics and results)."""
-    return os.getloadavg()[0] < (os.cpu_count() or 1)
