@@ -169,7 +169,7 @@ def _run(args, client: DemoClient) -> dict:
     p_true = np.array([true_by_name[n] for n in POINTS])
     true_chain = _truth_model(truth, cell)
     records = [None] + ([] if args.kinematics == NOMINAL else
-                        [_kinematics(args, client, cell.robot)])
+                        [_kinematics(args, client, kinematics.model_for(cell).name)])
     say(args, f'touching {", ".join(POINTS)} and capturing joints ...')
     captures = [client.touch_and_capture(n) for n in POINTS]
     p_user = cell.nominal_points_user()[[cell.point_names.index(n) for n in POINTS]]
@@ -204,16 +204,16 @@ def _run(args, client: DemoClient) -> dict:
 def _kinematics(args, client: DemoClient, robot: str) -> dict:
     """The kinematic calibration record --kinematics names for ``robot``; 'latest' with none
     of that robot stored identifies one on the mock first."""
-    from cobot_calib_ros.store.kinematics import KinematicStore
+    from cobot_calib_ros import store
     from cobot_calib_ros.api import identification
-    store = KinematicStore(data_dir(''))
+    kinematic_store = store.open(data_dir('')).kinematics
     try:
-        record = store.resolve(args.kinematics, robot)
+        record = kinematic_store.resolve(args.kinematics, robot)
     except (KeyError, ValueError) as e:
         raise RuntimeError(f'--kinematics {args.kinematics}: {e}') from None
     if record is None:
-        say(args, f'no kinematic calibration of the {robot} in {store.directory}: identifying '
-                  'one on the mock first (as cobot-calib identify) ...')
+        say(args, f'no kinematic calibration of the {robot} in {kinematic_store.directory}: '
+                  'identifying one on the mock first (as cobot-calib identify) ...')
         identifier = identification.IdentifyClient(client.node)
         try:
             report = identification.identify_on_suite(
@@ -223,7 +223,7 @@ def _kinematics(args, client: DemoClient, robot: str) -> dict:
             raise RuntimeError(str(e)) from None
         finally:
             identifier.close()
-        record = KinematicStore(data_dir('')).get(report['calibration_id'])
+        record = store.open(data_dir('')).kinematics.get(report['calibration_id'])
     return record
 
 

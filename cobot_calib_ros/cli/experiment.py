@@ -13,13 +13,12 @@ from pathlib import Path
 import sys
 import time
 
-from cobot_calib_ros import paths
+from cobot_calib_ros import paths, store
 from cobot_calib_ros.api import launcher, report
 from cobot_calib_ros.api.trial import TrialClient
 from cobot_calib_ros.cli import common
 from cobot_calib_ros.core.repeatability.trial import METHODS
 from cobot_calib_ros.core.user_frame.landmarks import LANDMARK_METHODS
-from cobot_calib_ros.store.trials import TrialStore
 
 # the paper's comparison: every trial method but robust (this project's, not the paper's)
 EXPERIMENT_METHODS = tuple(m for m in METHODS if m != 'robust')
@@ -110,7 +109,7 @@ def run_experiment(args) -> int:
     except (CallError, RuntimeError) as e:
         print(f'experiment failed: {e}', file=sys.stderr)
         return 1
-    png, table_file, table = report.write_report(TrialStore(data_dir), trial_ids,
+    png, table_file, table = report.write_report(store.open(data_dir).trials, trial_ids,
                                                  _report_dir(args, data_dir))
     if args.json:
         print(json.dumps({'setup': args.setup, 'axis': args.axis, 'cycles': args.cycles,
@@ -161,7 +160,7 @@ def run_report(args) -> int:
     """`cobot-calib report TRIAL...`: PNG box plot and the paper's table for stored trials."""
     data_dir = paths.data_dir(args.data_dir)
     try:
-        png, table_file, table = report.write_report(TrialStore(data_dir), args.trials,
+        png, table_file, table = report.write_report(store.open(data_dir).trials, args.trials,
                                                      _report_dir(args, data_dir))
     except ValueError as e:
         print(f'report failed: {e}', file=sys.stderr)

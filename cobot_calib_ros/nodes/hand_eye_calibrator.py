@@ -14,8 +14,9 @@ covariances) gives the result; it is stored under ``<data_dir>/hand_eye`` (Calib
 atomic JSON, history, the newest active) and published latched on ``hand_eye``
 (geometry_msgs/TransformStamped, flange_frame -> the camera's optical frame) and /tf_static.
 A result whose residual is beyond what the views' noise allows (core.landmarks.hand_eye.
-check_noise) is stored with its ``gate_problem``, retired (never active), not published, and
-the goal ends with SOLVER_FAILED saying so.
+check_noise) is stored with its ``gate_problem``: the store keeps it as rejected (in the
+history, never active; store.repository), it is not published, and the goal ends with
+SOLVER_FAILED saying so.
 
 Where the board is: the cell gives it in the user frame, so the views need T_base_user: the
 ``user_frame`` parameter ("x y z roll pitch yaw" [m, rad]) or, when empty, the active user-frame
@@ -37,7 +38,7 @@ from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 
-from cobot_calib_ros import paths
+from cobot_calib_ros import paths, store
 from cobot_calib_ros.core import frames, kinematics
 from cobot_calib_ros.core.landmarks.hand_eye import check_noise, hand_eye_views, solve_hand_eye
 from cobot_calib_ros.core.landmarks.hand_eye_capture import pairing_problem
@@ -49,7 +50,7 @@ from cobot_calib_ros.ros.params import declare, read_once
 from cobot_calib_ros.ros.robot_calls import MOVE_TIMEOUT, RobotCallError, RobotCalls
 from cobot_calib_ros.ros.tf_static import StaticBroadcaster
 from cobot_calib_ros.ros.time import now_ns, stamp_to_ns
-from cobot_calib_ros.store.calibrations import CalibrationStore
+from cobot_calib_ros.store.records import HandEyeInputs, HandEyeRecord, HandEyeResult
 
 Action = CalibrateHandEye
 DEFAULT_VIEWS = 12
@@ -115,7 +116,7 @@ class HandEyeCalibrator(Node):
         self._model = kinematics.model_for(self._cell)
         self._chain = self._model.chain()
         self._root = paths.data_dir(self._p('data_dir'))
-        self._store = CalibrationStore(self._root, 'hand_eye')
+        self._store = store.open(self._root).hand_eye
         self._user_frame = parse_user_frame(self._p('user_frame'))
         self._answers = spin.Companion(self, 'clients')
         self._robot = RobotCalls(self._answers)
@@ -202,7 +203,7 @@ class HandEyeCalibrator(Node):
     def _T_base_user(self) -> np.ndarray:
         if self._user_frame is not None:
             return self._user_frame
-        record = CalibrationStore(self._root).active()
+        record = store.open(self._root).user_frames.active()
         if record is None or record['result'].get('T_base_user') is None:
             raise ValueError('no user frame to find the board by: set the user_frame parameter '
                              'or calibrate the user frame first (calibrate_user_frame)')
@@ -283,11 +284,7 @@ class HandEyeCalibrator(Node):
         if gate:
             record['gate_problem'] = gate
         try:
-            self._store.save(record)
-            if gate:        # kept in the history as rejected, never active
-                self._store.retire(record['id'])
-            else:
-                self._store.activate(None)
+            self._store.save_and_activate(record)   # with a gate problem: kept, rejected
         except (OSError, ValueError) as e:
             return self._end(goal_handle, result, Action.Result.STORAGE_FAILED,
                              f'could not store the hand-eye calibration: {e}')
@@ -310,20 +307,22 @@ class HandEyeCalibrator(Node):
             f'hand-eye; {time.monotonic() - t_start:.1f} s'))
 
     def _record(self, solved, joints, flange, boards, covariances, skipped, planned) -> dict:
-        return {
-            'id': record_id('hand_eye'), 'stamp_ns': now_ns(self), 'method': 'park+least_squares',
-            'kinematics': 'nominal', 'flange_frame': self._p('flange_frame'),
-            'camera_frame': self._cell.camera.frame_id, 'cell': self._cell.name,
-            'inputs': {'joints': joints, 'T_base_flange': flange, 'T_optical_board': boards,
-                       'board_covariances': covariances, 'skipped': skipped,
-                       'planned_views': planned},
-            'result': {'T_flange_optical': solved.T_flange_optical,
-                       'T_base_board': solved.T_base_board,
-                       'initial_T_flange_optical': solved.initial,
-                       'residual_mm': solved.residual_mm, 'residual_mrad': solved.residual_mrad,
-                       'residuals_mm': solved.residuals_mm,
-                       'residuals_mrad': solved.residuals_mrad,
-                       'covariance': solved.covariance, 'views_used': len(boards)}}
+        return HandEyeRecord(
+            id=record_id('hand_eye'), stamp_ns=now_ns(self), method='park+least_squares',
+            kinematics='nominal', flange_frame=self._p('flange_frame'),
+            camera_frame=self._cell.camera.frame_id, cell=self._cell.name,
+            inputs=HandEyeInputs(joints=joints, T_base_flange=flange, T_optical_board=boards,
+                                 board_covariances=covariances, skipped=skipped,
+                                 planned_views=planned),
+            result=HandEyeResult(T_flange_optical=solved.T_flange_optical,
+                                 T_base_board=solved.T_base_board,
+                                 initial_T_flange_optical=solved.initial,
+                                 residual_mm=solved.residual_mm,
+                                 residual_mrad=solved.residual_mrad,
+                                 residuals_mm=solved.residuals_mm,
+                                 residuals_mrad=solved.residuals_mrad,
+                                 covariance=solved.covariance,
+                                 views_used=len(boards))).to_dict()
 
     def _publish(self, record: dict) -> None:
         stamp = self.get_clock().now().to_msg()

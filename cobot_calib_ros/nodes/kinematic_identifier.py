@@ -26,7 +26,7 @@ from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 
-from cobot_calib_ros import paths
+from cobot_calib_ros import paths, store
 from cobot_calib_ros.core import kinematics
 from cobot_calib_ros.core.kinematics import plans
 from cobot_calib_ros.core.kinematics.identification.observations import (
@@ -44,7 +44,6 @@ from cobot_calib_ros.ros.robot_calls import MOVE_TIMEOUT, RobotCallError, RobotC
 from cobot_calib_ros.ros.time import now_ns
 from cobot_calib_ros.store.collections import Collection, CollectionStore
 from cobot_calib_ros.store.files import check_id
-from cobot_calib_ros.store.kinematics import KinematicStore
 
 Collect, Identify = CollectSphereData, IdentifyKinematics
 MAX_SKIPPED_IN_A_ROW = 20  # more unreachable poses in a row than this ends the collection
@@ -66,11 +65,10 @@ def load_collection_folder(folder: str) -> Collection:
     if not (path / 'collection.yaml').is_file():
         raise ValueError(f'{path}: not a collection folder (no collection.yaml); give a folder '
                          'written by collect_sphere_data')
-    store = CollectionStore(path.parent.parent)
-    store.directory = path.parent
-    data = store.load(path.name)
+    folder_store = CollectionStore.of_folder(path.parent)
+    data = folder_store.load(path.name)
     if data is None:
-        raise ValueError(f'{path}: unreadable collection: {"; ".join(store.warnings)}')
+        raise ValueError(f'{path}: unreadable collection: {folder_store.meta_problem(path.name)}')
     return data
 
 
@@ -80,9 +78,9 @@ class KinematicIdentifier(Node):
         self._declare_parameters()
         self._cell = load_cell(paths.cell_file(self._p('cell_file')), self._p('layout') or None)
         self._model = kinematics.model_for(self._cell)
-        root = paths.data_dir(self._p('data_dir'))
-        self._collections = CollectionStore(root)
-        self._calibrations = KinematicStore(root)
+        repository = store.open(paths.data_dir(self._p('data_dir')))
+        self._collections = repository.collections
+        self._calibrations = repository.kinematics
         self._answers = spin.Companion(self, 'clients')
         self._robot = RobotCalls(self._answers)
         self._busy = threading.Lock()
@@ -302,12 +300,13 @@ class KinematicIdentifier(Node):
         self._fill(result, outcome)
         if not goal.dry_run:
             try:
-                paths_ = self._calibrations.save_outcome(outcome)
+                saved = self._calibrations.save_outcome(outcome)
             except OSError as e:
                 return self._end(goal_handle, result, Identify.Result.STORAGE_FAILED,
                                  f'could not store the kinematic calibration: {e}')
-            result.calibration_id = outcome.record['id']
-            result.yaml_path, result.urdf_path = str(paths_['yaml']), str(paths_['urdf'])
+            result.calibration_id = saved.record.id
+            result.yaml_path, result.urdf_path = (str(saved.paths['yaml']),
+                                                  str(saved.paths['urdf']))
         return self._end(goal_handle, result, Identify.Result.SUCCESS, outcome.summary())
 
     def _job(self, goal) -> CalibrationJob:

@@ -21,7 +21,7 @@ from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 
-from cobot_calib_ros import paths
+from cobot_calib_ros import paths, store
 from cobot_calib_ros.core import kinematics
 from cobot_calib_ros.core.repeatability import trial as trialmod
 from cobot_calib_ros.core.repeatability import PointStats
@@ -29,8 +29,8 @@ from cobot_calib_ros.core.sensors.probe import Reading, ReadingStatus
 from cobot_calib_ros.core.user_frame.plausibility import MAX_RMS_ERROR, MAX_SCALE_ERROR
 from cobot_calib_ros.loaders import load_cell
 from cobot_calib_ros.store.files import check_id
-from cobot_calib_ros.store.kinematics import chain_of, KinematicStore, NOMINAL
-from cobot_calib_ros.store.trials import TrialStore
+from cobot_calib_ros.store.kinematics import chain_of, NOMINAL
+from cobot_calib_ros.store.records import TrialSetup
 from cobot_calib_ros.ros import qos, spin
 from cobot_calib_ros.ros.diagnostics import Diagnostics, OK, WARN
 from cobot_calib_ros.ros.params import declare, read_once
@@ -179,7 +179,7 @@ class RepeatabilityTrial(Node):
         self._declare_parameters()
         self._cell = load_cell(paths.cell_file(self._p('cell_file')), self._p('layout') or None)
         self._model = kinematics.model_for(self._cell)
-        self._store = TrialStore(paths.data_dir(self._p('data_dir')))
+        self._store = store.open(paths.data_dir(self._p('data_dir'))).trials
         self._answers = spin.Companion(self, 'clients')
         calls = RobotCalls(self._answers)
         views = LandmarkViews(self._answers, calls, self._cell, self._model,
@@ -398,7 +398,7 @@ class RepeatabilityTrial(Node):
         """Give the robot the chain of a kinematics choice; its label (id or nominal)."""
         data_dir = paths.data_dir(self._p('data_dir'))
         try:
-            record = KinematicStore(data_dir).resolve(choice, self._model.name)
+            record = store.open(data_dir).kinematics.resolve(choice, self._model.name)
             self._robot.chain = chain_of(record, self._model, self._cell.tool_offset)
             if self._cell.camera is not None:
                 X, _ = active_hand_eye(data_dir, self._cell)
@@ -417,12 +417,12 @@ class RepeatabilityTrial(Node):
         if exists and stored is None:
             raise trialmod.TrialError('invalid', (
                 f'trial {trial.trial_id} is stored but unreadable '
-                f'({"; ".join(self._store.warnings[-1:])}); pick a new trial_id'))
+                f'({self._store.meta_problem(trial.trial_id)}); pick a new trial_id'))
         if stored is None:
-            trial.meta = {'method': goal.method or trialmod.DEFAULT_METHOD,
-                          'axis': goal.axis or trialmod.DEFAULT_AXIS,
-                          'cycles_total': goal.cycles or trialmod.DEFAULT_CYCLES,
-                          'point_names': self._cell.point_names}
+            trial.meta = TrialSetup(method=goal.method or trialmod.DEFAULT_METHOD,
+                                    axis=goal.axis or trialmod.DEFAULT_AXIS,
+                                    cycles_total=goal.cycles or trialmod.DEFAULT_CYCLES,
+                                    point_names=self._cell.point_names).to_dict()
             return None
         trial.meta = stored.meta
         problem = (trialmod.resume_problem(stored.meta, goal.method, goal.axis, goal.cycles)

@@ -28,11 +28,10 @@ import numpy as np
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 
-from cobot_calib_ros import paths
+from cobot_calib_ros import paths, store
 from cobot_calib_ros.core import frames, kinematics, user_frame
 from cobot_calib_ros.core.cell import check_frame_id
 from cobot_calib_ros.core.errors import ErrorCode
-from cobot_calib_ros.core.ids import record_id
 from cobot_calib_ros.core.user_frame import landmarks as landmark_frames
 from cobot_calib_ros.loaders import load_cell
 from cobot_calib_ros.ros import convert, qos, spin
@@ -42,8 +41,8 @@ from cobot_calib_ros.ros.landmark_views import active_hand_eye, LandmarkViewErro
 from cobot_calib_ros.ros.robot_calls import MOVE_TIMEOUT, RobotCallError, RobotCalls
 from cobot_calib_ros.ros.time import now_ns, ns_to_stamp
 from cobot_calib_ros.ros.tf_static import StaticBroadcaster
-from cobot_calib_ros.store.calibrations import CalibrationStore
-from cobot_calib_ros.store.kinematics import chain_of, KinematicStore, NOMINAL
+from cobot_calib_ros.store.kinematics import chain_of, NOMINAL
+from cobot_calib_ros.store.records import UserFrameRecord
 
 Res = CalibrateUserFrame.Response
 Choice = SetActiveCalibration
@@ -61,28 +60,6 @@ def frames_problem(base: tuple[str, str], user: tuple[str, str]) -> str:
         return (f'{base[0]} and {user[0]} are both {base[1]!r}: the user frame needs a frame '
                 'id of its own')
     return ''
-
-
-def fit_record(fit: user_frame.FrameFit, surface, names: list[str], p_user, p_base,
-               frames_: tuple[str, str], stamp_ns: int, kinematics: str = '') -> dict:
-    """Everything about one calibration (what is stored and republished); numpy values are
-    left as they are: the store writes them as plain lists. ``stamp_ns`` is ROS time; the id
-    (a file name) comes from the wall clock so that it stays unique under a paused sim clock."""
-    return {
-        'id': record_id(fit.method),
-        'stamp_ns': stamp_ns, 'method': fit.method, 'kinematics': kinematics,
-        'base_frame': frames_[0], 'user_frame': frames_[1],
-        'inputs': {'point_names': names, 'points_user': p_user, 'points_base': p_base},
-        'result': {
-            'T_base_user': fit.T_base_user, 'M': fit.M, 'residuals': fit.residuals,
-            'rms': fit.rms, 'max_residual': fit.max_residual,
-            'condition_number': fit.condition_number, 'collinearity': fit.collinearity,
-            'covariance': fit.covariance, 'scale': fit.scale, 'shear': fit.shear,
-            'outliers': list(fit.outliers), 'message': fit.message,
-            'surface': None if surface is None else {
-                'valid': bool(surface), 'powers_x': surface.powers_x,
-                'powers_y': surface.powers_y, 'coefficients': surface.coefficients,
-                'rms_before': surface.rms_before, 'rms_after': surface.rms_after}}}
 
 
 def record_to_msg(record: dict) -> UserFrameCalibration:
@@ -117,22 +94,13 @@ def record_to_msg(record: dict) -> UserFrameCalibration:
     return msg
 
 
-def record_surface(record: dict) -> user_frame.SurfaceModel | None:
-    s = record['result'].get('surface')
-    if not s or not s['valid']:
-        return None
-    return user_frame.SurfaceModel(tuple(s['powers_x']), tuple(s['powers_y']),
-                                   np.array(s['coefficients']), s['rms_before'],
-                                   s['rms_after'], True)
-
-
 class UserFrameSolver(Node):
     def __init__(self, **kwargs) -> None:
         super().__init__('user_frame_solver', **kwargs)
         self._declare_parameters()
         self._cell = load_cell(paths.cell_file(self._p('cell_file')), self._p('layout') or None)
         self._model = kinematics.model_for(self._cell)
-        self._store = CalibrationStore(paths.data_dir(self._p('data_dir')))
+        self._store = store.open(paths.data_dir(self._p('data_dir'))).user_frames
         self._store_lock = threading.Lock()     # the calibrator thread writes, this one reads
         self._health = Diagnostics(self)
         self._last_refusal = ''
@@ -248,14 +216,11 @@ class UserFrameSolver(Node):
         surface = (user_frame.fit_surface(p_user, p_base, fit.M, names=names)
                    if request.fit_surface and request.method !=
                    landmark_frames.LANDMARK_SINGLE else None)
-        record = fit_record(fit, surface, names, p_user, p_base, frames_, now_ns(self),
-                            model_used)
-        if hand_eye:
-            record['hand_eye'] = hand_eye
+        record = UserFrameRecord.from_fit(fit, surface, names, p_user, p_base, frames_,
+                                          now_ns(self), model_used, hand_eye).to_dict()
         try:
             with self._store_lock:
-                self._store.save(record)
-                self._store.activate(record['id'])
+                self._store.save_and_activate(record)   # user frames have no gate (yet)
         except OSError as e:
             return self._refuse(response, ErrorCode.STORAGE_FAILED,
                                 f'could not store the calibration: {e}; check data_dir')
@@ -311,9 +276,9 @@ class UserFrameSolver(Node):
         """The chain for a kinematics choice and its label (a calibration id or nominal),
         read fresh: kinematic_identifier may have stored a new one since. ``tool``: T_flange_tool
         of the chain, default the cell's tool offset."""
-        store = KinematicStore(paths.data_dir(self._p('data_dir')))
+        kinematic_store = store.open(paths.data_dir(self._p('data_dir'))).kinematics
         try:
-            record = store.resolve(choice, self._model.name)
+            record = kinematic_store.resolve(choice, self._model.name)
             chain = chain_of(record, self._model,
                              self._cell.tool_offset if tool is None else tool)
         except (KeyError, ValueError) as e:
@@ -496,7 +461,7 @@ class UserFrameSolver(Node):
                                        'shows the stored ones')
         try:
             with self._store_lock:
-                (self._store.retire if retire else self._store.activate)(cid)
+                activation = self._store.retire(cid) if retire else self._store.activate(cid)
                 active = self._store.active()
         except ValueError as e:
             return Out.INVALID_INPUT, f'calibration_id {cid!r}: {e}'
@@ -506,6 +471,8 @@ class UserFrameSolver(Node):
         except OSError as e:
             return Out.STORAGE_FAILED, (f'could not store the choice: {e}; nothing changed, '
                                         'check data_dir')
+        if cid and activation is not None and not activation:     # failed its gate
+            return Out.INVALID_INPUT, activation.reason
         now = (f'{active["id"]} is active' if active else
                'no calibration is active: calibrate, or activate a retired one')
         done = f'retired {cid}' if retire else (f'activated {cid}' if cid else
@@ -535,7 +502,8 @@ class UserFrameSolver(Node):
             response.message = 'points contain NaN or inf'
             return response
         M = np.array(record['result']['M'])
-        surface = record_surface(record) if request.apply_surface else None
+        surface = (UserFrameRecord.from_dict(record).surface_model() if request.apply_surface
+                   else None)
         if to_base:
             out = user_frame.user_to_base(M, points, surface)
         else:   # M may be affine (five_point_lsq): a general inverse, not the rigid one

@@ -20,6 +20,7 @@ from cobot_calib_msgs.msg import Landmarks
 import numpy as np
 from sensor_msgs.msg import JointState
 
+from cobot_calib_ros import store
 from cobot_calib_ros.core import kinematics
 from cobot_calib_ros.core.errors import ErrorCode
 from cobot_calib_ros.core.landmarks import views
@@ -28,7 +29,6 @@ from cobot_calib_ros.ros import convert, marks
 from cobot_calib_ros.ros.robot_calls import MOVE_TIMEOUT, RobotCallError, RobotCalls
 from cobot_calib_ros.ros.spin import Companion
 from cobot_calib_ros.ros.time import header_ns
-from cobot_calib_ros.store.calibrations import CalibrationStore
 
 LANDMARK_TIMEOUT = 5.0   # [s] of wall time for a landmarks message stamped after a capture
 LANDMARK_MESSAGES = 3    # messages after a capture looked at before a marker counts as unseen
@@ -46,7 +46,7 @@ def active_hand_eye(data_dir: Path, cell) -> tuple[np.ndarray, str]:
     """(T_flange_optical, its label): the active stored hand-eye calibration, else the cell's
     nominal one ('nominal')."""
     try:
-        record = CalibrationStore(Path(data_dir), 'hand_eye').active()
+        record = store.open(data_dir).hand_eye.active()
     except (OSError, ValueError):
         record = None
     if record is not None:

@@ -1,0 +1,11 @@
+"""Everything the suite stores: ``store.open(data_dir)`` is the one way in (store.repository).
+
+Typed records in store.records; the folder implementation in store.calibrations, .kinematics,
+.trials, .collections over store.files.
+"""
+
+
+def open(data_dir):   # noqa: A001 (as io.open); imported on use: store.files stays light
+    """The :class:`store.repository.Repository` of ``data_dir`` (see store.repository)."""
+    from cobot_calib_ros.store.repository import open as open_repository
+    return open_repository(data_dir)

@@ -5,7 +5,8 @@ Activation is scoped: a store built with ``scope_key`` (kinematics: ``'robot'``)
 active record per value of that key, so one robot's calibration never becomes another's."""
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
 import json
 from pathlib import Path
 from typing import Any
@@ -32,6 +33,24 @@ def _record_problem(record: Mapping[str, Any]) -> str:
     if not isinstance(record['method'], str):
         return f'method must be a string, got {record["method"]!r}'
     return ''
+
+
+@dataclass(frozen=True)
+class Activation:
+    """What :meth:`CalibrationStore.activate` did: ``active`` (truthy) if ``record_id`` is now
+    the active record of its scope, else ``reason`` says why not (its gate problem)."""
+
+    record_id: str
+    active: bool
+    reason: str = ''
+
+    def __bool__(self) -> bool:
+        return self.active
+
+
+def stored_gate_problem(record: Mapping[str, Any]) -> str:
+    """The default gate: the record's own ``gate_problem`` ('' or absent: it passes)."""
+    return str(record.get('gate_problem') or '')
 
 
 def _read_selection(path: Path) -> tuple[dict[str, Any], str]:
@@ -72,6 +91,12 @@ class CalibrationStore(WarningLog):
     it differs from the default, so activating the newest record (after each calibration)
     writes nothing in the common case.
 
+    ``gate``: record -> '' if it may become active, else why not (default: the record's own
+    ``gate_problem``, which its builder sets with its kind's criterion). A record that fails
+    its gate is stored and stays in the history, marked rejected (:meth:`rejected`), and is
+    never active: :meth:`activate` refuses it with an :class:`Activation` saying why, and the
+    default (newest) skips it.
+
     ``scope_key``: the record key whose value scopes activation ('' : one scope). Each scope
     (e.g. each robot) has its own active record, chosen or newest among that scope's records;
     :meth:`active` takes the scope. In ``active.json`` a chosen id of scope '' is
@@ -79,8 +104,10 @@ class CalibrationStore(WarningLog):
     that record's scope), the others are in ``active_ids`` {scope: id}.
     """
 
-    def __init__(self, root: Path, subdir: str = 'calibrations', scope_key: str = '') -> None:
+    def __init__(self, root: Path, subdir: str = 'calibrations', scope_key: str = '',
+                 gate: Callable[[Mapping[str, Any]], str] = stored_gate_problem) -> None:
         super().__init__()
+        self.gate = gate
         self.root = Path(root)
         self.directory = self.root / subdir
         self.selection_path = self.directory / ACTIVE_FILE
@@ -93,9 +120,10 @@ class CalibrationStore(WarningLog):
         """The activation scope ``record`` belongs to ('' in an unscoped store)."""
         return str(record.get(self.scope_key) or '') if self.scope_key else ''
 
-    def save(self, record: Mapping[str, Any]) -> Path:
-        """Write ``record`` atomically and durably; returns its path."""
-        plain = to_plain(record)
+    def save(self, record) -> Path:
+        """Write ``record`` (a mapping or a store.records record) atomically and durably;
+        returns its path."""
+        plain = to_plain(record.to_dict() if hasattr(record, 'to_dict') else record)
         problem = _record_problem(plain)
         if problem:
             raise ValueError(f'invalid calibration record: {problem}')
@@ -131,7 +159,8 @@ class CalibrationStore(WarningLog):
         the newest non-retired one of that scope; None if there is none."""
         retired = self.retired()
         chosen = self._index().get(self._choices().get(scope, ''))
-        if chosen is not None and chosen['id'] not in retired and self.scope_of(chosen) == scope:
+        if (chosen is not None and chosen['id'] not in retired
+                and self.scope_of(chosen) == scope and not self.gate(chosen)):
             return chosen
         return self._newest(scope, retired)
 
@@ -141,19 +170,40 @@ class CalibrationStore(WarningLog):
             self._load_selection()
         return self._retired
 
-    def activate(self, record_id: str | None, scope: str = '') -> None:
-        """Make ``record_id`` (un-retired) the active record of its scope; None or '': no
-        choice in ``scope``, its newest non-retired record is active. KeyError if no such
+    def rejected(self) -> dict[str, str]:
+        """{id: why} of the stored records that fail their gate (never active)."""
+        return {r['id']: problem for r in self._index().values() if (problem := self.gate(r))}
+
+    def activate(self, record_id: str | None, scope: str = '') -> Activation:
+        """Make ``record_id`` (un-retired) the active record of its scope, if it passes its
+        gate (else nothing changes and the result says why); None or '': no choice in
+        ``scope``, its newest non-retired record that passes is active. KeyError if no such
         record, ValueError if not an id, OSError if active.json cannot be written (then nothing
         changed)."""
         retired, chosen = self.retired(), dict(self._choices())
         if record_id:
-            scope = self.scope_of(self._require(record_id))
+            record = self._require(record_id)
+            problem = self.gate(record)
+            if problem:
+                return Activation(record_id, False, (
+                    f'{record_id} is rejected ({problem}): kept in the history, never active'))
+            scope = self.scope_of(record)
             retired = retired - {record_id}
             chosen[scope] = record_id
         else:
             chosen.pop(scope, None)
         self._select(chosen, retired)
+        active = self.active(scope)
+        return Activation(active['id'] if active else '', active is not None,
+                          '' if active else 'no calibration can be active: none is stored, or '
+                          'all are retired or rejected')
+
+    def save_and_activate(self, record) -> Activation:
+        """:meth:`save` ``record``, then :meth:`activate` it: a record that fails its gate is
+        kept (rejected) and the active one stays as it was."""
+        plain = record.to_dict() if hasattr(record, 'to_dict') else record
+        self.save(plain)
+        return self.activate(plain['id'])
 
     def retire(self, record_id: str) -> None:
         """Mark ``record_id`` retired: kept in the history, never active; if it was chosen,
@@ -172,8 +222,8 @@ class CalibrationStore(WarningLog):
         return record
 
     def _newest(self, scope: str, retired: frozenset[str]) -> dict[str, Any] | None:
-        return next((r for r in self.history()
-                     if r['id'] not in retired and self.scope_of(r) == scope), None)
+        return next((r for r in self.history() if r['id'] not in retired
+                     and self.scope_of(r) == scope and not self.gate(r)), None)
 
     def _choices(self) -> dict[str, str]:
         if self._chosen is None:

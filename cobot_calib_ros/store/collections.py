@@ -21,10 +21,9 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-import yaml
 
-from cobot_calib_ros.store.files import (append_line, atomic_write_text, check_id, ensure_dir,
-                                         fsync_dir, read_lines, to_plain, WarningLog)
+from cobot_calib_ros.store.files import append_line, check_id, read_lines, to_plain
+from cobot_calib_ros.store.folders import FolderStore
 
 Array = NDArray[np.float64]
 SOURCES = ('spheres', 'laser_tracker')
@@ -67,11 +66,22 @@ def _problem(meta: Mapping[str, Any], collection_id: str) -> str:
     return ''
 
 
-class CollectionStore(WarningLog):
+class CollectionStore(FolderStore):
+    META_FILE, LOG_FILE, LOG_HEADER = 'collection.yaml', 'rows.csv', CSV_HEADER
+
     def __init__(self, root: Path) -> None:
-        super().__init__()
-        self.directory = Path(root) / 'kinematic_data'
-        self._meta: dict[str, dict[str, Any]] = {}   # written or read by this store
+        super().__init__(Path(root) / 'kinematic_data')
+
+    @classmethod
+    def of_folder(cls, directory: Path) -> CollectionStore:
+        """The collections in ``directory`` itself (a folder given by path, e.g. a copy of
+        ``<root>/kinematic_data``), not under a data dir."""
+        folder_store = cls(Path(directory).parent)
+        folder_store.directory = Path(directory)
+        return folder_store
+
+    def _meta_problem(self, meta: Mapping[str, Any], record_id: str) -> str:
+        return _problem(meta, record_id)
 
     def create(self, collection_id: str, *, source: str, robot: str,
                joint_names: Sequence[str], targets: Sequence[str],
@@ -89,12 +99,7 @@ class CollectionStore(WarningLog):
         problem = _problem(meta, collection_id)
         if problem:
             raise ValueError(f'invalid collection: {problem}')
-        ensure_dir(self.directory)
-        folder = self.directory / collection_id
-        folder.mkdir()
-        fsync_dir(self.directory)
-        atomic_write_text(folder / 'rows.csv', CSV_HEADER + '\n')
-        self._write_meta(meta)   # last: a folder without collection.yaml is an aborted create
+        self._create_folder(meta)
         return meta
 
     def append(self, collection_id: str, index: int, target: int, q: Array | None, *,
@@ -114,10 +119,13 @@ class CollectionStore(WarningLog):
                     + '\n', CSV_HEADER)
 
     def meta(self, collection_id: str) -> dict[str, Any]:
-        meta = self._meta.get(collection_id) or self._read_meta(check_id(collection_id))
+        meta = self._meta.get(collection_id)
         if meta is None:
-            raise ValueError(f'collection {collection_id!r} is missing or unreadable: '
-                             f'{"; ".join(self.warnings[-1:])}')
+            meta, problem = self._load_meta(check_id(collection_id))
+            if problem:
+                raise ValueError(f'collection {collection_id!r} is missing or unreadable: '
+                                 f'{problem}')
+            self._meta[collection_id] = meta
         return meta
 
     def set_status(self, collection_id: str, status: str) -> dict[str, Any]:
@@ -161,28 +169,4 @@ class CollectionStore(WarningLog):
 
     def list_collections(self) -> list[dict[str, Any]]:
         """Metadata of every readable collection, newest first."""
-        if not self.directory.is_dir():
-            return []
-        metas = [m for m in (self._read_meta(p.name) for p in sorted(self.directory.iterdir())
-                             if p.is_dir()) if m is not None]
-        return sorted(metas, key=lambda m: (m['created_ns'], m['id']), reverse=True)
-
-    def _write_meta(self, meta: dict[str, Any]) -> None:
-        atomic_write_text(self.directory / meta['id'] / 'collection.yaml',
-                          yaml.safe_dump(to_plain(meta), sort_keys=False))
-        self._meta[meta['id']] = meta
-
-    def _read_meta(self, collection_id: str) -> dict[str, Any] | None:
-        path = self.directory / collection_id / 'collection.yaml'
-        if not path.exists():
-            self._warn(f'{path.parent}: skipped, no collection.yaml (missing or aborted)')
-            return None
-        meta = self._read_mapping(path)
-        if meta is None:
-            return None
-        problem = _problem(meta, collection_id)
-        if problem:
-            self._warn(f'{path}: skipped, {problem}')
-            return None
-        self._meta[collection_id] = meta
-        return meta
+        return self._list_meta()

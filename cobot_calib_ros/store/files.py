@@ -101,17 +101,22 @@ class WarningLog:
 
     def _read_mapping(self, path: Path) -> dict[str, Any] | None:
         """A YAML or (by suffix) JSON file's top-level mapping, or None with a warning."""
-        try:
-            text = path.read_text(encoding='utf-8')
-            data = json.loads(text) if path.suffix == '.json' else yaml.safe_load(text)
-        except (OSError, UnicodeDecodeError, ValueError, yaml.YAMLError) as exc:
-            reason = ' '.join(str(exc).split())
-            self._warn(f'{path}: skipped, unreadable ({reason})')
-            return None
-        if not isinstance(data, dict):
-            self._warn(f'{path}: skipped, not a mapping')
-            return None
+        data, problem = read_mapping(path)
+        if problem:
+            self._warn(f'{path}: skipped, {problem}')
         return data
+
+
+def read_mapping(path: Path) -> tuple[dict[str, Any] | None, str]:
+    """A YAML or (by suffix) JSON file's top-level mapping and '', or None and why not."""
+    try:
+        text = path.read_text(encoding='utf-8')
+        data = json.loads(text) if path.suffix == '.json' else yaml.safe_load(text)
+    except (OSError, UnicodeDecodeError, ValueError, yaml.YAMLError) as exc:
+        return None, f'unreadable ({" ".join(str(exc).split())})'
+    if not isinstance(data, dict):
+        return None, 'not a mapping'
+    return data, ''
 
 
 def ensure_dir(directory: Path) -> None:

@@ -10,6 +10,7 @@ newest non-retired), nominal when that robot has none.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -18,34 +19,45 @@ import yaml
 
 from cobot_calib_ros.core.kinematics.model import Chain, KinematicModel
 from cobot_calib_ros.core.kinematics.urdf import calibrated_urdf
-from cobot_calib_ros.store.calibrations import CalibrationStore
-from cobot_calib_ros.store.files import atomic_write_text, to_plain
+from cobot_calib_ros.store.calibrations import Activation, CalibrationStore
+from cobot_calib_ros.store.files import atomic_write_text
+from cobot_calib_ros.store.records import KinematicRecord
 
 NOMINAL = 'nominal'
 LATEST = 'latest'
+
+
+@dataclass(frozen=True)
+class SavedKinematics:
+    """What :meth:`KinematicStore.save_outcome` wrote: the record, the paths of its JSON, YAML
+    and URDF files, and its activation (None if not asked for)."""
+
+    record: KinematicRecord
+    paths: dict[str, Path]
+    activation: Activation | None
 
 
 class KinematicStore(CalibrationStore):
     def __init__(self, root: Path) -> None:
         super().__init__(root, 'kinematics', scope_key='robot')
 
-    def save_outcome(self, outcome, activate: bool = True) -> dict[str, Path]:
-        """Write the outcome's record (JSON), its YAML and URDF; make it its robot's active
-        one."""
-        record = to_plain(outcome.record)
-        result = record['result']
-        paths = {'yaml': self.directory / f'{record["id"]}.yaml',
-                 'urdf': self.directory / f'{record["id"]}.urdf'}
+    def save_outcome(self, outcome, activate: bool = True,
+                     wall_ns: int | None = None) -> SavedKinematics:
+        """Write the record of a core CalibrationJob outcome (JSON), its YAML and URDF; make it
+        its robot's active one (if ``activate`` and it passes its gate)."""
+        typed = KinematicRecord.from_outcome(outcome, wall_ns)
+        record = typed.to_dict()
+        paths = {'yaml': self.directory / f'{typed.id}.yaml',
+                 'urdf': self.directory / f'{typed.id}.urdf'}
         json_path = self.save(record)    # creates the directory
         atomic_write_text(paths['yaml'], yaml.safe_dump(_readable(record), sort_keys=False,
                                                         width=100))
         model = outcome.model
         atomic_write_text(paths['urdf'], calibrated_urdf(
-            model, np.array(result['params']), np.array(result['tool_xyz']),
+            model, np.array(typed.result.params), np.array(typed.result.tool_xyz),
             robot_name=f'{model.name}_calibrated'))
-        if activate:
-            self.activate(record['id'])
-        return {'json': json_path, **paths}
+        activation = self.activate(typed.id) if activate else None
+        return SavedKinematics(typed, {'json': json_path, **paths}, activation)
 
     def resolve(self, choice: str, robot: str) -> dict[str, Any] | None:
         """The record ``choice`` names for ``robot`` (a model name): 'latest' (that robot's

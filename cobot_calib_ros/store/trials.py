@@ -12,11 +12,10 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-import yaml
 
 from cobot_calib_ros.core.repeatability import AXES, correct_distance, Direction, DIRECTIONS
-from cobot_calib_ros.store.files import (append_line, atomic_write_text, check_id, ensure_dir,
-                                         fsync_dir, is_int, read_lines, to_plain, WarningLog)
+from cobot_calib_ros.store.files import append_line, check_id, is_int, read_lines, to_plain
+from cobot_calib_ros.store.folders import FolderStore
 
 Array = NDArray[np.float64]
 Slot = tuple[int, int]  # (cycle, point_index), both 0-based
@@ -118,18 +117,21 @@ def _resume_point(measured: NDArray[np.bool_]) -> tuple[Slot | None, tuple[Slot,
     return resume, holes
 
 
-class TrialStore(WarningLog):
+class TrialStore(FolderStore):
     """Repeatability trials: metadata plus an append-only log of probe readings.
 
     Cycles and point indices are 0-based. A later line for the same (cycle, point)
     supersedes an earlier one, so a partial cycle may be redone from its first point.
     """
 
+    META_FILE, LOG_FILE, LOG_HEADER = 'trial.yaml', 'distances.csv', CSV_HEADER
+
     def __init__(self, root: Path) -> None:
-        super().__init__()
+        super().__init__(Path(root) / 'trials')
         self.root = Path(root)
-        self.directory = self.root / 'trials'
-        self._meta: dict[str, dict[str, Any]] = {}
+
+    def _meta_problem(self, meta: Mapping[str, Any], record_id: str) -> str:
+        return _trial_problem(meta, record_id)
 
     def create(self, trial_id: str, *, method: str, axis: str, layout: str,
                point_names: Sequence[str], cycles_total: int,
@@ -148,12 +150,7 @@ class TrialStore(WarningLog):
                 'point_names': _check_point_names(point_names),
                 'cycles_total': cycles_total, 'status': 'running',
                 'created_ns': now, 'updated_ns': now}
-        ensure_dir(self.directory)
-        trial_dir = self.directory / trial_id
-        trial_dir.mkdir()
-        fsync_dir(self.directory)
-        atomic_write_text(trial_dir / 'distances.csv', CSV_HEADER + '\n')
-        self._write_meta(meta)  # last: a directory without trial.yaml is an aborted create
+        self._create_folder(meta)
         return meta
 
     def append(self, trial_id: str, cycle: int, point_index: int, raw_distance_m: float,
@@ -223,32 +220,7 @@ class TrialStore(WarningLog):
 
     def list_trials(self) -> list[dict[str, Any]]:
         """Metadata of every readable trial, newest created first."""
-        if not self.directory.is_dir():
-            return []
-        trial_ids = sorted(p.name for p in self.directory.iterdir() if p.is_dir())
-        metas = [m for m in map(self._read_meta, trial_ids) if m is not None]
-        return sorted(metas, key=lambda m: (m['created_ns'], m['id']), reverse=True)
-
-    def _write_meta(self, meta: dict[str, Any]) -> None:
-        path = self.directory / meta['id'] / 'trial.yaml'
-        atomic_write_text(path, yaml.safe_dump(to_plain(meta), sort_keys=False,
-                                               allow_unicode=True))
-        self._meta[meta['id']] = meta
-
-    def _read_meta(self, trial_id: str) -> dict[str, Any] | None:
-        path = self.directory / trial_id / 'trial.yaml'
-        if not path.exists():
-            self._warn(f'{path.parent}: skipped, no trial.yaml (missing or aborted create)')
-            return None
-        meta = self._read_mapping(path)
-        if meta is None:
-            return None
-        problem = _trial_problem(meta, trial_id)
-        if problem:
-            self._warn(f'{path}: skipped, {problem}')
-            return None
-        self._meta[trial_id] = meta
-        return meta
+        return self._list_meta()
 
     def _require_running(self, trial_id: str) -> dict[str, Any]:
         meta = self._meta.get(trial_id) or self._read_meta(check_id(trial_id))

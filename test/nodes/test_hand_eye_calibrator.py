@@ -244,7 +244,7 @@ RUNS_BESIDE = 2      # hand-eye runs beside the busy neighbour (13 of 28 went wr
 def test_a_hand_eye_beside_a_busy_suite_is_right_or_rejected(hand_eye_suite, busy_neighbour):
     """Issue 22.9: with a second suite working beside it, a result is within 1 mm / 3 mrad of
     the mock's true hand-eye (GetGroundTruth) and active, or it is rejected: stored as rejected
-    (retired), not active, not published, the active hand-eye unchanged. A run the load ends
+    (store.rejected()), not active, not published, the active hand-eye unchanged. A run the load ends
     otherwise (a starved joint capture: CAPTURE_FAILED) stores nothing."""
     client = hand_eye_suite
     action = ActionClient(client.node, CalibrateHandEye, 'calibrate_hand_eye')
@@ -293,6 +293,8 @@ def _run_and_check(client, action, latched) -> str:
     assert 'rejected' in result.message and 'not made active' in result.message, result.message
     record = store.get(result.calibration_id)
     assert record is not None and record['gate_problem']
-    assert result.calibration_id in store.retired()
+    assert store.rejected() == {result.calibration_id: record['gate_problem']} | {
+        k: v for k, v in store.rejected().items() if k != result.calibration_id}
+    assert not store.activate(result.calibration_id)     # not even when asked for by id
     assert store.active() == active_before and len(latched) == published_before
     return f'rejected: {line}'

@@ -159,8 +159,7 @@ def _identified_in_process(trial_data) -> str:
         sphere.append(step['target'])
     data = SphereObservations(np.array(q), np.array(sphere), sim.cell.spheres.known_distances())
     outcome = CalibrationJob(sim.cell, robot.model, data, source='in-process').run()
-    KinematicStore(trial_data).save_outcome(outcome, activate=False)
-    return outcome.record['id']
+    return KinematicStore(trial_data).save_outcome(outcome, activate=False).record.id
 
 
 def test_demo_with_kinematics_cuts_the_kinematic_part_of_the_frame_error(ros, trial_data):

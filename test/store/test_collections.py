@@ -90,3 +90,25 @@ def test_kinematic_records_resolve_and_build_their_chain(tmp_path):
     with pytest.raises(ValueError, match="not 'sawyer'"):
         chain_of(fresh.get('k1'), model_by_name('sawyer'), np.eye(4))
     assert KinematicStore(tmp_path / 'empty').resolve('latest', 'iiwa7') is None
+
+
+def test_why_a_folder_record_is_unreadable_is_this_calls_answer(tmp_path):
+    """Trials and collections share one folder store (store.folders); why a record cannot be
+    read is the answer of one call, not the last line of a shared ``warnings`` list."""
+    from cobot_calib_ros.store.trials import TrialStore
+    collections = _new(tmp_path)
+    trials = TrialStore(tmp_path)
+    trials.create('t1', method='rigid', axis='z', layout='close', point_names=['P1'],
+                  cycles_total=2)
+    assert collections.meta_problem('c1') == trials.meta_problem('t1') == ''
+    (tmp_path / 'kinematic_data' / 'c1' / 'collection.yaml').write_text('- a list\n')
+    (tmp_path / 'trials' / 't1' / 'trial.yaml').write_text('id: t1\n')
+    fresh_collections, fresh_trials = CollectionStore(tmp_path), TrialStore(tmp_path)
+    assert fresh_collections.meta_problem('c1').endswith('collection.yaml: skipped, not a mapping')
+    assert 'missing keys' in fresh_trials.meta_problem('t1')
+    assert fresh_trials.meta_problem('t9').endswith('no trial.yaml (missing or aborted create)')
+    assert fresh_collections.warnings == fresh_trials.warnings == []   # asked, not logged
+    with pytest.raises(ValueError, match="collection 'c1' is missing or unreadable: .*mapping"):
+        fresh_collections.meta('c1')
+    assert fresh_collections.load('c1') is None and fresh_trials.list_trials() == []
+    assert len(fresh_collections.warnings) == len(fresh_trials.warnings) == 1

@@ -1,4 +1,4 @@
-"""One kinematic calibration, start to end: identifiability, solve, validate, the record.
+"""One kinematic calibration, start to end: identifiability, solve, validate, the outcome.
 
 The one place that strings the identification core together, used by the
 ``kinematic_identifier`` node (and through it by ``cobot-calib identify``):
@@ -14,12 +14,12 @@ The one place that strings the identification core together, used by the
 3. validation: absolute errors against laser-tracker sets, nominal against calibrated, as the
    paper's Table 5; each model registered to the tracker by its own best rigid fit (a relative
    calibration has no world frame);
-4. a plain record (SI units) the store writes as JSON, YAML and a calibrated URDF.
+4. the outcome, which the store turns into a record (store.records.KinematicRecord) and writes
+   as JSON, YAML and a calibrated URDF.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-import time
 from typing import Any, Callable
 
 import numpy as np
@@ -38,7 +38,6 @@ from cobot_calib_ros.core.kinematics.identification.validation import (
     absolute_errors, error_stats, table6)
 from cobot_calib_ros.core.kinematics.model import KinematicModel
 from cobot_calib_ros.core.kinematics.plans import even_subset
-from cobot_calib_ros.core.ids import record_id
 
 Array = NDArray[np.float64]
 Observations = SphereObservations | PositionObservations
@@ -55,9 +54,22 @@ class JobCancelled(Exception):
 
 
 @dataclass(frozen=True)
+class JobInputs:
+    """How a job identified: where the data came from and the solver settings."""
+
+    source: str
+    rows: int          # observations used
+    solver: str
+    loss: str
+    objective: str     # 'relative' (spheres) or 'absolute' (a tracker)
+
+
+@dataclass(frozen=True)
 class Outcome:
+    """What a job found; store.records.KinematicRecord.from_outcome makes the stored record."""
+
     model: KinematicModel
-    record: dict[str, Any]            # what the store writes (plain, SI)
+    inputs: JobInputs
     result: IdentificationResult
     identifiability: Identifiability
     free_values: Array                # identified values of result.free [m, rad]
@@ -118,9 +130,8 @@ class CalibrationJob:
                       for region, data in self.validation.items()}
         free_values = parameter_set.values(result.params, result.tool_xyz)
         table = table6(model, result.params)
-        return Outcome(model, self._record(result, identifiability, free_values, validation,
-                                           table),
-                       result, identifiability, free_values, validation, table)
+        return Outcome(model, self._inputs(result), result, identifiability, free_values,
+                       validation, table)
 
     def validate(self, result: IdentificationResult, data: PositionObservations) -> dict:
         """Table 5 rows for ``data``: nominal and calibrated, each registered by its best
@@ -132,27 +143,10 @@ class CalibrationJob:
                 'spread_mm': _spread_mm(
                     tool_kinematics(self.model, None, self.tool_xyz0, data.q)[0])}
 
-    def _record(self, result, identifiability, free_values, validation, table) -> dict:
-        wall_ns = time.time_ns()
+    def _inputs(self, result: IdentificationResult) -> JobInputs:
         objective = result.extra.get('objective') or self.objective or (
             'relative' if isinstance(self.data, SphereObservations) else 'absolute')
-        return {
-            'id': record_id(self.solver, wall_ns),
-            'stamp_ns': wall_ns, 'method': f'{objective}-{self.solver}',
-            'robot': self.model.name,
-            'inputs': {'source': self.source, 'rows': len(self.data.q), 'solver': self.solver,
-                       'loss': self.loss, 'objective': objective},
-            'result': {
-                'parameter_names': list(self.model.parameter_names),
-                'params': result.params, 'tool_xyz': result.tool_xyz,
-                'free': list(result.free), 'values': free_values, 'std': result.std,
-                'dropped': [{'name': d.name, 'reason': d.reason}
-                            for d in identifiability.dropped],
-                'rank': identifiability.rank,
-                'condition_number': identifiability.condition_number,
-                'rms_m': result.rms_m, 'iterations': result.iterations,
-                'solve_seconds': result.solve_seconds, 'message': result.message,
-                'validation': validation, 'table6': table}}
+        return JobInputs(self.source, len(self.data.q), self.solver, self.loss, objective)
 
 
 def _subset(data: Observations, limit: int) -> Observations:

@@ -1,0 +1,79 @@
+"""One folder per record: the half that trials and kinematic-data collections share.
+
+``<directory>/<id>/<meta file>`` holds the record's metadata (YAML, rewritten atomically) beside
+the append-only log the subclass keeps (store.files). A folder without its metadata file is an
+aborted create (the metadata is written last) and is skipped.
+"""
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any, ClassVar
+
+import yaml
+
+from cobot_calib_ros.store.files import (atomic_write_text, check_id, ensure_dir, fsync_dir,
+                                         read_mapping, to_plain, WarningLog)
+
+
+class FolderStore(WarningLog):
+    """Records as folders under ``directory``; subclasses name the files and check the meta."""
+
+    META_FILE: ClassVar[str]    # e.g. 'trial.yaml'
+    LOG_FILE: ClassVar[str]     # e.g. 'distances.csv'
+    LOG_HEADER: ClassVar[str]   # the log's first line
+
+    def __init__(self, directory: Path) -> None:
+        super().__init__()
+        self.directory = Path(directory)
+        self._meta: dict[str, dict[str, Any]] = {}   # written or read by this store
+
+    def _meta_problem(self, meta: Mapping[str, Any], record_id: str) -> str:
+        """'' if ``meta`` is valid metadata of ``record_id``, else what is wrong."""
+        raise NotImplementedError
+
+    def _create_folder(self, meta: dict[str, Any]) -> None:
+        """The folder of a new record with an empty log, then its metadata (last: a folder
+        without it is an aborted create). FileExistsError if the id is taken."""
+        ensure_dir(self.directory)
+        folder = self.directory / check_id(meta['id'])
+        folder.mkdir()
+        fsync_dir(self.directory)
+        atomic_write_text(folder / self.LOG_FILE, self.LOG_HEADER + '\n')
+        self._write_meta(meta)
+
+    def _write_meta(self, meta: dict[str, Any]) -> None:
+        atomic_write_text(self.directory / meta['id'] / self.META_FILE,
+                          yaml.safe_dump(to_plain(meta), sort_keys=False, allow_unicode=True))
+        self._meta[meta['id']] = meta
+
+    def meta_problem(self, record_id: str) -> str:
+        """'' if the metadata of ``record_id`` reads and is valid, else why not (this call's
+        answer: nothing is added to ``warnings``)."""
+        return self._load_meta(check_id(record_id))[1]
+
+    def _read_meta(self, record_id: str) -> dict[str, Any] | None:
+        """The metadata from disk, or None with a warning."""
+        meta, problem = self._load_meta(record_id)
+        if problem:
+            self._warn(problem)
+            return None
+        self._meta[record_id] = meta
+        return meta
+
+    def _load_meta(self, record_id: str) -> tuple[dict[str, Any] | None, str]:
+        path = self.directory / record_id / self.META_FILE
+        if not path.exists():
+            return None, (f'{path.parent}: skipped, no {self.META_FILE} (missing or aborted '
+                          'create)')
+        meta, problem = read_mapping(path)
+        problem = problem or self._meta_problem(meta, record_id)
+        return (None, f'{path}: skipped, {problem}') if problem else (meta, '')
+
+    def _list_meta(self) -> list[dict[str, Any]]:
+        """Metadata of every readable record, newest created first."""
+        if not self.directory.is_dir():
+            return []
+        ids = sorted(p.name for p in self.directory.iterdir() if p.is_dir())
+        metas = [m for m in map(self._read_meta, ids) if m is not None]
+        return sorted(metas, key=lambda m: (m['created_ns'], m['id']), reverse=True)

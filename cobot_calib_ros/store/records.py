@@ -1,0 +1,280 @@
+"""Typed records: the one schema of what each calibration kind and each trial keeps.
+
+Every record is a dataclass with ``to_dict()`` (the mapping the folder store writes as JSON or
+YAML: the keys the files have always had) and ``from_dict()`` (reads those files, older ones
+included). Keys a record does not know are kept in ``extra`` and written back unchanged, so a
+newer file survives an older reader. Arrays may be given as numpy arrays; ``to_dict`` turns
+them into plain lists. Lengths are in metres unless a name says ``_mm``.
+
+Gate: every calibration record carries ``gate_problem`` ('' : it passes the gate of its kind,
+else why not). The builder of a record sets it with its kind's criterion (e.g. a hand-eye
+whose residual is beyond what its views' noise allows); the store never activates a record
+with a gate problem (see store.repository). The key is written only when it is not empty.
+"""
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field, fields, MISSING
+import time
+from typing import Any, ClassVar
+
+import numpy as np
+
+from cobot_calib_ros.core import user_frame
+from cobot_calib_ros.core.ids import record_id
+from cobot_calib_ros.store.files import to_plain
+
+OMITTED_WHEN_EMPTY = ('gate_problem', 'hand_eye')   # keys older files do not have
+
+
+@dataclass(kw_only=True)
+class Record:
+    """Base of the typed records: ``to_dict`` / ``from_dict`` over the dataclass fields;
+    ``NESTED`` names the fields that hold another record (None allowed)."""
+
+    NESTED: ClassVar[dict[str, type[Record]]] = {}
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        out = {}
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if f.name == 'extra' or (f.name in OMITTED_WHEN_EMPTY and not value):
+                continue
+            out[f.name] = value.to_dict() if isinstance(value, Record) else to_plain(value)
+        return {**out, **to_plain(self.extra)}
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]):
+        """The record of a stored mapping; ValueError naming the keys it lacks."""
+        if not isinstance(data, Mapping):
+            raise ValueError(f'{cls.__name__}: expected a mapping, got {type(data).__name__}')
+        known = {f.name: f for f in fields(cls) if f.name != 'extra'}
+        required = [name for name, f in known.items() if _required(f)]
+        missing = [name for name in required if name not in data]
+        if missing:
+            raise ValueError(f'{cls.__name__}: missing keys {missing}')
+        kwargs = {}
+        for name in known.keys() & data.keys():
+            nested, value = cls.NESTED.get(name), data[name]
+            kwargs[name] = nested.from_dict(value) if nested and value is not None else value
+        return cls(**kwargs, extra={k: v for k, v in data.items() if k not in known})
+
+
+def _required(f) -> bool:
+    return f.default is MISSING and f.default_factory is MISSING
+
+
+# -- user frame (user_frame_solver) ------------------------------------------------------------
+
+@dataclass(kw_only=True)
+class SurfaceRecord(Record):
+    """The table's height correction fitted beside a user frame (core.user_frame)."""
+
+    valid: bool
+    powers_x: list[int]
+    powers_y: list[int]
+    coefficients: Any          # (k,) [m]
+    rms_before: float          # [m]
+    rms_after: float           # [m]
+
+    def model(self) -> user_frame.SurfaceModel | None:
+        """The core surface model, None if the fit was not valid."""
+        if not self.valid:
+            return None
+        return user_frame.SurfaceModel(tuple(self.powers_x), tuple(self.powers_y),
+                                       np.array(self.coefficients, dtype=float),
+                                       self.rms_before, self.rms_after, True)
+
+
+@dataclass(kw_only=True)
+class UserFrameInputs(Record):
+    point_names: list[str]
+    points_user: Any           # (N, 3) nominal points in the user frame [m]
+    points_base: Any           # (N, 3) the same points measured in the base frame [m]
+
+
+@dataclass(kw_only=True)
+class UserFrameResult(Record):
+    """A core.user_frame.FrameFit as stored (rms: the RMS residual [m])."""
+
+    NESTED = {'surface': SurfaceRecord}
+    T_base_user: Any           # (4, 4)
+    M: Any                     # (4, 4) the fitted (possibly affine) matrix
+    residuals: Any             # (N, 3) [m]
+    rms: float                 # [m]
+    max_residual: float        # [m]
+    condition_number: float
+    collinearity: float
+    covariance: Any            # (6, 6)
+    scale: Any                 # (3,)
+    shear: Any                 # (3,)
+    outliers: list[int] = field(default_factory=list)
+    message: str = ''
+    surface: SurfaceRecord | None = None
+
+
+@dataclass(kw_only=True)
+class UserFrameRecord(Record):
+    """One user-frame calibration. ``stamp_ns`` is ROS time; the id (a file name) comes from
+    the wall clock so that it stays unique under a paused sim clock."""
+
+    NESTED = {'inputs': UserFrameInputs, 'result': UserFrameResult}
+    id: str
+    stamp_ns: int
+    method: str
+    kinematics: str = ''       # the kinematic model that measured the points ('' : unknown)
+    hand_eye: str = ''         # landmark methods: the hand-eye calibration used
+    base_frame: str
+    user_frame: str
+    inputs: UserFrameInputs
+    result: UserFrameResult
+    gate_problem: str = ''
+
+    @classmethod
+    def from_fit(cls, fit: user_frame.FrameFit, surface: user_frame.SurfaceModel | None,
+                 names: list[str], p_user, p_base, frames_: tuple[str, str], stamp_ns: int,
+                 kinematics: str = '', hand_eye: str = '') -> UserFrameRecord:
+        """The record of a fit (and its optional surface) of ``names``' points."""
+        stored_surface = None if surface is None else SurfaceRecord(
+            valid=bool(surface), powers_x=surface.powers_x, powers_y=surface.powers_y,
+            coefficients=surface.coefficients, rms_before=surface.rms_before,
+            rms_after=surface.rms_after)
+        return cls(
+            id=record_id(fit.method), stamp_ns=stamp_ns, method=fit.method,
+            kinematics=kinematics, hand_eye=hand_eye, base_frame=frames_[0],
+            user_frame=frames_[1],
+            inputs=UserFrameInputs(point_names=list(names), points_user=p_user,
+                                   points_base=p_base),
+            result=UserFrameResult(
+                T_base_user=fit.T_base_user, M=fit.M, residuals=fit.residuals, rms=fit.rms,
+                max_residual=fit.max_residual, condition_number=fit.condition_number,
+                collinearity=fit.collinearity, covariance=fit.covariance, scale=fit.scale,
+                shear=fit.shear, outliers=list(fit.outliers), message=fit.message,
+                surface=stored_surface))
+
+    def surface_model(self) -> user_frame.SurfaceModel | None:
+        """The valid surface correction stored with the frame, else None."""
+        return None if self.result.surface is None else self.result.surface.model()
+
+
+# -- hand-eye (hand_eye_calibrator) ------------------------------------------------------------
+
+@dataclass(kw_only=True)
+class HandEyeInputs(Record):
+    joints: Any                # (V, n) joints of each used view [rad]
+    T_base_flange: Any         # (V, 4, 4)
+    T_optical_board: Any       # (V, 4, 4)
+    board_covariances: Any     # (V, 6, 6)
+    skipped: Any               # the views skipped, with why
+    planned_views: int
+
+
+@dataclass(kw_only=True)
+class HandEyeResult(Record):
+    T_flange_optical: Any      # (4, 4)
+    T_base_board: Any          # (4, 4)
+    initial_T_flange_optical: Any
+    residual_mm: float
+    residual_mrad: float
+    residuals_mm: Any          # (V,)
+    residuals_mrad: Any        # (V,)
+    covariance: Any            # (6, 6)
+    views_used: int
+
+
+@dataclass(kw_only=True)
+class HandEyeRecord(Record):
+    NESTED = {'inputs': HandEyeInputs, 'result': HandEyeResult}
+    id: str
+    stamp_ns: int
+    method: str
+    kinematics: str = 'nominal'
+    flange_frame: str
+    camera_frame: str
+    cell: str
+    inputs: HandEyeInputs
+    result: HandEyeResult
+    gate_problem: str = ''
+
+
+# -- kinematic calibration (kinematic_identifier) ----------------------------------------------
+
+@dataclass(kw_only=True)
+class KinematicInputs(Record):
+    source: str
+    rows: int = 0
+    solver: str = ''
+    loss: str = ''
+    objective: str = ''
+
+
+@dataclass(kw_only=True)
+class KinematicResult(Record):
+    """What identification found; only the chain's parameters are needed to use it."""
+
+    parameter_names: list[str]
+    params: Any                # (P,) the full parameter vector of the model
+    tool_xyz: Any = None       # (3,) [m]
+    free: list[str] = field(default_factory=list)
+    values: Any = None
+    std: Any = None
+    dropped: list[dict[str, str]] = field(default_factory=list)
+    rank: int = 0
+    condition_number: float = 0.0
+    rms_m: float = 0.0
+    iterations: int = 0
+    solve_seconds: float = 0.0
+    message: str = ''
+    validation: dict[str, Any] = field(default_factory=dict)
+    table6: str = ''
+
+
+@dataclass(kw_only=True)
+class KinematicRecord(Record):
+    """One kinematic calibration of ``robot`` (a model name); activation is per robot."""
+
+    NESTED = {'inputs': KinematicInputs, 'result': KinematicResult}
+    id: str
+    stamp_ns: int
+    method: str
+    robot: str
+    inputs: KinematicInputs
+    result: KinematicResult
+    gate_problem: str = ''
+
+    @classmethod
+    def from_outcome(cls, outcome, wall_ns: int | None = None) -> KinematicRecord:
+        """The record of a core CalibrationJob outcome. Stamped with the wall clock (``wall_ns``,
+        default now): identification runs offline, with no ROS clock."""
+        wall_ns = time.time_ns() if wall_ns is None else wall_ns
+        job, result = outcome.inputs, outcome.result
+        return cls(
+            id=record_id(job.solver, wall_ns), stamp_ns=wall_ns,
+            method=f'{job.objective}-{job.solver}', robot=outcome.model.name,
+            inputs=KinematicInputs(source=job.source, rows=job.rows, solver=job.solver,
+                                   loss=job.loss, objective=job.objective),
+            result=KinematicResult(
+                parameter_names=list(outcome.model.parameter_names), params=result.params,
+                tool_xyz=result.tool_xyz, free=list(result.free), values=outcome.free_values,
+                std=result.std,
+                dropped=[{'name': d.name, 'reason': d.reason}
+                         for d in outcome.identifiability.dropped],
+                rank=outcome.identifiability.rank,
+                condition_number=outcome.identifiability.condition_number,
+                rms_m=result.rms_m, iterations=result.iterations,
+                solve_seconds=result.solve_seconds, message=result.message,
+                validation=outcome.validation, table6=outcome.table))
+
+
+# -- repeatability trial (repeatability_trial) -------------------------------------------------
+
+@dataclass(kw_only=True)
+class TrialSetup(Record):
+    """What a new trial is asked to do (the start of its ``trial.yaml``; the trial store adds
+    id, layout, status and stamps)."""
+
+    method: str
+    axis: str
+    cycles_total: int
+    point_names: list[str]

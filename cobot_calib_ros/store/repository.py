@@ -1,0 +1,114 @@
+"""One repository of everything the suite stores, behind one factory: ``store.open(data_dir)``.
+
+Nodes, the CLI and the API get their stores from :func:`open` (never by building a store class
+themselves), so a second implementation (a history database) can replace the folder one in one
+place. A :class:`Repository` has one history per calibration kind and the two measurement logs:
+
+=====================  ======================  ==================================================
+attribute              kind (store.records)    activation scope
+=====================  ======================  ==================================================
+``user_frames``        UserFrameRecord         one active per data dir (= per cell)
+``hand_eye``           HandEyeRecord           one active per data dir (= per cell)
+``kinematics``         KinematicRecord         one active per robot (the record's ``robot``)
+``trials``             trial.yaml + readings   (none: trials are not activated)
+``collections``        collection + rows       (none)
+=====================  ======================  ==================================================
+
+Activation and its gate (the one way a calibration becomes active)::
+
+    outcome = repo.hand_eye.save_and_activate(record)   # record: a store.records record
+    if not outcome:                                     # Activation, falsy if not active
+        log(outcome.reason)                             # e.g. 'hand_eye-... is rejected
+                                                        # (residual 14.5 mm > 0.2 mm ...)'
+
+A record passes its gate when its ``gate_problem`` is '' (the builder of the record sets it
+with its kind's criterion; a history may also be given a ``gate`` callable, record -> problem).
+A record that fails is stored, stays in the history and in ``rejected()``, and never becomes
+active: ``activate`` returns ``Activation(active=False, reason=...)`` and changes nothing, and
+the default active record (the newest) skips it. ``activate(id)`` of a record that passes makes
+it the active one of its scope; ``retire(id)`` keeps it in the history but never active.
+
+Reads: a history reads its directory once and then serves from memory (one writer per
+directory). A reader of another node's results (the user frame for the hand-eye, the hand-eye
+for the landmark views, the kinematics for the solver and the trials) opens the repository
+again for each use, so it sees what the writer stored since.
+"""
+from __future__ import annotations
+
+from collections.abc import Mapping
+from functools import cached_property
+from pathlib import Path
+from typing import Any, Protocol
+
+from cobot_calib_ros.store.calibrations import Activation, CalibrationStore
+from cobot_calib_ros.store.collections import CollectionStore
+from cobot_calib_ros.store.kinematics import KinematicStore
+from cobot_calib_ros.store.trials import TrialStore
+
+__all__ = ['Activation', 'CalibrationHistory', 'FolderRepository', 'Repository', 'open']
+
+
+class CalibrationHistory(Protocol):
+    """The calibration records of one kind, and which one is active (per scope)."""
+
+    def save(self, record) -> Any: ...
+    def save_and_activate(self, record) -> Activation: ...
+    def get(self, record_id: str) -> dict[str, Any] | None: ...
+    def history(self, max_count: int = 0) -> list[dict[str, Any]]: ...
+    def active(self, scope: str = '') -> dict[str, Any] | None: ...
+    def activate(self, record_id: str | None, scope: str = '') -> Activation: ...
+    def retire(self, record_id: str) -> None: ...
+    def retired(self) -> frozenset[str]: ...
+    def rejected(self) -> Mapping[str, str]: ...
+
+
+class Repository(Protocol):
+    """Everything the suite stores for one cell (see the module docstring)."""
+
+    root: Path
+
+    @property
+    def user_frames(self) -> CalibrationHistory: ...
+    @property
+    def hand_eye(self) -> CalibrationHistory: ...
+    @property
+    def kinematics(self) -> KinematicStore: ...
+    @property
+    def trials(self) -> TrialStore: ...
+    @property
+    def collections(self) -> CollectionStore: ...
+
+
+class FolderRepository:
+    """The folder implementation: JSON / YAML / CSV files under ``root`` (store.files)."""
+
+    def __init__(self, root: Path) -> None:
+        self.root = Path(root)
+
+    @cached_property
+    def user_frames(self) -> CalibrationStore:
+        return CalibrationStore(self.root, 'calibrations')
+
+    @cached_property
+    def hand_eye(self) -> CalibrationStore:
+        return CalibrationStore(self.root, 'hand_eye')
+
+    @cached_property
+    def kinematics(self) -> KinematicStore:
+        return KinematicStore(self.root)
+
+    @cached_property
+    def trials(self) -> TrialStore:
+        return TrialStore(self.root)
+
+    @cached_property
+    def collections(self) -> CollectionStore:
+        return CollectionStore(self.root)
+
+    def __repr__(self) -> str:
+        return f'FolderRepository({str(self.root)!r})'
+
+
+def open(data_dir: Path | str) -> Repository:   # noqa: A001 (store.open, as io.open)
+    """The repository of ``data_dir`` (a resolved data directory, see paths.data_dir)."""
+    return FolderRepository(Path(data_dir))
