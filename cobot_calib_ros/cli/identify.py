@@ -123,19 +123,18 @@ def _resumable(given: str, cell: str) -> tuple[str, bool]:
     sphere collection of the cell's robot in the data dir ($COBOT_CALIB_DATA, the suite's
     default). An id not in this data dir is sent as it is (an attached suite may store
     elsewhere). ValueError when there is nothing to resume."""
-    from cobot_calib_ros import paths
+    from cobot_calib_ros import paths, store
     from cobot_calib_ros.loaders import load_cell
-    from cobot_calib_ros.store.collections import CollectionStore
     from cobot_calib_ros.store.files import check_id
-    store = CollectionStore(paths.data_dir(''))
+    collections = store.open(paths.data_dir('')).collections
     if given:
-        stored = store.load(check_id(given))
+        stored = collections.load(check_id(given))
         return given, stored is not None and stored.meta['status'] == 'done'
     robot = load_cell(paths.cell_file(cell)).robot
-    for meta in store.list_collections():
+    for meta in collections.list_collections():
         if meta['source'] == 'spheres' and meta['robot'] == robot and meta['status'] != 'done':
             return meta['id'], False
-    raise ValueError(f'no unfinished {robot} sphere collection in {store.directory}; give '
+    raise ValueError(f'no unfinished {robot} sphere collection in {collections.directory}; give '
                      'its id (--resume ID)')
 
 
