@@ -1,12 +1,29 @@
-"""`cobot-calib call SERVICE [TYPE] [VALUES]`: call a service, like `ros2 service call`."""
+"""`cobot-calib call SERVICE [TYPE] [VALUES]`: call a service, like `ros2 service call`.
+
+The answer is waited for until it comes, as ros2 service call does: a calibration that moves
+the robot takes as long as it takes (landmark_multi: ~15 s). Meanwhile the capture marks the
+suite publishes (``cobot_calib/captures``: every view, every pose) are printed on stderr as
+progress. A client that stops waiting (``--answer-timeout``, Ctrl-C) says that the call may
+still complete on the server and how to see its result, never that it failed.
+"""
 from __future__ import annotations
 
 import re
+import sys
+import time
 
 from cobot_calib_ros.cli.common import (
     absolute, add_intermixed_parser, EXIT_USAGE, fail, not_found_hint, print_message, ros_node)
 
 TYPE_NAME = re.compile(r'[A-Za-z]\w*/(srv/)?[A-Za-z]\w*')
+QUIET_PROGRESS = 5.0    # [s] without a capture mark before a line saying the call still runs
+MATCH_WAIT = 2.0        # [s] at most, for the capture marks' publishers to match before the call
+# where to see what a call did when the client stopped waiting for its answer
+RESULT_HINTS = {
+    '/calibrate_user_frame': '`cobot-calib echo user_frame --once` (the active calibration) '
+                             'or `cobot-calib call list_calibrations`',
+    '/set_active_calibration': '`cobot-calib call list_calibrations`',
+}
 
 
 class UsageError(ValueError):
@@ -28,7 +45,10 @@ def add_parser(subparsers):
     p.add_argument('--type', help='service type (same as the TYPE argument)')
     p.add_argument('--json', action='store_true', help='print the response as JSON')
     p.add_argument('--timeout', type=float, default=10.0,
-                   help='[s] to find the service / for its answer (default 10)')
+                   help='[s] to find the service (default 10)')
+    p.add_argument('--answer-timeout', type=float, default=None, metavar='S',
+                   help='[s] to wait for the answer (default: until it comes, as ros2 service '
+                        'call; a calibration that moves the robot takes a while)')
     return p
 
 
@@ -97,7 +117,7 @@ def _advertised(node, service: str, timeout: float) -> list[str]:
 
 
 def _call(node, service: str, type_name: str | None, data, args) -> int:
-    from cobot_calib_ros.ros.calls import call_service, CallError
+    from cobot_calib_ros.ros.calls import CallError
     from cobot_calib_ros.ros.fields import FieldError, set_fields
     from cobot_calib_ros.ros.types import to_dict
     advertised = _advertised(node, service, args.timeout)
@@ -113,8 +133,72 @@ def _call(node, service: str, type_name: str | None, data, args) -> int:
     except (UsageError, FieldError) as e:
         return fail(f'bad request: {e}', EXIT_USAGE)
     try:
-        response = call_service(node, node.create_client(srv, service), request, args.timeout)
+        response = _answer(node, node.create_client(srv, service), request, args)
     except CallError as e:
         return fail(str(e))
+    except KeyboardInterrupt:
+        return fail(f'stopped waiting for the answer of {service} (Ctrl-C); '
+                    + _may_complete(service), 130)
     print_message(to_dict(response), args.json)
     return 0
+
+
+def _answer(node, client, request, args):
+    """Call once the server is there; wait for the answer (args.answer_timeout [s], None: until
+    it comes), printing the suite's capture marks meanwhile. CallError if no server or no
+    answer in time (the message says the call may still complete)."""
+    from cobot_calib_ros.ros.calls import CallError, spin_until
+    if not spin_until(node, client.service_is_ready, args.timeout):
+        raise CallError(f'service {client.srv_name} is not available; is the node suite up '
+                        '(cobot-calib up) and ROS_DOMAIN_ID the same?')
+    progress = _Progress(node)
+    spin_until(node, progress.matched, MATCH_WAIT)      # so the first view shows too
+    started = time.monotonic()
+    future = client.call_async(request)
+    try:
+        while not spin_until(node, future.done, 0.5):
+            waited = time.monotonic() - started
+            if args.answer_timeout is not None and waited > args.answer_timeout:
+                client.remove_pending_request(future)
+                raise CallError(f'no answer from {client.srv_name} within '
+                                f'{args.answer_timeout:g} s; ' + _may_complete(client.srv_name))
+            progress.still_waiting(client.srv_name, waited)
+    finally:
+        progress.close()
+    return future.result()
+
+
+def _may_complete(service: str) -> str:
+    where = RESULT_HINTS.get(service, 'check its effect once it is done')
+    return f'the call was sent and may still complete on the server: see {where}'
+
+
+class _Progress:
+    """Prints each capture mark (cobot_calib/captures: a landmark view, a collected pose)
+    on stderr while a call runs, and a line every QUIET_PROGRESS s without one."""
+
+    def __init__(self, node) -> None:
+        from sensor_msgs.msg import JointState
+        from cobot_calib_ros.ros.marks import CAPTURES_TOPIC
+        self._node, self._count = node, 0
+        self._last = time.monotonic()
+        self._topic = CAPTURES_TOPIC
+        self._sub = node.create_subscription(JointState, CAPTURES_TOPIC, self._on_capture, 100)
+
+    def matched(self) -> bool:
+        """Every publisher of the marks the graph shows is matched to this subscription."""
+        return self._sub.get_publisher_count() >= self._node.count_publishers(self._topic)
+
+    def _on_capture(self, msg) -> None:
+        self._count += 1
+        self._last = time.monotonic()
+        print(f'  capture {self._count}: {msg.header.frame_id}', file=sys.stderr, flush=True)
+
+    def still_waiting(self, service: str, waited: float) -> None:
+        if time.monotonic() - self._last >= QUIET_PROGRESS:
+            self._last = time.monotonic()
+            print(f'  waiting for the answer of {service} ({waited:.0f} s)', file=sys.stderr,
+                  flush=True)
+
+    def close(self) -> None:
+        self._node.destroy_subscription(self._sub)

@@ -1,14 +1,17 @@
 """calibrate_user_frame with the landmark methods (issue 11) on the session suite (cell
 sawyer_close, mock_camera + landmark_detector running): the wrist camera looks at the table's
 fiducials and the solver derives the user frame; scored against the mock's true user frame."""
+import json
 import time
 
+from cobot_calib_msgs.msg import UserFrameCalibration
 from cobot_calib_msgs.srv import CalibrateUserFrame, GetGroundTruth
 import numpy as np
 
+from cobot_calib_ros.ros.calls import spin_until
 from cobot_calib_ros.core import frames
-from cobot_calib_ros.ros import convert
-from rosutil import call
+from cobot_calib_ros.ros import convert, qos
+from rosutil import call, cli
 
 Res = CalibrateUserFrame.Response
 Req = CalibrateUserFrame.Request
@@ -78,3 +81,42 @@ def test_landmark_multi(ros):
     if Req.METHOD_LANDMARK_SINGLE in RESULTS:
         single = RESULTS[Req.METHOD_LANDMARK_SINGLE]
         assert pos < single[0] + 0.001, (RESULTS, 'multi no better than single')
+
+
+def test_the_readme_call_answers_with_a_line_per_view(ros):
+    """`cobot-calib call calibrate_user_frame "{method: landmark_multi}"` as the README has it:
+    no client timeout cuts it short (~15 s), and every view shows while the robot moves."""
+    _explicit_rigid(ros)
+    done = cli('call', 'calibrate_user_frame', '{method: landmark_multi}', '--json',
+               timeout=LANDMARK_TIMEOUT)
+    assert done.returncode == 0, done.stderr
+    res = json.loads(done.stdout)
+    assert res['error_code'] == Res.SUCCESS, res['message']
+    views = [line for line in done.stderr.splitlines() if line.startswith('  capture ')]
+    # every fiducial from three views: six markers x 3, in the order they are taken
+    assert len(views) == 18, done.stderr
+    assert all(line.split(': ')[1].startswith('landmark_') for line in views)
+
+
+def test_a_client_that_stops_waiting_says_the_call_may_still_complete(ros):
+    """--answer-timeout ends the wait, not the calibration: the message says so and names
+    where the result shows, and the result does become the active calibration."""
+    _explicit_rigid(ros)
+    latched = []
+    sub = ros.create_subscription(UserFrameCalibration, '/user_frame', latched.append,
+                                  qos.LATCHED)
+    try:
+        assert spin_until(ros, lambda: latched, 10.0, ros.executor_for_tests)
+        before = latched[-1].id
+        done = cli('call', 'calibrate_user_frame', '{method: landmark_multi}',
+                   '--answer-timeout', '2', timeout=60)      # 18 holds of 0.3 s: > 5 s
+        assert done.returncode == 1, done.stdout + done.stderr
+        assert done.stderr.splitlines()[-1] == (
+            'no answer from /calibrate_user_frame within 2 s; the call was sent and may still '
+            'complete on the server: see `cobot-calib echo user_frame --once` (the active '
+            'calibration) or `cobot-calib call list_calibrations`')
+        assert spin_until(ros, lambda: latched[-1].id != before, LANDMARK_TIMEOUT,
+                          ros.executor_for_tests)
+        assert latched[-1].method == 'landmark_multi'
+    finally:
+        ros.destroy_subscription(sub)
