@@ -13,7 +13,7 @@ point_names: [P1..P5]}`` (the landmark views are planned around the active user 
 
 Then it checks the recording: the landmarks the live solver took (the first message of an image
 stamped after each mark that shows the mark's marker, else the last of the first
-LANDMARK_MESSAGES: ros.landmark_views), fitted again with the core's views.observation and
+LANDMARK_IMAGES: core.landmarks.views), fitted again with the core's views.observation and
 views.landmark_frame on the nominal chain with the cell's nominal hand-eye as tool, must give
 the live frame (to 1e-12 m / rad). It writes the sample bag with only what the fit needs:
 for every mark the images the live detector turned into landmarks messages from the first
@@ -234,7 +234,7 @@ def write_sample(raw: Path, out: Path, live: dict) -> None:
                  for m in bag.messages([INFO_TOPIC])]
         if not frames or frames[-1].id != cal.id:
             raise SystemExit(f'the last {USER_FRAME_TOPIC} recorded is not {cal.id}')
-        # which images the live solver looked at and used (ros.landmark_views' rule)
+        # which images the live solver looked at and used (views.measure_frame's rule)
         picks = check.pair(marks, landmarks)
         processed = sorted(header_ns(lm) for lm in landmarks)
         wanted, dropped = set(), 0

@@ -60,12 +60,10 @@ def make(out: Path, tmp: Path, domain: int) -> None:
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from rclpy.serialization import serialize_message
     from sensor_msgs.msg import JointState
-    from cobot_calib_msgs.action import MoveTo
     from cobot_calib_msgs.msg import UserFrameCalibration
-    from cobot_calib_msgs.srv import CalibrateUserFrame, CaptureJoints
-    from rclpy.action import ActionClient
+    from cobot_calib_msgs.srv import CalibrateUserFrame, CaptureJoints, HandGuide
 
-    from cobot_calib_ros.ros.calls import call_service, run_action, spin_until
+    from cobot_calib_ros.ros.calls import call_service, spin_until
     from cobot_calib_ros.ros.session import session
     from cobot_calib_ros.ros.time import ns_to_stamp, s_to_ns
     from cobot_calib_ros.api.launcher import NodeSpec, Suite
@@ -121,7 +119,7 @@ def make(out: Path, tmp: Path, domain: int) -> None:
                                             reliability=ReliabilityPolicy.RELIABLE), raw=True)
         capture = node.create_client(CaptureJoints, 'capture_joints')
         calibrate = node.create_client(CalibrateUserFrame, 'calibrate_user_frame')
-        move = ActionClient(node, MoveTo, 'move_to')
+        hand_guide = node.create_client(HandGuide, 'mock_robot/hand_guide')
         for client in (capture, calibrate):
             if not spin_until(node, client.service_is_ready, 30.0, executor):
                 raise SystemExit(f'{client.srv_name} not available; logs in {suite.log_dir}')
@@ -133,9 +131,9 @@ def make(out: Path, tmp: Path, domain: int) -> None:
                                  f'{suite.log_dir}')
         captures = []
         for name in POINTS:
-            _, result = run_action(node, move, MoveTo.Goal(
-                target_type=MoveTo.Goal.TARGET_TOUCH, point_name=name), 60.0, executor=executor)
-            if result.error_code != MoveTo.Result.SUCCESS:
+            result = call_service(node, hand_guide, HandGuide.Request(point_name=name), 60.0,
+                                  executor)
+            if result.error_code != HandGuide.Response.SUCCESS:
                 raise SystemExit(f'touch {name}: {result.message}')
             recording[0] = True
             spin_until(node, lambda: False, SETTLE, executor)

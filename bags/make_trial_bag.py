@@ -19,7 +19,8 @@ Then, from the recording and the trial the node stored (``trials/<id>/distances.
    the bit (the service response and the CSV carry the same float64);
 2. every mark is averaged again from the recorded voltages it lists (converted with
    proximity_sensor's read_distance and the calibration table of config/proximity_sensor.yaml,
-   averaged with its fill_average): the result must equal the mark's to the bit, and a listed
+   averaged with core.sensors.probe.average, as the node): the result must equal the mark's
+   to the bit, and a listed
    voltage missing from the recording (the recorder lost it) stops the script (run it again);
 3. ``/probe/voltage`` is kept only within MARGIN s of a mark's window (what lies between is
    the robot moving; the trial never read it), every mark and ``/repeatability`` whole; the

@@ -99,8 +99,6 @@ EXCEPTIONS = {
     ('cobot_calib_ros.core.repeatability.trial', 'store'),
     # active_hand_eye opens the hand-eye store: the hand-eye is to be injected instead
     ('cobot_calib_ros.ros.landmark_views', 'store'),
-    # proximity_sensor.fill_average: the probe window average is moving to core/sensors/probe
-    ('cobot_calib_ros.api.replay_trial_check', 'nodes'),
     # nodes.NODES, the registry of the node modules the launcher starts (setup.py reads it too)
     ('cobot_calib_ros.api.launcher', 'nodes'),
     # a bag of sphere captures as the identification's input (review 5252a67 section 4.1:

@@ -12,7 +12,8 @@ class DemoClient:
     def __init__(self) -> None:
         from rclpy.action import ActionClient
         from cobot_calib_msgs.action import MoveTo
-        from cobot_calib_msgs.srv import CalibrateUserFrame, CaptureJoints, GetGroundTruth
+        from cobot_calib_msgs.srv import (CalibrateUserFrame, CaptureJoints, GetGroundTruth,
+                                          HandGuide)
         from cobot_calib_ros.ros.session import session
         self._session = session('cobot_calib_demo')
         self.node, self.executor = self._session.__enter__()
@@ -21,6 +22,7 @@ class DemoClient:
         self._capture = self.node.create_client(CaptureJoints, 'capture_joints')
         self._calibrate = self.node.create_client(CalibrateUserFrame, 'calibrate_user_frame')
         self._move = ActionClient(self.node, MoveTo, 'move_to')
+        self._hand_guide = self.node.create_client(HandGuide, 'mock_robot/hand_guide')
 
     def close(self) -> None:
         self._session.__exit__(None, None, None)
@@ -40,12 +42,13 @@ class DemoClient:
         return call_service(self.node, self._calibrate, req, 120.0)
 
     def touch_and_capture(self, name: str, hold: float = 0.5):
-        """The operator guides the tool onto ``name``; the joints held there (JointState)."""
+        """The mock's simulated operator guides the tool onto ``name``; the joints held there
+        (JointState)."""
         from sensor_msgs.msg import JointState
-        from cobot_calib_ros.ros.calls import call_service, run_action
-        goal = self.MoveTo.Goal(target_type=self.MoveTo.Goal.TARGET_TOUCH, point_name=name)
-        result = run_action(self.node, self._move, goal, 60.0)[1]
-        if result.error_code != self.MoveTo.Result.SUCCESS:
+        from cobot_calib_ros.ros.calls import call_service
+        result = call_service(self.node, self._hand_guide,
+                              self._hand_guide.srv_type.Request(point_name=name), 60.0)
+        if result.error_code != result.SUCCESS:
             raise RuntimeError(f'touching {name}: {result.message}')
         res = call_service(self.node, self._capture,
                            self._capture.srv_type.Request(duration=hold), 30.0)

@@ -12,9 +12,10 @@ and, per view, the stamp of the image the live solver used.
 
 The check starts a landmark_detector on a private ROS_DOMAIN_ID (``use_sim_time: true``, the
 bag's cell), replays the images and camera_info with ``/clock`` (bags.player.BagPlayer) and
-collects the ``landmarks`` it publishes. Each mark is paired as ros.landmark_views does live:
-among the landmarks messages of images stamped after the mark, in stamp order, the first that
-shows the mark's marker, else the last of the first LANDMARK_MESSAGES. The mark's joints go
+collects the ``landmarks`` it publishes. Each mark is paired as the live views do
+(core.landmarks.views.measure_frame): among the landmarks messages of images stamped after the
+mark, in stamp order, the first that
+shows the mark's marker, else the last of the first LANDMARK_IMAGES. The mark's joints go
 through the model's chain (``kinematics``; the nominal model) with the hand-eye as tool (the
 cell's nominal one: ``hand_eye: nominal``), and the frame is fitted with the core's
 views.observation and views.landmark_frame, as the live solver does (:func:`fit_frame`). The
@@ -75,15 +76,15 @@ def shows(msg, marker_id: int) -> bool:
 
 
 def pair(marks: list, landmarks: list) -> list[tuple[int, object]]:
-    """For each mark, (image stamp [ns], landmarks message) as ros.landmark_views takes it:
+    """For each mark, (image stamp [ns], landmarks message) as measure_frame takes it:
     among the messages stamped after the mark, in stamp order, the first showing the mark's
-    marker, else the last of the first LANDMARK_MESSAGES. CheckError if there is none."""
-    from cobot_calib_ros.ros.landmark_views import LANDMARK_MESSAGES
+    marker, else the last of the first LANDMARK_IMAGES. CheckError if there is none."""
+    from cobot_calib_ros.core.landmarks.views import LANDMARK_IMAGES
     ordered = sorted(((header_ns(m), m) for m in landmarks), key=lambda x: x[0])
     out = []
     for k, mark in enumerate(marks):
         t0, marker = header_ns(mark), marker_of(mark)
-        seen = [x for x in ordered if x[0] > t0][:LANDMARK_MESSAGES]
+        seen = [x for x in ordered if x[0] > t0][:LANDMARK_IMAGES]
         if not seen:
             raise CheckError(f'mark #{k} ({mark.header.frame_id}): no landmarks message of an '
                              'image stamped after it')
@@ -95,7 +96,7 @@ def fit_frame(marks: list, landmarks: list, *, cell_name: str, kinematics: str =
               max_rms_error: float = DEFAULT_MAX_RMS,
               max_scale_error: float = DEFAULT_MAX_SCALE, method: str = 'landmark_multi'):
     """The landmark frame from the view marks and the landmarks message paired with each, as
-    the live solver fits it (ros.landmark_views.LandmarkViews.frame): T_base_optical = FK of
+    the live solver fits it (core.landmarks.views.measure_frame): T_base_optical = FK of
     the mark's joints on the model's chain with the cell's nominal hand-eye as tool, then
     views.observation per marker and views.landmark_frame. A LandmarkFit; CheckError when the
     fit fails."""

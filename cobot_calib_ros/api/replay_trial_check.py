@@ -13,8 +13,8 @@ index of the mark it read, FF_i,n [m] and its direction (eq 15).
 The check starts a proximity_sensor on a private ROS_DOMAIN_ID (``use_sim_time: true``, the
 bag's calibration table), replays ``/probe/voltage`` with ``/clock`` (bags.player.BagPlayer)
 into it and collects the distances it publishes on ``probe/distance``. Then it averages
-every recorded window again with the node's own ``fill_average``, from the replayed distances
-the live window held (by their stamps, in the live order: the live node's best-effort
+every recorded window again with the node's own average (core.sensors.probe.average), from
+the replayed distances the live window held (by their stamps, in the live order: the live node's best-effort
 subscription may have dropped a voltage the recorder kept, and the average leaves it out too).
 Each must give the live average to the bit. The trial's readings are those averages corrected
 by eq 15 (core ``correct_distance``); the ISO 9283 statistics come from core
@@ -93,11 +93,12 @@ def bag_samples(bag, table: dict) -> list[tuple[int, float, int]]:
 
 def rebuild_marks(marks: list[Mark], samples) -> list:
     """probe/average's response for each mark, from (stamp [ns], distance, status) samples:
-    the readings the live window held, in the live order, through proximity_sensor's
-    fill_average. CheckError naming the first reading not among the samples."""
+    the readings the live window held, in the live order, through core.sensors.probe.average
+    (as proximity_sensor). CheckError naming the first reading not among the samples."""
     from cobot_calib_msgs.srv import AverageProximity
 
-    from cobot_calib_ros.nodes.proximity_sensor import fill_average
+    from cobot_calib_ros.core.sensors.probe import average
+    from cobot_calib_ros.ros.convert import fill_average
     by_stamp: dict[int, list] = {}
     for sample in samples:
         by_stamp.setdefault(sample[0], []).append(sample)
@@ -112,7 +113,7 @@ def rebuild_marks(marks: list[Mark], samples) -> list:
                 raise LostReading(k, stamp)
             window.append(found[n])
             taken[stamp] = n + 1
-        out.append(fill_average(AverageProximity.Response(), window, mark.duration))
+        out.append(fill_average(AverageProximity.Response(), average(window, mark.duration)))
     return out
 
 

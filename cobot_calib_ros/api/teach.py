@@ -71,19 +71,17 @@ class TeachSession:
         return self._capture(name)
 
     def _simulated_touch(self, name: str) -> None:
-        from cobot_calib_msgs.action import MoveTo
-        from rclpy.action import ActionClient
-        from cobot_calib_ros.ros.calls import CallError, run_action
-        client = ActionClient(self.node, MoveTo, 'move_to')
+        from cobot_calib_msgs.srv import HandGuide
+        from cobot_calib_ros.ros.calls import call_service, CallError
+        client = self.node.create_client(HandGuide, 'mock_robot/hand_guide')
         try:
-            _, result = run_action(self.node, client, MoveTo.Goal(
-                target_type=MoveTo.Goal.TARGET_TOUCH, point_name=name), 60.0,
-                executor=self.executor)
+            result = call_service(self.node, client, HandGuide.Request(point_name=name), 60.0,
+                                  self.executor)
         except CallError as e:
             raise TeachError(f'simulated touch of {name}: {e}')
         finally:
-            client.destroy()
-        if result.error_code != MoveTo.Result.SUCCESS:
+            self.node.destroy_client(client)
+        if result.error_code != HandGuide.Response.SUCCESS:
             raise TeachError(f'simulated touch of {name}: {result.message}')
 
     def _on_confirm(self, request, response):

@@ -31,7 +31,6 @@ import threading
 import time
 
 from cobot_calib_msgs.action import CalibrateHandEye
-from cobot_calib_msgs.msg import Landmark, Landmarks
 from geometry_msgs.msg import TransformStamped
 import numpy as np
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
@@ -43,47 +42,19 @@ from cobot_calib_ros.core import frames, kinematics
 from cobot_calib_ros.core.landmarks.hand_eye import check_noise, hand_eye_views, solve_hand_eye
 from cobot_calib_ros.core.landmarks.hand_eye_capture import pairing_problem
 from cobot_calib_ros.core.ids import record_id
+from cobot_calib_ros.core.robot_port import CaptureFailed, Sighting
 from cobot_calib_ros.loaders import load_cell
 from cobot_calib_ros.ros import convert, qos, spin
 from cobot_calib_ros.ros.diagnostics import Diagnostics, OK, WARN
 from cobot_calib_ros.ros.params import declare, read_once
-from cobot_calib_ros.ros.robot_calls import MOVE_TIMEOUT, RobotCallError, RobotCalls
+from cobot_calib_ros.ros.landmark_watch import LandmarkWatch
+from cobot_calib_ros.ros.robot_calls import RobotCallError, RobotCalls
 from cobot_calib_ros.ros.tf_static import StaticBroadcaster
-from cobot_calib_ros.ros.time import now_ns, stamp_to_ns
+from cobot_calib_ros.ros.time import now_ns
 from cobot_calib_ros.store.records import HandEyeInputs, HandEyeRecord, HandEyeResult
 
 Action = CalibrateHandEye
 DEFAULT_VIEWS = 12
-
-
-class BoardWatch:
-    """The newest ``landmarks`` message with a board (filled on the companion's thread)."""
-
-    def __init__(self) -> None:
-        self._cond = threading.Condition()
-        self._newest: tuple[int, Landmark] | None = None
-        self.messages = 0
-
-    def on_landmarks(self, msg: Landmarks) -> None:
-        board = next((lm for lm in msg.landmarks if lm.kind == Landmark.KIND_BOARD), None)
-        with self._cond:
-            self.messages += 1
-            if board is not None:
-                self._newest = (stamp_to_ns(msg.header.stamp), board)
-            self._cond.notify_all()
-
-    def board_after(self, t_ns: int, timeout: float) -> Landmark | None:
-        """The first board in an image stamped after ``t_ns``; None if none within
-        ``timeout`` [s] of wall time (no board in view, or no images)."""
-        deadline = time.monotonic() + timeout
-        with self._cond:
-            while True:
-                if self._newest is not None and self._newest[0] > t_ns:
-                    return self._newest[1]
-                remaining = deadline - time.monotonic()
-                if remaining <= 0:
-                    return None
-                self._cond.wait(remaining)
 
 
 def _gate_problem(solved, covariances) -> str:
@@ -120,9 +91,7 @@ class HandEyeCalibrator(Node):
         self._user_frame = parse_user_frame(self._p('user_frame'))
         self._answers = spin.Companion(self, 'clients')
         self._robot = RobotCalls(self._answers)
-        self._watch = BoardWatch()
-        self._answers.node.create_subscription(Landmarks, 'landmarks',
-                                               self._watch.on_landmarks, 10)
+        self._watch = LandmarkWatch(lambda: now_ns(self), self._answers.node)
         self._pub = self.create_publisher(TransformStamped, 'hand_eye', qos.LATCHED)
         self._tf = StaticBroadcaster(self)
         self._busy = threading.Lock()
@@ -231,8 +200,7 @@ class HandEyeCalibrator(Node):
                 return self._cancelled(goal_handle, result, f'at view {i + 1} of {count}')
             feedback.view_index = i
             try:
-                reached = self._robot.move_joints(q, MOVE_TIMEOUT,
-                                                  speed_scale=self._p('speed_scale'))
+                reached = self._robot.move_joints(q, speed_scale=self._p('speed_scale'))
             except RobotCallError as e:
                 skipped.append({'view': i, 'reason': str(e)})
                 self.get_logger().warning(f'view {i}: skipped: {e}')
@@ -240,8 +208,7 @@ class HandEyeCalibrator(Node):
                 feedback.skipped = len(skipped)
                 goal_handle.publish_feedback(feedback)
                 continue
-            arrived = now_ns(self)
-            board = self._watch.board_after(arrived, self._p('landmark_timeout'))
+            board = self._board_after(now_ns(self))
             feedback.board_seen = board is not None
             if board is None:
                 skipped.append({'view': i, 'reason': 'no board seen'})
@@ -253,7 +220,7 @@ class HandEyeCalibrator(Node):
                 except RobotCallError as e:
                     return self._end(goal_handle, result, Action.Result.CAPTURE_FAILED,
                                      f'view {i}: {e}')
-                q_meas = np.asarray(capture.position, dtype=float)
+                q_meas = capture.q
                 unpaired = pairing_problem(reached, q_meas)
                 if unpaired:        # image and joints may show different poses
                     skipped.append({'view': i, 'reason': f'unpaired: {unpaired}'})
@@ -262,9 +229,8 @@ class HandEyeCalibrator(Node):
                 else:
                     joints.append(q_meas)
                     flange.append(kinematics.fk(self._chain, q_meas))
-                    boards.append(convert.pose_to_matrix(board.pose.pose))
-                    covariances.append(np.array(board.pose.covariance,
-                                                dtype=float).reshape(6, 6))
+                    boards.append(board.T_optical_target)
+                    covariances.append(board.covariance)
             feedback.used, feedback.skipped = len(boards), len(skipped)
             goal_handle.publish_feedback(feedback)
         result.views_used, result.views_skipped = len(boards), len(skipped)
@@ -305,6 +271,16 @@ class HandEyeCalibrator(Node):
             f'{solved.residual_mm:.4f} mm / {solved.residual_mrad:.4f} mrad; '
             f'{nominal[0] * 1e3:.3f} mm / {nominal[1] * 1e3:.3f} mrad from the nominal '
             f'hand-eye; {time.monotonic() - t_start:.1f} s'))
+
+    def _board_after(self, t_ns: int) -> Sighting | None:
+        """The board in the first image stamped after ``t_ns`` that shows one; None if none
+        within landmark_timeout [s] (no board in view, or no images)."""
+        try:
+            image = self._watch.landmarks_after(t_ns, lambda im: im.find('board') is not None,
+                                                 2 ** 31, self._p('landmark_timeout'))
+        except CaptureFailed:
+            return None
+        return image.find('board')
 
     def _record(self, solved, joints, flange, boards, covariances, skipped, planned) -> dict:
         return HandEyeRecord(

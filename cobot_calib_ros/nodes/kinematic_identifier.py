@@ -40,7 +40,7 @@ from cobot_calib_ros.loaders import load_cell
 from cobot_calib_ros.ros import marks, spin
 from cobot_calib_ros.ros.diagnostics import Diagnostics, OK, WARN
 from cobot_calib_ros.ros.params import declare, read_once
-from cobot_calib_ros.ros.robot_calls import MOVE_TIMEOUT, RobotCallError, RobotCalls
+from cobot_calib_ros.ros.robot_calls import RobotCallError, RobotCalls
 from cobot_calib_ros.ros.time import now_ns
 from cobot_calib_ros.store.collections import Collection, CollectionStore
 from cobot_calib_ros.store.files import check_id
@@ -232,7 +232,7 @@ class KinematicIdentifier(Node):
             feedback.target = 'tracker' if laser else meta['targets'][step['target']]
             t0 = clock()
             try:
-                self._robot.move_joints(np.array(step['q']), MOVE_TIMEOUT, compliant=not laser,
+                self._robot.move_joints(np.array(step['q']), compliant=not laser,
                                         speed_scale=self._p('speed_scale'))
             except RobotCallError as e:
                 self._collections.append(collection_id, i, step['target'], None, note=str(e))
@@ -250,7 +250,7 @@ class KinematicIdentifier(Node):
                 return Collect.Result.CAPTURE_FAILED, f'pose {i}: {e}; resume with ' \
                     f'collection_id {collection_id}'
             t2 = clock()
-            self._collections.append(collection_id, i, step['target'], capture.position,
+            self._collections.append(collection_id, i, step['target'], capture.q,
                                      sample_count=capture.sample_count,
                                      std_max=float(np.max(capture.std)), p=p)
             self._publish_capture(feedback.target, capture)
@@ -266,7 +266,7 @@ class KinematicIdentifier(Node):
 
     def _publish_capture(self, target: str, capture) -> None:
         self._captures.publish(marks.capture_mark(target, self._model.joint_names,
-                                                  capture.position, capture.std,
+                                                  capture.q, capture.std,
                                                   now_ns(self)))
 
     # -- identification -------------------------------------------------------------------

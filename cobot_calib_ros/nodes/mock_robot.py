@@ -2,7 +2,8 @@
 
 A thin shell over sim.robot.SimRobot (the one simulated robot): publishes joint_states and
 probe/voltage stamped with the node clock (use_sim_time works), serves move_to like a driver
-would, and get_ground_truth, which only a simulation can answer.
+would, and what only a simulation can answer: get_ground_truth, and mock_robot/hand_guide (the
+simulated operator hand-guiding the tool onto a cell point, HandGuide.srv).
 
 /diagnostics (1 Hz): ``published`` joint_states, ``publish_rate_hz`` and
 ``publish_gap_max_ms`` over the last second, ``stamp_gaps_missing`` (the publisher's own
@@ -19,7 +20,7 @@ import time
 
 from cobot_calib_msgs.action import MoveTo
 from cobot_calib_msgs.msg import ProbeVoltage
-from cobot_calib_msgs.srv import GetGroundTruth, MeasurePosition
+from cobot_calib_msgs.srv import GetGroundTruth, HandGuide, MeasurePosition
 import numpy as np
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
@@ -114,6 +115,9 @@ class MockRobot(Node):
                             callback_group=ReentrantCallbackGroup())
         self.create_service(MeasurePosition, 'laser_tracker/measure', self._on_laser,
                             callback_group=ReentrantCallbackGroup())
+        self._motion_lock = threading.Lock()      # one motion at a time: move_to or hand_guide
+        self.create_service(HandGuide, '~/hand_guide', self._on_hand_guide,
+                            callback_group=MutuallyExclusiveCallbackGroup())
         self._loop = PacedLoop(rate, self._publish_tick, self.context.ok)
         cell = self._sim.cell
         self._diagnostics = Diagnostics(self, hardware_id=cell.robot, update=self._diagnose)
@@ -189,10 +193,29 @@ class MockRobot(Node):
             return self._robot.plan_joints(goal.positions)
         if goal.target_type == MoveTo.Goal.TARGET_POSE:
             return self._robot.plan_pose(convert.pose_to_matrix(goal.pose))
-        if goal.target_type == MoveTo.Goal.TARGET_TOUCH:
-            return self._robot.plan_touch(goal.point_name)
         return Failure(MotionCode.INVALID_TARGET, f'unknown target_type {goal.target_type}; '
-                       'use TARGET_JOINTS/POSE/TOUCH')
+                       'use TARGET_JOINTS or TARGET_POSE (a touch: mock_robot/hand_guide)')
+
+    def _on_hand_guide(self, request, response):
+        """The simulated operator guides the tool onto ``point_name`` (at the default speed)."""
+        q_target = self._robot.plan_touch(request.point_name)
+        if isinstance(q_target, Failure):
+            response.error_code, response.message = int(q_target.code), q_target.message
+            return response
+        if not self._motion_lock.acquire(blocking=False):
+            response.error_code = HandGuide.Response.BUSY
+            response.message = 'the robot is moving (move_to); touch again when it stops'
+            return response
+        self._moving = True
+        try:
+            self._interpolate(lambda: False, None, q_target, 1.0)
+        finally:
+            self._moving = False
+            self._motion_lock.release()
+        response.positions, response.duration = self._robot.q.tolist(), self._motion_s
+        response.error_code = HandGuide.Response.SUCCESS
+        response.message = f'the operator guided the tool onto {request.point_name}'
+        return response
 
     def _execute_move(self, goal_handle):
         goal = goal_handle.request
@@ -203,13 +226,20 @@ class MockRobot(Node):
             result.error_code, result.message = int(q_target.code), q_target.message
             self.get_logger().warning(f'move_to refused: {q_target.message}')
             return result
+        if not self._motion_lock.acquire(blocking=False):
+            goal_handle.abort()
+            result.error_code, result.message = MoveTo.Result.UNREACHABLE, 'robot busy (a touch)'
+            return result
         self._moving = True
         try:
-            canceled = self._interpolate(goal_handle, q_target, goal.speed_scale or 1.0)
+            canceled = self._interpolate(lambda: goal_handle.is_cancel_requested,
+                                         goal_handle.publish_feedback, q_target,
+                                         goal.speed_scale or 1.0)
             if goal.compliant and not canceled:
                 canceled = self._comply(q_target)
         finally:
             self._moving = False
+            self._motion_lock.release()
         if isinstance(canceled, Failure):
             goal_handle.abort()
             result.error_code, result.message = int(canceled.code), canceled.message
@@ -225,8 +255,10 @@ class MockRobot(Node):
         result.duration = self._motion_s
         return result
 
-    def _interpolate(self, goal_handle, q_target: np.ndarray, speed_scale: float) -> bool:
-        """Move along a joint-space line; returns True when canceled."""
+    def _interpolate(self, cancel_requested, publish_feedback, q_target: np.ndarray,
+                     speed_scale: float) -> bool:
+        """Move along a joint-space line (feedback after each step unless
+        ``publish_feedback`` is None); returns True when canceled."""
         q_start = self._robot.q
         velocity = self._param('joint_velocity') * min(max(speed_scale, 0.01), 1.0)
         self._motion_s = float(np.max(np.abs(q_target - q_start))) / velocity   # simulated
@@ -234,7 +266,7 @@ class MockRobot(Node):
         steps = max(1, int(duration / FEEDBACK_PERIOD))
         feedback = MoveTo.Feedback()
         for k in range(1, steps + 1):
-            if goal_handle.is_cancel_requested:
+            if cancel_requested():
                 self._robot.settle(self._robot.q)
                 return True
             s = k / steps
@@ -243,7 +275,8 @@ class MockRobot(Node):
             self._robot.set_joints(q)
             feedback.progress = k / steps
             feedback.positions = q.tolist()
-            goal_handle.publish_feedback(feedback)
+            if publish_feedback is not None:
+                publish_feedback(feedback)
             time.sleep(duration / steps)
         self._robot.settle(q_target)
         return False

@@ -12,8 +12,9 @@ Marks on ``cobot_calib/probe_averages`` (ros.marks: PROBE_AVERAGES, its encoding
 per probe/average served, so a recording can tie each reading of a trial to the probe readings
 it averaged (bags/make_trial_bag.py, api.replay_trial_check). A reading the subscription
 dropped (best effort, history 5) is not among them, so a replay can average exactly the
-readings this node did.
-``average_window`` and ``fill_average`` are what probe/average computes, for a replay to use.
+readings this node did. The window and its average are core.sensors.probe's
+``average_window`` and ``average`` (a replay and the in-process robot use the same);
+ros.convert's ``fill_average`` maps the result to the response.
 """
 from __future__ import annotations
 
@@ -24,13 +25,14 @@ import time
 
 from cobot_calib_msgs.msg import ProbeVoltage, ProximityReading
 from cobot_calib_msgs.srv import AverageProximity
-import numpy as np
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import JointState
 
-from cobot_calib_ros.core.sensors.probe import curve_from_lists, read_distance, ReadingStatus
+from cobot_calib_ros.core.sensors.probe import (average, average_window, curve_from_lists,
+                                                read_distance, ReadingStatus)
 from cobot_calib_ros.ros import marks, spin
+from cobot_calib_ros.ros.convert import fill_average
 from cobot_calib_ros.ros.diagnostics import Diagnostics, OK, RateMeter, status_name, WARN
 from cobot_calib_ros.ros.params import declare, read_once
 from cobot_calib_ros.ros.time import now_ns, stamp_or_now_ns, wait_past
@@ -39,39 +41,6 @@ STALL_TIMEOUT = 1.0     # [s] of wall time without a new reading: the probe stre
 NO_DATA_TIMEOUT = 1.0   # [s] of wall time without probe/voltage: /diagnostics warns
 
 
-def average_window(samples, t0_ns: int, duration: float) -> list:
-    """The (stamp [ns], distance [m], status) samples, in their order, that probe/average
-    takes for a window opened at ``t0_ns`` [ns] lasting ``duration`` [s]."""
-    t0 = t0_ns * 1e-9
-    t1 = t0 + duration
-    return [sample for sample in samples if t0 <= sample[0] * 1e-9 <= t1]
-
-
-def fill_average(response, window, duration: float):
-    """probe/average's response from a window's (stamp, distance, status) readings; the
-    fields of AverageProximity.Response other than min_range and max_range."""
-    valid = np.array([d for _, d, s in window if s == ReadingStatus.OK])
-    rejected = [s for _, d, s in window if s != ReadingStatus.OK]
-    response.sample_count = int(valid.size)
-    response.rejected_count = len(rejected)
-    if not window:
-        response.error_code = AverageProximity.Response.NO_DATA
-        response.message = (f'no probe readings in {duration:.3f} s; '
-                            'is probe/voltage being published?')
-        return response
-    if rejected and len(rejected) >= len(window) / 2:
-        status = max(set(rejected), key=rejected.count)
-        response.reading_status = int(status)
-        response.error_code = AverageProximity.Response.OUT_OF_RANGE
-        side = 'closer than' if status == ReadingStatus.BELOW_RANGE else 'beyond'
-        response.message = (f'{len(rejected)} of {len(window)} readings out of range '
-                            f'({status.name}): the target is {side} the probe range; '
-                            'move the probe and measure again')
-        return response
-    response.distance = float(valid.mean())
-    response.std = float(valid.std(ddof=1)) if valid.size > 1 else 0.0
-    response.message = f'{valid.size} readings, {len(rejected)} rejected'
-    return response
 
 
 class ProximitySensor(Node):
@@ -168,7 +137,7 @@ class ProximitySensor(Node):
             wait_past(self._lock, self._newest, t0_ns * 1e-9 + duration, STALL_TIMEOUT)
             window = average_window(self._recent, t0_ns, duration)
         response.min_range, response.max_range = self._curve.min_range, self._curve.max_range
-        fill_average(response, window, duration)
+        fill_average(response, average(window, duration))
         self._marks.publish(marks.average_mark(t0_ns, duration, response, window))
         return response
 

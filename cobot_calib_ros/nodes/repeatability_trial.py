@@ -1,8 +1,10 @@
 """repeatability_trial: the ISO 9283 trial action (run_trial) and the live `repeatability` topic.
 
-The procedure is core/trial.py; this node gives it a robot made of ROS calls (move_to,
-capture_joints, probe/average; for the landmark methods the wrist camera's ``landmarks``
-through ros.landmark_views, with the active hand-eye calibration), stores readings through
+The procedure is core/repeatability/trial.py; this node gives it core.repeatability.trial's
+PortRobot over the ROS ports (ros.robot_calls: move_to, capture_joints, probe/average, a touch
+by the operator or the mock's hand_guide; for the landmark methods the wrist camera's
+``landmarks`` through ros.landmark_watch, with the active hand-eye calibration, each view's
+capture marked by ros.landmark_views.CaptureMarks), stores readings through
 store.trials, and publishes the running statistics after every cycle (on start-up: those of
 the latest stored trial). Goal semantics are in RunTrial.action. Health on /diagnostics: OK
 idle, OK running (cycle figures), WARN after a failed trial (its message) until the next one
@@ -14,9 +16,7 @@ from dataclasses import replace
 import threading
 
 from cobot_calib_msgs.action import RunTrial
-from cobot_calib_msgs.msg import ProximityReading, Repeatability
-from cobot_calib_msgs.srv import AverageProximity
-import numpy as np
+from cobot_calib_msgs.msg import Repeatability
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
@@ -25,8 +25,8 @@ from cobot_calib_ros import paths, store
 from cobot_calib_ros.core import kinematics
 from cobot_calib_ros.core.repeatability import trial as trialmod
 from cobot_calib_ros.core.repeatability import PointStats
-from cobot_calib_ros.core.sensors.probe import Reading, ReadingStatus
-from cobot_calib_ros.core.user_frame.plausibility import MAX_RMS_ERROR, MAX_SCALE_ERROR
+from cobot_calib_ros.core.landmarks.views import setup_problem
+from cobot_calib_ros.core.robot_port import PortError
 from cobot_calib_ros.loaders import load_cell
 from cobot_calib_ros.store.files import check_id
 from cobot_calib_ros.store.kinematics import chain_of, NOMINAL
@@ -34,118 +34,14 @@ from cobot_calib_ros.store.records import TrialSetup
 from cobot_calib_ros.ros import qos, spin
 from cobot_calib_ros.ros.diagnostics import Diagnostics, OK, WARN
 from cobot_calib_ros.ros.params import declare, read_once
-from cobot_calib_ros.ros.landmark_views import active_hand_eye, LandmarkViewError, LandmarkViews
-from cobot_calib_ros.ros.robot_calls import MOVE_TIMEOUT, RobotCallError, RobotCalls
+from cobot_calib_ros.ros.landmark_views import active_hand_eye, CaptureMarks
+from cobot_calib_ros.ros.landmark_watch import LandmarkWatch
+from cobot_calib_ros.ros.robot_calls import RobotCalls
 from cobot_calib_ros.ros.time import now_ns
 
 RESULT_CODE = {'invalid': RunTrial.Result.INVALID_GOAL, 'motion': RunTrial.Result.MOTION_FAILED,
                'probe': RunTrial.Result.PROBE_FAILED, 'canceled': RunTrial.Result.CANCELED}
 HEARTBEAT = 2.0         # [s] feedback at least this often while a trial runs (see RunTrial)
-
-
-class RosRobot:
-    """core.trial.Robot over ROS: every call blocks this (action) thread until answered."""
-
-    def __init__(self, answers: spin.Companion, calls: RobotCalls, chain: kinematics.Chain,
-                 home: np.ndarray, speed: float, probe_window: float, capture_duration: float,
-                 views: LandmarkViews | None = None) -> None:
-        self._calls = calls
-        self.chain, self._speed = chain, speed     # the kinematic model of this trial
-        self.camera_chain = None    # the model with the hand-eye as tool (landmark methods)
-        self.hand_eye = np.eye(4)   # the hand-eye landmark views are planned with
-        self._views = views
-        self._probe_seconds = 0.0
-        self.probe_retries = 0      # probe windows read again after NO_DATA (a lost burst)
-        self._home, self._q = home, home.copy()    # where IK starts: the last known joints
-        self._probe_window, self._capture_duration = probe_window, capture_duration
-        self._probe = answers.node.create_client(AverageProximity, 'probe/average')
-
-    def wait_ready(self, timeout: float = 5.0) -> str:
-        """'' when move_to, capture_joints and probe/average answer, else what is missing."""
-        missing = []
-        if not self._calls.move_client.wait_for_server(timeout_sec=timeout):
-            missing.append('move_to (mock_robot)')
-        for client, who in ((self._calls.capture_client, 'joint_state_monitor'),
-                            (self._probe, 'proximity_sensor')):
-            if not client.wait_for_service(timeout_sec=timeout):
-                missing.append(f'{client.srv_name} ({who})')
-        return f'not available: {", ".join(missing)}; is the node suite up?' if missing else ''
-
-    def probe_range(self) -> trialmod.ProbeRange:
-        """The probe's range from proximity_sensor's calibration table (not the cell's)."""
-        res = self._average(self._probe_window)
-        if res.error_code == AverageProximity.Response.BAD_REQUEST or \
-                not 0.0 <= res.min_range < res.max_range:
-            raise trialmod.TrialError('probe', f'proximity_sensor gave no probe range '
-                                      f'({res.message}); check its calibration table')
-        return trialmod.ProbeRange(res.min_range, res.max_range)
-
-    def _average(self, window: float):
-        req = AverageProximity.Request(duration=window)
-        try:
-            return spin.wait(self._probe.call_async(req), window + 5.0)
-        except TimeoutError as e:
-            raise trialmod.TrialError('probe', f'probe/average: {e}; is the node suite up?')
-
-    def touch(self, name: str) -> np.ndarray:
-        try:
-            q = self._calls.touch_and_capture(name, self._capture_duration, MOVE_TIMEOUT,
-                                              self._speed)
-        except RobotCallError as e:
-            raise trialmod.TrialError('motion', f'teaching {name}: {e}')
-        self._q = q
-        return kinematics.fk(self.chain, q)
-
-    def move(self, T_base_tool: np.ndarray) -> None:
-        """Joints for the pose by this trial's kinematic model (nominal or calibrated), sent
-        as a joint target: the controller's own nominal model plays no part."""
-        ik = kinematics.solve_ik_with_restarts(self.chain, T_base_tool, self._q, self._home)
-        if not ik:
-            raise trialmod.TrialError('motion', f'no inverse kinematics solution: {ik.message}')
-        try:
-            self._q = self._calls.move_joints(ik.q, MOVE_TIMEOUT, speed_scale=self._speed)
-        except RobotCallError as e:
-            raise trialmod.TrialError('motion', str(e))
-
-    def retries(self) -> dict[str, int]:
-        """The retries so far: capture_joints holds after NO_DATA, probe re-reads after
-        NO_DATA (what a stalling joint_states or probe stream costs)."""
-        return {'capture_joints': self._calls.capture_retries,
-                'probe_average': self.probe_retries}
-
-    @property
-    def robot_seconds(self) -> float:
-        """Robot time of this node's moves, holds and probe windows so far [s]."""
-        return self._calls.robot_seconds + self._probe_seconds
-
-    def landmark_frame(self, method: str, T_base_user_guess: np.ndarray) -> np.ndarray:
-        """M_n of a landmark method (ros.landmark_views), on this trial's model."""
-        if self._views is None or self.camera_chain is None:
-            raise trialmod.TrialError('invalid', f'{method}: the cell has no wrist camera or '
-                                      'no landmarks; add camera: and landmarks: to the cell')
-        try:
-            result = self._views.frame(method, T_base_user_guess, self.camera_chain,
-                                       self.hand_eye, self._capture_duration,
-                                       max_rms_error=MAX_RMS_ERROR,
-                                       max_scale_error=MAX_SCALE_ERROR)
-        except LandmarkViewError as e:
-            raise trialmod.TrialError('motion', str(e))
-        if not result:
-            raise trialmod.TrialError('invalid', f'{method}: {result.fit.message}')
-        return result.fit.M
-
-    def read(self) -> Reading:
-        self._probe_seconds += self._probe_window
-        res = self._average(self._probe_window)
-        if res.error_code == AverageProximity.Response.NO_DATA:   # a lost burst: once more
-            self.probe_retries += 1
-            res = self._average(4 * self._probe_window)
-        if res.error_code == AverageProximity.Response.SUCCESS:
-            return Reading(res.distance, ReadingStatus.OK)
-        if res.error_code == AverageProximity.Response.OUT_OF_RANGE and res.reading_status in (
-                ProximityReading.STATUS_BELOW_RANGE, ProximityReading.STATUS_ABOVE_RANGE):
-            return Reading(float('nan'), ReadingStatus(res.reading_status))
-        raise trialmod.TrialError('probe', f'probe/average: {res.message}')
 
 
 def stats_msg(trial_id: str, meta: dict, cycles_done: int, stats: PointStats | None,
@@ -181,17 +77,15 @@ class RepeatabilityTrial(Node):
         self._model = kinematics.model_for(self._cell)
         self._store = store.open(paths.data_dir(self._p('data_dir'))).trials
         self._answers = spin.Companion(self, 'clients')
-        calls = RobotCalls(self._answers)
-        views = LandmarkViews(self._answers, calls, self._cell, self._model,
-                              lambda: now_ns(self))
-        self._robot = RosRobot(self._answers, calls,
-                               self._model.chain(tool=self._cell.tool_offset), self._cell.home,
-                               self._p('speed_scale'), self._p('probe_window'),
-                               self._p('capture_duration'), None if views.problem() else views)
+        self._calls = RobotCalls(self._answers, self._p('speed_scale'),
+                                 probe_window=self._p('probe_window'), operator=self.get_name())
+        self._camera = None if setup_problem(self._cell) else LandmarkWatch(
+            lambda: now_ns(self), self._answers.node)
+        self._marks = CaptureMarks(self._answers.node, self._model.joint_names)
         self._pub = self.create_publisher(Repeatability, 'repeatability', qos.LATCHED)
         self._health = Diagnostics(self)
-        self._health.watch(capture_retries=lambda: calls.capture_retries,
-                           probe_retries=lambda: self._robot.probe_retries)
+        self._health.watch(capture_retries=lambda: self._calls.capture_retries,
+                           probe_retries=lambda: self._calls.probe_retries)
         self._health.set(OK, 'idle', trial_id='', method='', axis='', cycles_done=0,
                          cycles_total=0, rp_all_mm='nan')      # the keys while running
         self._busy = threading.Lock()
@@ -298,7 +192,7 @@ class RepeatabilityTrial(Node):
                 self._live[0].publish_feedback(self._live[1])
 
     def _run(self, goal_handle):
-        trial = _Goal(goal_handle.request, self._robot.retries())
+        trial = _Goal(goal_handle.request, self._calls.retries())
         try:
             run, resume = self._prepare(trial, goal_handle)
             data = run.resume(resume) if resume is not None else run.start()
@@ -340,7 +234,7 @@ class RepeatabilityTrial(Node):
     def _result(self, trial: _Goal, code: int, message: str, data=None):
         """The result with what is known of the trial: its stored method, axis, cycles, RP."""
         result = RunTrial.Result(error_code=code, message=message, trial_id=trial.trial_id)
-        retries = trial.retries_since(self._robot.retries())
+        retries = trial.retries_since(self._calls.retries())
         result.capture_retries = retries['capture_joints']
         result.probe_retries = retries['probe_average']
         trial_dir = self._store.directory / trial.trial_id
@@ -378,36 +272,44 @@ class RepeatabilityTrial(Node):
         resume = self._stored(trial)
         feedback = RunTrial.Feedback(resumed=trial.resumed)
         self._announce(trial, goal_handle, resume, feedback)
-        why = self._robot.wait_ready()
+        why = self._calls.missing()
         if why:
             raise trialmod.TrialError('motion', why)
-        model_used = self._use_kinematics(trial.meta.get('kinematics') or self._p('kinematics'))
+        robot, model_used = self._robot(trial.meta.get('kinematics') or self._p('kinematics'),
+                                        lambda: goal_handle.is_cancel_requested)
+        try:
+            probe = trialmod.ProbeRange(*self._calls.probe_range())
+        except PortError as e:
+            raise trialmod.TrialError('probe', str(e))
         plan = trialmod.Plan(
             trial.trial_id, trial.meta['method'], trial.meta['axis'], self._cell.layout,
             [self._cell.marker(n) for n in trial.meta['point_names']],
-            trial.meta['cycles_total'], self._robot.probe_range(),
-            approach_distance=self._p('approach_distance'),
+            trial.meta['cycles_total'], probe, approach_distance=self._p('approach_distance'),
             extra={'kinematics': model_used})
-        run = trialmod.TrialRun(plan, self._robot, self._store,
+        run = trialmod.TrialRun(plan, robot, self._store,
                                 *self._callbacks(trial, goal_handle, feedback),
                                 lambda: goal_handle.is_cancel_requested)
         self._started(trial, resume)
         return run, resume
 
-    def _use_kinematics(self, choice: str) -> str:
-        """Give the robot the chain of a kinematics choice; its label (id or nominal)."""
+    def _robot(self, choice: str, cancelled) -> tuple[trialmod.PortRobot, str]:
+        """The trial's robot on the chain of a kinematics choice (landmark views: with the
+        active hand-eye as the camera's tool); the choice's label (id or nominal)."""
         data_dir = paths.data_dir(self._p('data_dir'))
         try:
             record = store.open(data_dir).kinematics.resolve(choice, self._model.name)
-            self._robot.chain = chain_of(record, self._model, self._cell.tool_offset)
-            if self._cell.camera is not None:
+            chain = chain_of(record, self._model, self._cell.tool_offset)
+            rig = None
+            if self._camera is not None:
                 X, _ = active_hand_eye(data_dir, self._cell)
-                self._robot.hand_eye = X
-                self._robot.camera_chain = chain_of(record, self._model, X)
+                rig = trialmod.LandmarkRig(self._camera, self._cell, self._model.chain(tool=X),
+                                           chain_of(record, self._model, X), self._marks)
         except (KeyError, ValueError) as e:
             raise trialmod.TrialError('invalid', f'kinematics {choice!r}: {e}; use latest, '
                                       'nominal or a stored kinematic calibration id')
-        return NOMINAL if record is None else record['id']
+        robot = trialmod.PortRobot(self._calls, chain, self._cell.home,
+                                   self._p('capture_duration'), rig, cancelled)
+        return robot, NOMINAL if record is None else record['id']
 
     def _stored(self, trial: _Goal):
         """The stored trial this goal resumes (None for a new one); fills ``trial.meta``."""

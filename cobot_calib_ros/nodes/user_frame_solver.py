@@ -12,8 +12,10 @@ calibrator hands that over with a task on the node's executor.
 
 Landmark methods (issue 11; point_names ignored): ``landmark_single`` and ``landmark_multi``
 move the robot to views of the cell's fiducials planned around the active user frame and fit
-the frame to what the wrist camera sees (ros.landmark_views), with the active hand-eye
-calibration (nominal if none); the record names the hand-eye used.
+the frame to what the wrist camera sees (core.landmarks.views.measure_frame over ros.robot_calls
+and ros.landmark_watch), with the active hand-eye calibration (nominal if none); the record
+names the hand-eye used. Live captures of named points are touched by the operator, who
+confirms with ``user_frame_solver/confirm_touch`` (on the mock cell: mock_robot/hand_guide).
 """
 from __future__ import annotations
 
@@ -32,13 +34,16 @@ from cobot_calib_ros import paths, store
 from cobot_calib_ros.core import frames, kinematics, user_frame
 from cobot_calib_ros.core.cell import check_frame_id
 from cobot_calib_ros.core.errors import ErrorCode
+from cobot_calib_ros.core.landmarks import views
+from cobot_calib_ros.core.robot_port import PortError
 from cobot_calib_ros.core.user_frame import landmarks as landmark_frames
 from cobot_calib_ros.loaders import load_cell
 from cobot_calib_ros.ros import convert, qos, spin
 from cobot_calib_ros.ros.diagnostics import Diagnostics, OK, WARN
 from cobot_calib_ros.ros.params import declare, read_once
-from cobot_calib_ros.ros.landmark_views import active_hand_eye, LandmarkViewError, LandmarkViews
-from cobot_calib_ros.ros.robot_calls import MOVE_TIMEOUT, RobotCallError, RobotCalls
+from cobot_calib_ros.ros.landmark_views import active_hand_eye, CaptureMarks
+from cobot_calib_ros.ros.landmark_watch import LandmarkWatch
+from cobot_calib_ros.ros.robot_calls import RobotCalls
 from cobot_calib_ros.ros.time import now_ns, ns_to_stamp
 from cobot_calib_ros.ros.tf_static import StaticBroadcaster
 from cobot_calib_ros.store.kinematics import chain_of, NOMINAL
@@ -111,10 +116,10 @@ class UserFrameSolver(Node):
         # the clients' thread, and this node's own services stay free
         self._answers = spin.Companion(self, 'clients')
         self._calibrator = spin.Companion(self, 'calibrator')
-        self._robot = RobotCalls(self._answers)
+        self._robot = RobotCalls(self._answers, operator=self.get_name())
         self._health.watch(capture_retries=lambda: self._robot.capture_retries)
-        self._views = LandmarkViews(self._answers, self._robot, self._cell, self._model,
-                                    lambda: now_ns(self))
+        self._camera = LandmarkWatch(lambda: now_ns(self), self._answers.node)
+        self._marks = CaptureMarks(self._answers.node, self._model.joint_names)
         self._pub = self.create_publisher(UserFrameCalibration, 'user_frame', qos.LATCHED)
         self._tf = StaticBroadcaster(self)
         self._calibrator.node.create_service(CalibrateUserFrame, 'calibrate_user_frame',
@@ -295,8 +300,8 @@ class UserFrameSolver(Node):
 
     def _capture_live(self, name: str) -> np.ndarray:
         try:
-            return self._robot.touch_and_capture(name, self._p('capture_duration'), MOVE_TIMEOUT)
-        except RobotCallError as e:
+            return self._robot.touch_and_capture(name, self._p('capture_duration'))
+        except PortError as e:
             raise _RequestError(ErrorCode.CAPTURE_FAILED, f'capture at {name} failed: {e}')
 
     def _given_joints(self, names: list[str], captures) -> list[np.ndarray]:
@@ -322,20 +327,21 @@ class UserFrameSolver(Node):
     def _landmark_fit(self, request):
         """landmark_single / landmark_multi (ros.landmark_views): names, p_user, p_base,
         model label and the FrameFit."""
-        problem = self._views.problem()
+        problem = views.setup_problem(self._cell)
         if problem:
             raise _RequestError(ErrorCode.INVALID_INPUT, f'{request.method}: {problem}')
         guess = self._user_frame_guess()
         X, hand_eye = active_hand_eye(paths.data_dir(self._p('data_dir')), self._cell)
         chain, model_used = self._kinematic_chain(request.kinematics or self._p('kinematics'),
                                                   tool=X)
-        try:
-            result = self._views.frame(request.method, guess, chain, X,
-                                       self._p('capture_duration'),
-                                       max_rms_error=self._p('max_rms_error'),
-                                       max_scale_error=self._p('max_scale_error'))
-        except LandmarkViewError as e:
-            raise _RequestError(e.code, str(e))
+        result = views.measure_frame(
+            request.method, self._cell, self._robot, self._camera, T_base_user_guess=guess,
+            plan_chain=self._model.chain(tool=X), chain=chain,
+            capture_duration=self._p('capture_duration'),
+            max_rms_error=self._p('max_rms_error'), max_scale_error=self._p('max_scale_error'),
+            on_view=self._marks)
+        if result.code in (ErrorCode.INVALID_INPUT, ErrorCode.CAPTURE_FAILED):
+            raise _RequestError(result.code, result.message)     # no fit to store
         return result.names, result.p_user, result.p_base, model_used, hand_eye, result.fit
 
     def _user_frame_guess(self) -> np.ndarray:

@@ -6,6 +6,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from cobot_calib_ros.core import frames
+from cobot_calib_ros.core.sensors.probe import AverageCode, ProbeAverage
 
 Array = NDArray[np.float64]
 
@@ -49,3 +50,15 @@ def matrix_to_transform(T: Array, parent: str, child: str, stamp=None) -> Transf
 def transform_to_matrix(msg: TransformStamped) -> Array:
     t, r = msg.transform.translation, msg.transform.rotation
     return frames.from_pose([t.x, t.y, t.z], [r.x, r.y, r.z, r.w])
+
+
+def fill_average(response, result: ProbeAverage):
+    """probe/average's response fields from core.sensors.probe.average's result (all but
+    min_range and max_range; distance and std stay 0 unless SUCCESS)."""
+    response.error_code, response.message = int(result.code), result.message
+    response.sample_count, response.rejected_count = result.sample_count, result.rejected_count
+    if result.code == AverageCode.OUT_OF_RANGE:
+        response.reading_status = int(result.status)
+    if result:
+        response.distance, response.std = result.distance, result.std
+    return response

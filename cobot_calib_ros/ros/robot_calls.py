@@ -1,86 +1,173 @@
-"""move_to, capture_joints and laser_tracker/measure called from a callback that blocks until
-they answer.
+"""core.robot_port.RobotPort over ROS: move_to, capture_joints, probe/average and
+laser_tracker/measure called from a callback that blocks until they answer.
 
 The answers arrive on a spin.Companion, so the caller's own executor stays free. Used by
-user_frame_solver (live captures), repeatability_trial (every trial move) and
-kinematic_identifier (data collection).
+user_frame_solver (live captures), repeatability_trial (every trial move), hand_eye_calibrator
+and kinematic_identifier (data collection). A move that fails raises core.robot_port.MoveFailed,
+a capture or measurement CaptureFailed (both RobotCallError, i.e. PortError).
+
+A touch is not a move: the operator guides the tool onto the point and confirms by calling
+``<operator>/confirm_touch`` (std_srvs/Trigger; the node's name as ``operator``). On the mock
+cell the simulated operator does it: ``mock_robot/hand_guide`` (HandGuide.srv, which only
+mock_robot serves) is called instead when it answers.
 """
 from __future__ import annotations
 
+import threading
 import time
 
 from cobot_calib_msgs.action import MoveTo
-from cobot_calib_msgs.srv import CaptureJoints, MeasurePosition
+from cobot_calib_msgs.msg import ProximityReading
+from cobot_calib_msgs.srv import AverageProximity, CaptureJoints, HandGuide, MeasurePosition
 import numpy as np
 from rclpy.action import ActionClient
+from std_srvs.srv import Trigger
 
+from cobot_calib_ros.core.robot_port import Capture, CaptureFailed, MoveFailed, PortError
+from cobot_calib_ros.core.sensors.probe import Reading, ReadingStatus
+from cobot_calib_ros.ros.convert import matrix_to_pose
 from cobot_calib_ros.ros.spin import Companion, wait
 
 SERVER_WAIT = 5.0       # [s] for move_to / capture_joints to be discovered
 MOVE_TIMEOUT = 120.0    # [s] for one move_to to finish (every caller's bound on a hung move)
+TOUCH_TIMEOUT = 600.0   # [s] for the operator to guide the tool onto a point and confirm
+HAND_GUIDE = 'mock_robot/hand_guide'
 CAPTURE_ATTEMPTS = 4
 CAPTURE_RETRY_PAUSE = 0.2   # [s], times the attempt: lets a starved joint_states stream recover
 
 
-class RobotCallError(RuntimeError):
-    """A move or capture that did not happen; the message says which and what to do."""
+RobotCallError = PortError     # a move or capture that did not happen (MoveFailed, CaptureFailed)
 
 
 class RobotCalls:
-    def __init__(self, answers: Companion) -> None:
+    """The RobotPort; ``operator``: the node's name, for its ``confirm_touch`` service."""
+
+    def __init__(self, answers: Companion, speed_scale: float = 0.0, *,
+                 probe_window: float = 0.2, operator: str = '') -> None:
         self._answers = answers
+        self.speed_scale = speed_scale    # of every move: 0..1 of the joint velocity limits;
+                                          # 0 = mock_robot's default
+        self.probe_window = probe_window  # [s] of each probe reading
         self.move_client = ActionClient(answers.node, MoveTo, 'move_to')
         self.capture_client = answers.node.create_client(CaptureJoints, 'capture_joints')
+        self.probe_client = answers.node.create_client(AverageProximity, 'probe/average')
+        self._hand_guide = answers.node.create_client(HandGuide, HAND_GUIDE)
+        self._simulated_operator: bool | None = None    # known after the first touch
+        self._confirmed = threading.Event()
+        self.awaiting_operator = threading.Event()     # set while a touch waits for confirm
+        self.confirm_service = f'{operator}/confirm_touch' if operator else ''
+        if operator:
+            answers.node.create_service(Trigger, self.confirm_service, self._on_confirm)
         self._laser_client = None
-        self.robot_seconds = 0.0    # robot time of the moves (as move_to reports) and holds [s]
+        self.robot_seconds = 0.0    # robot time of moves (as move_to reports), holds, probes [s]
         self.capture_retries = 0    # holds tried again after NO_DATA (a starved joint_states)
+        self.probe_retries = 0      # probe windows read again after NO_DATA (a lost burst)
 
-    def move(self, goal: MoveTo.Goal, result_timeout: float) -> MoveTo.Result:
-        """Run a move_to goal to its end; RobotCallError unless it succeeded."""
+    def missing(self, timeout: float = SERVER_WAIT) -> str:
+        """'' when move_to, capture_joints and probe/average answer, else what is missing."""
+        missing = []
+        if not self.move_client.wait_for_server(timeout_sec=timeout):
+            missing.append('move_to (mock_robot)')
+        for client, who in ((self.capture_client, 'joint_state_monitor'),
+                            (self.probe_client, 'proximity_sensor')):
+            if not client.wait_for_service(timeout_sec=timeout):
+                missing.append(f'{client.srv_name} ({who})')
+        return f'not available: {", ".join(missing)}; is the node suite up?' if missing else ''
+
+    def move(self, goal: MoveTo.Goal) -> MoveTo.Result:
+        """Run a move_to goal to its end (MOVE_TIMEOUT); MoveFailed unless it succeeded."""
         if not self.move_client.wait_for_server(timeout_sec=SERVER_WAIT):
-            raise RobotCallError('move_to action server not available (is mock_robot up?)')
+            raise MoveFailed('move_to action server not available (is mock_robot up?)')
         try:
-            result = self._answers.run_action(self.move_client, goal, 10.0, result_timeout)
+            result = self._answers.run_action(self.move_client, goal, 10.0, MOVE_TIMEOUT)
         except TimeoutError as e:
-            raise RobotCallError(f'move_to: {e}; is mock_robot up?')
+            raise MoveFailed(f'move_to: {e}; is mock_robot up?')
         if result is None:
-            raise RobotCallError('move_to rejected the goal (robot busy)')
+            raise MoveFailed('move_to rejected the goal (robot busy)')
         if result.error_code != MoveTo.Result.SUCCESS:
-            raise RobotCallError(f'move_to: {result.message}')
+            raise MoveFailed(f'move_to: {result.message}')
         self.robot_seconds += result.duration
         return result
 
-    def touch_and_capture(self, name: str, duration: float, result_timeout: float,
-                          speed_scale: float = 0.0) -> np.ndarray:
-        """Hand-guide the tool onto cell point ``name``, hold, and return the mean joints."""
-        self.move(MoveTo.Goal(target_type=MoveTo.Goal.TARGET_TOUCH, point_name=name,
-                              speed_scale=speed_scale), result_timeout)
-        return self.capture(duration).position
+    def touch(self, name: str) -> None:
+        """The tool tip onto cell point ``name``: the mock's simulated operator when
+        mock_robot/hand_guide answers, else the operator, who confirms (TOUCH_TIMEOUT). The
+        robot's move_to must be up either way (what it moves next, and a sign of a driver)."""
+        if not self.move_client.wait_for_server(timeout_sec=SERVER_WAIT):    # no robot at all
+            raise MoveFailed('move_to action server not available (is mock_robot up?)')
+        if self._simulated_operator is None:
+            self._simulated_operator = self._hand_guide.wait_for_service(timeout_sec=SERVER_WAIT)
+        if self._simulated_operator:
+            return self._hand_guided(name)
+        if not self.confirm_service:
+            raise MoveFailed(f'touch {name}: no operator to confirm it (the node serves no '
+                             'confirm_touch) and no simulated one (mock_robot/hand_guide)')
+        self._confirmed.clear()
+        full_name = self._answers.node.resolve_service_name(self.confirm_service)
+        self._answers.node.get_logger().warning(
+            f'touch {name}: guide the tool tip onto the top-face centre of {name}, hold still, '
+            f'then call {full_name} (std_srvs/Trigger)')
+        self.awaiting_operator.set()
+        try:
+            confirmed = self._confirmed.wait(TOUCH_TIMEOUT)
+        finally:
+            self.awaiting_operator.clear()
+        if not confirmed:
+            raise MoveFailed(f'touch {name}: not confirmed within {TOUCH_TIMEOUT:.0f} s '
+                             f'(call {full_name} once the tool rests on the point)')
 
-    def move_joints(self, q: np.ndarray, result_timeout: float, *, compliant: bool = False,
-                    speed_scale: float = 0.0) -> np.ndarray:
-        """Move to joints ``q`` [rad] (``compliant``: under impedance control, yielding to
-        contact); the joints reached [rad]."""
-        result = self.move(MoveTo.Goal(target_type=MoveTo.Goal.TARGET_JOINTS,
-                                       positions=[float(v) for v in q], compliant=compliant,
-                                       speed_scale=speed_scale), result_timeout)
+    def _hand_guided(self, name: str) -> None:
+        try:
+            res = wait(self._hand_guide.call_async(HandGuide.Request(point_name=name)),
+                       MOVE_TIMEOUT)
+        except TimeoutError as e:
+            raise MoveFailed(f'{HAND_GUIDE} {name}: {e}; is mock_robot up?')
+        if res.error_code != HandGuide.Response.SUCCESS:
+            raise MoveFailed(f'{HAND_GUIDE} {name}: {res.message}')
+        self.robot_seconds += res.duration
+
+    def _on_confirm(self, request, response):
+        self._confirmed.set()
+        response.success, response.message = True, 'touch confirmed'
+        return response
+
+    def touch_and_capture(self, name: str, duration: float) -> np.ndarray:
+        """Touch cell point ``name``, hold for ``duration`` [s]: the mean joints [rad]."""
+        self.touch(name)
+        return self.capture(duration).q
+
+    def move_to_pose(self, T_base_tool: np.ndarray) -> np.ndarray:
+        """The tool to a (4, 4) pose in base [m] (IK by the controller); the joints reached."""
+        result = self.move(MoveTo.Goal(target_type=MoveTo.Goal.TARGET_POSE,
+                                       pose=matrix_to_pose(T_base_tool),
+                                       speed_scale=self.speed_scale))
         return np.array(result.positions)
 
-    def capture(self, duration: float) -> CaptureJoints.Response:
-        """Joints averaged over a hold of ``duration`` [s] (``position``, ``std`` [rad]).
+    def move_joints(self, q: np.ndarray, *, compliant: bool = False,
+                    speed_scale: float | None = None) -> np.ndarray:
+        """Move to joints ``q`` [rad] (``compliant``: under impedance control, yielding to
+        contact; ``speed_scale``: this move's, default the instance's); the joints reached."""
+        result = self.move(MoveTo.Goal(
+            target_type=MoveTo.Goal.TARGET_JOINTS, positions=[float(v) for v in q],
+            compliant=compliant,
+            speed_scale=self.speed_scale if speed_scale is None else speed_scale))
+        return np.array(result.positions)
+
+    def capture(self, duration: float) -> Capture:
+        """Joints averaged over a hold of ``duration`` [s].
 
         A hold with too few samples (NO_DATA: a busy machine starved the 1 kHz joint_states
         for a moment) is tried again, up to CAPTURE_ATTEMPTS times, after a growing pause;
         every such retry counts in ``capture_retries`` (the nodes show it on /diagnostics and
         in their results, so a stalling stream shows)."""
         if not self.capture_client.wait_for_service(timeout_sec=SERVER_WAIT):
-            raise RobotCallError('capture_joints not available (is joint_state_monitor up?)')
+            raise CaptureFailed('capture_joints not available (is joint_state_monitor up?)')
         req = CaptureJoints.Request(duration=duration)
         for attempt in range(1, CAPTURE_ATTEMPTS + 1):
             try:
                 res = wait(self.capture_client.call_async(req), req.duration + 10.0)
             except TimeoutError as e:
-                raise RobotCallError(f'capture_joints: {e}; is joint_state_monitor up?')
+                raise CaptureFailed(f'capture_joints: {e}; is joint_state_monitor up?')
             if res.error_code != CaptureJoints.Response.NO_DATA or attempt == CAPTURE_ATTEMPTS:
                 break
             self.capture_retries += 1
@@ -88,10 +175,10 @@ class RobotCalls:
                 f'capture_joints: {res.message}; trying again ({attempt}/{CAPTURE_ATTEMPTS})')
             time.sleep(CAPTURE_RETRY_PAUSE * attempt)
         if res.error_code != CaptureJoints.Response.SUCCESS:
-            raise RobotCallError(f'capture_joints: {res.message}')
+            raise CaptureFailed(f'capture_joints: {res.message}')
         self.robot_seconds += req.duration
-        res.position = np.array(res.position)
-        return res
+        return Capture(np.array(res.position, dtype=float), np.array(res.std, dtype=float),
+                       int(res.sample_count))
 
     def measure_position(self) -> np.ndarray:
         """(3,) the tool position measured by the laser tracker, in its frame [m]."""
@@ -99,12 +186,48 @@ class RobotCalls:
             self._laser_client = self._answers.node.create_client(MeasurePosition,
                                                                   'laser_tracker/measure')
         if not self._laser_client.wait_for_service(timeout_sec=SERVER_WAIT):
-            raise RobotCallError('laser_tracker/measure not available (no tracker driver up?)')
+            raise CaptureFailed('laser_tracker/measure not available (no tracker driver up?)')
         try:
             res = wait(self._laser_client.call_async(MeasurePosition.Request()), 10.0)
         except TimeoutError as e:
-            raise RobotCallError(f'laser_tracker/measure: {e}')
+            raise CaptureFailed(f'laser_tracker/measure: {e}')
         if res.error_code != MeasurePosition.Response.SUCCESS:
-            raise RobotCallError(f'laser_tracker/measure: {res.message}')
+            raise CaptureFailed(f'laser_tracker/measure: {res.message}')
         p = res.point.point
         return np.array([p.x, p.y, p.z])
+
+    def probe(self) -> Reading:
+        """One probe/average of ``probe_window``; a window without readings (a lost burst)
+        is tried once more, four times as long."""
+        self.robot_seconds += self.probe_window
+        res = self._average(self.probe_window)
+        if res.error_code == AverageProximity.Response.NO_DATA:
+            self.probe_retries += 1
+            res = self._average(4 * self.probe_window)
+        if res.error_code == AverageProximity.Response.SUCCESS:
+            return Reading(res.distance, ReadingStatus.OK)
+        if res.error_code == AverageProximity.Response.OUT_OF_RANGE and res.reading_status in (
+                ProximityReading.STATUS_BELOW_RANGE, ProximityReading.STATUS_ABOVE_RANGE):
+            return Reading(float('nan'), ReadingStatus(res.reading_status))
+        raise CaptureFailed(f'probe/average: {res.message}')
+
+    def retries(self) -> dict[str, int]:
+        """The retries so far: capture_joints holds after NO_DATA, probe re-reads after
+        NO_DATA (what a stalling joint_states or probe stream costs)."""
+        return {'capture_joints': self.capture_retries, 'probe_average': self.probe_retries}
+
+    def probe_range(self) -> tuple[float, float]:
+        """(min, max) [m]: the probe's range from proximity_sensor's calibration table."""
+        res = self._average(self.probe_window)
+        if res.error_code == AverageProximity.Response.BAD_REQUEST or \
+                not 0.0 <= res.min_range < res.max_range:
+            raise CaptureFailed(f'proximity_sensor gave no probe range ({res.message}); check '
+                                'its calibration table')
+        return res.min_range, res.max_range
+
+    def _average(self, window: float):
+        req = AverageProximity.Request(duration=window)
+        try:
+            return wait(self.probe_client.call_async(req), window + 5.0)
+        except TimeoutError as e:
+            raise CaptureFailed(f'probe/average: {e}; is the node suite up?')

@@ -190,25 +190,14 @@ def test_calibrate_hand_eye_recovers_the_true_hand_eye(hand_eye_suite):
     np.testing.assert_allclose([tt.x, tt.y, tt.z], X[:3, 3], atol=1e-9)
 
 
-def test_user_frame_parameter_and_board_watch():
-    from cobot_calib_msgs.msg import Landmark, Landmarks
-
-    from cobot_calib_ros.nodes.hand_eye_calibrator import BoardWatch, parse_user_frame
+def test_user_frame_parameter():
+    from cobot_calib_ros.nodes.hand_eye_calibrator import parse_user_frame
     assert parse_user_frame('  ') is None
     np.testing.assert_allclose(parse_user_frame('0.35, -0.05 0 0 0 0.03'),
                                frames.from_xyz_rpy([0.35, -0.05, 0], [0, 0, 0.03]))
     for bad in ('1 2 3', 'a b c d e f', '0 0 0 0 0 nan'):
         with pytest.raises(ValueError, match='x y z roll pitch yaw'):
             parse_user_frame(bad)
-    watch = BoardWatch()
-    msg = Landmarks(landmarks=[Landmark(kind=Landmark.KIND_MARKER, id=3)])
-    msg.header.stamp.sec = 10
-    watch.on_landmarks(msg)
-    assert watch.board_after(0, 0.05) is None          # markers only: no board
-    msg.landmarks.append(Landmark(kind=Landmark.KIND_BOARD, id=0))
-    watch.on_landmarks(msg)
-    assert watch.board_after(9_999_999_999, 0.05).kind == Landmark.KIND_BOARD
-    assert watch.board_after(10_000_000_000, 0.05) is None   # not stamped after the arrival
 
 
 @pytest.fixture

@@ -5,7 +5,7 @@ import time
 
 from cobot_calib_msgs.action import MoveTo
 from cobot_calib_msgs.msg import ProbeVoltage, ProximityReading
-from cobot_calib_msgs.srv import AverageProximity, CaptureJoints, GetGroundTruth
+from cobot_calib_msgs.srv import AverageProximity, CaptureJoints, GetGroundTruth, HandGuide
 from diagnostic_msgs.msg import DiagnosticArray
 import numpy as np
 import pytest
@@ -164,8 +164,11 @@ def test_probe_above_a_marker_reads_the_true_gap(ros):
 def test_move_to_bad_targets_are_refused_with_a_reason(ros):
     nan = _move(ros, target_type=MoveTo.Goal.TARGET_JOINTS, positions=[math.nan] * 7)
     assert nan.error_code == MoveTo.Result.INVALID_TARGET and 'finite' in nan.message
-    unknown = _move(ros, target_type=MoveTo.Goal.TARGET_TOUCH, point_name='P9')
-    assert unknown.error_code == MoveTo.Result.INVALID_TARGET and 'P1' in unknown.message
+    touch = MoveTo.Goal.TARGET_POSE + 1                # what TARGET_TOUCH was: no move kind
+    old = _move(ros, target_type=touch)
+    assert old.error_code == MoveTo.Result.INVALID_TARGET and 'hand_guide' in old.message
+    unknown = call(ros, HandGuide, 'mock_robot/hand_guide', point_name='P9')
+    assert unknown.error_code == HandGuide.Response.INVALID_TARGET and 'P1' in unknown.message
     far = frames.make_transform(np.eye(3), [3.0, 0.0, 0.0])
     out = _move(ros, target_type=MoveTo.Goal.TARGET_POSE, pose=convert.matrix_to_pose(far))
     assert out.error_code == MoveTo.Result.UNREACHABLE

@@ -263,8 +263,9 @@ class _OnTheSuitesRobot(launcher.NodeSpec):
     """A second repeatability_trial in its own namespace, using the suite's robot and probe."""
 
     def command(self) -> list[str]:
-        names = ['capture_joints', 'probe/average', *(f'move_to/_action/{part}' for part in (
-            'send_goal', 'cancel_goal', 'get_result', 'feedback', 'status'))]
+        names = ['capture_joints', 'probe/average', 'mock_robot/hand_guide',
+                 *(f'move_to/_action/{part}' for part in (
+                     'send_goal', 'cancel_goal', 'get_result', 'feedback', 'status'))]
         # an action name is not remapped as a whole here: its services and topics are
         return super().command() + [a for n in names for a in ('-r', f'{n}:=/{n}')]
 

@@ -283,3 +283,15 @@ def test_landmark_methods_on_the_wide_layout_rank_as_issue_11_asks(tmp_path):
     assert 0.5e-3 < rp['landmark_single'] < 3e-3      # the paper's RPS class, not a broken fit
     # 18 views against one; five probed points against one view
     assert seconds['landmark_multi'] > 5 * seconds['landmark_single'] > 0
+
+
+def test_a_probe_signal_that_is_not_a_number_stops_the_trial_as_on_the_nodes(tmp_path):
+    """proximity_sensor's rule, now also in-process (core.sensors.probe.average): a window of
+    INVALID readings is no reading, a probe failure; the in-process robot used to call it
+    ABOVE_RANGE and let the set-up step the probe away from the marker."""
+    arm = robot(2)
+    arm.port.sim.probe_voltage = lambda: math.nan
+    with pytest.raises(TrialError, match='INVALID') as stopped:
+        TrialRun(_plan('reference', 2, trial_id='nan'), arm, TrialStore(tmp_path)).start()
+    assert stopped.value.reason == 'probe'
+    assert arm.port.moves == 5 + 2          # the five touches, then one approach and arrival

@@ -1,0 +1,79 @@
+"""core.robot_port.CameraPort over ROS: the ``landmarks`` topic of landmark_detector.
+
+Each cobot_calib_msgs/Landmarks message (one image: its header stamp, the markers and the board
+posed in the optical frame) becomes a core.robot_port.LandmarkImage. The newest KEEP images are
+kept, so a caller blocked in :meth:`LandmarkWatch.landmarks_after` (on its own thread) sees the
+images that arrive on the subscriber's thread (a spin.Companion's) after the time it names.
+The clock is the node's (ROS time: use_sim_time works), as the images' stamps are.
+"""
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Callable
+import threading
+import time
+
+from cobot_calib_msgs.msg import Landmark, Landmarks
+import numpy as np
+
+from cobot_calib_ros.core.robot_port import CaptureFailed, LandmarkImage, Sighting
+from cobot_calib_ros.ros import convert
+from cobot_calib_ros.ros.time import stamp_to_ns
+
+KEEP = 60           # images kept (2 s at 30 fps): more than arrive during one capture
+KINDS = {Landmark.KIND_MARKER: 'marker', Landmark.KIND_BOARD: 'board'}
+
+
+def landmarks_to_image(msg: Landmarks) -> LandmarkImage:
+    """One Landmarks message as the camera port gives it (unknown kinds left out)."""
+    return LandmarkImage(stamp_to_ns(msg.header.stamp), tuple(
+        Sighting(KINDS[lm.kind], int(lm.id), convert.pose_to_matrix(lm.pose.pose),
+                 np.array(lm.pose.covariance, dtype=float).reshape(6, 6))
+        for lm in msg.landmarks if lm.kind in KINDS))
+
+
+class LandmarkWatch:
+    """The camera port: ``node`` (if given) subscribes ``landmarks`` to :meth:`on_landmarks`;
+    ``now_ns`` is the clock the images are stamped in."""
+
+    def __init__(self, now_ns: Callable[[], int], node=None) -> None:
+        self._now_ns = now_ns
+        self._cond = threading.Condition()
+        self._images: deque[LandmarkImage] = deque(maxlen=KEEP)
+        self.messages = 0
+        if node is not None:
+            node.create_subscription(Landmarks, 'landmarks', self.on_landmarks, 10)
+
+    def now_ns(self) -> int:
+        return self._now_ns()
+
+    def on_landmarks(self, msg: Landmarks) -> None:
+        image = landmarks_to_image(msg)
+        with self._cond:
+            self.messages += 1
+            self._images.append(image)
+            self._cond.notify_all()
+
+    def landmarks_after(self, t_ns: int, wanted: Callable[[LandmarkImage], bool],
+                        max_images: int, timeout: float) -> LandmarkImage:
+        """See core.robot_port.CameraPort; images are taken in stamp order."""
+        deadline = time.monotonic() + timeout
+        seen, last, after = 0, None, t_ns
+        with self._cond:
+            while seen < max_images:
+                remaining = deadline - time.monotonic()
+                image = next((im for im in self._images if im.stamp_ns > after), None)
+                if image is None or remaining <= 0:
+                    if remaining <= 0:
+                        break
+                    self._cond.wait(remaining)
+                    continue
+                seen, last, after = seen + 1, image, image.stamp_ns
+                if wanted(image):
+                    break
+        if last is None:
+            raise CaptureFailed(
+                f'no landmarks message of an image stamped after {t_ns * 1e-9:.3f} s within '
+                f'{timeout:.0f} s; are mock_camera / the camera driver and landmark_detector '
+                'up?')
+        return last

@@ -1,0 +1,88 @@
+"""ros.landmark_watch.LandmarkWatch, the camera port over the ``landmarks`` topic: messages fed
+in directly (the subscription only calls on_landmarks), no ROS graph."""
+import threading
+
+import numpy as np
+import pytest
+
+from cobot_calib_msgs.msg import Landmark, Landmarks
+
+from cobot_calib_ros.core.robot_port import CaptureFailed
+from cobot_calib_ros.ros.landmark_watch import landmarks_to_image, LandmarkWatch
+
+S = 1_000_000_000
+
+
+def _msg(sec: int, *landmarks: Landmark) -> Landmarks:
+    msg = Landmarks(landmarks=list(landmarks))
+    msg.header.stamp.sec = sec
+    return msg
+
+
+def _marker(i: int) -> Landmark:
+    return Landmark(kind=Landmark.KIND_MARKER, id=i)
+
+
+def _has(marker_id):
+    return lambda image: image.find('marker', marker_id) is not None
+
+
+def test_a_message_becomes_an_image_of_posed_sightings():
+    board = Landmark(kind=Landmark.KIND_BOARD, id=40)
+    board.pose.pose.position.x, board.pose.pose.orientation.w = 0.25, 1.0
+    board.pose.covariance = [float(k) for k in range(36)]
+    image = landmarks_to_image(_msg(10, _marker(3), board))
+    assert image.stamp_ns == 10 * S
+    assert [(s.kind, s.id) for s in image.sightings] == [('marker', 3), ('board', 40)]
+    seen = image.find('board')
+    np.testing.assert_allclose(seen.T_optical_target[:3, 3], [0.25, 0, 0])
+    assert seen.covariance.shape == (6, 6) and seen.covariance[1, 0] == 6.0
+
+
+def test_only_images_stamped_after_the_time_count():
+    """As hand_eye_calibrator's BoardWatch did: a board seen before the arrival is not one."""
+    watch = LandmarkWatch(lambda: 0)
+    watch.on_landmarks(_msg(10, _marker(3)))
+    with pytest.raises(CaptureFailed, match='no landmarks message'):
+        watch.landmarks_after(10 * S, _has(3), 3, 0.05)
+    assert watch.landmarks_after(10 * S - 1, _has(3), 3, 0.05).stamp_ns == 10 * S
+
+
+def test_the_first_image_showing_the_marker_else_the_last_of_max_images():
+    watch = LandmarkWatch(lambda: 0)
+    for sec, marker in ((11, 1), (12, 2), (13, 5), (14, 5)):
+        watch.on_landmarks(_msg(sec, _marker(marker)))
+    assert watch.landmarks_after(10 * S, _has(5), 3, 0.05).stamp_ns == 13 * S
+    assert watch.landmarks_after(10 * S, _has(7), 3, 0.05).stamp_ns == 13 * S   # 3 looked at
+    assert watch.landmarks_after(10 * S, _has(7), 9, 0.05).stamp_ns == 14 * S   # all, timeout
+
+
+def test_an_image_arriving_while_waiting_is_taken():
+    watch = LandmarkWatch(lambda: 0)
+    waiting = threading.Event()
+    real_wait = watch._cond.wait
+
+    def wait_then_deliver(timeout):
+        if not waiting.is_set():
+            waiting.set()
+            threading.Thread(target=watch.on_landmarks, args=(_msg(20, _marker(2)),)).start()
+        return real_wait(timeout)
+    watch._cond.wait = wait_then_deliver
+    image = watch.landmarks_after(19 * S, _has(2), 3, 10.0)
+    assert waiting.is_set() and image.stamp_ns == 20 * S and watch.messages == 1
+
+
+def test_images_that_keep_coming_without_the_marker_end_at_the_timeout():
+    """A stream of images none of which shows the board (hand-eye asks for any number)."""
+    watch = LandmarkWatch(lambda: 0)
+    for sec in range(1, 40):
+        watch.on_landmarks(_msg(sec, _marker(1)))
+    clock = iter(range(100))
+    import cobot_calib_ros.ros.landmark_watch as module
+    real = module.time.monotonic
+    module.time.monotonic = lambda: float(next(clock))       # one second per look
+    try:
+        image = watch.landmarks_after(0, lambda im: im.find('board') is not None, 2 ** 31, 5.0)
+    finally:
+        module.time.monotonic = real
+    assert image.find('board') is None and image.stamp_ns == 4 * S     # looks at 1..4 s of 5
