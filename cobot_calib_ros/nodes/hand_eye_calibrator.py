@@ -2,12 +2,13 @@
 
 Action ``calibrate_hand_eye`` (cobot_calib_msgs/action/CalibrateHandEye): plans ``views`` views
 of the cell's ChArUco board (core.landmarks.hand_eye.hand_eye_views: IK on the nominal chain
-through the nominal hand-eye), and for each one moves there (``move_to``, joints), waits for the
-first ``landmarks`` message with a board in an image stamped after the arrival, captures the
-joints (``capture_joints``, ``hold`` seconds) and takes the flange pose by nominal FK. A view
-that cannot be reached or shows no board within ``landmark_timeout`` is skipped and counted,
-and so is one whose captured joints are not where the move ended (unpaired: the image may show
-another pose; core.landmarks.hand_eye_capture.pairing_problem).
+through the nominal hand-eye) and takes them with core.landmarks.hand_eye_capture.
+take_hand_eye_views over the ROS ports (RobotCalls: ``move_to``, ``capture_joints``;
+LandmarkWatch: ``landmarks``): for each one it moves there, takes the first board in an image
+stamped after the arrival, captures the joints (``hold`` seconds) and takes the flange pose by
+nominal FK. A view that cannot be reached, shows no board within ``landmark_timeout``, or whose
+captured joints are not where the move ended (unpaired: the image may show another pose) is
+skipped and counted. A cancel is honoured before every view.
 With at least three views, core.landmarks.hand_eye.solve_hand_eye (closed form, then the joint
 least-squares refinement of T_flange_optical and T_base_board, weighted by the landmarks'
 covariances) gives the result; it is stored under ``<data_dir>/hand_eye`` (CalibrationStore:
@@ -40,15 +41,16 @@ from rclpy.node import Node
 from cobot_calib_ros import paths, store
 from cobot_calib_ros.core import frames, kinematics
 from cobot_calib_ros.core.landmarks.hand_eye import check_noise, hand_eye_views, solve_hand_eye
-from cobot_calib_ros.core.landmarks.hand_eye_capture import pairing_problem
+from cobot_calib_ros.core.landmarks.hand_eye_capture import (HandEyeViews,
+                                                             take_hand_eye_views)
 from cobot_calib_ros.core.ids import record_id
-from cobot_calib_ros.core.robot_port import CaptureFailed, Sighting
+from cobot_calib_ros.core.robot_port import CaptureFailed, Stopped
 from cobot_calib_ros.loaders import load_cell
 from cobot_calib_ros.ros import convert, qos, spin
 from cobot_calib_ros.ros.diagnostics import Diagnostics, OK, WARN
 from cobot_calib_ros.ros.params import declare, read_once
 from cobot_calib_ros.ros.landmark_watch import LandmarkWatch
-from cobot_calib_ros.ros.robot_calls import RobotCallError, RobotCalls
+from cobot_calib_ros.ros.robot_calls import RobotCalls
 from cobot_calib_ros.ros.tf_static import StaticBroadcaster
 from cobot_calib_ros.ros.time import now_ns
 from cobot_calib_ros.store.records import HandEyeInputs, HandEyeRecord, HandEyeResult
@@ -193,46 +195,27 @@ class HandEyeCalibrator(Node):
             return self._end(goal_handle, result, Action.Result.INVALID_GOAL, str(e))
         self._health.set(OK, f'calibrating: {count} views')
         t_start = time.monotonic()
-        flange, boards, covariances, joints, skipped = [], [], [], [], []
         feedback = Action.Feedback(total=count)
-        for i, q in enumerate(plan):
-            if goal_handle.is_cancel_requested:
-                return self._cancelled(goal_handle, result, f'at view {i + 1} of {count}')
-            feedback.view_index = i
-            try:
-                reached = self._robot.move_joints(q, speed_scale=self._p('speed_scale'))
-            except RobotCallError as e:
-                skipped.append({'view': i, 'reason': str(e)})
-                self.get_logger().warning(f'view {i}: skipped: {e}')
-                feedback.board_seen = False
-                feedback.skipped = len(skipped)
-                goal_handle.publish_feedback(feedback)
-                continue
-            board = self._board_after(now_ns(self))
-            feedback.board_seen = board is not None
-            if board is None:
-                skipped.append({'view': i, 'reason': 'no board seen'})
-                self.get_logger().warning(f'view {i}: no board in view within '
-                                          f'{self._p("landmark_timeout")} s; skipped')
-            else:
-                try:
-                    capture = self._robot.capture(hold)
-                except RobotCallError as e:
-                    return self._end(goal_handle, result, Action.Result.CAPTURE_FAILED,
-                                     f'view {i}: {e}')
-                q_meas = capture.q
-                unpaired = pairing_problem(reached, q_meas)
-                if unpaired:        # image and joints may show different poses
-                    skipped.append({'view': i, 'reason': f'unpaired: {unpaired}'})
-                    self.get_logger().warning(f'view {i}: {unpaired}; skipped')
-                    feedback.board_seen = False
-                else:
-                    joints.append(q_meas)
-                    flange.append(kinematics.fk(self._chain, q_meas))
-                    boards.append(board.T_optical_target)
-                    covariances.append(board.covariance)
-            feedback.used, feedback.skipped = len(boards), len(skipped)
+
+        def on_view(i: int, used: bool, views: HandEyeViews) -> None:
+            if not used:
+                self.get_logger().warning(f'view {i}: skipped: {views.skipped[-1]["reason"]}')
+            feedback.view_index, feedback.board_seen = i, used
+            feedback.used, feedback.skipped = views.used, len(views.skipped)
             goal_handle.publish_feedback(feedback)
+
+        self._robot.speed_scale = self._p('speed_scale')
+        try:
+            views = take_hand_eye_views(
+                plan, self._robot, self._watch, self._chain, hold=hold,
+                landmark_timeout=self._p('landmark_timeout'),
+                cancelled=lambda: goal_handle.is_cancel_requested, on_view=on_view)
+        except Stopped as e:
+            return self._cancelled(goal_handle, result, str(e).removeprefix('cancelled '))
+        except CaptureFailed as e:
+            return self._end(goal_handle, result, Action.Result.CAPTURE_FAILED, str(e))
+        joints, flange, boards = views.joints, views.flange, views.boards
+        covariances, skipped = views.covariances, views.skipped
         result.views_used, result.views_skipped = len(boards), len(skipped)
         if len(boards) < 3:
             return self._end(goal_handle, result, Action.Result.TOO_FEW_VIEWS,
@@ -267,20 +250,11 @@ class HandEyeCalibrator(Node):
         nominal = frames.transform_error(solved.T_flange_optical,
                                          self._cell.camera.T_flange_optical)
         return self._end(goal_handle, result, Action.Result.SUCCESS, (
-            f'{record["id"]}: {len(boards)} views used, {len(skipped)} skipped; residual RMS '
+            f'{record["id"]}: {len(boards)} views used, {len(skipped)} skipped '
+            f'({views.unpaired} unpaired); residual RMS '
             f'{solved.residual_mm:.4f} mm / {solved.residual_mrad:.4f} mrad; '
             f'{nominal[0] * 1e3:.3f} mm / {nominal[1] * 1e3:.3f} mrad from the nominal '
             f'hand-eye; {time.monotonic() - t_start:.1f} s'))
-
-    def _board_after(self, t_ns: int) -> Sighting | None:
-        """The board in the first image stamped after ``t_ns`` that shows one; None if none
-        within landmark_timeout [s] (no board in view, or no images)."""
-        try:
-            image = self._watch.landmarks_after(t_ns, lambda im: im.find('board') is not None,
-                                                 2 ** 31, self._p('landmark_timeout'))
-        except CaptureFailed:
-            return None
-        return image.find('board')
 
     def _record(self, solved, joints, flange, boards, covariances, skipped, planned) -> dict:
         return HandEyeRecord(
