@@ -233,8 +233,8 @@ RUNS_BESIDE = 2      # hand-eye runs beside the busy neighbour (13 of 28 went wr
 def test_a_hand_eye_beside_a_busy_suite_is_right_or_rejected(hand_eye_suite, busy_neighbour):
     """Issue 22.9: with a second suite working beside it, a result is within 1 mm / 3 mrad of
     the mock's true hand-eye (GetGroundTruth) and active, or it is rejected: stored as rejected
-    (store.rejected()), not active, not published, the active hand-eye unchanged. A run the load ends
-    otherwise (a starved joint capture: CAPTURE_FAILED) stores nothing."""
+    (store.rejected()), not active, not published, the active hand-eye unchanged. A run the
+    load ends otherwise (a starved joint capture: CAPTURE_FAILED) stores nothing."""
     client = hand_eye_suite
     action = ActionClient(client.node, CalibrateHandEye, 'calibrate_hand_eye')
     latched = []
