@@ -124,15 +124,17 @@ def _collect(client: IdentifyClient, goal, say, spheres: str):
     (CollectionStopped), a failure or a node that is gone raises IdentificationFailed."""
     from cobot_calib_ros.ros.calls import CallError, Interrupted, run_action
     what = f'collect_sphere_data ({goal.source} {goal.collection_id})'
+    from action_msgs.msg import GoalStatus
     try:
-        _, result = run_action(client.node, client.collect, goal, 3600.0,
-                               feedback=_progress(say))
+        status, result = run_action(client.node, client.collect, goal, 3600.0,
+                                    feedback=_progress(say))
     except Interrupted as e:
         raise CollectionStopped(spheres, e.message) from None
     except CallError as e:
         raise IdentificationFailed(f'{what}: {e}', spheres) from None
-    if result.error_code != 0:
-        raise IdentificationFailed(f'{what} failed: {result.message}', spheres)
+    if result.error_code != 0 or status != GoalStatus.STATUS_SUCCEEDED:
+        why = result.message or 'the node ended the goal without a result (see its log)'
+        raise IdentificationFailed(f'{what} failed: {why}', spheres)
     return result
 
 

@@ -16,7 +16,6 @@ from __future__ import annotations
 from pathlib import Path
 import sys
 import threading
-import time
 
 from cobot_calib_msgs.action import CollectSphereData, IdentifyKinematics
 from cobot_calib_msgs.msg import ErrorStats
@@ -29,6 +28,7 @@ from sensor_msgs.msg import JointState
 from cobot_calib_ros import paths, store
 from cobot_calib_ros.core import kinematics
 from cobot_calib_ros.core.kinematics import plans
+from cobot_calib_ros.core.kinematics.collection import collect, Ending, PoseRecord
 from cobot_calib_ros.core.kinematics.identification.observations import (
     PositionObservations, SphereObservations)
 from cobot_calib_ros.core.kinematics.identification.solvers import LOSSES, SOLVERS
@@ -40,13 +40,12 @@ from cobot_calib_ros.loaders import load_cell
 from cobot_calib_ros.ros import marks, spin
 from cobot_calib_ros.ros.diagnostics import Diagnostics, OK, WARN
 from cobot_calib_ros.ros.params import declare, read_once
-from cobot_calib_ros.ros.robot_calls import RobotCallError, RobotCalls
+from cobot_calib_ros.ros.robot_calls import RobotCalls
 from cobot_calib_ros.ros.time import now_ns
 from cobot_calib_ros.store.collections import Collection, CollectionStore
 from cobot_calib_ros.store.files import check_id
 
 Collect, Identify = CollectSphereData, IdentifyKinematics
-MAX_SKIPPED_IN_A_ROW = 20  # more unreachable poses in a row than this ends the collection
 
 
 def observations(collection: Collection):
@@ -216,53 +215,34 @@ class KinematicIdentifier(Node):
         return collection_id, meta
 
     def _visit(self, goal_handle, collection_id: str, meta: dict, hold: float):
-        """Visit the plan from the first pose without a row; (code, message)."""
+        """Visit the plan from the first pose without a row (core.kinematics.collection over
+        RobotCalls, the robot port); (code, message)."""
         plan, laser = meta['plan'], meta['source'] == 'laser_tracker'
-        start = self._collections.load(collection_id).next_index
         feedback = Collect.Feedback(total=len(plan))
-        recorded, skipped, in_a_row = 0, 0, 0
-        seconds = {'move': 0.0, 'capture': 0.0, 'store': 0.0}
-        clock = time.perf_counter
-        for i in range(start, len(plan)):
-            if goal_handle.is_cancel_requested:
-                return Collect.Result.CANCELED, f'{collection_id}: canceled at pose {i}; ' \
-                    'give the same collection_id to resume'
-            step = plan[i]
-            feedback.index = i
-            feedback.target = 'tracker' if laser else meta['targets'][step['target']]
-            t0 = clock()
-            try:
-                self._robot.move_joints(np.array(step['q']), compliant=not laser,
-                                        speed_scale=self._p('speed_scale'))
-            except RobotCallError as e:
-                self._collections.append(collection_id, i, step['target'], None, note=str(e))
-                skipped, in_a_row = skipped + 1, in_a_row + 1
-                if in_a_row > MAX_SKIPPED_IN_A_ROW:
-                    return Collect.Result.MOTION_FAILED, f'{in_a_row} poses in a row failed, ' \
-                        f'the last: {e}'
-                continue
-            in_a_row = 0
-            t1 = clock()
-            try:
-                capture = self._robot.capture(hold)
-                p = self._robot.measure_position() if laser else None
-            except RobotCallError as e:
-                return Collect.Result.CAPTURE_FAILED, f'pose {i}: {e}; resume with ' \
-                    f'collection_id {collection_id}'
-            t2 = clock()
-            self._collections.append(collection_id, i, step['target'], capture.q,
-                                     sample_count=capture.sample_count,
-                                     std_max=float(np.max(capture.std)), p=p)
+
+        def store(record: PoseRecord) -> None:
+            self._collections.append(collection_id, record.index, record.target, record.q,
+                                     sample_count=record.sample_count, std_max=record.std_max,
+                                     p=record.p, note=record.note)
+
+        def on_pose(record, capture, run) -> None:
+            feedback.index = record.index
+            feedback.target = 'tracker' if laser else meta['targets'][record.target]
             self._publish_capture(feedback.target, capture)
-            seconds['move'] += t1 - t0
-            seconds['capture'] += t2 - t1
-            seconds['store'] += clock() - t2
-            recorded += 1
-            feedback.recorded, feedback.skipped = recorded, skipped
+            feedback.recorded, feedback.skipped = run.recorded, run.skipped
             goal_handle.publish_feedback(feedback)
-        per_pose = ', '.join(f'{k} {v / max(recorded, 1) * 1e3:.0f} ms'
-                             for k, v in seconds.items())
-        return Collect.Result.SUCCESS, f'per pose: {per_pose}'
+
+        self._robot.speed_scale = self._p('speed_scale')
+        run = collect(plan, self._collections.load(collection_id).next_index, self._robot,
+                      store, hold=hold, laser=laser,
+                      cancelled=lambda: goal_handle.is_cancel_requested, on_pose=on_pose)
+        if run.ending is Ending.DONE:
+            return Collect.Result.SUCCESS, f'per pose: {run.per_pose()}'
+        code = {Ending.CANCELED: Collect.Result.CANCELED,
+                Ending.MOTION_FAILED: Collect.Result.MOTION_FAILED,
+                Ending.CAPTURE_FAILED: Collect.Result.CAPTURE_FAILED}[run.ending]
+        return code, (f'{collection_id}: {run.message}; give the same collection_id to '
+                      'resume')
 
     def _publish_capture(self, target: str, capture) -> None:
         self._captures.publish(marks.capture_mark(target, self._model.joint_names,
