@@ -32,6 +32,7 @@ from cobot_calib_ros.core import kinematics
 from cobot_calib_ros.core.kinematics import plans
 from cobot_calib_ros.core.kinematics.identification import (all_pairs, register_rigid,
                                                             SphereObservations)
+from cobot_calib_ros.core.kinematics.identification.solvers import NM_CONVERGED
 from cobot_calib_ros.core.kinematics.kinematic_calibration import CalibrationJob
 from cobot_calib_ros.core import frames
 from cobot_calib_ros.paths import cell_file
@@ -42,11 +43,7 @@ CELL = 'iiwa7_close'
 COLLECTION_NODES = ('mock_robot', 'joint_state_monitor', 'proximity_sensor',
                     'kinematic_identifier')
 PAPER_CONFIGS = 300
-# converged: the simplex within 0.1 um / 0.1 urad and the cost within 1e-16 m^2 (the RMS no
-# longer moves in the 5th digit); a tighter xatol (1e-6) ran for over 12 CPU minutes on the noisy
-# data without changing the held-out error
-CONVERGED_NM = {'max_iterations': 400_000, 'max_evaluations': 400_000, 'xatol': 1e-4,
-                'fatol': 1e-16}
+CONVERGED_NM = NM_CONVERGED      # the product's Nelder-Mead (core ...solvers)
 SCIPY_DEFAULT_NM = {'xatol': 1e-4, 'fatol': 1e-4}   # scipy's own defaults, with its maxiter
 
 

@@ -226,6 +226,7 @@ class KinematicResult(Record):
     iterations: int = 0
     solve_seconds: float = 0.0
     message: str = ''
+    converged: bool = True     # False: a cap stopped the solver (message: 'did not converge')
     validation: dict[str, Any] = field(default_factory=dict)
     table6: str = ''
 
@@ -264,7 +265,8 @@ class KinematicRecord(Record):
                 condition_number=outcome.identifiability.condition_number,
                 rms_m=result.rms_m, iterations=result.iterations,
                 solve_seconds=result.solve_seconds, message=result.message,
-                validation=outcome.validation, table6=outcome.table))
+                converged=result.converged, validation=outcome.validation,
+                table6=outcome.table))
 
 
 # -- repeatability trial (repeatability_trial) -------------------------------------------------

@@ -33,7 +33,7 @@ from cobot_calib_ros.core.kinematics.identification.observations import (
 from cobot_calib_ros.core.kinematics.identification.parameters import (
     default_candidates, ParameterSet, tool_kinematics, TOOL_NAMES)
 from cobot_calib_ros.core.kinematics.identification.solvers import (
-    identify, IdentificationResult)
+    identify, IdentificationResult, NM_CONVERGED)
 from cobot_calib_ros.core.kinematics.identification.validation import (
     absolute_errors, error_stats, table6)
 from cobot_calib_ros.core.kinematics.model import KinematicModel
@@ -81,6 +81,8 @@ class Outcome:
         parts = [f'{len(r.free)} parameters identified, '
                  f'{len(self.identifiability.dropped)} dropped, RMS {r.rms_m * 1e3:.4f} mm in '
                  f'{r.solve_seconds:.2f} s ({r.iterations} iterations)']
+        if not r.converged:
+            parts.insert(0, f'NOT CONVERGED, the model may be far from the optimum ({r.message})')
         for region, table in self.validation.items():
             parts.append(f'{region}: max error {table["nominal"]["max_mm"]:.3f} -> '
                          f'{table["calibrated"]["max_mm"]:.3f} mm')
@@ -119,9 +121,11 @@ class CalibrationJob:
             excluded={name: BASE_ROW_REASON for name in base_row}, base_frame=True,
             rank_rtol=ROUNDED_MODEL_RTOL if model.kind == 'origin' else None, keep=TOOL_NAMES)
         parameter_set = ParameterSet(model, identifiability.kept)
+        options = self.solver_options or (NM_CONVERGED if self.solver == 'nelder-mead'
+                                          else {})
         result = identify(parameter_set, self.data, tool_xyz0=self.tool_xyz0,
                           solver=self.solver, loss=self.loss, objective=self.objective,
-                          callback=callback, **self.solver_options)
+                          callback=callback, **options)
         if result.cancelled:
             raise JobCancelled(result.message)
         if not (np.all(np.isfinite(result.params)) and np.all(np.isfinite(result.tool_xyz))):

@@ -7,6 +7,7 @@ import pytest
 from cobot_calib_ros.core.kinematics.identification import (
     absolute_errors, all_pairs, identify, ParameterSet, PositionObservations,
     SphereObservations, tool_frames, uniform_configurations)
+from cobot_calib_ros.core.kinematics.identification.solvers import NM_CONVERGED
 from sphere_scene import MODEL, sphere_data, TOOL, true_robot
 
 FREE = ('d_3', 'd_5', 'alpha_4', 'tool_x')
@@ -157,3 +158,23 @@ def test_bad_input_raises_with_advice(data):
     tracker = PositionObservations(data.q[:4], np.zeros((4, 3)))
     with pytest.raises(ValueError, match='pairs apply to the relative'):
         identify(ps, tracker, tool_xyz0=TOOL, pairs=np.array([[0, 1]]))
+
+
+@pytest.mark.parametrize(('solver', 'cap', 'why'), [
+    ('nelder-mead', {'max_evaluations': 40}, 'Maximum number of function evaluations'),
+    ('lm', {'max_iterations': 2}, 'number of function evaluations')])
+def test_a_solver_stopped_by_its_cap_says_it_did_not_converge(truth, data, solver, cap, why):
+    """Issue 16.6: Nelder-Mead with scipy's caps stopped early and said nothing."""
+    ps = ParameterSet(MODEL, FREE)
+    pairs = all_pairs(np.arange(len(data.q)))
+    capped = identify(ps, data, tool_xyz0=TOOL, solver=solver, loss='linear', pairs=pairs,
+                      **cap)
+    assert not capped.converged and not capped.cancelled
+    assert capped.message.startswith('did not converge: ') and why in capped.message
+    options = NM_CONVERGED if solver == 'nelder-mead' else {}
+    full = identify(ps, data, tool_xyz0=TOOL, solver=solver, loss='linear', pairs=pairs,
+                    **options)
+    assert full.converged and not full.message.startswith('did not converge')
+    assert free_values(full) == pytest.approx(ParameterSet(MODEL, FREE).values(*truth),
+                                              abs=1e-8)
+    assert capped.cost > 1e3 * full.cost
