@@ -58,6 +58,19 @@ def observations(collection: Collection):
     return PositionObservations(collection.q, collection.p)
 
 
+def partial_note(collection: Collection) -> str:
+    """'' for a complete collection, else how many poses it lacks and how to resume it."""
+    planned = len(collection.meta['plan'])
+    visited = len(collection.q) + len(collection.skipped)
+    if collection.meta['status'] == 'done' or visited >= planned:
+        return ''
+    name = collection.meta['id']
+    how = f'cobot-calib identify --resume {name}' if collection.meta['source'] == 'spheres' \
+        else f'collect_sphere_data with collection_id {name}'
+    return (f'collection {name} is partial: {visited} of {planned} poses visited '
+            f'({planned - visited} missing; {len(collection.q)} measured); resume it with {how}')
+
+
 def load_collection_folder(folder: str) -> Collection:
     """A collection folder given by path (one with collection.yaml and rows.csv)."""
     path = Path(folder).expanduser().resolve()
@@ -256,7 +269,7 @@ class KinematicIdentifier(Node):
     def _identify_run(self, goal_handle):
         goal, result = goal_handle.request, Identify.Result()
         try:
-            job = self._job(goal)
+            job, partial = self._job(goal)
         except (ValueError, KeyError) as e:
             return self._end(goal_handle, result, Identify.Result.INVALID_GOAL
                              if not isinstance(e, KeyError) else Identify.Result.NO_DATA,
@@ -276,7 +289,8 @@ class KinematicIdentifier(Node):
                              'nothing stored')
         except (ValueError, np.linalg.LinAlgError) as e:
             self._health.set(WARN, f'identification failed: {e}', job='')
-            return self._end(goal_handle, result, Identify.Result.SOLVER_FAILED, str(e))
+            return self._end(goal_handle, result, Identify.Result.SOLVER_FAILED,
+                             '; '.join(filter(None, (str(e), partial))))
         self._fill(result, outcome)
         if not goal.dry_run:
             try:
@@ -287,10 +301,12 @@ class KinematicIdentifier(Node):
             result.calibration_id = saved.record.id
             result.yaml_path, result.urdf_path = (str(saved.paths['yaml']),
                                                   str(saved.paths['urdf']))
-        return self._end(goal_handle, result, Identify.Result.SUCCESS, outcome.summary())
+        return self._end(goal_handle, result, Identify.Result.SUCCESS,
+                         '; '.join(filter(None, (outcome.summary(), partial))))
 
-    def _job(self, goal) -> CalibrationJob:
-        """The identification job of a goal: data, validation sets, options."""
+    def _job(self, goal) -> tuple[CalibrationJob, str]:
+        """The identification job of a goal (data, validation sets, options), and '' or what
+        is missing when its collection is partial."""
         for name, value, known in (('solver', goal.solver, SOLVERS), ('loss', goal.loss, LOSSES),
                                    ('objective', goal.objective, ('relative', 'absolute'))):
             if value and value not in known:
@@ -300,7 +316,7 @@ class KinematicIdentifier(Node):
                 data, _ = sphere_observations(goal.file, self._cell, self._model)
             except BagError as e:
                 raise ValueError(str(e))
-            source = str(goal.file)
+            source, partial = str(goal.file), ''
         else:
             collection = (load_collection_folder(goal.file) if goal.file else self._collection(
                 goal.collection_id,
@@ -308,7 +324,11 @@ class KinematicIdentifier(Node):
             if collection.meta['robot'] != self._cell.robot:
                 raise ValueError(f'collection {collection.meta["id"]} is of a '
                                  f'{collection.meta["robot"]}, this cell is a {self._cell.robot}')
-            data, source = observations(collection), collection.meta['id']
+            partial, source = partial_note(collection), collection.meta['id']
+            try:
+                data = observations(collection)
+            except ValueError as e:
+                raise ValueError('; '.join(filter(None, (str(e), partial)))) from None
         validation = {}
         for key, given in (('volume', goal.validation_volume),
                            ('workspace', goal.validation_workspace)):
@@ -318,7 +338,7 @@ class KinematicIdentifier(Node):
         return CalibrationJob(self._cell, self._model, data, source=source,
                               solver=goal.solver or 'lm', loss=goal.loss or 'soft_l1',
                               objective=goal.objective or None, max_configs=goal.max_configs,
-                              validation=validation)
+                              validation=validation), partial
 
     def _collection(self, collection_id: str, source: str, region: str | None = None,
                     required: bool = True):

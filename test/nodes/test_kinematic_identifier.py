@@ -215,3 +215,22 @@ def test_an_iiwa7_calibration_in_the_data_dir_leaves_the_sawyer_working(ros, tri
         if res.calibration.id:      # the live frame is not what later tests expect active
             call(ros, SetActiveCalibration, 'set_active_calibration',
                  calibration_id=res.calibration.id, action=SetActiveCalibration.Request.RETIRE)
+
+
+def test_a_partial_collection_says_how_many_poses_it_lacks_and_how_to_resume(tmp_path):
+    """Issue 22.4: --source on a partial collection folder (Ctrl-C, a crash): what the node
+    adds to its answer, whether the solve works with the poses it has or not."""
+    from cobot_calib_ros.nodes.kinematic_identifier import load_collection_folder, partial_note
+    store = CollectionStore(tmp_path)
+    plan = [{'q': [0.0] * 7, 'target': k % 3} for k in range(12)]
+    store.create('cut', source='spheres', robot='sawyer', joint_names=[f'j{i}' for i in range(7)],
+                 targets=['S1', 'S2', 'S3'], plan=plan, extra={'known_distances': []})
+    for index in range(4):
+        store.append('cut', index, index % 3, np.full(7, 0.1 * index))
+    store.append('cut', 4, 1, None, note='unreachable')
+    partial = load_collection_folder(str(tmp_path / 'kinematic_data' / 'cut'))
+    assert partial_note(partial) == ('collection cut is partial: 5 of 12 poses visited (7 '
+                                     'missing; 4 measured); resume it with cobot-calib identify '
+                                     '--resume cut')
+    store.set_status('cut', 'done')
+    assert partial_note(load_collection_folder(str(tmp_path / 'kinematic_data' / 'cut'))) == ''
