@@ -18,6 +18,9 @@ from cobot_calib_ros.cli.common import (
 TYPE_NAME = re.compile(r'[A-Za-z]\w*/(srv/)?[A-Za-z]\w*')
 QUIET_PROGRESS = 5.0    # [s] without a capture mark before a line saying the call still runs
 MATCH_WAIT = 2.0        # [s] at most, for the capture marks' publishers to match before the call
+GRAPH_SETTLED = 1.5     # [s] of an unchanged graph (other nodes on it) before a service missing
+                        # from it counts as having no server
+SERVER_GONE = 3.0       # [s] a server unseen on the graph while its answer is awaited
 # where to see what a call did when the client stopped waiting for its answer
 RESULT_HINTS = {
     '/calibrate_user_frame': '`cobot-calib echo user_frame --once` (the active calibration) '
@@ -104,23 +107,49 @@ def _service_class(type_name: str):
         raise UsageError(f'{e}; see the service types in `cobot-calib list`') from None
 
 
-def _advertised(node, service: str, timeout: float) -> list[str]:
-    """The service's types once discovery finds it (empty if not within `timeout` s)."""
+def _advertised(node, service: str, timeout: float) -> tuple[list[str], int]:
+    """(the service's types, 0) once discovery finds it. Empty
+    types if not found within `timeout` s, or sooner: once the graph has other nodes and has
+    not changed for GRAPH_SETTLED s without the service (its server is gone, not late): then
+    the number of other nodes on the settled graph comes second."""
     from cobot_calib_ros.ros.calls import spin_until
     found: list[str] = []
+    settle = _Settle(node)
 
     def seen() -> bool:
-        found[:] = dict(node.get_service_names_and_types()).get(service, [])
-        return bool(found)
+        services = dict(node.get_service_names_and_types())
+        found[:] = services.get(service, [])
+        return bool(found) or settle.settled(services)
     spin_until(node, seen, timeout)
-    return found
+    return found, 0 if found or not settle.done else settle.others
+
+
+class _Settle:
+    """Whether discovery has settled: other nodes on the graph, and the graph's nodes and
+    services unchanged for GRAPH_SETTLED s."""
+
+    def __init__(self, node) -> None:
+        self._node, self._snapshot, self._since = node, None, time.monotonic()
+        self.others, self.done = 0, False
+
+    def settled(self, services: dict) -> bool:
+        nodes = frozenset(self._node.get_node_names_and_namespaces())
+        self.others = len(nodes) - 1                  # this client is on the graph too
+        snapshot = (nodes, frozenset(services))
+        if snapshot != self._snapshot:
+            self._snapshot, self._since = snapshot, time.monotonic()
+        self.done = self.others > 0 and time.monotonic() - self._since >= GRAPH_SETTLED
+        return self.done
 
 
 def _call(node, service: str, type_name: str | None, data, args) -> int:
     from cobot_calib_ros.ros.calls import CallError
     from cobot_calib_ros.ros.fields import FieldError, set_fields
     from cobot_calib_ros.ros.types import to_dict
-    advertised = _advertised(node, service, args.timeout)
+    advertised, others = _advertised(node, service, args.timeout)
+    if not advertised and others:
+        return fail(f'no server for {service}: {others} other node(s) are on the graph and '
+                    'none offers it; is its node running? ' + not_found_hint())
     if not advertised:
         return fail(f'service {service} not found within {args.timeout:g} s; '
                     + not_found_hint())
@@ -154,9 +183,13 @@ def _answer(node, client, request, args):
     progress = _Progress(node)
     spin_until(node, progress.matched, MATCH_WAIT)      # so the first view shows too
     started = time.monotonic()
+    server = _ServerWatch(node, client.srv_name)
     future = client.call_async(request)
     try:
         while not spin_until(node, future.done, 0.5):
+            if server.gone():
+                client.remove_pending_request(future)
+                raise CallError(server.gone_line())
             waited = time.monotonic() - started
             if args.answer_timeout is not None and waited > args.answer_timeout:
                 client.remove_pending_request(future)
@@ -166,6 +199,39 @@ def _answer(node, client, request, args):
     finally:
         progress.close()
     return future.result()
+
+
+class _ServerWatch:
+    """Whether a service's server is still on the graph while its answer is awaited. A node
+    that exits leaves the graph at once; a killed one (kill -9) when DDS's participant lease
+    runs out (Fast DDS: 20 s). Gone once unseen for SERVER_GONE s."""
+
+    def __init__(self, node, service: str) -> None:
+        self._node, self._service, self._seen = node, service, time.monotonic()
+        self.server_node = _service_node(node, service) or 'its'
+
+    def gone(self) -> bool:
+        now = time.monotonic()
+        if self._node.count_services(self._service) > 0:
+            self._seen = now
+        return now - self._seen > SERVER_GONE
+
+    def gone_line(self) -> str:
+        return (f'no server for {self._service} any more: the {self.server_node} node is gone '
+                f'(off the graph for {SERVER_GONE:g} s) without answering; restart it '
+                '(cobot-calib up restarts a node that exits) and call again')
+
+
+def _service_node(node, service: str) -> str:
+    """The name of the node that serves ``service`` on the graph now, '' if none."""
+    for name, namespace in node.get_node_names_and_namespaces():
+        try:
+            served = node.get_service_names_and_types_by_node(name, namespace)
+        except Exception:                 # noqa: BLE001 - a node that left meanwhile
+            continue
+        if any(n == service for n, _ in served):
+            return name
+    return ''
 
 
 def _may_complete(service: str) -> str:

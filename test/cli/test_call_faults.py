@@ -1,0 +1,103 @@
+"""`cobot-calib call` against a server that is gone (issue 22.7): real processes, real signals.
+
+A server whose node has left the graph is named within seconds (not after --timeout), and a
+server killed while its answer is awaited ends the wait (not forever) naming its node."""
+import os
+import subprocess
+import sys
+import time
+
+import pytest
+
+SERVICE = '/doomed_capture'
+# A node serving SERVICE; its callback prints 'asked' and never answers, like a hung server.
+SERVER = f'''
+import sys, threading, rclpy
+from cobot_calib_msgs.srv import CaptureJoints
+rclpy.init()
+node = rclpy.create_node('doomed_server')
+def hang(request, response):
+    print('asked', flush=True)
+    threading.Event().wait()
+node.create_service(CaptureJoints, '{SERVICE}', hang)
+print('serving', flush=True)
+try:
+    rclpy.spin(node)
+except KeyboardInterrupt:
+    pass
+'''
+# A node with no service of interest: the graph a client sees is not empty.
+BYSTANDER = '''
+import rclpy
+rclpy.init()
+node = rclpy.create_node('bystander')
+try:
+    rclpy.spin(node)
+except KeyboardInterrupt:
+    pass
+'''
+
+
+def _python(code: str) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, '-c', code], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, env=dict(os.environ))
+
+
+def _call(*args) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, '-m', 'cobot_calib_ros.cli.main', 'call', SERVICE,
+                             *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env=dict(os.environ))
+
+
+@pytest.fixture
+def bystander(domain_id):
+    proc = _python(BYSTANDER)
+    yield proc
+    proc.kill()
+    proc.wait()
+
+
+@pytest.fixture
+def server(domain_id):
+    proc = _python(SERVER)
+    assert proc.stdout.readline().strip() == 'serving', proc.stderr.read()
+    yield proc
+    proc.kill()
+    proc.wait()
+
+
+def _line(proc: subprocess.Popen, expected: str) -> None:
+    line = proc.stdout.readline().strip()
+    assert line == expected, f'{line!r}: {proc.stderr.read()}'
+
+
+def test_a_server_that_left_the_graph_is_named_long_before_the_timeout(bystander, server):
+    asking = _call('{duration: 0.1}', '--answer-timeout', '1')   # the server is on the graph
+    asking.communicate(timeout=60)
+    _line(server, 'asked')
+    server.send_signal(2)                       # SIGINT: the node leaves the graph at once
+    server.wait(timeout=30)
+    started = time.monotonic()
+    proc = _call('{duration: 0.1}', '--timeout', '60')
+    _, err = proc.communicate(timeout=90)
+    waited = time.monotonic() - started
+    assert proc.returncode == 1, err
+    assert err.startswith(f'no server for {SERVICE}: ') and 'is its node running?' in err, err
+    assert 'Traceback' not in err
+    assert waited < 20.0, f'{waited:.1f} s: the old client waited the whole 60 s --timeout'
+
+
+def test_a_server_killed_while_it_is_asked_ends_the_wait_naming_its_node(server):
+    proc = _call('{duration: 0.1}')             # no --answer-timeout: waits for the answer
+    _line(server, 'asked')
+    server.kill()                               # kill -9: off the graph when its lease ends
+    started = time.monotonic()
+    try:
+        _, err = proc.communicate(timeout=60)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        pytest.fail('call still waiting 60 s after its server was killed')
+    assert proc.returncode == 1, err
+    assert f'no server for {SERVICE} any more: the doomed_server node is gone' in err, err
+    assert 'Traceback' not in err
+    assert time.monotonic() - started < 60.0
