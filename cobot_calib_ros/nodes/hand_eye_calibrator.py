@@ -46,7 +46,7 @@ from cobot_calib_ros.core.landmarks.hand_eye_capture import (HandEyeViews,
 from cobot_calib_ros.core.ids import record_id
 from cobot_calib_ros.core.robot_port import CaptureFailed, Stopped
 from cobot_calib_ros.loaders import load_cell
-from cobot_calib_ros.ros import convert, qos, spin
+from cobot_calib_ros.ros import convert, qos, results, spin
 from cobot_calib_ros.ros.diagnostics import Diagnostics, OK, WARN
 from cobot_calib_ros.ros.params import declare, read_once
 from cobot_calib_ros.ros.landmark_watch import LandmarkWatch
@@ -226,6 +226,9 @@ class HandEyeCalibrator(Node):
             solved = solve_hand_eye(flange, boards, covariances=covariances)
         except (ValueError, np.linalg.LinAlgError) as e:
             return self._end(goal_handle, result, Action.Result.SOLVER_FAILED, str(e))
+        if not solved:
+            return self._end(goal_handle, result, results.code('CalibrateHandEye', solved.code),
+                             solved.message)
         if goal_handle.is_cancel_requested:
             return self._cancelled(goal_handle, result, f'after all {count} views')
         record = self._record(solved, joints, flange, boards, covariances, skipped, count)

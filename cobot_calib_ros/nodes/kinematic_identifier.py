@@ -27,6 +27,7 @@ from sensor_msgs.msg import JointState
 
 from cobot_calib_ros import paths, store
 from cobot_calib_ros.core import kinematics
+from cobot_calib_ros.core.errors import ErrorCode, Failure, Refusal
 from cobot_calib_ros.core.kinematics import plans
 from cobot_calib_ros.core.kinematics.collection import collect, Ending, PoseRecord
 from cobot_calib_ros.core.kinematics.identification.observations import (
@@ -37,7 +38,7 @@ from cobot_calib_ros.bags.errors import BagError
 from cobot_calib_ros.bags.sphere_captures import is_bag, sphere_observations
 from cobot_calib_ros.core.ids import record_id
 from cobot_calib_ros.loaders import load_cell
-from cobot_calib_ros.ros import marks, spin
+from cobot_calib_ros.ros import marks, results, spin
 from cobot_calib_ros.ros.diagnostics import Diagnostics, OK, WARN
 from cobot_calib_ros.ros.params import declare, read_once
 from cobot_calib_ros.ros.robot_calls import RobotCalls
@@ -270,10 +271,11 @@ class KinematicIdentifier(Node):
         goal, result = goal_handle.request, Identify.Result()
         try:
             job, partial = self._job(goal)
-        except (ValueError, KeyError) as e:
-            return self._end(goal_handle, result, Identify.Result.INVALID_GOAL
-                             if not isinstance(e, KeyError) else Identify.Result.NO_DATA,
-                             str(e).strip("'\""))
+        except Refusal as e:
+            return self._end(goal_handle, result,
+                             results.code('IdentifyKinematics', e.failure.code), str(e))
+        except ValueError as e:
+            return self._end(goal_handle, result, Identify.Result.INVALID_GOAL, str(e))
         self._health.set(OK, f'identifying from {job.source}', job=job.source)
         feedback = Identify.Feedback()
 
@@ -346,16 +348,17 @@ class KinematicIdentifier(Node):
         if collection_id:
             data = self._collections.load(check_id(collection_id))
             if data is None:
-                raise KeyError(f'no readable collection {collection_id!r} in '
-                               f'{self._collections.directory}')
+                raise Refusal(Failure(ErrorCode.NO_DATA, f'no readable collection '
+                                      f'{collection_id!r} in {self._collections.directory}'))
             return data
         for meta in self._collections.list_collections():
             if meta['source'] == source and meta['status'] == 'done' and meta['robot'] == \
                     self._cell.robot and (region is None or meta.get('region') == region):
                 return self._collections.load(meta['id'])
         if required:
-            raise KeyError(f'no finished {source} collection for {self._cell.robot} in '
-                           f'{self._collections.directory}; run collect_sphere_data first')
+            raise Refusal(Failure(ErrorCode.NO_DATA, (
+                f'no finished {source} collection for {self._cell.robot} in '
+                f'{self._collections.directory}; run collect_sphere_data first')))
         return None
 
     @staticmethod

@@ -29,9 +29,9 @@ from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import JointState
 
 from cobot_calib_ros import paths
-from cobot_calib_ros.core.errors import Failure, MotionCode
+from cobot_calib_ros.core.errors import ErrorCode, Failure
 from cobot_calib_ros.core.sensors.joint_buffer import StampGaps, StampMarks
-from cobot_calib_ros.ros import convert, qos, spin
+from cobot_calib_ros.ros import convert, qos, results, spin
 from cobot_calib_ros.ros.diagnostics import Diagnostics, ERROR, OK, RateMeter, WARN
 from cobot_calib_ros.ros.params import declare, read_once
 from cobot_calib_ros.ros.time import NS_PER_S
@@ -193,14 +193,14 @@ class MockRobot(Node):
             return self._robot.plan_joints(goal.positions)
         if goal.target_type == MoveTo.Goal.TARGET_POSE:
             return self._robot.plan_pose(convert.pose_to_matrix(goal.pose))
-        return Failure(MotionCode.INVALID_TARGET, f'unknown target_type {goal.target_type}; '
+        return Failure(ErrorCode.INVALID_INPUT, f'unknown target_type {goal.target_type}; '
                        'use TARGET_JOINTS or TARGET_POSE (a touch: mock_robot/hand_guide)')
 
     def _on_hand_guide(self, request, response):
         """The simulated operator guides the tool onto ``point_name`` (at the default speed)."""
         q_target = self._robot.plan_touch(request.point_name)
         if isinstance(q_target, Failure):
-            response.error_code, response.message = int(q_target.code), q_target.message
+            results.fill(response, 'HandGuide', q_target)
             return response
         if not self._motion_lock.acquire(blocking=False):
             response.error_code = HandGuide.Response.BUSY
@@ -223,7 +223,7 @@ class MockRobot(Node):
         q_target = self._target_joints(goal)
         if isinstance(q_target, Failure):
             goal_handle.abort()
-            result.error_code, result.message = int(q_target.code), q_target.message
+            results.fill(result, 'MoveTo', q_target)
             self.get_logger().warning(f'move_to refused: {q_target.message}')
             return result
         if not self._motion_lock.acquire(blocking=False):
@@ -242,7 +242,7 @@ class MockRobot(Node):
             self._motion_lock.release()
         if isinstance(canceled, Failure):
             goal_handle.abort()
-            result.error_code, result.message = int(canceled.code), canceled.message
+            results.fill(result, 'MoveTo', canceled)
             result.positions = self._robot.q.tolist()
             return result
         result.positions = self._robot.q.tolist()

@@ -23,6 +23,7 @@ from rclpy.node import Node
 
 from cobot_calib_ros import paths, store
 from cobot_calib_ros.core import kinematics
+from cobot_calib_ros.core.errors import ErrorCode
 from cobot_calib_ros.core.repeatability import trial as trialmod
 from cobot_calib_ros.core.repeatability import PointStats
 from cobot_calib_ros.core.landmarks.views import setup_problem
@@ -31,7 +32,7 @@ from cobot_calib_ros.loaders import load_cell
 from cobot_calib_ros.store.files import check_id
 from cobot_calib_ros.store.kinematics import chain_of, NOMINAL
 from cobot_calib_ros.store.records import TrialSetup
-from cobot_calib_ros.ros import qos, spin
+from cobot_calib_ros.ros import qos, results, spin
 from cobot_calib_ros.ros.diagnostics import Diagnostics, OK, WARN
 from cobot_calib_ros.ros.params import declare, read_once
 from cobot_calib_ros.ros.landmark_views import active_hand_eye, CaptureMarks
@@ -39,8 +40,6 @@ from cobot_calib_ros.ros.landmark_watch import LandmarkWatch
 from cobot_calib_ros.ros.robot_calls import RobotCalls
 from cobot_calib_ros.ros.time import now_ns
 
-RESULT_CODE = {'invalid': RunTrial.Result.INVALID_GOAL, 'motion': RunTrial.Result.MOTION_FAILED,
-               'probe': RunTrial.Result.PROBE_FAILED, 'canceled': RunTrial.Result.CANCELED}
 HEARTBEAT = 2.0         # [s] feedback at least this often while a trial runs (see RunTrial)
 
 
@@ -200,15 +199,15 @@ class RepeatabilityTrial(Node):
             return self._failed(goal_handle, trial, e)
         except (OSError, ValueError) as e:        # the store: disk full, no permission, ...
             return self._failed(goal_handle, trial, trialmod.TrialError(
-                'invalid', f'trial store {self._store.directory}: {e}'))
+                ErrorCode.INVALID_INPUT, f'trial store {self._store.directory}: {e}'))
         return self._succeeded(goal_handle, trial, data)
 
     def _failed(self, goal_handle, trial: _Goal, error: trialmod.TrialError):
         self._send_feedback(None)
-        result = self._result(trial, RESULT_CODE[error.reason], str(error))
+        result = self._result(trial, results.code('RunTrial', error.code), str(error))
         subject = (trial_line(trial.trial_id, trial.meta) if trial.meta
                    else f'trial {trial.trial_id}')
-        if error.reason == 'canceled':
+        if error.code == ErrorCode.CANCELED:
             goal_handle.canceled()
             cycle = trial.progress[0] + 1
             self.get_logger().info(f'{subject}: canceled in cycle {cycle}; send trial_id '
@@ -266,7 +265,7 @@ class RepeatabilityTrial(Node):
     def _prepare(self, trial: _Goal, goal_handle) -> tuple[trialmod.TrialRun, object]:
         goal = trial.goal
         if goal.layout and goal.layout != self._cell.layout:
-            raise trialmod.TrialError('invalid', (
+            raise trialmod.TrialError(ErrorCode.INVALID_INPUT, (
                 f'layout {goal.layout!r} requested but this node (and the markers) use '
                 f'{self._cell.layout!r}; start the suite with layout:={goal.layout}'))
         resume = self._stored(trial)
@@ -274,13 +273,13 @@ class RepeatabilityTrial(Node):
         self._announce(trial, goal_handle, resume, feedback)
         why = self._calls.missing()
         if why:
-            raise trialmod.TrialError('motion', why)
+            raise trialmod.TrialError(ErrorCode.MOTION_FAILED, why)
         robot, model_used = self._robot(trial.meta.get('kinematics') or self._p('kinematics'),
                                         lambda: goal_handle.is_cancel_requested)
         try:
             probe = trialmod.ProbeRange(*self._calls.probe_range())
         except PortError as e:
-            raise trialmod.TrialError('probe', str(e))
+            raise trialmod.TrialError(ErrorCode.PROBE_FAILED, str(e))
         plan = trialmod.Plan(
             trial.trial_id, trial.meta['method'], trial.meta['axis'], self._cell.layout,
             [self._cell.marker(n) for n in trial.meta['point_names']],
@@ -305,7 +304,8 @@ class RepeatabilityTrial(Node):
                 rig = trialmod.LandmarkRig(self._camera, self._cell, self._model.chain(tool=X),
                                            chain_of(record, self._model, X), self._marks)
         except (KeyError, ValueError) as e:
-            raise trialmod.TrialError('invalid', f'kinematics {choice!r}: {e}; use latest, '
+            raise trialmod.TrialError(ErrorCode.INVALID_INPUT,
+                                      f'kinematics {choice!r}: {e}; use latest, '
                                       'nominal or a stored kinematic calibration id')
         robot = trialmod.PortRobot(self._calls, chain, self._cell.home,
                                    self._p('capture_duration'), rig, cancelled)
@@ -317,7 +317,7 @@ class RepeatabilityTrial(Node):
         exists = (self._store.directory / trial.trial_id).exists()
         stored = self._store.load(trial.trial_id) if exists else None
         if exists and stored is None:
-            raise trialmod.TrialError('invalid', (
+            raise trialmod.TrialError(ErrorCode.INVALID_INPUT, (
                 f'trial {trial.trial_id} is stored but unreadable '
                 f'({self._store.meta_problem(trial.trial_id)}); pick a new trial_id'))
         if stored is None:
@@ -330,9 +330,9 @@ class RepeatabilityTrial(Node):
         problem = (trialmod.resume_problem(stored.meta, goal.method, goal.axis, goal.cycles)
                    or self._layout_problem(stored.meta))
         if problem:
-            raise trialmod.TrialError('invalid', problem)
+            raise trialmod.TrialError(ErrorCode.INVALID_INPUT, problem)
         if stored.resume is None:
-            raise trialmod.TrialError('invalid', (
+            raise trialmod.TrialError(ErrorCode.INVALID_INPUT, (
                 f'trial {trial.trial_id} ({trialmod.describe(stored.meta)}) is complete; '
                 'pick a new trial_id (empty = a fresh one)'))
         trial.progress, trial.resumed = stored.resume, True

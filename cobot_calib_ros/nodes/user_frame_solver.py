@@ -33,12 +33,12 @@ from rclpy.node import Node
 from cobot_calib_ros import paths, store
 from cobot_calib_ros.core import frames, kinematics, user_frame
 from cobot_calib_ros.core.cell import check_frame_id
-from cobot_calib_ros.core.errors import ErrorCode
+from cobot_calib_ros.core.errors import ErrorCode, Failure, Refusal
 from cobot_calib_ros.core.landmarks import views
 from cobot_calib_ros.core.robot_port import PortError
 from cobot_calib_ros.core.user_frame import landmarks as landmark_frames
 from cobot_calib_ros.loaders import load_cell
-from cobot_calib_ros.ros import convert, qos, spin
+from cobot_calib_ros.ros import convert, qos, results, spin
 from cobot_calib_ros.ros.diagnostics import Diagnostics, OK, WARN
 from cobot_calib_ros.ros.params import declare, read_once
 from cobot_calib_ros.ros.landmark_views import active_hand_eye, CaptureMarks
@@ -197,7 +197,7 @@ class UserFrameSolver(Node):
                  for n, value in zip(FRAME_PARAMETERS, (request.base_frame, request.user_frame))]
         why = frames_problem(*pairs)
         if why:
-            raise _RequestError(ErrorCode.INVALID_INPUT, why)
+            raise Refusal(Failure(ErrorCode.INVALID_INPUT, why))
         return pairs[0][1], pairs[1][1]
 
     # -- calibrate ------------------------------------------------------------------------
@@ -210,8 +210,8 @@ class UserFrameSolver(Node):
             else:
                 names, p_user, p_base, model_used = self._points(request)
                 hand_eye = ''
-        except _RequestError as e:
-            return self._refuse(response, e.code, str(e))
+        except Refusal as e:
+            return self._refuse(response, e.failure.code, e.failure.message)
         if fit is None:
             fit = self._fit(request, names, p_user, p_base)
         if not fit:
@@ -244,7 +244,7 @@ class UserFrameSolver(Node):
                                     max_scale_error=self._p('max_scale_error'), **opts)
 
     def _refuse(self, response, code, message: str):
-        response.error_code, response.message = int(code), message
+        results.fill(response, 'CalibrateUserFrame', Failure(ErrorCode(code), message))
         self.get_logger().warning(f'calibrate_user_frame refused: {message}')
         self._last_refusal = f'{ErrorCode(code).name}: {message}'
         self._update_health()
@@ -258,14 +258,14 @@ class UserFrameSolver(Node):
         names = list(request.point_names)
         if len(p_user) or len(p_base):
             if names and len(names) != len(p_user):
-                raise _RequestError(ErrorCode.INVALID_INPUT, (
+                raise Refusal(Failure(ErrorCode.INVALID_INPUT, (
                     f'{len(names)} point names for {len(p_user)} points; give one name per '
-                    'point or none'))
+                    'point or none')))
             return names or [f'P{i + 1}' for i in range(len(p_user))], p_user, p_base, ''
         if not names:
-            raise _RequestError(ErrorCode.TOO_FEW_POINTS, (
+            raise Refusal(Failure(ErrorCode.TOO_FEW_POINTS, (
                 'no points: give points_user + points_base, or point_names of the cell to '
-                'visit live'))
+                'visit live')))
         self._check_names(names)
         chain, model_used = self._kinematic_chain(request.kinematics or self._p('kinematics'))
         if request.joint_captures:
@@ -287,29 +287,29 @@ class UserFrameSolver(Node):
             chain = chain_of(record, self._model,
                              self._cell.tool_offset if tool is None else tool)
         except (KeyError, ValueError) as e:
-            raise _RequestError(ErrorCode.INVALID_INPUT, (
+            raise Refusal(Failure(ErrorCode.INVALID_INPUT, (
                 f'kinematics {choice!r}: {str(e).strip(chr(39))}; use latest, nominal or a '
-                f'stored kinematic calibration id'))
+                f'stored kinematic calibration id')))
         return chain, NOMINAL if record is None else record['id']
 
     def _check_names(self, names: list[str]) -> None:
         unknown = [n for n in names if self._cell.marker(n) is None]
         if unknown:
-            raise _RequestError(ErrorCode.UNKNOWN_POINT, (
-                f'unknown point(s) {unknown}; the cell defines {self._cell.point_names}'))
+            raise Refusal(Failure(ErrorCode.UNKNOWN_POINT, (
+                f'unknown point(s) {unknown}; the cell defines {self._cell.point_names}')))
 
     def _capture_live(self, name: str) -> np.ndarray:
         try:
             return self._robot.touch_and_capture(name, self._p('capture_duration'))
         except PortError as e:
-            raise _RequestError(ErrorCode.CAPTURE_FAILED, f'capture at {name} failed: {e}')
+            raise Refusal(Failure(ErrorCode.CAPTURE_FAILED, f'capture at {name} failed: {e}'))
 
     def _given_joints(self, names: list[str], captures) -> list[np.ndarray]:
         """Joint captures in the model's joint order [rad], one per named point."""
         if len(captures) != len(names):
-            raise _RequestError(ErrorCode.INVALID_INPUT, (
+            raise Refusal(Failure(ErrorCode.INVALID_INPUT, (
                 f'{len(captures)} joint captures for {len(names)} point names; give one '
-                'capture per name'))
+                'capture per name')))
         order = list(self._model.joint_names)
         joints = []
         for name, capture in zip(names, captures):
@@ -317,9 +317,9 @@ class UserFrameSolver(Node):
             missing = [j for j in order if j not in positions]
             q = np.array([positions.get(j, np.nan) for j in order], dtype=float)
             if missing or not np.all(np.isfinite(q)):
-                raise _RequestError(ErrorCode.INVALID_INPUT, (
+                raise Refusal(Failure(ErrorCode.INVALID_INPUT, (
                     f'joint capture for {name}: needs finite positions [rad] for '
-                    f'{order}; missing or not finite: {missing or "NaN/inf values"}'))
+                    f'{order}; missing or not finite: {missing or "NaN/inf values"}')))
             joints.append(q)
         return joints
 
@@ -329,7 +329,7 @@ class UserFrameSolver(Node):
         model label and the FrameFit."""
         problem = views.setup_problem(self._cell)
         if problem:
-            raise _RequestError(ErrorCode.INVALID_INPUT, f'{request.method}: {problem}')
+            raise Refusal(Failure(ErrorCode.INVALID_INPUT, f'{request.method}: {problem}'))
         guess = self._user_frame_guess()
         X, hand_eye = active_hand_eye(paths.data_dir(self._p('data_dir')), self._cell)
         chain, model_used = self._kinematic_chain(request.kinematics or self._p('kinematics'),
@@ -341,7 +341,7 @@ class UserFrameSolver(Node):
             max_rms_error=self._p('max_rms_error'), max_scale_error=self._p('max_scale_error'),
             on_view=self._marks)
         if result.code in (ErrorCode.INVALID_INPUT, ErrorCode.CAPTURE_FAILED):
-            raise _RequestError(result.code, result.message)     # no fit to store
+            raise Refusal(Failure(result.code, result.message))     # no fit to store
         return result.names, result.p_user, result.p_base, model_used, hand_eye, result.fit
 
     def _user_frame_guess(self) -> np.ndarray:
@@ -349,9 +349,9 @@ class UserFrameSolver(Node):
         with self._store_lock:
             record = self._store.active()
         if record is None or record['result'].get('T_base_user') is None:
-            raise _RequestError(ErrorCode.INVALID_INPUT, (
+            raise Refusal(Failure(ErrorCode.INVALID_INPUT, (
                 'landmark methods plan their views by the active user frame and there is '
-                'none: calibrate once with points first (a few millimetres off is fine)'))
+                'none: calibrate once with points first (a few millimetres off is fine)')))
         return np.array(record['result']['T_base_user'], dtype=float)
 
     # -- the active calibration, latched ---------------------------------------------------
@@ -534,12 +534,6 @@ class UserFrameSolver(Node):
         response.active_id = active['id'] if active else ''
         response.retired_ids = [r['id'] for r in history if r['id'] in retired]
         return response
-
-
-class _RequestError(ValueError):
-    def __init__(self, code: ErrorCode, message: str) -> None:
-        super().__init__(message)
-        self.code = code
 
 
 def main(args=None) -> None:

@@ -16,7 +16,7 @@ from numpy.typing import NDArray
 
 from cobot_calib_ros.core import frames, kinematics
 from cobot_calib_ros.core.cell import tool_down_orientation
-from cobot_calib_ros.core.errors import Failure, MotionCode
+from cobot_calib_ros.core.errors import ErrorCode, Failure
 from cobot_calib_ros.core.robot_port import Capture, CaptureFailed, MoveFailed
 from cobot_calib_ros.core.sensors.probe import (average, ProbeCurve, Reading, read_distance,
                                                 ReadingStatus)
@@ -79,12 +79,12 @@ class SimRobot:
         """``q`` itself if it is a valid joint target [rad], else why not."""
         q = np.asarray(q, dtype=float)
         if q.shape != self._q.shape or not np.all(np.isfinite(q)):
-            return Failure(MotionCode.INVALID_TARGET, f'expected {len(self._q)} finite joint '
+            return Failure(ErrorCode.INVALID_INPUT, f'expected {len(self._q)} finite joint '
                            f'positions [rad], got {q.tolist()}')
         bad = np.flatnonzero((q < self.nominal.lower) | (q > self.nominal.upper))
         if bad.size:
             names = [self.model.joint_names[i] for i in bad]
-            return Failure(MotionCode.INVALID_TARGET, f'joint target outside the limits of {names}')
+            return Failure(ErrorCode.INVALID_INPUT, f'joint target outside the limits of {names}')
         return q
 
     def plan_pose(self, T_base_tool: Array) -> Array | Failure:
@@ -96,7 +96,7 @@ class SimRobot:
         error): joints that put the TRUE tool there."""
         marker = self.sim.world.marker(name)
         if marker is None:
-            return Failure(MotionCode.INVALID_TARGET, f'unknown point {name!r}; the cell has '
+            return Failure(ErrorCode.INVALID_INPUT, f'unknown point {name!r}; the cell has '
                            f'{self.sim.world.point_names}')
         T_base_user = self.sim.world.T_base_user
         target = frames.make_transform(
@@ -125,7 +125,7 @@ class SimRobot:
             0.0, spheres.compliance_sigma, 3)
         result = kinematics.solve_ik(self.coupling, T, q, tol=1e-12)
         if not result:
-            return Failure(MotionCode.UNREACHABLE, f'coupling on sphere {i}: {result.message}')
+            return Failure(ErrorCode.MOTION_FAILED, f'coupling on sphere {i}: {result.message}')
         return result.q
 
     def laser_measurement(self) -> Array:
@@ -137,10 +137,10 @@ class SimRobot:
 
     def _solve(self, chain: kinematics.Chain, T: Array) -> Array | Failure:
         if not np.all(np.isfinite(T)):
-            return Failure(MotionCode.INVALID_TARGET, 'target pose has NaN or inf')
+            return Failure(ErrorCode.INVALID_INPUT, 'target pose has NaN or inf')
         result = kinematics.solve_ik_with_restarts(chain, T, self.q, self.cell.home)
         if not result:
-            return Failure(MotionCode.UNREACHABLE,
+            return Failure(ErrorCode.MOTION_FAILED,
                            f'no inverse kinematics solution: {result.message}')
         return result.q
 

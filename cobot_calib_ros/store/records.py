@@ -21,6 +21,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from cobot_calib_ros.core import user_frame
+from cobot_calib_ros.core.errors import ErrorCode
 from cobot_calib_ros.core.ids import record_id
 from cobot_calib_ros.store.files import to_plain
 
@@ -84,7 +85,7 @@ class SurfaceRecord(Record):
             return None
         return user_frame.SurfaceModel(tuple(self.powers_x), tuple(self.powers_y),
                                        np.array(self.coefficients, dtype=float),
-                                       self.rms_before, self.rms_after, True)
+                                       self.rms_before, self.rms_after, ErrorCode.SUCCESS)
 
 
 @dataclass(kw_only=True)

@@ -9,6 +9,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 import pinocchio as pin
 
+from cobot_calib_ros.core.errors import ErrorCode
 from cobot_calib_ros.core.kinematics.model import _as_batch, Chain
 
 Array = NDArray[np.float64]
@@ -41,17 +42,17 @@ def _cached_pinocchio(chain: Chain) -> pin.Model:
 
 @dataclass(frozen=True)
 class IkResult:
-    """Inverse kinematics result; falsy on failure."""
+    """Inverse kinematics result; falsy on failure (``code`` MOTION_FAILED: not reached)."""
 
     q: Array                   # (n,) [rad], the last iterate (within limits) even on failure
-    success: bool
+    code: ErrorCode
     position_error: float      # [m]
     orientation_error: float   # [rad]; nan when position_only
     iterations: int
     message: str = ''
 
     def __bool__(self) -> bool:
-        return self.success
+        return self.code == ErrorCode.SUCCESS
 
 
 @dataclass(frozen=True)
@@ -109,13 +110,14 @@ def solve_ik(chain: Chain, T_base_tool_target: ArrayLike, q_seed: ArrayLike, *,
     for iteration in range(max_iter + 1):
         res = _residual(model, data, q, frame, target, position_only)
         if res.position < tol and (position_only or res.orientation < tol):
-            return IkResult(q, True, res.position, res.orientation, iteration, 'converged')
+            return IkResult(q, ErrorCode.SUCCESS, res.position, res.orientation, iteration,
+                            'converged')
         size = float(np.linalg.norm(res.error))
         best, stalled = (size, 0) if size < best * (1.0 - 1e-6) else (best, stalled + 1)
         if iteration == max_iter or stalled >= _STALL_ITERATIONS:
             break
         q = np.clip(q + _dls_step(res, 0.5), chain.lower, chain.upper)
-    return IkResult(q, False, res.position, res.orientation, iteration,
+    return IkResult(q, ErrorCode.MOTION_FAILED, res.position, res.orientation, iteration,
                     _failure_message(chain, q, res, iteration))
 
 
@@ -139,7 +141,7 @@ def solve_ik_with_restarts(chain: Chain, T_base_tool_target: ArrayLike, q_seed: 
     first = None
     for seed in (q_seed, home, home - turn, home + turn):
         result = solve_ik(chain, T_base_tool_target, seed)
-        if result.success:
+        if result:
             return result
         if first is None:
             first = result

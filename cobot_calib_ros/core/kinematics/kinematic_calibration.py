@@ -26,6 +26,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from cobot_calib_ros.core.cell import Cell
+from cobot_calib_ros.core.errors import ErrorCode
 from cobot_calib_ros.core.kinematics.identification.identifiability import (
     find_redundant, Identifiability)
 from cobot_calib_ros.core.kinematics.identification.observations import (
@@ -126,7 +127,7 @@ class CalibrationJob:
         result = identify(parameter_set, self.data, tool_xyz0=self.tool_xyz0,
                           solver=self.solver, loss=self.loss, objective=self.objective,
                           callback=callback, **options)
-        if result.cancelled:
+        if result.code == ErrorCode.CANCELED:
             raise JobCancelled(result.message)
         if not (np.all(np.isfinite(result.params)) and np.all(np.isfinite(result.tool_xyz))):
             raise ValueError(f'the solver returned non-finite parameters: {result.message}')

@@ -27,6 +27,7 @@ from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
 from cobot_calib_ros.core import frames
+from cobot_calib_ros.core.errors import ErrorCode, Failure
 from cobot_calib_ros.core.kinematics.ik import solve_ik_with_restarts
 
 Array = NDArray[np.float64]
@@ -50,7 +51,9 @@ class HandEyeResult:
     RMS over the views of the board-position and board-rotation residual; ``residuals_mm``/
     ``residuals_mrad`` per view; ``covariance`` (6, 6) of T_flange_optical over (x y z rx ry
     rz) [m, rad], the rotation a left perturbation in the flange frame; ``initial``: OpenCV's
-    closed-form (Park) T_flange_optical; ``method``: its name."""
+    closed-form (Park) T_flange_optical; ``method``: its name. Falsy when the views cannot
+    give a hand-eye (``code`` TOO_FEW_POINTS or DEGENERATE_POINTS, ``message`` what to do);
+    the arrays are then NaN."""
 
     T_flange_optical: Array
     T_base_board: Array
@@ -63,6 +66,18 @@ class HandEyeResult:
     method: str
     n_views: int
     nfev: int
+    code: ErrorCode = ErrorCode.SUCCESS
+    message: str = ''
+
+    def __bool__(self) -> bool:
+        return self.code == ErrorCode.SUCCESS
+
+    @classmethod
+    def failed(cls, failure: Failure, n_views: int) -> 'HandEyeResult':
+        nan4, nan = np.full((4, 4), np.nan), np.full(n_views, np.nan)
+        return cls(nan4, nan4.copy(), math.nan, math.nan, nan, nan.copy(),
+                   np.full((6, 6), np.nan), nan4.copy(), '', n_views, 0, failure.code,
+                   failure.message)
 
 
 def _board_centre(board_size: tuple[float, float]) -> Array:
@@ -153,7 +168,7 @@ def hand_eye_views(cell, model, count: int = 12, seed: int = 0, *,
                 continue
             seed_q = views[-1] if views else home
             ik = solve_ik_with_restarts(chain, T, seed_q, home)
-            if ik.success:
+            if ik:
                 views.append(np.asarray(ik.q, dtype=float))
                 break
         else:
@@ -172,9 +187,9 @@ def _as_transforms(poses: Sequence[ArrayLike], name: str) -> Array:
     return T
 
 
-def check_rotation_spread(T_base_flange: Array) -> None:
-    """ValueError when the flange rotations do not determine a hand-eye: fewer than two
-    distinct rotation axes among the motions between views."""
+def check_rotation_spread(T_base_flange: Array) -> Failure | None:
+    """A Failure (DEGENERATE_POINTS) when the flange rotations do not determine a hand-eye:
+    fewer than two distinct rotation axes among the motions between views; else None."""
     vecs = []
     for i in range(len(T_base_flange)):
         for j in range(i + 1, len(T_base_flange)):
@@ -183,13 +198,15 @@ def check_rotation_spread(T_base_flange: Array) -> None:
             if np.linalg.norm(v) >= MIN_ROTATION:
                 vecs.append(v / np.linalg.norm(v))
     if len(vecs) < 2:
-        raise ValueError('degenerate views: the flange hardly rotates between them; the '
-                         'hand-eye needs rotations about at least two different axes')
+        return Failure(ErrorCode.DEGENERATE_POINTS, (
+            'degenerate views: the flange hardly rotates between them; the hand-eye needs '
+            'rotations about at least two different axes'))
     s = np.linalg.svd(np.array(vecs), compute_uv=False)
     if s[1] < MIN_AXIS_SPREAD * s[0]:
-        raise ValueError('degenerate views: every rotation between them is about one axis '
-                         f'(axis spread {s[1] / s[0]:.2g} < {MIN_AXIS_SPREAD}); tilt the '
-                         'camera about different axes')
+        return Failure(ErrorCode.DEGENERATE_POINTS, (
+            'degenerate views: every rotation between them is about one axis (axis spread '
+            f'{s[1] / s[0]:.2g} < {MIN_AXIS_SPREAD}); tilt the camera about different axes'))
+    return None
 
 
 def _mean_transform(Ts: Array) -> Array:
@@ -257,16 +274,21 @@ def solve_hand_eye(T_base_flange: Sequence[ArrayLike], T_optical_board: Sequence
     """T_flange_optical and T_base_board from matched flange and board poses (module
     docstring). ``covariances``: the board poses' 6x6 (landmark_detector's) to weight the
     views, default 0.1 mm / 1 mrad per axis; ``method``: the closed-form start, park.
-    ValueError for fewer than three views, mismatched lists or degenerate rotations."""
+    Falsy for fewer than three views or degenerate rotations; ValueError for mismatched or
+    malformed lists and an unknown method."""
     F = _as_transforms(T_base_flange, 'T_base_flange')
     M = _as_transforms(T_optical_board, 'T_optical_board')
     if len(F) != len(M):
         raise ValueError(f'{len(F)} flange poses but {len(M)} board poses')
-    if len(F) < MIN_VIEWS:
-        raise ValueError(f'hand-eye calibration needs at least {MIN_VIEWS} views, got {len(F)}')
-    check_rotation_spread(F)
     if method != 'park':
         raise ValueError(f'unknown method {method!r}; use park')
+    if len(F) < MIN_VIEWS:
+        return HandEyeResult.failed(Failure(ErrorCode.TOO_FEW_POINTS, (
+            f'hand-eye calibration needs at least {MIN_VIEWS} views, got {len(F)}; take more '
+            'views of the board')), len(F))
+    degenerate = check_rotation_spread(F)
+    if degenerate is not None:
+        return HandEyeResult.failed(degenerate, len(F))
     X0 = park_martin(F, M)
     B0 = _mean_transform(F @ X0 @ M)
     W = _whiteners(covariances, len(F))

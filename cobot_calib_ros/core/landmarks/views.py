@@ -68,7 +68,7 @@ def _view(chain, T_base_marker: Array, tilt: float, q_seed: Array, home: Array) 
                             @ frames.make_transform(frames.rot_z(roll), np.zeros(3)))
         ik = kinematics.solve_ik_with_restarts(chain, T_base_marker @ T_marker_optical,
                                                q_seed, home)
-        if ik.success:
+        if ik:
             return np.asarray(ik.q, dtype=float)
     return None
 

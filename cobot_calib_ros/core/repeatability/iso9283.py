@@ -22,6 +22,8 @@ from typing import Literal, NamedTuple
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from cobot_calib_ros.core.errors import ErrorCode
+
 Array = NDArray[np.float64]
 Direction = Literal['away', 'closer']
 DIRECTIONS: tuple[Direction, ...] = ('away', 'closer')
@@ -34,7 +36,8 @@ class PointStats:
 
     Only complete cycles (every point measured) are used, so all points share the same
     ``cycles``. With ``cycles < 2`` the sample deviation of eq (12) is undefined and
-    ``sigma``, ``rp`` and ``rp_all`` are NaN; the instance is then falsy. Note that with
+    ``sigma``, ``rp`` and ``rp_all`` are NaN; the instance is then falsy (``code``
+    TOO_FEW_POINTS, ``message`` says how many cycles it has). Note that with
     exactly 2 cycles D_i,1 == D_i,2, so ``sigma`` is 0 and ``rp`` is |d_i,1 - d_i,2| / 2.
     """
 
@@ -44,9 +47,11 @@ class PointStats:
     rp: Array              # RP_i = D-bar_i + 3 sigma_i, eq (13) [m]
     rp_all: float          # mean of RP_i over the m points, eq (14) [m]
     cycles: int            # number of complete cycles used
+    code: ErrorCode = ErrorCode.SUCCESS
+    message: str = ''
 
     def __bool__(self) -> bool:
-        return self.cycles >= 2
+        return self.code == ErrorCode.SUCCESS
 
 
 class RangeCorrection(NamedTuple):
@@ -86,14 +91,21 @@ def point_statistics(d: ArrayLike) -> PointStats:
     m, k = dk.shape
     nan = np.full(m, math.nan)
     if k == 0:
-        return PointStats(nan, nan.copy(), nan.copy(), nan.copy(), math.nan, 0)
+        return PointStats(nan, nan.copy(), nan.copy(), nan.copy(), math.nan, 0,
+                          ErrorCode.TOO_FEW_POINTS, _too_few(0))
     dev = deviations(dk)
     mean_dev = dev.mean(axis=1)
     if k < 2:
-        return PointStats(dk.mean(axis=1), mean_dev, nan, nan.copy(), math.nan, k)
+        return PointStats(dk.mean(axis=1), mean_dev, nan, nan.copy(), math.nan, k,
+                          ErrorCode.TOO_FEW_POINTS, _too_few(k))
     sigma = dev.std(axis=1, ddof=1)
     rp = mean_dev + 3.0 * sigma
     return PointStats(dk.mean(axis=1), mean_dev, sigma, rp, overall_rp(rp), k)
+
+
+def _too_few(cycles: int) -> str:
+    return (f'{cycles} complete cycle(s): the repeatability (eqs 12-14) needs at least 2; '
+            'measure more cycles')
 
 
 def correct_distance(d: float, ff: float, direction: Direction | None) -> float:

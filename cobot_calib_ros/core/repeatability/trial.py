@@ -39,7 +39,7 @@ from numpy.typing import NDArray
 
 from cobot_calib_ros.core import frames, kinematics, user_frame
 from cobot_calib_ros.core.cell import Cell, Marker, tool_down_orientation
-from cobot_calib_ros.core.errors import ErrorCode
+from cobot_calib_ros.core.errors import ErrorCode, Failure, Refusal
 from cobot_calib_ros.core.landmarks import views
 from cobot_calib_ros.core.landmarks.views import ViewMark
 from cobot_calib_ros.core.repeatability.iso9283 import (
@@ -61,12 +61,16 @@ MAX_FF_STEPS = 3     # eq (15) moves, each by FF, before a reading counts as out
                      # single-landmark frame can be off by more than half the probe range
 
 
-class TrialError(RuntimeError):
-    """The trial cannot go on; ``reason`` is one of 'invalid', 'motion', 'probe', 'canceled'."""
+class TrialError(Refusal):
+    """The trial cannot go on, and why (``code``: INVALID_INPUT, MOTION_FAILED, PROBE_FAILED,
+    CANCELED, ...); the node answers it through ros/results.py."""
 
-    def __init__(self, reason: str, message: str) -> None:
-        super().__init__(message)
-        self.reason = reason
+    def __init__(self, code: ErrorCode, message: str) -> None:
+        super().__init__(Failure(code, message))
+
+    @property
+    def code(self) -> ErrorCode:
+        return self.failure.code
 
 
 class Robot(Protocol):
@@ -76,16 +80,16 @@ class Robot(Protocol):
         """Hand-guide the tool onto a marker's top; the (4, 4) nominal tool pose read there."""
 
     def move(self, T_base_tool: Array) -> None:
-        """Move the tool to a pose in the base frame; raise TrialError('motion', ...)."""
+        """Move the tool to a pose in the base frame; TrialError (MOTION_FAILED) if it cannot."""
 
     def read(self) -> Reading:
-        """Average the probe; raise TrialError('probe', ...) when there is no reading.
+        """Average the probe; TrialError (PROBE_FAILED) when there is no reading.
 
         An out-of-range reading has status BELOW_RANGE / ABOVE_RANGE and a NaN distance."""
 
     def landmark_frame(self, method: str, T_base_user_guess: Array) -> Array:
         """A landmark method's (4, 4) T_base_user from wrist-camera views planned around
-        ``T_base_user_guess``; raise TrialError('motion' | 'invalid', ...) when it fails."""
+        ``T_base_user_guess``; TrialError (MOTION_FAILED, INVALID_INPUT, ...) when it fails."""
 
     robot_seconds: float
     """Robot time spent so far [s]: moves (as the robot reports them) and holds."""
@@ -126,28 +130,30 @@ class PortRobot:
             self.port.touch(name)
             self._q = self.port.capture(self._capture_duration).q
         except PortError as e:
-            raise TrialError('motion', f'teaching {name}: {e}')
+            raise TrialError(ErrorCode.MOTION_FAILED, f'teaching {name}: {e}')
         return kinematics.fk(self.chain, self._q)
 
     def move(self, T_base_tool: Array) -> None:
         ik = kinematics.solve_ik_with_restarts(self.chain, T_base_tool, self._q, self._home)
         if not ik:
-            raise TrialError('motion', f'no inverse kinematics solution: {ik.message}')
+            raise TrialError(ErrorCode.MOTION_FAILED,
+                             f'no inverse kinematics solution: {ik.message}')
         try:
             self._q = self.port.move_joints(ik.q)
         except PortError as e:
-            raise TrialError('motion', str(e))
+            raise TrialError(ErrorCode.MOTION_FAILED, str(e))
 
     def read(self) -> Reading:
         try:
             return self.port.probe()
         except PortError as e:
-            raise TrialError('probe', str(e))
+            raise TrialError(ErrorCode.PROBE_FAILED, str(e))
 
     def landmark_frame(self, method: str, T_base_user_guess: Array) -> Array:
         rig = self.landmarks
         if rig is None:
-            raise TrialError('invalid', f'{method}: the cell has no wrist camera or no '
+            raise TrialError(ErrorCode.INVALID_INPUT,
+                             f'{method}: the cell has no wrist camera or no '
                              'landmarks; add camera: and landmarks: to the cell')
         try:
             result = views.measure_frame(
@@ -157,12 +163,11 @@ class PortRobot:
                 max_scale_error=MAX_SCALE_ERROR, cancelled=self._cancelled,
                 on_view=rig.on_view)
         except Stopped as e:
-            raise TrialError('canceled', f'{e}; send the same trial_id again to resume it')
+            raise TrialError(ErrorCode.CANCELED, f'{e}; send the same trial_id again to resume it')
         if result.code in (ErrorCode.INVALID_INPUT, ErrorCode.CAPTURE_FAILED):
-            raise TrialError('invalid' if result.code == ErrorCode.INVALID_INPUT else 'motion',
-                             result.message)
+            raise TrialError(result.code, result.message)
         if not result:
-            raise TrialError('invalid', f'{method}: {result.message}')
+            raise TrialError(ErrorCode.INVALID_INPUT, f'{method}: {result.message}')
         return result.fit.M
 
 
@@ -196,9 +201,9 @@ class Plan:
         problem = (method_problem(self.method) or axis_problem(self.axis)
                    or cycles_problem(self.cycles))
         if problem:
-            raise TrialError('invalid', problem)
+            raise TrialError(ErrorCode.INVALID_INPUT, problem)
         if self.method != 'reference' and len(self.markers) < 3:
-            raise TrialError('invalid', f'{self.method} needs at least 3 points')
+            raise TrialError(ErrorCode.INVALID_INPUT, f'{self.method} needs at least 3 points')
 
 
 def method_problem(method: str) -> str:
@@ -350,7 +355,8 @@ class TrialRun:
                 return standoff + probe_offset(reading.distance, probe.g_min, probe.g_max)
             step = 0.5 * (probe.g_max - probe.g_min)
             standoff += step if reading.status == ReadingStatus.BELOW_RANGE else -step
-        raise TrialError('probe', 'the probe never read in range near a marker; check the '
+        raise TrialError(ErrorCode.PROBE_FAILED,
+                         'the probe never read in range near a marker; check the '
                          'probe range parameters and that the markers are where the cell says')
 
     # -- poses ----------------------------------------------------------------------------
@@ -388,7 +394,7 @@ class TrialRun:
 
     def _check_stop(self) -> None:
         if self._stop_requested():
-            raise TrialError('canceled', f'trial {self.plan.trial_id} stopped on request; '
+            raise TrialError(ErrorCode.CANCELED, f'trial {self.plan.trial_id} stopped on request; '
                              'send the same trial_id again to resume it')
 
     def _cycle_frame(self, cycle: int) -> Array:
@@ -407,7 +413,8 @@ class TrialRun:
         nominal = np.array([m.nominal_top for m in self.plan.markers])
         fit = user_frame.calibrate('rigid', nominal, np.array([T[:3, 3] for T in self._taught]))
         if not fit:
-            raise TrialError('invalid', f'the taught points give no frame: {fit.message}')
+            raise TrialError(ErrorCode.INVALID_INPUT,
+                             f'the taught points give no frame: {fit.message}')
         return fit.T_base_user
 
     def _probed_frame(self, cycle: int) -> Array:
@@ -418,7 +425,8 @@ class TrialRun:
             T = self._taught_pose(i, 'z', self._standoff['z'][i])
             reading = self._visit(T)
             if reading.status != ReadingStatus.OK:
-                raise TrialError('probe', f'cycle {cycle + 1}: calibration reading at '
+                raise TrialError(ErrorCode.PROBE_FAILED,
+                                 f'cycle {cycle + 1}: calibration reading at '
                                  f'{self.plan.markers[i].name} out of range '
                                  f'({reading.status.name})')
             measured.append(T[:3, 3] + reading.distance * T[:3, 2])
@@ -426,7 +434,8 @@ class TrialRun:
         opts = {'threshold': self.plan.robust_threshold} if self.plan.method == 'robust' else {}
         fit = user_frame.calibrate(self.plan.method, nominal, np.array(measured), **opts)
         if not fit:
-            raise TrialError('invalid', f'cycle {cycle + 1}: {self.plan.method} fit failed: '
+            raise TrialError(ErrorCode.INVALID_INPUT,
+                             f'cycle {cycle + 1}: {self.plan.method} fit failed: '
                              f'{fit.message}')
         return fit.M
 
@@ -444,7 +453,8 @@ class TrialRun:
             ff, direction = ff + step, way
             reading = self._visit(retreat(T, ff if direction == 'away' else -ff))
         if reading.status != ReadingStatus.OK:
-            raise TrialError('probe', f'cycle {cycle + 1}, {self.plan.markers[i].name}: '
+            raise TrialError(ErrorCode.PROBE_FAILED,
+                             f'cycle {cycle + 1}, {self.plan.markers[i].name}: '
                              f'probe still {reading.status.name} after FF = '
                              f'{ff * 1e3:.2f} mm; check the frame and the offsets')
         corrected = self.store.append(self.plan.trial_id, cycle, i, reading.distance,

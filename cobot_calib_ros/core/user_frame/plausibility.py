@@ -88,10 +88,10 @@ def _check_scale(fit: FrameFit, max_scale_error: float, false_refusal: float
     with np.errstate(invalid='ignore'):
         noise = k * fit.scale_se        # inf or nan: uncertainty unknown, the tolerance decides
     noise = np.where(np.isfinite(noise), noise, 0.0)
-    bound = np.maximum(max_scale_error, noise)
-    worst = int(np.argmax(off / bound))
-    if off[worst] <= bound[worst]:
+    refused = off > np.maximum(max_scale_error, noise)
+    if not refused.any():
         return None
+    worst = int(np.argmax(np.where(refused, off, -1.0)))      # the farthest refused axis
     scale = float(fit.scale[worst])
     if abs(scale - 1.0) <= _UNITS_SCALE:
         hint = ('the measured layout is not the nominal one: check the user coordinates of the '

@@ -8,6 +8,7 @@ from typing import Sequence
 import numpy as np
 from numpy.typing import ArrayLike
 
+from cobot_calib_ros.core.errors import ErrorCode
 from cobot_calib_ros.core.frames import apply, invert
 from cobot_calib_ros.core.user_frame.checks import _prepare
 from cobot_calib_ros.core.user_frame.geometry import _rms, Array
@@ -33,19 +34,19 @@ class SurfaceModel:
     coefficients: Array = field(default_factory=lambda: np.zeros(0))
     rms_before: float = math.inf
     rms_after: float = math.inf
-    valid: bool = False
+    code: ErrorCode = ErrorCode.NO_DATA   # SUCCESS: a surface was fitted
     message: str = ''
 
     def height(self, x: ArrayLike, y: ArrayLike) -> Array:
-        """Correction dz [m] at user-frame x, y [m]; zero when not valid."""
-        if not self.valid:
+        """Correction dz [m] at user-frame x, y [m]; zero when no surface was fitted."""
+        if not self:
             return np.zeros(np.shape(x))
         terms = tuple(zip(self.powers_x, self.powers_y))
         V = _design(np.asarray(x, dtype=float), np.asarray(y, dtype=float), terms)
         return V @ self.coefficients
 
     def __bool__(self) -> bool:
-        return self.valid
+        return self.code == ErrorCode.SUCCESS
 
 
 def fit_surface(p_user: ArrayLike, p_base: ArrayLike, M_base_user: Array,
@@ -63,20 +64,22 @@ def fit_surface(p_user: ArrayLike, p_base: ArrayLike, M_base_user: Array,
     """
     pu, pb, _, failure = _prepare(p_user, p_base, names)
     if failure is not None:
-        return SurfaceModel(message=failure.message)
+        return SurfaceModel(code=failure.code, message=failure.message)
     chosen = _surface_order(len(pu), order)
     if chosen is None:
-        return SurfaceModel(message=f'{len(pu)} points cannot fit an order-{order} surface '
-                            'with a spare degree of freedom; touch more markers or lower order')
+        return SurfaceModel(code=ErrorCode.TOO_FEW_POINTS, message=(
+            f'{len(pu)} points cannot fit an order-{order} surface with a spare degree of '
+            'freedom; touch more markers or lower order'))
     terms = _TERMS[chosen]
     dz = apply(np.linalg.inv(M_base_user), pb)[:, 2] - pu[:, 2]
     V = _design(pu[:, 0], pu[:, 1], terms)
     coefficients, _, rank, _ = np.linalg.lstsq(V, dz, rcond=None)
     if rank < len(terms):
-        return SurfaceModel(message=f'the marker x, y layout cannot fit an order-{chosen} '
-                            'surface; spread the markers over the plane')
+        return SurfaceModel(code=ErrorCode.DEGENERATE_POINTS, message=(
+            f'the marker x, y layout cannot fit an order-{chosen} surface; spread the markers '
+            'over the plane'))
     return SurfaceModel(tuple(p for p, _ in terms), tuple(p for _, p in terms), coefficients,
-                        _rms(dz), _rms(dz - V @ coefficients), True,
+                        _rms(dz), _rms(dz - V @ coefficients), ErrorCode.SUCCESS,
                         f'order-{chosen} height correction from {len(pu)} points')
 
 

@@ -9,6 +9,7 @@ import pinocchio as pin
 import pytest
 
 from cobot_calib_ros.core import frames
+from cobot_calib_ros.core.errors import ErrorCode
 from cobot_calib_ros.core.kinematics import (
     Chain, fk, KinematicModel, model_by_name, position_jacobian_wrt_params, solve_ik,
     to_pinocchio)
@@ -204,7 +205,7 @@ def test_ik_unreachable_target_fails_as_value(name):
     target = fk(chain, np.zeros(chain.dof))
     target[:3, 3] += [3.0, 0.0, 0.0]
     result = solve_ik(chain, target, np.zeros(chain.dof))
-    assert not result and not result.success
+    assert not result and result.code == ErrorCode.MOTION_FAILED
     assert result.position_error > 1.0
     assert 'no convergence' in result.message
     assert np.all((chain.lower <= result.q) & (result.q <= chain.upper))

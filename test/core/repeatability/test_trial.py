@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from cobot_calib_ros.core import user_frame
+from cobot_calib_ros.core.errors import ErrorCode
 from cobot_calib_ros.core.repeatability import AXES
 from cobot_calib_ros.core.repeatability.trial import (
     goal_problem, LandmarkRig, METHODS, Plan, PortRobot, ProbeRange, resume_problem, retreat,
@@ -109,7 +110,7 @@ def test_stop_then_resume_completes_without_losing_readings(tmp_path):
                    stop_requested=lambda: len(readings) >= 7)
     with pytest.raises(TrialError, match='resume') as stopped:
         run.start()
-    assert stopped.value.reason == 'canceled'
+    assert stopped.value.code == ErrorCode.CANCELED
     half = store.load('t1')
     assert half.meta['status'] == 'aborted' and half.resume == (1, 2)
     done = TrialRun(_plan('rigid', 3, trial_id='t1'), robot(6), store).resume(half)
@@ -183,7 +184,7 @@ def test_a_trial_that_fails_midway_is_stored_as_aborted_and_resumes(tmp_path):
     def read_then_lose_the_probe():
         count.append(1)
         if len(count) == 12:
-            raise TrialError('probe', 'probe/average: no answer within 5 s')
+            raise TrialError(ErrorCode.PROBE_FAILED, 'probe/average: no answer within 5 s')
         return read()
     arm.read = read_then_lose_the_probe
     with pytest.raises(TrialError, match='no answer'):

@@ -404,7 +404,7 @@ def test_surface_order_follows_the_point_count() -> None:
 def test_user_base_round_trip(T: np.ndarray, points: np.ndarray, coefficients: np.ndarray
                               ) -> None:
     surface = uf.SurfaceModel((0, 1, 0, 2, 1, 0), (0, 0, 1, 0, 1, 2), coefficients,
-                              1e-3, 1e-4, True)
+                              1e-3, 1e-4, ErrorCode.SUCCESS)
     np.testing.assert_allclose(uf.base_to_user(T, uf.user_to_base(T, points, surface), surface),
                                points, atol=1e-12)
     np.testing.assert_allclose(uf.user_to_base(T, uf.base_to_user(T, points, surface), surface),

@@ -15,6 +15,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import least_squares, minimize
 
+from cobot_calib_ros.core.errors import ErrorCode
 from cobot_calib_ros.core.kinematics.identification.objectives import (
     AbsoluteObjective, CentresObjective, PairsObjective)
 from cobot_calib_ros.core.kinematics.identification.observations import (
@@ -69,7 +70,7 @@ class IdentificationResult:
     cost: float
     rms_m: float
     solve_seconds: float
-    cancelled: bool
+    code: ErrorCode        # SUCCESS, or CANCELED (params: the best evaluated)
     message: str
     extra: dict = field(default_factory=dict)
     converged: bool = True
@@ -195,7 +196,7 @@ def identify(parameter_set: ParameterSet,
 
     ``callback(iteration, cost, rms_m)``: at the start (iteration 0) and after every solver
     iteration, with the best cost so far; returning False cancels, and the result then holds
-    the best parameters evaluated, cancelled=True.
+    the best parameters evaluated, code CANCELED.
 
     ValueError, saying what to do, on inconsistent input (shapes, NaN, too few data, unknown
     names, solver, loss or objective).
@@ -229,14 +230,14 @@ def identify(parameter_set: ParameterSet,
             monitor.iteration()
             x, iterations, stop = _solve_nelder_mead(
                 monitor, max_iterations, max_evaluations, xatol, fatol, adaptive)
-        cancelled = False
+        code = ErrorCode.SUCCESS
         message = stop.message if stop.success else f'did not converge: {stop.message}'
     except _Cancelled:
-        x, iterations, cancelled = monitor.best_x, monitor.iterations, True
+        x, iterations, code = monitor.best_x, monitor.iterations, ErrorCode.CANCELED
         message = f'cancelled by the callback at iteration {iterations}'
         stop = Stop(False, message)
     seconds = time.perf_counter() - start
-    return _result(problem, monitor, x, parameter_set.free, iterations, seconds, cancelled,
+    return _result(problem, monitor, x, parameter_set.free, iterations, seconds, code,
                    message, stop.success)
 
 
@@ -272,7 +273,7 @@ def _solve_nelder_mead(monitor: _Monitor, max_iterations: int | None,
 
 
 def _result(problem, monitor: _Monitor, x: Array, free: tuple[str, ...], iterations: int,
-            seconds: float, cancelled: bool, message: str,
+            seconds: float, code: ErrorCode, message: str,
             converged: bool) -> IdentificationResult:
     r = problem.residuals(x)
     if not (np.all(np.isfinite(x)) and np.all(np.isfinite(r))):
@@ -286,5 +287,5 @@ def _result(problem, monitor: _Monitor, x: Array, free: tuple[str, ...], iterati
         extra['unidentifiable'] = names
         message += f'; not determined by these data: {", ".join(names)}'
     return IdentificationResult(params, tool_xyz, free, std, iterations, monitor.cost(r),
-                                float(np.sqrt(np.mean(r * r))), seconds, cancelled, message,
+                                float(np.sqrt(np.mean(r * r))), seconds, code, message,
                                 extra, converged)
