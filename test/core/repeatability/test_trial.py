@@ -294,5 +294,5 @@ def test_a_probe_signal_that_is_not_a_number_stops_the_trial_as_on_the_nodes(tmp
     arm.port.sim.probe_voltage = lambda: math.nan
     with pytest.raises(TrialError, match='INVALID') as stopped:
         TrialRun(_plan('reference', 2, trial_id='nan'), arm, TrialStore(tmp_path)).start()
-    assert stopped.value.reason == 'probe'
+    assert stopped.value.code == ErrorCode.PROBE_FAILED
     assert arm.port.moves == 5 + 2          # the five touches, then one approach and arrival
