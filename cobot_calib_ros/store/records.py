@@ -26,6 +26,7 @@ from cobot_calib_ros.core.ids import record_id
 from cobot_calib_ros.store.files import to_plain
 
 OMITTED_WHEN_EMPTY = ('gate_problem', 'hand_eye')   # keys older files do not have
+OMITTED_WHEN_NONE = frozenset({'converged'})   # keys older records lack
 
 
 @dataclass(kw_only=True)
@@ -40,7 +41,8 @@ class Record:
         out = {}
         for f in fields(self):
             value = getattr(self, f.name)
-            if f.name == 'extra' or (f.name in OMITTED_WHEN_EMPTY and not value):
+            if f.name == 'extra' or (f.name in OMITTED_WHEN_EMPTY and not value) or (
+                    f.name in OMITTED_WHEN_NONE and value is None):
                 continue
             out[f.name] = value.to_dict() if isinstance(value, Record) else to_plain(value)
         return {**out, **to_plain(self.extra)}
@@ -227,7 +229,9 @@ class KinematicResult(Record):
     iterations: int = 0
     solve_seconds: float = 0.0
     message: str = ''
-    converged: bool = True     # False: a cap stopped the solver (message: 'did not converge')
+    # False: a cap stopped the solver (message: 'did not converge'); None: stored before
+    # convergence was recorded (5252a67), written back without the key
+    converged: bool | None = None
     validation: dict[str, Any] = field(default_factory=dict)
     table6: str = ''
 
