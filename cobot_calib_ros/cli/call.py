@@ -180,10 +180,11 @@ def _answer(node, client, request, args):
     if not spin_until(node, client.service_is_ready, args.timeout):
         raise CallError(f'service {client.srv_name} is not available; is the node suite up '
                         '(cobot-calib up) and ROS_DOMAIN_ID the same?')
-    progress = _Progress(node)
-    spin_until(node, progress.matched, MATCH_WAIT)      # so the first view shows too
+    progress, server = _Progress(node), _ServerWatch(node, client.srv_name)
+    # so the first view shows too, and the server's node is named if it dies (a node's name
+    # comes from its own publication, after its services: never, once it is killed)
+    spin_until(node, lambda: progress.matched() and server.named(), MATCH_WAIT)
     started = time.monotonic()
-    server = _ServerWatch(node, client.srv_name)
     future = client.call_async(request)
     try:
         while not spin_until(node, future.done, 0.5):
@@ -208,7 +209,7 @@ class _ServerWatch:
 
     def __init__(self, node, service: str) -> None:
         self._node, self._service, self._seen = node, service, time.monotonic()
-        self.server_node = _service_node(node, service) or 'its'
+        self._server_node = ''
 
     def gone(self) -> bool:
         now = time.monotonic()
@@ -216,10 +217,16 @@ class _ServerWatch:
             self._seen = now
         return now - self._seen > SERVER_GONE
 
+    def named(self) -> bool:
+        """Whether the server's node is known (looked up until it is)."""
+        self._server_node = self._server_node or _service_node(self._node, self._service)
+        return bool(self._server_node)
+
     def gone_line(self) -> str:
-        return (f'no server for {self._service} any more: the {self.server_node} node is gone '
-                f'(off the graph for {SERVER_GONE:g} s) without answering; restart it '
-                '(cobot-calib up restarts a node that exits) and call again')
+        who = f'the {self._server_node} node' if self._server_node else 'its node'
+        return (f'no server for {self._service} any more: {who} is gone (off the graph for '
+                f'{SERVER_GONE:g} s) without answering; restart it (cobot-calib up restarts a '
+                'node that exits) and call again')
 
 
 def _service_node(node, service: str) -> str:

@@ -10,20 +10,24 @@ import time
 import pytest
 
 SERVICE = '/doomed_capture'
-# A node serving SERVICE; its callback prints 'asked' and never answers, like a hung server.
+# A node serving SERVICE; its callback prints 'asked', then answers at once (argv[1] 'answer')
+# or never (argv[1] 'hang', a hung server). SIGINT: it shuts down and leaves the graph.
 SERVER = f'''
 import sys, threading, rclpy
+from rclpy.executors import ExternalShutdownException
 from cobot_calib_msgs.srv import CaptureJoints
 rclpy.init()
 node = rclpy.create_node('doomed_server')
-def hang(request, response):
+def serve(request, response):
     print('asked', flush=True)
-    threading.Event().wait()
-node.create_service(CaptureJoints, '{SERVICE}', hang)
+    if sys.argv[1] == 'hang':
+        threading.Event().wait()
+    return response
+node.create_service(CaptureJoints, '{SERVICE}', serve)
 print('serving', flush=True)
 try:
     rclpy.spin(node)
-except KeyboardInterrupt:
+except (KeyboardInterrupt, ExternalShutdownException):
     pass
 '''
 # A node with no service of interest: the graph a client sees is not empty.
@@ -38,8 +42,8 @@ except KeyboardInterrupt:
 '''
 
 
-def _python(code: str) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, '-c', code], stdout=subprocess.PIPE,
+def _python(code: str, *args: str) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, '-c', code, *args], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, env=dict(os.environ))
 
 
@@ -57,13 +61,22 @@ def bystander(domain_id):
     proc.wait()
 
 
-@pytest.fixture
-def server(domain_id):
-    proc = _python(SERVER)
+def _server(mode: str):
+    proc = _python(SERVER, mode)
     assert proc.stdout.readline().strip() == 'serving', proc.stderr.read()
     yield proc
     proc.kill()
     proc.wait()
+
+
+@pytest.fixture
+def answering_server(domain_id):
+    yield from _server('answer')
+
+
+@pytest.fixture
+def hung_server(domain_id):
+    yield from _server('hang')
 
 
 def _line(proc: subprocess.Popen, expected: str) -> None:
@@ -71,9 +84,12 @@ def _line(proc: subprocess.Popen, expected: str) -> None:
     assert line == expected, f'{line!r}: {proc.stderr.read()}'
 
 
-def test_a_server_that_left_the_graph_is_named_long_before_the_timeout(bystander, server):
-    asking = _call('{duration: 0.1}', '--answer-timeout', '1')   # the server is on the graph
-    asking.communicate(timeout=60)
+def test_a_server_that_left_the_graph_is_named_long_before_the_timeout(bystander,
+                                                                      answering_server):
+    server = answering_server
+    asking = _call('{duration: 0.1}')           # the server is on the graph and answers
+    _, err = asking.communicate(timeout=60)
+    assert asking.returncode == 0, err
     _line(server, 'asked')
     server.send_signal(2)                       # SIGINT: the node leaves the graph at once
     server.wait(timeout=30)
@@ -87,7 +103,8 @@ def test_a_server_that_left_the_graph_is_named_long_before_the_timeout(bystander
     assert waited < 20.0, f'{waited:.1f} s: the old client waited the whole 60 s --timeout'
 
 
-def test_a_server_killed_while_it_is_asked_ends_the_wait_naming_its_node(server):
+def test_a_server_killed_while_it_is_asked_ends_the_wait_naming_its_node(hung_server):
+    server = hung_server
     proc = _call('{duration: 0.1}')             # no --answer-timeout: waits for the answer
     _line(server, 'asked')
     server.kill()                               # kill -9: off the graph when its lease ends
