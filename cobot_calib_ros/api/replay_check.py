@@ -69,17 +69,25 @@ def write_expected(path: Path, data: dict, comment: str = '') -> None:
         yaml.safe_dump(data, out, sort_keys=False, default_flow_style=None, width=100)
 
 
-def load_expected(bag_path: str | os.PathLike) -> tuple[Path, dict]:
-    """(path, mapping) of the bag's expected.yaml; CheckError when unreadable or not YAML."""
-    import yaml
+def expected_text(bag_path: str | os.PathLike, file_name: str) -> tuple[Path, str]:
+    """(path, text) of the expected-result file ``file_name`` beside a bag (``bag_path``: its
+    folder or a file in it); CheckError when unreadable."""
     folder = Path(bag_path)
     if not folder.is_dir():
         folder = folder.parent
-    path = folder / EXPECTED_FILE
+    path = folder / file_name
     try:
-        data = yaml.safe_load(path.read_text())
+        return path, path.read_text()
     except OSError as exc:
         raise CheckError(f'{path}: cannot read the expected result: {exc.strerror}') from None
+
+
+def load_expected(bag_path: str | os.PathLike) -> tuple[Path, dict]:
+    """(path, mapping) of the bag's expected.yaml; CheckError when unreadable or not YAML."""
+    import yaml
+    path, text = expected_text(bag_path, EXPECTED_FILE)
+    try:
+        data = yaml.safe_load(text)
     except yaml.YAMLError as exc:
         raise CheckError(f'{path}: not YAML: {exc}') from None
     return path, data if isinstance(data, dict) else {}

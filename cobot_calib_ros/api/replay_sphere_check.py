@@ -21,14 +21,14 @@ from pathlib import Path
 import time
 from typing import Callable
 
+from cobot_calib_ros.api import replay_check
 from cobot_calib_ros.ros.marks import CAPTURES_TOPIC
 
 EXPECTED_FILE = 'expected.json'
 TOL = 1e-9          # [m] or [rad] per identified parameter
 
 
-class CheckError(RuntimeError):
-    """The check could not run (a missing or malformed expected.json)."""
+CheckError = replay_check.CheckError     # the check could not run (expected.json missing...)
 
 
 def is_sphere_bag(bag) -> bool:
@@ -39,14 +39,9 @@ def is_sphere_bag(bag) -> bool:
 
 def read_expected(bag_path: str | os.PathLike) -> tuple[Path, dict]:
     """(path, report) of the bag's expected.json; CheckError when unreadable or incomplete."""
-    folder = Path(bag_path)
-    if not folder.is_dir():
-        folder = folder.parent
-    path = folder / EXPECTED_FILE
+    path, text = replay_check.expected_text(bag_path, EXPECTED_FILE)
     try:
-        data = json.loads(path.read_text())
-    except OSError as exc:
-        raise CheckError(f'{path}: cannot read the expected result: {exc.strerror}') from None
+        data = json.loads(text)
     except json.JSONDecodeError as exc:
         raise CheckError(f'{path}: not JSON: {exc}') from None
     missing = [k for k in ('cell', 'dropped_parameters', 'identified')
