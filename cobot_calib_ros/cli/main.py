@@ -23,6 +23,7 @@ VERBS = (
     'hand_eye',
     'record', 'bag', 'replay',      # bags (rosbag2): record, bag info, replay
     'detect',
+    'export',
 )
 
 
