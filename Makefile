@@ -29,7 +29,13 @@ $(STAMP)/tf2_msgs: $(STAMP)/deps tools/build_interfaces.sh tools/interface_provi
 	tools/build_interfaces.sh --if-missing $(VENV) interfaces/tf2_msgs
 	touch $@
 
-$(STAMP)/package: $(STAMP)/msgs $(STAMP)/tf2_msgs setup.py setup.cfg package.xml $(wildcard config/*.yaml config/cells/*.yaml)
+# control_msgs (FollowJointTrajectory, a ros2_control arm's trajectory action) is not on PyPI
+# either: the same, for interfaces/control_msgs.
+$(STAMP)/control_msgs: $(STAMP)/deps tools/build_interfaces.sh tools/interface_provider.py $(shell find interfaces/control_msgs -type f)
+	tools/build_interfaces.sh --if-missing $(VENV) interfaces/control_msgs
+	touch $@
+
+$(STAMP)/package: $(STAMP)/msgs $(STAMP)/tf2_msgs $(STAMP)/control_msgs setup.py setup.cfg package.xml $(wildcard config/*.yaml config/cells/*.yaml)
 	$(PY) -m pip install --quiet --disable-pip-version-check --no-deps --no-build-isolation -e .
 	$(PY) tools/install_ros_prefix.py $(VENV)
 	touch $@
