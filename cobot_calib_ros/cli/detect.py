@@ -201,7 +201,7 @@ def _process(setup: _Setup, index: int, path: str) -> dict:
     poses = []
     for m in markers:
         entry = {'id': m.id, 'corners': [[round(float(x), 3), round(float(y), 3)]
-                                         for x, y in m.corners]}
+                                         for x, y in m.corners], 'refinement': m.refinement}
         if m.id in setup.board_ids:
             entry['board'] = True
         elif camera is not None and args.marker_length is not None:
@@ -281,12 +281,19 @@ def _pose_text(pose: dict) -> str:
 
 
 def _print_text(result: dict) -> None:
+    fallback = sum(m['refinement'] != result['refine'] for m in result['markers'])
     print(f'{result["image"]}: {result["width"]}x{result["height"]}, '
           f'{len(result["markers"])} marker(s) of {result["dictionary"]} '
           f'(refine {result["refine"]})')
+    if fallback:
+        print(f'  {fallback} of {len(result["markers"])} marker(s) kept sub-pixel corners: '
+              f'their edges could not be fitted (too small, an edge missing or unclear); '
+              f'marked [subpix]')
     for m in result['markers']:
         corners = ' '.join(_fmt(c, 2) for c in m['corners'])
-        print(f'  id {m["id"]:>4}: {corners}' + ('  [board]' if m.get('board') else ''))
+        tags = ('  [board]' if m.get('board') else '') + \
+            (f'  [{m["refinement"]}]' if m['refinement'] != result['refine'] else '')
+        print(f'  id {m["id"]:>4}: {corners}{tags}')
         if 'pose' in m:
             print(f'        {_pose_text(m["pose"])}')
         elif 'pose_error' in m:

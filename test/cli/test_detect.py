@@ -2,6 +2,7 @@
 import json
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
@@ -11,6 +12,7 @@ DATA = Path(__file__).resolve().parents[1] / 'data' / 'opencv-aruco-tutorial'
 SINGLE = DATA / 'singlemarkersoriginal.jpg'
 BOARD_PHOTO = DATA / 'choriginal.jpg'
 BOARD = 'charuco:squares=5x7,square=0.04,marker=0.02,dict=DICT_6X6_250'
+GRID_PHOTO = DATA.parent / 'industrial-calibration' / 'aruco.jpg'
 GOLD = {t['image']: t for t in
         json.loads((DATA / 'expected_detections.json').read_text())['tests']}
 
@@ -116,3 +118,43 @@ def test_camera_info_for_another_resolution_fails_that_image(capsys, tmp_path):
     code, out, err = _run(capsys, SINGLE, '--camera-info', info, '--marker-length', '0.05')
     assert code == 1
     assert 'the image is 640x480 px but the camera info is for 1280x960 px' in err
+
+
+def test_the_400_marker_grid_photo_all_found_and_fitted(capsys):
+    """industrial_calibration's aruco.jpg (4032x3024, a 20x20 GridBoard of DICT_6X6_1000, 35 mm
+    markers 10 mm apart) crashed in cv2.remap on e6ccb73. Upstream's test: all 400 markers,
+    homography error < 3 px."""
+    code, out, err = _run(capsys, GRID_PHOTO, '--dictionary', 'DICT_6X6_1000', '--json')
+    assert code == 0, err
+    [result] = _json_lines(out)
+    assert (result['width'], result['height']) == (4032, 3024)
+    assert [m['id'] for m in result['markers']] == list(range(400))
+    assert {m['refinement'] for m in result['markers']} == {'edges'}
+    grid, image = [], []
+    for m in result['markers']:
+        row, col = divmod(m['id'], 20)
+        x, y = 0.045 * col, 0.045 * row
+        grid += [[x, y], [x + 0.035, y], [x + 0.035, y + 0.035], [x, y + 0.035]]
+        image += m['corners']
+    grid, image = np.array(grid), np.array(image)
+    H, _ = cv2.findHomography(grid, image, 0)
+    error = np.linalg.norm(cv2.perspectiveTransform(grid[None], H)[0] - image, axis=1)
+    print(f'homography error mean {error.mean():.2f} px, max {error.max():.2f} px')
+    assert error.mean() < 3.0
+
+
+def test_text_counts_the_markers_that_kept_subpix_corners(capsys, tmp_path):
+    d = cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50)
+    image = np.full((240, 400), 255, np.uint8)
+    image[60:180, 60:180] = cv2.aruco.generateImageMarker(d, 3, 120)
+    image[100:109, 300:309] = cv2.resize(cv2.aruco.generateImageMarker(d, 7, 600), (9, 9),
+                                         interpolation=cv2.INTER_AREA)
+    path = tmp_path / 'two.png'
+    cv2.imwrite(str(path), image)
+    code, out, err = _run(capsys, path, '--dictionary', 'DICT_4X4_50')
+    assert code == 0, err
+    assert '2 marker(s) of DICT_4X4_50 (refine edges)' in out
+    assert '1 of 2 marker(s) kept sub-pixel corners' in out
+    [line7] = [line for line in out.splitlines() if line.startswith('  id    7:')]
+    [line3] = [line for line in out.splitlines() if line.startswith('  id    3:')]
+    assert line7.endswith('[subpix]') and not line3.endswith(']')

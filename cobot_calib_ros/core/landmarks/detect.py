@@ -12,7 +12,9 @@ Corner refinement ``refine``:
   a camera is given) and the corners are the lines' intersections. It removes cornerSubPix's
   inward pull on L-shaped corners: ~0.01 px on clean renderings (SUBPIX ~0.19 px), and on the
   OpenCV tutorial photos 0.39-0.43 px mean from the corners the ChArUco board pose predicts
-  (SUBPIX 0.80-0.88 px). Markers too small for it (< 1.5 px per module) keep SUBPIX corners.
+  (SUBPIX 0.80-0.88 px). A marker it cannot fit (< 1.5 px per module, an edge missing, a corner
+  moving too far, an image too large to sample) keeps its SUBPIX corners, and says so
+  (MarkerDetection.refinement 'subpix').
 - 'subpix': OpenCV's CORNER_REFINE_SUBPIX (cornerSubPix on each corner).
 - 'apriltag': OpenCV's CORNER_REFINE_APRILTAG (AprilTag quad fitting; it replaces the candidate
   search, so it finds other/fewer markers, and is slow), shifted into OpenCV's pixel convention.
@@ -50,10 +52,13 @@ class ImageError(ValueError):
 
 @dataclass(frozen=True, eq=False)
 class MarkerDetection:
-    """One marker: its id and (4, 2) raw-image corners [px] in OpenCV's order (TL TR BR BL)."""
+    """One marker: its id and (4, 2) raw-image corners [px] in OpenCV's order (TL TR BR BL);
+    ``refinement`` the corner refinement its corners had ('subpix' where 'edges' was asked
+    for but could not fit this marker)."""
 
     id: int
     corners: NDArray[np.float64]
+    refinement: str
 
     @property
     def center(self) -> NDArray[np.float64]:
@@ -139,6 +144,8 @@ EDGE_SAMPLES = 33
 EDGE_HALF_WIDTH_MODULES = 0.75
 EDGE_ITERATIONS = 4
 EDGE_MIN_MODULE_PX = 1.5      # smaller markers keep their SUBPIX corners
+# cv2.remap asserts that its source and destination are below SHRT_MAX in both sides
+REMAP_MAX_SIDE = 32767 - 1
 
 
 def _fit_lines(points: NDArray[np.float64], weights: NDArray[np.float64]):
@@ -154,6 +161,41 @@ def _fit_lines(points: NDArray[np.float64], weights: NDArray[np.float64]):
     return n, (n * mu).sum(-1)
 
 
+def _sample_profiles(image: NDArray[np.float32], map_x: NDArray[np.float32],
+                     map_y: NDArray[np.float32]) -> tuple[NDArray[np.float32], NDArray[np.bool_]]:
+    """Bilinear reads (BORDER_REPLICATE) of ``image`` at (Q, ...) maps: (values (Q, ...),
+    sampled (Q,) bool).
+
+    cv2.remap takes at most REMAP_MAX_SIDE rows and columns in its source and destination, so
+    the markers go in batches under that many rows, and an image larger than that is read
+    through the crop around each marker (the same pixels: the crop holds every pixel a read
+    touches). A marker whose crop is still too large is not sampled (zeros)."""
+    q = len(map_x)
+    out = np.zeros(map_x.shape, dtype=np.float32)
+    sampled = np.zeros(q, dtype=bool)
+    h, w = image.shape[:2]
+    rows_per_marker = max(1, map_x[0].size // EDGE_SAMPLES) if q else 1
+    small = h <= REMAP_MAX_SIDE and w <= REMAP_MAX_SIDE
+    batch = max(1, REMAP_MAX_SIDE // rows_per_marker) if small else 1
+    for a in range(0, q, batch):
+        mx, my = map_x[a:a + batch], map_y[a:a + batch]
+        source, x0, y0 = image, 0, 0
+        if not small:
+            x0 = int(np.clip(np.floor(np.nanmin(mx)) - 1, 0, w - 1))
+            y0 = int(np.clip(np.floor(np.nanmin(my)) - 1, 0, h - 1))
+            x1 = int(np.clip(np.ceil(np.nanmax(mx)) + 2, x0 + 1, w))
+            y1 = int(np.clip(np.ceil(np.nanmax(my)) + 2, y0 + 1, h))
+            if x1 - x0 > REMAP_MAX_SIDE or y1 - y0 > REMAP_MAX_SIDE:
+                continue
+            source = image[y0:y1, x0:x1]
+        values = cv2.remap(source, (mx - x0).reshape(-1, EDGE_SAMPLES),
+                           (my - y0).reshape(-1, EDGE_SAMPLES), cv2.INTER_LINEAR,
+                           borderMode=cv2.BORDER_REPLICATE)
+        out[a:a + batch] = values.reshape(mx.shape)
+        sampled[a:a + batch] = True
+    return out, sampled
+
+
 def refine_corners_edges(gray: NDArray, corners: NDArray[np.float64], cells: int, *,
                          camera: CameraModel | None = None,
                          iterations: int = EDGE_ITERATIONS):
@@ -165,8 +207,8 @@ def refine_corners_edges(gray: NDArray, corners: NDArray[np.float64], cells: int
     total least squares, one outlier pass; in the undistorted image when ``camera`` is given,
     where the sides are straight) and the corners are the intersections of adjacent lines.
     Returns (corners (Q, 4, 2), fitted (Q,) bool); a marker is left as it was when it is too
-    small, an edge is missing (occlusion, low contrast) or a corner would move by more than
-    max(2 px, a module)."""
+    small, an edge is missing (occlusion, low contrast), a corner would move by more than
+    max(2 px, a module) or it cannot be sampled (_sample_profiles)."""
     image = gray if gray.dtype == np.float32 else gray.astype(np.float32)
     h, w_img = image.shape[:2]
     start = np.asarray(corners, dtype=np.float64).reshape(-1, 4, 2)
@@ -196,11 +238,10 @@ def refine_corners_edges(gray: NDArray, corners: NDArray[np.float64], cells: int
         base = c[:, :, None, :] + t[..., None] * d[:, :, None, :]        # (Q, 4, P, 2)
         s32 = s.astype(np.float32)[:, :, None, :]
         maps = [(base[..., i].astype(np.float32)[..., None] +
-                 s32 * n[..., i].astype(np.float32)[:, :, None, None]).reshape(-1, EDGE_SAMPLES)
+                 s32 * n[..., i].astype(np.float32)[:, :, None, None])
                 for i in (0, 1)]
-        prof = cv2.remap(image, maps[0], maps[1], cv2.INTER_LINEAR,
-                         borderMode=cv2.BORDER_REPLICATE)
-        prof = prof.reshape(q, 4, EDGE_PROFILES, EDGE_SAMPLES)
+        prof, sampled = _sample_profiles(image, maps[0], maps[1])
+        fitted &= sampled
         if sign is None:    # dark border inside, light outside; inverted markers the other way
             k = EDGE_SAMPLES // 2
             sign = np.where(prof[..., k + 1:].mean(axis=(1, 2, 3)) >=
@@ -250,9 +291,12 @@ def _markers(gray, corners, ids, refine: str, cells: int,
         return []
     shift = APRILTAG_OFFSET_PX if refine == 'apriltag' else 0.0
     quads = np.asarray(corners, dtype=np.float64).reshape(-1, 4, 2) - shift
+    applied = np.full(len(quads), refine, dtype=object)
     if refine == 'edges':
-        quads, _ = refine_corners_edges(gray, quads, cells, camera=camera)
-    found = [MarkerDetection(int(i), c) for i, c in zip(np.asarray(ids).ravel(), quads)]
+        quads, fitted = refine_corners_edges(gray, quads, cells, camera=camera)
+        applied[~fitted] = 'subpix'
+    found = [MarkerDetection(int(i), c, str(r))
+             for i, c, r in zip(np.asarray(ids).ravel(), quads, applied)]
     return sorted(found, key=lambda m: m.id)
 
 

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from cobot_calib_ros.core.landmarks.detect import (ImageError, detect_board, detect_markers,
-                                                   detector_parameters)
+                                                   detector_parameters, refine_corners_edges)
 from cobot_calib_ros.core.landmarks.targets import (BoardSpec, canonical_dictionary_name,
                                                     dictionary_names, get_dictionary)
 
@@ -109,3 +109,47 @@ def test_detector_parameters():
         detector_parameters('subpix', {'nope': 1})
     with pytest.raises(ValueError, match='unknown corner refinement'):
         detector_parameters('magic')
+
+
+def _marker_120px(size=(240, 240), at=(60, 60)) -> tuple[np.ndarray, np.ndarray]:
+    """DICT_4X4_50 id 3, its black square 120 px wide from pixel ``at``: (image, true corners)."""
+    image = np.full(size, 255, np.uint8)
+    x, y = at
+    image[y:y + 120, x:x + 120] = cv2.aruco.generateImageMarker(get_dictionary('DICT_4X4_50'),
+                                                                3, 120)
+    truth = np.array([[x - 0.5, y - 0.5], [x + 119.5, y - 0.5], [x + 119.5, y + 119.5],
+                      [x - 0.5, y + 119.5]])
+    return image, truth
+
+
+def test_edges_refine_more_markers_than_cv2_remap_takes_rows():
+    """200 markers x 4 sides x 48 profiles exceed cv2.remap's 32767 rows (e6ccb73 crashed on the
+    400-marker industrial_calibration photo): they are sampled in batches, every one fitted."""
+    image, truth = _marker_120px()
+    start = np.repeat((truth + [0.4, -0.3])[None], 200, axis=0)
+    corners, fitted = refine_corners_edges(image, start, 6)
+    assert fitted.all()
+    np.testing.assert_allclose(corners, np.repeat(truth[None], 200, axis=0), atol=0.02)
+
+
+def test_edges_refine_a_marker_in_an_image_wider_than_cv2_remap_takes():
+    """A 33000 px wide image (cv2.remap takes < 32767): read through the crop around the marker."""
+    image, truth = _marker_120px(size=(240, 33000), at=(32760, 60))
+    corners, fitted = refine_corners_edges(image, (truth + [0.4, -0.3])[None], 6)
+    assert fitted.all()
+    np.testing.assert_allclose(corners[0], truth, atol=0.02)
+
+
+def test_markers_edges_cannot_fit_keep_subpix_corners_and_say_so():
+    """A 9 px marker (1.5 px per module, below EDGE_MIN_MODULE_PX once measured) keeps OpenCV's
+    SUBPIX corners and says 'subpix'; the 120 px one is fitted."""
+    image, truth = _marker_120px(size=(240, 400))
+    d = get_dictionary('DICT_4X4_50')
+    image[100:109, 300:309] = cv2.resize(cv2.aruco.generateImageMarker(d, 7, 600), (9, 9),
+                                         interpolation=cv2.INTER_AREA)
+    found = {m.id: m for m in detect_markers(image, 'DICT_4X4_50')}
+    subpix = {m.id: m for m in detect_markers(image, 'DICT_4X4_50', refine='subpix')}
+    assert {i: m.refinement for i, m in found.items()} == {3: 'edges', 7: 'subpix'}
+    np.testing.assert_array_equal(found[7].corners, subpix[7].corners)
+    np.testing.assert_allclose(found[3].corners, truth, atol=0.02)
+    assert {m.refinement for m in subpix.values()} == {'subpix'}
