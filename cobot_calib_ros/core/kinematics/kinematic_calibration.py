@@ -115,12 +115,7 @@ class CalibrationJob:
 
     def run(self, callback: Callable[[int, float, float], bool] | None = None) -> Outcome:
         model = self.model
-        candidates = default_candidates(model)
-        base_row = model.parameter_names[:model.fields_per_joint]
-        identifiability = find_redundant(
-            model, self.data.q, self.tool_xyz0, candidates,
-            excluded={name: BASE_ROW_REASON for name in base_row}, base_frame=True,
-            rank_rtol=ROUNDED_MODEL_RTOL if model.kind == 'origin' else None, keep=TOOL_NAMES)
+        identifiability = identifiable(model, self.data.q, self.tool_xyz0)
         parameter_set = ParameterSet(model, identifiability.kept)
         options = self.solver_options or (NM_CONVERGED if self.solver == 'nelder-mead'
                                           else {})
@@ -152,6 +147,15 @@ class CalibrationJob:
         objective = result.extra.get('objective') or self.objective or (
             'relative' if isinstance(self.data, SphereObservations) else 'absolute')
         return JobInputs(self.source, len(self.data.q), self.solver, self.loss, objective)
+
+
+def identifiable(model: KinematicModel, q: Array, tool_xyz0: Array) -> Identifiability:
+    """Step 1 of the module doc: Algorithm 1 on configurations q (m, n) [rad]."""
+    base_row = model.parameter_names[:model.fields_per_joint]
+    return find_redundant(
+        model, q, tool_xyz0, default_candidates(model),
+        excluded={name: BASE_ROW_REASON for name in base_row}, base_frame=True,
+        rank_rtol=ROUNDED_MODEL_RTOL if model.kind == 'origin' else None, keep=TOOL_NAMES)
 
 
 def _subset(data: Observations, limit: int) -> Observations:

@@ -38,16 +38,19 @@ def even_subset(count: int, limit: int) -> NDArray[np.int64]:
 
 
 def sphere_plan(cell: Cell, model: KinematicModel, max_configs: int = 0,
-                angles_deg=(-20.0, -10.0, 0.0, 10.0, 20.0)) -> tuple[list[dict], list[str]]:
+                angles_deg=(-20.0, -10.0, 0.0, 10.0, 20.0),
+                arm_angles_deg=None) -> tuple[list[dict], list[str]]:
     """Steps that bring the coupling onto every sphere in the pose grid, and why poses were
-    left out (unreachable on the nominal model). ``max_configs`` > 0 keeps an even subset."""
+    left out (unreachable on the nominal model). ``max_configs`` > 0 keeps an even subset.
+    ``arm_angles_deg``: the arm angles of a 7-joint arm (default: ``angles_deg``)."""
     plate = cell.spheres
     if plate is None:
         raise ValueError(f'cell {cell.name!r} has no spheres: section; see '
                          'config/cells/iiwa7_close.yaml')
     chain = model.chain(tool=plate.coupling_offset)
     R0 = frames.rpy_to_matrix(*plate.approach_rpy)
-    arm = angles_deg if model.chain().dof == 7 else (0.0,)
+    arm = (angles_deg if arm_angles_deg is None else arm_angles_deg) \
+        if model.chain().dof == 7 else (0.0,)
     steps, skipped = [], []
     for k, (name, centre) in enumerate(zip(plate.names, plate.centres_base())):
         R, home = _approach(chain, centre, R0, cell.home, angles_deg, arm)

@@ -1,0 +1,386 @@
+"""Planned sphere collection: fewer poses, chosen by what they teach, with a predicted accuracy.
+
+The identification of :mod:`.identification` (sphere-centre form: free parameters plus the
+sphere centres, known centre distances) linearised at the current estimate gives, for a set of
+poses, the information matrix ``M = sum_i A_i^T A_i + w sum_d g_d g_d^T`` of the unknowns
+(``A_i`` (3, D): d p_i / d free and -I on the pose's sphere centre; ``g_d`` a known distance's
+gradient, weighted ``w`` = the number of poses, as the solver weights it), and the parameter
+covariance ``s^2 M^-1`` (``s`` the coupling noise per axis [m]: a prior before the first fit,
+then the fit's residual estimate).
+
+- **Prediction.** The error that covariance leaves in the task volume: at test configurations
+  (around the spheres, where the calibration is to hold), d p_test / d free with the best
+  rigid registration projected out (a relative calibration has no world frame; held-out errors
+  are measured after that registration), RMS exactly and the expected max by a fixed set of
+  normal draws [m].
+- **Selection.** Greedy from a candidate pool (the reachable grid on every sphere with its
+  arm-angle null space, :func:`sphere_candidates`): the pose that most increases
+  log det M (D-optimal, rank-3 update), or most decreases the predicted task-volume mean square
+  error (V-optimal, Woodbury), given every pose measured so far.
+- **Sequential.** :class:`SpherePlanner` is told each measured pose (its measured joints, or
+  that it was skipped), refits, and re-plans the next pose with the data so far; its
+  :meth:`SpherePlanner.stop_reason` is the stopping rule: the predicted max error at or under
+  ``target_mm``, the predicted gain per pose under ``min_gain`` over ``gain_window`` poses,
+  ``max_poses``, or no candidate left.
+"""
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+import math
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from cobot_calib_ros.core.cell import Cell
+from cobot_calib_ros.core.errors import ErrorCode
+from cobot_calib_ros.core.kinematics.identification.identifiability import base_motion_columns
+from cobot_calib_ros.core.kinematics.identification.observations import SphereObservations
+from cobot_calib_ros.core.kinematics.identification.parameters import ParameterSet
+from cobot_calib_ros.core.kinematics.identification.solvers import identify
+from cobot_calib_ros.core.kinematics.kinematic_calibration import identifiable
+from cobot_calib_ros.core.kinematics.model import KinematicModel
+from cobot_calib_ros.core.kinematics.plans import even_subset, sphere_plan
+
+Array = NDArray[np.float64]
+CRITERIA = ('D', 'V')
+SIGMA_PRIOR = 5e-6          # coupling noise per axis before the first fit [m]
+PRIOR_WEIGHT = 1e-6         # ridge on M before it has full rank, times its mean diagonal
+DRAWS = 256                 # normal draws for the expected max error
+# the candidate grid: wider than the paper's +-20 deg (the coupling must allow +-60 deg of
+# tilt on its sphere); predicted max error of 100 V-optimal poses on the mock iiwa 7, at the
+# full paper grid's 1.09 um: this grid 1.04 um, tilt +-45 / arm +-60 in 15 / 20 deg steps
+# 1.29 um (and 3.4x the candidates), tilt +-40 / arm +-60 in 20 deg steps 1.26 um
+CANDIDATE_TILT_DEG = (-60.0, -30.0, 0.0, 30.0, 60.0)
+CANDIDATE_ARM_DEG = (-90.0, -60.0, -30.0, 0.0, 30.0, 60.0, 90.0)
+IDENTIFIABILITY_ROWS = 300  # an even subset of the pool decides the identifiable parameters
+
+
+def sphere_candidates(cell: Cell, model: KinematicModel,
+                      tilt_deg: Sequence[float] = CANDIDATE_TILT_DEG,
+                      arm_deg: Sequence[float] = CANDIDATE_ARM_DEG
+                      ) -> tuple[list[dict], list[str]]:
+    """The candidate pool: :func:`plans.sphere_plan`'s grid over ``tilt_deg`` about x, y, z
+    and ``arm_deg`` arm angles (the null space of a 7-joint arm); steps and skipped poses."""
+    return sphere_plan(cell, model, angles_deg=tuple(tilt_deg), arm_angles_deg=tuple(arm_deg))
+
+
+@dataclass(frozen=True)
+class Prediction:
+    """Predicted held-out error in the task volume after ``poses`` poses [mm]."""
+
+    poses: int
+    rms_mm: float           # RMS over the test configurations of the 3-D error
+    max_mm: float           # expected max over the test configurations
+    sigma_mm: float         # coupling noise per axis it assumes
+
+    def as_dict(self) -> dict[str, float]:
+        return {'poses': self.poses, 'rms_mm': self.rms_mm, 'max_mm': self.max_mm,
+                'sigma_mm': self.sigma_mm}
+
+
+@dataclass(frozen=True)
+class PlanSettings:
+    """How many poses, and when to stop."""
+
+    max_poses: int = 100
+    target_mm: float = 0.0      # stop once the predicted max error is at or under it (0: off)
+    min_gain: float = 0.0       # stop once the predicted max falls by less than this fraction
+    gain_window: int = 10       # ... per pose, averaged over this many poses (0 min_gain: off)
+    criterion: str = 'V'        # 'V' (task-volume mean square error) or 'D' (log det)
+    sigma_prior: float = SIGMA_PRIOR    # [m]
+
+    def __post_init__(self) -> None:
+        if self.criterion not in CRITERIA:
+            raise ValueError(f'criterion must be one of {CRITERIA}, got {self.criterion!r}')
+        if self.max_poses < 1:
+            raise ValueError(f'max_poses must be >= 1, got {self.max_poses}')
+        if not (self.target_mm >= 0.0 and self.min_gain >= 0.0 and self.sigma_prior > 0.0):
+            raise ValueError('target_mm and min_gain must be >= 0 and sigma_prior > 0, got '
+                             f'{self.target_mm}, {self.min_gain}, {self.sigma_prior}')
+        if self.gain_window < 1:
+            raise ValueError(f'gain_window must be >= 1, got {self.gain_window}')
+
+
+class Linearisation:
+    """The sphere-centre objective's Jacobian blocks at one estimate (module doc)."""
+
+    def __init__(self, parameter_set: ParameterSet, spheres: Sequence[int],
+                 known_distances: Sequence[tuple[int, int, float]], params: Array,
+                 tool_xyz: Array) -> None:
+        self.parameter_set, self.params, self.tool_xyz = parameter_set, params, tool_xyz
+        self.spheres = tuple(spheres)
+        self.F = len(parameter_set.free)
+        self.D = self.F + 3 * len(self.spheres)
+        self.known_distances = tuple(known_distances)
+
+    def pose_blocks(self, q: ArrayLike, target: ArrayLike) -> tuple[Array, Array]:
+        """(m, 3, D) blocks A_i of poses q (m, n) on spheres ``target`` (m,), and the tool
+        positions (m, 3) [m]."""
+        q = np.atleast_2d(np.asarray(q, dtype=float))
+        p, Jp = self.parameter_set.positions_and_jacobian(self.params, self.tool_xyz, q)
+        A = np.zeros((len(q), 3, self.D))
+        A[:, :, :self.F] = Jp
+        column = self.F + 3 * np.searchsorted(self.spheres, np.asarray(target))
+        for axis in range(3):
+            A[np.arange(len(q)), axis, column + axis] = -1.0
+        return A, p
+
+    def distance_rows(self, centres: Array) -> Array:
+        """(k, D) gradients of the known centre distances at ``centres`` (S, 3) [m]."""
+        G = np.zeros((len(self.known_distances), self.D))
+        for k, (a, b, _) in enumerate(self.known_distances):
+            ia, ib = self.spheres.index(a), self.spheres.index(b)
+            u = centres[ia] - centres[ib]
+            u = u / np.linalg.norm(u)
+            G[k, self.F + 3 * ia:self.F + 3 * ia + 3] = u
+            G[k, self.F + 3 * ib:self.F + 3 * ib + 3] = -u
+        return G
+
+    def task_matrix(self, test_q: Array) -> Array:
+        """(3k, F) d p_test / d free with the best rigid registration projected out."""
+        p, Jp = self.parameter_set.positions_and_jacobian(self.params, self.tool_xyz, test_q)
+        B = base_motion_columns(p)
+        T = Jp.reshape(-1, self.F)
+        return T - B @ np.linalg.lstsq(B, T, rcond=None)[0]
+
+
+def predict(M: Array, F: int, task: Array, sigma: float, draws: Array, poses: int
+            ) -> Prediction:
+    """The task-volume error of information M (D, D) at noise ``sigma`` [m] (module doc);
+    inf when M is singular (too few poses)."""
+    try:
+        L = np.linalg.cholesky(M)
+    except np.linalg.LinAlgError:
+        return Prediction(poses, math.inf, math.inf, sigma * 1e3)
+    Minv = np.linalg.inv(L).T @ np.linalg.inv(L)
+    cov = sigma ** 2 * Minv[:F, :F]
+    cov = 0.5 * (cov + cov.T)
+    w, V = np.linalg.eigh(cov)
+    if w.min() < -1e-9 * max(w.max(), 1e-300):
+        return Prediction(poses, math.inf, math.inf, sigma * 1e3)
+    root = V * np.sqrt(np.clip(w, 0.0, None))
+    errors = (task @ root @ draws).reshape(-1, 3, draws.shape[1])
+    rms = math.sqrt(float(np.einsum('ij,jk,ik->', task, cov, task)) / (len(task) // 3))
+    worst = float(np.linalg.norm(errors, axis=1).max(axis=0).mean())
+    return Prediction(poses, rms * 1e3, worst * 1e3, sigma * 1e3)
+
+
+def _pick(A: Array, M: Array, task_weight: Array | None, ridge: float) -> int:
+    """Index of the candidate block (C, 3, D) that most increases log det M (task_weight
+    None) or most decreases trace(W M^-1) (W (D, D)); M regularised by ``ridge``."""
+    D = M.shape[0]
+    Minv = np.linalg.inv(M + ridge * np.eye(D))
+    G = A @ Minv                                          # (C, 3, D)
+    S = np.eye(3) + G @ A.transpose(0, 2, 1)              # (C, 3, 3)
+    if task_weight is None:
+        return int(np.argmax(np.linalg.slogdet(S)[1]))
+    GW = G @ task_weight
+    reduction = np.einsum('cii->c', np.linalg.solve(S, GW @ G.transpose(0, 2, 1)))
+    return int(np.argmax(reduction))
+
+
+@dataclass
+class PlanState:
+    """What a planned collection stores: the poses chosen, the prediction after each, why it
+    stopped (``stop`` None while running) and the initial plan made before the robot moved."""
+
+    chosen: list[int] = field(default_factory=list)          # candidate indices measured
+    skipped: list[int] = field(default_factory=list)         # candidate indices not coupled
+    predictions: list[Prediction] = field(default_factory=list)
+    initial_plan: list[int] = field(default_factory=list)
+    initial_predictions: list[Prediction] = field(default_factory=list)
+    stop: str | None = None
+
+    def as_dict(self) -> dict[str, Any]:
+        return {'chosen': list(self.chosen), 'skipped': list(self.skipped),
+                'predictions': [p.as_dict() for p in self.predictions],
+                'initial_plan': list(self.initial_plan),
+                'initial_predictions': [p.as_dict() for p in self.initial_predictions],
+                'stop': self.stop}
+
+
+class SpherePlanner:
+    """Sequential D-/V-optimal choice of sphere poses with a predicted task-volume error.
+
+    ``candidates``: steps {'q': [rad], 'target': sphere index} (:func:`sphere_candidates`);
+    ``test_q`` (k, n): configurations of the task volume [rad]; ``known_distances`` as
+    SphereObservations' (sphere indices of the candidates' targets). ``rng`` draws the fixed
+    normals of the expected max; ``parameter_set`` the free parameters (default: Algorithm 1
+    on the pool, as the identification does on the data). Use: :meth:`next_pose`, then :meth:`measured` (or
+    :meth:`skipped`), until :meth:`stop_reason` says why to stop.
+    """
+
+    def __init__(self, model: KinematicModel, candidates: Sequence[Mapping[str, Any]],
+                 known_distances: Sequence[tuple[int, int, float]], tool_xyz0: ArrayLike,
+                 test_q: ArrayLike, settings: PlanSettings = PlanSettings(),
+                 rng: np.random.Generator | None = None,
+                 parameter_set: ParameterSet | None = None) -> None:
+        if not candidates:
+            raise ValueError('no candidate poses: the sphere grid is out of reach; check the '
+                             "cell's spheres: section")
+        self.model, self.settings = model, settings
+        self.candidates = list(candidates)
+        self.pool_q = np.array([c['q'] for c in candidates], dtype=float)
+        self.pool_target = np.array([int(c['target']) for c in candidates])
+        self.test_q = np.asarray(test_q, dtype=float)
+        self.tool_xyz0 = np.asarray(tool_xyz0, dtype=float)
+        self.known_distances = tuple((int(a), int(b), float(d)) for a, b, d in known_distances)
+        spheres = tuple(int(s) for s in np.unique(self.pool_target))
+        subset = even_subset(len(self.pool_q), IDENTIFIABILITY_ROWS)
+        self.parameter_set = parameter_set or ParameterSet(model, identifiable(
+            model, self.pool_q[subset], self.tool_xyz0).kept)
+        self.params, self.tool_xyz = model.nominal.copy(), self.tool_xyz0.copy()
+        self.sigma = settings.sigma_prior
+        self.draws = (rng or np.random.default_rng(0)).standard_normal(
+            (len(self.parameter_set.free), DRAWS))
+        self.q: list[Array] = []
+        self.target: list[int] = []
+        self.state = PlanState()
+        self.available = np.ones(len(self.pool_q), dtype=bool)
+        self.lin = Linearisation(self.parameter_set, spheres, self.known_distances,
+                                 self.params, self.tool_xyz)
+        self._centres = self._nominal_centres()
+        self._relinearise()
+
+    # -- linear algebra at the current estimate --------------------------------------------
+    def _nominal_centres(self) -> Array:
+        _, p = self.lin.pose_blocks(self.pool_q, self.pool_target)
+        return np.array([p[self.pool_target == s].mean(axis=0) for s in self.lin.spheres])
+
+    def _relinearise(self) -> None:
+        self.lin = Linearisation(self.parameter_set, self.lin.spheres, self.known_distances,
+                                 self.params, self.tool_xyz)
+        self.pool_A, _ = self.lin.pose_blocks(self.pool_q, self.pool_target)
+        self.task = self.lin.task_matrix(self.test_q)
+        weight = np.zeros((self.lin.D, self.lin.D))
+        weight[:self.lin.F, :self.lin.F] = self.task.T @ self.task
+        self.task_weight = weight
+        self.distance_G = self.lin.distance_rows(self._centres)
+        mean_diag = float(np.mean(np.einsum('cij,cij->j', self.pool_A, self.pool_A))) \
+            / len(self.pool_A)
+        self.ridge = PRIOR_WEIGHT * mean_diag
+
+    def information(self, indices: Sequence[int] = (), q: Sequence[Array] = (),
+                    target: Sequence[int] = ()) -> Array:
+        """M of the measured poses plus candidate ``indices`` (planned, at their planned q),
+        or of poses (q, target) given explicitly."""
+        blocks = [self.pool_A[list(indices)]] if len(indices) else []
+        if len(q):
+            blocks.append(self.lin.pose_blocks(np.array(q), np.array(target))[0])
+        A = np.concatenate(blocks) if blocks else np.zeros((0, 3, self.lin.D))
+        count = len(A)
+        return np.einsum('cij,cik->jk', A, A) + count * self.distance_G.T @ self.distance_G
+
+    def prediction(self) -> Prediction:
+        """The predicted task-volume error of the poses measured so far."""
+        M = self.information(q=self.q, target=self.target)
+        return predict(M, self.lin.F, self.task, self.sigma, self.draws, len(self.q))
+
+    # -- planning -------------------------------------------------------------------------
+    def plan(self, count: int) -> tuple[list[int], list[Prediction]]:
+        """The next ``count`` candidates, greedy given the data so far, and the prediction
+        after each (at the current noise estimate)."""
+        M = self.information(q=self.q, target=self.target)
+        available = self.available.copy()
+        chosen, predictions = [], []
+        G2 = self.distance_G.T @ self.distance_G
+        weight = None if self.settings.criterion == 'D' else self.task_weight
+        for _ in range(count):
+            idx = np.flatnonzero(available)
+            if not len(idx):
+                break
+            pick = int(idx[_pick(self.pool_A[idx], M, weight, self.ridge)])
+            available[pick] = False
+            A = self.pool_A[pick]
+            M = M + A.T @ A + G2
+            chosen.append(pick)
+            predictions.append(predict(M, self.lin.F, self.task, self.sigma, self.draws,
+                                       len(self.q) + len(chosen)))
+        return chosen, predictions
+
+    def start(self) -> PlanState:
+        """The plan before the robot moves: up to max_poses poses and their predictions."""
+        self.state.initial_plan, self.state.initial_predictions = self.plan(
+            self.settings.max_poses)
+        return self.state
+
+    def next_pose(self) -> int | None:
+        """The candidate to measure next (None: none left)."""
+        chosen, _ = self.plan(1)
+        return chosen[0] if chosen else None
+
+    def measured(self, index: int, q: ArrayLike) -> Prediction:
+        """Candidate ``index`` was measured at joints ``q`` [rad]: refit, predict, store."""
+        self.available[index] = False
+        self.q.append(np.asarray(q, dtype=float))
+        self.target.append(int(self.pool_target[index]))
+        self.state.chosen.append(int(index))
+        self._refit()
+        prediction = self.prediction()
+        self.state.predictions.append(prediction)
+        return prediction
+
+    def resume(self, indices: Sequence[int], q: ArrayLike,
+               skipped: Sequence[int] = ()) -> Prediction | None:
+        """Poses measured before (a resumed collection): candidate ``indices`` at joints q
+        (m, n) [rad] and the ``skipped`` ones, with one refit; the prediction after them."""
+        for index in skipped:
+            self.skipped(index)
+        for index, row in zip(indices, np.atleast_2d(np.asarray(q, dtype=float))):
+            self.available[index] = False
+            self.q.append(row)
+            self.target.append(int(self.pool_target[index]))
+            self.state.chosen.append(int(index))
+        if not len(indices):
+            return None
+        self._refit()
+        prediction = self.prediction()
+        self.state.predictions.append(prediction)
+        return prediction
+
+    def skipped(self, index: int) -> None:
+        """Candidate ``index`` could not be measured; it is not offered again."""
+        self.available[index] = False
+        self.state.skipped.append(int(index))
+
+    def _refit(self) -> None:
+        """Identify on the data so far once they determine every unknown with some margin
+        (3 rows per pose for D unknowns, twice over); the noise estimate from its residuals."""
+        if 3 * len(self.q) < 2 * self.lin.D:
+            return
+        data = SphereObservations(np.array(self.q), np.array(self.target), self.known_distances)
+        try:
+            result = identify(self.parameter_set, data, tool_xyz0=self.tool_xyz,
+                              params0=self.params, loss='linear')
+        except ValueError:
+            return
+        if result.code != ErrorCode.SUCCESS:
+            return
+        self.params, self.tool_xyz = result.params, result.tool_xyz
+        centres = result.extra.get('sphere_centres_base')
+        if centres is not None:
+            self._centres = np.array([centres[s] for s in self.lin.spheres])
+        residual_count = 3 * len(self.q) + len(self.known_distances)
+        self.sigma = result.rms_m * math.sqrt(residual_count / (residual_count - self.lin.D))
+        self._relinearise()
+
+    def stop_reason(self) -> str | None:
+        """Why to stop now, or None (module doc)."""
+        s, done = self.settings, self.state.predictions
+        if done and s.target_mm > 0.0 and done[-1].max_mm <= s.target_mm:
+            return (f'target: predicted max error {done[-1].max_mm:.4f} mm <= '
+                    f'{s.target_mm:g} mm after {len(done)} poses')
+        if s.min_gain > 0.0 and len(done) > s.gain_window and math.isfinite(
+                done[-1 - s.gain_window].max_mm):
+            before, now = done[-1 - s.gain_window].max_mm, done[-1].max_mm
+            gain = 1.0 - (now / before) ** (1.0 / s.gain_window)
+            if gain < s.min_gain:
+                return (f'gain: predicted max error fell {gain:.2%} per pose over the last '
+                        f'{s.gain_window} poses (< {s.min_gain:.2%}), at {now:.4f} mm')
+        if len(self.q) >= s.max_poses:
+            return f'max_poses: {s.max_poses} poses measured'
+        if not self.available.any():
+            return f'candidates: all {len(self.pool_q)} candidates visited or skipped'
+        return None

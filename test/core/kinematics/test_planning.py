@@ -1,0 +1,213 @@
+"""core.kinematics.planning and planned_collection in-process on the mock iiwa 7 (DirectRobot,
+the paper's Table 6 deviations, 3 um coupling noise): planned poses against random ones of the
+same pool, the predicted task-volume error against the measured held-out one, the stopping
+rule, skipped poses, resuming, the robot time."""
+import math
+
+import numpy as np
+import pytest
+
+from cobot_calib_ros.core import frames, kinematics
+from cobot_calib_ros.core.kinematics import plans
+from cobot_calib_ros.core.kinematics.collection import Ending
+from cobot_calib_ros.core.kinematics.identification import (identify, register_rigid,
+                                                            SphereObservations)
+from cobot_calib_ros.core.kinematics.planned_collection import collect_planned, PAPER_HOLD
+from cobot_calib_ros.core.kinematics.planning import (_pick, PlanSettings, predict,
+                                                      sphere_candidates, SpherePlanner)
+from cobot_calib_ros.core.robot_port import MoveFailed
+from cobot_calib_ros.paths import cell_file
+from cobot_calib_ros.sim.robot import DirectRobot, SimRobot
+from cobot_calib_ros.sim.scenario import load_simulation
+
+SIM = load_simulation(cell_file('iiwa7_close'))
+MODEL = kinematics.model_by_name('iiwa7')
+HOLD = 0.02      # [s]
+TOOL0 = SIM.cell.spheres.coupling_offset[:3, 3]
+DISTANCES = SIM.cell.spheres.known_distances()
+
+
+@pytest.fixture(scope='module')
+def pool():
+    steps, _ = sphere_candidates(SIM.cell, MODEL, tilt_deg=(-40.0, 0.0, 40.0),
+                                 arm_deg=(-60.0, -20.0, 20.0, 60.0))
+    return steps
+
+
+@pytest.fixture(scope='module')
+def volume():
+    """(task configurations the planner predicts at, held-out ones the test measures at)."""
+    task = plans.tracker_plan(SIM.cell, MODEL, 'volume', 40, seed=1)
+    held = plans.tracker_plan(SIM.cell, MODEL, 'volume', 60, seed=0)
+    return (np.array([s['q'] for s in task]), np.array([s['q'] for s in held]))
+
+
+@pytest.fixture(scope='module')
+def planner_template(pool, volume):
+    return SpherePlanner(MODEL, pool, DISTANCES, TOOL0, volume[0])
+
+
+def _planner(template: SpherePlanner, **settings) -> SpherePlanner:
+    """A fresh planner with the template's identifiable parameters (Algorithm 1 is slow)."""
+    return SpherePlanner(MODEL, template.candidates, DISTANCES, TOOL0, template.test_q,
+                         PlanSettings(**settings), parameter_set=template.parameter_set)
+
+
+def _robot(seed: int = 1) -> DirectRobot:
+    return DirectRobot(SimRobot(SIM, seed_offset=seed), SIM.probe)
+
+
+def _held_out_max_mm(robot: DirectRobot, params, tool_xyz, q_held) -> float:
+    """Max error [mm] against the true robot after the best rigid registration."""
+    tool = frames.make_transform(np.eye(3), tool_xyz)
+    p = kinematics.fk(MODEL.chain(params, tool), q_held)[:, :3, 3]
+    true = kinematics.fk(robot.sim.coupling, q_held)[:, :3, 3]
+    fitted = frames.apply(register_rigid(p, true), p)
+    return float(np.linalg.norm(fitted - true, axis=1).max() * 1e3)
+
+
+@pytest.fixture(scope='module')
+def planned_30(planner_template):
+    planner, robot, log = _planner(planner_template, max_poses=30), _robot(), []
+    run, time = collect_planned(planner, robot, log.append, hold=HOLD)
+    return planner, robot, log, run, time, robot.robot_seconds
+
+
+def test_planned_poses_beat_the_random_median_of_the_same_pool(planned_30, pool, volume):
+    planner, robot, log, run, _, _ = planned_30
+    assert run.ending is Ending.DONE and run.recorded == 30 == len(planner.q)
+    assert planner.state.stop == 'max_poses: 30 poses measured'
+    planned = _held_out_max_mm(robot, planner.params, planner.tool_xyz, volume[1])
+    rng, random = np.random.default_rng(4), []
+    for _ in range(10):
+        pick = np.sort(rng.choice(len(pool), 30, replace=False))
+        q = []
+        for i in pick:
+            robot.move_joints(np.array(pool[i]['q']), compliant=True)
+            q.append(robot.capture(HOLD).q)
+        data = SphereObservations(np.array(q), np.array([pool[i]['target'] for i in pick]),
+                                  DISTANCES)
+        result = identify(planner.parameter_set, data, tool_xyz0=TOOL0, loss='linear')
+        random.append(_held_out_max_mm(robot, result.params, result.tool_xyz, volume[1]))
+    print(f'\nheld-out max, 30 poses: planned {planned * 1e3:.2f} um, random median '
+          f'{np.median(random) * 1e3:.2f} um, worst {np.max(random) * 1e3:.2f} um')
+    assert planned < 0.8 * np.median(random)
+    assert planned < 0.010                       # mm; nominal: ~0.5 mm
+
+
+def test_the_prediction_agrees_with_the_measured_held_out_error(planned_30, volume):
+    planner, robot, _, _, _, _ = planned_30
+    prediction = planner.state.predictions[-1]
+    measured = _held_out_max_mm(robot, planner.params, planner.tool_xyz, volume[1])
+    print(f'\n30 poses: predicted max {prediction.max_mm * 1e3:.2f} um (RMS '
+          f'{prediction.rms_mm * 1e3:.2f} um, sigma {prediction.sigma_mm * 1e3:.2f} um), '
+          f'measured {measured * 1e3:.2f} um')
+    # the fit's noise estimate: the coupling's 3 um per axis plus the encoders' share
+    assert 2.5e-3 < prediction.sigma_mm < 4.0e-3
+    assert abs(prediction.max_mm / measured - 1.0) < 0.35
+
+
+def test_the_plan_before_the_robot_moves_predicts_a_falling_error(planner_template):
+    planner = _planner(planner_template, max_poses=40)
+    state = planner.start()
+    assert len(state.initial_plan) == 40 == len(set(state.initial_plan))
+    rms = [p.rms_mm for p in state.initial_predictions]
+    assert math.isinf(rms[0])                                # 1 pose: 34 unknowns undetermined
+    finite = [c for c in rms if math.isfinite(c)]            # from pose 12 (36 rows + 3)
+    assert len(finite) == 29 and all(b < a for a, b in zip(finite, finite[1:]))
+    worst = [p.max_mm for p in state.initial_predictions]
+    assert 0.002 < worst[-1] < 0.8 * worst[24] < 0.010       # mm, at the 5 um prior sigma
+    assert not planner.q                                     # planning moves nothing
+
+
+def test_target_stops_at_the_first_pose_predicted_within_it(planner_template):
+    planner, log = _planner(planner_template, max_poses=60, target_mm=0.006), []
+    run, _ = collect_planned(planner, _robot(2), log.append, hold=HOLD)
+    curve = [p.max_mm for p in planner.state.predictions]
+    assert planner.state.stop.startswith('target: predicted max error')
+    assert curve[-1] <= 0.006 < min(curve[:-1]) and run.recorded == len(curve) < 60
+
+
+def test_gain_stops_once_the_prediction_flattens(planner_template):
+    planner = _planner(planner_template, max_poses=200, min_gain=0.02, gain_window=5)
+    run, _ = collect_planned(planner, _robot(3), lambda r: None, hold=HOLD)
+    curve = [p.max_mm for p in planner.state.predictions]
+    assert planner.state.stop.startswith('gain: predicted max error fell')
+    assert 1.0 - (curve[-1] / curve[-6]) ** 0.2 < 0.02
+    assert 1.0 - (curve[-2] / curve[-7]) ** 0.2 >= 0.02 and run.recorded < 200
+
+
+class FailingRobot(DirectRobot):
+    """Refuses the 3rd and 4th move, as a pose the real arm cannot reach."""
+
+    def move_joints(self, q, *, compliant=False):
+        if self.moves in (2, 3) and not getattr(self, '_refused', 0) > 1:
+            self._refused = getattr(self, '_refused', 0) + 1
+            raise MoveFailed('no inverse kinematics solution')
+        return super().move_joints(q, compliant=compliant)
+
+
+def test_a_skipped_pose_is_logged_and_never_offered_again(planner_template):
+    planner, log = _planner(planner_template, max_poses=6), []
+    robot = FailingRobot(SimRobot(SIM, seed_offset=5), SIM.probe)
+    run, time = collect_planned(planner, robot, log.append, hold=HOLD)
+    skipped = [r.index for r in log if r.q is None]
+    assert run.recorded == 6 and run.skipped == 2 == len(skipped)
+    assert planner.state.skipped == skipped and not set(skipped) & set(planner.state.chosen)
+    assert [r.index for r in log if r.q is not None] == planner.state.chosen
+    assert time.poses == 6 and time.hold == pytest.approx(6 * HOLD)
+
+
+def test_a_resumed_collection_goes_on_as_the_uninterrupted_one(planned_30, planner_template):
+    whole, _, log, _, _, _ = planned_30
+    planner = _planner(planner_template, max_poses=30)
+    rows = [r for r in log[:25]]
+    prediction = planner.resume([r.index for r in rows], np.array([r.q for r in rows]))
+    assert prediction.max_mm == pytest.approx(whole.state.predictions[24].max_mm, rel=1e-3)
+    assert planner.next_pose() == whole.state.chosen[25]
+
+
+def test_robot_time_is_the_ports_moves_and_holds(planned_30):
+    _, _, _, _, time, robot_seconds = planned_30
+    assert time.total == pytest.approx(robot_seconds)
+    assert time.hold == pytest.approx(30 * HOLD) and time.poses == 30
+    assert time.at_hold() == pytest.approx(time.move + 30 * PAPER_HOLD)
+    assert 0.5 < time.move / 30 < 3.0        # s a move at 1 rad/s: the poses are spread out
+
+
+def test_predict_is_the_covariance_formula():
+    rng = np.random.default_rng(0)
+    A = rng.normal(size=(50, 3, 6))
+    M = np.einsum('cij,cik->jk', A, A)
+    task = rng.normal(size=(12, 4))
+    draws = rng.standard_normal((4, 20000))
+    p = predict(M, 4, task, 2e-6, draws, 50)
+    cov = 4e-12 * np.linalg.inv(M)[:4, :4]
+    assert p.rms_mm == pytest.approx(1e3 * math.sqrt(np.trace(task @ cov @ task.T) / 4))
+    errors = (task @ np.linalg.cholesky(cov) @ draws).reshape(4, 3, -1)
+    assert p.max_mm == pytest.approx(1e3 * np.linalg.norm(errors, axis=1).max(0).mean(),
+                                     rel=0.02)
+    singular = predict(M[:, :] * 0.0, 4, task, 2e-6, draws, 0)
+    assert math.isinf(singular.max_mm) and math.isinf(singular.rms_mm)
+
+
+def test_the_greedy_pick_is_the_best_rank_3_update():
+    rng = np.random.default_rng(1)
+    A = rng.normal(size=(30, 3, 5))
+    M = np.einsum('cij,cik->jk', A[:10], A[:10])
+    W = np.diag([1.0, 2.0, 0.0, 0.0, 3.0])
+    logdet = [np.linalg.slogdet(M + a.T @ a)[1] for a in A]
+    mse = [np.trace(W @ np.linalg.inv(M + a.T @ a)) for a in A]
+    assert _pick(A, M, None, 0.0) == int(np.argmax(logdet))
+    assert _pick(A, M, W, 0.0) == int(np.argmin(mse))
+
+
+def test_bad_settings_say_what_to_give():
+    with pytest.raises(ValueError, match='criterion must be one of'):
+        PlanSettings(criterion='A')
+    with pytest.raises(ValueError, match='max_poses must be >= 1'):
+        PlanSettings(max_poses=0)
+    with pytest.raises(ValueError, match='target_mm and min_gain must be >= 0'):
+        PlanSettings(target_mm=-1.0)
+    with pytest.raises(ValueError, match='no candidate poses'):
+        SpherePlanner(MODEL, [], DISTANCES, TOOL0, np.zeros((1, 7)))
