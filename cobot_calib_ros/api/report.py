@@ -4,7 +4,9 @@ The table follows the seed paper's Tables 1-5 (one row per experiment with RP_i 
 RP_all), followed by one block per trial with the per-point mean d_i, mean D_i, sigma_i and
 RP_i of eqs (9)-(14). The box plot follows Figures 2-4: the probe distances d_i,n of each
 point, one box per trial side by side (reference vs the calibration methods), solid line the
-median, dashed line the mean.
+median, dashed line the mean; one panel per probed axis, each box with its band mean d_i +-
+RP_i and the value of RP_i written above it, and the probe's mid-range (where the set-up put
+every point) dotted across, as ISO 9283 reports show repeatability per axis.
 
 All numbers come from :mod:`cobot_calib_ros.core.repeatability`; this module only converts
 metres to millimetres and lays them out. Only complete cycles are used, in the table and in
@@ -238,53 +240,105 @@ def _plotted_distances_mm(trial: TrialData) -> dict[str, np.ndarray]:
     return dict(zip(trial.meta['point_names'], used))
 
 
-def _trial_label(trial: TrialData, cycles: int) -> str:
-    return f'{trial.meta["method"]} ({trial.meta["id"]}, n = {cycles} cycles)'
+def _trial_label(summary: dict[str, Any]) -> str:
+    return (f'{summary["method"]} ({summary["id"]}, n = {summary["cycles"]} cycles, '
+            f'RP_all {_fmt(summary["rp_all_mm"])} mm)')
 
 
 def _default_title(trials: Sequence[TrialData]) -> str:
-    axes = ', '.join(dict.fromkeys(str(t.meta['axis']) for t in trials))
     layouts = ', '.join(dict.fromkeys(str(t.meta['layout']) for t in trials))
-    return f'Probe distances per point, {axes}-axis, layout {layouts}'
+    return f'Probe distances per point, layout {layouts}'
+
+
+def probe_mid_range_mm(trials: Sequence[TrialData]) -> float | None:
+    """The probe's mid-range [mm] the trials set their points to (F_i, README), from the
+    range stored with them (``probe_range_m``); None when none stored it or they differ."""
+    mids = {round(0.5 * (lo + hi) * MM_PER_M, 9) for lo, hi in
+            (t.meta['probe_range_m'] for t in trials if t.meta.get('probe_range_m'))}
+    return mids.pop() if len(mids) == 1 else None
 
 
 def _box_figure(trials: Sequence[TrialData], title: str | None):
-    """A matplotlib Figure (Agg canvas, no pyplot state) of the probe distances per point."""
+    """A matplotlib Figure (Agg canvas, no pyplot state) of the probe distances per point:
+    one panel per probed axis, as ISO 9283 reports give each axis apart. Per point and trial a
+    box of d_i,n (median solid, mean dashed), the band mean d_i +- RP_i beside it with RP_i
+    written above, the probe's mid-range dotted; the legend below the panels."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
     from matplotlib.lines import Line2D
     from matplotlib.patches import Patch
 
-    figure = Figure(figsize=PNG_SIZE_IN, layout='constrained')
+    axes_present = [a for a in ('x', 'y', 'z') if any(t.meta['axis'] == a for t in trials)]
+    figure = Figure(figsize=(max(PNG_SIZE_IN[0], 5.0 * len(axes_present)), PNG_SIZE_IN[1]),
+                    layout='constrained')
     FigureCanvasAgg(figure)
-    ax = figure.add_subplot()
+    panels = figure.subplots(1, len(axes_present), squeeze=False)[0]
+    colors = dict(zip((id(t) for t in trials), _trial_colors(trials)))
+    mid_range = probe_mid_range_mm(trials)
+    handles = []
+    for ax, axis in zip(panels, axes_present):
+        shown = [t for t in trials if t.meta['axis'] == axis]
+        handles += _axis_panel(ax, axis, shown, colors, mid_range, Patch)
+    handles += [Line2D([], [], color='black', linestyle='-', label='median'),
+                Line2D([], [], color='black', linestyle='--', label='mean'),
+                Line2D([], [], color='black', marker='_', markersize=10, linestyle='-',
+                       label=r'band $\bar d_i \pm RP_i$, RP_i [mm] written above')]
+    if mid_range is not None:
+        handles.append(Line2D([], [], color='0.3', linestyle=':',
+                              label=f'probe mid-range {mid_range:.3f} mm'))
+    figure.suptitle(title or _default_title(trials))
+    figure.legend(handles=handles, loc='outside lower center', fontsize='small',
+                  ncols=2)
+    return figure
+
+
+def _axis_panel(ax, axis: str, trials: Sequence[TrialData], colors: dict[int, str],
+                mid_range: float | None, Patch) -> list:
+    """One axis's boxes, RP bands and labels in ``ax``; the legend handles of its trials."""
     per_trial = [_plotted_distances_mm(t) for t in trials]
     names = list(dict.fromkeys(n for d in per_trial for n in d))
     width = 0.8 / len(trials)
-    colors = _trial_colors(trials)
-    handles = []
+    handles, label_at = [], []
     for t, (trial, distances) in enumerate(zip(trials, per_trial)):
+        summary = trial_summary(trial)
+        rp = {p['name']: (p['mean_d_mm'], p['rp_mm']) for p in summary['points']}
         groups = [g for g, name in enumerate(names) if name in distances]
         offset = (t - (len(trials) - 1) / 2) * width
         ax.boxplot([distances[names[g]] for g in groups],
-                   positions=[g + offset for g in groups], widths=0.85 * width,
+                   positions=[g + offset for g in groups], widths=0.55 * width,
                    patch_artist=True, showmeans=True, meanline=True,
-                   boxprops={'facecolor': colors[t], 'alpha': 0.8},
+                   boxprops={'facecolor': colors[id(trial)], 'alpha': 0.8},
                    medianprops={'color': 'black', 'linestyle': '-'},
                    meanprops={'color': 'black', 'linestyle': '--'},
                    flierprops={'markersize': 3})
-        cycles = int(complete_cycles(trial.distances).sum())
-        handles.append(Patch(facecolor=colors[t], alpha=0.8, label=_trial_label(trial, cycles)))
-    handles += [Line2D([], [], color='black', linestyle='-', label='median'),
-                Line2D([], [], color='black', linestyle='--', label='mean')]
+        for g in groups:
+            mean, rp_i = rp[names[g]]
+            if rp_i is None:
+                continue
+            x = g + offset + 0.35 * width
+            ax.errorbar(x, mean, yerr=rp_i, color=colors[id(trial)], capsize=3,
+                        elinewidth=1.2, marker='_', markersize=6, markeredgecolor='black')
+            top = max(mean + rp_i, float(np.max(distances[names[g]])))  # above any flier
+            label_at.append((g + offset, top, _fmt(rp_i)))
+        handles.append(Patch(facecolor=colors[id(trial)], alpha=0.8,
+                             label=f'{axis}: {_trial_label(summary)}'))
+    if mid_range is not None:
+        ax.axhline(mid_range, color='0.3', linestyle=':', linewidth=1.0, zorder=0)
+    low, high = ax.get_ylim()
+    tops = [y for _, y, _ in label_at]
+    high = max([high, *tops])
+    span = high - low
+    for x, y, text in label_at:      # RP_i above its band, inside the panel
+        ax.annotate(text, (x, y), xytext=(0, 4), textcoords='offset points', ha='center',
+                    va='bottom', rotation=90, fontsize='x-small')
+    ax.set_ylim(low, high + 0.22 * span)
     ax.set_xticks(range(len(names)), names)
     ax.set_xlim(-0.5, len(names) - 0.5)
     ax.set_xlabel('point')
     ax.set_ylabel(r'probe distance $d_{i,n}$ [mm]')
-    ax.set_title(title or _default_title(trials))
+    ax.set_title(f'{axis}-axis')
     ax.grid(axis='y', alpha=0.3)
-    ax.legend(handles=handles, loc='upper left', bbox_to_anchor=(1.01, 1.0), fontsize='small')
-    return figure
+    return handles
 
 
 def _trial_colors(trials: Sequence[TrialData]) -> list[str]:

@@ -145,15 +145,55 @@ def test_box_plot_groups_one_box_per_point_and_trial(store):
     _make_trial(store, 'ref', DISTANCES_MM)
     _make_trial(store, 'rig', DISTANCES_MM, method='rigid')
     figure = report._box_figure([store.load('ref'), store.load('rig')], None)
-    ax = figure.axes[0]
+    [ax] = figure.axes
     assert [t.get_text() for t in ax.get_xticklabels()] == ['P1', 'P2']
     assert '[mm]' in ax.get_ylabel()
-    legend = [t.get_text() for t in ax.get_legend().get_texts()]
-    assert legend == ['reference (ref, n = 3 cycles)', 'rigid (rig, n = 3 cycles)', 'median',
-                      'mean']
+    [legend] = figure.legends
+    labels = [t.get_text() for t in legend.get_texts()]
+    assert labels[:4] == ['z: reference (ref, n = 3 cycles, RP_all 0.075 mm)',
+                          'z: rigid (rig, n = 3 cycles, RP_all 0.075 mm)', 'median', 'mean']
     assert len(ax.patches) == 4  # 2 points x 2 trials (box patches)
     top = max(max(line.get_ydata(), default=-1.0) for line in ax.lines)
-    assert top == pytest.approx(1.22)  # distances in mm, not metres
+    assert top == pytest.approx(1.25)  # mm, not metres: P1's band 1.200 + RP 0.050
+
+
+def test_box_plot_one_panel_per_axis_rp_written_mid_range_marked_legend_apart(store):
+    """As ISO 9283 reports: each probed axis in its own panel, RP_i written at each box (the
+    hand-computed 0.050 / 0.100 mm), the band mean d_i +- RP_i drawn, the probe's mid-range
+    (stored with the trial) across every panel, and a legend that covers no panel."""
+    probe = {'probe_range_m': [0.4e-3, 2.0e-3]}            # mid-range 1.2 mm
+    for trial_id, axis in (('rx', 'x'), ('rz', 'z')):
+        d = np.asarray(DISTANCES_MM) * MM
+        store.create(trial_id, method='reference', axis=axis, layout='close',
+                     point_names=['P1', 'P2'], cycles_total=3, stamp_ns=1, extra=probe)
+        for cycle in range(3):
+            for point in range(2):
+                store.append(trial_id, cycle, point, d[point, cycle], stamp_ns=2)
+    _make_trial(store, 'tz', [[1.2, 1.3, 1.1], [0.8, 0.8, 0.8]], method='three_point')
+    trials = [store.load(i) for i in ('rz', 'rx', 'tz')]
+    assert report.probe_mid_range_mm(trials) == pytest.approx(1.2)
+    figure = report._box_figure(trials, None)
+    figure.canvas.draw()
+    x_panel, z_panel = figure.axes
+    assert (x_panel.get_title(), z_panel.get_title()) == ('x-axis', 'z-axis')
+    assert len(x_panel.patches) == 2 and len(z_panel.patches) == 4   # boxes: points x trials
+    texts = {ax.get_title(): [t.get_text() for t in ax.texts] for ax in figure.axes}
+    # tz: P1 deviations 0, 0.1, 0.1 -> D-bar 0.0667, sigma 0.0577, RP 0.240; P2 all equal
+    assert texts == {'x-axis': ['0.050', '0.100'],
+                     'z-axis': ['0.050', '0.100', '0.240', '0.000']}
+    for ax in figure.axes:
+        mid = [line for line in ax.lines if line.get_linestyle() == ':']
+        assert [tuple(line.get_ydata()) for line in mid] == [(1.2, 1.2)]
+    # the bands: reference P1 1.200 +- 0.050, three_point P2 0.800 +- 0
+    errorbars = [c for c in z_panel.containers if type(c).__name__ == 'ErrorbarContainer']
+    low_high = sorted(tuple(np.round(seg[:, 1], 6)) for c in errorbars
+                      for seg in c.lines[2][0].get_segments())
+    assert (1.15, 1.25) in low_high and (0.8, 0.8) in low_high
+    [legend] = figure.legends
+    box = legend.get_window_extent()
+    assert not any(box.overlaps(ax.get_window_extent()) for ax in figure.axes)
+    labels = [t.get_text() for t in legend.get_texts()]
+    assert 'probe mid-range 1.200 mm' in labels
 
 
 def test_write_report_writes_png_and_markdown_table(store, tmp_path):

@@ -313,7 +313,9 @@ class TrialRun:
                           layout=self.plan.layout, point_names=self._names(),
                           cycles_total=self.plan.cycles,
                           extra={**self.plan.extra, 'taught': self._taught,
-                                 'standoff_m': self._standoff})
+                                 'standoff_m': self._standoff,
+                                 'probe_range_m': [self.plan.probe.g_min,
+                                                   self.plan.probe.g_max]})
         return self._run(self.store.load(self.plan.trial_id))
 
     def resume(self, trial: TrialData) -> TrialData:

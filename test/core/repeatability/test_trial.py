@@ -61,8 +61,9 @@ def test_reference_repeatability_matches_the_noise_model(tmp_path):
     sigma = np.array([SIM.repeatability_sigma_at(p) for p in SIM.world.true_points_base()])
     expected = factor * sigma.mean()
     assert 0.75 * expected < stats.rp_all < 1.25 * expected
-    # F_i put every reading near the middle of the 0.2-2.2 mm range
+    # F_i put every reading near the middle of the 0.2-2.2 mm range, stored for the report
     assert np.all(np.abs(trial.distances - 1.2e-3) < 0.2e-3)
+    assert trial.meta['probe_range_m'] == pytest.approx([0.2e-3, 2.2e-3])
 
 
 def test_repeatability_grows_away_from_the_cell_centre():
