@@ -15,6 +15,7 @@ import json
 from pathlib import Path
 
 from cobot_calib_ros.api.identification import PAPER_RATIO_PERCENT
+from cobot_calib_ros.cli import identify_measured
 from cobot_calib_ros.cli.common import (EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK, EXIT_USAGE,
                                         fail, say)
 from cobot_calib_ros.paths import DEFAULT_CELL
@@ -46,7 +47,7 @@ def add_parser(subparsers):
                    help='laser-tracker configurations per validation set (0: none)')
     p.add_argument('--dry-run', action='store_true', help='identify and validate, store nothing')
     p.add_argument('--urdf', default=None,
-                   help='MUKCa data: nominal URDF (default: iiwa14.urdf beside the data folder)')
+                   help='the robot\'s URDF (MUKCa data: default iiwa14.urdf beside the folder)')
     p.add_argument('--ball', type=float, nargs=3, default=(0.0, 0.0, 0.04), metavar=('X', 'Y', 'Z'),
                    help='MUKCa data: nominal ball centre in tool0 [m] (default 0 0 0.04)')
     p.add_argument('--resume', nargs='?', const='', default=None, metavar='ID',
@@ -55,6 +56,7 @@ def add_parser(subparsers):
     p.add_argument('--attach', action='store_true',
                    help='use the suite running on ROS_DOMAIN_ID instead of starting one')
     p.add_argument('--json', action='store_true')
+    identify_measured.add_arguments(p)
     return p
 
 
@@ -62,6 +64,8 @@ def run(args) -> int:
     if args.max_configs < 0 or args.validation_configs < 0 or not args.hold > 0:
         return fail('--max-configs and --validation-configs must be >= 0, --hold > 0 [s]',
                     EXIT_USAGE)
+    if args.measurement:
+        return identify_measured.run(args)
     if args.source != 'mock':
         folder = Path(args.source).expanduser()
         if not folder.is_dir():

@@ -104,13 +104,18 @@ def fk(chain: Chain, q: ArrayLike) -> Array:
 
     q (n,) [rad] -> (4, 4); q (m, n) -> (m, 4, 4). Vectorised over configurations.
     """
-    qb = _as_batch(chain, q)
-    T = np.broadcast_to(np.eye(4), (len(qb), 4, 4)).copy()
-    for i in range(chain.dof):
-        T = _right_mul(T, chain.placements[i])
-        _turn_z(T, qb[:, i])
-    T = _right_mul(T, chain.flange @ chain.tool)
+    T = fk_placements(chain.placements, chain.flange @ chain.tool, _as_batch(chain, q))
     return T[0] if np.ndim(q) == 1 else T
+
+
+def fk_placements(placements: ArrayLike, end: Array, q: Array) -> Array:
+    """(m, 4, 4) P_1 Rz(q_1) ... P_n Rz(q_n) end for placements (n, 4, 4), q (m, n) [rad]:
+    :func:`fk` without building a Chain (identification varies one placement at a time)."""
+    T = np.broadcast_to(np.eye(4), (len(q), 4, 4)).copy()
+    for i, P in enumerate(placements):
+        T = _right_mul(T, P)
+        _turn_z(T, q[:, i])
+    return _right_mul(T, end)
 
 
 # --- parametrised models -------------------------------------------------------------------
@@ -234,6 +239,27 @@ def sawyer() -> KinematicModel:
     rows = [list(j[1]) + list(j[2]) for j in _SAWYER]
     flange = placement('origin', list(_SAWYER_HAND[0]) + list(_SAWYER_HAND[1]))
     return _model('sawyer', 'origin', names, rows, [j[3] for j in _SAWYER], flange)
+
+
+def dh_model(name: str, joint_names: tuple[str, ...], dh_rows: ArrayLike,
+             limits: ArrayLike) -> KinematicModel:
+    """MDH model (kind 'mdh') of a standard DH table, rows (d, theta, r, alpha) [m, rad].
+
+    Standard DH link i, Rz(theta_i + q_i) Tz(d_i) Tx(r_i) Rx(alpha_i), regrouped around the
+    joint rotations: MDH row i is (alpha_{i-1}, r_{i-1}, theta_i, d_i) with alpha_0 = r_0 = 0
+    (Tx and Rx commute, as do Rz and Tz), and the last link's Tx(r_n) Rx(alpha_n) is the
+    flange. Same FK; the MDH parameters are the DH table's, moved one row down.
+    """
+    dh = np.asarray(dh_rows, dtype=float)
+    if dh.ndim != 2 or dh.shape[1] != 4 or len(dh) != len(joint_names) \
+            or not np.all(np.isfinite(dh)):
+        raise ValueError(f'DH table: expected {len(joint_names)} finite rows (d, theta, r, '
+                         f'alpha), got shape {dh.shape}')
+    d, theta, r, alpha = dh.T
+    rows = np.stack([np.concatenate([[0.0], alpha[:-1]]), np.concatenate([[0.0], r[:-1]]),
+                     theta, d], axis=1)
+    flange = _motion('t', 0, r[-1]) @ _motion('r', 0, alpha[-1])
+    return _model(name, 'mdh', tuple(joint_names), rows, limits, flange)
 
 
 def position_jacobian_wrt_params(model: KinematicModel, params: ArrayLike | None,

@@ -1,0 +1,129 @@
+"""`cobot-calib identify --measurement KIND --source FILE`: any arm from its URDF (or a DH table),
+identified offline from a measurement file (CSV + YAML sidecar, or a MUKCa folder), validated
+on held-out rows (k-fold by default, or one group at a time)."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from cobot_calib_ros.cli.common import EXIT_OK, EXIT_USAGE, fail
+
+DEFAULT_FOLDS = 5
+
+
+def add_arguments(p) -> None:
+    p.add_argument('--measurement', choices=('spheres', 'points', 'pose', 'plane'),
+                   default=None, help='identify offline from --source, a measurement file '
+                   '(CSV + YAML sidecar, README "Measurement files") or a MUKCa folder')
+    p.add_argument('--base-link', default=None,
+                   help='--urdf: the chain\'s first link (default: the sidecar\'s frames.base)')
+    p.add_argument('--tip-link', default=None,
+                   help='--urdf: the chain\'s last link (default: the sidecar\'s frames.tip)')
+    p.add_argument('--dh', default=None, help='a DH table (YAML) instead of --urdf')
+    p.add_argument('--model', choices=('offsets', 'full', 'mdh'), default=None,
+                   help='error model (default: full for a URDF, mdh for a DH table)')
+    held = p.add_mutually_exclusive_group()
+    held.add_argument('--folds', type=int, default=None, metavar='K',
+                      help=f'k-fold validation, row i in fold i %% K (default {DEFAULT_FOLDS})')
+    held.add_argument('--leave-out', default=None, metavar='COLUMN',
+                      help='hold out one group (a value of COLUMN) at a time')
+
+
+def run(args) -> int:
+    try:
+        report = identify(args)
+    except ValueError as e:
+        return fail(f'identify: {e}', EXIT_USAGE)
+    if args.json:
+        print(json.dumps(report, indent=2))
+    else:
+        print(summary(report))
+    return EXIT_OK
+
+
+def _source(args):
+    from cobot_calib_ros.loaders.measurements import (load_measurements,
+                                                      load_socket_measurements)
+    source = Path(args.source).expanduser()
+    if source.is_dir() and any(source.glob('*/hole_0.csv')):
+        return load_socket_measurements(source, args.ball)
+    if not source.is_file():
+        raise ValueError(f'--source {args.source}: no such file; give a measurement CSV with '
+                         'its YAML sidecar, or a MUKCa folder')
+    return load_measurements(source)
+
+
+def _model(args, frames: dict, source: Path):
+    from cobot_calib_ros.core.kinematics.urdf import model_from_urdf
+    from cobot_calib_ros.loaders.measurements import load_dh_table
+    if args.dh:
+        return load_dh_table(args.dh)
+    if args.urdf:
+        urdf = Path(args.urdf).expanduser()
+    elif source.is_dir() and (source.parent / 'iiwa14.urdf').is_file():
+        urdf = source.parent / 'iiwa14.urdf'              # MUKCa's layout
+    else:
+        raise ValueError('give the robot: --urdf FILE --base-link L --tip-link L, or --dh FILE')
+    base = args.base_link or frames.get('base') or 'base_link'
+    tip = args.tip_link or frames.get('tip')
+    if not tip:
+        raise ValueError('give --tip-link (the sidecar names no frames.tip)')
+    try:
+        text = urdf.read_text(encoding='utf-8')
+    except OSError as e:
+        raise ValueError(f'--urdf {urdf}: cannot read ({e.strerror})') from None
+    try:
+        return model_from_urdf(text, base, tip, urdf.stem)
+    except ValueError as e:
+        raise ValueError(f'--urdf {urdf}: {e}') from None
+
+
+def identify(args) -> dict:
+    """The report (core measurement_fit.identify_measurements) of the command line's data."""
+    from cobot_calib_ros.core.kinematics.identification import measurement_fit as mf
+    file = _source(args)
+    if file.measurements.kind != args.measurement:
+        raise ValueError(f'{file.source} holds {file.measurements.kind} measurements, not '
+                         f'{args.measurement}: pass --measurement {file.measurements.kind}')
+    model = _model(args, file.frames, Path(args.source).expanduser())
+    file = file.in_joint_order(model.joint_names)
+    errors = mf.ErrorModel(model, args.model or ('mdh' if model.kind == 'mdh' else 'full'))
+    leave_out = args.leave_out or (None if args.folds else _default_group(file))
+    if leave_out:
+        labels, held = mf.by_group(file.groups(leave_out))
+        validation = {'leave_out': leave_out, 'groups': list(labels)}
+    else:
+        k = args.folds or DEFAULT_FOLDS
+        held = mf.held_out_rows(file.sample, mf.kfold(file.samples, k))
+        labels, validation = tuple(f'fold {i}' for i in range(k)), {'folds': k}
+    report = mf.identify_measurements(errors, file.measurements, held, labels=labels,
+                                      sample=file.sample)
+    return {'source': file.source, 'validation': validation, 'frames': file.frames, **report}
+
+
+def _default_group(file) -> str | None:
+    """A MUKCa folder is held out by location (its tool placements)."""
+    return 'location' if 'socket' in file.columns and 'location' in file.columns else None
+
+
+def summary(report: dict) -> str:
+    """The report as a few lines of text."""
+    v = report['validation']
+    how = f'leave one {v["leave_out"]} out' if 'leave_out' in v else f'{v["folds"]}-fold'
+    lines = [f'{report["robot"]}, {report["measurement"]} ({report["samples"]} samples), '
+             f'model {report["model"]}: {report["parameters_kept"]} parameters kept '
+             f'(textbook minimum {report["parameters_minimum"]}), condition number '
+             f'{report["condition_number"]:.1f}',
+             f'held out ({how}) {"rmse":>8} {"mean":>8} {"max":>8} {"rot rms":>9}']
+    for name in ('nominal', 'calibrated'):
+        s = report['held_out'][name]
+        rot = '' if s['rot_rms_mrad'] is None else f'{s["rot_rms_mrad"]:>6.2f} mrad'
+        lines.append(f'{name:<{len(how) + 11}} {s["rmse_mm"]:>5.3f} mm {s["mean_mm"]:>5.3f} mm '
+                     f'{s["max_mm"]:>5.3f} mm {rot}')
+    for d in report['dropped']:
+        lines.append(f'dropped {d["name"]}: {d["reason"]}')
+    for c in report['correlated']:
+        lines.append(f'correlated {c["a"]} ~ {c["b"]}: {c["correlation"]:+.3f}')
+    for o in report['outliers']:
+        lines.append(f'outlier: sample {o["sample"]} ({o["error_mm"]:.3f} mm)')
+    return '\n'.join(lines)

@@ -1,0 +1,391 @@
+"""Identify an arm's kinematic errors from measurements (any kind), validated on held-out rows.
+
+Error models (``ERROR_MODELS``) over a :class:`KinematicModel` (from a URDF, or an MDH table):
+
+- ``offsets``: one offset per joint, q_model = q + offset (``offset_<joint>``);
+- ``full``: every joint origin's x, y, z, roll, pitch, yaw (kind 'origin' models: FIGAROH's
+  ``full_params``);
+- ``mdh``: every joint's alpha, a, theta, d (kind 'mdh' models: the paper's).
+
+Unknowns are the free model parameters then the measurement's nuisance (base and target
+frames, markers, sphere centres, planes: :mod:`.measurements`). Jacobians are central
+differences of the residuals (step ``FD_STEP``, accurate to ~1e-9 relative, which the rank
+tolerance below is far above); the solver is scipy's trust-region least squares.
+
+Identifiability (:func:`identifiable`) on the data's own Jacobian at the start point, columns
+scaled to unit norm: the nuisance columns first, then the model's parameters in a fixed order
+(joint by joint, the model's field order); a column is kept when the part of it outside the span
+of those kept before is at least ``rank_tol`` of its norm, else dropped, naming the kept
+columns that make it up (the largest coefficients). Deterministic: the same data give the same
+set on any machine. The condition number is that of the kept columns (scaled); pairs of kept
+unknowns whose estimates correlate above 0.9 (from (J^T J)^-1) are listed.
+
+Validation (:func:`cross_validate`): every row is held out once, in k folds (row i in fold
+i % k) or one group at a time; per fold the nuisance alone (``nominal``) and the nuisance with
+the identifiable parameters (``calibrated``) are fitted on the other rows and the held-out
+rows' errors pooled. An outlier rule (:func:`outliers`) names rows.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+import math
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.optimize import least_squares
+
+from cobot_calib_ros.core.kinematics.identification.measurements import (
+    Kind, make_kind, Measurements, textbook_minimum)
+from cobot_calib_ros.core.kinematics.model import fk_placements, KinematicModel, placement
+
+Array = NDArray[np.float64]
+ERROR_MODELS = ('offsets', 'full', 'mdh')
+FD_STEP = 1e-6            # [m or rad] central-difference step
+RANK_TOL = 1e-4           # a column is kept if >= this fraction of it is new (scaled columns)
+CORRELATED = 0.9
+OUTLIER_MADS = 5.0        # a row is an outlier beyond median + 5 scaled MADs of the errors
+
+
+@dataclass(frozen=True)
+class ErrorModel:
+    """Which parameters of ``model`` may move: names in ``candidates`` (fixed order)."""
+
+    model: KinematicModel
+    name: str
+
+    def __post_init__(self) -> None:
+        if self.name not in ERROR_MODELS:
+            raise ValueError(f'unknown error model {self.name!r}; use one of {ERROR_MODELS}')
+        need = {'full': 'origin', 'mdh': 'mdh'}.get(self.name)
+        if need and self.model.kind != need:
+            raise ValueError(f'--model {self.name} needs a model of kind {need!r} (a URDF for '
+                             f'full, an MDH table for mdh); {self.model.name} is '
+                             f'{self.model.kind!r}')
+
+    @property
+    def candidates(self) -> tuple[str, ...]:
+        if self.name == 'offsets':
+            return tuple(f'offset_{j}' for j in self.model.joint_names)
+        return self.model.parameter_names
+
+    def tip_poses(self, names: tuple[str, ...], values: Array, q: Array) -> Array:
+        """(m, 4, 4) T_base_tip with the named parameters at ``values`` (others nominal)."""
+        placements, offsets = self.placements(names, values)
+        return fk_placements(placements, self.model.flange, q + offsets)
+
+    def placements(self, names: tuple[str, ...], values: Array) -> tuple[Array, Array]:
+        """(placements (n, 4, 4), joint offsets (n,)) with the named parameters at values."""
+        rows = np.array(self.model.rows(), dtype=float)
+        offsets = np.zeros(len(rows))
+        width = self.model.fields_per_joint
+        for name, v in zip(names, values):
+            if name.startswith('offset_'):
+                offsets[self.model.joint_names.index(name[7:])] = v
+            else:
+                i = self.model.parameter_names.index(name)
+                rows[i // width, i % width] = v
+        return np.stack([placement(self.model.kind, r) for r in rows]), offsets
+
+    def joint_of(self, name: str) -> int:
+        """Index of the joint a parameter belongs to."""
+        if name.startswith('offset_'):
+            return self.model.joint_names.index(name[7:])
+        return self.model.parameter_names.index(name) // self.model.fields_per_joint
+
+    def start(self, names: tuple[str, ...]) -> Array:
+        lookup = dict(zip(self.model.parameter_names, self.model.nominal))
+        return np.array([lookup.get(n, 0.0) for n in names], dtype=float)
+
+
+class _Problem:
+    """Residuals and their Jacobian over x = [the named model parameters..., nuisance...]."""
+
+    def __init__(self, errors: ErrorModel, data: Measurements, names: tuple[str, ...],
+                 nuisance: Array | None = None) -> None:
+        self.errors, self.data, self.names = errors, data, tuple(names)
+        self.kind = make_kind(data, errors.tip_poses((), np.empty(0), data.q))
+        start = self.kind.x0 if nuisance is None else np.asarray(nuisance, dtype=float)
+        self.x0 = np.concatenate([errors.start(self.names), start])
+        self.n = len(self.names)
+
+    def tip(self, x: Array, q: Array | None = None) -> Array:
+        return self.errors.tip_poses(self.names, x[:self.n], self.data.q if q is None else q)
+
+    def residuals(self, x: Array) -> Array:
+        return self.kind.residuals(self.tip(x), x[self.n:])
+
+    def jacobian(self, x: Array) -> Array:
+        """Central differences; a model parameter re-places its own joint only, a nuisance
+        unknown reuses the tip poses."""
+        placements, offsets = self.errors.placements(self.names, x[:self.n])
+        q = self.data.q + offsets
+        end = self.errors.model.flange
+        T = fk_placements(placements, end, q)
+        nuisance = x[self.n:]
+        columns = []
+        for k in range(len(x)):
+            pair = []
+            for h in (FD_STEP, -FD_STEP):
+                if k < self.n:
+                    name, i = self.names[k], self.errors.joint_of(self.names[k])
+                    moved, qm = placements.copy(), q.copy()
+                    if name.startswith('offset_'):
+                        qm[:, i] += h
+                    else:
+                        value = x[:self.n].copy()
+                        value[k] += h
+                        moved[i] = self.errors.placements(self.names, value)[0][i]
+                    pair.append(self.kind.residuals(fk_placements(moved, end, qm), nuisance))
+                else:
+                    step = nuisance.copy()
+                    step[k - self.n] += h
+                    pair.append(self.kind.residuals(T, step))
+            columns.append((pair[0] - pair[1]) / (2.0 * FD_STEP))
+        return np.stack(columns, axis=1)
+
+    def solve(self, max_nfev: int = 200) -> tuple[Array, bool]:
+        if not np.all(np.isfinite(self.residuals(self.x0))):
+            raise ValueError('the start model gives non-finite residuals: check the joint '
+                             'columns and the units in the sidecar')
+        r = least_squares(self.residuals, self.x0, jac=lambda x: self.jacobian(x),
+                          method='trf', x_scale='jac', xtol=1e-15, ftol=1e-15, gtol=1e-15,
+                          max_nfev=max_nfev)
+        return r.x, bool(r.status > 0)
+
+
+@dataclass(frozen=True)
+class Dropped:
+    name: str
+    reason: str
+
+
+@dataclass(frozen=True)
+class Identifiability:
+    """Kept and dropped model parameters, the condition number of the kept unknowns' scaled
+    Jacobian (nuisance included), pairs correlated above 0.9, the textbook minimum."""
+
+    kept: tuple[str, ...]
+    dropped: tuple[Dropped, ...]
+    condition_number: float
+    correlated: tuple[tuple[str, str, float], ...]
+    frame_dofs: int                 # the base/tool nuisance counted by the textbook minimum
+    minimum: int
+
+    @property
+    def parameters_kept(self) -> int:
+        return len(self.kept) + self.frame_dofs
+
+
+def _unit_columns(J: Array) -> Array:
+    norms = np.linalg.norm(J, axis=0)
+    return J / np.where(norms > 0.0, norms, 1.0)
+
+
+def identifiable(errors: ErrorModel, data: Measurements, rank_tol: float = RANK_TOL,
+                 nuisance: Array | None = None) -> Identifiability:
+    """The identifiable candidates of ``errors`` on ``data`` (module docstring), at the
+    nominal model with ``nuisance`` (default: fitted to the data with the nominal model, so
+    that a start value on a symmetry, e.g. a ball on the last axis, does not hide a
+    parameter)."""
+    candidates = errors.candidates
+    if nuisance is None:
+        nuisance = fit(errors, data, ()).nuisance
+    problem = _Problem(errors, data, candidates, nuisance)
+    x0 = problem.x0
+    gauge = problem.kind.gauge(problem.tip(x0), x0[problem.n:])
+    J = _unit_columns(np.hstack([problem.jacobian(x0), gauge]))
+    labels = candidates + problem.kind.names + tuple(
+        f'base_rotation_{c}' for c in 'xyz'[:gauge.shape[1]])
+    nuisance = len(candidates) + len(problem.kind.names)
+    order = list(range(nuisance, len(labels))) + list(range(len(candidates), nuisance)) \
+        + list(range(len(candidates)))
+    kept_cols: list[int] = []
+    basis = np.empty((len(J), 0))
+    dropped = []
+    for c in order:
+        v = J[:, c]
+        new = v - basis @ (basis.T @ v)
+        new -= basis @ (basis.T @ new)          # twice: Gram-Schmidt, re-orthogonalised
+        size = float(np.linalg.norm(new))
+        if size >= rank_tol and np.linalg.norm(v) > 0.0:
+            basis = np.hstack([basis, (new / size)[:, None]])
+            kept_cols.append(c)
+        elif c < len(candidates):
+            dropped.append(Dropped(labels[c], _reason(J, c, kept_cols, labels, size)))
+    kept_model = tuple(labels[c] for c in kept_cols if c < len(candidates))
+    kept_cols = [c for c in kept_cols if c < nuisance]     # the gauge is no unknown
+    Jk = J[:, kept_cols]
+    condition = float(np.linalg.cond(Jk)) if Jk.size else math.inf
+    markers = len(np.unique(data.target)) if data.kind == 'points' else 1
+    return Identifiability(kept_model, tuple(dropped), condition,
+                           _correlated(Jk, [labels[c] for c in kept_cols]),
+                           problem.kind.frame_dofs,
+                           textbook_minimum(len(errors.model.joint_names), data.kind, markers))
+
+
+def _reason(J: Array, c: int, kept: list[int], labels: tuple[str, ...], size: float) -> str:
+    if np.linalg.norm(J[:, c]) == 0.0:
+        return 'no effect on these measurements'
+    coef = np.linalg.lstsq(J[:, kept], J[:, c], rcond=None)[0]
+    top = np.argsort(-np.abs(coef))[:3]
+    parts = ', '.join(f'{labels[kept[i]]} ({coef[i]:+.2f})' for i in top if abs(coef[i]) > 1e-3)
+    return f'a combination of {parts} (new part {size:.1e} < tolerance)'
+
+
+def _correlated(J: Array, names: list[str]) -> tuple[tuple[str, str, float], ...]:
+    if J.shape[1] == 0:
+        return ()
+    cov = np.linalg.pinv(J.T @ J)
+    s = np.sqrt(np.maximum(np.diag(cov), 1e-300))
+    corr = cov / np.outer(s, s)
+    out = []
+    for i in range(len(names)):
+        for j in range(i + 1, len(names)):
+            if abs(corr[i, j]) > CORRELATED:
+                out.append((names[i], names[j], float(corr[i, j])))
+    return tuple(out)
+
+
+@dataclass(frozen=True)
+class Fit:
+    """Identified values of ``names`` (model parameters) and the nuisance, converged or not."""
+
+    names: tuple[str, ...]
+    values: Array
+    nuisance: Array
+    converged: bool
+    problem: _Problem
+
+    def row_errors(self, data: Measurements) -> tuple[Array, Array]:
+        """Position [m] and rotation [rad] errors of ``data``'s rows with this fit."""
+        T = self.problem.errors.tip_poses(self.names, self.values, data.q)
+        kind, x = self.problem.kind.held_out_nuisance(T, self.nuisance, data)
+        return kind.errors(T, x, data)
+
+
+def fit(errors: ErrorModel, data: Measurements, names: tuple[str, ...],
+        nuisance: Array | None = None) -> Fit:
+    """Least squares over the named model parameters (none: the nuisance alone) and the
+    nuisance on ``data``, from the nominal model and ``nuisance`` (default: the kind's
+    start)."""
+    problem = _Problem(errors, data, names, nuisance)
+    minimum = len(problem.x0)
+    count = len(problem.residuals(problem.x0))
+    if count < minimum:
+        raise ValueError(f'{len(data)} rows give {count} equations for {minimum} unknowns '
+                         f'({len(names)} parameters + {minimum - len(names)} frames/targets): '
+                         f'measure more rows or use a smaller --model')
+    x, converged = problem.solve()
+    return Fit(tuple(names), x[:problem.n], x[problem.n:], converged, problem)
+
+
+def stats(position: Array, rotation: Array) -> dict:
+    """{rmse_mm, mean_mm, max_mm, rot_rms_mrad (None without rotation), count}."""
+    p = np.asarray(position) * 1e3
+    r = np.asarray(rotation)
+    rot = None if np.all(np.isnan(r)) else float(np.sqrt(np.mean(r ** 2)) * 1e3)
+    return {'rmse_mm': float(np.sqrt(np.mean(p ** 2))), 'mean_mm': float(np.mean(p)),
+            'max_mm': float(np.max(p)), 'rot_rms_mrad': rot, 'count': int(len(p))}
+
+
+def kfold(m: int, k: int) -> list[Array]:
+    """Held-out row indices of each fold: row i in fold i % k."""
+    if not 2 <= k <= m:
+        raise ValueError(f'--folds {k}: need 2 <= K <= rows ({m})')
+    return [np.arange(f, m, k) for f in range(k)]
+
+
+def by_group(groups: ArrayLike) -> tuple[tuple[str, ...], list[Array]]:
+    """(group names in first-seen order, held-out row indices of each)."""
+    g = np.asarray(groups).astype(str)
+    names = tuple(dict.fromkeys(g.tolist()))
+    if len(names) < 2:
+        raise ValueError(f'leave-one-group-out needs at least 2 groups, got {list(names)}')
+    return names, [np.flatnonzero(g == n) for n in names]
+
+
+@dataclass(frozen=True)
+class CrossValidation:
+    """Pooled held-out errors (every row once), nominal and calibrated, and per fold."""
+
+    nominal: dict
+    calibrated: dict
+    folds: tuple[dict, ...]
+    errors_nominal: tuple[Array, Array]
+    errors_calibrated: tuple[Array, Array]
+
+
+def cross_validate(errors: ErrorModel, data: Measurements, held_out: list[Array],
+                   labels: tuple[str, ...] | None = None,
+                   rank_tol: float = RANK_TOL) -> CrossValidation:
+    """For each fold: identifiability and fits on the other rows, errors on the held-out."""
+    m = len(data)
+    pos = {'nominal': np.full(m, np.nan), 'calibrated': np.full(m, np.nan)}
+    rot = {'nominal': np.full(m, np.nan), 'calibrated': np.full(m, np.nan)}
+    folds = []
+    for f, rows in enumerate(held_out):
+        train = data.take(np.setdiff1d(np.arange(m), rows))
+        test = data.take(rows)
+        nominal = fit(errors, train, ())
+        ident = identifiable(errors, train, rank_tol, nominal.nuisance)
+        entry = {'held_out': labels[f] if labels else f, 'rows': int(len(rows)),
+                 'parameters': len(ident.kept)}
+        for name, result in (('nominal', nominal), ('calibrated', fit(
+                errors, train, ident.kept, nominal.nuisance))):
+            e_pos, e_rot = result.row_errors(test)
+            pos[name][rows], rot[name][rows] = e_pos, e_rot
+            entry[name] = stats(e_pos, e_rot)
+        folds.append(entry)
+    return CrossValidation(stats(pos['nominal'], rot['nominal']),
+                           stats(pos['calibrated'], rot['calibrated']), tuple(folds),
+                           (pos['nominal'], rot['nominal']),
+                           (pos['calibrated'], rot['calibrated']))
+
+
+def outliers(position: Array, mads: float = OUTLIER_MADS) -> list[int]:
+    """Rows whose error exceeds median + ``mads`` x 1.4826 MAD of all rows' errors."""
+    e = np.asarray(position, dtype=float)
+    median = float(np.median(e))
+    spread = 1.4826 * float(np.median(np.abs(e - median)))
+    return [int(i) for i in np.flatnonzero(e > median + mads * max(spread, 1e-12))]
+
+
+def held_out_rows(sample: Array, folds: list[Array]) -> list[Array]:
+    """Measurement rows of each fold given as samples (CSV data rows): a sample's markers
+    are held out together."""
+    return [np.flatnonzero(np.isin(sample, f)) for f in folds]
+
+
+def identify_measurements(errors: ErrorModel, data: Measurements, held_out: list[Array], *,
+                          labels: tuple[str, ...] | None = None, sample: Array | None = None,
+                          rank_tol: float = RANK_TOL) -> dict:
+    """Cross-validation, then identifiability, the fit and the outlier rule on all rows: the
+    report of ``cobot-calib identify --measurement`` (JSON-ready). ``sample`` maps rows to
+    samples (CSV data rows) for the outliers (default: the rows themselves)."""
+    sample = np.arange(len(data)) if sample is None else np.asarray(sample)
+    nominal = fit(errors, data, ())
+    ident = identifiable(errors, data, rank_tol, nominal.nuisance)
+    final = fit(errors, data, ident.kept, nominal.nuisance)
+    cv = cross_validate(errors, data, held_out, labels, rank_tol)
+    e_pos, e_rot = final.row_errors(data)
+    nominal = dict(zip(errors.candidates, errors.start(errors.candidates)))
+    return {
+        'measurement': data.kind, 'model': errors.name, 'robot': errors.model.name,
+        'rows': len(data), 'samples': int(len(np.unique(sample))),
+        'held_out': {'nominal': cv.nominal, 'calibrated': cv.calibrated},
+        'folds': list(cv.folds),
+        'training': stats(e_pos, e_rot),
+        'parameters_kept': ident.parameters_kept,
+        'parameters_minimum': ident.minimum,
+        'parameters_model': len(ident.kept),
+        'frame_dofs': ident.frame_dofs,
+        'condition_number': ident.condition_number,
+        'converged': final.converged,
+        'identified': [{'name': n, 'value': float(v), 'nominal': float(nominal[n]),
+                        'delta': float(v - nominal[n])} for n, v in zip(final.names,
+                                                                       final.values)],
+        'dropped': [{'name': d.name, 'reason': d.reason} for d in ident.dropped],
+        'correlated': [{'a': a, 'b': b, 'correlation': c} for a, b, c in ident.correlated],
+        'outliers': [{'sample': int(sample[i]), 'error_mm': float(e_pos[i] * 1e3)}
+                     for i in outliers(e_pos)],
+    }

@@ -1,0 +1,113 @@
+"""Measurement files (CSV + YAML sidecar) and `identify --measurement`: units, markers per
+sample, and bad data refused in one line naming the problem."""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+import shutil
+
+import numpy as np
+import pytest
+
+from cobot_calib_ros.cli import identify_measured
+from cobot_calib_ros.cli.common import EXIT_USAGE
+from cobot_calib_ros.loaders.measurements import load_measurements
+
+DATA = Path(__file__).resolve().parent / 'data'
+UR10E = DATA / 'figaroh-ur10e'
+
+
+def write(tmp_path: Path, csv: str, sidecar: str, name: str = 'm') -> Path:
+    (tmp_path / f'{name}.csv').write_text(csv)
+    (tmp_path / f'{name}.yaml').write_text(sidecar)
+    return tmp_path / f'{name}.csv'
+
+
+def test_pose_file_in_mm_and_degrees_with_quaternions(tmp_path):
+    path = write(tmp_path, 'a,b,x,y,z,qw,qx,qy,qz\n90,-45,100,200,300,0.7071067811865476,0,0,'
+                 '0.7071067811865476\n', '''
+measurement: pose
+units: {length: mm, angle: deg}
+joints: [b, a]
+position: [x, y, z]
+rotation: [qw, qx, qy, qz]
+rotation_format: quaternion_wxyz
+''')
+    f = load_measurements(path)
+    np.testing.assert_allclose(f.measurements.q, [[-np.pi / 4, np.pi / 2]])
+    T = f.measurements.values[0]
+    np.testing.assert_allclose(T[:3, 3], [0.1, 0.2, 0.3])
+    np.testing.assert_allclose(T[:3, :3], [[0, -1, 0], [1, 0, 0], [0, 0, 1]], atol=1e-12)
+    assert f.in_joint_order(('a', 'b')).measurements.q[0, 0] == pytest.approx(np.pi / 2)
+
+
+def test_points_with_an_unseen_marker_become_one_row_per_seen_marker(tmp_path):
+    path = write(tmp_path, 'j1,x1,y1,z1,x2,y2,z2,session\n0.1,1,2,3,4,5,6,am\n'
+                 '0.2,1,2,3,,,,pm\n', '''
+measurement: points
+joints: [j1]
+markers: {m1: [x1, y1, z1], m2: [x2, y2, z2]}
+''')
+    f = load_measurements(path)
+    assert f.sample.tolist() == [0, 0, 1] and f.samples == 2
+    assert f.measurements.target.tolist() == [0, 1, 0]
+    np.testing.assert_allclose(f.measurements.q[:, 0], [0.1, 0.1, 0.2])
+    assert f.groups('session').tolist() == ['am', 'am', 'pm']
+
+
+@pytest.mark.parametrize('csv, sidecar, message', [
+    ('a,x,y\n1,2,3\n', 'measurement: points\njoints: [a]\nmarkers: {m: [x, y, z]}\n',
+     r"m\.csv: missing columns \['z'\] \(marker m\)"),
+    ('a,x,y,z\n1,2,3,oops\n', 'measurement: points\njoints: [a]\nmarkers: {m: [x, y, z]}\n',
+     r"line 2, column 'z': 'oops' is not a number"),
+    ('a,x\n1,2\n', 'measurement: laser\n', r'"measurement" must be one of'),
+    ('a,x\n1,2,3\n', 'measurement: pose\n', r'lines \[2\] do not have 2 fields'),
+    ('a,s\n1,0\n', 'measurement: spheres\njoints: [a]\n', r'"sphere" must name the column'),
+])
+def test_bad_files_are_refused_in_one_line(tmp_path, csv, sidecar, message):
+    path = write(tmp_path, csv, sidecar)
+    with pytest.raises(ValueError, match=message) as e:
+        load_measurements(path)
+    assert '\n' not in str(e.value)
+
+
+def test_a_csv_without_its_sidecar_is_refused(tmp_path):
+    (tmp_path / 'm.csv').write_text('a\n1\n')
+    with pytest.raises(ValueError, match=r'm\.yaml: cannot read the sidecar of m\.csv'):
+        load_measurements(tmp_path / 'm.csv')
+
+
+def args(**given) -> argparse.Namespace:
+    defaults = dict(urdf=str(UR10E / 'robot.urdf'), base_link=None, tip_link=None, dh=None,
+                    source=str(UR10E / 'calibration.csv'), measurement='pose', model=None,
+                    folds=None, leave_out=None, json=True, ball=(0.0, 0.0, 0.04))
+    defaults.update(given)
+    return argparse.Namespace(**defaults)
+
+
+def refusal(capsys, **given) -> str:
+    assert identify_measured.run(args(**given)) == EXIT_USAGE
+    out, err = capsys.readouterr()
+    assert out == '' and err.count('\n') == 1
+    return err
+
+
+def test_a_urdf_without_the_named_link_is_refused(capsys):
+    err = refusal(capsys, tip_link='gripper')
+    assert "gripper" in err and 'robot.urdf' in err
+
+
+def test_the_wrong_measurement_kind_is_refused(capsys):
+    assert 'holds pose measurements, not points' in refusal(capsys, measurement='points')
+
+
+def test_too_few_rows_for_the_parameters_are_refused(tmp_path, capsys):
+    lines = (UR10E / 'calibration.csv').read_text().splitlines()
+    (tmp_path / 'few.csv').write_text('\n'.join(lines[:6]) + '\n')
+    shutil.copy(UR10E / 'calibration.yaml', tmp_path / 'few.yaml')
+    err = refusal(capsys, source=str(tmp_path / 'few.csv'), folds=2)
+    assert 'rows give' in err and 'unknowns' in err and 'measure more rows' in err
+
+
+def test_a_leave_out_column_that_is_not_there_is_refused(capsys):
+    assert '--leave-out session: no such column' in refusal(capsys, leave_out='session')
