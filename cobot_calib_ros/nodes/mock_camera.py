@@ -9,6 +9,9 @@ follows the arm through joint_states. Those come at 1 kHz and a frame needs only
 they go to a depth-1 subscription of a hidden helper node that no executor spins, and each
 frame takes the newest one from it (handling all 1 kHz in callbacks cost 30 % of a core). A
 cell without a camera (cell: camera:, landmarks:) leaves the node idle, WARN on /diagnostics.
+While nobody subscribes to ``wrist_camera/image_raw`` it renders and publishes nothing (as a
+driver that streams only to subscribers; landmark_detector subscribes only while someone wants
+landmarks), so an idle suite does not render.
 
 Stamps: an image is stamped with the stamp of the joint_states it shows (as a real camera
 stamps the exposure), not with the clock after rendering: on a busy machine the newest
@@ -20,7 +23,7 @@ Parameters (read at start-up): cell_file, rate_hz (default 10), width and height
 cell's resolution; another one scales the lens to it, e.g. 1280 x 800).
 
 /diagnostics (1 Hz): ``published`` frames, ``render_ms_mean`` over the last second; WARN while
-no joint_states have arrived (nothing is published then).
+no joint_states have arrived (nothing is published then); 'resting' while nobody subscribes.
 """
 from __future__ import annotations
 
@@ -110,6 +113,8 @@ class MockCamera(Node):
         return np.array([by_name[n] for n in self._joint_names]), msg.header.stamp
 
     def _tick(self) -> None:
+        if not self._image_pub.get_subscription_count():
+            return                                  # nobody needs images: rest
         joints = self._positions()
         if joints is None:
             return
@@ -127,6 +132,8 @@ class MockCamera(Node):
         level, message = OK, 'publishing images'
         if self._camera is None:
             level, message = WARN, 'the cell has no camera or no landmarks: no images'
+        elif not self._image_pub.get_subscription_count():
+            level, message = OK, 'resting: nobody subscribes to wrist_camera/image_raw'
         elif self._joints is None:
             level, message = WARN, 'no joint_states yet: no image published'
         self._diagnostics.set(

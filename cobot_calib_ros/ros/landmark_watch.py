@@ -5,6 +5,10 @@ posed in the optical frame) becomes a core.robot_port.LandmarkImage. The newest 
 kept, so a caller blocked in :meth:`LandmarkWatch.landmarks_after` (on its own thread) sees the
 images that arrive on the subscriber's thread (a spin.Companion's) after the time it names.
 The clock is the node's (ROS time: use_sim_time works), as the images' stamps are.
+
+It subscribes only while a capture is on (a landmarks_after call, and LINGER s after the last
+one, so the views of one capture follow each other without a new subscription): landmark_detector
+and the camera rest while nobody subscribes (issue 23).
 """
 from __future__ import annotations
 
@@ -21,6 +25,7 @@ from cobot_calib_ros.ros import convert
 from cobot_calib_ros.ros.time import stamp_to_ns
 
 KEEP = 60           # images kept (2 s at 30 fps): more than arrive during one capture
+LINGER = 10.0       # [s] subscribed after the last capture ended
 KINDS = {Landmark.KIND_MARKER: 'marker', Landmark.KIND_BOARD: 'board'}
 
 
@@ -41,8 +46,34 @@ class LandmarkWatch:
         self._cond = threading.Condition()
         self._images: deque[LandmarkImage] = deque(maxlen=KEEP)
         self.messages = 0
+        self._node = node
+        self._sub = None
+        self._capturing = 0                 # landmarks_after calls in progress
+        self._idle_since = time.monotonic()
         if node is not None:
-            node.create_subscription(Landmarks, 'landmarks', self.on_landmarks, 10)
+            node.create_timer(1.0, self._release_when_idle)
+
+    def _subscribe(self) -> None:
+        with self._cond:
+            self._capturing += 1
+            if self._sub is not None or self._node is None:
+                return
+            self._sub = self._node.create_subscription(Landmarks, 'landmarks',
+                                                       self.on_landmarks, 10)
+
+    def _done(self) -> None:
+        with self._cond:
+            self._capturing -= 1
+            self._idle_since = time.monotonic()
+
+    def _release_when_idle(self) -> None:
+        """Unsubscribe LINGER s after the last capture (the node's executor thread)."""
+        with self._cond:
+            if self._sub is None or self._capturing or \
+                    time.monotonic() - self._idle_since < LINGER:
+                return
+            sub, self._sub = self._sub, None
+        self._node.destroy_subscription(sub)
 
     def now_ns(self) -> int:
         return self._now_ns()
@@ -57,6 +88,14 @@ class LandmarkWatch:
     def landmarks_after(self, t_ns: int, wanted: Callable[[LandmarkImage], bool],
                         max_images: int, timeout: float) -> LandmarkImage:
         """See core.robot_port.CameraPort; images are taken in stamp order."""
+        self._subscribe()
+        try:
+            return self._landmarks_after(t_ns, wanted, max_images, timeout)
+        finally:
+            self._done()
+
+    def _landmarks_after(self, t_ns: int, wanted: Callable[[LandmarkImage], bool],
+                         max_images: int, timeout: float) -> LandmarkImage:
         deadline = time.monotonic() + timeout
         seen, last, after = 0, None, t_ns
         with self._cond:

@@ -199,6 +199,8 @@ class DetectorStatus:
 def test_bad_images_are_counted_and_the_detector_keeps_running(camera_suite):
     client = camera_suite
     status = DetectorStatus(client)
+    # someone wants landmarks: the detector takes images only then
+    wants = client.node.create_subscription(Landmarks, 'landmarks', lambda _: None, 10)
     assert client.spin_until(lambda: bool(status.values), 10.0), _logs(client.suite)
     before = dict(status.values)
     pub = client.node.create_publisher(Image, 'wrist_camera/image_raw',
@@ -227,6 +229,7 @@ def test_bad_images_are_counted_and_the_detector_keeps_running(camera_suite):
     out = status.count('frames_out')
     landmarks_after(client, time.time_ns(), 10.0)           # still detecting
     assert client.spin_until(lambda: status.count('frames_out') > out, 5.0)
+    client.node.destroy_subscription(wants)
 
 
 # -- configuration and the one-slot queue (no processes) ----------------------------------
@@ -284,6 +287,7 @@ def test_an_unknown_dictionary_is_an_error_on_diagnostics_not_a_crash(camera_sui
             seen.update({s.name: s for s in msg.status})
 
         sub = client.node.create_subscription(DiagnosticArray, '/diagnostics', take, 10)
+        wants = client.node.create_subscription(Landmarks, 'bad/landmarks', lambda _: None, 10)
         pub = client.node.create_publisher(Image, 'bad/wrist_camera/image_raw',
                                            qos_profile_sensor_data)
 
@@ -301,7 +305,29 @@ def test_an_unknown_dictionary_is_an_error_on_diagnostics_not_a_crash(camera_sui
         assert 'unknown marker dictionary' in status.message and 'DICT_FOO' in status.message
         assert counted()
         client.node.destroy_subscription(sub)
+        client.node.destroy_subscription(wants)
         client.node.destroy_publisher(pub)
     finally:
+        client.executor.remove_node(node)
+        node.destroy_node()
+
+
+def test_the_detector_takes_images_only_while_someone_wants_landmarks(camera_suite):
+    """Issue 23.13: at rest (nobody subscribes to landmarks) the detector does not subscribe
+    to the images, so the camera rests too; on e6ccb73 it always took them."""
+    client = camera_suite
+    node = LandmarkDetector(context=client.node.context, namespace='rest')
+    client.executor.add_node(node)
+    images = client.node.create_publisher(Image, 'rest/wrist_camera/image_raw',
+                                          qos_profile_sensor_data)
+    try:
+        assert not client.spin_until(lambda: images.get_subscription_count() > 0, 1.5)
+        wants = client.node.create_subscription(Landmarks, 'rest/landmarks', lambda _: None,
+                                                10)
+        assert client.spin_until(lambda: images.get_subscription_count() > 0, 10.0)
+        client.node.destroy_subscription(wants)
+        assert client.spin_until(lambda: images.get_subscription_count() == 0, 10.0)
+    finally:
+        client.node.destroy_publisher(images)
         client.executor.remove_node(node)
         node.destroy_node()

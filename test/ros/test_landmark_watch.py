@@ -86,3 +86,33 @@ def test_images_that_keep_coming_without_the_marker_end_at_the_timeout():
     finally:
         module.time.monotonic = real
     assert image.find('board') is None and image.stamp_ns == 4 * S     # looks at 1..4 s of 5
+
+
+def test_subscribed_only_during_a_capture_and_a_while_after(monkeypatch):
+    """Issue 23.13: the detector and the camera rest while nobody subscribes to landmarks, so
+    the watch subscribes for a capture and LINGER s after it, not all the time."""
+    import rclpy
+    from rclpy.context import Context
+    from cobot_calib_ros.ros import landmark_watch
+
+    context = Context()
+    rclpy.init(context=context)
+    node = rclpy.create_node('landmark_watch_test', context=context)
+    try:
+        watch = LandmarkWatch(lambda: 0, node)
+        topics = lambda: [s.topic_name for s in node.subscriptions]     # noqa: E731
+        assert '/landmarks' not in topics()
+        during = []
+        with pytest.raises(CaptureFailed):
+            watch.landmarks_after(0, lambda im: during.append(topics()) or False, 1, 0.05)
+        watch.on_landmarks(_msg(1, _marker(3)))                 # what the topic would bring
+        assert watch.landmarks_after(0, lambda im: during.append(topics()) or True, 1, 0.05)
+        assert during == [['/landmarks']]
+        watch._release_when_idle()                              # within LINGER: kept
+        assert topics() == ['/landmarks']
+        monkeypatch.setattr(landmark_watch, 'LINGER', 0.0)
+        watch._release_when_idle()
+        assert topics() == []
+    finally:
+        node.destroy_node()
+        rclpy.shutdown(context=context)
