@@ -26,7 +26,8 @@ setup(
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
         ('share/' + package_name + '/config', glob('config/*.yaml')),
-        ('share/' + package_name + '/config/cells', glob('config/cells/*.yaml')),
+        ('share/' + package_name + '/config/cells', glob('config/cells/*.yaml')
+         + glob('config/cells/*.urdf') + glob('config/cells/*.LICENSE')),
     ],
     install_requires=['setuptools'],
     zip_safe=True,

@@ -80,7 +80,8 @@ def test_a_csv_without_its_sidecar_is_refused(tmp_path):
 def args(**given) -> argparse.Namespace:
     defaults = dict(urdf=str(UR10E / 'robot.urdf'), base_link=None, tip_link=None, dh=None,
                     source=str(UR10E / 'calibration.csv'), measurement='pose', model=None,
-                    folds=None, leave_out=None, json=True, ball=(0.0, 0.0, 0.04))
+                    folds=None, leave_out=None, json=True, ball=(0.0, 0.0, 0.04),
+                    loss='soft_l1')
     defaults.update(given)
     return argparse.Namespace(**defaults)
 

@@ -41,63 +41,78 @@ def run(args) -> int:
     return EXIT_OK
 
 
-def _source(args):
+def _source(source: Path, ball):
     from cobot_calib_ros.loaders.measurements import (load_measurements,
                                                       load_socket_measurements)
-    source = Path(args.source).expanduser()
     if source.is_dir() and any(source.glob('*/hole_0.csv')):
-        return load_socket_measurements(source, args.ball)
+        return load_socket_measurements(source, ball)
     if not source.is_file():
-        raise ValueError(f'--source {args.source}: no such file; give a measurement CSV with '
-                         'its YAML sidecar, or a MUKCa folder')
+        raise ValueError(f'--source {source}: no such file; give a measurement CSV with its '
+                         'YAML sidecar, or a MUKCa folder')
     return load_measurements(source)
 
 
-def _model(args, frames: dict, source: Path):
+def _model(source: Path, frames: dict, urdf: str | None, base_link: str | None,
+           tip_link: str | None, dh: str | None):
     from cobot_calib_ros.core.kinematics.urdf import model_from_urdf
     from cobot_calib_ros.loaders.measurements import load_dh_table
-    if args.dh:
-        return load_dh_table(args.dh)
-    if args.urdf:
-        urdf = Path(args.urdf).expanduser()
+    if dh:
+        return load_dh_table(dh)
+    if urdf:
+        path = Path(urdf).expanduser()
     elif source.is_dir() and (source.parent / 'iiwa14.urdf').is_file():
-        urdf = source.parent / 'iiwa14.urdf'              # MUKCa's layout
+        path = source.parent / 'iiwa14.urdf'              # MUKCa's layout
     else:
         raise ValueError('give the robot: --urdf FILE --base-link L --tip-link L, or --dh FILE')
-    base = args.base_link or frames.get('base') or 'base_link'
-    tip = args.tip_link or frames.get('tip')
+    base = base_link or frames.get('base') or 'base_link'
+    tip = tip_link or frames.get('tip')
     if not tip:
         raise ValueError('give --tip-link (the sidecar names no frames.tip)')
     try:
-        text = urdf.read_text(encoding='utf-8')
+        text = path.read_text(encoding='utf-8')
     except OSError as e:
-        raise ValueError(f'--urdf {urdf}: cannot read ({e.strerror})') from None
+        raise ValueError(f'--urdf {path}: cannot read ({e.strerror})') from None
     try:
-        return model_from_urdf(text, base, tip, urdf.stem)
+        return model_from_urdf(text, base, tip, path.stem)
     except ValueError as e:
-        raise ValueError(f'--urdf {urdf}: {e}') from None
+        raise ValueError(f'--urdf {path}: {e}') from None
 
 
 def identify(args) -> dict:
-    """The report (core measurement_fit.identify_measurements) of the command line's data."""
+    """The report of the command line's data (:func:`identify_file`)."""
+    return identify_file(args.source, args.measurement, urdf=args.urdf,
+                         base_link=args.base_link, tip_link=args.tip_link, dh=args.dh,
+                         model=args.model, folds=args.folds, leave_out=args.leave_out,
+                         ball=args.ball, loss=args.loss)
+
+
+def identify_file(source: str | Path, measurement: str, *, urdf: str | None = None,
+                  base_link: str | None = None, tip_link: str | None = None,
+                  dh: str | None = None, model: str | None = None, folds: int | None = None,
+                  leave_out: str | None = None, ball=(0.0, 0.0, 0.04),
+                  loss: str = 'soft_l1') -> dict:
+    """Identify a measurement file (or MUKCa folder) held out: the report of core
+    measurement_fit.identify_measurements with the source, validation and frames. ValueError
+    (one line) for bad data or arguments."""
     from cobot_calib_ros.core.kinematics.identification import measurement_fit as mf
-    file = _source(args)
-    if file.measurements.kind != args.measurement:
+    source = Path(source).expanduser()
+    file = _source(source, ball)
+    if file.measurements.kind != measurement:
         raise ValueError(f'{file.source} holds {file.measurements.kind} measurements, not '
-                         f'{args.measurement}: pass --measurement {file.measurements.kind}')
-    model = _model(args, file.frames, Path(args.source).expanduser())
-    file = file.in_joint_order(model.joint_names)
-    errors = mf.ErrorModel(model, args.model or ('mdh' if model.kind == 'mdh' else 'full'))
-    leave_out = args.leave_out or (None if args.folds else _default_group(file))
+                         f'{measurement}: pass --measurement {file.measurements.kind}')
+    robot = _model(source, file.frames, urdf, base_link, tip_link, dh)
+    file = file.in_joint_order(robot.joint_names)
+    errors = mf.ErrorModel(robot, model or ('mdh' if robot.kind == 'mdh' else 'full'))
+    leave_out = leave_out or (None if folds else _default_group(file))
     if leave_out:
         labels, held = mf.by_group(file.groups(leave_out))
         validation = {'leave_out': leave_out, 'groups': list(labels)}
     else:
-        k = args.folds or DEFAULT_FOLDS
+        k = folds or DEFAULT_FOLDS
         held = mf.held_out_rows(file.sample, mf.kfold(file.samples, k))
         labels, validation = tuple(f'fold {i}' for i in range(k)), {'folds': k}
     report = mf.identify_measurements(errors, file.measurements, held, labels=labels,
-                                      sample=file.sample)
+                                      sample=file.sample, loss=loss)
     return {'source': file.source, 'validation': validation, 'frames': file.frames, **report}
 
 

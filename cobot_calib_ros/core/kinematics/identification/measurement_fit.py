@@ -10,7 +10,9 @@ Error models (``ERROR_MODELS``) over a :class:`KinematicModel` (from a URDF, or 
 Unknowns are the free model parameters then the measurement's nuisance (base and target
 frames, markers, sphere centres, planes: :mod:`.measurements`). Jacobians are central
 differences of the residuals (step ``FD_STEP``, accurate to ~1e-9 relative, which the rank
-tolerance below is far above); the solver is scipy's trust-region least squares.
+tolerance below is far above); the solver is scipy's trust-region least squares, with a
+robust loss if asked (``soft_l1``, the CLI's default: inliers within the median residual of
+the start, the nominal model with its fitted frames).
 
 Identifiability (:func:`identifiable`) on the data's own Jacobian at the start point, columns
 scaled to unit norm: the nuisance columns first, then the model's parameters in a fixed order
@@ -143,13 +145,16 @@ class _Problem:
             columns.append((pair[0] - pair[1]) / (2.0 * FD_STEP))
         return np.stack(columns, axis=1)
 
-    def solve(self, max_nfev: int = 200) -> tuple[Array, bool]:
+    def solve(self, max_nfev: int = 200, loss: str = 'linear') -> tuple[Array, bool]:
         if not np.all(np.isfinite(self.residuals(self.x0))):
             raise ValueError('the start model gives non-finite residuals: check the joint '
                              'columns and the units in the sidecar')
+        f_scale = 1.0
+        if loss != 'linear':      # inliers: within ~ the start's median residual
+            f_scale = max(float(np.median(np.abs(self.residuals(self.x0)))), 1e-9)
         r = least_squares(self.residuals, self.x0, jac=lambda x: self.jacobian(x),
                           method='trf', x_scale='jac', xtol=1e-15, ftol=1e-15, gtol=1e-15,
-                          max_nfev=max_nfev)
+                          max_nfev=max_nfev, loss=loss, f_scale=f_scale)
         return r.x, bool(r.status > 0)
 
 
@@ -264,7 +269,7 @@ class Fit:
 
 
 def fit(errors: ErrorModel, data: Measurements, names: tuple[str, ...],
-        nuisance: Array | None = None) -> Fit:
+        nuisance: Array | None = None, loss: str = 'linear') -> Fit:
     """Least squares over the named model parameters (none: the nuisance alone) and the
     nuisance on ``data``, from the nominal model and ``nuisance`` (default: the kind's
     start)."""
@@ -275,7 +280,7 @@ def fit(errors: ErrorModel, data: Measurements, names: tuple[str, ...],
         raise ValueError(f'{len(data)} rows give {count} equations for {minimum} unknowns '
                          f'({len(names)} parameters + {minimum - len(names)} frames/targets): '
                          f'measure more rows or use a smaller --model')
-    x, converged = problem.solve()
+    x, converged = problem.solve(loss=loss)
     return Fit(tuple(names), x[:problem.n], x[problem.n:], converged, problem)
 
 
@@ -317,7 +322,7 @@ class CrossValidation:
 
 def cross_validate(errors: ErrorModel, data: Measurements, held_out: list[Array],
                    labels: tuple[str, ...] | None = None,
-                   rank_tol: float = RANK_TOL) -> CrossValidation:
+                   rank_tol: float = RANK_TOL, loss: str = 'linear') -> CrossValidation:
     """For each fold: identifiability and fits on the other rows, errors on the held-out."""
     m = len(data)
     pos = {'nominal': np.full(m, np.nan), 'calibrated': np.full(m, np.nan)}
@@ -326,12 +331,12 @@ def cross_validate(errors: ErrorModel, data: Measurements, held_out: list[Array]
     for f, rows in enumerate(held_out):
         train = data.take(np.setdiff1d(np.arange(m), rows))
         test = data.take(rows)
-        nominal = fit(errors, train, ())
+        nominal = fit(errors, train, (), loss=loss)
         ident = identifiable(errors, train, rank_tol, nominal.nuisance)
         entry = {'held_out': labels[f] if labels else f, 'rows': int(len(rows)),
                  'parameters': len(ident.kept)}
         for name, result in (('nominal', nominal), ('calibrated', fit(
-                errors, train, ident.kept, nominal.nuisance))):
+                errors, train, ident.kept, nominal.nuisance, loss))):
             e_pos, e_rot = result.row_errors(test)
             pos[name][rows], rot[name][rows] = e_pos, e_rot
             entry[name] = stats(e_pos, e_rot)
@@ -358,19 +363,20 @@ def held_out_rows(sample: Array, folds: list[Array]) -> list[Array]:
 
 def identify_measurements(errors: ErrorModel, data: Measurements, held_out: list[Array], *,
                           labels: tuple[str, ...] | None = None, sample: Array | None = None,
-                          rank_tol: float = RANK_TOL) -> dict:
+                          rank_tol: float = RANK_TOL, loss: str = 'linear') -> dict:
     """Cross-validation, then identifiability, the fit and the outlier rule on all rows: the
     report of ``cobot-calib identify --measurement`` (JSON-ready). ``sample`` maps rows to
     samples (CSV data rows) for the outliers (default: the rows themselves)."""
     sample = np.arange(len(data)) if sample is None else np.asarray(sample)
-    nominal = fit(errors, data, ())
+    nominal = fit(errors, data, (), loss=loss)
     ident = identifiable(errors, data, rank_tol, nominal.nuisance)
-    final = fit(errors, data, ident.kept, nominal.nuisance)
-    cv = cross_validate(errors, data, held_out, labels, rank_tol)
+    final = fit(errors, data, ident.kept, nominal.nuisance, loss)
+    cv = cross_validate(errors, data, held_out, labels, rank_tol, loss)
     e_pos, e_rot = final.row_errors(data)
     nominal = dict(zip(errors.candidates, errors.start(errors.candidates)))
     return {
         'measurement': data.kind, 'model': errors.name, 'robot': errors.model.name,
+        'loss': loss,
         'rows': len(data), 'samples': int(len(np.unique(sample))),
         'held_out': {'nominal': cv.nominal, 'calibrated': cv.calibrated},
         'folds': list(cv.folds),

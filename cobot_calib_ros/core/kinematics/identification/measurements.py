@@ -35,7 +35,8 @@ from cobot_calib_ros.core.frames import from_vector, invert, kabsch, skew
 
 Array = NDArray[np.float64]
 KINDS = ('spheres', 'points', 'pose', 'plane')
-DEFAULT_ROTATION_WEIGHT = 0.5   # [m/rad]: 1 mrad counts as 0.5 mm (camera-on-board data)
+DEFAULT_ROTATION_WEIGHT = 1.0   # [m/rad]: 1 mrad counts as 1 mm
+START_POSES = 24                # poses (evenly spread) for the closed-form start of a pose fit
 
 
 def _rows(values: ArrayLike, shape_tail: tuple[int, ...], what: str, m: int) -> Array:
@@ -223,7 +224,8 @@ class PoseKind(Kind):
         d = self.data
         if len(d) >= 3:
             from cobot_calib_ros.core.landmarks.hand_eye import park_martin  # (pulls cv2)
-            target = park_martin(T_tip, invert_all(d.values))   # T_tip_target, AX = XB
+            some = np.unique(np.linspace(0, len(d) - 1, START_POSES).astype(int))
+            target = park_martin(T_tip[some], invert_all(d.values[some]))   # T_tip_target
         else:
             target = np.eye(4)
         base = _mean_pose(d.values @ invert_all(T_tip @ target))
