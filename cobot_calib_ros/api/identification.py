@@ -108,8 +108,9 @@ def identify_on_suite(client: IdentifyClient, *, say: Callable[[str], None],
         'calibration_id': result.calibration_id, 'message': result.message,
         'dropped_parameters': list(result.dropped_parameters),
         'dropped_reasons': dict(zip(result.dropped_parameters, result.dropped_reasons)),
-        'identified': [{'name': n, 'value': v, 'std': s} for n, v, s in
-                       zip(result.parameter_names, result.values, result.std)],
+        'identified': [{'name': n, 'value': v, 'nominal': n0, 'std': s} for n, v, n0, s in
+                       zip(result.parameter_names, result.values, result.nominal_values,
+                           result.std)],
         'validation': _stats_pair(data['validation_nominal'], data['validation_calibrated']),
         'validation_workspace': _stats_pair(data['workspace_nominal'],
                                             data['workspace_calibrated']),
@@ -181,8 +182,9 @@ def identify_from_bag(folder: str | Path, cell_name: str, *, solver: str = 'lm',
     r = outcome.result
     report = {'source': str(folder), 'poses': poses, 'message': outcome.summary(),
               'dropped_parameters': [d.name for d in outcome.identifiability.dropped],
-              'identified': [{'name': n, 'value': float(v), 'std': float(sd)} for n, v, sd in
-                             zip(r.free, outcome.free_values, r.std)],
+              'identified': [{'name': n, 'value': float(v), 'nominal': float(v0),
+                              'std': float(sd)} for n, v, v0, sd in
+                             zip(r.free, outcome.free_values, outcome.nominal_values, r.std)],
               'validation': {}, 'validation_workspace': {}, 'solve_seconds': r.solve_seconds,
               'rms_mm': r.rms_m * 1e3, 'calibration_id': '', 'table6': outcome.table}
     return report, outcome

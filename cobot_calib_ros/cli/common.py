@@ -77,3 +77,25 @@ def add_intermixed_parser(subparsers, name: str, **kwargs) -> IntermixedParser:
     parser = subparsers.add_parser(name, **kwargs)
     parser.__class__ = IntermixedParser       # add_parser has no per-verb parser class
     return parser
+
+
+def cell_names() -> str:
+    """The cells in config/cells, by name: 'iiwa7_close, sawyer_close'."""
+    from cobot_calib_ros import paths
+    return ', '.join(sorted(p.stem for p in (paths.config_dir() / 'cells').glob('*.yaml')))
+
+
+def cell_problem(name_or_path: str, layout: str = '') -> str:
+    """'' if the cell file (a path or a name in config/cells) is usable, else one line: the
+    file, the line and key, what is expected (or the cells there are)."""
+    from cobot_calib_ros import paths
+    from cobot_calib_ros.core.cell import CellFileError
+    from cobot_calib_ros.loaders import load_cell
+    path = paths.cell_file(name_or_path)
+    if not path.is_file():
+        return f'cell file {path} not found; give a cell YAML path or a name ({cell_names()})'
+    try:
+        load_cell(path, layout or None)
+    except CellFileError as e:
+        return str(e)
+    return ''

@@ -16,8 +16,8 @@ from pathlib import Path
 
 from cobot_calib_ros.api.identification import PAPER_RATIO_PERCENT
 from cobot_calib_ros.cli import identify_measured
-from cobot_calib_ros.cli.common import (EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK, EXIT_USAGE,
-                                        fail, say)
+from cobot_calib_ros.cli.common import (cell_problem, EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK,
+                                        EXIT_USAGE, fail, say)
 from cobot_calib_ros.paths import DEFAULT_CELL
 
 CELLS = {'iiwa7': 'iiwa7_close', 'sawyer': DEFAULT_CELL}   # --robot: its default cell
@@ -64,6 +64,9 @@ def run(args) -> int:
     if args.max_configs < 0 or args.validation_configs < 0 or not args.hold > 0:
         return fail('--max-configs and --validation-configs must be >= 0, --hold > 0 [s]',
                     EXIT_USAGE)
+    problem = cell_problem(args.cell) if args.cell else ''
+    if problem:
+        return fail(f'identify: {problem}', EXIT_USAGE)
     if args.measurement:
         return identify_measured.run(args)
     if args.source != 'mock':
@@ -149,11 +152,7 @@ def _print(args, report: dict) -> None:
     print(f'\n{report["message"]}')
     print(f'dropped (not identifiable or tied to the world frame): '
           f'{", ".join(report["dropped_parameters"])}')
-    print(f'\n{"identified":<12}{"value":>16}{"std":>14}')
-    for p in report['identified']:
-        length = not p['name'].startswith(('alpha', 'theta', 'roll', 'pitch', 'yaw'))
-        unit, scale = ('mm', 1e3) if length else ('mrad', 1e3)
-        print(f'{p["name"]:<12}{p["value"] * scale:>12.4f} {unit:<4}{p["std"] * scale:>10.4f}')
+    _print_parameters(report['identified'])
     for key, title in (('validation', 'calibrated volume'),
                        ('validation_workspace', 'workspace spread')):
         rows = report[key]
@@ -171,6 +170,18 @@ def _print(args, report: dict) -> None:
     if report['calibration_id']:
         print(f'\nstored and active: {report["calibration_id"]}\n  {report["yaml_path"]}\n'
               f'  {report["urdf_path"]}')
+
+
+def _print_parameters(identified: list[dict]) -> None:
+    """Each parameter as its deviation from nominal (as the paper's tables) and absolute, in
+    mm (lengths) or mrad (angles); the ± is one standard deviation of the identified value."""
+    print(f'\n{"parameter":<14}{"deviation":>16}{"std":>12}{"nominal":>16}{"identified":>16}')
+    for p in identified:
+        length = not p['name'].startswith(('alpha', 'theta', 'roll', 'pitch', 'yaw'))
+        unit = 'mm' if length else 'mrad'
+        value, nominal, std = (p[k] * 1e3 for k in ('value', 'nominal', 'std'))
+        print(f'{p["name"]:<14}{value - nominal:>+11.4f} {unit:<4}{std:>7.4f} {unit:<4}'
+              f'{nominal:>11.4f} {unit:<4}{value:>11.4f} {unit}')
 
 
 def _bag(args, folder: Path) -> int:
@@ -209,7 +220,7 @@ def _mukca(args, folder: Path) -> int:
     except OSError as e:
         return fail(f'{urdf}: {e.strerror}; give the nominal URDF with --urdf', EXIT_USAGE)
     except ValueError as e:
-        return fail(f'{folder}: {e}', EXIT_FAILED)
+        return fail(str(e) if str(folder) in str(e) else f'{folder}: {e}', EXIT_FAILED)
     report = {'robot': model.name, 'folds': [
         {'held_out': f.location, 'free_parameters': len(f.free),
          'mae_before_mm': f.before['mae_mm'], 'mae_after_mm': f.after['mae_mm'],

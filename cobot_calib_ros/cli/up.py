@@ -5,7 +5,7 @@ import signal
 import sys
 import time
 
-from cobot_calib_ros.cli.common import domain_id, EXIT_USAGE, fail, ros_node
+from cobot_calib_ros.cli.common import cell_problem, domain_id, EXIT_USAGE, fail, ros_node
 from cobot_calib_ros.paths import DEFAULT_CELL
 
 # Discovery before starting: the first node of a running suite showed up within 0.1 s in
@@ -34,14 +34,8 @@ def add_parser(subparsers):
 
 
 def run(args) -> int:
-    from cobot_calib_ros import paths
     from cobot_calib_ros.api import launcher
-    cell = paths.cell_file(args.cell)
-    if not cell.is_file():
-        names = ', '.join(sorted(p.stem for p in (paths.config_dir() / 'cells').glob('*.yaml')))
-        return fail(f'cell file {cell} not found; give a cell YAML path or a name ({names})',
-                    EXIT_USAGE)
-    problem = cell_problem(cell, args.layout)
+    problem = cell_problem(args.cell, args.layout) or simulation_problem(args.cell, args.layout)
     if problem:
         return fail(f'{problem}; nothing started', EXIT_USAGE)
     layout = {'layout': args.layout} if args.layout else {}
@@ -56,15 +50,14 @@ def run(args) -> int:
     return _serve(launcher.Suite(launcher.default_log_dir(), own_group=True), specs)
 
 
-def cell_problem(path, layout: str) -> str:
-    """'' if both parts of the cell file are usable, else file:line: key: what is expected.
-
-    `up` starts the mock robot, so it checks the simulation part too, before any node runs.
-    """
+def simulation_problem(cell: str, layout: str) -> str:
+    """'' if the mock robot's part of the cell file is usable too, else file:line: key: what is
+    expected: `up` starts the mock, so it checks that part before any node runs."""
+    from cobot_calib_ros import paths
     from cobot_calib_ros.core.cell import CellFileError
     from cobot_calib_ros.sim.scenario import load_simulation
     try:
-        load_simulation(path, layout or None)
+        load_simulation(paths.cell_file(cell), layout or None)
     except CellFileError as e:
         return str(e)
     return ''

@@ -66,14 +66,23 @@ def load_socket_data(folder: str | Path, distance: float | None = None):
                    if p.is_dir() and all((p / f).is_file() for f in sockets.SOCKET_FILES))
     if not names:
         raise ValueError(f'no <location>/hole_0.csv + hole_1.csv under {str(root)!r}')
-    tables = {}
-    for name in names:
-        tables[name] = []
-        for file in sockets.SOCKET_FILES:
-            path = root / name / file
-            try:
-                tables[name].append((str(path), np.loadtxt(path, delimiter=',', ndmin=2)))
-            except ValueError as exc:
-                raise ValueError(f'{path}: not a comma-separated numeric table ({exc})') from None
+    tables = {name: [(str(root / name / file), _numeric_table(root / name / file))
+                     for file in sockets.SOCKET_FILES] for name in names}
     return sockets.socket_data(
         tables, sockets.SOCKET_DISTANCE if distance is None else distance)
+
+
+def _numeric_table(path: Path):
+    """The rows of a comma-separated numeric file (2-D); ValueError naming the file when it is
+    empty or not such a table (numpy's own warning for an empty file is not shown)."""
+    import warnings
+    import numpy as np
+    expected = 'expected one row per configuration, one column per joint [rad], comma-separated'
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter('error', UserWarning)     # loadtxt: "input contained no data"
+            return np.loadtxt(path, delimiter=',', ndmin=2)
+    except UserWarning:
+        raise ValueError(f'{path}: empty; {expected}') from None
+    except ValueError as exc:
+        raise ValueError(f'{path}: not a numeric table ({exc}); {expected}') from None

@@ -366,6 +366,7 @@ class KinematicIdentifier(Node):
         r = outcome.result
         result.parameter_names = list(r.free)
         result.values = [float(v) for v in outcome.free_values]
+        result.nominal_values = [float(v) for v in outcome.nominal_values]
         result.std = [float(v) for v in r.std]
         result.dropped_parameters = [d.name for d in outcome.identifiability.dropped]
         result.dropped_reasons = [d.reason for d in outcome.identifiability.dropped]

@@ -27,3 +27,50 @@ def test_wrong_sources_say_what_is_accepted(capsys, tmp_path):
     assert main(['identify', '--source', str(MUKCA), '--urdf', str(tmp_path / 'x.urdf')]) == 2
     assert 'give the nominal URDF with --urdf' in capsys.readouterr().err
     assert main(['identify', '--max-configs', '-1']) == 2
+
+
+def test_a_broken_or_missing_cell_is_refused_before_any_suite_starts(capsys, tmp_path):
+    """Issue 23.4: on e6ccb73 a broken --cell started a private suite and failed 60 s later
+    with an unrelated message."""
+    broken = tmp_path / 'broken.yaml'
+    broken.write_text('cell:\n  name: broken\n  robot: sawyer\n  layouts: {close: {P1: [0.1, 0.1]}\n')
+    assert main(['identify', '--cell', str(broken)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f'identify: {broken}: not valid YAML') and len(err.splitlines()) == 1
+    assert main(['identify', '--cell', 'no_such_cell', '--attach']) == 2
+    err = capsys.readouterr().err
+    assert 'no_such_cell.yaml not found' in err and 'iiwa7_close, sawyer_close' in err
+
+
+def _socket_folder(tmp_path: Path, hole_0: str) -> Path:
+    folder = tmp_path / 'sockets'
+    (folder / 'front').mkdir(parents=True)
+    (folder / 'front' / 'hole_0.csv').write_text(hole_0)
+    (folder / 'front' / 'hole_1.csv').write_text('0,0,0,0,0,0,0\n')
+    return folder
+
+
+def test_an_empty_or_malformed_socket_file_is_named_without_a_numpy_warning(capsys, tmp_path,
+                                                                             recwarn):
+    """Issue 23.10: numpy's 'input contained no data' warning, and an error without the file."""
+    urdf = str(MUKCA.parent / 'iiwa14.urdf')
+    for text, why in (('', 'empty'), ('0,0,x,0,0,0,0\n', 'not a numeric table')):
+        folder = _socket_folder(tmp_path / why.replace(' ', '_'), text)
+        assert main(['identify', '--source', str(folder), '--urdf', urdf]) == 1
+        err = capsys.readouterr().err
+        assert err.startswith(f'{folder / "front" / "hole_0.csv"}: {why}'), err
+        assert 'expected one row per configuration, one column per joint' in err
+    assert not [str(w.message) for w in recwarn]
+
+
+def test_parameters_print_as_deviation_from_nominal_and_absolute_with_units(capsys):
+    """Issue 23.11: the paper's tables give deviations from nominal; both are printed."""
+    from cobot_calib_ros.cli.identify import _print_parameters
+    _print_parameters([{'name': 'a_2', 'value': 0.40012, 'nominal': 0.4, 'std': 2e-6},
+                       {'name': 'alpha_3', 'value': -1.5703, 'nominal': -1.5708, 'std': 1e-5}])
+    lines = capsys.readouterr().out.split('\n')[1:]
+    assert lines[0].split() == ['parameter', 'deviation', 'std', 'nominal', 'identified']
+    assert lines[1].split() == ['a_2', '+0.1200', 'mm', '0.0020', 'mm', '400.0000', 'mm',
+                                '400.1200', 'mm']
+    assert lines[2].split() == ['alpha_3', '+0.5000', 'mrad', '0.0100', 'mrad', '-1570.8000',
+                                'mrad', '-1570.3000', 'mrad']

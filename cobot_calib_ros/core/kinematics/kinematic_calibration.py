@@ -74,6 +74,7 @@ class Outcome:
     result: IdentificationResult
     identifiability: Identifiability
     free_values: Array                # identified values of result.free [m, rad]
+    nominal_values: Array             # the same parameters of the nominal model [m, rad]
     validation: dict[str, dict]       # region -> {'nominal': stats, 'calibrated': stats}
     table: str                        # the identified model as the paper's Table 6
 
@@ -129,8 +130,10 @@ class CalibrationJob:
         validation = {region: self.validate(result, data)
                       for region, data in self.validation.items()}
         free_values = parameter_set.values(result.params, result.tool_xyz)
+        nominal_values = parameter_set.values(model.nominal, self.tool_xyz0)
         table = table6(model, result.params)
         return Outcome(model, self._inputs(result), result, identifiability, free_values,
+                       nominal_values,
                        validation, table)
 
     def validate(self, result: IdentificationResult, data: PositionObservations) -> dict:
