@@ -12,6 +12,7 @@ line, the key and what is expected.
 from __future__ import annotations
 
 from dataclasses import dataclass
+import difflib
 import math
 from pathlib import Path
 from typing import Any
@@ -25,6 +26,24 @@ from cobot_calib_ros.core.kinematics.robots import ROBOTS, UrdfRobot
 
 Array = NDArray[np.float64]
 FRAME_ID_CHARS = frozenset('abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_/')
+MAX_CELL_LENGTH = 10.0
+"""[m] No point of a cobot cell (a marker, a tool, a sphere, a camera) is this far from the
+origin of the frame it is given in: a larger length is millimetres."""
+
+_POSE = {'xyz': None, 'rpy': None}
+CELL_KEYS: dict[str, Any] = {
+    'name': None, 'robot': {'urdf': None, 'name': None, 'base_link': None, 'tip_link': None},
+    'base_frame': None, 'tool_frame': None, 'user_frame': None, 'home': None,
+    'tool_offset': _POSE, 'markers': {'size': None}, 'layout': None, 'layouts': None,
+    'spheres': {'diameter': None, 'centres': None, 'plate': _POSE, 'coupling_offset': _POSE,
+                'approach_rpy': None},
+    'camera': {'frame_id': None, 'hand_eye': _POSE, 'resolution': None, 'intrinsics': None,
+               'distortion_model': None, 'distortion': None},
+    'landmarks': {'dictionary': None, 'marker_length': None, 'markers': None,
+                  'board': {'spec': None, 'pose': None}},
+}
+"""The keys of a cell file's ``cell:`` mapping, nested; None: any value (a mapping there holds
+the user's names: layouts, points, spheres, marker ids)."""
 
 
 class CellFileError(ValueError):
@@ -242,6 +261,33 @@ class CellReader:
             raise self.fail(keys, f'expected a list of {size}finite numbers, got {value!r}')
         return np.asarray(value, dtype=float)
 
+    def lengths(self, *keys: str, length: int, count: int | None = None,
+                default: Any = ...) -> Array:
+        """A vector as :meth:`vector` whose first ``count`` values (default all) are lengths
+        [m] within MAX_CELL_LENGTH of the origin."""
+        value = self.vector(*keys, length=length, default=default)
+        far = np.abs(value[:count]).max(initial=0.0)
+        if far > MAX_CELL_LENGTH:
+            raise self.fail(keys, f'{value[:count].tolist()} is {far:g} m from the origin, '
+                            f'beyond the {MAX_CELL_LENGTH:g} m of any cell: lengths are in '
+                            'metres (millimetres given?)')
+        return value
+
+    def check_keys(self, known: dict[str, Any]) -> None:
+        """Refuse a key that is not in ``known`` (nested as CELL_KEYS), naming the nearest
+        known one: a misspelt key would otherwise be ignored and its default used."""
+        self._check_keys((), self.data, known)
+
+    def _check_keys(self, keys: tuple[str, ...], mapping: dict, known: dict[str, Any]) -> None:
+        for key, value in mapping.items():
+            if key not in known:
+                near = difflib.get_close_matches(str(key), known, n=1)
+                hint = f'did you mean {near[0]!r}? ' if near else ''
+                raise self.fail((*keys, key), f'unknown key {key!r}; {hint}known here: '
+                                f'{", ".join(known)}')
+            if isinstance(known[key], dict) and isinstance(value, dict):
+                self._check_keys((*keys, key), value, known[key])
+
     def name(self, *keys: str, default: Any = ...) -> str:
         value = self.get(*keys, default=default)
         if not isinstance(value, str) or not value:
@@ -254,6 +300,7 @@ def parse_cell(text: str, path: str | Path, layout: str | None = None) -> Cell:
     reads the file, and the URDF of a URDF robot), with ``layout`` (default: the file's
     ``layout``)."""
     r = CellReader(Path(path), text, 'cell')
+    r.check_keys(CELL_KEYS)
     robot, urdf_robot = _robot(r)
     frames_ = {k: r.name(k, default=d) for k, d in (
         ('base_frame', 'base_link'), ('tool_frame', 'tool0'), ('user_frame', 'user_frame'))}
@@ -270,7 +317,7 @@ def parse_cell(text: str, path: str | Path, layout: str | None = None) -> Cell:
     return Cell(
         name=r.name('name', default=Path(path).stem), robot=robot, urdf_robot=urdf_robot,
         **frames_,
-        tool_offset=frames.from_xyz_rpy(r.vector('tool_offset', 'xyz', length=3),
+        tool_offset=frames.from_xyz_rpy(r.lengths('tool_offset', 'xyz', length=3),
                                         r.vector('tool_offset', 'rpy', length=3)),
         home=r.vector('home'), layout=chosen, layouts=tuple(layouts),
         markers=_markers(r, chosen), spheres=_spheres(r), camera=_camera(r),
@@ -301,16 +348,16 @@ def _spheres(r: CellReader) -> SpherePlate | None:
         raise r.fail(('spheres', 'centres'), 'expected a mapping of at least two sphere names '
                      '-> [x, y, z] centres in the plate frame [m]')
     names = tuple(str(n) for n in centres)
-    points = np.array([r.vector('spheres', 'centres', n, length=3) for n in names])
+    points = np.array([r.lengths('spheres', 'centres', n, length=3) for n in names])
     diameter = r.number('spheres', 'diameter')
     if not 0.001 < diameter < 0.5:
         raise r.fail(('spheres', 'diameter'), f'expected a diameter in metres, got {diameter}')
     return SpherePlate(
         names=names, centres_plate=points, diameter=diameter,
-        T_base_plate=frames.from_xyz_rpy(r.vector('spheres', 'plate', 'xyz', length=3),
+        T_base_plate=frames.from_xyz_rpy(r.lengths('spheres', 'plate', 'xyz', length=3),
                                          r.vector('spheres', 'plate', 'rpy', length=3)),
         coupling_offset=frames.from_xyz_rpy(
-            r.vector('spheres', 'coupling_offset', 'xyz', length=3),
+            r.lengths('spheres', 'coupling_offset', 'xyz', length=3),
             r.vector('spheres', 'coupling_offset', 'rpy', length=3)),
         approach_rpy=r.vector('spheres', 'approach_rpy', length=3))
 
@@ -322,7 +369,7 @@ def _markers(r: CellReader, layout: str) -> tuple[Marker, ...]:
     points = r.get('layouts', layout)
     if not isinstance(points, dict) or not points:
         raise r.fail(('layouts', layout), 'expected a mapping of point name -> [x, y] [m]')
-    return tuple(Marker(str(name), tuple(r.vector('layouts', layout, str(name), length=2)),
+    return tuple(Marker(str(name), tuple(r.lengths('layouts', layout, str(name), length=2)),
                         tuple(size)) for name in points)
 
 
@@ -341,7 +388,7 @@ def _camera(r: CellReader) -> WristCamera | None:
     D = r.vector('camera', 'distortion', default=[])
     K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
     camera = WristCamera(frame_id, frames.from_xyz_rpy(
-        r.vector('camera', 'hand_eye', 'xyz', length=3),
+        r.lengths('camera', 'hand_eye', 'xyz', length=3),
         r.vector('camera', 'hand_eye', 'rpy', length=3)), int(width), int(height), K, D, model)
     try:
         camera.camera_model()
@@ -369,7 +416,8 @@ def _landmarks(r: CellReader) -> Landmarks | None:
     for key in placements:
         if isinstance(key, bool) or not isinstance(key, int) or key < 0:
             raise r.fail((*keys, 'markers'), f'marker ids are integers >= 0, got {key!r}')
-        markers[key] = tuple(float(v) for v in r.vector(*keys, 'markers', key, length=3))
+        markers[key] = tuple(float(v) for v in r.lengths(*keys, 'markers', key, length=3,
+                                                          count=2))
     board, pose = '', None
     if r.get(*keys, 'board', default=None) is not None:
         board = r.name(*keys, 'board', 'spec')
@@ -377,5 +425,5 @@ def _landmarks(r: CellReader) -> Landmarks | None:
             BoardSpec.parse(board)
         except ValueError as e:
             raise r.fail((*keys, 'board', 'spec'), str(e)) from None
-        pose = tuple(float(v) for v in r.vector(*keys, 'board', 'pose', length=3))
+        pose = tuple(float(v) for v in r.lengths(*keys, 'board', 'pose', length=3, count=2))
     return Landmarks(dictionary, length, markers, board, pose)

@@ -203,6 +203,9 @@ class UserFrameSolver(Node):
     # -- calibrate ------------------------------------------------------------------------
     def _on_calibrate(self, request, response):
         fit = None
+        unknown = landmark_frames.method_problem(request.method)
+        if unknown is not None:
+            return self._refuse(response, unknown.code, unknown.message)
         try:
             frames_ = self._request_frames(request)
             if request.method in landmark_frames.LANDMARK_METHODS:

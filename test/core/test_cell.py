@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from cobot_calib_ros.core.cell import CellFileError, check_frame_id
+from cobot_calib_ros.core.cell import CELL_KEYS, CellFileError, check_frame_id
 from cobot_calib_ros.loaders import load_cell
 from cobot_calib_ros.paths import cell_file
 
@@ -28,7 +28,8 @@ def _broken(tmp_path, old: str, new: str):
 
 
 @pytest.mark.parametrize('old, new, words', [
-    ('  robot: sawyer ', '  robt: sawyer ', ['broken.yaml:', 'cell.robot', 'missing']),
+    ('  robot: sawyer ', '  robt: sawyer ', ['broken.yaml:', 'cell.robt', 'unknown key',
+                                             "did you mean 'robot'?"]),
     ('  robot: sawyer ', '  robot: ur5 ', ['cell.robot', "unknown robot 'ur5'"]),
     ('  layout: close', '  layout: narrow', ['cell.layout', 'close, wide']),
     ('    xyz: [0.0, 0.0, 0.100]', '    xyz: [0.0, 0.1]', ['cell.tool_offset.xyz', '3 finite']),
@@ -41,6 +42,48 @@ def test_a_broken_cell_file_names_file_line_key_and_fix(tmp_path, old, new, word
         load_cell(_broken(tmp_path, old, new))
     for word in words:
         assert word in str(error.value)
+
+
+@pytest.mark.parametrize('old, new, words', [
+    ('  base_frame: base_link', '  base_frme: base_link',
+     ['cell.base_frme', "unknown key 'base_frme'; did you mean 'base_frame'?"]),
+    ('    rpy: [0.0, 0.0, 0.0]', '    rpz: [0.0, 0.0, 0.0]',
+     ['cell.tool_offset.rpz', "did you mean 'rpy'?", 'known here: xyz, rpy']),
+    ('    diameter: 0.0508', '    diametre: 0.0508', ["cell.spheres.diametre", "'diameter'"]),
+    ('  camera: ', '  camra: ', ["unknown key 'camra'; did you mean 'camera'?"]),
+])
+def test_an_unknown_key_is_refused_with_the_nearest_known_one(tmp_path, old, new, words):
+    """Issue 23.5: `base_frme` was ignored and the demo ran to the end with the default."""
+    with pytest.raises(CellFileError) as error:
+        load_cell(_broken(tmp_path, old, new))
+    for word in words:
+        assert word in str(error.value)
+
+
+def test_every_key_of_the_shipped_cells_is_known():
+    import yaml
+    for name in ('sawyer_close', 'iiwa7_close'):
+        cell = yaml.safe_load(cell_file(name).read_text())['cell']
+        assert set(cell) <= set(CELL_KEYS)
+        load_cell(cell_file(name))
+
+
+@pytest.mark.parametrize('old, new, key, far', [
+    ('      P1: [0.15, 0.10]', '      P1: [150, 100]', 'cell.layouts.close.P1', '150'),
+    ('    xyz: [0.0, 0.0, 0.100]', '    xyz: [0.0, 0.0, 100.0]', 'cell.tool_offset.xyz', '100'),
+    ('      S2: [0.300009, 0.0, 0.0]', '      S2: [300.009, 0.0, 0.0]',
+     'cell.spheres.centres.S2', '300.009'),
+    ('      1: [0.42, 0.175, 0.35]', '      1: [420, 175, 0.35]', 'cell.landmarks.markers.1',
+     '420'),
+])
+def test_lengths_beyond_any_cell_are_refused_as_millimetres(tmp_path, old, new, key, far):
+    """Issue 23.5: a layout in mm started the demo, which failed with 'no inverse kinematics
+    solution ... position error 180 m'."""
+    with pytest.raises(CellFileError) as error:
+        load_cell(_broken(tmp_path, old, new))
+    message = str(error.value)
+    assert f'{key}: ' in message and f'is {far} m from the origin' in message
+    assert 'lengths are in metres' in message
 
 
 def test_the_error_gives_the_line_of_the_bad_key(tmp_path):

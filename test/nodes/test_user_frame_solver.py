@@ -161,6 +161,12 @@ ONE_OFF[4, 2] += 3e-3          # the centre touched 3 mm high: RMS ~1.2 mm
                  ['2 point names for 5 points'], id='names_mismatch'),
     pytest.param({'method': 'four_point'}, Res.UNKNOWN_METHOD,
                  ["'four_point'", 'five_point_lsq', 'rigid'], id='unknown_method'),
+    pytest.param({'user': np.zeros((0, 3)), 'base': np.zeros((0, 3)), 'method': 'bogus'},
+                 Res.UNKNOWN_METHOD, ["unknown method 'bogus'; one of: three_point,",
+                                      'landmark_multi'], id='unknown_method_no_points'),
+    pytest.param({'user': P_USER * 1e3, 'base': P_BASE * 1e3}, Res.INVALID_INPUT,
+                 ['the points look like millimetres', 'lengths are in metres'],
+                 id='both_in_mm'),
     pytest.param({'user': np.zeros((0, 3)), 'base': np.zeros((0, 3)), 'point_names': ['P9']},
                  Res.UNKNOWN_POINT, ['P9', 'P1', 'P5'], id='unknown_live_point'),
     # the sanity gate: a fit no touched user frame can have (defaults: 1 mm RMS, 1 % scale)

@@ -10,6 +10,7 @@ from typing import Sequence
 import numpy as np
 from numpy.typing import ArrayLike
 
+from cobot_calib_ros.core.cell import MAX_CELL_LENGTH
 from cobot_calib_ros.core.errors import ErrorCode, Failure
 from cobot_calib_ros.core.user_frame.geometry import _as_points, Array, collinearity
 
@@ -48,12 +49,30 @@ def _check_points(pu: Array, pb: Array, n_plane: int | None, names: Names
     if len(pu) < 3:
         return Failure(ErrorCode.TOO_FEW_POINTS, f'got {len(pu)} point(s); touch at least '
                        'three markers that are not on one line')
-    for check in (_check_finite, _check_duplicates):
-        for frame, points in (('user', pu), ('base', pb)):
-            failure = check(points, frame, names)
-            if failure is not None:
-                return failure
+    for frame, points in (('user', pu), ('base', pb)):
+        failure = _check_finite(points, frame, names)
+        if failure is not None:
+            return failure
+    failure = _check_millimetres(pu, pb)
+    if failure is not None:
+        return failure
+    for frame, points in (('user', pu), ('base', pb)):
+        failure = _check_duplicates(points, frame, names)
+        if failure is not None:
+            return failure
     return _check_collinear(pu[:n_plane], pb[:n_plane], n_plane, names)
+
+
+def _check_millimetres(pu: Array, pb: Array) -> Failure | None:
+    """Both sets beyond any cell: both in millimetres. (One set alone in millimetres fits, and
+    the plausibility gate says which from the fit's scale or residuals.)"""
+    far = [float(np.abs(p).max()) for p in (pu, pb)]
+    if min(far) <= MAX_CELL_LENGTH:
+        return None
+    return Failure(ErrorCode.INVALID_INPUT, (
+        f'the points look like millimetres (user points up to {far[0]:g}, base points up to '
+        f'{far[1]:g} from the origin, beyond the {MAX_CELL_LENGTH:g} m of any cell); lengths '
+        'are in metres: divide both by 1000'))
 
 
 def _check_finite(points: Array, frame: str, names: Names) -> Failure | None:

@@ -25,6 +25,7 @@ from scipy.spatial.transform import Rotation
 
 from cobot_calib_ros.core.errors import ErrorCode, Failure
 from cobot_calib_ros.core.frames import apply, invert
+from cobot_calib_ros.core.user_frame.estimators import METHODS
 from cobot_calib_ros.core.user_frame.fit import calibrate
 from cobot_calib_ros.core.frames import skew
 from cobot_calib_ros.core.user_frame.geometry import Array
@@ -34,6 +35,18 @@ from cobot_calib_ros.core.user_frame.result import _assemble, _failure, FrameFit
 LANDMARK_SINGLE = 'landmark_single'
 LANDMARK_MULTI = 'landmark_multi'
 LANDMARK_METHODS = (LANDMARK_SINGLE, LANDMARK_MULTI)
+CALIBRATION_METHODS = (*METHODS, *LANDMARK_METHODS)
+"""Every method of a user-frame calibration: from touched points, then from the wrist camera."""
+
+
+def method_problem(method: str) -> Failure | None:
+    """None for one of CALIBRATION_METHODS or '' (the default, rigid), else UNKNOWN_METHOD
+    naming them: checked before anything else of a request, so that a bad method is named as
+    such and not as the data missing for it."""
+    if not method or method in CALIBRATION_METHODS:
+        return None
+    return Failure(ErrorCode.UNKNOWN_METHOD, f'unknown method {method!r}; one of: '
+                   f'{", ".join(CALIBRATION_METHODS)}')
 AXIS_POINT = 0.05          # [m] axis points' distance from a marker's centre (tie-breaker)
 MIN_POSITION_VARIANCE = 1e-12   # [m^2] floor of a view's position covariance eigenvalues
 

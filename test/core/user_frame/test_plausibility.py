@@ -106,3 +106,27 @@ def test_limits_must_be_positive() -> None:
         kwargs = {'max_residual_error': limits[2]} if len(limits) == 3 else {}
         with pytest.raises(ValueError, match='> 0'):
             uf.check_plausible(fit, *limits[:2], **kwargs)
+
+
+@pytest.mark.parametrize('method', uf.METHODS)
+def test_both_point_sets_in_millimetres_are_named_as_such(method: str) -> None:
+    """Issue 23.7: both sets in mm fit with a tiny scale error and a 1000x residual, and got
+    're-touch the points'."""
+    fit = uf.calibrate(method, CLOSE5 * 1e3, measured() * 1e3)
+    assert not fit and fit.code == ErrorCode.INVALID_INPUT
+    assert fit.message.startswith('the points look like millimetres (user points up to 350, '
+                                  'base points up to 6')
+    assert 'lengths are in metres' in fit.message and 're-touch' not in fit.message
+
+
+def test_an_unknown_method_is_named_before_anything_else() -> None:
+    """Issue 23.7: {method: bogus} without points got 'no points'; the node checks the method
+    first with method_problem (landmark methods included)."""
+    from cobot_calib_ros.core.user_frame.landmarks import CALIBRATION_METHODS, method_problem
+    assert CALIBRATION_METHODS == ('three_point', 'five_point_lsq', 'rigid', 'robust',
+                                   'landmark_single', 'landmark_multi')
+    failure = method_problem('bogus')
+    assert failure.code == ErrorCode.UNKNOWN_METHOD
+    assert failure.message == ("unknown method 'bogus'; one of: three_point, five_point_lsq, "
+                               'rigid, robust, landmark_single, landmark_multi')
+    assert all(method_problem(m) is None for m in ('', *CALIBRATION_METHODS))
