@@ -59,6 +59,27 @@ class TrialClient:
             return f'trial id: {e}'
         return ''
 
+    def unknown_trial(self, trial_id: str) -> str:
+        """'' if ``trial_id`` is stored in the data dir of the repeatability_trial node (or that
+        node does not answer: the goal will say so), else 'no trial X; unfinished: ...' (a
+        resume of a trial that is not there would start a fresh one under that id)."""
+        from cobot_calib_ros import paths, store
+        from cobot_calib_ros.ros.calls import CallError
+        from cobot_calib_ros.ros.remote_params import read_parameter
+        try:
+            root = paths.data_dir(read_parameter(self.node, 'repeatability_trial', 'data_dir',
+                                                 10.0))
+        except CallError:
+            return ''
+        trials = store.open(root).trials
+        stored = trials.list_trials()
+        if any(meta['id'] == trial_id for meta in stored):
+            return ''
+        unfinished = [meta['id'] for meta in stored if meta['status'] != 'done']
+        return (f'no trial {trial_id} in {trials.directory}; unfinished: '
+                f'{", ".join(unfinished) if unfinished else "none"} (leave --trial-id out to '
+                'start a new trial)')
+
     def run(self, method: str, axis: str, cycles: int, trial_id: str = '',
             layout: str = '', timeout: float | None = None):
         """Run (or resume) a trial to its end; its result (see RunTrial.action for '' / 0).

@@ -27,7 +27,6 @@ TIME_MAX = 2**63 - 1
 
 def format_info(bag: Bag, verbose: bool = False) -> str:
     """What ``ros2 bag info BAG`` prints (print() adds the final newline)."""
-    start = bag.start_ns if bag.start_ns is not None else TIME_MAX   # rosbag2's empty bag
     duration = bag.duration_ns
     services = [t for t in bag.topics.values() if is_service_event_topic(t.name, t.type)]
     topics = [t for t in bag.topics.values() if t not in services]
@@ -40,8 +39,8 @@ def format_info(bag: Bag, verbose: bool = False) -> str:
               f'Storage id:        {bag.storage_id}',
               f'ROS Distro:        {bag.ros_distro or "unknown"}',
               f'Duration:          {_seconds(duration)}s',
-              f'Start:             {format_time_point(start)}',
-              f'End:               {format_time_point(start + duration)}',
+              f'Start:             {_time_point(bag.start_ns)}',
+              f'End:               {_time_point(bag.start_ns, duration)}',
               f'Messages:          {bag.message_count - sum(t.count for t in services)}']
     topic_lines = []
     for info in topics:
@@ -58,6 +57,14 @@ def format_info(bag: Bag, verbose: bool = False) -> str:
     lines.append('Service information: ' + (service_lines[0] if service_lines else ''))
     lines += [' ' * (INDENT + 2) + line for line in service_lines[1:]]
     return '\n'.join(lines)
+
+
+def _time_point(start_ns: int | None, after_ns: int = 0) -> str:
+    """A bag's start (or start + after_ns); an empty bag has none (rosbag2 writes the largest
+    time, which ros2 bag info shows as Apr 11 2262): '(no messages)'."""
+    if start_ns is None or start_ns == TIME_MAX:
+        return '(no messages)'
+    return format_time_point(start_ns + after_ns)
 
 
 def format_topic_names(bag: Bag) -> str:

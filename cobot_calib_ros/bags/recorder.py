@@ -144,6 +144,18 @@ class BagRecorder(Node):
         if startup or self._ticks % round(SCAN_PERIOD / STARTUP_SCAN_PERIOD) == 0:
             self._scan()
             self.writer.flush()
+        if self._ticks * STARTUP_SCAN_PERIOD == STARTUP_SCANS_S:
+            self._warn_unpublished()
+
+    def _warn_unpublished(self) -> None:
+        """Once discovery has settled: name the wanted topics that nothing publishes (a typo,
+        a node that is not up); they are still recorded if a publisher appears later."""
+        missing = sorted((self.wanted or set()) - set(self.subscriptions_by_topic)
+                         - self._skipped)
+        if missing:
+            self.report(f'warning: nothing publishes {", ".join(missing)} (after '
+                        f'{STARTUP_SCANS_S:g} s); recorded only if a publisher appears (see '
+                        '`cobot-calib list`)')
 
     def _scan(self) -> None:
         for name, _types in self.get_topic_names_and_types():

@@ -4,7 +4,8 @@ The answer is waited for until it comes, as ros2 service call does: a calibratio
 the robot takes as long as it takes (landmark_multi: ~15 s). Meanwhile the capture marks the
 suite publishes (``cobot_calib/captures``: every view, every pose) are printed on stderr as
 progress. A client that stops waiting (``--answer-timeout``, Ctrl-C) says that the call may
-still complete on the server and how to see its result, never that it failed.
+still complete on the server and how to see its result, never that it failed. A response that
+reports a failure (a non-zero ``error_code``, ``success: false``) is printed and exits 1.
 """
 from __future__ import annotations
 
@@ -169,7 +170,24 @@ def _call(node, service: str, type_name: str | None, data, args) -> int:
         return fail(f'stopped waiting for the answer of {service} (Ctrl-C); '
                     + _may_complete(service), 130)
     print_message(to_dict(response), args.json)
-    return 0
+    refused = refusal(response)
+    return fail(f'{service} answered {refused}') if refused else 0
+
+
+def refusal(response) -> str:
+    """'' when a response reports success, else what it reports: a non-zero ``error_code``
+    (with its constant's name and the ``message``), or ``success: false`` (std_srvs). `call`
+    exits 1 then, as a failed command does, so that a script can test it."""
+    code = getattr(response, 'error_code', 0)
+    message = getattr(response, 'message', '')
+    if code:
+        names = [n for n in dir(type(response)) if n.isupper() and not n.startswith('_')
+                 and getattr(type(response), n) == code and n != 'SUCCESS']
+        name = f' ({names[0]})' if len(names) == 1 else ''
+        return f'error_code {code}{name}: {message}' if message else f'error_code {code}{name}'
+    if getattr(response, 'success', True) is False:
+        return f'success: false: {message}' if message else 'success: false'
+    return ''
 
 
 def _answer(node, client, request, args):

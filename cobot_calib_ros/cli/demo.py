@@ -11,7 +11,10 @@ from __future__ import annotations
 import contextlib
 import json
 import math
+from pathlib import Path
+import shutil
 import sys
+import tempfile
 
 import numpy as np
 
@@ -22,20 +25,48 @@ from cobot_calib_ros.ros import convert
 from cobot_calib_ros.core import cell as cellmod
 from cobot_calib_ros.core import frames, kinematics, user_frame
 from cobot_calib_ros.loaders import load_cell
-from cobot_calib_ros.paths import cell_file, data_dir
+from cobot_calib_ros.paths import cell_file, data_dir, DEFAULT_CELL
 from cobot_calib_ros.store.kinematics import chain_of, NOMINAL
 
 POINTS = ('P1', 'P2', 'P3', 'P4', 'P5')
 
 
+STORING_NODES = ('user_frame_solver', 'repeatability_trial', 'hand_eye_calibrator',
+                 'kinematic_identifier')      # the nodes with a data_dir
+
+
 @contextlib.contextmanager
 def _suite(args):
-    """Start the node suite on a private domain unless --attach."""
+    """The data dir of the demo's suite (None with --attach: the running suite's). Without
+    --attach: a suite on a private domain storing in a temporary data dir, removed at the end,
+    so that no other suite's results change (the active user frame above all); the user's
+    kinematic calibrations are copied in for --kinematics latest|ID."""
     if args.attach:
-        yield
+        yield None
         return
-    with launcher.private_suite(args.cell, say=lambda text: say(args, text)):
-        yield
+    with tempfile.TemporaryDirectory(prefix='cobot_calib_demo_') as tmp:
+        if args.kinematics != NOMINAL:
+            _copy_kinematics(data_dir(''), Path(tmp))
+        overrides = {n: {'data_dir': tmp} for n in STORING_NODES}
+        with launcher.private_suite(args.cell, overrides, say=lambda text: say(args, text)):
+            yield Path(tmp)
+
+
+def _copy_kinematics(source: Path, target: Path) -> None:
+    """The kinematic calibrations of data dir ``source`` into data dir ``target`` (read only
+    from ``source``)."""
+    from cobot_calib_ros import store
+    directory = store.open(source).kinematics.directory
+    if directory.is_dir():
+        shutil.copytree(directory, store.open(target).kinematics.directory)
+
+
+def _attached(args, node) -> tuple[str, Path]:
+    """(cell, data dir) of the suite running on the exported domain: --cell, else the cell
+    file its user_frame_solver was started with, and that node's data dir."""
+    from cobot_calib_ros.ros.remote_params import read_parameter
+    cell = args.cell or read_parameter(node, 'user_frame_solver', 'cell_file', 15.0)
+    return cell, data_dir(read_parameter(node, 'user_frame_solver', 'data_dir', 15.0))
 
 
 def _truth_model(truth, cell):
@@ -159,9 +190,13 @@ def _report_run(run: dict, title: str) -> None:
               f"{m['residual_rms_mm']:11.4f}{m['point_error_max_mm']:15.4f}")
 
 
-def _run(args, client: DemoClient) -> dict:
+def _run(args, client: DemoClient, root: Path | None) -> dict:
+    """The demo on the suite whose data dir is ``root`` (None: the attached suite's)."""
     from cobot_calib_ros.api.client import wait_for_suite
-    cell = load_cell(cell_file(args.cell))
+    name = args.cell
+    if root is None:
+        name, root = _attached(args, client.node)
+    cell = load_cell(cell_file(name))
     wait_for_suite(client.node)
     truth = client.ground_truth()
     T_true = convert.transform_to_matrix(truth.user_frame)
@@ -169,7 +204,7 @@ def _run(args, client: DemoClient) -> dict:
     p_true = np.array([true_by_name[n] for n in POINTS])
     true_chain = _truth_model(truth, cell)
     records = [None] + ([] if args.kinematics == NOMINAL else
-                        [_kinematics(args, client, kinematics.model_for(cell).name)])
+                        [_kinematics(args, client, kinematics.model_for(cell).name, root)])
     say(args, f'touching {", ".join(POINTS)} and capturing joints ...')
     captures = [client.touch_and_capture(n) for n in POINTS]
     p_user = cell.nominal_points_user()[[cell.point_names.index(n) for n in POINTS]]
@@ -201,12 +236,12 @@ def _run(args, client: DemoClient) -> dict:
     return result
 
 
-def _kinematics(args, client: DemoClient, robot: str) -> dict:
-    """The kinematic calibration record --kinematics names for ``robot``; 'latest' with none
-    of that robot stored identifies one on the mock first."""
+def _kinematics(args, client: DemoClient, robot: str, root: Path) -> dict:
+    """The kinematic calibration record --kinematics names for ``robot`` in data dir ``root``;
+    'latest' with none of that robot stored identifies one on the mock first."""
     from cobot_calib_ros import store
     from cobot_calib_ros.api import identification
-    kinematic_store = store.open(data_dir('')).kinematics
+    kinematic_store = store.open(root).kinematics
     try:
         record = kinematic_store.resolve(args.kinematics, robot)
     except (KeyError, ValueError) as e:
@@ -223,7 +258,7 @@ def _kinematics(args, client: DemoClient, robot: str) -> dict:
             raise RuntimeError(str(e)) from None
         finally:
             identifier.close()
-        record = store.open(data_dir('')).kinematics.get(report['calibration_id'])
+        record = store.open(root).kinematics.get(report['calibration_id'])
     return record
 
 
@@ -254,12 +289,18 @@ def _reduction(before: list[dict], after: list[dict]) -> dict:
 
 
 def run(args) -> int:
+    from cobot_calib_ros.cli.common import cell_problem, EXIT_USAGE, fail
     from cobot_calib_ros.ros.calls import CallError
+    if not args.attach and args.cell is None:
+        args.cell = DEFAULT_CELL
+    problem = cell_problem(args.cell) if args.cell else ''
+    if problem:
+        return fail(f'demo: {problem}', EXIT_USAGE)
     try:
-        with _suite(args):
+        with _suite(args) as root:
             client = DemoClient()
             try:
-                result = _run(args, client)
+                result = _run(args, client, root)
             finally:
                 client.close()
     except (CallError, RuntimeError) as e:

@@ -9,10 +9,12 @@ def add_parser(subparsers):
         'demo', help='the main job on the mock robot (own suite on a private domain)',
         description='Five-point user-frame calibration on the mock robot, scored on its '
                     'ground truth. It starts its own node suite on a free private '
-                    'ROS_DOMAIN_ID (printed) and ignores the exported ROS_DOMAIN_ID; --attach '
+                    'ROS_DOMAIN_ID (printed) and ignores the exported ROS_DOMAIN_ID, with a '
+                    'temporary data dir (no other suite\'s results change); --attach '
                     'uses the suite already running on the exported ROS_DOMAIN_ID '
-                    '(cobot-calib up) instead.')
-    p.add_argument('--cell', default=DEFAULT_CELL, help='cell YAML path or name')
+                    '(cobot-calib up) instead, with its cell and data dir.')
+    p.add_argument('--cell', default=None, help=f'cell YAML path or name (default '
+                   f'{DEFAULT_CELL}; with --attach: the running suite\'s)')
     p.add_argument('--kinematics', default='nominal',
                    help='kinematic model for the captured joints: nominal (default), latest '
                         '(the active kinematic calibration; identified on the mock first if '

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import functools
 import json
+import math
 from pathlib import Path
 import sys
 import time
@@ -34,14 +35,22 @@ def run_trial(args) -> int:
     from cobot_calib_ros.core.repeatability.trial import cycles_problem
     method, axis, trial_id = args.method or '', args.axis or '', args.trial_id or ''
     cycles = args.cycles if args.cycles is not None else 0
+    stall = getattr(args, 'stall_timeout', None)
+    stall = TrialClient.STALL_TIMEOUT if stall is None else stall
     problem = ((args.cycles is not None and cycles_problem(args.cycles))
-               or TrialClient.request_problem(method, axis, cycles, trial_id))
+               or TrialClient.request_problem(method, axis, cycles, trial_id)
+               or ('' if math.isfinite(stall) and stall > 0.0 else
+                   f'--stall-timeout {stall:g}: give a time > 0 [s] (default '
+                   f'{TrialClient.STALL_TIMEOUT:g})'))
     if problem:
         print(f'trial rejected: {problem}', file=sys.stderr)
         return 2
-    client = TrialClient(functools.partial(common.say, args),
-                         getattr(args, 'stall_timeout', None) or TrialClient.STALL_TIMEOUT)
+    client = TrialClient(functools.partial(common.say, args), stall)
     try:
+        unknown = trial_id and client.unknown_trial(trial_id)
+        if unknown:
+            print(f'trial rejected: {unknown}', file=sys.stderr)
+            return 2
         result = client.run(method, axis, cycles, trial_id)
     except TrialClient.Stopped as e:
         print(e.line, file=sys.stderr)

@@ -14,6 +14,7 @@ VERBS = (
     'echo',
     'call',
     'list_cmd',
+    'param',
     'demo_cmd',
     'teach',
     'trial',

@@ -104,12 +104,13 @@ def _replay(bag, args) -> int:
 
     from cobot_calib_ros.bags.errors import BagError
     from cobot_calib_ros.bags.player import BagPlayer, spinning
+    from cobot_calib_ros.ros.session import client_ros_args
     from cobot_calib_ros.ros.time import ns_to_s
 
     def say(text: str) -> None:
         print(text, flush=True)
 
-    rclpy.init(args=None, signal_handler_options=SignalHandlerOptions.NO)
+    rclpy.init(args=client_ros_args(), signal_handler_options=SignalHandlerOptions.NO)
     player = None
     try:
         player = BagPlayer(bag, rate=args.rate, loop=args.loop, topics=args.topics,

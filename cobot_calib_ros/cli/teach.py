@@ -26,8 +26,9 @@ def add_parser(subparsers):
         description=__doc__.split('\n\n')[0] + ' Uses the suite on the exported ROS_DOMAIN_ID.')
     p.add_argument('--points', nargs='+', metavar='P', help='cell points to touch, in order '
                    '(default: every point of the cell layout)')
-    p.add_argument('--method', default='rigid',
-                   help='three_point | five_point_lsq | rigid | robust (default rigid)')
+    from cobot_calib_ros.core.user_frame import METHODS
+    p.add_argument('--method', default='rigid', metavar='METHOD',
+                   help=f'{" | ".join(METHODS)} (default rigid)')
     p.add_argument('--cell', default=DEFAULT_CELL, help='cell YAML path or name')
     p.add_argument('--layout', default='', help='marker layout of the cell (default: its own)')
     p.add_argument('--hold', type=float, default=0.5, help='capture window per point [s]')
@@ -44,6 +45,9 @@ def run(args) -> int:
     from cobot_calib_ros.core.cell import CellFileError
     from cobot_calib_ros.loaders import load_cell
     from cobot_calib_ros.paths import cell_file
+    problem = options_problem(args)
+    if problem:
+        return fail(f'{problem}; nothing was touched', EXIT_USAGE)
     try:
         cell = load_cell(cell_file(args.cell), args.layout or None)
     except CellFileError as e:
@@ -60,6 +64,23 @@ def run(args) -> int:
             return fail(f'teach stopped: {e}')
         except KeyboardInterrupt:
             return fail('teach interrupted; nothing was stored', EXIT_INTERRUPTED)
+
+
+def options_problem(args) -> str:
+    """'' if --method, --hold and --timeout can be used, else why not: checked before the first
+    touch, not after the last."""
+    import math
+    from cobot_calib_ros.core.user_frame import METHODS
+    from cobot_calib_ros.core.user_frame.landmarks import LANDMARK_METHODS
+    if args.method not in METHODS:
+        why = ('measures the frame with the wrist camera, not from touches (cobot-calib call '
+               f'calibrate_user_frame "{{method: {args.method}}}")'
+               if args.method in LANDMARK_METHODS else 'is not a method')
+        return f'--method {args.method} {why}; teach can use: {", ".join(METHODS)}'
+    for option, value in (('--hold', args.hold), ('--timeout', args.timeout)):
+        if not (math.isfinite(value) and value > 0.0):
+            return f'{option} {value:g}: give a time > 0 [s]'
+    return ''
 
 
 def report(args, res, captures) -> int:

@@ -5,11 +5,25 @@ own, on the process's default context (``domain_id`` None: ROS_DOMAIN_ID) or on 
 context for ``domain_id`` (a replay check's own domain beside the caller's), optionally on
 sim time. rclpy's signal handlers are not installed (Ctrl-C stays a KeyboardInterrupt the
 caller handles). On exit the node is destroyed and its context shut down.
+
+A client writes no log file (``python_<pid>.log`` in the ROS log dir, one per CLI call) unless
+asked with ``COBOT_CALIB_CLIENT_LOG=1``: its messages go to the terminal and /rosout.
 """
 from __future__ import annotations
 
 from collections.abc import Iterator
 import contextlib
+import os
+import sys
+
+FILE_LOG_ENV = 'COBOT_CALIB_CLIENT_LOG'
+
+
+def client_ros_args() -> list[str]:
+    """rclpy.init's args of a client: the command line's (its --ros-args), and no log file
+    unless FILE_LOG_ENV is set."""
+    quiet = os.environ.get(FILE_LOG_ENV, '') in ('', '0')
+    return [*sys.argv, *(('--ros-args', '--disable-external-lib-logs') if quiet else ())]
 
 
 @contextlib.contextmanager
@@ -22,7 +36,7 @@ def session(name: str, *, domain_id: int | None = None, sim_time: bool = False,
     from rclpy.parameter import Parameter
     from rclpy.signals import SignalHandlerOptions
     context = None if domain_id is None else Context()
-    rclpy.init(context=context, domain_id=domain_id,
+    rclpy.init(args=client_ros_args(), context=context, domain_id=domain_id,
                signal_handler_options=SignalHandlerOptions.NO)
     node = None
     try:

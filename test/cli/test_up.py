@@ -132,11 +132,13 @@ def test_ctrl_c_stops_every_node_cleanly_while_a_trial_runs(up):
     """SIGINT to `up`'s process group: every node gets one SIGINT and exits 0 within 10 s, the
     trial in flight is aborted with its readings on disk (resumable), no traceback anywhere."""
     up.ready()
-    trial = subprocess.Popen(_cli('trial', '--cycles', '30', '--trial-id', 'inflight'),
+    trial = subprocess.Popen(_cli('trial', '--cycles', '30'),
                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                              env=up.env)
     try:
-        _wait_line(trial, '  cycle 1/30 P2: ', 120.0)       # a goal in flight, readings stored
+        seen = _wait_line(trial, '  cycle 1/30 P2: ', 120.0)   # a goal in flight, readings stored
+        inflight = next(m.group(1) for m in (re.match(r'trial (\S+): reference', line)
+                                             for line in seen) if m)
         os.killpg(up.proc.pid, signal.SIGINT)
         sent = time.monotonic()
         code = up.proc.wait(timeout=30)
@@ -151,7 +153,7 @@ def test_ctrl_c_stops_every_node_cleanly_while_a_trial_runs(up):
     assert 'Traceback' not in out
     for log in up.log_dir.glob('*.log'):
         assert 'Traceback' not in log.read_text(errors='replace'), log
-    stored = TrialStore(Path(up.env['COBOT_CALIB_DATA'])).load('inflight')
+    stored = TrialStore(Path(up.env['COBOT_CALIB_DATA'])).load(inflight)
     assert stored.meta['status'] == 'aborted' and stored.resume is not None
     assert np.isfinite(stored.distances[:, 0]).sum() >= 2            # P1, P2 of cycle 1 kept
     stopped = re.search(r'^stopped in [\d.]+ s: (.*)$', rest, re.M)
@@ -165,7 +167,9 @@ def test_ctrl_c_stops_every_node_cleanly_while_a_trial_runs(up):
     assert set(codes.values()) <= allowed, (codes, os.getloadavg())
 
 
-def _wait_line(proc: subprocess.Popen, text: str, timeout: float) -> None:
+def _wait_line(proc: subprocess.Popen, text: str, timeout: float) -> list[str]:
+    """The lines up to the first containing ``text``."""
     lines = Lines(proc.stdout)
     if lines.wait_for(text, timeout) is None:
         pytest.fail(f'no {text!r} within {timeout} s:\n{"".join(lines.seen)}')
+    return lines.seen

@@ -3,6 +3,7 @@ from dataclasses import dataclass
 import json
 import math
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -69,23 +70,24 @@ def test_echo_repeatability_shows_every_cycle_of_a_running_trial(ros, trial_data
                             env=dict(os.environ))
     try:     # the echo subscribes before cycle 1 (it is latched, depth 1: cycle 1 once matched)
         assert wait_subscribed(ros, '/repeatability', 'cobot_calib_echo', 60.0)
-        trial = cli('trial', '--cycles', str(CYCLES), '--trial-id', 'echoed', '--json',
-                    timeout=120)
+        trial = cli('trial', '--cycles', str(CYCLES), '--json', timeout=120)
         assert trial.returncode == 0, trial.stderr
         result = json.loads(trial.stdout)
+        echoed_id = result['trial_id']
         # every reading as it is measured (progress on stderr beside --json), in order
         readings = [line.split(':')[0].strip() for line in trial.stderr.splitlines()
                     if line.startswith('  cycle ')]
         assert readings == [f'cycle {c}/{CYCLES} P{i}' for c in range(1, CYCLES + 1)
                             for i in range(1, 6)]
-        lines = wait_for_line(echo, '"trial_id": "echoed", "method": "reference", "axis": "z", '
+        lines = wait_for_line(echo, f'"trial_id": "{echoed_id}", "method": "reference", '
+                              '"axis": "z", '
                               f'"cycles_done": {CYCLES}, ', 30.0)
     finally:
         echo.terminate()
         out, _ = echo.communicate(timeout=10)
     printed = lines.seen + (lines.leftover() + out).splitlines()
     updates = [json.loads(line) for line in printed if line.startswith('{')]
-    echoed = [u for u in updates if u['trial_id'] == 'echoed']
+    echoed = [u for u in updates if u['trial_id'] == echoed_id]
     assert [u['cycles_done'] for u in echoed] == list(range(1, CYCLES + 1))
     last = echoed[-1]
     assert last['method'] == 'reference' and last['axis'] == 'z'
@@ -94,7 +96,7 @@ def test_echo_repeatability_shows_every_cycle_of_a_running_trial(ros, trial_data
     low, high = reference_rp_all_band(CYCLES)
     assert low < last['rp_all'] < high, (low, high)
     assert last['rp_all'] == pytest.approx(last['rp_all_mm'] * 1e-3)   # SI on the wire
-    stored = TrialStore(trial_data).load('echoed')
+    stored = TrialStore(trial_data).load(echoed_id)
     assert stored.meta['status'] == 'done' and np.all(np.isfinite(stored.distances))
     retries = {'capture_joints': result['capture_retries'],
                'probe_average': result['probe_retries']}
@@ -210,8 +212,9 @@ def test_the_trial_cli_refuses_a_bad_request_in_one_line(domain_id, options, mes
 
 
 def test_ctrl_c_cancels_the_trial_and_says_how_to_resume_it(ros, trial_data):
-    proc = start(cli_command('trial', '--cycles', '30', '--trial-id', 'ctrl-c'))
-    wait_for_line(proc, 'trial ctrl-c: reference, z axis, 30 cycles', 60.0)
+    proc = start(cli_command('trial', '--cycles', '30'))
+    started = wait_for_line(proc, ': reference, z axis, 30 cycles', 60.0).seen[-1]
+    trial_id = re.search(r'trial (\S+): reference', started).group(1)
     wait_for_line(proc, '  cycle 1/30 P1: ', 60.0)     # taught, and the first reading printed
     proc.send_signal(signal.SIGINT)
     out, err = proc.communicate(timeout=30)
@@ -219,9 +222,9 @@ def test_ctrl_c_cancels_the_trial_and_says_how_to_resume_it(ros, trial_data):
     assert 'Traceback' not in out + err
     assert err.strip().splitlines() == [
         err.strip()], 'one line: stopped, and how to resume'
-    assert 'trial ctrl-c stopped in cycle ' in err
-    assert err.strip().endswith('resume it with: cobot-calib trial --trial-id ctrl-c')
-    stored = TrialStore(trial_data).load('ctrl-c')
+    assert f'trial {trial_id} stopped in cycle ' in err
+    assert err.strip().endswith(f'resume it with: cobot-calib trial --trial-id {trial_id}')
+    stored = TrialStore(trial_data).load(trial_id)
     assert stored.meta['status'] == 'aborted' and stored.resume is not None
 
 
@@ -281,29 +284,31 @@ def test_the_client_gives_up_on_a_stalled_or_dead_trial_node(ros, tmp_path):
     node = nodes.processes['doomed.repeatability_trial']
     ros_args = ('--ros-args', '-r', '__ns:=/doomed')
     try:
-        proc = start(trial_command(ros_args, trial_id='doomed', cycles=30, stall_timeout=6.0))
-        wait_for_line(proc, 'reference: cycle 2/30', 60.0)          # readings flow
+        proc = start(trial_command(ros_args, cycles=30, stall_timeout=6.0))
+        seen = wait_for_line(proc, 'reference: cycle 2/30', 60.0).seen     # readings flow
+        doomed = next(re.match(r'trial (\S+): reference', line).group(1) for line in seen
+                      if re.match(r'trial (\S+): reference', line))
         node.send_signal(signal.SIGSTOP)
         out, err = proc.communicate(timeout=30)
         node.send_signal(signal.SIGCONT)
         assert proc.returncode == 1, err
         assert 'no feedback from repeatability_trial for 6 s' in err and 'Traceback' not in err
-        assert 'trial doomed not canceled' in err and 'it may go on' in err    # it was frozen
-        assert err.strip().endswith('resume it with: cobot-calib trial --trial-id doomed')
+        assert f'trial {doomed} not canceled' in err and 'it may go on' in err    # it was frozen
+        assert err.strip().endswith(f'resume it with: cobot-calib trial --trial-id {doomed}')
         # woken up, the node stops the trial: canceled now, or its own 5 s probe timeout ran
         # out while it was frozen
         call(ros, CancelGoal, '/doomed/run_trial/_action/cancel_goal')
         assert wait_goals_ended(ros, '/doomed/run_trial', 30.0)
-        assert TrialStore(tmp_path).load('doomed').meta['status'] == 'aborted'
-        proc = start(trial_command(ros_args, trial_id='doomed'))
-        wait_for_line(proc, 'resuming trial doomed: reference, z axis, 30 cycles', 60.0)
+        assert TrialStore(tmp_path).load(doomed).meta['status'] == 'aborted'
+        proc = start(trial_command(ros_args, trial_id=doomed))
+        wait_for_line(proc, f'resuming trial {doomed}: reference, z axis, 30 cycles', 60.0)
         node.kill()
         killed = time.monotonic()
         out, err = proc.communicate(timeout=60)
         assert proc.returncode == 1, err
         assert time.monotonic() - killed < 30.0
         assert 'the repeatability_trial node is gone' in err and 'Traceback' not in err
-        assert err.strip().endswith('resume it with: cobot-calib trial --trial-id doomed')
+        assert err.strip().endswith(f'resume it with: cobot-calib trial --trial-id {doomed}')
     finally:
         nodes.stop()
         assert wait_goals_ended(ros, '/move_to', 30.0)    # the move the trial was on has ended

@@ -1,0 +1,140 @@
+"""Issue 23: each verb refuses bad input before the robot moves, in one line that names the
+cause; `call` exits 1 on a refused answer; `record` warns of a topic nobody publishes; a client
+leaves no log file; `param` reads and sets a node's parameters as ros2 param."""
+import os
+import subprocess
+import sys
+import threading
+from types import SimpleNamespace
+
+import pytest
+
+from cobot_calib_ros.cli.main import main
+
+
+def _cli(*args, env=None, timeout=60.0) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, '-m', 'cobot_calib_ros.cli.main', *args],
+                          capture_output=True, text=True, timeout=timeout,
+                          env={**os.environ, **(env or {})})
+
+
+def _one_line(capsys) -> str:
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and 'Traceback' not in err, err
+    return err.strip()
+
+
+# -- teach, trial, demo: refused before anything moves (no suite on this domain) -----------
+
+@pytest.mark.parametrize('options, words', [
+    (['--method', 'landmark_single'],
+     ['--method landmark_single measures the frame with the wrist camera, not from touches',
+      'teach can use: three_point, five_point_lsq, rigid, robust; nothing was touched']),
+    (['--method', 'bogus'], ['--method bogus is not a method; teach can use: three_point,']),
+    (['--hold', '-1'], ['--hold -1: give a time > 0 [s]; nothing was touched']),
+    (['--timeout', '0'], ['--timeout 0: give a time > 0 [s]']),
+])
+def test_teach_refuses_a_bad_option_before_the_first_touch(capsys, options, words):
+    """On e6ccb73 these were refused after every touch (or landmark_single ignored them)."""
+    assert main(['teach', *options]) == 2
+    err = _one_line(capsys)
+    for word in words:
+        assert word in err
+
+
+@pytest.mark.parametrize('stall', ['-1', '0', 'nan'])
+def test_trial_refuses_a_stall_timeout_that_is_not_positive(capsys, stall):
+    """On e6ccb73 --stall-timeout -1 started a trial and cancelled it 'for -1 s'."""
+    assert main(['trial', '--stall-timeout', stall]) == 2
+    err = _one_line(capsys)
+    assert err.startswith(f'trial rejected: --stall-timeout {stall}: give a time > 0 [s]')
+
+
+@pytest.fixture
+def fake_trial_node(tmp_path):
+    """A node named repeatability_trial whose data_dir holds one unfinished trial."""
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from cobot_calib_ros.store.trials import TrialStore
+    TrialStore(tmp_path).create('20261125T100000-rigid-z', method='rigid', axis='z',
+                                layout='close', point_names=['P1', 'P2', 'P3'], cycles_total=3)
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    node = rclpy.create_node('repeatability_trial', context=context)
+    node.declare_parameter('data_dir', str(tmp_path))
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    thread = threading.Thread(target=executor.spin, daemon=True)
+    thread.start()
+    yield tmp_path
+    executor.shutdown()
+    node.destroy_node()
+    rclpy.try_shutdown(context=context)
+    thread.join(5.0)
+
+
+def test_trial_refuses_a_trial_id_that_is_not_stored(fake_trial_node):
+    """On e6ccb73 `--trial-id no-such-trial` started and completed a fresh trial under it."""
+    done = _cli('trial', '--trial-id', 'no-such-trial')
+    assert done.returncode == 2, done.stderr
+    assert done.stderr.strip() == (
+        f'trial rejected: no trial no-such-trial in {fake_trial_node / "trials"}; unfinished: '
+        '20261125T100000-rigid-z (leave --trial-id out to start a new trial)')
+
+
+def test_demo_refuses_a_missing_or_broken_cell_in_one_line(capsys, tmp_path):
+    assert main(['demo', '--cell', 'nonexistent']) == 2
+    err = _one_line(capsys)
+    assert err.startswith('demo: cell file ') and 'nonexistent.yaml not found' in err
+    assert err.endswith('(iiwa7_close, sawyer_close)')
+    broken = tmp_path / 'broken.yaml'
+    broken.write_text('cell:\n  name: x\n  robot: sawyer\n  base_frme: base_link\n')
+    assert main(['demo', '--cell', str(broken)]) == 2
+    assert _one_line(capsys) == (f"demo: {broken}:4: cell.base_frme: unknown key 'base_frme'; "
+                                 "did you mean 'base_frame'? known here: " + ', '.join(
+                                     __import__('cobot_calib_ros.core.cell', fromlist=['x'])
+                                     .CELL_KEYS))
+
+
+# -- demo: a temporary data dir, and the attached suite's cell ----------------------------
+
+def test_demo_without_attach_stores_in_a_temporary_data_dir(monkeypatch, tmp_path):
+    """Issue 23.6: the demo's suite stored in the shared data dir and changed the running
+    suite's active user frame. Its nodes now get a temporary data_dir, removed afterwards, with
+    the user's kinematic calibrations copied in for --kinematics latest."""
+    import contextlib
+    from cobot_calib_ros import store
+    from cobot_calib_ros.cli import demo
+    shared = tmp_path / 'shared'
+    monkeypatch.setenv('COBOT_CALIB_DATA', str(shared))
+    kinematics = store.open(shared).kinematics.directory
+    kinematics.mkdir(parents=True)
+    (kinematics / 'k1.json').write_text('{}')
+    started = {}
+
+    @contextlib.contextmanager
+    def private_suite(cell, overrides=None, say=print):
+        started.update(cell=cell, overrides=overrides)
+        yield None
+    monkeypatch.setattr(demo.launcher, 'private_suite', private_suite)
+    args = SimpleNamespace(attach=False, cell='sawyer_close', kinematics='latest', json=False)
+    with demo._suite(args) as root:
+        assert root is not None and not str(root).startswith(str(shared))
+        assert (store.open(root).kinematics.directory / 'k1.json').is_file()
+    assert started['overrides'] == {n: {'data_dir': str(root)} for n in demo.STORING_NODES}
+    assert not root.exists() and sorted(p.name for p in shared.rglob('*')) == [
+        'k1.json', kinematics.name]
+
+
+# -- call: a refused answer exits 1 -------------------------------------------------------
+
+def test_call_reports_a_refused_answer_so_that_a_script_can_test_it():
+    from cobot_calib_msgs.srv import CalibrateUserFrame
+    from std_srvs.srv import Trigger
+    from cobot_calib_ros.cli.call import refusal
+    res = CalibrateUserFrame.Response(error_code=CalibrateUserFrame.Response.UNKNOWN_METHOD,
+                                      message="unknown method 'bogus'")
+    assert refusal(res) == "error_code 4 (UNKNOWN_METHOD): unknown method 'bogus'"
+    assert refusal(CalibrateUserFrame.Response()) == ''
+    assert refusal(Trigger.Response(success=False, message='no')) == 'success: false: no'
+    assert refusal(Trigger.Response(success=True)) == ''
