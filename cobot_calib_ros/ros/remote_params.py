@@ -23,7 +23,9 @@ class RemoteParameters:
 
     def get(self, name: str):
         """The rcl_interfaces ParameterValue of ``name`` (type PARAMETER_NOT_SET: not declared)."""
-        return self._answer(lambda c: c.get_parameters([name]), f'get {name}').values[0]
+        from rcl_interfaces.msg import ParameterValue
+        values = self._answer(lambda c: c.get_parameters([name]), f'get {name}').values
+        return values[0] if values else ParameterValue()    # rclpy answers none if undeclared
 
     def set(self, name: str, value: Any) -> tuple[bool, str]:
         """(successful, reason) of setting ``name`` to the Python ``value``."""

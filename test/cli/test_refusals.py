@@ -1,6 +1,7 @@
 """Issue 23: each verb refuses bad input before the robot moves, in one line that names the
 cause; `call` exits 1 on a refused answer; `record` warns of a topic nobody publishes; a client
 leaves no log file; `param` reads and sets a node's parameters as ros2 param."""
+import contextlib
 import os
 import subprocess
 import sys
@@ -50,27 +51,36 @@ def test_trial_refuses_a_stall_timeout_that_is_not_positive(capsys, stall):
     assert err.startswith(f'trial rejected: --stall-timeout {stall}: give a time > 0 [s]')
 
 
-@pytest.fixture
-def fake_trial_node(tmp_path):
-    """A node named repeatability_trial whose data_dir holds one unfinished trial."""
+@contextlib.contextmanager
+def _spinning_node(name: str):
+    """A node of this process with parameter services, spun on a thread of its own."""
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
-    from cobot_calib_ros.store.trials import TrialStore
-    TrialStore(tmp_path).create('20261125T100000-rigid-z', method='rigid', axis='z',
-                                layout='close', point_names=['P1', 'P2', 'P3'], cycles_total=3)
     context = rclpy.Context()
     rclpy.init(context=context)
-    node = rclpy.create_node('repeatability_trial', context=context)
-    node.declare_parameter('data_dir', str(tmp_path))
+    node = rclpy.create_node(name, context=context)
     executor = SingleThreadedExecutor(context=context)
     executor.add_node(node)
     thread = threading.Thread(target=executor.spin, daemon=True)
     thread.start()
-    yield tmp_path
-    executor.shutdown()
-    node.destroy_node()
-    rclpy.try_shutdown(context=context)
-    thread.join(5.0)
+    try:
+        yield node
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown(context=context)
+        thread.join(5.0)
+
+
+@pytest.fixture
+def fake_trial_node(tmp_path):
+    """A node named repeatability_trial whose data_dir holds one unfinished trial."""
+    from cobot_calib_ros.store.trials import TrialStore
+    TrialStore(tmp_path).create('20261125T100000-rigid-z', method='rigid', axis='z',
+                                layout='close', point_names=['P1', 'P2', 'P3'], cycles_total=3)
+    with _spinning_node('repeatability_trial') as node:
+        node.declare_parameter('data_dir', str(tmp_path))
+        yield tmp_path
 
 
 def test_trial_refuses_a_trial_id_that_is_not_stored(fake_trial_node):
@@ -138,3 +148,74 @@ def test_call_reports_a_refused_answer_so_that_a_script_can_test_it():
     assert refusal(CalibrateUserFrame.Response()) == ''
     assert refusal(Trigger.Response(success=False, message='no')) == 'success: false: no'
     assert refusal(Trigger.Response(success=True)) == ''
+
+
+# -- record, bag info ---------------------------------------------------------------------
+
+def test_record_warns_of_a_topic_nothing_publishes_and_an_empty_bag_has_no_start(tmp_path):
+    """Issue 23.9: `record -o out /no_such_topic` said nothing, and `bag info` of the empty bag
+    showed its start as 'Apr 11 2262' (rosbag2's largest time, which the metadata keeps so that
+    ros2 bag reads it as its own: test_writer)."""
+    out = tmp_path / 'out'
+    done = _cli('record', '-o', str(out), '/no_such_topic_23', '--duration', '4')
+    assert done.returncode == 0, done.stderr
+    assert ('warning: nothing publishes /no_such_topic_23 (after 3 s); recorded only if a '
+            'publisher appears') in done.stdout
+    info = _cli('bag', 'info', str(out))
+    assert info.returncode == 0, info.stderr
+    lines = info.stdout.splitlines()
+    assert 'Start:             (no messages)' in lines and 'End:               (no messages)' \
+        in lines and 'Messages:          0' in lines
+    assert '2262' not in info.stdout
+
+
+# -- clients leave no log file --------------------------------------------------------------
+
+def test_a_short_verb_leaves_no_log_file_unless_asked(tmp_path):
+    """Issue 23.14: every CLI call left a python_<pid>.log in the ROS log dir."""
+    quiet, asked = tmp_path / 'quiet', tmp_path / 'asked'
+    for log_dir, extra in ((quiet, {}), (asked, {'COBOT_CALIB_CLIENT_LOG': '1'})):
+        done = _cli('echo', 'no/such/topic', '--once', '--timeout', '0.3',
+                    env={'ROS_LOG_DIR': str(log_dir), **extra})
+        assert done.returncode == 1 and 'not found within 0.3 s' in done.stderr
+    assert not quiet.exists() or not list(quiet.glob('python_*.log'))
+    assert len(list(asked.glob('python_*.log'))) == 1
+
+
+# -- param ----------------------------------------------------------------------------------
+
+@pytest.fixture
+def parameter_node():
+    from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
+    with _spinning_node('param_target_23') as node:
+        node.declare_parameter('max_rms_error', 0.001, ParameterDescriptor(
+            floating_point_range=[FloatingPointRange(from_value=1e-6, to_value=0.1)]))
+        node.declare_parameter('cell_file', 'sawyer_close', ParameterDescriptor(read_only=True))
+        node.declare_parameter('points', ['P1', 'P2'])
+        yield node
+
+
+def test_param_lists_gets_and_sets_as_ros2_param(parameter_node):
+    """Issue 23.15: `param list|get|set NODE [NAME] [VALUE]`, the output of ros2 param."""
+    listed = _cli('param', 'list', 'param_target_23')
+    assert listed.returncode == 0, listed.stderr
+    assert listed.stdout.splitlines() == ['  cell_file', '  max_rms_error', '  points',
+                                          '  start_type_description_service', '  use_sim_time']
+    got = _cli('param', 'get', '/param_target_23', 'max_rms_error')
+    assert (got.returncode, got.stdout) == (0, 'Double value is: 0.001\n')
+    assert _cli('param', 'get', 'param_target_23', 'points').stdout == \
+        "String values are: ['P1', 'P2']\n"
+    done = _cli('param', 'set', 'param_target_23', 'max_rms_error', '0.002')
+    assert (done.returncode, done.stdout) == (0, 'Set parameter successful\n'), done.stderr
+    assert parameter_node.get_parameter('max_rms_error').value == 0.002
+    refused = [_cli('param', 'set', 'param_target_23', 'max_rms_error', '1'),   # a double 1.0
+               _cli('param', 'set', 'param_target_23', 'cell_file', 'iiwa7_close')]
+    for done in refused:
+        assert done.returncode == 1 and done.stderr.startswith('Setting parameter failed: ')
+    assert parameter_node.get_parameter('max_rms_error').value == 0.002
+    missing = _cli('param', 'get', 'param_target_23', 'nope')
+    assert missing.returncode == 1 and "has no parameter 'nope'" in missing.stderr
+    gone = _cli('param', 'list', 'no_such_node_23', '--timeout', '1')
+    assert gone.returncode == 1 and gone.stderr.startswith(
+        'node no_such_node_23 offers no parameter services within 1 s')
+    assert _cli('param', 'get', 'param_target_23').returncode == 2     # NAME missing
