@@ -10,6 +10,7 @@ from types import SimpleNamespace
 
 import pytest
 
+from cobot_calib_ros.cli.common import cell_names
 from cobot_calib_ros.cli.main import main
 
 
@@ -96,7 +97,7 @@ def test_demo_refuses_a_missing_or_broken_cell_in_one_line(capsys, tmp_path):
     assert main(['demo', '--cell', 'nonexistent']) == 2
     err = _one_line(capsys)
     assert err.startswith('demo: cell file ') and 'nonexistent.yaml not found' in err
-    assert err.endswith('(iiwa7_close, sawyer_close)')
+    assert err.endswith(f'({cell_names()})') and 'iiwa7_close, sawyer_close' in err
     broken = tmp_path / 'broken.yaml'
     broken.write_text('cell:\n  name: x\n  robot: sawyer\n  base_frme: base_link\n')
     assert main(['demo', '--cell', str(broken)]) == 2
