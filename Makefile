@@ -12,7 +12,12 @@ export PYTHONDONTWRITEBYTECODE := 1
 .PHONY: setup demo test bench clean
 .DEFAULT_GOAL := demo
 
-setup: $(STAMP)/package
+setup: $(STAMP)/package $(STAMP)/postgres
+
+# PostgreSQL server binaries for the database tests' throwaway cluster (test/pg_cluster.py)
+$(STAMP)/postgres: tools/ensure_postgres.sh
+	tools/ensure_postgres.sh
+	mkdir -p $(STAMP) && touch $@
 
 $(STAMP)/deps: requirements.lock
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)

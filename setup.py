@@ -22,6 +22,9 @@ setup(
     name=package_name,
     version='0.1.0',
     packages=find_packages(exclude=['test', 'test.*']),
+    # the results database's alembic migrations (store.database): not a package, data
+    package_data={package_name + '.store': ['migrations/*.py', 'migrations/*.mako',
+                                            'migrations/versions/*.py']},
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),

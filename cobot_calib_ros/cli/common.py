@@ -24,13 +24,14 @@ def fail(message: str, code: int = EXIT_FAILED) -> int:
 
 
 @contextlib.contextmanager
-def ros_node(name: str):
+def ros_node(name: str, namespace: str = ''):
     """The rclpy node of one CLI command (ros.session: spun by its own executor). Ctrl-C comes
     as a KeyboardInterrupt from the command's waits (ros.calls.spin_until), never from inside
-    rclpy, and the teardown finishes before it goes on (see ros.interrupts)."""
+    rclpy, and the teardown finishes before it goes on (see ros.interrupts). ``namespace``:
+    the node's (its relative names resolve there: `up --namespace`)."""
     from cobot_calib_ros.ros import interrupts
     from cobot_calib_ros.ros.session import session
-    with interrupts.deferred(), session(name) as (node, _):
+    with interrupts.deferred(), session(name, namespace=namespace) as (node, _):
         yield node
 
 

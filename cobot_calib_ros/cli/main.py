@@ -25,6 +25,9 @@ VERBS = (
     'record', 'bag', 'replay',      # bags (rosbag2): record, bag info, replay
     'detect',
     'export',
+    'db',
+    'history',
+    'check',
 )
 
 

@@ -1,6 +1,9 @@
 """`cobot-calib up`: start the node suite and keep it running until Ctrl-C."""
 from __future__ import annotations
 
+from dataclasses import replace
+import os
+import re
 import signal
 import sys
 import time
@@ -28,6 +31,13 @@ def add_parser(subparsers):
                    '(sawyer_close, iiwa7_close)')
     p.add_argument('--layout', default='', help='marker layout of the cell (close, wide); '
                    'default: the cell file\'s own')
+    p.add_argument('--namespace', default='',
+                   help='run the suite under this ROS namespace (e.g. cell_07: /cell_07/...), '
+                        'its results stored as that cell\'s (COBOT_CALIB_CELL); several '
+                        'suites on one machine or one DDS domain, one database')
+    p.add_argument('--db', default='', help='results database URL for every node, e.g. '
+                   'postgresql://user@host/plant (default $COBOT_CALIB_DB, else the SQLite '
+                   'file in the data dir)')
     p.add_argument('--force', action='store_true',
                    help='start even if suite nodes already run on this ROS_DOMAIN_ID')
     return p
@@ -38,16 +48,46 @@ def run(args) -> int:
     problem = cell_problem(args.cell, args.layout) or simulation_problem(args.cell, args.layout)
     if problem:
         return fail(f'{problem}; nothing started', EXIT_USAGE)
+    namespace = args.namespace.strip('/')
+    problem = namespace_problem(namespace)
+    if problem:
+        return fail(f'--namespace {args.namespace!r}: {problem}; nothing started', EXIT_USAGE)
     layout = {'layout': args.layout} if args.layout else {}
-    specs = launcher.suite_specs(args.cell, overrides={
-        n: layout for n in ('mock_robot', 'user_frame_solver', 'repeatability_trial')})
+    specs = [replace(spec, namespace=namespace) for spec in launcher.suite_specs(
+        args.cell, overrides={
+            n: layout for n in ('mock_robot', 'user_frame_solver', 'repeatability_trial')})]
     if not args.force:
-        running = running_nodes(['/' + spec.name for spec in specs])
+        running = running_nodes([spec.full_name for spec in specs])
         if running:
             return fail(f'the node suite already runs on ROS_DOMAIN_ID={domain_id()} '
                         f'({", ".join(running)}); stop it, export another ROS_DOMAIN_ID, '
-                        'or pass --force to start a second one anyway')
-    return _serve(launcher.Suite(launcher.default_log_dir(), own_group=True), specs)
+                        'use another --namespace, or pass --force to start a second one '
+                        'anyway')
+    return _serve(launcher.Suite(launcher.default_log_dir(), own_group=True), specs,
+                  suite_environment(namespace, args.db), namespace)
+
+
+def namespace_problem(namespace: str) -> str:
+    """'' if ``namespace`` ('' : none) is a usable ROS namespace and cell name, else why not."""
+    if namespace and not re.fullmatch(r'[A-Za-z][A-Za-z0-9_]{0,62}(/[A-Za-z][A-Za-z0-9_]{0,62})*',
+                                      namespace):
+        return ('a namespace is letters, digits and _ (starting with a letter), parts '
+                'separated by /, e.g. cell_07')
+    return ''
+
+
+def suite_environment(namespace: str, db: str) -> dict[str, str] | None:
+    """The nodes' environment: the cell their results are stored under (the namespace) and
+    the database; None: this process's own."""
+    from cobot_calib_ros.store.database import CELL_ENV, DB_ENV
+    if not namespace and not db:
+        return None
+    env = dict(os.environ)
+    if namespace:
+        env[CELL_ENV] = namespace.replace('/', '.')
+    if db:
+        env[DB_ENV] = db
+    return env
 
 
 def simulation_problem(cell: str, layout: str) -> str:
@@ -75,7 +115,7 @@ def running_nodes(names: list[str]) -> list[str]:
     return [n for n in names if n in found]
 
 
-def _serve(suite, specs) -> int:
+def _serve(suite, specs, env: dict[str, str] | None = None, namespace: str = '') -> int:
     """Run the suite until Ctrl-C (or SIGTERM): 'ready' once every node answers; a node that
     exits is started again (launch's respawn), the others keep running. The nodes run in
     process groups of their own: a Ctrl-C at the terminal reaches `up` alone, which then sends
@@ -83,11 +123,13 @@ def _serve(suite, specs) -> int:
     from cobot_calib_ros.ros.calls import spin_until
     stop = []
     signal.signal(signal.SIGTERM, lambda *_: stop.append(True))
-    suite.start(specs)
-    print(f'node suite starting on ROS_DOMAIN_ID={domain_id()}: {", ".join(suite.processes)}')
+    suite.start(specs, env)
+    where = f' in namespace /{namespace}' if namespace else ''
+    print(f'node suite starting on ROS_DOMAIN_ID={domain_id()}{where}: '
+          f'{", ".join(suite.processes)}')
     print(f'logs: {suite.log_dir}   (Ctrl-C stops every node)', flush=True)
     try:
-        with ros_node('_cobot_calib_up') as node:     # Ctrl-C: a KeyboardInterrupt in a wait
+        with ros_node('_cobot_calib_up', namespace) as node:     # Ctrl-C: a KeyboardInterrupt in a wait
             respawn, ready = _Respawn(suite, node), _Ready(suite, node)
             try:
                 while not stop:

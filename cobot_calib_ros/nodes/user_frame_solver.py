@@ -33,19 +33,21 @@ from rclpy.node import Node
 from cobot_calib_ros import paths, store
 from cobot_calib_ros.core import frames, kinematics, user_frame
 from cobot_calib_ros.core.cell import check_frame_id
+from cobot_calib_ros.core.drift import DriftLimits
 from cobot_calib_ros.core.errors import ErrorCode, Failure, Refusal
 from cobot_calib_ros.core.landmarks import views
 from cobot_calib_ros.core.robot_port import PortError
 from cobot_calib_ros.core.user_frame import landmarks as landmark_frames
 from cobot_calib_ros.loaders import load_cell
 from cobot_calib_ros.ros import convert, qos, results, spin
-from cobot_calib_ros.ros.diagnostics import Diagnostics, OK, WARN
+from cobot_calib_ros.ros.diagnostics import Diagnostics, OK, status_name, WARN
 from cobot_calib_ros.ros.params import declare, read_once
 from cobot_calib_ros.ros.landmark_views import active_hand_eye, CaptureMarks
 from cobot_calib_ros.ros.landmark_watch import LandmarkWatch
 from cobot_calib_ros.ros.robot_calls import RobotCalls
 from cobot_calib_ros.ros.time import now_ns, ns_to_stamp
 from cobot_calib_ros.ros.tf_static import StaticBroadcaster
+from cobot_calib_ros.store.history import user_frame_change
 from cobot_calib_ros.store.kinematics import chain_of, NOMINAL
 from cobot_calib_ros.store.records import UserFrameRecord
 
@@ -108,6 +110,9 @@ class UserFrameSolver(Node):
         self._store = store.open(paths.data_dir(self._p('data_dir'))).user_frames
         self._store_lock = threading.Lock()     # the calibrator thread writes, this one reads
         self._health = Diagnostics(self)
+        # '<node>: drift': the newest calibration against the one active before it
+        self._drift = Diagnostics(self, name=status_name(self, 'drift'))
+        self._drift.set(OK, 'no calibration compared yet')
         self._last_refusal = ''
         self._tf_problem = ''                   # why the active calibration is not on /tf_static
         self._latched_id: str | None = None     # the calibration latched now (None: nothing)
@@ -162,6 +167,17 @@ class UserFrameSolver(Node):
                 'Largest RMS residual of a calibration that is accepted; a worse fit (units? '
                 'point order?) is refused with IMPLAUSIBLE_FIT, and so is a single residual '
                 'above 3 times this [m]', 1e-6, 0.1)
+        limits = DriftLimits()
+        declare(self, 'drift_k', limits.k, 'Drift: a frame change counts only beyond this many '
+                'of its standard errors (from the two calibrations\' shared points) [1]',
+                0.0, 100.0)
+        for name, value, what in (('drift_warn_m', limits.warn_m, 'WARN [m]'),
+                                  ('drift_error_m', limits.error_m, 'ERROR [m]'),
+                                  ('drift_warn_rad', limits.warn_rad, 'WARN [rad]'),
+                                  ('drift_error_rad', limits.error_rad, 'ERROR [rad]')):
+            declare(self, name, value, 'Drift: the frame change (translation or rotation) '
+                    f'beyond drift_k standard errors AND this raises {what} on /diagnostics',
+                    0.0, 1.0)
         declare(self, 'max_scale_error', 0.01,
                 'Tolerance of |scale - 1| of the fitted matrix (five_point_lsq): a scale off 1 by '
                 'more than this AND by more than its noise allows (k standard errors, 0.5 % '
@@ -228,16 +244,34 @@ class UserFrameSolver(Node):
                                           now_ns(self), model_used, hand_eye).to_dict()
         try:
             with self._store_lock:
+                previous = self._store.active()
                 self._store.save_and_activate(record)   # user frames have no gate (yet)
         except OSError as e:
             return self._refuse(response, ErrorCode.STORAGE_FAILED,
                                 f'could not store the calibration: {e}; check data_dir')
+        self._report_drift(previous, record)
         response.calibration = record_to_msg(record)
         response.error_code, response.message = Res.SUCCESS, fit.message or 'calibrated'
         self._publish_from_another_thread(response.calibration)
         spin.log_info(self.get_logger(), f'{record["id"]}: {len(names)} points, rms '
                       f'{fit.rms * 1e3:.4f} mm, max {fit.max_residual * 1e3:.4f} mm')
         return response
+
+    def _report_drift(self, previous, record) -> None:
+        """The drift status: the new frame against the previously active one (store.history:
+        beyond drift_k standard errors AND the tolerance: WARN, or ERROR)."""
+        if previous is None:
+            return
+        change = user_frame_change(previous, record, DriftLimits(
+            self._p('drift_k'), self._p('drift_warn_m'), self._p('drift_error_m'),
+            self._p('drift_warn_rad'), self._p('drift_error_rad')))
+        self._drift.set(change.level, change.message, calibration=record['id'],
+                        previous=previous['id'], moved_mm=f'{change.translation_m * 1e3:.4f}',
+                        sigma_mm=f'{change.sigma_translation_m * 1e3:.4f}',
+                        turned_mrad=f'{change.rotation_rad * 1e3:.4f}',
+                        sigma_mrad=f'{change.sigma_rotation_rad * 1e3:.4f}')
+        if change.level != OK:
+            self.get_logger().warning(change.message)
 
     def _fit(self, request, names: list[str], p_user, p_base) -> user_frame.FrameFit:
         """The fit, refused (IMPLAUSIBLE_FIT) beyond max_rms_error / max_scale_error."""

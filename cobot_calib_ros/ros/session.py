@@ -28,7 +28,7 @@ def client_ros_args() -> list[str]:
 
 @contextlib.contextmanager
 def session(name: str, *, domain_id: int | None = None, sim_time: bool = False,
-            parameter_services: bool = False) -> Iterator[tuple]:
+            parameter_services: bool = False, namespace: str = '') -> Iterator[tuple]:
     """(node, executor) for one client; see the module doc."""
     import rclpy
     from rclpy.context import Context
@@ -42,6 +42,7 @@ def session(name: str, *, domain_id: int | None = None, sim_time: bool = False,
     try:
         node = rclpy.create_node(
             name, context=context, start_parameter_services=parameter_services,
+            namespace=namespace or None,
             parameter_overrides=[Parameter('use_sim_time', value=True)] if sim_time else [])
         executor = SingleThreadedExecutor(context=context)
         executor.add_node(node)

@@ -5,7 +5,7 @@ Typed records in store.records; the folder implementation in store.calibrations,
 """
 
 
-def open(data_dir):   # noqa: A001 (as io.open); imported on use: store.files stays light
+def open(data_dir, db=None, cell=None):   # noqa: A001 (as io.open); imported on use
     """The :class:`store.repository.Repository` of ``data_dir`` (see store.repository)."""
     from cobot_calib_ros.store.repository import open as open_repository
-    return open_repository(data_dir)
+    return open_repository(data_dir, db, cell)

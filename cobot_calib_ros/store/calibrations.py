@@ -239,18 +239,29 @@ class CalibrationStore(WarningLog):
                 kept[scope] = record_id
         if (kept, retired) == (self._choices(), self.retired()):
             return
+        self._write_selection(kept, retired)
+        self._chosen, self._retired = kept, retired
+
+    def _write_selection(self, kept: dict[str, str], retired: frozenset[str]) -> None:
+        """Store the choices {scope: id} and the retired ids atomically (active.json)."""
         ensure_dir(self.directory)
         scoped = {scope: record_id for scope, record_id in sorted(kept.items()) if scope}
         atomic_write_text(self.selection_path, json.dumps(
             {'active_id': kept.get(''), **({'active_ids': scoped} if scoped else {}),
              'retired': sorted(retired)}) + '\n')
-        self._chosen, self._retired = kept, retired
+
+    def _stored_selection(self) -> tuple[dict[str, Any] | None, str]:
+        """The stored choices as active.json's mapping and '', None if none is stored, or
+        {} and what is wrong with them."""
+        if not self.selection_path.exists():
+            return None, ''
+        return _read_selection(self.selection_path)
 
     def _load_selection(self) -> None:
         self._chosen, self._retired = {}, frozenset()
-        if not self.selection_path.exists():
+        data, problem = self._stored_selection()
+        if data is None:
             return
-        data, problem = _read_selection(self.selection_path)
         if problem:
             self._warn(f'{self.selection_path}: ignored ({problem}); the newest calibration '
                        'is active and none is retired until set_active_calibration is called')

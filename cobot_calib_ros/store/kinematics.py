@@ -20,7 +20,7 @@ import yaml
 from cobot_calib_ros.core.kinematics.model import Chain, KinematicModel
 from cobot_calib_ros.core.kinematics.urdf import calibrated_urdf
 from cobot_calib_ros.store.calibrations import Activation, CalibrationStore
-from cobot_calib_ros.store.files import atomic_write_text
+from cobot_calib_ros.store.files import atomic_write_text, ensure_dir
 from cobot_calib_ros.store.records import KinematicRecord
 
 NOMINAL = 'nominal'
@@ -29,17 +29,19 @@ LATEST = 'latest'
 
 @dataclass(frozen=True)
 class SavedKinematics:
-    """What :meth:`KinematicStore.save_outcome` wrote: the record, the paths of its JSON, YAML
-    and URDF files, and its activation (None if not asked for)."""
+    """What :meth:`KinematicStore.save_outcome` wrote: the record, the paths of its JSON (or
+    where a database keeps it), YAML and URDF files, and its activation (None if not asked
+    for)."""
 
     record: KinematicRecord
     paths: dict[str, Path]
     activation: Activation | None
 
 
-class KinematicStore(CalibrationStore):
-    def __init__(self, root: Path) -> None:
-        super().__init__(root, 'kinematics', scope_key='robot')
+class KinematicHistory:
+    """What a kinematic calibration history adds to a calibration history (a mixin of
+    :class:`KinematicStore` and store.database's): the YAML and URDF files beside each record
+    (in ``directory``), and the choice of a model by name."""
 
     def save_outcome(self, outcome, activate: bool = True,
                      wall_ns: int | None = None) -> SavedKinematics:
@@ -49,7 +51,8 @@ class KinematicStore(CalibrationStore):
         record = typed.to_dict()
         paths = {'yaml': self.directory / f'{typed.id}.yaml',
                  'urdf': self.directory / f'{typed.id}.urdf'}
-        json_path = self.save(record)    # creates the directory
+        stored = self.save(record)       # a path, or where in a database
+        ensure_dir(self.directory)
         atomic_write_text(paths['yaml'], yaml.safe_dump(_readable(record), sort_keys=False,
                                                         width=100))
         model = outcome.model
@@ -57,7 +60,7 @@ class KinematicStore(CalibrationStore):
             model, np.array(typed.result.params), np.array(typed.result.tool_xyz),
             robot_name=f'{model.name}_calibrated'))
         activation = self.activate(typed.id) if activate else None
-        return SavedKinematics(typed, {'json': json_path, **paths}, activation)
+        return SavedKinematics(typed, {'json': stored, **paths}, activation)
 
     def resolve(self, choice: str, robot: str) -> dict[str, Any] | None:
         """The record ``choice`` names for ``robot`` (a model name): 'latest' (that robot's
@@ -71,6 +74,11 @@ class KinematicStore(CalibrationStore):
         if record is None:
             raise KeyError(f'no kinematic calibration {choice!r} in {self.directory}')
         return record
+
+
+class KinematicStore(KinematicHistory, CalibrationStore):
+    def __init__(self, root: Path) -> None:
+        super().__init__(root, 'kinematics', scope_key='robot')
 
 
 def chain_of(record: dict[str, Any] | None, model: KinematicModel, tool) -> Chain:

@@ -37,6 +37,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from functools import cached_property
+import os
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -45,7 +46,8 @@ from cobot_calib_ros.store.collections import CollectionStore
 from cobot_calib_ros.store.kinematics import KinematicStore
 from cobot_calib_ros.store.trials import TrialStore
 
-__all__ = ['Activation', 'CalibrationHistory', 'FolderRepository', 'Repository', 'open']
+__all__ = ['Activation', 'CalibrationHistory', 'DatabaseRepository', 'FolderRepository',
+           'Repository', 'database_url', 'open']
 
 
 class CalibrationHistory(Protocol):
@@ -102,6 +104,11 @@ class FolderRepository:
         return TrialStore(self.root)
 
     @cached_property
+    def checks(self) -> CalibrationStore:
+        """Quick health checks (cli check): results like calibrations, never activated."""
+        return CalibrationStore(self.root, 'checks')
+
+    @cached_property
     def collections(self) -> CollectionStore:
         return CollectionStore(self.root)
 
@@ -109,6 +116,75 @@ class FolderRepository:
         return f'FolderRepository({str(self.root)!r})'
 
 
-def open(data_dir: Path | str) -> Repository:   # noqa: A001 (store.open, as io.open)
-    """The repository of ``data_dir`` (a resolved data directory, see paths.data_dir)."""
-    return FolderRepository(Path(data_dir))
+class DatabaseRepository:
+    """The database implementation (store.database): one cell's calibrations and checks as
+    rows of a SQLite file or a PostgreSQL server; the measurement logs (trials, collections)
+    stay append-only files under ``root`` (each reading fsynced as it comes)."""
+
+    def __init__(self, root: Path, url: str, cell: str) -> None:
+        from cobot_calib_ros.store.database import Database
+        self.root, self.cell = Path(root), cell
+        self.database = Database(url)
+
+    def _history(self, kind: str, subdir: str):
+        from cobot_calib_ros.store.database import DbCalibrationHistory
+        return DbCalibrationHistory(self.database, self.cell, kind, self.root, subdir)
+
+    @cached_property
+    def user_frames(self):
+        return self._history('user_frame', 'calibrations')
+
+    @cached_property
+    def hand_eye(self):
+        return self._history('hand_eye', 'hand_eye')
+
+    @cached_property
+    def checks(self):
+        """Quick health checks (cli check): results like calibrations, never activated."""
+        return self._history('check', 'checks')
+
+    @cached_property
+    def kinematics(self):
+        from cobot_calib_ros.store.database import DbKinematicStore
+        return DbKinematicStore(self.database, self.cell, self.root)
+
+    @cached_property
+    def trials(self) -> TrialStore:
+        return TrialStore(self.root)
+
+    @cached_property
+    def collections(self) -> CollectionStore:
+        return CollectionStore(self.root)
+
+    def __repr__(self) -> str:
+        return f'DatabaseRepository({str(self.root)!r}, {self.database!r}, cell={self.cell!r})'
+
+
+FOLDER_RESULTS = ('calibrations', 'hand_eye', 'kinematics')
+
+
+def database_url(data_dir: Path | str, db: str | None = None) -> str:
+    """The database of ``data_dir``: ``db`` when given, else $COBOT_CALIB_DB, else the data
+    dir's own SQLite file; '' for a data dir that holds a folder store and no database (one
+    written before the database: it stays a folder store until `cobot-calib db import`)."""
+    from cobot_calib_ros.store.database import DB_ENV, SQLITE_FILE, sqlite_url
+    url = db or os.environ.get(DB_ENV, '')
+    if url:
+        return url
+    root = Path(data_dir)
+    if not (root / SQLITE_FILE).exists() and any((root / d).is_dir() for d in FOLDER_RESULTS):
+        return ''
+    return sqlite_url(root)
+
+
+def open(data_dir: Path | str, db: str | None = None,   # noqa: A001 (store.open, as io.open)
+         cell: str | None = None) -> Repository:
+    """The repository of ``data_dir`` (a resolved data directory, see paths.data_dir): its
+    database (:func:`database_url`; ``cell``, default $COBOT_CALIB_CELL or 'default', names
+    the cell's rows), or the folder store of a data dir written before the database."""
+    from cobot_calib_ros.store.database import CELL_ENV, DEFAULT_CELL
+    url = database_url(data_dir, db)
+    if not url:
+        return FolderRepository(Path(data_dir))
+    return DatabaseRepository(Path(data_dir), url,
+                              cell or os.environ.get(CELL_ENV) or DEFAULT_CELL)

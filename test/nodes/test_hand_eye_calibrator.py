@@ -30,7 +30,7 @@ from cobot_calib_ros.paths import cell_file
 from cobot_calib_ros.ros import qos
 from cobot_calib_ros.ros.time import stamp_to_ns
 from cobot_calib_ros.sim.scenario import load_simulation
-from cobot_calib_ros.store.calibrations import CalibrationStore
+from cobot_calib_ros import store
 from rosutil import cli_command
 
 NODES = ('mock_robot', 'joint_state_monitor', 'mock_camera', 'landmark_detector',
@@ -88,8 +88,8 @@ def test_ctrl_c_cancels_the_calibration_and_nothing_is_stored(hand_eye_suite):
     cancelled at the next view, the CLI says so and exits 130, nothing is stored, activated or
     published (on 5252a67 the server took all 40 views and made the result active)."""
     client = hand_eye_suite
-    store = CalibrationStore(client.data_dir, 'hand_eye')
-    ids_before, active_before = store.ids(), store.active()
+    history = store.open(client.data_dir).hand_eye
+    ids_before, active_before = history.ids(), history.active()
     latched = []
     sub = client.node.create_subscription(TransformStamped, 'hand_eye', latched.append,
                                           qos.LATCHED)
@@ -117,7 +117,7 @@ def test_ctrl_c_cancels_the_calibration_and_nothing_is_stored(hand_eye_suite):
     assert err.strip().endswith('of 40; nothing stored or published'), err
     views = [line for line in out.splitlines() if line.strip().startswith('view ')]
     assert 1 <= len(views) <= 3, f'views went on after the Ctrl-C:\n{out}'
-    assert store.ids() == ids_before and store.active() == active_before
+    assert history.ids() == ids_before and history.active() == active_before
     assert not [m for m in latched if stamp_to_ns(m.header.stamp) > started_ns], \
         'a hand-eye was published after the cancelled goal started'
 
@@ -177,9 +177,9 @@ def test_calibrate_hand_eye_recovers_the_true_hand_eye(hand_eye_suite):
     assert np.all(np.isfinite(sigma)) and np.all(sigma > 0)
     assert len(feedback) == 12 and feedback[-1].view_index == 11
 
-    store = CalibrationStore(client.data_dir, 'hand_eye')
-    record = store.get(result.calibration_id)
-    assert record is not None and store.active()['id'] == result.calibration_id
+    history = store.open(client.data_dir).hand_eye
+    record = history.get(result.calibration_id)
+    assert record is not None and history.active()['id'] == result.calibration_id
     np.testing.assert_allclose(record['result']['T_flange_optical'], X, atol=1e-9)
     assert len(record['inputs']['joints']) == result.views_used
 
@@ -233,7 +233,7 @@ RUNS_BESIDE = 2      # hand-eye runs beside the busy neighbour (13 of 28 went wr
 def test_a_hand_eye_beside_a_busy_suite_is_right_or_rejected(hand_eye_suite, busy_neighbour):
     """Issue 22.9: with a second suite working beside it, a result is within 1 mm / 3 mrad of
     the mock's true hand-eye (GetGroundTruth) and active, or it is rejected: stored as rejected
-    (store.rejected()), not active, not published, the active hand-eye unchanged. A run the
+    (history.rejected()), not active, not published, the active hand-eye unchanged. A run the
     load ends otherwise (a starved joint capture: CAPTURE_FAILED) stores nothing."""
     client = hand_eye_suite
     action = ActionClient(client.node, CalibrateHandEye, 'calibrate_hand_eye')
@@ -257,14 +257,14 @@ def _run_and_check(client, action, latched) -> str:
     """One calibration, checked as the test above says; what it gave, in one line."""
     from cobot_calib_ros.api.hand_eye import error_against_truth
     Result = CalibrateHandEye.Result
-    before = CalibrationStore(client.data_dir, 'hand_eye')
+    before = store.open(client.data_dir).hand_eye
     ids_before, active_before, published_before = before.ids(), before.active(), len(latched)
     _, result = run_action(client.node, action, CalibrateHandEye.Goal(views=12, hold=0.1),
                            300.0, executor=client.executor)
-    store = CalibrationStore(client.data_dir, 'hand_eye')
+    history = store.open(client.data_dir).hand_eye
     if result.error_code not in (Result.SUCCESS, Result.SOLVER_FAILED) or \
             not result.calibration_id:
-        assert store.ids() == ids_before and store.active() == active_before, result.message
+        assert history.ids() == ids_before and history.active() == active_before, result.message
         return f'failed ({result.error_code}), nothing stored: {result.message}'
     t, r = result.t_flange_optical.translation, result.t_flange_optical.rotation
     X = frames.from_pose([t.x, t.y, t.z], [r.x, r.y, r.z, r.w])
@@ -275,14 +275,14 @@ def _run_and_check(client, action, latched) -> str:
             f'used, {result.views_skipped} skipped')
     if result.error_code == Result.SUCCESS:
         assert error.position_m < 1e-3 and error.rotation_rad < 3e-3, line
-        assert store.active()['id'] == result.calibration_id
+        assert history.active()['id'] == result.calibration_id
         assert spin_until(client.node, lambda: len(latched) > published_before, 10.0,
                           client.executor), 'a right result was not published'
         return f'right: {line}'
     assert 'rejected' in result.message and 'not made active' in result.message, result.message
-    record = store.get(result.calibration_id)
+    record = history.get(result.calibration_id)
     assert record is not None and record['gate_problem']
-    assert store.rejected()[result.calibration_id] == record['gate_problem']
-    assert not store.activate(result.calibration_id)     # not even when asked for by id
-    assert store.active() == active_before and len(latched) == published_before
+    assert history.rejected()[result.calibration_id] == record['gate_problem']
+    assert not history.activate(result.calibration_id)     # not even when asked for by id
+    assert history.active() == active_before and len(latched) == published_before
     return f'rejected: {line}'

@@ -12,7 +12,7 @@ from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
 from cobot_calib_ros.ros.calls import CallError
-from cobot_calib_ros.store.calibrations import CalibrationStore
+from cobot_calib_ros import store
 from rosutil import call, cli_command
 
 POINTS = ['P1', 'P2', 'P3', 'P4', 'P5']
@@ -30,14 +30,14 @@ def test_teach_from_enter_stores_what_calibrate_gives_for_the_same_captures(ros,
     result = json.loads(out)
     assert [line for line in err.splitlines() if 'guide the tool tip' in line][0].startswith(
         '[1/5] P1')
-    stored = CalibrationStore(trial_data).get(result['calibration']['id'])
+    stored = store.open(trial_data).user_frames.get(result['calibration']['id'])
     assert stored['method'] == 'rigid' and stored['inputs']['point_names'] == POINTS
     captures = [JointState(name=c['name'], position=c['position'])
                 for c in result['joint_captures']]
     again = call(ros, CalibrateUserFrame, 'calibrate_user_frame', timeout=30.0,
                  method='rigid', point_names=POINTS, joint_captures=captures)
     assert again.error_code == 0, again.message
-    direct = CalibrationStore(trial_data).get(again.calibration.id)
+    direct = store.open(trial_data).user_frames.get(again.calibration.id)
     assert direct['id'] != stored['id']
     for key in ('T_base_user', 'residuals', 'covariance'):      # bit for bit
         np.testing.assert_array_equal(stored['result'][key], direct['result'][key])
@@ -66,11 +66,11 @@ def test_teach_waits_for_the_confirm_service_when_stdin_is_closed(ros):
 
 
 def test_teach_quit_stores_nothing_and_unknown_points_are_refused(ros, trial_data):
-    before = len(CalibrationStore(trial_data).history())
+    before = len(store.open(trial_data).user_frames.history())
     teach = _teach('--hold', '0.2', stdin=subprocess.PIPE)
     out, err = teach.communicate('\nq\n', timeout=120)
     assert teach.returncode == 1 and 'quit by the operator; nothing was stored' in err
-    assert len(CalibrationStore(trial_data).history()) == before
+    assert len(store.open(trial_data).user_frames.history()) == before
     bad = _teach('--points', 'P1', 'P9', stdin=subprocess.DEVNULL)
     _, err = bad.communicate(timeout=60)
     assert bad.returncode == 2 and "unknown point(s) ['P9']" in err
@@ -83,7 +83,7 @@ def test_teach_interrupted_says_so_and_stores_nothing(ros, trial_data, after):
     swallowed ("Exception ignored in ... _wait_for_ready_callbacks"), and teach waited for
     its confirmation for --timeout s (2 of 40 Ctrl-Cs at random moments of the touch):
     ros.interrupts now delivers it at the next wait (test/ros/test_interrupts.py)."""
-    before = len(CalibrationStore(trial_data).history())
+    before = len(store.open(trial_data).user_frames.history())
     teach = _teach('--hold', '0.2', stdin=subprocess.PIPE)
     deadline = time.monotonic() + 120
     while after not in (teach.stdout.readline() or '') and time.monotonic() < deadline:
@@ -96,4 +96,4 @@ def test_teach_interrupted_says_so_and_stores_nothing(ros, trial_data, after):
             teach.kill()
     assert teach.returncode == 130 and 'teach interrupted; nothing was stored' in err, err
     assert 'Traceback' not in err and 'Exception ignored' not in err, err
-    assert len(CalibrationStore(trial_data).history()) == before
+    assert len(store.open(trial_data).user_frames.history()) == before

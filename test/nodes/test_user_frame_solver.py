@@ -450,3 +450,34 @@ def test_parameters_read_once_refuse_set_parameters_with_the_reason(ros):
         assert not result.successful, (node, name)
         assert 'read-only' in result.reason, result.reason
         assert _get_parameter(ros, node, name) == before
+
+
+def test_a_moved_frame_raises_the_drift_warning_on_diagnostics(ros):
+    """Issue 19: the same points measured 0.5 mm further along x than by the calibration
+    before: 'user_frame_solver: drift' goes WARN (beyond 3 standard errors, here 0: the
+    same noise, and 0.2 mm) naming the move; measured again without a move: OK."""
+    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+    latest = {}
+
+    def on_diagnostics(msg):
+        for status in msg.status:
+            if status.name == 'user_frame_solver: drift':
+                latest['status'] = status
+
+    def drift_after(base):
+        assert _calibrate(ros, base=base).error_code == Res.SUCCESS
+        latest.clear()
+        spin_until(ros, lambda: 'status' in latest, 5.0, ros.executor_for_tests)
+        return latest['status']
+
+    sub = ros.create_subscription(DiagnosticArray, '/diagnostics', on_diagnostics, 10)
+    try:
+        drift_after(P_BASE)
+        moved = drift_after(P_BASE + [0.5e-3, 0.0, 0.0])
+        assert moved.level == DiagnosticStatus.WARN, moved.message
+        assert moved.message.startswith('user frame moved 0.500 mm') and \
+            'recalibrate' in moved.message
+        again = drift_after(P_BASE + [0.5e-3, 0.0, 0.0])
+        assert again.level == DiagnosticStatus.OK, again.message
+    finally:
+        ros.destroy_subscription(sub)

@@ -1,0 +1,158 @@
+"""`cobot-calib history`: each stored result against the previous one (store.history), per
+cell, with its own uncertainty and the drift verdict; trend plots with those bands (PNG)."""
+from __future__ import annotations
+
+from datetime import datetime, timezone
+import json
+from pathlib import Path
+
+from cobot_calib_ros.cli.common import EXIT_FAILED, EXIT_OK, EXIT_USAGE, fail
+from cobot_calib_ros.cli.db import add_db_options
+
+
+def add_parser(subparsers):
+    p = subparsers.add_parser('history', help="a cell's results against the previous one: "
+                                              'drift, with uncertainty; trend plots')
+    add_db_options(p)
+    p.add_argument('--since', help='only results from this time on (ISO 8601, e.g. '
+                                   '2026-11-01 or 2026-11-01T08:00; UTC unless it says)')
+    p.add_argument('--json', action='store_true', help='one JSON line per result')
+    p.add_argument('--plots', help='folder for the trend PNGs (default <data dir>/reports)')
+    p.add_argument('--no-plots', action='store_true', help='print only')
+    return p
+
+
+def since_ns(text: str | None) -> int:
+    """ns since the epoch of an ISO 8601 time (naive: UTC); 0 for None. ValueError."""
+    if not text:
+        return 0
+    when = datetime.fromisoformat(text)
+    if when.tzinfo is None:
+        when = when.replace(tzinfo=timezone.utc)
+    return int(when.timestamp() * 1e9)
+
+
+def run(args) -> int:
+    from cobot_calib_ros import paths, store
+    from cobot_calib_ros.store.database import DatabaseError
+    from cobot_calib_ros.store.repository import DatabaseRepository
+    try:
+        start = since_ns(args.since)
+    except ValueError:
+        return fail(f'history: --since {args.since!r} is not an ISO 8601 time; give e.g. '
+                    '2026-11-01 or 2026-11-01T08:00:00', EXIT_USAGE)
+    root = paths.data_dir(args.data_dir)
+    try:
+        repo = store.open(root, args.db, args.cell)
+        own = getattr(repo, 'cell', args.cell or 'default')
+        cells = [own] if args.cell or not isinstance(repo, DatabaseRepository) else \
+            repo.database.cells() or [own]
+        reports = [_cell_report(store.open(root, args.db, cell), cell, start) for cell in cells]
+    except DatabaseError as exc:
+        return fail(f'history: {exc}')
+    for report in reports:
+        _print(report, args.json)
+    if not args.no_plots:
+        out = Path(args.plots) if args.plots else root / 'reports'
+        for report in reports:
+            if report['user_frames']:
+                print(f'trend plot: {_plot(report, out)}', flush=True)
+    worst = max((s['level'] for r in reports for s in r['user_frames'] if s['level']),
+                default=0)
+    return EXIT_FAILED if worst >= 2 else EXIT_OK
+
+
+def _cell_report(repo, cell: str, start: int) -> dict:
+    from cobot_calib_ros.store.history import kinematic_changes, user_frame_steps
+    steps = []
+    for step in user_frame_steps(repo.user_frames.history()):
+        if step.record['stamp_ns'] < start:
+            continue
+        c = step.change
+        steps.append({'id': step.record['id'], 'method': step.record['method'],
+                      'stamp_ns': step.record['stamp_ns'], 'previous': step.previous_id,
+                      'rms_mm': step.record['result'].get('rms', 0.0) * 1e3,
+                      'moved_mm': None if c is None else c.translation_m * 1e3,
+                      'sigma_mm': None if c is None else c.sigma_translation_m * 1e3,
+                      'turned_mrad': None if c is None else c.rotation_rad * 1e3,
+                      'sigma_mrad': None if c is None else c.sigma_rotation_rad * 1e3,
+                      'level': 0 if c is None else c.level,
+                      'verdict': 'first' if c is None else c.level_name,
+                      'message': '' if c is None else c.message})
+    kinematic = []
+    records = sorted(repo.kinematics.history(), key=lambda r: (r['stamp_ns'], r['id']))
+    for robot in sorted({r.get('robot', '') for r in records}):
+        mine = [r for r in records if r.get('robot', '') == robot and not r.get('gate_problem')]
+        for prev, new in zip(mine, mine[1:]):
+            if new['stamp_ns'] < start:
+                continue
+            changes = kinematic_changes(prev, new)
+            worst = max(changes, key=lambda c: c.z, default=None)
+            kinematic.append({'id': new['id'], 'robot': robot, 'previous': prev['id'],
+                              'rms_mm': new['result'].get('rms_m', 0.0) * 1e3,
+                              'largest_change': None if worst is None else {
+                                  'name': worst.name, 'change': worst.change,
+                                  'sigma': worst.sigma, 'z': worst.z}})
+    checks = [{'id': r['id'], 'method': r['method'], 'verdict': r['result'].get('verdict'),
+               'robot_s': r['result'].get('robot_seconds')}
+              for r in repo.checks.history() if r['stamp_ns'] >= start] \
+        if hasattr(repo, 'checks') else []
+    return {'cell': cell, 'user_frames': steps, 'kinematics': kinematic, 'checks': checks}
+
+
+def _print(report: dict, as_json: bool) -> None:
+    if as_json:
+        print(json.dumps(report), flush=True)
+        return
+    print(f'cell {report["cell"]}: {len(report["user_frames"])} user frame(s)')
+    print(f'  {"id":44} {"method":14} {"rms mm":>7} {"moved mm":>16} {"turned mrad":>16}  '
+          'verdict')
+    for s in report['user_frames']:
+        moved = '' if s['moved_mm'] is None else f'{s["moved_mm"]:.3f} +-{s["sigma_mm"]:.3f}'
+        turned = '' if s['turned_mrad'] is None else \
+            f'{s["turned_mrad"]:.3f} +-{s["sigma_mrad"]:.3f}'
+        print(f'  {s["id"]:44} {s["method"]:14} {s["rms_mm"]:7.4f} {moved:>16} {turned:>16}  '
+              f'{s["verdict"]}')
+    for s in report['user_frames']:
+        if s['level']:
+            print(f'  {s["verdict"]}: {s["message"]}')
+    for k in report['kinematics']:
+        big = k['largest_change']
+        text = '' if big is None else (f'largest change {big["name"]} {big["change"]:+.3g} '
+                                       f'({big["z"]:.1f} sigma)')
+        print(f'  kinematics {k["robot"]} {k["id"]}: rms {k["rms_mm"]:.3f} mm; {text}')
+    for c in report['checks']:
+        print(f'  check {c["id"]} ({c["method"]}): {c["verdict"]}, robot {c["robot_s"]} s')
+
+
+def _plot(report: dict, out: Path) -> Path:
+    """Frame change per calibration with its k-sigma band and the warn tolerance."""
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    from cobot_calib_ros.core.drift import DriftLimits
+    limits = DriftLimits()
+    steps = [s for s in report['user_frames'] if s['moved_mm'] is not None]
+    x = list(range(1, len(steps) + 1))
+    fig, axes = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
+    for ax, key, sigma, tol, unit in ((axes[0], 'moved_mm', 'sigma_mm', limits.warn_m * 1e3,
+                                       'mm'),
+                                      (axes[1], 'turned_mrad', 'sigma_mrad',
+                                       limits.warn_rad * 1e3, 'mrad')):
+        values = [s[key] for s in steps]
+        band = [limits.k * s[sigma] for s in steps]
+        ax.fill_between(x, 0, band, alpha=0.3, label=f'{limits.k:g} standard errors')
+        ax.plot(x, values, 'o-', label='change since the previous calibration')
+        ax.axhline(tol, color='tab:orange', ls='--', label='WARN tolerance')
+        for xi, s in zip(x, steps):
+            if s['level']:
+                ax.plot(xi, s[key], 'o', color='tab:red')
+        ax.set_ylabel(f'{key.split("_")[0]} [{unit}]')
+    axes[0].legend(fontsize=8)
+    axes[0].set_title(f'cell {report["cell"]}: user frame drift')
+    axes[1].set_xlabel('calibration (after the first)')
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / f'history-{report["cell"]}.png'
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path

@@ -1,0 +1,72 @@
+"""`cobot-calib history` on a database the simulated cell filled (no ROS): the change of each
+calibration with its standard error, the drift verdicts, the trend PNG, --since and --cell."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from cobot_calib_ros import store
+from cobot_calib_ros.cli.main import main
+from cobot_calib_ros.paths import cell_file
+from cobot_calib_ros.sim.scenario import load_simulation
+from cobot_calib_ros.sim.user_frame_run import calibrate_user_frame, moved_table
+from cobot_calib_ros.store.records import UserFrameRecord
+
+SIM = load_simulation(cell_file('sawyer_close'))
+DAY_NS = 86_400 * 10 ** 9
+NOV_1 = 1_793_491_200 * 10 ** 9       # 2026-11-01T00:00:00Z
+
+
+@pytest.fixture
+def filled(tmp_path):
+    url = f'sqlite:///{tmp_path / "plant.sqlite"}'
+    sims = {'cell_07': [SIM, SIM, moved_table(SIM, [0, 3e-4, 0]), moved_table(SIM, [0, 3e-4, 0])],
+            'cell_08': [SIM, SIM]}
+    for cell, runs in sims.items():
+        repo = store.open(tmp_path / cell, url, cell)
+        for day, sim in enumerate(runs):
+            run = calibrate_user_frame(sim, 10 + day)
+            record = UserFrameRecord.from_fit(run.fit, None, run.names, run.p_user, run.p_base,
+                                              ('base', 'user'), NOV_1 + day * DAY_NS)
+            record.id = f'{cell}-day{day}'
+            repo.user_frames.save_and_activate(record)
+    return tmp_path, url
+
+
+def test_history_json_gives_each_change_with_its_uncertainty_and_verdict(filled, capsys):
+    root, url = filled
+    code = main(['history', '--json', '--db', url, '--data-dir', str(root),
+                 '--plots', str(root / 'png')])
+    out = capsys.readouterr().out.splitlines()
+    reports = {r['cell']: r for r in map(json.loads, out[:2])}
+    assert code == 0 and set(reports) == {'cell_07', 'cell_08'}
+    steps = reports['cell_07']['user_frames']
+    assert [s['verdict'] for s in steps] == ['first', 'OK', 'WARN', 'OK']
+    moved = steps[2]
+    assert 0.2 < moved['moved_mm'] < 0.4 and 0 < moved['sigma_mm'] < 0.1
+    assert moved['previous'] == 'cell_07-day1' and 'recalibrate' in moved['message']
+    assert [s['verdict'] for s in reports['cell_08']['user_frames']] == ['first', 'OK']
+    assert out[2:] == [f'trend plot: {root / "png" / f"history-{c}.png"}'
+                       for c in ('cell_07', 'cell_08')]
+    assert (root / 'png' / 'history-cell_07.png').read_bytes()[:4] == b'\x89PNG'
+
+
+def test_history_since_and_cell_select(filled, capsys):
+    root, url = filled
+    assert main(['history', '--json', '--no-plots', '--db', url, '--data-dir', str(root),
+                 '--cell', 'cell_07', '--since', '2026-11-03']) == 0
+    report, = map(json.loads, capsys.readouterr().out.splitlines())
+    assert [s['id'] for s in report['user_frames']] == ['cell_07-day2', 'cell_07-day3']
+    assert main(['history', '--since', 'last tuesday', '--data-dir', str(root)]) == 2
+    assert 'not an ISO 8601 time' in capsys.readouterr().err
+
+
+def test_history_table_names_the_warning(filled, capsys):
+    root, url = filled
+    assert main(['history', '--no-plots', '--db', url, '--data-dir', str(root),
+                 '--cell', 'cell_07']) == 0
+    out = capsys.readouterr().out
+    assert 'cell cell_07: 4 user frame(s)' in out
+    assert 'WARN: user frame moved 0.' in out and 'since cell_07-day1' in out

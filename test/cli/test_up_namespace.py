@@ -1,0 +1,31 @@
+"""`up --namespace`: which namespaces are refused before anything starts, and the nodes'
+environment (the cell their results go under, the database). No nodes are started here."""
+from __future__ import annotations
+
+import pytest
+
+from cobot_calib_ros.cli import up
+from cobot_calib_ros.cli.main import main
+
+
+@pytest.mark.parametrize('namespace, ok', [
+    ('cell_07', True), ('plant/cell_07', True), ('', True), ('7cell', False),
+    ('cell 07', False), ('cell-07', False), ('cell//07', False)])
+def test_namespace_problem(namespace, ok):
+    assert (up.namespace_problem(namespace) == '') == ok
+
+
+def test_a_bad_namespace_starts_nothing(capsys):
+    assert main(['up', '--namespace', 'cell-07']) == 2
+    err = capsys.readouterr().err
+    assert "--namespace 'cell-07': a namespace is letters" in err and 'nothing started' in err
+
+
+def test_the_nodes_store_as_the_namespace_s_cell_in_the_given_database(monkeypatch):
+    monkeypatch.setenv('COBOT_CALIB_CELL', 'other')
+    monkeypatch.delenv('COBOT_CALIB_DB', raising=False)
+    assert up.suite_environment('', '') is None            # the nodes inherit this process's
+    env = up.suite_environment('plant/cell_07', 'postgresql://u@h/plant')
+    assert env['COBOT_CALIB_CELL'] == 'plant.cell_07'
+    assert env['COBOT_CALIB_DB'] == 'postgresql://u@h/plant'
+    assert env['PATH']                                      # the rest of the environment kept
