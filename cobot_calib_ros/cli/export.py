@@ -7,6 +7,7 @@ import json
 import numpy as np
 
 from cobot_calib_ros.cli.common import EXIT_OK, EXIT_USAGE, fail
+from cobot_calib_ros.cli.db import add_db_options
 
 
 
@@ -20,8 +21,7 @@ def add_parser(subparsers):
                    help='base / user frame number on the controller (default 1)')
     p.add_argument('--name', default='cell_frame', help='variable name (ABB wobjdata, UR)')
     p.add_argument('--json', action='store_true', help='the values as one JSON line')
-    p.add_argument('--data-dir', help='results root (default $COBOT_CALIB_DATA or '
-                                      '~/.ros/cobot_calib)')
+    add_db_options(p)
     return p
 
 
@@ -37,14 +37,16 @@ def find_frame(repo, record_id: str):
 def run(args) -> int:
     from cobot_calib_ros import paths, store
     from cobot_calib_ros.core.vendor_frames import FORMATS, paste_text, to_values
-    repo = store.open(paths.data_dir(args.data_dir))
+    repo = store.open(paths.data_dir(args.data_dir), args.db, args.cell)
     try:
         found = find_frame(repo, args.id)
     except ValueError as exc:
         return fail(f'export: {exc}', EXIT_USAGE)
+    except OSError as exc:
+        return fail(f'export: {exc}')
     if found is None:
-        return fail(f'export: no user-frame calibration {args.id!r} in {repo.root}; give an id '
-                    'stored there (a file name stem under calibrations/) or --data-dir')
+        return fail(f'export: no user-frame calibration {args.id!r} in {repo.root}; '
+                    '`cobot-calib history` lists the stored ones (--data-dir, --db, --cell)')
     record, T = found
     what = 'user frame in the robot base'
     try:
