@@ -112,3 +112,38 @@ def test_too_few_rows_for_the_parameters_are_refused(tmp_path, capsys):
 
 def test_a_leave_out_column_that_is_not_there_is_refused(capsys):
     assert '--leave-out session: no such column' in refusal(capsys, leave_out='session')
+
+
+def test_a_camera_on_the_arm_is_read_as_the_board_seen_from_it(tmp_path):
+    """Noise-free T_camera_board with the camera on wrist_3_link and the board fixed in the
+    cell, written in mm and degrees with rotation vectors: identified held out to < 1e-6 mm."""
+    from scipy.spatial.transform import Rotation
+    from cobot_calib_ros.core.frames import from_vector, invert
+    from cobot_calib_ros.core.kinematics.identification import measurement_fit as mf
+    from cobot_calib_ros.core.kinematics.model import fk
+    from cobot_calib_ros.core.kinematics.urdf import model_from_urdf
+    model = model_from_urdf((UR10E / 'robot.urdf').read_text(), 'base_link', 'wrist_3_link',
+                            'ur10e')
+    rng = np.random.default_rng(11)
+    true = model.nominal + rng.normal(0.0, 1e-3, model.nominal.shape)
+    q = rng.uniform(-2.5, 2.5, (24, 6))
+    camera, board = from_vector([0.03, -0.05, 0.08, 0.1, 0.2, -1.0]), \
+        from_vector([0.9, 0.2, -0.1, 3.0, 0.1, 0.2])
+    seen = [invert(T @ camera) @ board for T in fk(model.chain(true), q)]
+    rows = ['a,b,c,d,e,f,x,y,z,rx,ry,rz']
+    for qi, T in zip(q, seen):
+        rv = np.degrees(Rotation.from_matrix(T[:3, :3]).as_rotvec())
+        rows.append(','.join(repr(float(v)) for v in [*np.degrees(qi), *(T[:3, 3] * 1e3), *rv]))
+    path = write(tmp_path, '\n'.join(rows) + '\n', '''
+measurement: pose
+units: {length: mm, angle: deg}
+joints: [a, b, c, d, e, f]
+position: [x, y, z]
+rotation: [rx, ry, rz]
+rotation_format: rotvec
+camera: on_arm
+''')
+    data = load_measurements(path).measurements
+    cv = mf.cross_validate(mf.ErrorModel(model, 'full'), data, mf.kfold(len(data), 3))
+    assert cv.nominal['max_mm'] > 0.5
+    assert cv.calibrated['max_mm'] < 1e-6 and cv.calibrated['rot_rms_mrad'] < 1e-6

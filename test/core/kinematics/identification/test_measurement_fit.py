@@ -98,6 +98,35 @@ def test_spheres_with_a_known_distance_recover_held_out(ur10e):
     assert cv.calibrated['max_mm'] < 1e-6
 
 
+def test_touches_on_two_planes_recover_held_out(ur10e):
+    """The ball touches a table (z = 0.05 m) and a wall tilted 60 deg; planes unknown."""
+    from cobot_calib_ros.core.kinematics.ik import solve_ik
+    rng = np.random.default_rng(6)
+    params = truth(ur10e)
+    ball = np.array([0.02, 0.01, 0.12])
+    planes = [(np.array([0.0, 0.0, 1.0]), np.array([0.6, 0.1, 0.05])),
+              (np.array([np.sin(1.05), 0.0, np.cos(1.05)]), np.array([0.5, -0.3, 0.4]))]
+    q, plane = [], []
+    for k, (n, point) in enumerate(planes):
+        u = np.cross(n, [0.0, 1.0, 0.0])
+        u /= np.linalg.norm(u)
+        v = np.cross(n, u)
+        while plane.count(k) < 20:
+            target = np.eye(4)
+            target[:3, :3] = from_vector([0, 0, 0, *rng.normal(0, 0.5, 3)])[:3, :3] \
+                @ np.diag([1, -1, -1])
+            c = point + rng.uniform(-0.2, 0.2) * u + rng.uniform(-0.2, 0.2) * v
+            target[:3, 3] = c - target[:3, :3] @ ball
+            result = solve_ik(ur10e.chain(params), target, rng.uniform(-1, 1, 6))
+            if result:
+                q.append(result.q)
+                plane.append(k)
+    data = Measurements('plane', np.array(q), np.array(plane), ball=[0.0, 0.0, 0.1])
+    cv = mf.cross_validate(mf.ErrorModel(ur10e, 'full'), data, mf.kfold(len(data), 4))
+    assert cv.nominal['max_mm'] > 0.3
+    assert cv.calibrated['max_mm'] < 1e-6
+
+
 def test_identifiability_of_a_full_pose_model_is_the_textbook_minimum(ur10e):
     ident = mf.identifiable(mf.ErrorModel(ur10e, 'full'), mock('pose', ur10e))
     assert ident.minimum == 4 * 6 + 6 == ident.parameters_kept
