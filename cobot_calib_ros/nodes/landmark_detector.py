@@ -41,6 +41,7 @@ from __future__ import annotations
 from collections import Counter
 from dataclasses import dataclass
 import math
+import sys
 import threading
 import time
 
@@ -70,8 +71,20 @@ from cobot_calib_ros.ros.params import read_once
 NO_IMAGE_TIMEOUT = 2.0      # [s] of wall time without an image: /diagnostics warns
 DEMAND_PERIOD = 0.1         # [s] between looks at whether anyone subscribes to landmarks
 LIVE_REFINE = tuple(r for r in REFINE_METHODS if r != 'apriltag')   # apriltag: ~2 fps
-IMAGE_QOS = QoSProfile(depth=1, reliability=qos_profile_sensor_data.reliability,
+# Best effort, as cameras publish; a queue of IMAGE_QUEUE_DEPTH images so that a late executor
+# round (the GIL held by the poses thread, another process on the core) does not lose frames in
+# DDS: with depth 1, 17-37 % of the frames sent at 100 Hz at 1280 x 800 were replaced in the
+# reader's queue before the executor took them; with 5, 0-0.6 % (bench_detector, load 11-17,
+# side by side). The node's own one-slot queue (FrameSlot) still keeps only the newest for the
+# search, so a deeper reader queue adds no latency while the node keeps up.
+IMAGE_QUEUE_DEPTH = 5
+IMAGE_QOS = QoSProfile(depth=IMAGE_QUEUE_DEPTH,
+                       reliability=qos_profile_sensor_data.reliability,
                        durability=qos_profile_sensor_data.durability)
+# Python hands the GIL to a waiting thread only after it has been held this long (default 5 ms).
+# The executor thread needs the GIL several times per image while the poses thread holds it
+# for ~4-6 ms of numpy per 1280 x 800 image: at 5 ms the executor fell behind 100 images/s.
+GIL_SWITCH_INTERVAL = 0.0005    # [s] (sys.setswitchinterval, this process)
 NONE = 'none'
 # The board's markers only seed its chessboard corners (cornerSubPix, then saddle points): on 12
 # renderings at 752x480 and 1280x800 the board poses were the same to 1e-4 mm with 'edges',
@@ -462,6 +475,7 @@ class LandmarkDetector(Node):
 
 
 def main(args=None) -> None:
+    sys.setswitchinterval(GIL_SWITCH_INTERVAL)
     spin.run(LandmarkDetector, args)
 
 
