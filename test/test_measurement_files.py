@@ -147,3 +147,22 @@ camera: on_arm
     cv = mf.cross_validate(mf.ErrorModel(model, 'full'), data, mf.kfold(len(data), 3))
     assert cv.nominal['max_mm'] > 0.5
     assert cv.calibrated['max_mm'] < 1e-6 and cv.calibrated['rot_rms_mrad'] < 1e-6
+
+
+def test_the_command_line_reaches_the_measurement_path(capsys):
+    """`cobot-calib identify --urdf --tip-link --source --measurement --model --folds --json`
+    through the real parser: the report's contract fields."""
+    import json
+    from cobot_calib_ros.cli.main import main
+    assert main(['identify', '--urdf', str(UR10E / 'robot.urdf'), '--base-link', 'base_link',
+                 '--tip-link', 'wrist_3_link', '--source', str(UR10E / 'calibration.csv'),
+                 '--measurement', 'pose', '--model', 'offsets', '--folds', '3', '--loss',
+                 'linear', '--json']) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report['validation'] == {'folds': 3} and report['model'] == 'offsets'
+    assert set(report['held_out']['calibrated']) >= {'rmse_mm', 'mean_mm', 'max_mm',
+                                                      'rot_rms_mrad'}
+    assert (report['parameters_kept'], report['parameters_minimum']) == (4 + 12, 30)
+    assert report['condition_number'] > 1.0
+    assert [d['name'] for d in report['dropped']] == ['offset_shoulder_pan_joint',
+                                                      'offset_wrist_3_joint']

@@ -7,6 +7,8 @@ Table 4), then identify_kinematics identifies, validates, stores and activates t
 ``--source FOLDER``: a collection folder written by collect_sphere_data (identified by the
 suite), or a folder of MUKCa sphere-socket data (``<location>/hole_{0,1}.csv``), identified
 offline with one location held out at a time.
+``--measurement KIND``: any arm from its URDF (or a DH table) and a measurement file, offline
+and held out (cli/identify_measured.py).
 """
 from __future__ import annotations
 
@@ -20,7 +22,8 @@ from cobot_calib_ros.cli.common import (cell_problem, EXIT_FAILED, EXIT_INTERRUP
                                         EXIT_USAGE, fail, say)
 from cobot_calib_ros.paths import DEFAULT_CELL
 
-CELLS = {'iiwa7': 'iiwa7_close', 'sawyer': DEFAULT_CELL}   # --robot: its default cell
+CELLS = {'iiwa7': 'iiwa7_close', 'sawyer': DEFAULT_CELL,   # --robot: its default cell
+         'ur10e': 'ur10e_close'}
 MUKCA_PUBLISHED_MM = 0.2       # MUKCa paper: mean error after calibration
 
 
@@ -31,7 +34,7 @@ def add_parser(subparsers):
                     'validates against a laser tracker and stores a calibrated model.')
     p.add_argument('--robot', choices=sorted(CELLS), default=None,
                    help='robot of the default cell (iiwa7 -> iiwa7_close, sawyer -> '
-                        'sawyer_close); default iiwa7')
+                        'sawyer_close, ur10e -> ur10e_close); default iiwa7')
     p.add_argument('--cell', default=None, help='cell file (path or name); overrides --robot')
     p.add_argument('--source', default='mock',
                    help='mock (collect now), a collection folder, a bag with '
