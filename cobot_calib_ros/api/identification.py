@@ -57,8 +57,13 @@ def identify_on_suite(client: IdentifyClient, *, say: Callable[[str], None],
                       source: str = 'mock', solver: str = 'lm', loss: str = 'soft_l1',
                       max_configs: int = 0, hold: float = 0.05,
                       validation_configs: int = 125, dry_run: bool = False,
-                      resume: str = '', collected: bool = False) -> dict:
+                      resume: str = '', collected: bool = False, planned: bool = False,
+                      max_poses: int = 0, target_mm: float = 0.0,
+                      min_gain: float = 0.0) -> dict:
     """Collect (source 'mock') or take a collection folder, identify; the report (mm).
+
+    ``planned``: the sphere poses are planned (collect_sphere_data's planned mode: up to
+    ``max_poses``, stopping at the predicted max error ``target_mm`` or below ``min_gain``).
 
     ``resume``: the id of a sphere collection to carry on from its first pose without a row
     (``collected``: it is complete, go on with the validation sets). The sphere collection's
@@ -83,10 +88,18 @@ def identify_on_suite(client: IdentifyClient, *, say: Callable[[str], None],
             goal = client.Collect.Goal(collection_id=collection_id, source=kind, region=region,
                                        max_configs=count, hold=hold,
                                        seed=1 if region == 'workspace' else 0)
+            if key == 'spheres' and planned:
+                goal.planned, goal.max_poses = True, max_poses
+                goal.target_error, goal.min_gain = target_mm * 1e-3, min_gain
             result = _collect(client, goal, say, spheres)
             collect_seconds[key] = time.perf_counter() - start
             collections[key] = {'id': result.collection_id, 'recorded': result.recorded,
-                                'skipped': result.skipped, 'path': result.path}
+                                'skipped': result.skipped, 'path': result.path,
+                                'robot_s': result.robot_time,
+                                'robot_s_at_paper_hold': result.robot_time_at_paper_hold}
+            if result.stop_reason:
+                collections[key].update(stop_reason=result.stop_reason,
+                                        predicted_max_mm=result.predicted_max_error * 1e3)
             say(f'  {result.message} in {collect_seconds[key]:.1f} s')
         collections.setdefault('spheres', {'id': spheres})
     say(f'identifying ({solver}) ...')
@@ -156,10 +169,13 @@ def _progress(say):
     def on_feedback(message) -> None:
         fb = message.feedback
         now = time.monotonic()
-        if now - last[0] > 5.0 or fb.index + 1 == fb.total:
+        if now - last[0] > 5.0 or fb.index + 1 == fb.total or fb.predicted_max_error:
             last[0] = now
+            predicted = (f', predicted max error {fb.predicted_max_error * 1e3:.4f} mm (RMS '
+                         f'{fb.predicted_rms_error * 1e3:.4f} mm)'
+                         if fb.predicted_max_error else '')
             say(f'  pose {fb.index + 1}/{fb.total} ({fb.target}): {fb.recorded} '
-                f'recorded, {fb.skipped} skipped')
+                f'recorded, {fb.skipped} skipped, robot time {fb.robot_time:.1f} s{predicted}')
     return on_feedback
 
 

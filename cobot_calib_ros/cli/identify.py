@@ -46,6 +46,18 @@ def add_parser(subparsers):
                         'on 7-joint robots)')
     p.add_argument('--hold', type=float, default=0.05,
                    help='[s] joints averaged per pose (default 0.05; the paper held 1 s)')
+    p.add_argument('--planned', action='store_true',
+                   help='plan the sphere poses: each chosen from a wider grid by how much it '
+                        'lowers the predicted error in the calibrated volume, with a stopping '
+                        'rule; prints the prediction after every pose')
+    p.add_argument('--max-poses', type=int, default=0,
+                   help='--planned: at most this many poses (default 100)')
+    p.add_argument('--target-mm', type=float, default=0.0,
+                   help='--planned: stop once the predicted max error in the calibrated '
+                        'volume is at most this [mm] (default: off)')
+    p.add_argument('--min-gain', type=float, default=0.0,
+                   help='--planned: stop once the predicted max error falls by less than this '
+                        'fraction per pose over 10 poses, e.g. 0.01 (default: off)')
     p.add_argument('--validation-configs', type=int, default=125,
                    help='laser-tracker configurations per validation set (0: none)')
     p.add_argument('--dry-run', action='store_true', help='identify and validate, store nothing')
@@ -70,6 +82,15 @@ def run(args) -> int:
     problem = cell_problem(args.cell) if args.cell else ''
     if problem:
         return fail(f'identify: {problem}', EXIT_USAGE)
+    if args.max_poses < 0 or args.target_mm < 0 or not 0 <= args.min_gain < 1:
+        return fail('--max-poses and --target-mm must be >= 0, --min-gain in [0, 1)',
+                    EXIT_USAGE)
+    if (args.max_poses or args.target_mm or args.min_gain) and not args.planned:
+        return fail('--max-poses, --target-mm and --min-gain apply to --planned; add it',
+                    EXIT_USAGE)
+    if args.planned and args.max_configs:
+        return fail('--planned chooses its poses; drop --max-configs (or use --max-poses)',
+                    EXIT_USAGE)
     if args.measurement:
         return identify_measured.run(args)
     if args.source != 'mock':
@@ -104,7 +125,9 @@ def run(args) -> int:
                     client, say=lambda text: say(args, text), source=args.source,
                     solver=args.solver, loss=args.loss, max_configs=args.max_configs,
                     hold=args.hold, validation_configs=args.validation_configs,
-                    dry_run=args.dry_run, resume=resume, collected=collected)
+                    dry_run=args.dry_run, resume=resume, collected=collected,
+                    planned=args.planned, max_poses=args.max_poses, target_mm=args.target_mm,
+                    min_gain=args.min_gain)
             finally:
                 client.close()
     except identification.CollectionStopped as e:
@@ -153,6 +176,12 @@ def _print(args, report: dict) -> None:
         print(json.dumps(report, indent=2))
         return
     print(f'\n{report["message"]}')
+    spheres = report['collections'].get('spheres', {})
+    if 'robot_s' in spheres:
+        print(f'robot time of the sphere collection: {spheres["robot_s"]:.1f} s '
+              f'({spheres["robot_s_at_paper_hold"]:.1f} s at the paper\'s 1 s hold)')
+    if 'stop_reason' in spheres:
+        print(f'planned collection stopped on {spheres["stop_reason"]}')
     print(f'dropped (not identifiable or tied to the world frame): '
           f'{", ".join(report["dropped_parameters"])}')
     _print_parameters(report['identified'])

@@ -6,7 +6,8 @@ answers cancels and feedback):
 - ``collect_sphere_data``: the second paper's Algorithm 2 through ``move_to`` (compliant: the
   coupling self-centres on the sphere) and ``capture_joints``, or laser-tracker configurations
   through ``laser_tracker/measure``; every pose is stored as it is measured and a collection
-  resumes after a restart.
+  resumes after a restart. ``planned``: each sphere pose is chosen with the data so far
+  (core.kinematics.planning), with a predicted accuracy and a stopping rule.
 - ``identify_kinematics``: identifiability (Algorithm 1), Levenberg-Marquardt or Nelder-Mead,
   validation on laser-tracker collections, stored as JSON + YAML + calibrated URDF and made
   the active kinematic calibration that user_frame_solver and repeatability_trial use.
@@ -30,6 +31,9 @@ from cobot_calib_ros.core import kinematics
 from cobot_calib_ros.core.errors import ErrorCode, Failure, Refusal
 from cobot_calib_ros.core.kinematics import plans
 from cobot_calib_ros.core.kinematics.collection import collect, Ending, PoseRecord
+from cobot_calib_ros.core.kinematics.planned_collection import collect_planned, RobotTime
+from cobot_calib_ros.core.kinematics.planning import (PlanSettings, Prediction,
+                                                      sphere_candidates, SpherePlanner)
 from cobot_calib_ros.core.kinematics.identification.observations import (
     PositionObservations, SphereObservations)
 from cobot_calib_ros.core.kinematics.identification.solvers import LOSSES, SOLVERS
@@ -47,6 +51,8 @@ from cobot_calib_ros.store.collections import Collection, CollectionStore
 from cobot_calib_ros.store.files import check_id
 
 Collect, Identify = CollectSphereData, IdentifyKinematics
+PLANNED_MAX_POSES = 100
+PLANNING_TASK_SEED = 1      # the task volume's configurations (the validation set is seed 0)
 
 
 def observations(collection: Collection):
@@ -61,7 +67,8 @@ def observations(collection: Collection):
 
 def partial_note(collection: Collection) -> str:
     """'' for a complete collection, else how many poses it lacks and how to resume it."""
-    planned = len(collection.meta['plan'])
+    planning = collection.meta.get('planning')      # a planned collection: up to max_poses
+    planned = planning['settings']['max_poses'] if planning else len(collection.meta['plan'])
     visited = len(collection.q) + len(collection.skipped)
     if collection.meta['status'] == 'done' or visited >= planned:
         return ''
@@ -180,7 +187,9 @@ class KinematicIdentifier(Node):
         result.path = str(self._collections.directory / collection_id)
         hold = goal.hold or self._p('hold_duration')
         self._health.set(OK, f'collecting {collection_id}', job=collection_id)
-        code, message = self._visit(goal_handle, collection_id, meta, hold)
+        visit = self._visit_planned if 'planning' in meta else self._visit
+        code, message, time = visit(goal_handle, collection_id, meta, hold, result)
+        result.robot_time, result.robot_time_at_paper_hold = time.total, time.at_hold()
         data = self._collections.load(collection_id)
         result.recorded, result.skipped = len(data.q), len(data.skipped)
         status = 'done' if code == Collect.Result.SUCCESS else 'aborted'
@@ -190,7 +199,8 @@ class KinematicIdentifier(Node):
             code, message = Collect.Result.STORAGE_FAILED, f'could not store the status: {e}'
         if code == Collect.Result.SUCCESS:
             message = (f'{collection_id}: {result.recorded} poses recorded, '
-                       f'{result.skipped} skipped ({message})')
+                       f'{result.skipped} skipped ({message}); robot time '
+                       f'{time.total:.1f} s ({time.at_hold():.1f} s at a 1 s hold)')
         return self._end(goal_handle, result, code, message)
 
     def _open_collection(self, goal) -> tuple[str, dict]:
@@ -208,11 +218,17 @@ class KinematicIdentifier(Node):
         source = goal.source or 'spheres'
         region = goal.region or 'volume'
         if source == 'spheres':
-            plan, unreachable = plans.sphere_plan(self._cell, self._model, goal.max_configs)
+            if goal.planned:
+                plan, unreachable = sphere_candidates(self._cell, self._model)
+            else:
+                plan, unreachable = plans.sphere_plan(self._cell, self._model,
+                                                      goal.max_configs)
             targets = list(self._cell.spheres.names)
             extra = {'known_distances': self._cell.spheres.known_distances(),
                      'unreachable_in_plan': unreachable,
                      'coupling_offset_xyz': self._cell.spheres.coupling_offset[:3, 3]}
+            if goal.planned:
+                extra['planning'] = self._planning(goal)
         elif source == 'laser_tracker':
             plan = plans.tracker_plan(self._cell, self._model, region,
                                       goal.max_configs or plans.TRACKER_CONFIGS, goal.seed)
@@ -220,6 +236,8 @@ class KinematicIdentifier(Node):
                                   'coupling_offset_xyz': self._cell.spheres.coupling_offset[:3, 3]}
         else:
             raise ValueError(f'unknown source {source!r}; use spheres or laser_tracker')
+        if goal.planned and source != 'spheres':
+            raise ValueError('planned applies to source spheres only')
         collection_id = goal.collection_id or record_id(
             source if source == 'spheres' else f'tracker-{region}')
         meta = self._collections.create(
@@ -228,35 +246,106 @@ class KinematicIdentifier(Node):
             extra={**extra, 'cell': self._cell.name})
         return collection_id, meta
 
-    def _visit(self, goal_handle, collection_id: str, meta: dict, hold: float):
-        """Visit the plan from the first pose without a row (core.kinematics.collection over
-        RobotCalls, the robot port); (code, message)."""
-        plan, laser = meta['plan'], meta['source'] == 'laser_tracker'
-        feedback = Collect.Feedback(total=len(plan))
+    def _planning(self, goal) -> dict:
+        """A new planned collection's settings and task-volume configurations (stored: a
+        resume plans with the same)."""
+        settings = PlanSettings(max_poses=goal.max_poses or PLANNED_MAX_POSES,
+                                target_mm=goal.target_error * 1e3, min_gain=goal.min_gain)
+        task = plans.tracker_plan(self._cell, self._model, 'volume', plans.TRACKER_CONFIGS,
+                                  PLANNING_TASK_SEED)
+        return {'settings': vars(settings), 'task_q': [step['q'] for step in task]}
 
+    def _visit_planned(self, goal_handle, collection_id: str, meta: dict, hold: float,
+                       result) -> tuple[int, str, RobotTime]:
+        """The planned collection (core.kinematics.planned_collection over RobotCalls), from
+        the poses stored so far; its planning state stored at the end; (code, message, time)."""
+        planning = meta['planning']
+        planner = SpherePlanner(self._model, meta['plan'], meta['known_distances'],
+                                meta['coupling_offset_xyz'], planning['task_q'],
+                                PlanSettings(**planning['settings']))
+        stored = self._collections.load(collection_id)
+        planner.resume(stored.index.tolist(), stored.q, list(stored.skipped))
+        before = planning.get('state')
+        if before:          # a resumed collection keeps the plan made before the robot moved
+            planner.state.initial_plan = before['initial_plan']
+            planner.state.initial_predictions = [Prediction.from_dict(p)
+                                                 for p in before['initial_predictions']]
+        else:
+            planner.start()
+        feedback = Collect.Feedback(total=planner.settings.max_poses)
+        start = self._robot.robot_seconds
+
+        def on_pose(record, capture, run, prediction) -> None:
+            feedback.index, feedback.recorded = len(planner.q) - 1, len(planner.q)
+            feedback.target = meta['targets'][record.target]
+            feedback.skipped = len(planner.state.skipped)
+            feedback.predicted_max_error = prediction.max_mm * 1e-3
+            feedback.predicted_rms_error = prediction.rms_mm * 1e-3
+            feedback.robot_time = self._robot.robot_seconds - start
+            self._publish_capture(feedback.target, capture)
+            goal_handle.publish_feedback(feedback)
+
+        self._robot.speed_scale = self._p('speed_scale')
+        run, time = collect_planned(planner, self._robot, self._store(collection_id),
+                                    hold=hold, on_pose=on_pose,
+                                    cancelled=lambda: goal_handle.is_cancel_requested)
+        last = planner.state.predictions[-1] if planner.state.predictions else None
+        result.stop_reason = planner.state.stop or ''
+        result.predicted_max_error = last.max_mm * 1e-3 if last else float('inf')
+        done = planning.get('robot_time', {})
+        total = RobotTime(time.move + done.get('move_s', 0.0),
+                          time.hold + done.get('hold_s', 0.0),
+                          time.poses + int(done.get('poses', 0)))
+        try:
+            self._collections.update(collection_id, planning={
+                **planning, 'state': planner.state.as_dict(), 'robot_time': total.as_dict()})
+        except OSError as e:
+            return (Collect.Result.STORAGE_FAILED,
+                    f'{collection_id}: could not store the planning: {e}; check data_dir', time)
+        if run.ending is Ending.DONE:
+            return Collect.Result.SUCCESS, f'stopped on {run.message}', time
+        return self._ended(run, collection_id), time
+
+    def _store(self, collection_id: str):
         def store(record: PoseRecord) -> None:
             self._collections.append(collection_id, record.index, record.target, record.q,
                                      sample_count=record.sample_count, std_max=record.std_max,
                                      p=record.p, note=record.note)
+        return store
+
+    @staticmethod
+    def _ended(run, collection_id: str) -> tuple[int, str]:
+        code = {Ending.CANCELED: Collect.Result.CANCELED,
+                Ending.MOTION_FAILED: Collect.Result.MOTION_FAILED,
+                Ending.CAPTURE_FAILED: Collect.Result.CAPTURE_FAILED}[run.ending]
+        return code, (f'{collection_id}: {run.message}; give the same collection_id to '
+                      'resume')
+
+    def _visit(self, goal_handle, collection_id: str, meta: dict, hold: float,
+               result) -> tuple[int, str, RobotTime]:
+        """Visit the plan from the first pose without a row (core.kinematics.collection over
+        RobotCalls, the robot port); (code, message, robot time)."""
+        plan, laser = meta['plan'], meta['source'] == 'laser_tracker'
+        feedback = Collect.Feedback(total=len(plan))
+        start = self._robot.robot_seconds
 
         def on_pose(record, capture, run) -> None:
             feedback.index = record.index
             feedback.target = 'tracker' if laser else meta['targets'][record.target]
             self._publish_capture(feedback.target, capture)
             feedback.recorded, feedback.skipped = run.recorded, run.skipped
+            feedback.robot_time = self._robot.robot_seconds - start
             goal_handle.publish_feedback(feedback)
 
         self._robot.speed_scale = self._p('speed_scale')
         run = collect(plan, self._collections.load(collection_id).next_index, self._robot,
-                      store, hold=hold, laser=laser,
+                      self._store(collection_id), hold=hold, laser=laser,
                       cancelled=lambda: goal_handle.is_cancel_requested, on_pose=on_pose)
+        total = self._robot.robot_seconds - start
+        time = RobotTime(total - run.recorded * hold, run.recorded * hold, run.recorded)
         if run.ending is Ending.DONE:
-            return Collect.Result.SUCCESS, f'per pose: {run.per_pose()}'
-        code = {Ending.CANCELED: Collect.Result.CANCELED,
-                Ending.MOTION_FAILED: Collect.Result.MOTION_FAILED,
-                Ending.CAPTURE_FAILED: Collect.Result.CAPTURE_FAILED}[run.ending]
-        return code, (f'{collection_id}: {run.message}; give the same collection_id to '
-                      'resume')
+            return Collect.Result.SUCCESS, f'per pose: {run.per_pose()}', time
+        return (*self._ended(run, collection_id), time)
 
     def _publish_capture(self, target: str, capture) -> None:
         self._captures.publish(marks.capture_mark(target, self._model.joint_names,
@@ -270,7 +359,7 @@ class KinematicIdentifier(Node):
     def _identify_run(self, goal_handle):
         goal, result = goal_handle.request, Identify.Result()
         try:
-            job, partial = self._job(goal)
+            job, partial, planning = self._job(goal)
         except Refusal as e:
             return self._end(goal_handle, result,
                              results.code('IdentifyKinematics', e.failure.code), str(e))
@@ -296,7 +385,8 @@ class KinematicIdentifier(Node):
         self._fill(result, outcome)
         if not goal.dry_run:
             try:
-                saved = self._calibrations.save_outcome(outcome)
+                saved = self._calibrations.save_outcome(
+                    outcome, extra={'planning': planning} if planning else None)
             except OSError as e:
                 return self._end(goal_handle, result, Identify.Result.STORAGE_FAILED,
                                  f'could not store the kinematic calibration: {e}')
@@ -306,9 +396,11 @@ class KinematicIdentifier(Node):
         return self._end(goal_handle, result, Identify.Result.SUCCESS,
                          '; '.join(filter(None, (outcome.summary(), partial))))
 
-    def _job(self, goal) -> tuple[CalibrationJob, str]:
-        """The identification job of a goal (data, validation sets, options), and '' or what
-        is missing when its collection is partial."""
+    def _job(self, goal) -> tuple[CalibrationJob, str, dict | None]:
+        """The identification job of a goal (data, validation sets, options), '' or what
+        is missing when its collection is partial, and the collection's planning (plan,
+        predictions, stop reason) if it was planned."""
+        planning = None
         for name, value, known in (('solver', goal.solver, SOLVERS), ('loss', goal.loss, LOSSES),
                                    ('objective', goal.objective, ('relative', 'absolute'))):
             if value and value not in known:
@@ -327,6 +419,10 @@ class KinematicIdentifier(Node):
                 raise ValueError(f'collection {collection.meta["id"]} is of a '
                                  f'{collection.meta["robot"]}, this cell is a {self._cell.robot}')
             partial, source = partial_note(collection), collection.meta['id']
+            planning = collection.meta.get('planning')
+            if planning is not None:
+                planning = {'collection': source, **{k: v for k, v in planning.items()
+                                                     if k != 'task_q'}}
             try:
                 data = observations(collection)
             except ValueError as e:
@@ -340,7 +436,7 @@ class KinematicIdentifier(Node):
         return CalibrationJob(self._cell, self._model, data, source=source,
                               solver=goal.solver or 'lm', loss=goal.loss or 'soft_l1',
                               objective=goal.objective or None, max_configs=goal.max_configs,
-                              validation=validation), partial
+                              validation=validation), partial, planning
 
     def _collection(self, collection_id: str, source: str, region: str | None = None,
                     required: bool = True):

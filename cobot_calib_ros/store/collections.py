@@ -135,6 +135,15 @@ class CollectionStore(FolderStore):
         self._write_meta(meta)
         return meta
 
+    def update(self, collection_id: str, **fields: Any) -> dict[str, Any]:
+        """Set top-level metadata ``fields`` (not the keys every collection has), durably."""
+        fixed = [k for k in fields if k in META_KEYS]
+        if fixed:
+            raise ValueError(f'update cannot change {fixed}; use set_status for the status')
+        meta = {**self.meta(collection_id), **to_plain(fields), 'updated_ns': time.time_ns()}
+        self._write_meta(meta)
+        return meta
+
     def load(self, collection_id: str) -> Collection | None:
         """The collection with its rows, or None if unreadable (see ``warnings``)."""
         meta = self._read_meta(check_id(collection_id))

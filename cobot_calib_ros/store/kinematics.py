@@ -43,11 +43,13 @@ class KinematicHistory:
     :class:`KinematicStore` and store.database's): the YAML and URDF files beside each record
     (in ``directory``), and the choice of a model by name."""
 
-    def save_outcome(self, outcome, activate: bool = True,
-                     wall_ns: int | None = None) -> SavedKinematics:
+    def save_outcome(self, outcome, activate: bool = True, wall_ns: int | None = None,
+                     extra: dict[str, Any] | None = None) -> SavedKinematics:
         """Write the record of a core CalibrationJob outcome (JSON), its YAML and URDF; make it
-        its robot's active one (if ``activate`` and it passes its gate)."""
+        its robot's active one (if ``activate`` and it passes its gate). ``extra``: more
+        top-level keys of the record (e.g. the planning of a planned collection)."""
         typed = KinematicRecord.from_outcome(outcome, wall_ns)
+        typed.extra.update(extra or {})
         record = typed.to_dict()
         paths = {'yaml': self.directory / f'{typed.id}.yaml',
                  'urdf': self.directory / f'{typed.id}.urdf'}

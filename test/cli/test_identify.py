@@ -74,3 +74,14 @@ def test_parameters_print_as_deviation_from_nominal_and_absolute_with_units(caps
                                 '400.1200', 'mm']
     assert lines[2].split() == ['alpha_3', '+0.5000', 'mrad', '0.0100', 'mrad', '-1570.8000',
                                 'mrad', '-1570.3000', 'mrad']
+
+
+def test_planned_flags_say_what_they_need(capsys):
+    """Issue 20: the stopping-rule flags need --planned, and --planned chooses its poses."""
+    assert main(['identify', '--target-mm', '0.01']) == 2
+    assert '--max-poses, --target-mm and --min-gain apply to --planned' in \
+        capsys.readouterr().err
+    assert main(['identify', '--planned', '--max-configs', '300']) == 2
+    assert '--planned chooses its poses; drop --max-configs' in capsys.readouterr().err
+    assert main(['identify', '--planned', '--min-gain', '1.5']) == 2
+    assert '--min-gain in [0, 1)' in capsys.readouterr().err

@@ -133,10 +133,46 @@ def test_identification_is_validated_stored_and_exported_as_urdf(ros, actions, c
             store.open(trial_data).kinematics.retire(result.calibration_id)
 
 
+def test_a_planned_collection_predicts_stops_and_is_stored_with_its_calibration(
+        ros, actions, trial_data):
+    """Issue 20: collect_sphere_data planned: feedback with the prediction and robot time,
+    the stop reason, the plan and predictions stored with the collection and the calibration."""
+    got = []
+    collected = _run(ros, actions[0], Collect(planned=True, max_poses=40, hold=0.02),
+                     feedback=lambda m: got.append(m.feedback), timeout=900.0)
+    assert collected.error_code == 0, collected.message
+    assert collected.recorded == 40 and collected.stop_reason == 'max_poses: 40 poses measured'
+    assert [f.recorded for f in got] == list(range(1, 41)) and got[-1].total == 40
+    predicted = [f.predicted_max_error for f in got]
+    assert np.isinf(predicted[0]) and np.isfinite(predicted[-1])
+    assert 1e-7 < collected.predicted_max_error == predicted[-1] < 5e-5     # [m]
+    assert 0.0 < got[-1].robot_time <= collected.robot_time
+    assert collected.robot_time_at_paper_hold == pytest.approx(
+        collected.robot_time + 40 * (1.0 - 0.02))
+    meta = CollectionStore(trial_data).load(collected.collection_id).meta
+    state = meta['planning']['state']
+    assert len(state['chosen']) == 40 == len(state['predictions']) == len(state['initial_plan'])
+    assert state['stop'] == collected.stop_reason
+    assert meta['planning']['robot_time']['total_s'] == pytest.approx(collected.robot_time)
+    result = _run(ros, actions[1], Identify(collection_id=collected.collection_id))
+    try:
+        assert result.error_code == 0, result.message
+        record = KinematicStore(trial_data).get(result.calibration_id)
+        assert record['planning']['collection'] == collected.collection_id
+        assert record['planning']['state']['stop'] == collected.stop_reason
+        assert 'task_q' not in record['planning']
+    finally:
+        if result.calibration_id:
+            KinematicStore(trial_data).retire(result.calibration_id)
+
+
 def test_bad_goals_get_a_reason(ros, actions):
     bad_source = _run(ros, actions[0], Collect(source='camera'))
     assert bad_source.error_code == CollectSphereData.Result.INVALID_GOAL
     assert 'spheres or laser_tracker' in bad_source.message
+    planned_tracker = _run(ros, actions[0], Collect(source='laser_tracker', planned=True))
+    assert planned_tracker.error_code == CollectSphereData.Result.INVALID_GOAL
+    assert planned_tracker.message == 'planned applies to source spheres only'
     missing = _run(ros, actions[1], Identify(collection_id='not_stored'))
     assert missing.error_code == IdentifyKinematics.Result.NO_DATA
     assert 'not_stored' in missing.message

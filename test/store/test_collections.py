@@ -112,3 +112,14 @@ def test_why_a_folder_record_is_unreadable_is_this_calls_answer(tmp_path):
         fresh_collections.meta('c1')
     assert fresh_collections.load('c1') is None and fresh_trials.list_trials() == []
     assert len(fresh_collections.warnings) == len(fresh_trials.warnings) == 1
+
+
+def test_update_adds_metadata_durably_but_not_the_fixed_keys(tmp_path):
+    """Issue 20: a planned collection's planning state is written at the end of each goal."""
+    store = _new(tmp_path)
+    store.update('c1', planning={'state': {'chosen': [3, 1], 'stop': 'max_poses: 2 poses'}})
+    meta = CollectionStore(tmp_path).load('c1').meta       # a fresh store: read from disk
+    assert meta['planning']['state'] == {'chosen': [3, 1], 'stop': 'max_poses: 2 poses'}
+    assert meta['status'] == 'running' and meta['plan'] == PLAN
+    with pytest.raises(ValueError, match=r"update cannot change \['status'\]"):
+        store.update('c1', status='done')

@@ -113,8 +113,8 @@ def test_the_plan_before_the_robot_moves_predicts_a_falling_error(planner_templa
     assert len(state.initial_plan) == 40 == len(set(state.initial_plan))
     rms = [p.rms_mm for p in state.initial_predictions]
     assert math.isinf(rms[0])                                # 1 pose: 34 unknowns undetermined
-    finite = [c for c in rms if math.isfinite(c)]            # from pose 12 (36 rows + 3)
-    assert len(finite) == 29 and all(b < a for a, b in zip(finite, finite[1:]))
+    finite = [c for c in rms if math.isfinite(c)]            # from pose 11 (33 rows + 3)
+    assert len(finite) == 30 and all(b < a for a, b in zip(finite, finite[1:]))
     worst = [p.max_mm for p in state.initial_predictions]
     assert 0.002 < worst[-1] < 0.8 * worst[24] < 0.010       # mm, at the 5 um prior sigma
     assert not planner.q                                     # planning moves nothing
@@ -207,7 +207,7 @@ def test_bad_settings_say_what_to_give():
         PlanSettings(criterion='A')
     with pytest.raises(ValueError, match='max_poses must be >= 1'):
         PlanSettings(max_poses=0)
-    with pytest.raises(ValueError, match='target_mm and min_gain must be >= 0'):
+    with pytest.raises(ValueError, match='target_mm, min_gain and joint_speed must be >= 0'):
         PlanSettings(target_mm=-1.0)
     with pytest.raises(ValueError, match='no candidate poses'):
         SpherePlanner(MODEL, [], DISTANCES, TOOL0, np.zeros((1, 7)))
