@@ -176,7 +176,7 @@ def _print(args, report: dict) -> None:
         print(json.dumps(report, indent=2))
         return
     print(f'\n{report["message"]}')
-    spheres = report['collections'].get('spheres', {})
+    spheres = report.get('collections', {}).get('spheres', {})
     if 'robot_s' in spheres:
         print(f'robot time of the sphere collection: {spheres["robot_s"]:.1f} s '
               f'({spheres["robot_s_at_paper_hold"]:.1f} s at the paper\'s 1 s hold)')
