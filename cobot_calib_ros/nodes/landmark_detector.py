@@ -78,6 +78,8 @@ LIVE_REFINE = tuple(r for r in REFINE_METHODS if r != 'apriltag')   # apriltag: 
 # side by side). The node's own one-slot queue (FrameSlot) still keeps only the newest for the
 # search, so a deeper reader queue adds no latency while the node keeps up.
 IMAGE_QUEUE_DEPTH = 5
+LATEST_INFO_QOS = QoSProfile(depth=1, reliability=qos_profile_sensor_data.reliability,
+                             durability=qos_profile_sensor_data.durability)
 IMAGE_QOS = QoSProfile(depth=IMAGE_QUEUE_DEPTH,
                        reliability=qos_profile_sensor_data.reliability,
                        durability=qos_profile_sensor_data.durability)
@@ -301,8 +303,14 @@ class LandmarkDetector(Node):
         self._handoff = Handoff()
         self._pub = self.create_publisher(Landmarks, 'landmarks', 10)
         self._image_sub = None              # only while someone subscribes to landmarks
-        self.create_subscription(CameraInfo, 'wrist_camera/camera_info', self._on_info,
-                                 IMAGE_QOS)
+        # camera_info comes with every image and rarely changes: it waits in a depth-1 queue
+        # of a helper node no executor spins, and each image takes the newest (one executor
+        # round per image instead of two)
+        self._info_node = Node(f'_{self.get_name()}_camera_info',
+                               namespace=self.get_namespace(), context=self.context,
+                               start_parameter_services=False)
+        self._info_sub = self._info_node.create_subscription(
+            CameraInfo, 'wrist_camera/camera_info', lambda _: None, LATEST_INFO_QOS)
         self._follow_demand()
         self.create_timer(DEMAND_PERIOD, self._follow_demand)
         self._diagnostics = Diagnostics(self, hardware_id='wrist_camera', update=self._diagnose)
@@ -320,6 +328,7 @@ class LandmarkDetector(Node):
         self._running = False
         for worker in self._workers:
             worker.join(timeout=5.0)
+        self._info_node.destroy_node()
         return super().destroy_node()
 
     def _configure(self) -> tuple[Config | None, str, int]:
@@ -369,8 +378,17 @@ class LandmarkDetector(Node):
         with self._lock:
             self._camera, self._camera_key = camera, key
 
+    def _take_camera_info(self) -> None:
+        """The newest camera_info, if one came since the last image."""
+        sub = self._info_sub
+        with sub.handle:
+            taken = sub.handle.take_message(sub.msg_type, sub.raw)
+        if taken is not None:
+            self._on_info(taken[0])
+
     def _on_image(self, msg: Image) -> None:
         self._last_image = time.monotonic()
+        self._take_camera_info()
         with self._lock:
             self._counts['frames_in'] += 1
             camera = self._camera
