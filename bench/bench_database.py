@@ -2,7 +2,8 @@
 frames each at once, to one throwaway PostgreSQL (test/pg_cluster.py) and to one shared SQLite
 file (the worst case for SQLite: every cell in one file, WAL, BEGIN IMMEDIATE).
 
-Each process stores its records through the repository (``store.open(..., db, cell)
+Each process opens its repository first (connects, checks the schema: a node does this once
+at its start), then all write at once; each stores its records through the repository (``store.open(..., db, cell)
 .user_frames.save_and_activate``, a realistic 5-point user frame), times every write, and
 prints the latencies; then the rows are counted per cell and compared, id by id and body by
 body, with what was written. Figures:
@@ -41,6 +42,7 @@ rng = np.random.default_rng(abs(hash(cell)) % 2**32)
 p_user = np.array([[0, 0, 0], [.2, 0, 0], [.2, .15, 0], [0, .15, 0], [.1, .075, 0]])
 from cobot_calib_ros.store.records import UserFrameRecord
 history = store.open(root, url, cell).user_frames
+history.active()                            # connected, schema checked: as a node after start
 print('ready', flush=True)
 sys.stdin.readline()                        # every process starts writing at once
 seconds = []
