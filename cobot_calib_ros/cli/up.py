@@ -64,7 +64,16 @@ def run(args) -> int:
                         'use another --namespace, or pass --force to start a second one '
                         'anyway')
     return _serve(launcher.Suite(launcher.default_log_dir(), own_group=True), specs,
-                  suite_environment(namespace, args.db), namespace)
+                  suite_environment(namespace, args.db, _robot_of(cell)), namespace)
+
+
+def _robot_of(cell_path) -> str:
+    from cobot_calib_ros.core.cell import CellFileError
+    from cobot_calib_ros.loaders import load_cell
+    try:
+        return load_cell(cell_path).robot
+    except CellFileError:
+        return ''
 
 
 def namespace_problem(namespace: str) -> str:
@@ -76,17 +85,19 @@ def namespace_problem(namespace: str) -> str:
     return ''
 
 
-def suite_environment(namespace: str, db: str) -> dict[str, str] | None:
-    """The nodes' environment: the cell their results are stored under (the namespace) and
-    the database; None: this process's own."""
-    from cobot_calib_ros.store.database import CELL_ENV, DB_ENV
-    if not namespace and not db:
+def suite_environment(namespace: str, db: str, robot: str = '') -> dict[str, str] | None:
+    """The nodes' environment: the cell their results are stored under (the namespace), the
+    database, the robot model for the results' provenance; None: this process's own."""
+    from cobot_calib_ros.store.database import CELL_ENV, DB_ENV, PROVENANCE_ENV
+    if not namespace and not db and not robot:
         return None
     env = dict(os.environ)
     if namespace:
         env[CELL_ENV] = namespace.replace('/', '.')
     if db:
         env[DB_ENV] = db
+    if robot:
+        env.setdefault(PROVENANCE_ENV['robot_model'], robot)
     return env
 
 

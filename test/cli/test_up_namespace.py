@@ -24,8 +24,10 @@ def test_a_bad_namespace_starts_nothing(capsys):
 def test_the_nodes_store_as_the_namespace_s_cell_in_the_given_database(monkeypatch):
     monkeypatch.setenv('COBOT_CALIB_CELL', 'other')
     monkeypatch.delenv('COBOT_CALIB_DB', raising=False)
+    monkeypatch.delenv('COBOT_CALIB_ROBOT', raising=False)
     assert up.suite_environment('', '') is None            # the nodes inherit this process's
-    env = up.suite_environment('plant/cell_07', 'postgresql://u@h/plant')
+    env = up.suite_environment('plant/cell_07', 'postgresql://u@h/plant', 'iiwa7')
     assert env['COBOT_CALIB_CELL'] == 'plant.cell_07'
     assert env['COBOT_CALIB_DB'] == 'postgresql://u@h/plant'
+    assert env['COBOT_CALIB_ROBOT'] == 'iiwa7'              # the results' provenance
     assert env['PATH']                                      # the rest of the environment kept
