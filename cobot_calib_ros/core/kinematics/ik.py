@@ -15,12 +15,14 @@ from cobot_calib_ros.core.kinematics.model import _as_batch, Chain
 Array = NDArray[np.float64]
 
 def to_pinocchio(chain: Chain) -> pin.Model:
-    """Pinocchio model of the chain: RZ joints, frames 'flange' and 'tool' on the last joint."""
+    """Pinocchio model of the chain: RZ joints (PZ where prismatic), frames 'flange' and
+    'tool' on the last joint."""
     model = pin.Model()
     model.name = 'chain'
     parent = 0
     for i, name in enumerate(chain.joint_names):
-        parent = model.addJoint(parent, pin.JointModelRZ(), pin.SE3(chain.placements[i]), name)
+        joint = pin.JointModelPZ() if chain.prismatic[i] else pin.JointModelRZ()
+        parent = model.addJoint(parent, joint, pin.SE3(chain.placements[i]), name)
         model.addJointFrame(parent)
     model.lowerPositionLimit = np.array(chain.lower)
     model.upperPositionLimit = np.array(chain.upper)

@@ -5,6 +5,8 @@ A :class:`Chain` is a serial chain of revolute joints. Joint ``i`` sits at a fix
 
     T_base_tool = P_1 Rz(q_1) P_2 Rz(q_2) ... P_n Rz(q_n) @ flange @ tool
 
+(a joint marked ``prismatic`` slides by ``q_i`` [m] along its local z instead: Tz(q_i)).
+
 Craig's modified DH link ``RotX(alpha) TransX(a) RotZ(theta + q) TransZ(d)`` has this form with
 ``P = RotX(alpha) TransX(a) RotZ(theta) TransZ(d)`` (RotZ commutes with TransZ), and so does a
 URDF joint origin ``Trans(x, y, z) Rz(yaw) Ry(pitch) Rx(roll)`` with axis z. Transform names
@@ -60,9 +62,16 @@ class Chain:
     lower: Array = field(default_factory=lambda: np.empty(0))  # (n,) [rad]; empty: -inf
     upper: Array = field(default_factory=lambda: np.empty(0))  # (n,) [rad]; empty: +inf
     flange: Array = field(default_factory=_identity)  # (4, 4) last joint frame -> flange
+    prismatic: Array = field(default_factory=lambda: np.empty(0, bool))  # (n,); empty: none
 
     def __post_init__(self) -> None:
         n = len(self.joint_names)
+        prismatic = np.zeros(n, bool) if np.size(self.prismatic) == 0 else np.array(
+            self.prismatic, dtype=bool)
+        if prismatic.shape != (n,):
+            raise ValueError(f'prismatic: expected shape ({n},), got {prismatic.shape}')
+        prismatic.setflags(write=False)
+        object.__setattr__(self, 'prismatic', prismatic)
         lower = np.full(n, -np.inf) if np.size(self.lower) == 0 else self.lower
         upper = np.full(n, np.inf) if np.size(self.upper) == 0 else self.upper
         object.__setattr__(self, 'joint_names', tuple(self.joint_names))
@@ -104,17 +113,30 @@ def fk(chain: Chain, q: ArrayLike) -> Array:
 
     q (n,) [rad] -> (4, 4); q (m, n) -> (m, 4, 4). Vectorised over configurations.
     """
-    T = fk_placements(chain.placements, chain.flange @ chain.tool, _as_batch(chain, q))
+    T = fk_placements(chain.placements, chain.flange @ chain.tool, _as_batch(chain, q),
+                      chain.prismatic)
     return T[0] if np.ndim(q) == 1 else T
 
 
-def fk_placements(placements: ArrayLike, end: Array, q: Array) -> Array:
-    """(m, 4, 4) P_1 Rz(q_1) ... P_n Rz(q_n) end for placements (n, 4, 4), q (m, n) [rad]:
-    :func:`fk` without building a Chain (identification varies one placement at a time)."""
+def _move_joint(T: Array, q: Array, prismatic: bool) -> None:
+    """In place: T <- T Rz(q) (revolute, q [rad]) or T Tz(q) (prismatic, q [m])."""
+    if prismatic:
+        T[:, :3, 3] += T[:, :3, 2] * q[:, None]
+    else:
+        _turn_z(T, q)
+
+
+def fk_placements(placements: ArrayLike, end: Array, q: Array,
+                  prismatic: ArrayLike | None = None) -> Array:
+    """(m, 4, 4) P_1 M(q_1) ... P_n M(q_n) end for placements (n, 4, 4), q (m, n), M = Rz
+    (revolute, [rad]) or Tz (``prismatic`` joints, [m]): :func:`fk` without building a Chain
+    (identification varies one placement at a time)."""
+    slide = np.zeros(len(placements), bool) if prismatic is None or np.size(prismatic) == 0 \
+        else np.asarray(prismatic, dtype=bool)
     T = np.broadcast_to(np.eye(4), (len(q), 4, 4)).copy()
     for i, P in enumerate(placements):
         T = _right_mul(T, P)
-        _turn_z(T, q[:, i])
+        _move_joint(T, q[:, i], bool(slide[i]))
     return _right_mul(T, end)
 
 
@@ -153,6 +175,7 @@ class KinematicModel:
     lower: Array                       # (n,) joint limits [rad]
     upper: Array                       # (n,) joint limits [rad]
     flange: Array = field(default_factory=_identity)  # fixed last joint frame -> flange
+    prismatic: Array = field(default_factory=lambda: np.empty(0, bool))  # (n,); empty: none
 
     @property
     def fields_per_joint(self) -> int:
@@ -169,18 +192,21 @@ class KinematicModel:
         """Chain for ``params`` (default nominal) with T_flange_tool ``tool`` (default I)."""
         placements = np.stack([placement(self.kind, r) for r in self.rows(params)])
         return Chain(self.joint_names, placements, _identity() if tool is None else tool,
-                     self.lower, self.upper, self.flange)
+                     self.lower, self.upper, self.flange, self.prismatic)
 
 
 def _model(name: str, kind: str, joint_names: tuple[str, ...], rows: ArrayLike,
-           limits: ArrayLike, flange: Array | None = None) -> KinematicModel:
-    """Assemble a model; rows (n, k) in m/rad, limits (n, 2) [rad]."""
+           limits: ArrayLike, flange: Array | None = None,
+           prismatic: ArrayLike | None = None) -> KinematicModel:
+    """Assemble a model; rows (n, k) in m/rad, limits (n, 2) [rad, or m for prismatic]."""
     r = np.asarray(rows, dtype=float)
     lim = np.asarray(limits, dtype=float)
     suffixes = [str(i + 1) for i in range(len(r))] if kind == 'mdh' else list(joint_names)
     names = tuple(f'{f}_{s}' for s in suffixes for f in _FIELDS[kind])
     return KinematicModel(name, kind, joint_names, r.ravel(), names, lim[:, 0], lim[:, 1],
-                          _identity() if flange is None else flange)
+                          _identity() if flange is None else flange,
+                          np.zeros(len(r), bool) if prismatic is None else
+                          np.asarray(prismatic, dtype=bool))
 
 
 def _iiwa(name: str, d1: float, d3: float) -> KinematicModel:
@@ -281,5 +307,5 @@ def position_jacobian_wrt_params(model: KinematicModel, params: ArrayLike | None
             T = _right_mul(T, _motion(motion, axis, row[idx]))
             u = T[:, :3, axis]  # motion axis in base, through the origin of T
             J[:, :, i * k + idx] = u if motion == 't' else np.cross(u, p_tool - T[:, :3, 3])
-        _turn_z(T, q[:, i])
+        _move_joint(T, q[:, i], bool(chain.prismatic[i]))
     return J

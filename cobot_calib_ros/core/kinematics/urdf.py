@@ -29,7 +29,7 @@ from cobot_calib_ros.core.kinematics.model import _model, KinematicModel
 
 Array = NDArray[np.float64]
 
-_MOVING = ('revolute', 'continuous')
+_MOVING = ('revolute', 'continuous', 'prismatic')
 _XACRO_NS = 'http://www.ros.org/wiki/xacro'
 
 
@@ -180,11 +180,11 @@ def _parse_joint(element: ET.Element) -> _Joint:
     axis = np.array(_numbers(None if axis_element is None else axis_element.get('xyz'), 3,
                              f'{where} <axis xyz=...>', (1.0, 0.0, 0.0)))  # URDF default: x
     lower, upper = -math.inf, math.inf
-    if kind == 'revolute':
+    if kind in ('revolute', 'prismatic'):
         limit = element.find('limit')
         if limit is None:
-            raise ValueError(f'{where}: a revolute joint needs <limit lower=".." upper=".."/> '
-                             '[rad] (or make it type="continuous")')
+            raise ValueError(f'{where}: a {kind} joint needs <limit lower=".." upper=".."/> '
+                             '[rad or m] (or make a revolute one type="continuous")')
         lower = _number(limit, 'lower', f'{where} <limit>', 0.0)
         upper = _number(limit, 'upper', f'{where} <limit>', 0.0)
         if lower > upper:
@@ -240,15 +240,11 @@ def _serial(path: list[_Joint], base_link: str, tip_link: str) -> _Serial:
             before.append(acc)
             axes.append(_axis_frame(joint.axis))
             acc = np.eye(4)
-        elif joint.type == 'prismatic':
-            raise ValueError(f'joint {joint.name!r} between {base_link!r} and {tip_link!r} is '
-                             'prismatic; only revolute/continuous (and fixed) joints are '
-                             'supported: choose a sub-chain without it')
         else:
             raise ValueError(f'joint {joint.name!r} has type {joint.type!r}; only revolute, '
-                             'continuous and fixed joints can be on the chain')
+                             'continuous, prismatic and fixed joints can be on the chain')
     if not moving:
-        raise ValueError(f'no revolute joint between {base_link!r} and {tip_link!r}')
+        raise ValueError(f'no moving joint between {base_link!r} and {tip_link!r}')
     return _Serial(moving, before, acc, axes)
 
 
@@ -276,12 +272,13 @@ def _literal(serial: _Serial) -> list[bool]:
 def model_from_urdf(text: str, base_link: str, tip_link: str, name: str) -> KinematicModel:
     """Model (kind 'origin') of the revolute chain from ``base_link`` to ``tip_link``.
 
-    fk(model.chain(), q) is T_base_link_tip_link, q in the order of the revolute/continuous
-    joints on the path (continuous joints get limits +-inf). A joint whose origin needs no
+    fk(model.chain(), q) is T_base_link_tip_link, q in the order of the revolute/continuous/
+    prismatic joints on the path (continuous joints get limits +-inf; a prismatic joint slides
+    along its axis, q in m). A joint whose origin needs no
     conversion (no fixed joint before it, +z axis here and on the previous revolute joint)
     keeps the URDF's literal xyz/rpy as its parameters.
     ValueError (naming the link/joint) for malformed XML or numbers, unknown links, no serial
-    path, prismatic/floating/planar/mimic joints on the path, xacro text.
+    path, floating/planar/mimic joints on the path, xacro text.
     """
     urdf = _parse(text)
     serial = _serial(_path(urdf, base_link, tip_link), base_link, tip_link)
@@ -294,7 +291,8 @@ def model_from_urdf(text: str, base_link: str, tip_link: str, name: str) -> Kine
     flange = serial.axes[-1].T @ serial.after
     limits = [(j.lower, j.upper) for j in serial.moving]
     names = tuple(j.name for j in serial.moving)
-    return _model(name, 'origin', names, rows, limits, flange)
+    return _model(name, 'origin', names, rows, limits, flange,
+                  [j.type == 'prismatic' for j in serial.moving])
 
 
 def _tool_matrix(tool_xyz: ArrayLike | None) -> Array:
@@ -367,8 +365,8 @@ def _minimal_urdf(model: KinematicModel, placements: Array, end: Array, robot_na
     for i, joint_name in enumerate(model.joint_names):
         lo, hi = float(model.lower[i]), float(model.upper[i])
         bounded = math.isfinite(lo) and math.isfinite(hi)
-        joint = ET.SubElement(robot, 'joint', name=joint_name,
-                              type='revolute' if bounded else 'continuous')
+        kind = 'prismatic' if model.prismatic[i] else 'revolute' if bounded else 'continuous'
+        joint = ET.SubElement(robot, 'joint', name=joint_name, type=kind)
         _set_origin(joint, placements[i])
         ET.SubElement(joint, 'parent', link=links[i])
         ET.SubElement(joint, 'child', link=links[i + 1])

@@ -73,7 +73,7 @@ class ErrorModel:
     def tip_poses(self, names: tuple[str, ...], values: Array, q: Array) -> Array:
         """(m, 4, 4) T_base_tip with the named parameters at ``values`` (others nominal)."""
         placements, offsets = self.placements(names, values)
-        return fk_placements(placements, self.model.flange, q + offsets)
+        return fk_placements(placements, self.model.flange, q + offsets, self.model.prismatic)
 
     def placements(self, names: tuple[str, ...], values: Array) -> tuple[Array, Array]:
         """(placements (n, 4, 4), joint offsets (n,)) with the named parameters at values."""
@@ -122,7 +122,8 @@ class _Problem:
         placements, offsets = self.errors.placements(self.names, x[:self.n])
         q = self.data.q + offsets
         end = self.errors.model.flange
-        T = fk_placements(placements, end, q)
+        slide = self.errors.model.prismatic
+        T = fk_placements(placements, end, q, slide)
         nuisance = x[self.n:]
         columns = []
         for k in range(len(x)):
@@ -137,7 +138,8 @@ class _Problem:
                         value = x[:self.n].copy()
                         value[k] += h
                         moved[i] = self.errors.placements(self.names, value)[0][i]
-                    pair.append(self.kind.residuals(fk_placements(moved, end, qm), nuisance))
+                    pair.append(self.kind.residuals(fk_placements(moved, end, qm, slide),
+                                                    nuisance))
                 else:
                     step = nuisance.copy()
                     step[k - self.n] += h
@@ -225,7 +227,7 @@ def identifiable(errors: ErrorModel, data: Measurements, rank_tol: float = RANK_
     return Identifiability(kept_model, tuple(dropped), condition,
                            _correlated(Jk, [labels[c] for c in kept_cols]),
                            problem.kind.frame_dofs,
-                           textbook_minimum(len(errors.model.joint_names), data.kind, markers))
+                           textbook_minimum(errors.model.prismatic, data.kind, markers))
 
 
 def _reason(J: Array, c: int, kept: list[int], labels: tuple[str, ...], size: float) -> str:

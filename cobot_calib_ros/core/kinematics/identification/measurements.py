@@ -115,12 +115,14 @@ class Measurements:
                             self.ball, self.rotation_weight)
 
 
-def textbook_minimum(joints: int, kind: str, markers: int = 1) -> int:
-    """Minimal parameter count of a complete, minimal model of n revolute joints with its base
-    and tool frames (Everett, Mooring and Roth: 4 R + 2 P + 6), less what the measurement
-    cannot see: a marker's orientation (points: 3; spheres and plane: 3 for the ball plus the
-    6 of the base, which the centres or planes absorb), plus 3 per further marker."""
-    complete = 4 * joints + 6
+def textbook_minimum(prismatic: ArrayLike, kind: str, markers: int = 1) -> int:
+    """Minimal parameter count of a complete, minimal model of R revolute and P prismatic
+    joints (``prismatic``: one flag per joint) with its base and tool frames (Everett, Mooring
+    and Roth: 4 R + 2 P + 6), less what the measurement cannot see: a marker's orientation
+    (points: 3; spheres and plane: 3 for the ball plus the 6 of the base, which the centres or
+    planes absorb), plus 3 per further marker."""
+    slides = int(np.count_nonzero(prismatic))
+    complete = 4 * (len(prismatic) - slides) + 2 * slides + 6
     unseen = {'pose': 0, 'points': 3, 'spheres': 9, 'plane': 9}[kind]
     return complete - unseen + (3 * (markers - 1) if kind == 'points' else 0)
 

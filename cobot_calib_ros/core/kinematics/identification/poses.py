@@ -67,7 +67,7 @@ def lock_joint(chain: Chain, index: int, angle: float) -> Chain:
     else:
         flange = held @ chain.flange
     return Chain(tuple(chain.joint_names[i] for i in keep), np.stack(placements), chain.tool,
-                 chain.lower[keep], chain.upper[keep], flange)
+                 chain.lower[keep], chain.upper[keep], flange, chain.prismatic[keep])
 
 
 def sphere_pose_grid(chain: Chain, sphere_centre_base: ArrayLike,

@@ -127,6 +127,25 @@ def test_touches_on_two_planes_recover_held_out(ur10e):
     assert cv.calibrated['max_mm'] < 1e-6
 
 
+def test_a_ur10e_on_a_vertical_lift_prismatic_joint(ur10e):
+    """The base joint made a prismatic lift (0..0.4 m along z, axis tilted 0.05 rad): the
+    lift's origin errors are identified with the arm's; 4 R + 2 P + 6 = 32 kept."""
+    text = UR10E.read_text().replace(
+        '<joint name="base_link-base_link_inertia" type="fixed">',
+        '<joint name="base_link-base_link_inertia" type="prismatic"><axis xyz="0.05 0 1"/>'
+        '<limit lower="0" upper="0.4" effort="0" velocity="0"/>', 1)
+    model = model_from_urdf(text, 'base_link', 'wrist_3_link', 'ur10e_lift')
+    assert model.prismatic.tolist() == [True] + [False] * 6
+    rng = np.random.default_rng(8)
+    q = np.hstack([rng.uniform(0.0, 0.4, (30, 1)), configurations(ur10e, 30)])
+    T = fk(model.chain(truth(model, seed=9)), q)
+    data = Measurements('pose', q, values=BASE @ T @ TARGET)
+    ident = mf.identifiable(mf.ErrorModel(model, 'full'), data)
+    assert ident.parameters_kept == ident.minimum == 4 * 6 + 2 + 6
+    cv = mf.cross_validate(mf.ErrorModel(model, 'full'), data, mf.kfold(len(data), 3))
+    assert cv.nominal['max_mm'] > 0.5 and cv.calibrated['max_mm'] < 1e-6
+
+
 def test_identifiability_of_a_full_pose_model_is_the_textbook_minimum(ur10e):
     ident = mf.identifiable(mf.ErrorModel(ur10e, 'full'), mock('pose', ur10e))
     assert ident.minimum == 4 * 6 + 6 == ident.parameters_kept
