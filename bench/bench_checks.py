@@ -32,7 +32,7 @@ POINTS = ['P1', 'P3', 'P5']
 
 
 def run() -> Figures:
-    sim = load_simulation(cell_file('sawyer_close'))
+    sim = load_simulation(cell_file())
     rng = np.random.default_rng(3)
     p_user = np.array([sim.cell.marker(n).nominal_top for n in POINTS])
     seconds, calibration_seconds, wrong = [], [], 0

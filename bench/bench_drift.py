@@ -42,7 +42,7 @@ def _store(repo, sim, seed: int, stamp: int) -> None:
 
 
 def run() -> Figures:
-    sim = load_simulation(cell_file('sawyer_close'))
+    sim = load_simulation(cell_file())
     rng = np.random.default_rng(19)
     with tempfile.TemporaryDirectory(prefix='bench_drift_') as tmp:
         url = f'sqlite:///{Path(tmp) / "drift.sqlite"}'

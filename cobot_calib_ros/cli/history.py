@@ -8,6 +8,7 @@ from pathlib import Path
 
 from cobot_calib_ros.cli.common import EXIT_FAILED, EXIT_OK, EXIT_USAGE, fail
 from cobot_calib_ros.cli.db import add_db_options
+from cobot_calib_ros.ros.time import s_to_ns
 
 
 def add_parser(subparsers):
@@ -29,7 +30,7 @@ def since_ns(text: str | None) -> int:
     when = datetime.fromisoformat(text)
     if when.tzinfo is None:
         when = when.replace(tzinfo=timezone.utc)
-    return int(when.timestamp() * 1e9)
+    return s_to_ns(when.timestamp())
 
 
 def run(args) -> int:

@@ -18,6 +18,7 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile
 
 from cobot_calib_ros.ros import spin
+from cobot_calib_ros.ros.time import s_to_ns
 
 BATCH_PERIOD = 0.005    # [s] messages gather this long after the first one wakes the thread
 
@@ -46,7 +47,7 @@ class BatchReader:
     def _run(self) -> None:
         sub = self._sub
         wait_set = _rclpy.WaitSet(1, 0, 0, 0, 0, 0, self._context.handle)
-        timeout_ns = int(spin.WAKE_PERIOD * 1e9)
+        timeout_ns = s_to_ns(spin.WAKE_PERIOD)
         while not self._stop.is_set() and self._context.ok():
             try:
                 batch = self._take_batch(sub, wait_set, timeout_ns)
