@@ -55,8 +55,13 @@ class BatchReader:
                 if self._context.ok():
                     raise
                 return
-            if batch:
+            if not batch:
+                continue
+            try:
                 self._on_batch(batch)
+            except Exception as exc:  # noqa: BLE001 - a bad batch must not end the stream
+                self.node.get_logger().error(f'{len(batch)} messages not handled: {exc!r}',
+                                             throttle_duration_sec=5.0)
 
     def _take_batch(self, sub, wait_set, timeout_ns: int) -> list:
         """The messages queued once one has come and ``period`` has passed ([] after
