@@ -120,8 +120,8 @@ def test_a_killed_node_is_restarted_and_the_others_keep_running(up):
     # its service answers again, with joint_states reaching the new process (a starved stream
     # on a loaded machine can still make it NO_DATA: fewer than half the samples)
     capture = up.run('call', 'capture_joints', '{duration: 0.2}', '--json')
-    assert capture.returncode == 0, capture.stdout + capture.stderr
     answer = json.loads(capture.stdout)
+    assert capture.returncode == (0 if answer['error_code'] == 0 else 1), capture.stderr
     assert answer['sample_count'] > 0, answer
     if machine_unloaded():
         assert answer['error_code'] == 0, answer
