@@ -26,9 +26,8 @@ def add_parser(subparsers):
         description=__doc__.split('\n\n')[0] + ' Uses the suite on the exported ROS_DOMAIN_ID.')
     p.add_argument('--points', nargs='+', metavar='P', help='cell points to touch, in order '
                    '(default: every point of the cell layout)')
-    from cobot_calib_ros.core.user_frame import METHODS
-    p.add_argument('--method', default='rigid', metavar='METHOD',
-                   help=f'{" | ".join(METHODS)} (default rigid)')
+    p.add_argument('--method', default='rigid',
+                   help='three_point | five_point_lsq | rigid | robust (default rigid)')
     p.add_argument('--cell', default=DEFAULT_CELL, help='cell YAML path or name')
     p.add_argument('--layout', default='', help='marker layout of the cell (default: its own)')
     p.add_argument('--hold', type=float, default=0.5, help='capture window per point [s]')

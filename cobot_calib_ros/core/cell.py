@@ -23,12 +23,10 @@ import yaml
 
 from cobot_calib_ros.core import frames
 from cobot_calib_ros.core.kinematics.robots import ROBOTS, UrdfRobot
+from cobot_calib_ros.core.units import MAX_CELL_LENGTH
 
 Array = NDArray[np.float64]
 FRAME_ID_CHARS = frozenset('abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_/')
-MAX_CELL_LENGTH = 10.0
-"""[m] No point of a cobot cell (a marker, a tool, a sphere, a camera) is this far from the
-origin of the frame it is given in: a larger length is millimetres."""
 
 _POSE = {'xyz': None, 'rpy': None}
 CELL_KEYS: dict[str, Any] = {

@@ -10,8 +10,8 @@ from typing import Sequence
 import numpy as np
 from numpy.typing import ArrayLike
 
-from cobot_calib_ros.core.cell import MAX_CELL_LENGTH
 from cobot_calib_ros.core.errors import ErrorCode, Failure
+from cobot_calib_ros.core.units import MAX_CELL_LENGTH
 from cobot_calib_ros.core.user_frame.geometry import _as_points, Array, collinearity
 
 DUPLICATE_TOL = 1e-6      # [m] two points closer than this are the same point
