@@ -144,7 +144,7 @@ class BagRecorder(Node):
         if startup or self._ticks % round(SCAN_PERIOD / STARTUP_SCAN_PERIOD) == 0:
             self._scan()
             self.writer.flush()
-        if self._ticks * STARTUP_SCAN_PERIOD == STARTUP_SCANS_S:
+        if self._ticks == round(STARTUP_SCANS_S / STARTUP_SCAN_PERIOD):
             self._warn_unpublished()
 
     def _warn_unpublished(self) -> None:
