@@ -11,8 +11,8 @@ from __future__ import annotations
 import contextlib
 import json
 import math
+import os
 from pathlib import Path
-import shutil
 import sys
 import tempfile
 
@@ -26,6 +26,8 @@ from cobot_calib_ros.core import cell as cellmod
 from cobot_calib_ros.core import frames, kinematics, user_frame
 from cobot_calib_ros.loaders import load_cell
 from cobot_calib_ros.paths import cell_file, data_dir, DEFAULT_CELL
+from cobot_calib_ros import store
+from cobot_calib_ros.store.database import CELL_ENV, DB_ENV
 from cobot_calib_ros.store.kinematics import chain_of, NOMINAL
 
 POINTS = ('P1', 'P2', 'P3', 'P4', 'P5')
@@ -38,27 +40,44 @@ STORING_NODES = ('user_frame_solver', 'repeatability_trial', 'hand_eye_calibrato
 @contextlib.contextmanager
 def _suite(args):
     """The data dir of the demo's suite (None with --attach: the running suite's). Without
-    --attach: a suite on a private domain storing in a temporary data dir, removed at the end,
-    so that no other suite's results change (the active user frame above all); the user's
+    --attach: a suite on a private domain storing in a temporary data dir (its own SQLite,
+    $COBOT_CALIB_DB and $COBOT_CALIB_CELL left out while it runs), removed at the end, so
+    that no other suite's results change (the active user frame above all); the user's
     kinematic calibrations are copied in for --kinematics latest|ID."""
     if args.attach:
         yield None
         return
     with tempfile.TemporaryDirectory(prefix='cobot_calib_demo_') as tmp:
-        if args.kinematics != NOMINAL:
-            _copy_kinematics(data_dir(''), Path(tmp))
-        overrides = {n: {'data_dir': tmp} for n in STORING_NODES}
-        with launcher.private_suite(args.cell, overrides, say=lambda text: say(args, text)):
-            yield Path(tmp)
+        source = store.open(data_dir('')) if args.kinematics != NOMINAL else None
+        with _without_env(DB_ENV, CELL_ENV):
+            if source is not None:
+                _copy_kinematics(source, store.open(tmp))
+            overrides = {n: {'data_dir': tmp} for n in STORING_NODES}
+            with launcher.private_suite(args.cell, overrides,
+                                        say=lambda text: say(args, text)):
+                yield Path(tmp)
 
 
-def _copy_kinematics(source: Path, target: Path) -> None:
-    """The kinematic calibrations of data dir ``source`` into data dir ``target`` (read only
-    from ``source``)."""
-    from cobot_calib_ros import store
-    directory = store.open(source).kinematics.directory
-    if directory.is_dir():
-        shutil.copytree(directory, store.open(target).kinematics.directory)
+@contextlib.contextmanager
+def _without_env(*names: str):
+    """os.environ without ``names`` (the suite's nodes inherit it), restored afterwards."""
+    saved = {n: os.environ.pop(n) for n in names if n in os.environ}
+    try:
+        yield
+    finally:
+        os.environ.update(saved)
+
+
+def _copy_kinematics(source, target) -> None:
+    """Every kinematic calibration of repository ``source`` into ``target``, with the same
+    active one per robot (``source`` is only read)."""
+    records = source.kinematics.history()
+    for record in reversed(records):                  # oldest first, as they were stored
+        target.kinematics.save(record)
+    for robot in {source.kinematics.scope_of(r) for r in records}:
+        active = source.kinematics.active(robot)
+        if active is not None:
+            target.kinematics.activate(active['id'], robot)
 
 
 def _attached(args, node) -> tuple[str, Path]:
@@ -239,7 +258,6 @@ def _run(args, client: DemoClient, root: Path | None) -> dict:
 def _kinematics(args, client: DemoClient, robot: str, root: Path) -> dict:
     """The kinematic calibration record --kinematics names for ``robot`` in data dir ``root``;
     'latest' with none of that robot stored identifies one on the mock first."""
-    from cobot_calib_ros import store
     from cobot_calib_ros.api import identification
     kinematic_store = store.open(root).kinematics
     try:

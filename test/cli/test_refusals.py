@@ -111,30 +111,44 @@ def test_demo_refuses_a_missing_or_broken_cell_in_one_line(capsys, tmp_path):
 
 def test_demo_without_attach_stores_in_a_temporary_data_dir(monkeypatch, tmp_path):
     """Issue 23.6: the demo's suite stored in the shared data dir and changed the running
-    suite's active user frame. Its nodes now get a temporary data_dir, removed afterwards, with
-    the user's kinematic calibrations copied in for --kinematics latest."""
+    suite's active user frame. Its nodes now get a temporary data_dir (and no $COBOT_CALIB_DB),
+    removed afterwards, with the user's kinematic calibrations copied in for --kinematics."""
     import contextlib
+    import numpy as np
     from cobot_calib_ros import store
     from cobot_calib_ros.cli import demo
+    from cobot_calib_ros.core.kinematics import model_by_name
+    from cobot_calib_ros.store.database import sqlite_url
     shared = tmp_path / 'shared'
+    shared.mkdir()
     monkeypatch.setenv('COBOT_CALIB_DATA', str(shared))
-    kinematics = store.open(shared).kinematics.directory
-    kinematics.mkdir(parents=True)
-    (kinematics / 'k1.json').write_text('{}')
+    monkeypatch.setenv('COBOT_CALIB_DB', sqlite_url(shared))
+    model = model_by_name('sawyer')
+    user = store.open(shared).kinematics
+    for number in (1, 2):
+        user.save({'id': f'k{number}', 'stamp_ns': number, 'method': 'relative-lm',
+                   'robot': 'sawyer', 'inputs': {'source': 'test'},
+                   'result': {'parameter_names': list(model.parameter_names),
+                              'params': np.asarray(model.nominal).tolist(),
+                              'tool_xyz': [0.0, 0.0, 0.0]}})
+    user.activate('k1', 'sawyer')
     started = {}
 
     @contextlib.contextmanager
     def private_suite(cell, overrides=None, say=print):
-        started.update(cell=cell, overrides=overrides)
+        started.update(cell=cell, overrides=overrides, db=os.environ.get('COBOT_CALIB_DB'))
         yield None
     monkeypatch.setattr(demo.launcher, 'private_suite', private_suite)
     args = SimpleNamespace(attach=False, cell='sawyer_close', kinematics='latest', json=False)
     with demo._suite(args) as root:
-        assert root is not None and not str(root).startswith(str(shared))
-        assert (store.open(root).kinematics.directory / 'k1.json').is_file()
-    assert started['overrides'] == {n: {'data_dir': str(root)} for n in demo.STORING_NODES}
-    assert not root.exists() and sorted(p.name for p in shared.rglob('*')) == [
-        'k1.json', kinematics.name]
+        assert root is not None and shared not in root.parents
+        copied = store.open(root).kinematics
+        assert sorted(r['id'] for r in copied.history()) == ['k1', 'k2']
+        assert copied.active('sawyer')['id'] == 'k1'
+    assert started == {'cell': 'sawyer_close', 'db': None,
+                       'overrides': {n: {'data_dir': str(root)} for n in demo.STORING_NODES}}
+    assert not root.exists() and os.environ['COBOT_CALIB_DB'] == sqlite_url(shared)
+    assert sorted(r['id'] for r in store.open(shared).kinematics.history()) == ['k1', 'k2']
 
 
 # -- call: a refused answer exits 1 -------------------------------------------------------
