@@ -1,7 +1,8 @@
 """Everything the suite stores: ``store.open(data_dir)`` is the one way in (store.repository).
 
-Typed records in store.records; the folder implementation in store.calibrations, .kinematics,
-.trials, .collections over store.files.
+Typed records in store.records; the database (SQLite / PostgreSQL) in store.database, .schema,
+.migrations; the folder implementation in store.calibrations, .kinematics, .trials,
+.collections over store.files; a cell's drift history in store.history.
 """
 
 

@@ -1,5 +1,10 @@
 """One repository of everything the suite stores, behind one factory: ``store.open(data_dir)``.
 
+Two implementations: :class:`DatabaseRepository` (store.database: SQLite in the data dir by
+default, or PostgreSQL; calibrations and checks as rows) and :class:`FolderRepository` (JSON
+files, what a data dir written before the database holds until `cobot-calib db import`).
+Trials and collections are append-only files in the data dir in both.
+
 Nodes, the CLI and the API get their stores from :func:`open` (never by building a store class
 themselves), so a second implementation (a history database) can replace the folder one in one
 place. A :class:`Repository` has one history per calibration kind and the two measurement logs:
@@ -10,6 +15,7 @@ attribute              kind (store.records)    activation scope
 ``user_frames``        UserFrameRecord         one active per data dir (= per cell)
 ``hand_eye``           HandEyeRecord           one active per data dir (= per cell)
 ``kinematics``         KinematicRecord         one active per robot (the record's ``robot``)
+``checks``             check_record            (none: quick health checks are never activated)
 ``trials``             trial.yaml + readings   (none: trials are not activated)
 ``collections``        collection + rows       (none)
 =====================  ======================  ==================================================
@@ -79,6 +85,8 @@ class Repository(Protocol):
     def trials(self) -> TrialStore: ...
     @property
     def collections(self) -> CollectionStore: ...
+    @property
+    def checks(self) -> CalibrationHistory: ...
 
 
 class FolderRepository:
