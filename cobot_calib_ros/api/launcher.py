@@ -51,7 +51,12 @@ class NodeSpec:
         return f'/{ns}/{self.name}' if ns else f'/{self.name}'
 
     def command(self) -> list[str]:
-        cmd = [sys.executable, '-m', f'cobot_calib_ros.nodes.{self.name}', '--ros-args']
+        """The node's command line. Its console output is its log (Suite.log_path), so rcl's own
+        log file, the same lines again as python_<pid>.log in the ROS log root, is not written
+        (--disable-external-lib-logs; ros.session.FILE_LOG_ENV=1 keeps it)."""
+        from cobot_calib_ros.ros.session import no_log_file_args
+        cmd = [sys.executable, '-m', f'cobot_calib_ros.nodes.{self.name}', '--ros-args',
+               *no_log_file_args()]
         params_file = paths.config_dir() / f'{self.name}.yaml'
         if params_file.exists():
             cmd += ['--params-file', str(params_file)]

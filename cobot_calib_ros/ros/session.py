@@ -19,11 +19,17 @@ import sys
 FILE_LOG_ENV = 'COBOT_CALIB_CLIENT_LOG'
 
 
+def no_log_file_args() -> list[str]:
+    """The ROS arguments that keep rcl from writing its log file, unless FILE_LOG_ENV=1."""
+    asked = os.environ.get(FILE_LOG_ENV, '') not in ('', '0')
+    return [] if asked else ['--disable-external-lib-logs']
+
+
 def client_ros_args() -> list[str]:
     """rclpy.init's args of a client: the command line's (its --ros-args), and no log file
     unless FILE_LOG_ENV is set."""
-    quiet = os.environ.get(FILE_LOG_ENV, '') in ('', '0')
-    return [*sys.argv, *(('--ros-args', '--disable-external-lib-logs') if quiet else ())]
+    quiet = no_log_file_args()
+    return [*sys.argv, *(['--ros-args', *quiet] if quiet else [])]
 
 
 @contextlib.contextmanager

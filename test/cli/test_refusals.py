@@ -249,3 +249,14 @@ def test_demo_attach_takes_the_cell_and_data_dir_of_the_running_suite(tmp_path):
                 '/somewhere/iiwa7_close.yaml', tmp_path)
             assert demo._attached(SimpleNamespace(cell='sawyer_close'), client) == (
                 'sawyer_close', tmp_path)
+
+
+def test_nodes_the_launcher_starts_write_only_their_own_log(monkeypatch):
+    """Their console output is <node>.log in the suite's log dir: rcl's python_<pid>.log (the
+    same lines, in the ROS log root) is left out, unless asked."""
+    from cobot_calib_ros.api.launcher import NodeSpec
+    monkeypatch.delenv('COBOT_CALIB_CLIENT_LOG', raising=False)
+    command = NodeSpec('mock_robot', {'time_scale': '0.2'}).command()
+    assert command[3:5] == ['--ros-args', '--disable-external-lib-logs']
+    monkeypatch.setenv('COBOT_CALIB_CLIENT_LOG', '1')
+    assert '--disable-external-lib-logs' not in NodeSpec('mock_robot').command()
