@@ -17,6 +17,19 @@ def test_identify_from_the_bag_reproduces_the_live_identification(capsys):
     assert [p['name'] for p in got['identified']] == [p['name'] for p in expected['identified']]
     for mine, live in zip(got['identified'], expected['identified']):
         assert abs(mine['value'] - live['value']) <= 1e-9, mine['name']
+    # issue 23.11: each parameter's nominal beside it, from the cell's model and coupling
+    import numpy as np
+    from cobot_calib_ros.core.kinematics import model_for
+    from cobot_calib_ros.core.kinematics.identification.parameters import ParameterSet
+    from cobot_calib_ros.loaders import load_cell
+    from cobot_calib_ros.paths import cell_file
+    cell = load_cell(cell_file('iiwa7_close'))
+    model = model_for(cell)
+    names = [p['name'] for p in got['identified']]
+    nominal = ParameterSet(model, names).values(model.nominal, cell.spheres.coupling_offset[:3, 3])
+    np.testing.assert_array_equal([p['nominal'] for p in got['identified']], nominal)
+    deviation = np.array([p['value'] - p['nominal'] for p in got['identified']])
+    assert 0.0 < np.abs(deviation).max() < 0.01          # identified near nominal, not equal
 
 
 def test_a_bag_without_sphere_captures_is_refused(capsys):
