@@ -33,7 +33,8 @@ def test_a_broken_or_missing_cell_is_refused_before_any_suite_starts(capsys, tmp
     """Issue 23.4: on e6ccb73 a broken --cell started a private suite and failed 60 s later
     with an unrelated message."""
     broken = tmp_path / 'broken.yaml'
-    broken.write_text('cell:\n  name: broken\n  robot: sawyer\n  layouts: {close: {P1: [0.1, 0.1]}\n')
+    broken.write_text('cell:\n  name: broken\n  robot: sawyer\n'
+                      '  layouts: {close: {P1: [0.1, 0.1]}\n')
     assert main(['identify', '--cell', str(broken)]) == 2
     err = capsys.readouterr().err
     assert err.startswith(f'identify: {broken}: not valid YAML') and len(err.splitlines()) == 1
