@@ -8,7 +8,13 @@ calibration, robot time as mock_robot reports it (moves at its joint velocity, h
   over CHECKS checks with the table in place (pass) and CHECKS after a 0.3 mm move in a
   random direction (recalibrate).
 
-``check_kinematics_robot_s`` is not measured: `check kinematics` is not implemented yet.
+``check kinematics`` (16 sphere poses, the spread of the centres the model predicts) on the
+simulated iiwa7:
+
+- ``check_kinematics_robot_s`` [s]: robot time of one check;
+- ``check_kinematics_true_model_spread_mm`` / ``_nominal_model_spread_mm`` [mm]: the spread
+  with the true model (passes) and with the nominal one (recalibrate);
+- ``check_kinematics_wrong_verdicts`` [count]: over KIN_CHECKS checks with each model.
 """
 from __future__ import annotations
 
@@ -28,6 +34,7 @@ from cobot_calib_ros.sim.user_frame_run import calibrate_user_frame, moved_table
 from cobot_calib_ros.store.records import UserFrameRecord
 
 CHECKS = 30
+KIN_CHECKS = 5
 POINTS = ['P1', 'P3', 'P5']
 
 
@@ -53,10 +60,35 @@ def run() -> Figures:
                                      POINTS)
             seconds.append(check.robot_seconds)
             wrong += check.verdict != truth
-    return {'check_user_frame_robot_s': (float(np.mean(seconds)), 's'),
+    return {**_kinematics(), 'check_user_frame_robot_s': (float(np.mean(seconds)), 's'),
             'check_user_frame_calibration_robot_s': (float(np.mean(calibration_seconds)), 's'),
             'check_user_frame_wrong_verdicts': (wrong, 'count'),
             'check_user_frame_checks': (2 * CHECKS, 'count')}
+
+
+def _kinematics() -> Figures:
+    from cobot_calib_ros.core import kinematics
+    from cobot_calib_ros.core.health_checks import check_kinematics
+    from cobot_calib_ros.core.kinematics import plans
+    sim = load_simulation(cell_file('iiwa7_close'))
+    model = kinematics.model_by_name(sim.cell.robot)
+    plan, _ = plans.sphere_plan(sim.cell, model, 16)
+    nominal = model.chain(tool=sim.cell.spheres.coupling_offset)
+    seconds, spreads, wrong = [], {'true': [], 'nominal': []}, 0
+    for k in range(KIN_CHECKS):
+        for name, truth in (('true', PASS), ('nominal', RECALIBRATE)):
+            arm = SimRobot(sim, seed_offset=700 + k)
+            check = check_kinematics(DirectRobot(arm, sim.probe),
+                                     arm.coupling if name == 'true' else nominal, plan)
+            seconds.append(check.robot_seconds)
+            spreads[name].append(check.spread_rms_m * 1e3)
+            wrong += check.verdict != truth
+    return {'check_kinematics_robot_s': (float(np.mean(seconds)), 's'),
+            'check_kinematics_true_model_spread_mm': (float(np.mean(spreads['true'])), 'mm'),
+            'check_kinematics_nominal_model_spread_mm': (float(np.mean(spreads['nominal'])),
+                                                         'mm'),
+            'check_kinematics_wrong_verdicts': (wrong, 'count'),
+            'check_kinematics_checks': (2 * KIN_CHECKS, 'count')}
 
 
 if __name__ == '__main__':

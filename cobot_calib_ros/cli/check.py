@@ -1,10 +1,14 @@
-"""`cobot-calib check user-frame`: a quick health check of the active user frame on the
-running suite (core.health_checks): touch a few markers, compare with where the frame and its
-calibration's residuals put them, print the robot time and the verdict, store the check as a
-result of the cell. Exit 0: pass, 1: recalibrate (or the check could not run)."""
-from __future__ import annotations
+"""`cobot-calib check user-frame | kinematics`: quick health checks on the running suite
+(core.health_checks), each far less robot time than the calibration it checks; prints the
+robot time and the verdict and stores the check as a result of the cell.
 
-import json
+- user-frame: touch a few markers, compare with where the active frame and its calibration's
+  residuals put them;
+- kinematics: a few sphere-coupling poses (16), the spread of the centres the active kinematic
+  calibration (nominal if none) predicts.
+
+Exit 0: pass, 1: recalibrate (or the check could not run)."""
+from __future__ import annotations
 
 from cobot_calib_ros.cli.common import (EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK, EXIT_USAGE,
                                         fail, ros_node, say)
@@ -18,11 +22,15 @@ def add_parser(subparsers):
     p = subparsers.add_parser('check', help='quick health check of the active user frame '
                                             '(a few touches, far less robot time than a '
                                             'calibration)')
-    p.add_argument('what', choices=['user-frame'], help='what to check')
+    p.add_argument('what', choices=['user-frame', 'kinematics'], help='what to check')
+    p.add_argument('--poses', type=int, default=16,
+                   help='kinematics: sphere poses to visit (default 16)')
     p.add_argument('--points', nargs='+', default=list(DEFAULT_POINTS),
                    help='cell points to touch (default P1 P3 P5)')
-    p.add_argument('--tolerance-mm', type=float, default=0.2,
-                   help='largest point error that passes [mm] (default 0.2, the drift WARN)')
+    p.add_argument('--tolerance-mm', type=float, default=None,
+                   help='user-frame: largest point error that passes [mm] (default 0.2, the '
+                        'drift WARN); kinematics: largest RMS spread of the sphere centres '
+                        '[mm] (default 0.1)')
     p.add_argument('--robot-cell', default=DEFAULT_CELL, help='cell YAML path or name '
                    '(its markers and tool)')
     p.add_argument('--namespace', default='', help="the suite's namespace (up --namespace)")
@@ -32,51 +40,98 @@ def add_parser(subparsers):
 
 
 def run(args) -> int:
-    import numpy as np
     from cobot_calib_ros import paths, store
     from cobot_calib_ros.core import kinematics
     from cobot_calib_ros.core.cell import CellFileError
-    from cobot_calib_ros.core.health_checks import check_user_frame, PASS, predicted_points
-    from cobot_calib_ros.core.robot_port import PortError
     from cobot_calib_ros.loaders import load_cell
-    from cobot_calib_ros.store.kinematics import chain_of
-    from cobot_calib_ros.store.records import check_record
     try:
         cell = load_cell(paths.cell_file(args.robot_cell))
     except CellFileError as e:
         return fail(str(e), EXIT_USAGE)
-    unknown = [n for n in args.points if cell.marker(n) is None]
-    if unknown or len(args.points) < 1:
-        return fail(f'unknown point(s) {unknown}; the cell has {cell.point_names}', EXIT_USAGE)
     repo = store.open(paths.data_dir(args.data_dir), args.db, args.cell or (
         args.namespace.strip('/').replace('/', '.') or None))
+    model = kinematics.model_for(cell)
+    prepare = _user_frame if args.what == 'user-frame' else _kinematics
     try:
-        active = repo.user_frames.active()
-        model = kinematics.model_for(cell)
-        kinematic = repo.kinematics.resolve(active.get('kinematics') or 'nominal', model.name) \
-            if active else None
-    except (OSError, KeyError) as exc:
-        return fail(f'check: {exc}')
-    if active is None:
-        return fail('check: no active user frame in this cell\'s results; calibrate first '
-                    '(cobot-calib teach, or call calibrate_user_frame)')
-    chain = chain_of(kinematic, model, cell.tool_offset)
-    p_user = np.array([cell.marker(n).nominal_top for n in args.points])
-    predicted = predicted_points(active['inputs'], active['result'], args.points, p_user)
-    say(args, f'checking {active["id"]} at {", ".join(args.points)} '
-              f'(kinematics {active.get("kinematics") or "nominal"})')
+        prepared = prepare(args, cell, model, repo)
+    except (OSError, KeyError, ValueError) as exc:
+        return fail(f'check {args.what}: {exc.args[0] if exc.args else exc}',
+                    EXIT_USAGE if isinstance(exc, ValueError) else EXIT_FAILED)
+    method, against, run_check, print_details = prepared
+    from cobot_calib_ros.core.robot_port import PortError
     from cobot_calib_ros.ros import spin
     from cobot_calib_ros.ros.robot_calls import RobotCalls
     with ros_node('cobot_calib_check', args.namespace.strip('/')) as node:
-        robot = RobotCalls(spin.Companion(node, 'clients'))
+        companion = spin.Companion(node, 'clients')
         try:
-            check = check_user_frame(robot, chain, predicted, args.points,
-                                     args.tolerance_mm * 1e-3)
-        except PortError as exc:
+            check = run_check(RobotCalls(companion))
+        except (PortError, ValueError) as exc:
             return fail(f'check stopped: {exc}; nothing stored')
         except KeyboardInterrupt:
             return fail('check interrupted; nothing stored', EXIT_INTERRUPTED)
-    record = check_record(check, 'user_frame', active['id'])
+        finally:
+            companion.destroy()          # its thread stops before the session shuts down
+    return _report(args, repo, check, method, against, print_details)
+
+
+def _user_frame(args, cell, model, repo):
+    """('user_frame', the active frame's id, the check, its printout) or ValueError/OSError."""
+    import numpy as np
+    from cobot_calib_ros.core.health_checks import check_user_frame, predicted_points
+    from cobot_calib_ros.store.kinematics import chain_of
+    unknown = [n for n in args.points if cell.marker(n) is None]
+    if unknown:
+        raise ValueError(f'unknown point(s) {unknown}; the cell has {cell.point_names}')
+    active = repo.user_frames.active()
+    if active is None:
+        raise KeyError('no active user frame in this cell\'s results; calibrate first '
+                       '(cobot-calib teach, or call calibrate_user_frame)')
+    kinematic = repo.kinematics.resolve(active.get('kinematics') or 'nominal', model.name)
+    chain = chain_of(kinematic, model, cell.tool_offset)
+    p_user = np.array([cell.marker(n).nominal_top for n in args.points])
+    predicted = predicted_points(active['inputs'], active['result'], args.points, p_user)
+    tolerance = 0.2 if args.tolerance_mm is None else args.tolerance_mm
+    say(args, f'checking {active["id"]} at {", ".join(args.points)} '
+              f'(kinematics {active.get("kinematics") or "nominal"})')
+
+    def details(check):
+        for name, error in zip(check.names, check.errors):
+            print(f'  {name}: {np.linalg.norm(error) * 1e3:.3f} mm  '
+                  f'({", ".join(f"{e * 1e3:+.3f}" for e in error)})')
+    return ('user_frame', active['id'], lambda robot: check_user_frame(
+        robot, chain, predicted, args.points, tolerance * 1e-3), details)
+
+
+def _kinematics(args, cell, model, repo):
+    """('kinematics', the active calibration's id or 'nominal', the check, its printout)."""
+    import numpy as np
+    from cobot_calib_ros.core.health_checks import check_kinematics
+    from cobot_calib_ros.core.kinematics import plans
+    from cobot_calib_ros.store.kinematics import chain_of
+    if cell.spheres is None:
+        raise ValueError(f'cell {cell.name!r} has no spheres (config/cells/iiwa7_close.yaml '
+                         'has); give --robot-cell')
+    if args.poses < 4:
+        raise ValueError(f'--poses {args.poses}: give 4 or more')
+    record = repo.kinematics.active(model.name)
+    tool = np.array(cell.spheres.coupling_offset, dtype=float)
+    if record is not None:
+        tool = np.eye(4)
+        tool[:3, 3] = record['result']['tool_xyz']
+    chain = chain_of(record, model, tool)
+    plan, _ = plans.sphere_plan(cell, model, args.poses)
+    against = record['id'] if record else 'nominal'
+    tolerance = 0.1 if args.tolerance_mm is None else args.tolerance_mm
+    say(args, f'checking the {model.name} model ({against}) on {len(plan)} sphere poses')
+    return ('kinematics', against, lambda robot: check_kinematics(
+        robot, chain, plan, tolerance * 1e-3), lambda check: None)
+
+
+def _report(args, repo, check, method: str, against: str, details) -> int:
+    import json
+    from cobot_calib_ros.core.health_checks import PASS
+    from cobot_calib_ros.store.records import check_record
+    record = check_record(check, method, against)
     try:
         repo.checks.save(record)
     except OSError as exc:
@@ -84,9 +139,7 @@ def run(args) -> int:
     if args.json:
         print(json.dumps(record))
     else:
-        for name, error in zip(check.names, check.errors):
-            print(f'  {name}: {np.linalg.norm(error) * 1e3:.3f} mm  '
-                  f'({", ".join(f"{e * 1e3:+.3f}" for e in error)})')
+        details(check)
         print(f'robot time: {check.robot_seconds:.1f} s')
         print(check.message())
         print(f'stored as {record["id"]}')

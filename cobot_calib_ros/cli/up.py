@@ -64,14 +64,16 @@ def run(args) -> int:
                         'use another --namespace, or pass --force to start a second one '
                         'anyway')
     return _serve(launcher.Suite(launcher.default_log_dir(), own_group=True), specs,
-                  suite_environment(namespace, args.db, _robot_of(cell)), namespace)
+                  suite_environment(namespace, args.db, _robot_of(args.cell)), namespace)
 
 
-def _robot_of(cell_path) -> str:
+def _robot_of(cell: str) -> str:
+    """The robot model of a cell (a name or a YAML path), '' if the file does not read."""
+    from cobot_calib_ros import paths
     from cobot_calib_ros.core.cell import CellFileError
     from cobot_calib_ros.loaders import load_cell
     try:
-        return load_cell(cell_path).robot
+        return load_cell(paths.cell_file(cell)).robot
     except CellFileError:
         return ''
 

@@ -291,14 +291,11 @@ class TrialSetup(Record):
 
 def check_record(check, method: str, against: str, stamp_ns: int | None = None,
                  wall_ns: int | None = None) -> dict[str, Any]:
-    """The stored result of a core.health_checks check of ``method`` ('user_frame') made
-    against calibration ``against``: never activated (a check changes no calibration)."""
+    """The stored result of a core.health_checks check (``method``: 'user_frame' or
+    'kinematics') made against calibration ``against`` ('nominal': none): never activated (a
+    check changes no calibration)."""
     wall_ns = time.time_ns() if wall_ns is None else wall_ns
-    return to_plain({
-        'id': record_id(f'check-{method}', wall_ns),
-        'stamp_ns': wall_ns if stamp_ns is None else stamp_ns, 'method': method,
-        'inputs': {'against': against, 'point_names': check.names,
-                   'tolerance_m': check.tolerance_m},
-        'result': {'verdict': check.verdict, 'errors': check.errors,
-                   'max_error_m': check.max_error_m, 'mean_error': check.mean_error,
-                   'robot_seconds': check.robot_seconds, 'message': check.message()}})
+    inputs, result = check.stored()
+    return to_plain({'id': record_id(f'check-{method}', wall_ns),
+                     'stamp_ns': wall_ns if stamp_ns is None else stamp_ns, 'method': method,
+                     'inputs': {'against': against, **inputs}, 'result': result})

@@ -31,3 +31,8 @@ def test_the_nodes_store_as_the_namespace_s_cell_in_the_given_database(monkeypat
     assert env['COBOT_CALIB_DB'] == 'postgresql://u@h/plant'
     assert env['COBOT_CALIB_ROBOT'] == 'iiwa7'              # the results' provenance
     assert env['PATH']                                      # the rest of the environment kept
+
+
+def test_the_robot_model_of_the_cell_given_to_up():
+    assert (up._robot_of('iiwa7_close'), up._robot_of('sawyer_close')) == ('iiwa7', 'sawyer')
+    assert up._robot_of('/no/such/cell.yaml') == ''

@@ -67,3 +67,25 @@ def test_a_check_is_stored_as_a_result_of_the_cell(tmp_path):
     assert stored['inputs']['against'] == record['id']
     assert stored['result']['robot_seconds'] == pytest.approx(check.robot_seconds)
     assert np.allclose(stored['result']['errors'], check.errors)
+
+
+def test_check_kinematics_tells_a_right_model_from_a_stale_one():
+    """Must-show 3, kinematic half, on the simulated iiwa7: the true model (what a good
+    identification finds) passes, the nominal one (the robot's real errors unmodelled) fails;
+    16 poses take far less robot time than the 120 s goal."""
+    from cobot_calib_ros.core import kinematics
+    from cobot_calib_ros.core.health_checks import check_kinematics, sphere_spread
+    from cobot_calib_ros.core.kinematics import plans
+    sim = load_simulation(cell_file('iiwa7_close'))
+    model = kinematics.model_by_name(sim.cell.robot)
+    plan, _ = plans.sphere_plan(sim.cell, model, 16)
+    arm = SimRobot(sim, seed_offset=3)
+    robot = DirectRobot(arm, sim.probe)
+    check = check_kinematics(robot, arm.coupling, plan)          # the true model
+    assert check.verdict == PASS and check.spread_rms_m < 0.02e-3
+    assert (check.poses, check.spheres) == (16, 3) and 0 < check.robot_seconds < 120.0
+    nominal = model.chain(tool=sim.cell.spheres.coupling_offset)
+    again = check_kinematics(DirectRobot(SimRobot(sim, seed_offset=4), sim.probe), nominal, plan)
+    assert again.verdict == RECALIBRATE and again.spread_rms_m > 0.15e-3
+    # the spread itself: the same pose twice on one sphere is no spread
+    assert sphere_spread(nominal, [plan[0]['q']] * 2, [0, 0]) == 0.0
