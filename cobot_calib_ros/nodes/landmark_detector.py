@@ -49,6 +49,7 @@ from cobot_calib_msgs.msg import Landmark, Landmarks
 import cv2
 from geometry_msgs.msg import Point, Pose, PoseWithCovariance, Quaternion
 import numpy as np
+from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data, QoSProfile
 from scipy.spatial.transform import Rotation
@@ -312,7 +313,10 @@ class LandmarkDetector(Node):
         self._info_sub = self._info_node.create_subscription(
             CameraInfo, 'wrist_camera/camera_info', lambda _: None, LATEST_INFO_QOS)
         self._follow_demand()
-        self.create_timer(DEMAND_PERIOD, self._follow_demand)
+        # steady: under use_sim_time the node clock stands still until a bag plays /clock,
+        # and the player waits for this node to subscribe to the images first
+        self.create_timer(DEMAND_PERIOD, self._follow_demand,
+                          clock=Clock(clock_type=ClockType.STEADY_TIME))
         self._diagnostics = Diagnostics(self, hardware_id='wrist_camera', update=self._diagnose)
         self._running = True
         self._workers = [threading.Thread(target=self._search, daemon=True, name='search'),

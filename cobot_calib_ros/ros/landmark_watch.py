@@ -19,6 +19,7 @@ import time
 
 from cobot_calib_msgs.msg import Landmark, Landmarks
 import numpy as np
+from rclpy.clock import Clock, ClockType
 
 from cobot_calib_ros.core.robot_port import CaptureFailed, LandmarkImage, Sighting
 from cobot_calib_ros.ros import convert
@@ -51,7 +52,8 @@ class LandmarkWatch:
         self._capturing = 0                 # landmarks_after calls in progress
         self._idle_since = time.monotonic()
         if node is not None:
-            node.create_timer(1.0, self._release_when_idle)
+            node.create_timer(1.0, self._release_when_idle,    # steady: LINGER is wall time
+                              clock=Clock(clock_type=ClockType.STEADY_TIME))
 
     def _subscribe(self) -> None:
         with self._cond:
