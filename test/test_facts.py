@@ -95,10 +95,10 @@ def test_the_guards_see_a_copy(tmp_path):
 
 def test_one_node_registry_for_setup_and_the_launcher():
     from cobot_calib_ros.api import launcher
-    from cobot_calib_ros.nodes import NODES
+    from cobot_calib_ros.nodes import DRIVER_NODES, NODES
     modules = {p.stem for p in (PACKAGE / 'nodes').glob('*.py') if p.stem != '__init__'}
     assert set(NODES) == modules
-    assert launcher.SUITE == NODES
+    assert launcher.SUITE + DRIVER_NODES == NODES
     setup = (ROOT / 'setup.py').read_text()
     assert 'NODES = node_registry()' in setup and "'mock_robot'" not in setup
 

@@ -19,9 +19,10 @@ import sys
 import time
 
 from cobot_calib_ros import paths
-from cobot_calib_ros.nodes import NODES
+from cobot_calib_ros.nodes import DRIVER_NODES, NODES
 
-SUITE = NODES                 # the whole suite, in launch order
+SUITE = tuple(n for n in NODES if n not in DRIVER_NODES)   # the suite, in launch order
+ROBOT_INTERFACES = ('move_to', 'driver')    # mock_robot's own move_to, or through robot_adapter
 PR_SET_PDEATHSIG = 1
 
 
@@ -153,9 +154,18 @@ class AnswerCheck:
 
 
 def suite_specs(cell: str, nodes: tuple[str, ...] = SUITE,
-                overrides: dict[str, dict[str, str]] | None = None) -> list[NodeSpec]:
-    """The node suite for one cell file; every node gets `cell_file`."""
-    overrides = overrides or {}
+                overrides: dict[str, dict[str, str]] | None = None,
+                robot_interface: str = 'move_to') -> list[NodeSpec]:
+    """The node suite for one cell file; every node gets `cell_file`. ``robot_interface``
+    ``driver``: mock_robot offers only joint_states and FollowJointTrajectory, as a ros2_control
+    arm, and robot_adapter (after it) serves move_to over them with the ``mock`` preset."""
+    overrides = dict(overrides or {})
+    if robot_interface == 'driver' and 'mock_robot' in nodes:
+        overrides['mock_robot'] = {'robot_interface': 'driver', **overrides.get('mock_robot', {})}
+        at = nodes.index('mock_robot') + 1
+        nodes = (*nodes[:at], *DRIVER_NODES, *nodes[at:])
+    elif robot_interface not in ROBOT_INTERFACES:
+        raise ValueError(f'robot_interface {robot_interface!r}: use one of {ROBOT_INTERFACES}')
     cell_path = str(paths.cell_file(cell))
     return [NodeSpec(n, {'cell_file': cell_path, **overrides.get(n, {})}) for n in nodes]
 

@@ -28,6 +28,7 @@ VERBS = (
     'db',
     'history',
     'check',
+    'view',                         # the live view: Foxglove WebSocket on loopback
 )
 
 

@@ -38,6 +38,10 @@ def add_parser(subparsers):
     p.add_argument('--db', default='', help='results database URL for every node, e.g. '
                    'postgresql://user@host/plant (default $COBOT_CALIB_DB, else the SQLite '
                    'file in the data dir)')
+    p.add_argument('--robot-interface', choices=('move_to', 'driver'), default='move_to',
+                   help='move_to: mock_robot serves the suite\'s move_to; driver: mock_robot '
+                   'offers only joint_states and FollowJointTrajectory, as a ros2_control arm, '
+                   'and robot_adapter serves move_to over them')
     p.add_argument('--force', action='store_true',
                    help='start even if suite nodes already run on this ROS_DOMAIN_ID')
     return p
@@ -55,7 +59,8 @@ def run(args) -> int:
     layout = {'layout': args.layout} if args.layout else {}
     specs = [replace(spec, namespace=namespace) for spec in launcher.suite_specs(
         args.cell, overrides={
-            n: layout for n in ('mock_robot', 'user_frame_solver', 'repeatability_trial')})]
+            n: layout for n in ('mock_robot', 'user_frame_solver', 'repeatability_trial')},
+        robot_interface=args.robot_interface)]
     if not args.force:
         running = running_nodes([spec.full_name for spec in specs])
         if running:

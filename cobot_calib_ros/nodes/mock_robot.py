@@ -12,13 +12,26 @@ stalls, counted as a subscriber counts missing stamps), ``mark_stamp_s`` with
 before the same second gives the exact loss, see core.sensors.joint_buffer.StampMarks),
 ``probe_published``, ``moving``, the cell, robot and layout. WARN when joint_states run below
 90 % of their rate, ERROR when the publishing thread has stopped.
+
+``robot_interface``: ``move_to`` (default) serves the suite's own MoveTo action, as above;
+``driver`` stands in for a ros2_control arm instead: it offers what a real driver offers,
+joint_states and control_msgs/FollowJointTrajectory on
+``joint_trajectory_controller/follow_joint_trajectory`` (as ros2_control's mock hardware under a
+joint_trajectory_controller), plus ``compliant_trajectory_controller/follow_joint_trajectory``
+(the same under impedance control: a coupling near a sphere self-centres), and no move_to:
+``robot_adapter`` serves move_to then. The simulated operator (hand_guide), the laser tracker and
+get_ground_truth stay: they are the cell, not the driver. ``driver_fault`` makes the driver
+misbehave for tests: ``reject`` every trajectory goal, ``abort`` half-way
+(PATH_TOLERANCE_VIOLATED), ``ring`` (joint_states oscillate after every move: never settles).
 """
 from __future__ import annotations
 
+import math
 import threading
 import time
 
 from cobot_calib_msgs.action import MoveTo
+from control_msgs.action import FollowJointTrajectory
 from cobot_calib_msgs.msg import ProbeVoltage
 from cobot_calib_msgs.srv import GetGroundTruth, HandGuide, MeasurePosition
 import numpy as np
@@ -39,6 +52,12 @@ from cobot_calib_ros.sim.robot import SimRobot
 from cobot_calib_ros.sim.scenario import load_simulation
 
 FEEDBACK_PERIOD = 0.02  # [s] of wall time between motion steps (each with a feedback message)
+INTERFACES = ('move_to', 'driver')
+DRIVER_FAULTS = ('', 'reject', 'abort', 'ring')
+TRAJECTORY_ACTION = 'joint_trajectory_controller/follow_joint_trajectory'
+COMPLIANT_ACTION = 'compliant_trajectory_controller/follow_joint_trajectory'
+RING_AMPLITUDE = 2e-3   # [rad] of the first joint's oscillation under driver_fault ring
+RING_HZ = 8.0           # [Hz]
 SLOW_RATE_FRACTION = 0.9  # [1] of the nominal joint_states rate: below it, WARN
 
 
@@ -108,10 +127,21 @@ class MockRobot(Node):
         self._js_pub = self.create_publisher(JointState, 'joint_states', qos.JOINT_STATES)
         self._probe_pub = self.create_publisher(ProbeVoltage, 'probe/voltage',
                                                 qos_profile_sensor_data)
-        self._action = ActionServer(
-            self, MoveTo, 'move_to', execute_callback=self._execute_move,
-            goal_callback=self._accept_goal, cancel_callback=lambda _: CancelResponse.ACCEPT,
-            callback_group=MutuallyExclusiveCallbackGroup())
+        self._ringing = False      # driver_fault ring, after a move until the next or a reset
+        self.add_post_set_parameters_callback(self._fault_changed)
+        if self._param('robot_interface') == 'driver':
+            self._trajectory_servers = [ActionServer(
+                self, FollowJointTrajectory, name,
+                execute_callback=lambda handle, comply=comply: self._follow(handle, comply),
+                goal_callback=self._accept_trajectory,
+                cancel_callback=lambda _: CancelResponse.ACCEPT,
+                callback_group=MutuallyExclusiveCallbackGroup())
+                for name, comply in ((TRAJECTORY_ACTION, False), (COMPLIANT_ACTION, True))]
+        else:
+            self._action = ActionServer(
+                self, MoveTo, 'move_to', execute_callback=self._execute_move,
+                goal_callback=self._accept_goal, cancel_callback=lambda _: CancelResponse.ACCEPT,
+                callback_group=MutuallyExclusiveCallbackGroup())
         self.create_service(GetGroundTruth, 'get_ground_truth', self._on_ground_truth,
                             callback_group=ReentrantCallbackGroup())
         self.create_service(MeasurePosition, 'laser_tracker/measure', self._on_laser,
@@ -142,6 +172,15 @@ class MockRobot(Node):
                 'Simulated motion time = real time * time_scale [1]; <0 = cell value')
         declare(self, 'joint_velocity', 1.0, 'Joint velocity at speed_scale 1 [rad/s]',
                 0.01, 10.0)
+        read_once(self, 'robot_interface', 'move_to',
+                  'move_to: serve the suite\'s MoveTo; driver: joint_states and '
+                  'FollowJointTrajectory only, as a ros2_control arm (robot_adapter serves move_to)')
+        if self._param('robot_interface') not in INTERFACES:
+            raise SystemExit(f'mock_robot: robot_interface {self._param("robot_interface")!r}; '
+                             f'use one of {", ".join(INTERFACES)}')
+        declare(self, 'driver_fault', '', 'driver mode, for tests: reject (every trajectory '
+                'goal), abort (half-way, PATH_TOLERANCE_VIOLATED), ring (never settles); '
+                'empty = none')
 
     def _param(self, name: str):
         return self.get_parameter(name).value
@@ -156,7 +195,10 @@ class MockRobot(Node):
         msg = self._joint_msg
         now = self.get_clock().now()
         msg.header.stamp = now.to_msg()
-        msg.position = self._robot.joint_reading().tolist()
+        q = self._robot.joint_reading()
+        if self._ringing:
+            q[0] += RING_AMPLITUDE * math.sin(2 * math.pi * RING_HZ * now.nanoseconds * 1e-9)
+        msg.position = q.tolist()
         self._js_pub.publish(msg)
         self._marks.add(now.nanoseconds // NS_PER_S)
         self._gaps.add(now.nanoseconds * 1e-9)
@@ -207,7 +249,7 @@ class MockRobot(Node):
             response.error_code = HandGuide.Response.BUSY
             response.message = 'the robot is moving (move_to); touch again when it stops'
             return response
-        self._moving = True
+        self._moving, self._ringing = True, False
         try:
             self._interpolate(lambda: False, None, q_target, 1.0)
         finally:
@@ -263,9 +305,24 @@ class MockRobot(Node):
         q_start = self._robot.q
         velocity = self._param('joint_velocity') * min(max(speed_scale, 0.01), 1.0)
         self._motion_s = float(np.max(np.abs(q_target - q_start))) / velocity   # simulated
-        duration = self._motion_s * self._time_scale
-        steps = max(1, int(duration / FEEDBACK_PERIOD))
         feedback = MoveTo.Feedback()
+
+        def step(q, progress):
+            if publish_feedback is not None:
+                feedback.progress, feedback.positions = progress, q.tolist()
+                publish_feedback(feedback)
+        if self._travel(cancel_requested, step, q_start, q_target, self._motion_s):
+            return True
+        self._robot.settle(q_target)
+        return False
+
+    def _travel(self, cancel_requested, step, q_start: np.ndarray, q_target: np.ndarray,
+                seconds: float, stop_at: float = 1.0) -> bool:
+        """Along a joint-space line in ``seconds`` of simulated time (smooth start and stop),
+        ``step(q, progress)`` after each step; stops at ``stop_at`` of the way (the arm is left
+        there). True when canceled (the arm comes to rest where it is)."""
+        duration = seconds * self._time_scale
+        steps = max(1, int(duration / FEEDBACK_PERIOD))
         for k in range(1, steps + 1):
             if cancel_requested():
                 self._robot.settle(self._robot.q)
@@ -274,13 +331,102 @@ class MockRobot(Node):
             s = s * s * (3.0 - 2.0 * s)  # smooth start and stop
             q = q_start + s * (q_target - q_start)
             self._robot.set_joints(q)
-            feedback.progress = k / steps
-            feedback.positions = q.tolist()
-            if publish_feedback is not None:
-                publish_feedback(feedback)
+            step(q, k / steps)
             time.sleep(duration / steps)
-        self._robot.settle(q_target)
+            if k / steps >= stop_at:
+                break
         return False
+
+    # -- driver mode: FollowJointTrajectory, as a joint_trajectory_controller ---------------
+    def _fault_changed(self, params) -> None:
+        if any(p.name == 'driver_fault' for p in params):
+            self._ringing = False
+
+    def _accept_trajectory(self, goal) -> GoalResponse:
+        if self._param('driver_fault') == 'reject' or self._moving:
+            return GoalResponse.REJECT
+        return GoalResponse.ACCEPT
+
+    def _trajectory_points(self, trajectory) -> list[tuple[np.ndarray, float]] | tuple[int, str]:
+        """[(joints in the model's order [rad], time from start [s])], or (error_code, why)."""
+        R = FollowJointTrajectory.Result
+        names = list(self._robot.model.joint_names)
+        if sorted(trajectory.joint_names) != sorted(names):
+            return R.INVALID_JOINTS, (f'the controller\'s joints are {names}, the goal has '
+                                      f'{list(trajectory.joint_names)}')
+        if not trajectory.points:
+            return R.INVALID_GOAL, 'the trajectory has no points'
+        order = [list(trajectory.joint_names).index(n) for n in names]
+        points, last = [], 0.0
+        for i, point in enumerate(trajectory.points):
+            t = point.time_from_start.sec + point.time_from_start.nanosec * 1e-9
+            if len(point.positions) != len(names) or t < last:
+                return R.INVALID_GOAL, (f'point {i}: {len(names)} positions at a time from '
+                                        'start after the previous point\'s expected')
+            q = self._robot.plan_joints(np.asarray(point.positions)[order])
+            if isinstance(q, Failure):
+                return R.INVALID_GOAL, f'point {i}: {q.message}'
+            points.append((q, t))
+            last = t
+        return points
+
+    def _follow(self, goal_handle, comply: bool):
+        """Execute a joint trajectory point by point, each segment in its time (simulated,
+        times time_scale); as a joint_trajectory_controller answers, with driver_fault."""
+        R = FollowJointTrajectory.Result
+        result = R()
+        points = self._trajectory_points(goal_handle.request.trajectory)
+        if isinstance(points, tuple):
+            goal_handle.abort()
+            result.error_code, result.error_string = points
+            return result
+        if not self._motion_lock.acquire(blocking=False):
+            goal_handle.abort()
+            result.error_code, result.error_string = R.INVALID_GOAL, 'robot busy (a touch)'
+            return result
+        self._moving, self._ringing = True, False
+        fault = self._param('driver_fault')
+        feedback = FollowJointTrajectory.Feedback(joint_names=list(self._robot.model.joint_names))
+
+        def step(q, _progress):
+            feedback.desired.positions = feedback.actual.positions = q.tolist()
+            goal_handle.publish_feedback(feedback)
+        try:
+            canceled, before = False, 0.0
+            for i, (q, t) in enumerate(points):
+                stop_at = 0.5 if fault == 'abort' and i == len(points) - 1 else 1.0
+                canceled = self._travel(lambda: goal_handle.is_cancel_requested, step,
+                                        self._robot.q, q, t - before, stop_at)
+                before = t
+                if canceled or stop_at < 1.0:
+                    break
+            if not canceled and fault == 'abort':
+                self._robot.settle(self._robot.q)
+                goal_handle.abort()
+                result.error_code = R.PATH_TOLERANCE_VIOLATED
+                result.error_string = (f'{self._robot.model.joint_names[0]} beyond its path '
+                                       'tolerance (driver_fault abort)')
+                return result
+            if not canceled:
+                self._robot.settle(points[-1][0])
+                if comply:
+                    complied = self._comply(points[-1][0])
+                    if isinstance(complied, Failure):
+                        goal_handle.abort()
+                        result.error_code, result.error_string = R.GOAL_TOLERANCE_VIOLATED, \
+                            complied.message
+                        return result
+                self._ringing = fault == 'ring'
+        finally:
+            self._moving = False
+            self._motion_lock.release()
+        if canceled:
+            goal_handle.canceled()
+            result.error_string = 'canceled'
+            return result
+        goal_handle.succeed()
+        result.error_code = R.SUCCESSFUL
+        return result
 
     def _comply(self, q_target: np.ndarray) -> bool | Failure:
         """Impedance control at the target: a coupling near a sphere self-centres on it (the

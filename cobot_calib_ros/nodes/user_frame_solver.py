@@ -29,6 +29,7 @@ from cobot_calib_msgs.srv import (CalibrateUserFrame, ConvertPoints, ListCalibra
 import numpy as np
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
+from visualization_msgs.msg import Marker, MarkerArray
 
 from cobot_calib_ros import paths, store
 from cobot_calib_ros.core import frames, kinematics, user_frame
@@ -39,7 +40,7 @@ from cobot_calib_ros.core.landmarks import views
 from cobot_calib_ros.core.robot_port import PortError
 from cobot_calib_ros.core.user_frame import landmarks as landmark_frames
 from cobot_calib_ros.loaders import load_cell
-from cobot_calib_ros.ros import convert, qos, results, spin
+from cobot_calib_ros.ros import convert, markers, qos, results, spin
 from cobot_calib_ros.ros.diagnostics import Diagnostics, OK, status_name, WARN
 from cobot_calib_ros.ros.params import declare, read_once
 from cobot_calib_ros.ros.landmark_views import active_hand_eye, CaptureMarks
@@ -126,6 +127,7 @@ class UserFrameSolver(Node):
         self._camera = LandmarkWatch(lambda: now_ns(self), self._answers.node)
         self._marks = CaptureMarks(self._answers.node, self._model.joint_names)
         self._pub = self.create_publisher(UserFrameCalibration, 'user_frame', qos.LATCHED)
+        self._markers = self.create_publisher(MarkerArray, markers.TOPIC, markers.QOS)
         self._tf = StaticBroadcaster(self)
         self._calibrator.node.create_service(CalibrateUserFrame, 'calibrate_user_frame',
                                              self._on_calibrate)
@@ -421,6 +423,7 @@ class UserFrameSolver(Node):
             msg = built if built is not None and built.id == record['id'] \
                 else record_to_msg(record)
             self._pub.publish(msg)
+            self._markers.publish(markers.user_frame_markers(msg, self._p('max_rms_error')))
             self._send_tf(msg.transform)
             self._latched_id = record['id']
             spin.log_info(self.get_logger(), f'active calibration {record["id"]}: latched '
@@ -456,6 +459,7 @@ class UserFrameSolver(Node):
         self.destroy_publisher(self._pub)
         self._pub = self.create_publisher(UserFrameCalibration, 'user_frame', qos.LATCHED)
         self._tf, self._tf_problem, self._latched_id = self._fresh_tf(), '', None
+        self._markers.publish(MarkerArray(markers=[Marker(action=Marker.DELETEALL)]))
         self.get_logger().info('no active calibration: nothing latched on user_frame and '
                                '/tf_static')
 

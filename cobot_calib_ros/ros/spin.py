@@ -207,6 +207,12 @@ def log_info(logger, message: str) -> None:
                                      caller.f_lineno)
 
 
+def pause(seconds: float) -> None:
+    """Sleep ``seconds``, or raise Stopping as soon as the process shuts down."""
+    if _stopping.wait(seconds):
+        raise Stopping('the node is shutting down')
+
+
 def wait(future, timeout: float):
     """Block this thread until ``future`` is done (another executor completes it); its result.
 

@@ -1,0 +1,118 @@
+"""The suite's topics on a Foxglove WebSocket server (foxglove-sdk), for ``cobot-calib view``.
+
+Every topic found on the graph (or the ones asked for) becomes a channel with the ``ros2msg``
+schema rosbag2 stores (bags.interfaces.full_text) and ``cdr`` messages passed through as
+received (a raw subscription: nothing is decoded), so Foxglove or Lichtblick shows the
+markers (ros.markers), /tf_static, user_frame, joint_states ... without a ROS install. A latched
+topic (every publisher transient local) keeps its last messages: a window that subscribes later
+gets them at once, as a late ROS subscriber would.
+"""
+from __future__ import annotations
+
+from collections import deque
+import queue
+import time
+from typing import Callable, Iterable
+
+import foxglove
+from foxglove.websocket import ServerListener
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy
+
+from cobot_calib_ros.bags.interfaces import full_text
+from cobot_calib_ros.ros.graph import subscription_qos
+
+SCAN_PERIOD = 1.0        # [s] between looks for new topics
+REPLAY_PERIOD = 0.05     # [s] between sends of latched messages to new subscribers
+LATCHED_KEPT = 8         # last messages kept per latched topic (one per publisher, typically)
+
+
+class _Subscribed(ServerListener):
+    """Hands the server's subscribe events (its own thread) to the node's thread."""
+
+    def __init__(self) -> None:
+        self.subscribed: queue.SimpleQueue[str] = queue.SimpleQueue()
+
+    def on_subscribe(self, client, channel) -> None:
+        self.subscribed.put(channel.topic)
+
+
+class LiveView(Node):
+    """Serves the topics on ``host``:``port`` until the node is destroyed."""
+
+    def __init__(self, host: str, port: int, topics: Iterable[str] = (), *,
+                 report: Callable[[str], None] = print, **kwargs) -> None:
+        super().__init__('cobot_calib_view', **kwargs)
+        self.report = report
+        self.wanted = {t if t.startswith('/') else '/' + t for t in topics} or None
+        self._listener = _Subscribed()
+        self.server = foxglove.start_server(name='cobot_calib_ros', host=host, port=port,
+                                            server_listener=self._listener)
+        self.channels: dict[str, foxglove.Channel] = {}
+        self._latched: dict[str, deque[bytes]] = {}
+        self._skipped: set[str] = set()
+        self.create_timer(SCAN_PERIOD, self._scan)
+        self.create_timer(REPLAY_PERIOD, self._replay)
+        self._scan()
+
+    @property
+    def port(self) -> int:
+        return self.server.port
+
+    def _scan(self) -> None:
+        for topic, _types in self.get_topic_names_and_types():
+            if topic in self.channels or topic in self._skipped:
+                continue
+            if self.wanted is not None and topic not in self.wanted:
+                continue
+            if self.wanted is None and any(part.startswith('_') for part in topic.split('/')):
+                continue                                    # hidden, as ros2 topic list
+            self._add(topic)
+
+    def _add(self, topic: str) -> None:
+        from cobot_calib_ros.ros.types import import_type
+        publishers = self.get_publishers_info_by_topic(topic)
+        types = sorted({p.topic_type for p in publishers})
+        if len(types) != 1:
+            if len(types) > 1:
+                self._skip(topic, f'published with several types ({", ".join(types)})')
+            return
+        try:
+            msg_class, schema = import_type(types[0]), full_text(types[0])
+        except Exception as e:  # noqa: BLE001 - an unknown type or definition: skip, say so
+            self._skip(topic, str(e))
+            return
+        self.channels[topic] = foxglove.Channel(
+            topic, message_encoding='cdr',
+            schema=foxglove.Schema(name=types[0], encoding='ros2msg', data=schema.encode()))
+        qos = subscription_qos(publishers, depth=LATCHED_KEPT)
+        if qos.durability == DurabilityPolicy.TRANSIENT_LOCAL:
+            self._latched[topic] = deque(maxlen=LATCHED_KEPT)
+        self.create_subscription(msg_class, topic, self._forward(topic), qos, raw=True)
+        self.report(f'streaming {topic} ({types[0]})')
+
+    def _skip(self, topic: str, why: str) -> None:
+        self._skipped.add(topic)
+        self.report(f'not streaming {topic}: {why}')
+
+    def _forward(self, topic: str):
+        channel, kept = self.channels[topic], self._latched.get(topic)
+
+        def on_message(data: bytes) -> None:
+            channel.log(data, log_time=time.time_ns())
+            if kept is not None:
+                kept.append(data)
+        return on_message
+
+    def _replay(self) -> None:
+        while True:
+            try:
+                topic = self._listener.subscribed.get_nowait()
+            except queue.Empty:
+                return
+            for data in self._latched.get(topic, ()):
+                self.channels[topic].log(data, log_time=time.time_ns())
+
+    def destroy_node(self):
+        self.server.stop()
+        return super().destroy_node()

@@ -1,0 +1,283 @@
+"""robot_adapter: the suite's ``move_to`` over a ros2_control arm.
+
+Serves ``move_to`` (cobot_calib_msgs/action/MoveTo), the one motion interface the calibration
+nodes use (ros.robot_calls.RobotCalls), by sending a control_msgs/FollowJointTrajectory goal to
+the arm's joint_trajectory_controller, then waiting on ``joint_states`` until the arm has
+settled (core.driver.SettleWatch) before it answers, so no capture starts on a ringing arm:
+- a joint target goes as is; a pose target is solved on the cell's kinematic model (nominal,
+  with the cell's tool offset), as a robot controller solves it, seeded at the current joints;
+- one trajectory point at max |dq| / (max_joint_velocity * velocity_scaling * speed_scale);
+- a compliant move goes to the preset's ``compliant_action`` (refused where there is none);
+- a cancel of move_to is forwarded to the controller;
+- every FollowJointTrajectory error code, a rejected goal and an arm that never settles answer
+  one clear message (core.driver) through the one failure type (core.errors, ros/results).
+The driver comes from a preset in config/driver_presets.yaml (``driver``: mock, ur, lbr, franka).
+``joint_states`` is taken raw and decoded only when needed (the latest message, and every
+message while settling), so the 1 kHz stream costs little.
+"""
+from __future__ import annotations
+
+import threading
+import time
+
+from cobot_calib_msgs.action import MoveTo
+from control_msgs.action import FollowJointTrajectory
+from action_msgs.msg import GoalStatus
+from builtin_interfaces.msg import Duration
+import numpy as np
+from rclpy.action import ActionClient, ActionServer, CancelResponse, GoalResponse
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.node import Node
+from rclpy.serialization import deserialize_message
+from sensor_msgs.msg import JointState
+from trajectory_msgs.msg import JointTrajectoryPoint
+import yaml
+
+from cobot_calib_ros import paths
+from cobot_calib_ros.core import driver, kinematics
+from cobot_calib_ros.core.errors import ErrorCode, Failure
+from cobot_calib_ros.loaders import load_cell
+from cobot_calib_ros.ros import convert, qos, results, spin
+from cobot_calib_ros.ros.params import read_once
+from cobot_calib_ros.ros.time import NS_PER_S
+
+ACCEPT_TIMEOUT = 10.0   # [s] for the controller to accept or reject a trajectory goal
+RESULT_MARGIN = 60.0    # [s] past the trajectory's end before a move is given up
+SERVER_WAIT = 5.0       # [s] for the controller's action server to be discovered
+POLL = 0.01             # [s] between looks at a cancel request while waiting
+
+
+class RobotAdapter(Node):
+    def __init__(self, **kwargs) -> None:
+        super().__init__('robot_adapter', **kwargs)
+        read_once(self, 'cell_file', paths.DEFAULT_CELL,
+                  'Cell YAML (robot model, tool, home): a path or a name in config/cells')
+        read_once(self, 'driver', 'mock', 'Driver preset: a name in presets_file')
+        read_once(self, 'presets_file', '',
+                  'Driver presets YAML; empty = config/driver_presets.yaml')
+        self._preset = self._load_preset()
+        cell = load_cell(paths.cell_file(self.get_parameter('cell_file').value))
+        self._home = cell.home
+        model = kinematics.model_for(cell)
+        self._model_names = tuple(model.joint_names)
+        self._chain = model.chain(tool=cell.tool_offset)
+        self._names = self._preset.joint_names or self._model_names
+        self._answers = spin.Companion(self, 'driver')
+        self._latest: bytes | None = None        # the last joint_states, raw
+        self._order = None     # (message joint names, index of each model joint in them)
+        self._watch: driver.SettleWatch | None = None   # set while settling
+        self._lock = threading.Lock()
+        self._answers.node.create_subscription(JointState, 'joint_states', self._on_joints,
+                                               qos.JOINT_STATES, raw=True)
+        self._trajectory_clients = {
+            name: ActionClient(self._answers.node, FollowJointTrajectory, name)
+            for name in {self._preset.action, self._preset.compliant_action} if name}
+        self._busy = False
+        ActionServer(self, MoveTo, 'move_to', execute_callback=self._execute,
+                     goal_callback=self._accept, cancel_callback=lambda _: CancelResponse.ACCEPT,
+                     callback_group=MutuallyExclusiveCallbackGroup())
+        self.get_logger().info(
+            f'driver {self._preset.name}: move_to -> {self._preset.action} '
+            f'({", ".join(self._names)}), settled below {self._preset.settle_speed} rad/s over '
+            f'{self._preset.settle_window} s')
+
+    def _load_preset(self) -> driver.DriverPreset:
+        given = self.get_parameter('presets_file').value
+        path = paths.config_dir() / 'driver_presets.yaml' if not given else paths.Path(given)
+        try:
+            presets = driver.parse_presets(yaml.safe_load(path.read_text()))
+        except (OSError, yaml.YAMLError) as e:
+            raise SystemExit(f'robot_adapter: cannot read the driver presets {path}: {e}')
+        if isinstance(presets, Failure):
+            raise SystemExit(f'robot_adapter: {path}: {presets.message}')
+        name = self.get_parameter('driver').value
+        if name not in presets:
+            raise SystemExit(f'robot_adapter: no driver preset {name!r} in {path}; known: '
+                             f'{", ".join(presets)}')
+        return presets[name]
+
+    # -- joint_states (companion thread) --------------------------------------------------
+    def _on_joints(self, raw: bytes) -> None:
+        self._latest = raw
+        watch = self._watch
+        if watch is not None:
+            t, q = self._decode(raw)
+            if not isinstance(q, Failure):
+                with self._lock:
+                    watch.add(t, q)
+
+    def _decode(self, raw: bytes) -> tuple[float, np.ndarray | Failure | None]:
+        """(stamp [s], joints in the model's order [rad]) of a raw joint_states message."""
+        msg = deserialize_message(raw, JointState)
+        if self._order is None or self._order[0] != msg.name:
+            order = driver.joint_order(self._preset.joint_names, self._model_names,
+                                       list(msg.name))
+            if isinstance(order, Failure):
+                return 0.0, order
+            self._order = (list(msg.name), order)
+        stamp = msg.header.stamp.sec + msg.header.stamp.nanosec / NS_PER_S
+        return stamp, np.asarray(msg.position)[self._order[1]]
+
+    def _current(self) -> np.ndarray | Failure:
+        if self._latest is None:
+            return Failure(ErrorCode.NO_DATA, 'no joint_states from the driver yet; is the '
+                           'joint_state_broadcaster running (and in this namespace)?')
+        return self._decode(self._latest)[1]
+
+    # -- move_to ----------------------------------------------------------------------------
+    def _accept(self, _goal) -> GoalResponse:
+        return GoalResponse.REJECT if self._busy else GoalResponse.ACCEPT
+
+    def _execute(self, goal_handle):
+        self._busy = True
+        result = MoveTo.Result()
+        try:
+            outcome = self._move(goal_handle)
+        except TimeoutError as e:        # spin.Stopping too: the node is shutting down
+            outcome = Failure(ErrorCode.MOTION_FAILED, f'{self._preset.action}: {e}')
+        finally:
+            self._busy = False
+        if outcome == 'canceled':
+            goal_handle.canceled()
+            result.error_code, result.message = MoveTo.Result.CANCELED, 'canceled'
+            return result
+        if isinstance(outcome, Failure):
+            goal_handle.abort()
+            results.fill(result, 'MoveTo', outcome)
+            self.get_logger().warning(f'move_to failed: {outcome.message}')
+            return result
+        q, seconds = outcome
+        goal_handle.succeed()
+        result.error_code, result.message = MoveTo.Result.SUCCESS, 'reached and settled'
+        result.positions, result.duration = q.tolist(), seconds
+        return result
+
+    def _move(self, goal_handle):
+        """(target joints, trajectory seconds), 'canceled', or a Failure."""
+        goal = goal_handle.request
+        q_now = self._current()
+        if isinstance(q_now, Failure):
+            return q_now
+        q_target = self._target(goal, q_now)
+        if isinstance(q_target, Failure):
+            return q_target
+        action = self._preset.compliant_action if goal.compliant else self._preset.action
+        if not action:
+            return Failure(ErrorCode.NOT_AVAILABLE, f'driver {self._preset.name} has no '
+                           'compliant controller (compliant_action in its preset): collect '
+                           'spheres with an impedance/admittance trajectory controller')
+        seconds = self._preset.move_seconds(q_now, q_target, goal.speed_scale)
+        ended = self._follow(goal_handle, action, q_target, seconds)
+        if ended is not None:
+            return ended
+        settled = self._settle(goal_handle)
+        return settled if settled is not None else (q_target, seconds)
+
+    def _target(self, goal, q_now: np.ndarray) -> np.ndarray | Failure:
+        chain = self._chain
+        if goal.target_type == MoveTo.Goal.TARGET_JOINTS:
+            q = np.asarray(goal.positions, dtype=float)
+            if q.shape != q_now.shape or not np.all(np.isfinite(q)):
+                return Failure(ErrorCode.INVALID_INPUT, f'expected {len(q_now)} finite joint '
+                               f'positions [rad], got {q.tolist()}')
+            bad = np.flatnonzero((q < chain.lower) | (q > chain.upper))
+            if bad.size:
+                return Failure(ErrorCode.INVALID_INPUT, 'joint target outside the limits of '
+                               f'{[self._model_names[i] for i in bad]}')
+            return q
+        if goal.target_type == MoveTo.Goal.TARGET_POSE:
+            T = convert.pose_to_matrix(goal.pose)
+            if not np.all(np.isfinite(T)):
+                return Failure(ErrorCode.INVALID_INPUT, 'target pose has NaN or inf')
+            solved = kinematics.solve_ik_with_restarts(chain, T, q_now, self._home)
+            if not solved:
+                return Failure(ErrorCode.MOTION_FAILED,
+                               f'no inverse kinematics solution: {solved.message}')
+            return solved.q
+        return Failure(ErrorCode.INVALID_INPUT, f'unknown target_type {goal.target_type}; use '
+                       'TARGET_JOINTS or TARGET_POSE')
+
+    def _follow(self, goal_handle, action: str, q: np.ndarray, seconds: float):
+        """Run one trajectory to its end: None when it succeeded, else 'canceled' or why."""
+        client = self._trajectory_clients[action]
+        if not client.wait_for_server(timeout_sec=SERVER_WAIT):
+            return Failure(ErrorCode.NOT_AVAILABLE, f'no {action} action server; is the driver '
+                           f'up and its trajectory controller active (driver {self._preset.name})?')
+        goal = FollowJointTrajectory.Goal()
+        goal.trajectory.joint_names = list(self._names)
+        goal.trajectory.points = [JointTrajectoryPoint(
+            positions=q.tolist(), velocities=[0.0] * len(q), time_from_start=_duration(seconds))]
+        goal.goal_time_tolerance = _duration(self._preset.goal_time_tolerance)
+        executor = self._answers._executor
+        sent = spin.wait(executor.create_task(client.send_goal_async, goal), ACCEPT_TIMEOUT)
+        handle = spin.wait(sent, ACCEPT_TIMEOUT)
+        if not handle.accepted:
+            return driver.rejected(action)
+        with self._lock:
+            self._watch = driver.SettleWatch(self._preset.settle_speed,
+                                             self._preset.settle_window)
+        done = spin.wait(executor.create_task(handle.get_result_async), ACCEPT_TIMEOUT)
+        deadline = time.monotonic() + seconds + self._preset.goal_time_tolerance + RESULT_MARGIN
+        canceling = False
+        while True:
+            try:
+                answer = spin.wait(done, POLL)
+                break
+            except spin.Stopping:            # the node is shutting down: stop the arm too
+                executor.create_task(handle.cancel_goal_async)
+                raise
+            except TimeoutError:
+                pass
+            if goal_handle.is_cancel_requested and not canceling:
+                executor.create_task(handle.cancel_goal_async)    # forwarded
+                canceling = True
+            if time.monotonic() > deadline:
+                executor.create_task(handle.cancel_goal_async)
+                return Failure(ErrorCode.MOTION_FAILED, f'{action} did not end the move within '
+                               f'{seconds + RESULT_MARGIN:.0f} s; the goal was canceled')
+        if canceling:
+            return 'canceled'
+        code = answer.result.error_code
+        if code != FollowJointTrajectory.Result.SUCCESSFUL:
+            return driver.trajectory_failure(action, code, answer.result.error_string)
+        if answer.status != GoalStatus.STATUS_SUCCEEDED:
+            return driver.aborted_without_code(action, _status_name(answer.status))
+        return None
+
+    def _settle(self, goal_handle):
+        """None once the arm is at rest (SettleWatch), else 'canceled' or the failure."""
+        started = time.monotonic()
+        try:
+            while time.monotonic() - started < self._preset.settle_timeout:
+                if goal_handle.is_cancel_requested:
+                    return 'canceled'
+                with self._lock:
+                    if self._watch.settled():
+                        return None
+                spin.pause(POLL)
+            with self._lock:
+                return driver.not_settled(self._watch, self._names, self._preset.settle_timeout)
+        finally:
+            self._watch = None
+
+    def destroy_node(self):
+        self._answers.destroy()
+        return super().destroy_node()
+
+
+def _duration(seconds: float) -> Duration:
+    ns = int(round(seconds * NS_PER_S))
+    return Duration(sec=ns // NS_PER_S, nanosec=ns % NS_PER_S)
+
+
+def _status_name(status: int) -> str:
+    return {GoalStatus.STATUS_ABORTED: 'aborted', GoalStatus.STATUS_CANCELED: 'canceled'}.get(
+        status, f'with status {status}')
+
+
+def main(args=None) -> None:
+    spin.run(RobotAdapter, args, threads=3)
+
+
+if __name__ == '__main__':
+    main()

@@ -1,0 +1,89 @@
+"""A minimal Foxglove WebSocket protocol client on the standard library, for tests: connect,
+read the advertised channels, subscribe, read message data (RFC 6455 frames, client-masked)."""
+from __future__ import annotations
+
+import base64
+import json
+import os
+import socket
+import struct
+import time
+
+PROTOCOLS = 'foxglove.sdk.v1, foxglove.websocket.v1'
+MESSAGE_DATA = 0x01          # binary opcode of the protocol: a message on a subscription
+
+
+class FoxgloveClient:
+    def __init__(self, host: str, port: int, timeout: float = 10.0) -> None:
+        self.sock = socket.create_connection((host, port), timeout=timeout)
+        key = base64.b64encode(os.urandom(16)).decode()
+        self.sock.sendall((f'GET / HTTP/1.1\r\nHost: {host}:{port}\r\nUpgrade: websocket\r\n'
+                           f'Connection: Upgrade\r\nSec-WebSocket-Key: {key}\r\n'
+                           f'Sec-WebSocket-Version: 13\r\nSec-WebSocket-Protocol: {PROTOCOLS}'
+                           '\r\n\r\n').encode())
+        head = b''
+        while b'\r\n\r\n' not in head:
+            head += self.sock.recv(1)
+        status = head.split(b'\r\n', 1)[0]
+        if b' 101 ' not in status:
+            raise ConnectionError(f'no WebSocket upgrade: {status!r}')
+        self.channels: dict[int, dict] = {}
+
+    def _exact(self, n: int) -> bytes:
+        data = b''
+        while len(data) < n:
+            chunk = self.sock.recv(n - len(data))
+            if not chunk:
+                raise ConnectionError('server closed the connection')
+            data += chunk
+        return data
+
+    def frame(self) -> tuple[int, bytes]:
+        """(opcode, payload) of the next data frame (continuations joined)."""
+        opcode, payload = None, b''
+        while True:
+            b0, b1 = self._exact(2)
+            n = b1 & 0x7F
+            if n == 126:
+                n = struct.unpack('>H', self._exact(2))[0]
+            elif n == 127:
+                n = struct.unpack('>Q', self._exact(8))[0]
+            data = self._exact(n)
+            op = b0 & 0x0F
+            if op in (0x9, 0xA):            # ping / pong
+                continue
+            opcode = op if op else opcode
+            payload += data
+            if b0 & 0x80:
+                return opcode, payload
+
+    def send_json(self, obj: dict) -> None:
+        data, mask = json.dumps(obj).encode(), os.urandom(4)
+        n = len(data)
+        head = bytes([0x81]) + (bytes([0x80 | n]) if n < 126 else
+                                bytes([0x80 | 126]) + struct.pack('>H', n))
+        self.sock.sendall(head + mask + bytes(b ^ mask[i % 4] for i, b in enumerate(data)))
+
+    def message(self, topic: str, timeout: float) -> tuple[dict, bytes]:
+        """Subscribe to ``topic`` once it is advertised; (its channel, the first payload)."""
+        deadline, wanted = time.monotonic() + timeout, None
+        while time.monotonic() < deadline:
+            opcode, payload = self.frame()
+            if opcode == 0x1:
+                msg = json.loads(payload)
+                if msg.get('op') == 'advertise':
+                    for channel in msg['channels']:
+                        self.channels[channel['id']] = channel
+                        if channel['topic'] == topic and wanted is None:
+                            wanted = channel
+                            self.send_json({'op': 'subscribe', 'subscriptions': [
+                                {'id': 1, 'channelId': channel['id']}]})
+            elif opcode == 0x2 and payload[0] == MESSAGE_DATA and wanted is not None:
+                subscription, _stamp = struct.unpack('<IQ', payload[1:13])
+                if subscription == 1:
+                    return wanted, payload[13:]
+        raise TimeoutError(f'no message on {topic} within {timeout} s '
+                           f'(advertised: {[c["topic"] for c in self.channels.values()]})')
+
+    def close(self) -> None:
+        self.sock.close()
