@@ -25,6 +25,7 @@ from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
+from visualization_msgs.msg import MarkerArray
 
 from cobot_calib_ros import paths, store
 from cobot_calib_ros.core import kinematics
@@ -42,7 +43,7 @@ from cobot_calib_ros.bags.errors import BagError
 from cobot_calib_ros.bags.sphere_captures import is_bag, sphere_observations
 from cobot_calib_ros.core.ids import record_id
 from cobot_calib_ros.loaders import load_cell
-from cobot_calib_ros.ros import marks, results, spin
+from cobot_calib_ros.ros import markers, marks, results, spin
 from cobot_calib_ros.ros.diagnostics import Diagnostics, OK, WARN
 from cobot_calib_ros.ros.params import declare, read_once
 from cobot_calib_ros.ros.robot_calls import RobotCalls
@@ -109,6 +110,12 @@ class KinematicIdentifier(Node):
         self._health.set(OK, 'idle', job='')
         # every recorded pose, for recording a session (cobot-calib record); frame_id = target
         self._captures = self.create_publisher(JointState, marks.CAPTURES, 100)
+        # the live view: sphere centres and the coupling positions collected on them
+        self._markers = self.create_publisher(MarkerArray, markers.TOPIC, markers.QOS)
+        self._collected: list[np.ndarray] = []
+        spheres = self._cell.spheres
+        self._coupling = None if spheres is None else self._model.chain(
+            tool=spheres.coupling_offset)
         group = ReentrantCallbackGroup()
         self._collect = ActionServer(
             self, Collect, 'collect_sphere_data', execute_callback=self._on_collect,
@@ -329,10 +336,14 @@ class KinematicIdentifier(Node):
         feedback = Collect.Feedback(total=len(plan))
         start = self._robot.robot_seconds
 
+        self._collected = []
+
         def on_pose(record, capture, run) -> None:
             feedback.index = record.index
             feedback.target = 'tracker' if laser else meta['targets'][record.target]
             self._publish_capture(feedback.target, capture)
+            if not laser and self._coupling is not None:
+                self._publish_markers(capture.q)
             feedback.recorded, feedback.skipped = run.recorded, run.skipped
             feedback.robot_time = self._robot.robot_seconds - start
             goal_handle.publish_feedback(feedback)
@@ -346,6 +357,13 @@ class KinematicIdentifier(Node):
         if run.ending is Ending.DONE:
             return Collect.Result.SUCCESS, f'per pose: {run.per_pose()}', time
         return (*self._ended(run, collection_id), time)
+
+    def _publish_markers(self, q: np.ndarray) -> None:
+        """The nominal sphere centres and the coupling at every pose so far (nominal model)."""
+        self._collected.append(kinematics.fk(self._coupling, q)[:3, 3])
+        self._markers.publish(markers.sphere_markers(
+            self._cell.base_frame, self.get_clock().now().to_msg(), self._cell.spheres.centres_base(),
+            np.array(self._collected)))
 
     def _publish_capture(self, target: str, capture) -> None:
         self._captures.publish(marks.capture_mark(target, self._model.joint_names,

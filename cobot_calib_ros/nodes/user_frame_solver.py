@@ -29,7 +29,7 @@ from cobot_calib_msgs.srv import (CalibrateUserFrame, ConvertPoints, ListCalibra
 import numpy as np
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
-from visualization_msgs.msg import Marker, MarkerArray
+from visualization_msgs.msg import MarkerArray
 
 from cobot_calib_ros import paths, store
 from cobot_calib_ros.core import frames, kinematics, user_frame
@@ -459,7 +459,7 @@ class UserFrameSolver(Node):
         self.destroy_publisher(self._pub)
         self._pub = self.create_publisher(UserFrameCalibration, 'user_frame', qos.LATCHED)
         self._tf, self._tf_problem, self._latched_id = self._fresh_tf(), '', None
-        self._markers.publish(MarkerArray(markers=[Marker(action=Marker.DELETEALL)]))
+        self._markers.publish(markers.cleared(markers.USER_FRAME_LAYERS))
         self.get_logger().info('no active calibration: nothing latched on user_frame and '
                                '/tf_static')
 

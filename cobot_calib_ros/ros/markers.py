@@ -1,16 +1,17 @@
 """The live view's markers (visualization_msgs/MarkerArray, latched on ``cobot_calib/markers``):
 what a calibration measured, for RViz, Foxglove or Lichtblick (``cobot-calib view``).
 
-One ``ns`` per layer, each array starting with a DELETEALL of its own layers, so a new result
-replaces the last one of the same producer; every marker is in the base frame [m]:
+One ``ns`` per layer, each array starting with a DELETEALL of each of its own layers (RViz 2
+clears only that ``ns``), so a new result replaces the last one of the same producer and leaves
+the other producers' layers; every marker is in the base frame [m]:
 - ``user_frame/points``: the touched (measured) points, SPHERE_LIST, red where an outlier;
 - ``user_frame/residuals``: an ARROW per point, measured -> fitted, drawn RESIDUAL_GAIN times
   longer (0.1 mm shows as 1 cm), green to red as |r| goes from 0 to the fit's gate;
 - ``user_frame/frame``: the user frame's axes, three ARROWs (x red, y green, z blue);
 - ``user_frame/labels``: the point names;
-- ``kinematics/spheres`` and ``kinematics/poses``: the sphere centres and the coupling
-  positions collected on them (kinematic_identifier);
-- ``landmarks/frames``: the axes of each landmark seen (landmark calibrations).
+- ``kinematics/spheres`` and ``kinematics/poses``: the sphere centres (nominal) and the
+  coupling positions collected on them so far (nominal model; kinematic_identifier).
+A landmark calibration's landmarks show as its points (user_frame/points).
 """
 from __future__ import annotations
 
@@ -45,12 +46,23 @@ def gate_colour(norm: float, gate: float) -> tuple[float, float, float]:
             GREEN[2] + f * (RED[2] - GREEN[2]))
 
 
-class Layers:
-    """A MarkerArray under construction, for one frame; ids count per ns."""
+USER_FRAME_LAYERS = ('user_frame/points', 'user_frame/residuals', 'user_frame/frame',
+                     'user_frame/labels')
+SPHERE_LAYERS = ('kinematics/spheres', 'kinematics/poses')
 
-    def __init__(self, frame_id: str, stamp) -> None:
+
+def cleared(layers: tuple[str, ...]) -> MarkerArray:
+    """Only the DELETEALLs of these layers: what a producer latches when it has nothing."""
+    return MarkerArray(markers=[Marker(ns=ns, action=Marker.DELETEALL) for ns in layers])
+
+
+class Layers:
+    """A MarkerArray under construction, for one frame, clearing ``layers`` first; ids count
+    per ns."""
+
+    def __init__(self, frame_id: str, stamp, layers: tuple[str, ...]) -> None:
         self.frame_id, self.stamp = frame_id, stamp
-        self.array = MarkerArray(markers=[Marker(action=Marker.DELETEALL)])
+        self.array = cleared(layers)
         self._ids: dict[str, int] = {}
 
     def add(self, ns: str, kind: int, scale, colour=WHITE, **fields) -> Marker:
@@ -91,7 +103,7 @@ class Layers:
 def user_frame_markers(calibration, gate: float) -> MarkerArray:
     """The layers of one cobot_calib_msgs/UserFrameCalibration; ``gate`` [m]: the residual
     that shows fully red (the solver's RMS limit)."""
-    layers = Layers(calibration.transform.header.frame_id, calibration.stamp)
+    layers = Layers(calibration.transform.header.frame_id, calibration.stamp, USER_FRAME_LAYERS)
     residuals = calibration.residuals
     measured = np.array([[r.point_base.x, r.point_base.y, r.point_base.z] for r in residuals])
     if len(residuals):
@@ -109,17 +121,9 @@ def user_frame_markers(calibration, gate: float) -> MarkerArray:
 
 def sphere_markers(frame_id: str, stamp, centres, collected) -> MarkerArray:
     """The sphere plate's centres and the coupling positions collected on them [m] (base)."""
-    layers = Layers(frame_id, stamp)
+    layers = Layers(frame_id, stamp, SPHERE_LAYERS)
     if len(centres):
         layers.points('kinematics/spheres', centres, diameter=0.025)
     if len(collected):
         layers.points('kinematics/poses', collected, [BLUE] * len(collected), diameter=0.006)
-    return layers.array
-
-
-def landmark_markers(frame_id: str, stamp, T_base_landmarks) -> MarkerArray:
-    """The axes of each landmark (4, 4) in base."""
-    layers = Layers(frame_id, stamp)
-    for T in T_base_landmarks:
-        layers.axes('landmarks/frames', np.asarray(T), length=0.04)
     return layers.array

@@ -68,7 +68,11 @@ class FoxgloveClient:
         """Subscribe to ``topic`` once it is advertised; (its channel, the first payload)."""
         deadline, wanted = time.monotonic() + timeout, None
         while time.monotonic() < deadline:
-            opcode, payload = self.frame()
+            self.sock.settimeout(max(0.1, deadline - time.monotonic()))
+            try:
+                opcode, payload = self.frame()
+            except TimeoutError:
+                break
             if opcode == 0x1:
                 msg = json.loads(payload)
                 if msg.get('op') == 'advertise':
