@@ -47,7 +47,7 @@ from cobot_calib_ros.core.sensors.joint_buffer import StampGaps, StampMarks
 from cobot_calib_ros.ros import convert, qos, results, spin
 from cobot_calib_ros.ros.diagnostics import Diagnostics, ERROR, OK, RateMeter, WARN
 from cobot_calib_ros.ros.params import declare, read_once
-from cobot_calib_ros.ros.time import NS_PER_S
+from cobot_calib_ros.ros.time import ns_to_s, NS_PER_S, stamp_to_ns
 from cobot_calib_ros.sim.robot import SimRobot
 from cobot_calib_ros.sim.scenario import load_simulation
 
@@ -197,7 +197,7 @@ class MockRobot(Node):
         msg.header.stamp = now.to_msg()
         q = self._robot.joint_reading()
         if self._ringing:
-            q[0] += RING_AMPLITUDE * math.sin(2 * math.pi * RING_HZ * now.nanoseconds * 1e-9)
+            q[0] += RING_AMPLITUDE * math.sin(2 * math.pi * RING_HZ * ns_to_s(now.nanoseconds))
         msg.position = q.tolist()
         self._js_pub.publish(msg)
         self._marks.add(now.nanoseconds // NS_PER_S)
@@ -359,7 +359,7 @@ class MockRobot(Node):
         order = [list(trajectory.joint_names).index(n) for n in names]
         points, last = [], 0.0
         for i, point in enumerate(trajectory.points):
-            t = point.time_from_start.sec + point.time_from_start.nanosec * 1e-9
+            t = ns_to_s(stamp_to_ns(point.time_from_start))
             if len(point.positions) != len(names) or t < last:
                 return R.INVALID_GOAL, (f'point {i}: {len(names)} positions at a time from '
                                         'start after the previous point\'s expected')

@@ -39,7 +39,7 @@ from cobot_calib_ros.core.errors import ErrorCode, Failure
 from cobot_calib_ros.loaders import load_cell
 from cobot_calib_ros.ros import convert, qos, results, spin
 from cobot_calib_ros.ros.params import read_once
-from cobot_calib_ros.ros.time import NS_PER_S
+from cobot_calib_ros.ros.time import header_ns, ns_to_s, s_to_ns, split_ns
 
 ACCEPT_TIMEOUT = 10.0   # [s] for the controller to accept or reject a trajectory goal
 RESULT_MARGIN = 60.0    # [s] past the trajectory's end before a move is given up
@@ -115,8 +115,7 @@ class RobotAdapter(Node):
             if isinstance(order, Failure):
                 return 0.0, order
             self._order = (list(msg.name), order)
-        stamp = msg.header.stamp.sec + msg.header.stamp.nanosec / NS_PER_S
-        return stamp, np.asarray(msg.position)[self._order[1]]
+        return ns_to_s(header_ns(msg)), np.asarray(msg.position)[self._order[1]]
 
     def _current(self) -> np.ndarray | Failure:
         if self._latest is None:
@@ -266,8 +265,8 @@ class RobotAdapter(Node):
 
 
 def _duration(seconds: float) -> Duration:
-    ns = int(round(seconds * NS_PER_S))
-    return Duration(sec=ns // NS_PER_S, nanosec=ns % NS_PER_S)
+    sec, nanosec = split_ns(s_to_ns(seconds))
+    return Duration(sec=sec, nanosec=nanosec)
 
 
 def _status_name(status: int) -> str:
