@@ -32,6 +32,8 @@ SERVER_WAIT = 5.0       # [s] for move_to / capture_joints to be discovered
 MOVE_TIMEOUT = 120.0    # [s] for one move_to to finish (every caller's bound on a hung move)
 TOUCH_TIMEOUT = 600.0   # [s] for the operator to guide the tool onto a point and confirm
 HAND_GUIDE = 'mock_robot/hand_guide'
+NO_MOVE_TO = ('move_to action server not available (is mock_robot up, or robot_adapter beside '
+              'a driver?)')
 CAPTURE_ATTEMPTS = 4
 CAPTURE_RETRY_PAUSE = 0.2   # [s], times the attempt: lets a starved joint_states stream recover
 
@@ -67,7 +69,7 @@ class RobotCalls:
         """'' when move_to, capture_joints and probe/average answer, else what is missing."""
         missing = []
         if not self.move_client.wait_for_server(timeout_sec=timeout):
-            missing.append('move_to (mock_robot)')
+            missing.append('move_to (mock_robot, or robot_adapter for a driver)')
         for client, who in ((self.capture_client, 'joint_state_monitor'),
                             (self.probe_client, 'proximity_sensor')):
             if not client.wait_for_service(timeout_sec=timeout):
@@ -77,11 +79,11 @@ class RobotCalls:
     def move(self, goal: MoveTo.Goal) -> MoveTo.Result:
         """Run a move_to goal to its end (MOVE_TIMEOUT); MoveFailed unless it succeeded."""
         if not self.move_client.wait_for_server(timeout_sec=SERVER_WAIT):
-            raise MoveFailed('move_to action server not available (is mock_robot up?)')
+            raise MoveFailed(NO_MOVE_TO)
         try:
             result = self._answers.run_action(self.move_client, goal, 10.0, MOVE_TIMEOUT)
         except TimeoutError as e:
-            raise MoveFailed(f'move_to: {e}; is mock_robot up?')
+            raise MoveFailed(f'move_to: {e}; is mock_robot (or robot_adapter) up?')
         if result is None:
             raise MoveFailed('move_to rejected the goal (robot busy)')
         if result.error_code != MoveTo.Result.SUCCESS:
@@ -94,7 +96,7 @@ class RobotCalls:
         mock_robot/hand_guide answers, else the operator, who confirms (TOUCH_TIMEOUT). The
         robot's move_to must be up either way (what it moves next, and a sign of a driver)."""
         if not self.move_client.wait_for_server(timeout_sec=SERVER_WAIT):    # no robot at all
-            raise MoveFailed('move_to action server not available (is mock_robot up?)')
+            raise MoveFailed(NO_MOVE_TO)
         if self._simulated_operator is None:
             self._simulated_operator = self._hand_guide.wait_for_service(timeout_sec=SERVER_WAIT)
         if self._simulated_operator:

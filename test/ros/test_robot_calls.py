@@ -20,7 +20,7 @@ from cobot_calib_ros.ros.calls import spin_until
 from cobot_calib_ros.nodes.joint_state_monitor import JointStateMonitor
 from cobot_calib_ros.ros import spin
 from cobot_calib_ros.ros.diagnostics import Diagnostics, status_name
-from cobot_calib_ros.ros.robot_calls import CAPTURE_ATTEMPTS, RobotCallError, RobotCalls
+from cobot_calib_ros.ros.robot_calls import CAPTURE_ATTEMPTS, NO_MOVE_TO, RobotCallError, RobotCalls
 from cobot_calib_ros.ros.spin import Companion, wait
 
 NS = 'starved_calls'
@@ -165,6 +165,6 @@ def test_a_touch_without_a_robot_names_the_driver_to_start():
         outcome = []
         _touch_in_thread(calls, 'P1', outcome)
         answers.destroy()
-        assert outcome == ['move_to action server not available (is mock_robot up?)']
+        assert outcome == [NO_MOVE_TO]
     finally:
         rclpy.try_shutdown(context=context)
