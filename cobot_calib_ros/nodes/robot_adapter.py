@@ -166,11 +166,14 @@ class RobotAdapter(Node):
                            'compliant controller (compliant_action in its preset): collect '
                            'spheres with an impedance/admittance trajectory controller')
         seconds = self._preset.move_seconds(q_now, q_target, goal.speed_scale)
-        ended = self._follow(goal_handle, action, q_target, seconds)
-        if ended is not None:
-            return ended
-        settled = self._settle(goal_handle)
-        return settled if settled is not None else (q_target, seconds)
+        try:
+            ended = self._follow(goal_handle, action, q_target, seconds)
+            if ended is not None:
+                return ended
+            settled = self._settle(goal_handle)
+            return settled if settled is not None else (q_target, seconds)
+        finally:
+            self._watch = None             # joint_states are decoded only while settling
 
     def _target(self, goal, q_now: np.ndarray) -> np.ndarray | Failure:
         chain = self._chain
@@ -212,9 +215,6 @@ class RobotAdapter(Node):
         handle = spin.wait(sent, ACCEPT_TIMEOUT)
         if not handle.accepted:
             return driver.rejected(action)
-        with self._lock:
-            self._watch = driver.SettleWatch(self._preset.settle_speed,
-                                             self._preset.settle_window)
         done = spin.wait(executor.create_task(handle.get_result_async), ACCEPT_TIMEOUT)
         deadline = time.monotonic() + seconds + self._preset.goal_time_tolerance + RESULT_MARGIN
         canceling = False
@@ -244,20 +244,21 @@ class RobotAdapter(Node):
         return None
 
     def _settle(self, goal_handle):
-        """None once the arm is at rest (SettleWatch), else 'canceled' or the failure."""
+        """None once the arm is at rest (SettleWatch over readings taken after the trajectory
+        ended: at least one whole window of them), else 'canceled' or the failure."""
+        with self._lock:       # the readings from the trajectory's end on
+            self._watch = driver.SettleWatch(self._preset.settle_speed,
+                                             self._preset.settle_window)
         started = time.monotonic()
-        try:
-            while time.monotonic() - started < self._preset.settle_timeout:
-                if goal_handle.is_cancel_requested:
-                    return 'canceled'
-                with self._lock:
-                    if self._watch.settled():
-                        return None
-                spin.pause(POLL)
+        while time.monotonic() - started < self._preset.settle_timeout:
+            if goal_handle.is_cancel_requested:
+                return 'canceled'
             with self._lock:
-                return driver.not_settled(self._watch, self._names, self._preset.settle_timeout)
-        finally:
-            self._watch = None
+                if self._watch.settled():
+                    return None
+            spin.pause(POLL)
+        with self._lock:
+            return driver.not_settled(self._watch, self._names, self._preset.settle_timeout)
 
     def destroy_node(self):
         self._answers.destroy()
