@@ -34,6 +34,7 @@ STRING_HOMES = {
     '/cobot_calib/captures': PACKAGE / 'ros' / 'marks.py',
     'cobot_calib/probe_averages': PACKAGE / 'ros' / 'marks.py',
     '/cobot_calib/probe_averages': PACKAGE / 'ros' / 'marks.py',
+    'cobot_calib/markers': PACKAGE / 'ros' / 'markers.py',
     'sawyer_close': PACKAGE / 'paths.py',
 }
 
