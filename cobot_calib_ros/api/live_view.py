@@ -23,7 +23,10 @@ from cobot_calib_ros.bags.interfaces import full_text
 from cobot_calib_ros.ros.graph import subscription_qos
 
 SCAN_PERIOD = 1.0        # [s] between looks for new topics
-REPLAY_PERIOD = 0.05     # [s] between sends of latched messages to new subscribers
+REPLAY_PERIOD = 0.05     # [s] between looks for latched messages due to new subscribers
+# [s] after a window subscribes, its latched messages are sent (twice: the server may tell of
+# a subscription before it routes messages to it; a marker or frame sent twice shows once)
+REPLAY_AFTER = (0.2, 1.0)
 LATCHED_KEPT = 8         # last messages kept per latched topic (one per publisher, typically)
 
 
@@ -31,10 +34,12 @@ class _Subscribed(ServerListener):
     """Hands the server's subscribe events (its own thread) to the node's thread."""
 
     def __init__(self) -> None:
-        self.subscribed: queue.SimpleQueue[str] = queue.SimpleQueue()
+        self.subscribed: queue.SimpleQueue[tuple[float, str]] = queue.SimpleQueue()
 
     def on_subscribe(self, client, channel) -> None:
-        self.subscribed.put(channel.topic)
+        now = time.monotonic()
+        for after in REPLAY_AFTER:
+            self.subscribed.put((now + after, channel.topic))
 
 
 class LiveView(Node):
@@ -51,6 +56,7 @@ class LiveView(Node):
         self.channels: dict[str, foxglove.Channel] = {}
         self._latched: dict[str, deque[bytes]] = {}
         self._skipped: set[str] = set()
+        self._due: list[tuple[float, str]] = []     # (monotonic time, topic) of replays
         self.create_timer(SCAN_PERIOD, self._scan)
         self.create_timer(REPLAY_PERIOD, self._replay)
         self._scan()
@@ -107,9 +113,12 @@ class LiveView(Node):
     def _replay(self) -> None:
         while True:
             try:
-                topic = self._listener.subscribed.get_nowait()
+                self._due.append(self._listener.subscribed.get_nowait())
             except queue.Empty:
-                return
+                break
+        now = time.monotonic()
+        for due, topic in [d for d in self._due if d[0] <= now]:
+            self._due.remove((due, topic))
             for data in self._latched.get(topic, ()):
                 self.channels[topic].log(data, log_time=time.time_ns())
 
