@@ -23,6 +23,8 @@ from cobot_calib_ros.bags.interfaces import full_text
 from cobot_calib_ros.ros.graph import subscription_qos
 
 SCAN_PERIOD = 1.0        # [s] between looks for new topics
+DISCOVERY_WAIT = 5.0     # [s] at most, for the topics on the graph before the server listens
+DISCOVERY_QUIET = 1.5    # [s] of no new topic: discovery is taken as done
 REPLAY_PERIOD = 0.05     # [s] between looks for latched messages due to new subscribers
 # [s] after a window subscribes, its latched messages are sent (twice: the server may tell of
 # a subscription before it routes messages to it; a marker or frame sent twice shows once)
@@ -51,15 +53,33 @@ class LiveView(Node):
         self.report = report
         self.wanted = {t if t.startswith('/') else '/' + t for t in topics} or None
         self._listener = _Subscribed()
-        self.server = foxglove.start_server(name='cobot_calib_ros', host=host, port=port,
-                                            server_listener=self._listener)
         self.channels: dict[str, foxglove.Channel] = {}
         self._latched: dict[str, deque[bytes]] = {}
         self._skipped: set[str] = set()
         self._due: list[tuple[float, str]] = []     # (monotonic time, topic) of replays
+        self._discover()
+        self.server = foxglove.start_server(name='cobot_calib_ros', host=host, port=port,
+                                            server_listener=self._listener)
         self.create_timer(SCAN_PERIOD, self._scan)
         self.create_timer(REPLAY_PERIOD, self._replay)
-        self._scan()
+
+    def _discover(self) -> None:
+        """The channels of the topics on the graph now, before the server listens: a window
+        that subscribes to a channel advertised a moment ago can be told it is unknown (seen
+        with foxglove-sdk 0.30.3), so the suite's topics are there before anyone connects.
+        Until every wanted topic is found, or the topic list held still for DISCOVERY_QUIET s,
+        at most DISCOVERY_WAIT s."""
+        deadline, quiet_since, seen = time.monotonic() + DISCOVERY_WAIT, time.monotonic(), 0
+        while time.monotonic() < deadline:
+            self._scan()
+            if self.wanted is not None and self.wanted <= set(self.channels) | self._skipped:
+                return
+            found = len(self.channels) + len(self._skipped)
+            if found != seen:
+                seen, quiet_since = found, time.monotonic()
+            elif self.wanted is None and time.monotonic() - quiet_since > DISCOVERY_QUIET:
+                return
+            time.sleep(0.1)
 
     @property
     def port(self) -> int:

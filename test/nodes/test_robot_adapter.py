@@ -137,6 +137,10 @@ def test_markers_of_the_calibration_reach_a_foxglove_client_through_view(driver_
         client = FoxgloveClient('127.0.0.1', port)
         try:
             channel, data = client.message('/cobot_calib/markers', 30.0)
+        except TimeoutError as e:
+            view.terminate()
+            pytest.fail(f'{e}; view printed:\n{"".join(lines.seen)}{lines.leftover()}'
+                        f'{view.communicate(timeout=10)[0]}')
         finally:
             client.close()
     finally:
@@ -159,9 +163,9 @@ def test_markers_of_the_calibration_reach_a_foxglove_client_through_view(driver_
 
 def test_a_three_cycle_trial_completes_through_the_adapter(driver_suite):
     _, env, data = driver_suite
-    out = cli(env, 'trial', '--method', 'rigid', '--cycles', '3', '--trial-id', 'driver3')
+    out = cli(env, 'trial', '--method', 'rigid', '--cycles', '3', '--json')
     assert out.returncode == 0, out.stdout + out.stderr
-    stored = TrialStore(data).load('driver3')
+    stored = TrialStore(data).load(json.loads(out.stdout)['trial_id'])
     assert stored.meta['status'] == 'done'
     assert np.isfinite(stored.distances).all() and stored.distances.shape == (5, 3)
 
@@ -177,14 +181,14 @@ def test_a_misbehaving_driver_gives_one_clear_error_and_no_half_trial(driver_sui
     node, env, data = driver_suite
     set_fault(node, fault)
     try:
-        out = cli(env, 'trial', '--method', 'reference', '--cycles', '2', '--trial-id',
-                  f'fault-{fault}')
+        out = cli(env, 'trial', '--method', 'reference', '--cycles', '2')
     finally:
         set_fault(node, '')
     assert out.returncode != 0
     failed = [line for line in (out.stdout + out.stderr).splitlines() if 'failed' in line]
     assert len(failed) == 1 and words in failed[0], out.stdout + out.stderr
-    stored = TrialStore(data).load(f'fault-{fault}')
+    trial_id = failed[0].split()[1]                     # 'trial <id> failed: ...'
+    stored = TrialStore(data).load(trial_id)
     assert stored is None or not np.isfinite(stored.distances).any()
 
 
