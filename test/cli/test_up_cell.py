@@ -9,7 +9,7 @@ from cobot_calib_ros.paths import cell_file
 
 
 @pytest.mark.parametrize('old, new, words', [
-    ('  robot: sawyer ', '  robt: sawyer ', ['cell.robot: missing']),
+    ('  robot: sawyer ', '  robt: sawyer ', ["cell.robt: unknown key 'robt'; did you mean 'robot'"]),
     ('  seed: 7', '  seed: seven', ['simulation.seed: expected a finite number']),
     ('  layout: close', '  layout: narrow', ['cell.layout', 'close, wide'])])
 def test_up_refuses_a_broken_cell_file_before_starting_anything(tmp_path, old, new, words):
