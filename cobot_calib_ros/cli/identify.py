@@ -207,12 +207,13 @@ def _print(args, report: dict) -> None:
 def _print_parameters(identified: list[dict]) -> None:
     """Each parameter as its deviation from nominal (as the paper's tables) and absolute, in
     mm (lengths) or mrad (angles); the ± is one standard deviation of the identified value."""
-    print(f'\n{"parameter":<14}{"deviation":>16}{"std":>12}{"nominal":>16}{"identified":>16}')
+    width = max([14] + [len(p['name']) + 1 for p in identified])    # URDF joint names are long
+    print(f'\n{"parameter":<{width}}{"deviation":>16}{"std":>12}{"nominal":>16}{"identified":>16}')
     for p in identified:
         length = not p['name'].startswith(('alpha', 'theta', 'roll', 'pitch', 'yaw'))
         unit = 'mm' if length else 'mrad'
         value, nominal, std = (p[k] * 1e3 for k in ('value', 'nominal', 'std'))
-        print(f'{p["name"]:<14}{value - nominal:>+11.4f} {unit:<4}{std:>7.4f} {unit:<4}'
+        print(f'{p["name"]:<{width}}{value - nominal:>+11.4f} {unit:<4}{std:>7.4f} {unit:<4}'
               f'{nominal:>11.4f} {unit:<4}{value:>11.4f} {unit}')
 
 
