@@ -16,11 +16,15 @@ then the fit's residual estimate).
 - **Selection.** Greedy from a candidate pool (the reachable grid on every sphere with its
   arm-angle null space, :func:`sphere_candidates`): the pose that most increases
   log det M (D-optimal, rank-3 update), or most decreases the predicted task-volume mean square
-  error (V-optimal, Woodbury), given every pose measured so far; by default per robot second
-  (the hold plus the move from the last pose at ``joint_speed``). Offline on the mock iiwa 7
-  (1 s hold, 1 rad/s, 3 um noise), 100 poses chosen per second take 188 s of robot time for
-  a predicted max of 1.14 um, chosen per pose 362 s for 1.04 um (the full paper grid: 2425 s,
-  1.09 um).
+  error (V-optimal, Woodbury), given every pose measured so far; by default per robot second:
+  the hold plus the move from the last pose (its largest joint step at ``joint_speed``, as
+  mock_robot and DriverPreset.move_seconds time a move), the move weighted ``travel_weight``
+  (a far pose now costs moves back later, which the one-step greedy does not see). Offline
+  on the mock iiwa 7 (1 s hold, 1 rad/s, 5 um prior noise), 100 poses: per pose 362 s of robot
+  time; per second with travel_weight 1: 188 s, predicted max 1.05x the full paper grid's
+  (2425 s); travel_weight 16: 164 s, 1.03x (2, 4, 8, 32, 100: 177, 169, 164, 162, 156 s at
+  1.00, 1.03, 1.08, 1.08, 1.19x). Grid-neighbour moves (18x less time than the grid) are
+  out of reach of this pool's 30 deg steps: a pool in 15 deg steps gave 148 s at 1.15x.
 - **Sequential.** :class:`SpherePlanner` is told each measured pose (its measured joints, or
   that it was skipped), refits, and re-plans the next pose with the data so far; its
   :meth:`SpherePlanner.stop_reason` is the stopping rule: the predicted max error at or under
@@ -107,6 +111,9 @@ class PlanSettings:
     joint_speed: float = 1.0    # > 0: gain per robot second, a move taking its largest joint
     #                             step over this [rad/s] (0: gain per pose, travel ignored)
     pose_seconds: float = 1.0   # robot time at a pose besides the move: the hold [s]
+    travel_weight: float = 16.0  # >= 1: a move's second counts this many hold seconds in the
+    #                             choice (the greedy per second is myopic: a far pose now costs
+    #                             the moves back too; module doc)
 
     def __post_init__(self) -> None:
         if self.criterion not in CRITERIA:
@@ -114,10 +121,12 @@ class PlanSettings:
         if self.max_poses < 1:
             raise ValueError(f'max_poses must be >= 1, got {self.max_poses}')
         if not (self.target_mm >= 0.0 and self.min_gain >= 0.0 and self.sigma_prior > 0.0
-                and self.joint_speed >= 0.0 and self.pose_seconds > 0.0):
+                and self.joint_speed >= 0.0 and self.pose_seconds > 0.0
+                and self.travel_weight >= 1.0):
             raise ValueError('target_mm, min_gain and joint_speed must be >= 0, sigma_prior '
-                             f'and pose_seconds > 0, got {self.target_mm}, {self.min_gain}, '
-                             f'{self.joint_speed}, {self.sigma_prior}, {self.pose_seconds}')
+                             'and pose_seconds > 0, travel_weight >= 1, got '
+                             f'{self.target_mm}, {self.min_gain}, {self.joint_speed}, '
+                             f'{self.sigma_prior}, {self.pose_seconds}, {self.travel_weight}')
         if self.gain_window < 1:
             raise ValueError(f'gain_window must be >= 1, got {self.gain_window}')
 
@@ -168,7 +177,11 @@ class Linearisation:
 def predict(M: Array, F: int, task: Array, sigma: float, draws: Array, poses: int
             ) -> Prediction:
     """The task-volume error of information M (D, D) at noise ``sigma`` [m] (module doc);
-    inf when M is singular (too few poses)."""
+    inf when M is singular (too few poses; rank of M scaled to a unit diagonal, as Cholesky
+    alone may pass a rank-deficient M on roundoff)."""
+    scale = np.sqrt(np.clip(np.diag(M), 1e-300, None))
+    if np.linalg.matrix_rank(M / np.outer(scale, scale), hermitian=True) < len(M):
+        return Prediction(poses, math.inf, math.inf, sigma * 1e3)
     try:
         L = np.linalg.cholesky(M)
     except np.linalg.LinAlgError:
@@ -331,12 +344,13 @@ class SpherePlanner:
         return chosen, predictions
 
     def _seconds(self, here: Array | None, idx: Array) -> Array | None:
-        """Robot time [s] of candidates ``idx`` from joints ``here`` (None: travel ignored)."""
+        """Robot time [s] of candidates ``idx`` from joints ``here``, the move weighted by
+        ``travel_weight`` (None: travel ignored)."""
         s = self.settings
         if not s.joint_speed > 0.0:
             return None
         move = 0.0 if here is None else np.abs(self.pool_q[idx] - here).max(axis=1)
-        return s.pose_seconds + move / s.joint_speed
+        return s.pose_seconds + s.travel_weight * move / s.joint_speed
 
     def start(self) -> PlanState:
         """The plan before the robot moves: up to max_poses poses and their predictions."""
