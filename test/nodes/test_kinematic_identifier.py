@@ -157,13 +157,13 @@ def test_a_planned_collection_predicts_stops_and_is_stored_with_its_calibration(
     result = _run(ros, actions[1], Identify(collection_id=collected.collection_id))
     try:
         assert result.error_code == 0, result.message
-        record = KinematicStore(trial_data).get(result.calibration_id)
+        record = store.open(trial_data).kinematics.get(result.calibration_id)
         assert record['planning']['collection'] == collected.collection_id
         assert record['planning']['state']['stop'] == collected.stop_reason
         assert 'task_q' not in record['planning']
     finally:
         if result.calibration_id:
-            KinematicStore(trial_data).retire(result.calibration_id)
+            store.open(trial_data).kinematics.retire(result.calibration_id)
 
 
 def test_bad_goals_get_a_reason(ros, actions):
