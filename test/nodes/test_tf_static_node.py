@@ -324,7 +324,9 @@ def test_package_xml_declares_every_runtime_import():
     declared = {e.text for e in xml if e.tag in ('depend', 'exec_depend')}
     rosdep_key = {'numpy': 'python3-numpy', 'scipy': 'python3-scipy', 'yaml': 'python3-yaml',
                   'matplotlib': 'python3-matplotlib', 'cv2': 'python3-opencv',
-                  'mcap': 'python3-mcap', 'rosbags': 'python3-rosbags'}
+                  'mcap': 'python3-mcap', 'rosbags': 'python3-rosbags',
+                  'sqlalchemy': 'python3-sqlalchemy', 'alembic': 'python3-alembic',
+                  'foxglove': 'python3-foxglove-sdk-pip'}
     third_party = _imports(repo / 'cobot_calib_ros') - set(sys.stdlib_module_names) - {
         'cobot_calib_ros'}
     missing = sorted(rosdep_key.get(m, m) for m in third_party
