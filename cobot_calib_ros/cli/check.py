@@ -31,8 +31,8 @@ def add_parser(subparsers):
                    help='user-frame: largest point error that passes [mm] (default 0.2, the '
                         'drift WARN); kinematics: largest RMS spread of the sphere centres '
                         '[mm] (default 0.1)')
-    p.add_argument('--robot-cell', default=DEFAULT_CELL, help='cell YAML path or name '
-                   '(its markers and tool)')
+    p.add_argument('--robot-cell', default=None, help='cell YAML path or name (its markers, '
+                   "robot and tool; default: the running suite's, else " f'{DEFAULT_CELL})')
     p.add_argument('--namespace', default='', help="the suite's namespace (up --namespace)")
     p.add_argument('--json', action='store_true', help='the stored check as one JSON line')
     add_db_options(p)
@@ -44,24 +44,24 @@ def run(args) -> int:
     from cobot_calib_ros.core import kinematics
     from cobot_calib_ros.core.cell import CellFileError
     from cobot_calib_ros.loaders import load_cell
-    try:
-        cell = load_cell(paths.cell_file(args.robot_cell))
-    except CellFileError as e:
-        return fail(str(e), EXIT_USAGE)
-    repo = store.open(paths.data_dir(args.data_dir), args.db, args.cell or (
-        args.namespace.strip('/').replace('/', '.') or None))
-    model = kinematics.model_for(cell)
-    prepare = _user_frame if args.what == 'user-frame' else _kinematics
-    try:
-        prepared = prepare(args, cell, model, repo)
-    except (OSError, KeyError, ValueError) as exc:
-        return fail(f'check {args.what}: {exc.args[0] if exc.args else exc}',
-                    EXIT_USAGE if isinstance(exc, ValueError) else EXIT_FAILED)
-    method, against, run_check, print_details = prepared
     from cobot_calib_ros.core.robot_port import PortError
     from cobot_calib_ros.ros import spin
     from cobot_calib_ros.ros.robot_calls import RobotCalls
     with ros_node('cobot_calib_check', args.namespace.strip('/')) as node:
+        try:
+            cell = load_cell(paths.cell_file(args.robot_cell or _suite_cell(node)))
+        except CellFileError as e:
+            return fail(str(e), EXIT_USAGE)
+        repo = store.open(paths.data_dir(args.data_dir), args.db, args.cell or (
+            args.namespace.strip('/').replace('/', '.') or None))
+        model = kinematics.model_for(cell)
+        prepare = _user_frame if args.what == 'user-frame' else _kinematics
+        try:
+            prepared = prepare(args, cell, model, repo)
+        except (OSError, KeyError, ValueError) as exc:
+            return fail(f'check {args.what}: {exc.args[0] if exc.args else exc}',
+                        EXIT_USAGE if isinstance(exc, ValueError) else EXIT_FAILED)
+        method, against, run_check, print_details = prepared
         companion = spin.Companion(node, 'clients')
         try:
             check = run_check(RobotCalls(companion))
@@ -72,6 +72,17 @@ def run(args) -> int:
         finally:
             companion.destroy()          # its thread stops before the session shuts down
     return _report(args, repo, check, method, against, print_details)
+
+
+def _suite_cell(node) -> str:
+    """The cell file the running suite's user_frame_solver was started with (its robot,
+    markers and tool are the ones to check); the default cell when none answers."""
+    from cobot_calib_ros.ros.calls import CallError
+    from cobot_calib_ros.ros.remote_params import read_parameter
+    try:
+        return read_parameter(node, 'user_frame_solver', 'cell_file', 10.0) or DEFAULT_CELL
+    except CallError:
+        return DEFAULT_CELL
 
 
 def _user_frame(args, cell, model, repo):
