@@ -16,7 +16,8 @@ tracker's own noise dominates. The planner's task volume is another draw of the 
 - full: the paper's 3 x 625 grid, every pose;
 - planned: core.kinematics.planned_collection.collect_planned (the loop the node runs) with
   greedy V-optimal choice from the candidate pool (planning.sphere_candidates: tilt -60..60
-  deg, arm angle -90..90 deg), re-planned after every pose, up to 100 poses;
+  deg in 15 deg steps, arm angle -90..90 deg in 30 deg steps), re-planned after every pose,
+  up to 100 poses;
 - random: 20 draws of the same size from the same pool;
 - target: where ``--target-mm`` at 1.2x the full grid's predicted max (predicted with the
   noise this run estimated; no truth used) would have stopped the same planned run.

@@ -14,6 +14,7 @@ answers cancels and feedback):
 """
 from __future__ import annotations
 
+import math
 from pathlib import Path
 import sys
 import threading
@@ -34,7 +35,8 @@ from cobot_calib_ros.core.kinematics import plans
 from cobot_calib_ros.core.kinematics.collection import collect, Ending, PoseRecord
 from cobot_calib_ros.core.kinematics.planned_collection import collect_planned, RobotTime
 from cobot_calib_ros.core.kinematics.planning import (PlanSettings, Prediction,
-                                                      sphere_candidates, SpherePlanner)
+                                                      sphere_candidates, SpherePlanner,
+                                                      tilt_grid_deg, TILT_STEP_DEG)
 from cobot_calib_ros.core.kinematics.identification.observations import (
     PositionObservations, SphereObservations)
 from cobot_calib_ros.core.kinematics.identification.solvers import LOSSES, SOLVERS
@@ -144,6 +146,9 @@ class KinematicIdentifier(Node):
                 0.005, 10.0)
         declare(self, 'speed_scale', 1.0, 'Fraction of the joint velocity limits [1]',
                 0.01, 1.0)
+        declare(self, 'candidate_tilt_step', math.radians(TILT_STEP_DEG),
+                'Planned collections: step of the candidate tilts on a sphere [rad] (coarser: '
+                'fewer candidates to solve IK for and choose from, longer moves)', 0.05, 1.05)
 
     def _p(self, name: str):
         return self.get_parameter(name).value
@@ -226,7 +231,9 @@ class KinematicIdentifier(Node):
         region = goal.region or 'volume'
         if source == 'spheres':
             if goal.planned:
-                plan, unreachable = sphere_candidates(self._cell, self._model)
+                step_deg = math.degrees(self._p('candidate_tilt_step'))
+                plan, unreachable = sphere_candidates(self._cell, self._model,
+                                                      tilt_grid_deg(step_deg))
             else:
                 plan, unreachable = plans.sphere_plan(self._cell, self._model,
                                                       goal.max_configs)

@@ -3,6 +3,7 @@ and capture_joints, resume after a cancel, identify, store YAML + URDF, and the 
 the result (issue 10)."""
 import json
 import os
+import re
 import time
 from pathlib import Path
 
@@ -152,6 +153,10 @@ def test_a_planned_collection_predicts_stops_and_is_stored_with_its_calibration(
     meta = CollectionStore(trial_data).load(collected.collection_id).meta
     state = meta['planning']['state']
     assert len(state['chosen']) == 40 == len(state['predictions']) == len(state['initial_plan'])
+    # the candidates on the node's candidate_tilt_step (30 deg here, conftest), not 15 deg
+    tilts = {int(t) for step in meta['plan']
+             for t in re.findall(r'r[xyz]([+-]\d+)', step['label'])}
+    assert {-30, 30} <= tilts and all(t % 30 == 0 for t in tilts)   # Sawyer: none at 60
     assert state['stop'] == collected.stop_reason
     assert meta['planning']['robot_time']['total_s'] == pytest.approx(collected.robot_time)
     result = _run(ros, actions[1], Identify(collection_id=collected.collection_id))

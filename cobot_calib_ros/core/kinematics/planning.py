@@ -20,11 +20,14 @@ then the fit's residual estimate).
   the hold plus the move from the last pose (its largest joint step at ``joint_speed``, as
   mock_robot and DriverPreset.move_seconds time a move), the move weighted ``travel_weight``
   (a far pose now costs moves back later, which the one-step greedy does not see). Offline
-  on the mock iiwa 7 (1 s hold, 1 rad/s, 5 um prior noise), 100 poses: per pose 362 s of robot
-  time; per second with travel_weight 1: 188 s, predicted max 1.05x the full paper grid's
-  (2425 s); travel_weight 16: 164 s, 1.03x (2, 4, 8, 32, 100: 177, 169, 164, 162, 156 s at
-  1.00, 1.03, 1.08, 1.08, 1.19x). Grid-neighbour moves (18x less time than the grid) are
-  out of reach of this pool's 30 deg steps: a pool in 15 deg steps gave 148 s at 1.15x.
+  on the mock iiwa 7 (1 s hold, 1 rad/s, 5 um prior noise), 100 poses from a pool in 30 deg
+  tilt steps: per pose 362 s of robot time; per second with travel_weight 1: 188 s,
+  predicted max 1.05x the full paper grid's (2425 s); travel_weight 16: 164 s, 1.03x (2, 4,
+  8, 32, 100: 177, 169, 164, 162, 156 s at 1.00, 1.03, 1.08, 1.08, 1.19x). Tilts in 15 deg
+  steps (the default, :data:`TILT_STEP_DEG`) let the moves be shorter: 144-145 s at
+  travel_weight 16. Tried and not kept (within the run-to-run scatter of +-4 s): planning
+  the remaining poses as a route by cheapest insertion (135-143 s), visiting a planned batch
+  in 2-opt order, staying on one sphere for blocks of poses.
 - **Sequential.** :class:`SpherePlanner` is told each measured pose (its measured joints, or
   that it was skipped), refits, and re-plans the next pose with the data so far; its
   :meth:`SpherePlanner.stop_reason` is the stopping rule: the predicted max error at or under
@@ -56,17 +59,29 @@ CRITERIA = ('D', 'V')
 SIGMA_PRIOR = 5e-6          # coupling noise per axis before the first fit [m]
 PRIOR_WEIGHT = 1e-6         # ridge on M before it has full rank, times its mean diagonal
 DRAWS = 256                 # normal draws for the expected max error
-# the candidate grid: wider than the paper's +-20 deg (the coupling must allow +-60 deg of
-# tilt on its sphere); predicted max error of 100 V-optimal poses on the mock iiwa 7, at the
-# full paper grid's 1.09 um: this grid 1.04 um, tilt +-45 / arm +-60 in 15 / 20 deg steps
-# 1.29 um (and 3.4x the candidates), tilt +-40 / arm +-60 in 20 deg steps 1.26 um
-CANDIDATE_TILT_DEG = (-60.0, -30.0, 0.0, 30.0, 60.0)
+TILT_LIMIT_DEG = 60.0      # the candidate grid's tilts: wider than the paper's +-20 deg (the
+#                            coupling must allow +-60 deg of tilt on its sphere)
+TILT_STEP_DEG = 15.0       # on the mock iiwa 7, 100 poses: 15 deg steps (9,382 candidates)
+#                            ~145 s of robot time, 30 deg steps (1,527) ~168 s, at about the
+#                            same predicted error; finer steps add IK time, not robot time
 CANDIDATE_ARM_DEG = (-90.0, -60.0, -30.0, 0.0, 30.0, 60.0, 90.0)
+
+
+def tilt_grid_deg(step_deg: float = TILT_STEP_DEG) -> tuple[float, ...]:
+    """The candidate tilts: -TILT_LIMIT_DEG..TILT_LIMIT_DEG in ``step_deg`` steps, 0 among
+    them [deg]."""
+    if not 0.0 < step_deg <= TILT_LIMIT_DEG:
+        raise ValueError(f'the tilt step must be in (0, {TILT_LIMIT_DEG:g}] deg, got '
+                         f'{step_deg:g}')
+    k = int(TILT_LIMIT_DEG // step_deg + 1e-9)
+    return tuple(float(i * step_deg) for i in range(-k, k + 1))
+
+
 IDENTIFIABILITY_ROWS = 300  # an even subset of the pool decides the identifiable parameters
 
 
 def sphere_candidates(cell: Cell, model: KinematicModel,
-                      tilt_deg: Sequence[float] = CANDIDATE_TILT_DEG,
+                      tilt_deg: Sequence[float] = tilt_grid_deg(),
                       arm_deg: Sequence[float] = CANDIDATE_ARM_DEG
                       ) -> tuple[list[dict], list[str]]:
     """The candidate pool: :func:`plans.sphere_plan`'s grid over ``tilt_deg`` about x, y, z
@@ -402,8 +417,9 @@ class SpherePlanner:
         (3 rows per pose for D unknowns, twice over); the noise estimate from its residuals."""
         if 3 * len(self.q) < 2 * self.lin.D:
             return
-        data = SphereObservations(np.array(self.q), np.array(self.target), self.known_distances)
-        try:
+        try:    # too few rows on a sphere, or a known distance's sphere not yet visited
+            data = SphereObservations(np.array(self.q), np.array(self.target),
+                                      self.known_distances)
             result = identify(self.parameter_set, data, tool_xyz0=self.tool_xyz,
                               params0=self.params, loss='linear')
         except ValueError:

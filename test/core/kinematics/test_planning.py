@@ -14,7 +14,8 @@ from cobot_calib_ros.core.kinematics.identification import (identify, register_r
                                                             SphereObservations)
 from cobot_calib_ros.core.kinematics.planned_collection import collect_planned, PAPER_HOLD
 from cobot_calib_ros.core.kinematics.planning import (_pick, PlanSettings, predict,
-                                                      sphere_candidates, SpherePlanner)
+                                                      sphere_candidates, SpherePlanner,
+                                                      tilt_grid_deg)
 from cobot_calib_ros.core.robot_port import MoveFailed
 from cobot_calib_ros.paths import cell_file
 from cobot_calib_ros.sim.robot import DirectRobot, SimRobot
@@ -189,6 +190,20 @@ def test_a_resumed_collection_goes_on_as_the_uninterrupted_one(planned_30, plann
     assert planner.next_pose() == whole.state.chosen[25]
 
 
+def test_a_sphere_with_one_pose_defers_the_refit_instead_of_failing(planner_template):
+    """Enough poses for a refit, but one sphere has a single row (SphereObservations needs
+    two): the planner waits for more poses on it rather than raising."""
+    planner = _planner(planner_template)
+    target = planner.pool_target
+    on_0 = np.flatnonzero(target == 0)[:planner.lin.D]
+    alone = np.flatnonzero(target == 1)[:1]
+    indices = [*on_0.tolist(), *alone.tolist()]
+    assert 3 * len(indices) >= 2 * planner.lin.D       # the refit's threshold is passed
+    planner.resume(indices, planner.pool_q[indices])
+    assert np.array_equal(planner.params, MODEL.nominal)    # no refit yet
+    assert len(planner.q) == len(indices) and planner.sigma == planner.settings.sigma_prior
+
+
 def test_robot_time_is_the_ports_moves_and_holds(planned_30):
     _, _, _, _, time, robot_seconds = planned_30
     assert time.total == pytest.approx(robot_seconds)
@@ -231,6 +246,15 @@ def test_the_greedy_pick_is_the_best_rank_3_update():
     mse = [np.trace(W @ np.linalg.inv(M + a.T @ a)) for a in A]
     assert _pick(A, M, None, 0.0) == int(np.argmax(logdet))
     assert _pick(A, M, W, 0.0) == int(np.argmin(mse))
+
+
+def test_the_candidate_tilts_span_60_deg_each_way_in_the_step():
+    assert tilt_grid_deg() == (-60.0, -45.0, -30.0, -15.0, 0.0, 15.0, 30.0, 45.0, 60.0)
+    assert tilt_grid_deg(25.0) == (-50.0, -25.0, 0.0, 25.0, 50.0)
+    assert tilt_grid_deg(60.0) == (-60.0, 0.0, 60.0)
+    for bad in (0.0, -15.0, 61.0):
+        with pytest.raises(ValueError, match=r'tilt step must be in \(0, 60\] deg'):
+            tilt_grid_deg(bad)
 
 
 def test_bad_settings_say_what_to_give():
