@@ -25,7 +25,8 @@ then the fit's residual estimate).
   predicted max 1.05x the full paper grid's (2425 s); travel_weight 16: 164 s, 1.03x (2, 4,
   8, 32, 100: 177, 169, 164, 162, 156 s at 1.00, 1.03, 1.08, 1.08, 1.19x). Tilts in 15 deg
   steps (the default, :data:`TILT_STEP_DEG`) let the moves be shorter: 144-145 s at
-  travel_weight 16. Tried and not kept (within the run-to-run scatter of +-4 s): planning
+  travel_weight 16, 1.02-1.14x (three noise draws); the 30 deg pool needs weight 100 and
+  156 s for 1.19x. Tried and not kept (within the run-to-run scatter of +-4 s): planning
   the remaining poses as a route by cheapest insertion (135-143 s), visiting a planned batch
   in 2-opt order, staying on one sphere for blocks of poses.
 - **Sequential.** :class:`SpherePlanner` is told each measured pose (its measured joints, or
@@ -62,8 +63,8 @@ DRAWS = 256                 # normal draws for the expected max error
 TILT_LIMIT_DEG = 60.0      # the candidate grid's tilts: wider than the paper's +-20 deg (the
 #                            coupling must allow +-60 deg of tilt on its sphere)
 TILT_STEP_DEG = 15.0       # on the mock iiwa 7, 100 poses: 15 deg steps (9,382 candidates)
-#                            ~145 s of robot time, 30 deg steps (1,527) ~168 s, at about the
-#                            same predicted error; finer steps add IK time, not robot time
+#                            ~145 s of robot time at a predicted max of 1.17-1.30 um, 30 deg
+#                            steps (1,527) ~168 s at 1.03-1.05 um (module doc)
 CANDIDATE_ARM_DEG = (-90.0, -60.0, -30.0, 0.0, 30.0, 60.0, 90.0)
 
 
