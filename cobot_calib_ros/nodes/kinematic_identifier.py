@@ -18,6 +18,7 @@ import math
 from pathlib import Path
 import sys
 import threading
+from time import monotonic
 
 from cobot_calib_msgs.action import CollectSphereData, IdentifyKinematics
 from cobot_calib_msgs.msg import ErrorStats
@@ -232,8 +233,14 @@ class KinematicIdentifier(Node):
         if source == 'spheres':
             if goal.planned:
                 step_deg = math.degrees(self._p('candidate_tilt_step'))
+                self.get_logger().info(f'planned collection: solving IK for the candidate '
+                                       f'poses (tilts in {step_deg:g} deg steps)')
+                started = monotonic()
                 plan, unreachable = sphere_candidates(self._cell, self._model,
                                                       tilt_grid_deg(step_deg))
+                self.get_logger().info(f'{len(plan)} candidates reachable, '
+                                       f'{len(unreachable)} not, in '
+                                       f'{monotonic() - started:.1f} s')
             else:
                 plan, unreachable = plans.sphere_plan(self._cell, self._model,
                                                       goal.max_configs)

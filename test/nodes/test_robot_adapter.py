@@ -99,12 +99,19 @@ def test_the_mock_offers_only_what_a_ros2_control_driver_offers(driver_suite):
         'the driver-mode mock must not serve move_to'
 
 
-def test_demo_through_the_adapter_is_as_accurate_as_through_move_to(driver_suite):
-    """Must-show 1: the same bands test_user_frame_demo pins for the move_to interface."""
+@pytest.fixture(scope='module')
+def demo(driver_suite) -> dict:
+    """`cobot-calib demo --json --attach` on the driver suite: its report; its calibrations
+    stay active (the markers test reads them)."""
     _, env, _ = driver_suite
     out = cli(env, 'demo', '--json', '--attach', timeout=180)
     assert out.returncode == 0, out.stderr
-    result = json.loads(out.stdout)
+    return json.loads(out.stdout)
+
+
+def test_demo_through_the_adapter_is_as_accurate_as_through_move_to(demo):
+    """Must-show 1: the same bands test_user_frame_demo pins for the move_to interface."""
+    result = demo
     methods = {m['name']: m for m in result['methods']}
     rigid = methods['rigid']
     assert result['noise_sigma_mm'] == pytest.approx(0.03588, abs=5e-5)
@@ -116,9 +123,9 @@ def test_demo_through_the_adapter_is_as_accurate_as_through_move_to(driver_suite
     assert rigid['point_error_max_mm'] < 0.3
 
 
-def test_markers_of_the_calibration_reach_a_foxglove_client_through_view(driver_suite):
+def test_markers_of_the_calibration_reach_a_foxglove_client_through_view(driver_suite, demo):
     """Must-show 3: `cobot-calib view` streams the latched MarkerArray (ros2msg/cdr) to a
-    WebSocket client after a calibration (the demo's, above)."""
+    WebSocket client after a calibration (the demo's)."""
     node, env, _ = driver_suite
     from cobot_calib_msgs.msg import UserFrameCalibration
     frames = []
