@@ -234,7 +234,7 @@ class KinematicIdentifier(Node):
             if goal.planned:
                 step_deg = math.degrees(self._p('candidate_tilt_step'))
                 self.get_logger().info(f'planned collection: solving IK for the candidate '
-                                       f'poses (tilts in {step_deg:g} deg steps)')
+                                       f'poses (tilts in {step_deg:.4g} deg steps)')
                 started = monotonic()
                 plan, unreachable = sphere_candidates(self._cell, self._model,
                                                       tilt_grid_deg(step_deg))
