@@ -89,7 +89,21 @@ class Repository(Protocol):
     def checks(self) -> CalibrationHistory: ...
 
 
-class FolderRepository:
+class _MeasurementLogs:
+    """Trials and sphere collections: append-only files under ``root`` (each reading fsynced
+    as it comes) in every implementation."""
+    root: Path
+
+    @cached_property
+    def trials(self) -> TrialStore:
+        return TrialStore(self.root)
+
+    @cached_property
+    def collections(self) -> CollectionStore:
+        return CollectionStore(self.root)
+
+
+class FolderRepository(_MeasurementLogs):
     """The folder implementation: JSON / YAML / CSV files under ``root`` (store.files)."""
 
     def __init__(self, root: Path) -> None:
@@ -108,23 +122,15 @@ class FolderRepository:
         return KinematicStore(self.root)
 
     @cached_property
-    def trials(self) -> TrialStore:
-        return TrialStore(self.root)
-
-    @cached_property
     def checks(self) -> CalibrationStore:
         """Quick health checks (cli check): results like calibrations, never activated."""
         return CalibrationStore(self.root, 'checks')
-
-    @cached_property
-    def collections(self) -> CollectionStore:
-        return CollectionStore(self.root)
 
     def __repr__(self) -> str:
         return f'FolderRepository({str(self.root)!r})'
 
 
-class DatabaseRepository:
+class DatabaseRepository(_MeasurementLogs):
     """The database implementation (store.database): one cell's calibrations and checks as
     rows of a SQLite file or a PostgreSQL server; the measurement logs (trials, collections)
     stay append-only files under ``root`` (each reading fsynced as it comes)."""
@@ -155,14 +161,6 @@ class DatabaseRepository:
     def kinematics(self):
         from cobot_calib_ros.store.database import DbKinematicStore
         return DbKinematicStore(self.database, self.cell, self.root)
-
-    @cached_property
-    def trials(self) -> TrialStore:
-        return TrialStore(self.root)
-
-    @cached_property
-    def collections(self) -> CollectionStore:
-        return CollectionStore(self.root)
 
     def __repr__(self) -> str:
         return f'DatabaseRepository({str(self.root)!r}, {self.database!r}, cell={self.cell!r})'
