@@ -20,7 +20,7 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy
 
 from cobot_calib_ros.bags.interfaces import full_text
-from cobot_calib_ros.ros.graph import subscription_qos
+from cobot_calib_ros.ros.graph import new_topics, subscription_qos
 
 SCAN_PERIOD = 1.0        # [s] between looks for new topics
 DISCOVERY_WAIT = 5.0     # [s] at most, for the topics on the graph before the server listens
@@ -86,13 +86,7 @@ class LiveView(Node):
         return self.server.port
 
     def _scan(self) -> None:
-        for topic, _types in self.get_topic_names_and_types():
-            if topic in self.channels or topic in self._skipped:
-                continue
-            if self.wanted is not None and topic not in self.wanted:
-                continue
-            if self.wanted is None and any(part.startswith('_') for part in topic.split('/')):
-                continue                                    # hidden, as ros2 topic list
+        for topic in new_topics(self, self.channels, self._skipped, self.wanted):
             self._add(topic)
 
     def _add(self, topic: str) -> None:

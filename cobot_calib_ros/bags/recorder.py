@@ -40,6 +40,7 @@ from rosbags.interfaces import (Qos, QosDurability, QosHistory, QosLiveliness, Q
 from cobot_calib_ros.bags.errors import BagError
 from cobot_calib_ros.bags.writer import BagWriter
 from cobot_calib_ros.ros import spin
+from cobot_calib_ros.ros.graph import new_topics
 from cobot_calib_ros.ros.params import read_once
 from cobot_calib_ros.ros.time import NS_PER_S
 
@@ -60,10 +61,6 @@ def bag_qos(profile) -> Qos:
                QosLiveliness(int(profile.liveliness)),
                duration(profile.liveliness_lease_duration),
                bool(profile.avoid_ros_namespace_conventions))
-
-
-def is_hidden(topic: str) -> bool:
-    return any(part.startswith('_') for part in topic.split('/'))
 
 
 def declare_strings(node: Node, name: str, value, description: str) -> list[str]:
@@ -158,13 +155,8 @@ class BagRecorder(Node):
                         '`cobot-calib list`)')
 
     def _scan(self) -> None:
-        for name, _types in self.get_topic_names_and_types():
-            if name in self.subscriptions_by_topic or name in self._skipped:
-                continue
-            if self.wanted is not None and name not in self.wanted:
-                continue
-            if self.wanted is None and not self.include_hidden and is_hidden(name):
-                continue
+        for name in new_topics(self, self.subscriptions_by_topic, self._skipped, self.wanted,
+                               self.include_hidden):
             self._subscribe(name)
 
     def _subscribe(self, topic: str) -> None:

@@ -84,3 +84,18 @@ def subscription_qos(publishers: list, depth: int = 100):
                           for p in publishers):
         qos.durability = DurabilityPolicy.TRANSIENT_LOCAL
     return qos
+
+
+def is_hidden(topic: str) -> bool:
+    """A hidden topic, as ros2 topic list hides it (a name part starting with '_')."""
+    return any(part.startswith('_') for part in topic.split('/'))
+
+
+def new_topics(node: Node, taken, skipped, wanted: set[str] | None,
+               include_hidden: bool = False) -> list[str]:
+    """Topics on the graph not yet ``taken`` or ``skipped``: the ``wanted`` ones, or every
+    topic (hidden ones only if ``include_hidden``) when ``wanted`` is None. The recorder and
+    the live view take topics as they appear."""
+    return [name for name, _types in node.get_topic_names_and_types()
+            if name not in taken and name not in skipped
+            and (name in wanted if wanted is not None else include_hidden or not is_hidden(name))]

@@ -11,7 +11,8 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from std_msgs.msg import String
 
 from cobot_calib_ros.bags.reader import open_bag
-from cobot_calib_ros.bags.recorder import BagRecorder, is_hidden
+from cobot_calib_ros.bags.recorder import BagRecorder
+from cobot_calib_ros.ros.graph import is_hidden
 
 
 def test_hidden_topics():
