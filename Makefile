@@ -49,7 +49,7 @@ demo: setup
 	$(VENV)/bin/cobot-calib demo
 
 test: setup
-	$(PY) -m pytest -q test
+	$(PY) -m pytest -q --durations=20 test
 
 bench: setup
 	$(PY) bench/run_all.py
