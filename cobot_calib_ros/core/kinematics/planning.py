@@ -24,11 +24,13 @@ then the fit's residual estimate).
   tilt steps: per pose 362 s of robot time; per second with travel_weight 1: 188 s,
   predicted max 1.05x the full paper grid's (2425 s); travel_weight 16: 164 s, 1.03x (2, 4,
   8, 32, 100: 177, 169, 164, 162, 156 s at 1.00, 1.03, 1.08, 1.08, 1.19x). Tilts in 15 deg
-  steps (the default, :data:`TILT_STEP_DEG`) let the moves be shorter: 144-145 s at
-  travel_weight 16, 1.02-1.14x (three noise draws); the 30 deg pool needs weight 100 and
-  156 s for 1.19x. Tried and not kept (within the run-to-run scatter of +-4 s): planning
-  the remaining poses as a route by cheapest insertion (135-143 s), visiting a planned batch
-  in 2-opt order, staying on one sphere for blocks of poses.
+  steps (the default, :data:`TILT_STEP_DEG`) let the moves be shorter; there, three noise
+  draws each, travel_weight 4: 152.8 s at 0.90-1.03x; 8: 149.2 s at 0.94-1.11x; 16: 144-145 s
+  at 1.02-1.14x. Weight 4 (the default) reaches a given predicted max soonest in robot time
+  (bench_planning: a target of 1.2x the grid's predicted max after 128 s with weight 4,
+  134 s with 2, 132 s with 16). Tried and not kept (within the run-to-run scatter of +-4 s):
+  planning the remaining poses as a route by cheapest insertion (135-143 s), visiting a
+  planned batch in 2-opt order, staying on one sphere for blocks of poses.
 - **Sequential.** :class:`SpherePlanner` is told each measured pose (its measured joints, or
   that it was skipped), refits, and re-plans the next pose with the data so far; its
   :meth:`SpherePlanner.stop_reason` is the stopping rule: the predicted max error at or under
@@ -62,9 +64,9 @@ PRIOR_WEIGHT = 1e-6         # ridge on M before it has full rank, times its mean
 DRAWS = 256                 # normal draws for the expected max error
 TILT_LIMIT_DEG = 60.0      # the candidate grid's tilts: wider than the paper's +-20 deg (the
 #                            coupling must allow +-60 deg of tilt on its sphere)
-TILT_STEP_DEG = 15.0       # on the mock iiwa 7, 100 poses: 15 deg steps (9,382 candidates)
-#                            ~145 s of robot time at a predicted max of 1.17-1.30 um, 30 deg
-#                            steps (1,527) ~168 s at 1.03-1.05 um (module doc)
+TILT_STEP_DEG = 15.0       # on the mock iiwa 7, 100 poses at travel_weight 16: 15 deg steps
+#                            (9,382 candidates) ~145 s of robot time at a predicted max of
+#                            1.17-1.30 um, 30 deg steps (1,527) ~168 s at 1.03-1.05 um
 CANDIDATE_ARM_DEG = (-90.0, -60.0, -30.0, 0.0, 30.0, 60.0, 90.0)
 
 
@@ -127,7 +129,7 @@ class PlanSettings:
     joint_speed: float = 1.0    # > 0: gain per robot second, a move taking its largest joint
     #                             step over this [rad/s] (0: gain per pose, travel ignored)
     pose_seconds: float = 1.0   # robot time at a pose besides the move: the hold [s]
-    travel_weight: float = 16.0  # >= 1: a move's second counts this many hold seconds in the
+    travel_weight: float = 4.0   # >= 1: a move's second counts this many hold seconds in the
     #                             choice (the greedy per second is myopic: a far pose now costs
     #                             the moves back too; module doc)
 

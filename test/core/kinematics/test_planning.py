@@ -129,17 +129,20 @@ def test_the_plan_before_the_robot_moves_predicts_a_falling_error(planner_templa
 
 
 def test_weighting_travel_saves_robot_time_for_little_accuracy(planner_template):
-    """The default travel_weight against moves counted as hold seconds (travel_weight 1),
-    offline plans of 60 poses: measured 45.1 s of moves against 63.7 s, predicted max
-    2.78 um against 2.54 um."""
+    """The default travel_weight (4) against moves counted as hold seconds (travel_weight 1),
+    offline plans of 60 poses: measured 48.8 s of moves against 63.7 s, predicted max
+    2.73 um against 2.54 um (weight 16: 45.1 s, 2.78 um)."""
     plans_ = {}
     for weight in (1.0, PlanSettings().travel_weight):
         planner = _planner(planner_template, max_poses=60, travel_weight=weight)
         chosen, predictions = planner.plan(60)
         moves = np.abs(np.diff(planner.pool_q[chosen], axis=0)).max(axis=1).sum()
         plans_[weight] = (moves, predictions[-1].max_mm)
-    (near_moves, near_max), (far_moves, far_max) = plans_[16.0], plans_[1.0]
-    assert near_moves < 0.75 * far_moves
+    (near_moves, near_max), (far_moves, far_max) = \
+        plans_[PlanSettings().travel_weight], plans_[1.0]
+    print(f'\nmoves {near_moves:.1f} s against {far_moves:.1f} s, predicted max '
+          f'{near_max * 1e3:.2f} um against {far_max * 1e3:.2f} um')
+    assert near_moves < 0.8 * far_moves
     assert near_max < 1.15 * far_max
 
 
