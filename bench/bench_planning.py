@@ -42,8 +42,8 @@ from cobot_calib_ros.core.kinematics import plans
 from cobot_calib_ros.core.kinematics.identification import (identify, register_rigid,
                                                             SphereObservations)
 from cobot_calib_ros.core.kinematics.planned_collection import collect_planned, RobotTime
-from cobot_calib_ros.core.kinematics.planning import (PlanSettings, sphere_candidates,
-                                                      SpherePlanner)
+from cobot_calib_ros.core.kinematics.planning import (PlanSettings, Prediction,
+                                                      sphere_candidates, SpherePlanner)
 from cobot_calib_ros.core.robot_port import MoveFailed
 from cobot_calib_ros.paths import cell_file
 from cobot_calib_ros.sim.robot import DirectRobot, SimRobot
@@ -129,12 +129,13 @@ class Compared:
     full_paper_s: float             # ... at the paper's hold [s]
     full_truth: float               # held-out max against the true robot [mm]
     full_tracker: float             # ... against the tracker's readings [mm]
+    full_predicted: Prediction      # the grid's, at this run's final estimate and noise
 
     def target_stop(self, bench: Bench, ratio: float) -> tuple[int, float, float]:
         """Where --target-mm at ``ratio`` x the full grid's predicted max (the noise this run
         estimated; no truth used) stops this run: poses, robot time at the paper's hold [s],
         held-out max [mm]."""
-        target = ratio * self.planner.predict_for(self.q_full, self.t_full).max_mm
+        target = ratio * self.full_predicted.max_mm
         curve = [p.max_mm for p in self.planner.state.predictions]
         k = next((k for k, v in enumerate(curve) if v <= target), len(curve) - 1)
         seconds = float(np.sum(self.moves[:k + 1]) + (k + 1) * PAPER_HOLD)
@@ -162,7 +163,7 @@ def compare(bench: Bench, grid, pool, parameter_set=None) -> Compared:
     print(f'planned collection stopped: {planner.state.stop}', file=sys.stderr)
     moves = np.diff(np.r_[before, seconds]) - HOLD
     return Compared(planner, robot_time, moves, estimates, measured, q_full, t_full, full_s,
-                    full_paper_s, full_truth, full_tracker)
+                    full_paper_s, full_truth, full_tracker, planner.predict_for(q_full, t_full))
 
 
 def run() -> Figures:
@@ -180,8 +181,8 @@ def run() -> Figures:
     for _ in range(RANDOM_DRAWS):
         q, t, _, _ = bench.measure([pool[i] for i in rng.permutation(len(pool))], n)
         random_truth.append(bench.identify_mm(planner.parameter_set, q, t)[0])
-    full_predicted = planner.predict_for(c.q_full, c.t_full)
-    reach, _, _ = c.target_stop(bench, 1.0)
+    full_predicted = c.full_predicted
+    reach, reach_s, _ = c.target_stop(bench, 1.0)
     k, target_s, target_truth = c.target_stop(bench, TARGET_OVER_FULL)
     planned_s = c.robot_time.at_hold(PAPER_HOLD)
     figures.update({
@@ -211,7 +212,7 @@ def run() -> Figures:
         'full_robot_s_fast_hold': (c.full_s, 's'),
         'full_predicted_max_um': (full_predicted.max_mm * 1e3, 'um'),
         'planned_poses_to_full_predicted': (float(reach), 'poses'),
-        'planned_robot_s_to_full_predicted': (c.target_stop(bench, 1.0)[1], 's'),
+        'planned_robot_s_to_full_predicted': (reach_s, 's'),
     })
     means = recollected_means(bench, planner, sorted({*c.measured, k}))
     figures.update(prediction_figures(c.measured, means))
