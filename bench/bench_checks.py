@@ -68,11 +68,11 @@ def run() -> Figures:
 
 def _kinematics() -> Figures:
     from cobot_calib_ros.core import kinematics
-    from cobot_calib_ros.core.health_checks import check_kinematics
+    from cobot_calib_ros.core.health_checks import check_kinematics, KINEMATIC_POSES
     from cobot_calib_ros.core.kinematics import plans
     sim = load_simulation(cell_file('iiwa7_close'))
     model = kinematics.model_by_name(sim.cell.robot)
-    plan, _ = plans.sphere_plan(sim.cell, model, 16)
+    plan, _ = plans.sphere_plan(sim.cell, model, KINEMATIC_POSES)
     nominal = model.chain(tool=sim.cell.spheres.coupling_offset)
     seconds, spreads, wrong = [], {'true': [], 'nominal': []}, 0
     for k in range(KIN_CHECKS):

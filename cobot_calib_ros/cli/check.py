@@ -23,7 +23,7 @@ def add_parser(subparsers):
                                             '(a few touches, far less robot time than a '
                                             'calibration)')
     p.add_argument('what', choices=['user-frame', 'kinematics'], help='what to check')
-    p.add_argument('--poses', type=int, default=16,
+    p.add_argument('--poses', type=int, default=None,
                    help='kinematics: sphere poses to visit (default 16)')
     p.add_argument('--points', nargs='+', default=list(DEFAULT_POINTS),
                    help='cell points to touch (default P1 P3 P5)')
@@ -101,7 +101,6 @@ def _user_frame(args, cell, model, repo):
     chain = chain_of(kinematic, model, cell.tool_offset)
     p_user = np.array([cell.marker(n).nominal_top for n in args.points])
     predicted = predicted_points(active['inputs'], active['result'], args.points, p_user)
-    tolerance = 0.2 if args.tolerance_mm is None else args.tolerance_mm
     say(args, f'checking {active["id"]} at {", ".join(args.points)} '
               f'(kinematics {active.get("kinematics") or "nominal"})')
 
@@ -110,32 +109,37 @@ def _user_frame(args, cell, model, repo):
             print(f'  {name}: {np.linalg.norm(error) * 1e3:.3f} mm  '
                   f'({", ".join(f"{e * 1e3:+.3f}" for e in error)})')
     return ('user_frame', active['id'], lambda robot: check_user_frame(
-        robot, chain, predicted, args.points, tolerance * 1e-3), details)
+        robot, chain, predicted, args.points, **_tolerance(args)), details)
 
 
 def _kinematics(args, cell, model, repo):
     """('kinematics', the active calibration's id or 'nominal', the check, its printout)."""
     import numpy as np
-    from cobot_calib_ros.core.health_checks import check_kinematics
+    from cobot_calib_ros.core.health_checks import check_kinematics, KINEMATIC_POSES
     from cobot_calib_ros.core.kinematics import plans
     from cobot_calib_ros.store.kinematics import chain_of
     if cell.spheres is None:
         raise ValueError(f'cell {cell.name!r} has no spheres (config/cells/iiwa7_close.yaml '
                          'has); give --robot-cell')
-    if args.poses < 4:
-        raise ValueError(f'--poses {args.poses}: give 4 or more')
+    poses = KINEMATIC_POSES if args.poses is None else args.poses
+    if poses < 4:
+        raise ValueError(f'--poses {poses}: give 4 or more')
     record = repo.kinematics.active(model.name)
     tool = np.array(cell.spheres.coupling_offset, dtype=float)
     if record is not None:
         tool = np.eye(4)
         tool[:3, 3] = record['result']['tool_xyz']
     chain = chain_of(record, model, tool)
-    plan, _ = plans.sphere_plan(cell, model, args.poses)
+    plan, _ = plans.sphere_plan(cell, model, poses)
     against = record['id'] if record else 'nominal'
-    tolerance = 0.1 if args.tolerance_mm is None else args.tolerance_mm
     say(args, f'checking the {model.name} model ({against}) on {len(plan)} sphere poses')
     return ('kinematics', against, lambda robot: check_kinematics(
-        robot, chain, plan, tolerance * 1e-3), lambda check: None)
+        robot, chain, plan, **_tolerance(args)), lambda check: None)
+
+
+def _tolerance(args) -> dict[str, float]:
+    """The check's tolerance_m if --tolerance-mm is given; else the check's own default."""
+    return {} if args.tolerance_mm is None else {'tolerance_m': args.tolerance_mm * 1e-3}
 
 
 def _report(args, repo, check, method: str, against: str, details) -> int:
