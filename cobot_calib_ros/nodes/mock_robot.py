@@ -102,6 +102,10 @@ class PacedLoop:
                 time.sleep(remaining)
 
 
+_SHUTTING_DOWN = Failure(ErrorCode.MOTION_FAILED, 'the mock robot is shutting down (Ctrl-C or '
+                         'SIGTERM); the arm stopped where it was')
+
+
 class MockRobot(Node):
     def __init__(self, **kwargs) -> None:
         super().__init__('mock_robot', **kwargs)
@@ -252,6 +256,9 @@ class MockRobot(Node):
         self._moving, self._ringing = True, False
         try:
             self._interpolate(lambda: False, None, q_target, 1.0)
+        except spin.Stopping:
+            results.fill(response, 'HandGuide', _SHUTTING_DOWN)
+            return response
         finally:
             self._moving = False
             self._motion_lock.release()
@@ -280,6 +287,8 @@ class MockRobot(Node):
                                          goal.speed_scale or 1.0)
             if goal.compliant and not canceled:
                 canceled = self._comply(q_target)
+        except spin.Stopping:
+            canceled = _SHUTTING_DOWN
         finally:
             self._moving = False
             self._motion_lock.release()
@@ -320,7 +329,9 @@ class MockRobot(Node):
                 seconds: float, stop_at: float = 1.0) -> bool:
         """Along a joint-space line in ``seconds`` of simulated time (smooth start and stop),
         ``step(q, progress)`` after each step; stops at ``stop_at`` of the way (the arm is left
-        there). True when canceled (the arm comes to rest where it is)."""
+        there). True when canceled (the arm comes to rest where it is). Raises spin.Stopping
+        when the node shuts down (Ctrl-C): the arm rests where it is and the caller ends its
+        goal within spin.STOP_GRACE, before the action server is destroyed."""
         duration = seconds * self._time_scale
         steps = max(1, int(duration / FEEDBACK_PERIOD))
         for k in range(1, steps + 1):
@@ -332,7 +343,11 @@ class MockRobot(Node):
             q = q_start + s * (q_target - q_start)
             self._robot.set_joints(q)
             step(q, k / steps)
-            time.sleep(duration / steps)
+            try:
+                spin.pause(duration / steps)
+            except spin.Stopping:
+                self._robot.settle(q)
+                raise
             if k / steps >= stop_at:
                 break
         return False
@@ -417,6 +432,11 @@ class MockRobot(Node):
                             complied.message
                         return result
                 self._ringing = fault == 'ring'
+        except spin.Stopping:
+            goal_handle.abort()
+            result.error_code = R.PATH_TOLERANCE_VIOLATED
+            result.error_string = _SHUTTING_DOWN.message
+            return result
         finally:
             self._moving = False
             self._motion_lock.release()
