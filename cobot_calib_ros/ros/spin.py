@@ -31,6 +31,7 @@ import time
 from typing import Callable
 
 import rclpy
+from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.executors import (Executor, ExternalShutdownException, MultiThreadedExecutor,
                              SingleThreadedExecutor)
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
@@ -87,6 +88,10 @@ def run(make_node: Callable[[], Node], args=None, threads: int = 1) -> None:
         _finish_work_in_flight(executor, node.context)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except (InvalidParameterTypeException, InvalidParameterValueException) as exc:
+        # a -p / --params-file value of the wrong type or out of the declared range: one line
+        raise SystemExit(f'{exc}; fix the -p value or config/<node>.yaml (the README\'s '
+                         'Configuration section gives each parameter\'s unit)')
     except _rclpy.RCLError:
         # the context shut down under the executor (the EventsExecutor's own signal handling,
         # or rclpy.shutdown from a node): an executor building its next wait set then fails

@@ -96,3 +96,21 @@ def test_a_node_runs_and_exits_cleanly_on_a_signal(domain, kind, signum):
     assert proc.returncode == 0, out
     assert 'Traceback' not in out, out
 
+
+
+@pytest.mark.parametrize('value, reason', [
+    ('100.0', 'out of range Min: 0.01, Max: 10.0, value: 100.0'),
+    ('fast', "of type 'STRING', expecting type 'DOUBLE'")])
+def test_a_bad_parameter_value_at_start_ends_the_node_with_one_line(domain, value, reason):
+    """-p joint_velocity:=100.0 (beyond its declared range) or a word where a number goes: the
+    node exits 1 naming the parameter, with no traceback."""
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
+    out = subprocess.run([sys.executable, '-m', 'cobot_calib_ros.nodes.mock_robot', '--ros-args',
+                          '-p', f'joint_velocity:={value}'], capture_output=True, text=True,
+                         env=env, timeout=TIMEOUT, cwd=Path(__file__).resolve().parents[2])
+    assert out.returncode == 1
+    lines = out.stderr.strip().splitlines()
+    assert 'Traceback' not in out.stderr and len(lines) == 1, out.stderr
+    assert reason in lines[0] and 'joint_velocity' in lines[0]
+    assert lines[0].endswith("fix the -p value or config/<node>.yaml (the README's "
+                             "Configuration section gives each parameter's unit)")
