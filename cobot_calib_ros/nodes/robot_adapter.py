@@ -210,12 +210,10 @@ class RobotAdapter(Node):
         goal.trajectory.points = [JointTrajectoryPoint(
             positions=q.tolist(), velocities=[0.0] * len(q), time_from_start=_duration(seconds))]
         goal.goal_time_tolerance = _duration(self._preset.goal_time_tolerance)
-        executor = self._answers._executor
-        sent = spin.wait(executor.create_task(client.send_goal_async, goal), ACCEPT_TIMEOUT)
-        handle = spin.wait(sent, ACCEPT_TIMEOUT)
-        if not handle.accepted:
+        sent = self._answers.send_goal(client, goal, ACCEPT_TIMEOUT)
+        if sent is None:
             return driver.rejected(action)
-        done = spin.wait(executor.create_task(handle.get_result_async), ACCEPT_TIMEOUT)
+        handle, done = sent
         deadline = time.monotonic() + seconds + self._preset.goal_time_tolerance + RESULT_MARGIN
         canceling = False
         while True:
@@ -223,15 +221,15 @@ class RobotAdapter(Node):
                 answer = spin.wait(done, POLL)
                 break
             except spin.Stopping:            # the node is shutting down: stop the arm too
-                executor.create_task(handle.cancel_goal_async)
+                self._answers.submit(handle.cancel_goal_async)
                 raise
             except TimeoutError:
                 pass
             if goal_handle.is_cancel_requested and not canceling:
-                executor.create_task(handle.cancel_goal_async)    # forwarded
+                self._answers.submit(handle.cancel_goal_async)    # forwarded
                 canceling = True
             if time.monotonic() > deadline:
-                executor.create_task(handle.cancel_goal_async)
+                self._answers.submit(handle.cancel_goal_async)
                 return Failure(ErrorCode.MOTION_FAILED, f'{action} did not end the move within '
                                f'{seconds + RESULT_MARGIN:.0f} s; the goal was canceled')
         if canceling:

@@ -180,12 +180,21 @@ class Companion:
         number, and is then dropped ("Ignoring unexpected goal response") and the call hangs.
         So sending and asking for the result both happen on the companion's own thread.
         """
-        sent = wait(self._executor.create_task(client.send_goal_async, goal), accept_timeout)
-        handle = wait(sent, accept_timeout)
+        sent = self.send_goal(client, goal, accept_timeout)
+        return None if sent is None else wait(sent[1], result_timeout).result
+
+    def send_goal(self, client, goal, accept_timeout: float):
+        """Send ``goal`` on the companion's thread (:meth:`run_action` says why): its goal
+        handle and the future of its result, or None if the server rejected it."""
+        handle = wait(wait(self.submit(client.send_goal_async, goal), accept_timeout),
+                      accept_timeout)
         if not handle.accepted:
             return None
-        asked = wait(self._executor.create_task(handle.get_result_async), accept_timeout)
-        return wait(asked, result_timeout).result
+        return handle, wait(self.submit(handle.get_result_async), accept_timeout)
+
+    def submit(self, call, *args):
+        """Run ``call(*args)`` on the companion's thread; the task (a future)."""
+        return self._executor.create_task(call, *args)
 
     def destroy(self) -> None:
         # Stop the spinning thread before shutting its executor down: Executor.shutdown()
