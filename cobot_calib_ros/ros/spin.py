@@ -116,17 +116,26 @@ def _stop_handler(stop: threading.Event):
 def _finish_work_in_flight(executor, context) -> None:
     """Every wait for an answer gives up now (Stopping), so a callback that waits on the robot
     ends the way a lost robot makes it end (store what it has, abort its goal). The executor
-    keeps spinning, so goal states, results and responses still go out, until no callback is
-    running any more or STOP_GRACE s have passed."""
+    keeps spinning, so goal states, results and responses still go out, until none of that
+    work is left or STOP_GRACE s have passed."""
     _stopping.set()
     # the callbacks a MultiThreadedExecutor is running now (a single-threaded one runs its
-    # callbacks inside spin_once: none is running between two calls); later ones (timers) are
-    # run meanwhile but not waited for
+    # callbacks inside spin_once: none is running between two calls); later timer and
+    # subscription callbacks are run meanwhile but not waited for
     in_flight = [f for f in list(getattr(executor, '_futures', ())) if not f.done()]
     deadline = time.monotonic() + STOP_GRACE
-    while context.ok() and time.monotonic() < deadline and not all(
-            f.done() for f in in_flight):
+    while context.ok() and time.monotonic() < deadline and (
+            not all(f.done() for f in in_flight) or _queued(executor)):
         executor.spin_once(timeout_sec=WAKE_PERIOD)
+
+
+def _queued(executor) -> bool:
+    """Whether the executor holds work a callback handed it that is not done: a goal still
+    executing, or the result response its end queued. Without waiting for the latter a goal
+    aborted by the stop never reached its client (the server was destroyed first, "Failed to
+    send result response")."""
+    return any(entity is None and not task.done()
+               for task, entity, _ in list(getattr(executor, '_tasks', ())))
 
 
 def _teardown(node: Node | None) -> None:
