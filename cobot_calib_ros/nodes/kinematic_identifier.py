@@ -21,12 +21,13 @@ import threading
 from time import monotonic
 
 from cobot_calib_msgs.action import CollectSphereData, IdentifyKinematics
-from cobot_calib_msgs.msg import ErrorStats
+from cobot_calib_msgs.msg import CollectionProgress, ErrorStats
 import numpy as np
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
+from std_msgs.msg import Header
 from visualization_msgs.msg import MarkerArray
 
 from cobot_calib_ros import paths, store
@@ -46,11 +47,11 @@ from cobot_calib_ros.bags.errors import BagError
 from cobot_calib_ros.bags.sphere_captures import is_bag, sphere_observations
 from cobot_calib_ros.core.ids import record_id
 from cobot_calib_ros.loaders import load_cell
-from cobot_calib_ros.ros import markers, marks, results, spin
+from cobot_calib_ros.ros import markers, marks, qos, results, spin
 from cobot_calib_ros.ros.diagnostics import Diagnostics, OK, WARN
 from cobot_calib_ros.ros.params import declare, read_once
 from cobot_calib_ros.ros.robot_calls import RobotCalls
-from cobot_calib_ros.ros.time import now_ns
+from cobot_calib_ros.ros.time import now_ns, ns_to_stamp
 from cobot_calib_ros.store.collections import Collection, CollectionStore
 from cobot_calib_ros.store.files import check_id
 
@@ -115,6 +116,9 @@ class KinematicIdentifier(Node):
         self._captures = self.create_publisher(JointState, marks.CAPTURES, 100)
         # the live view: sphere centres and the coupling positions collected on them
         self._markers = self.create_publisher(MarkerArray, markers.TOPIC, markers.QOS)
+        # every stored pose's progress and prediction, to echo, record and plot
+        self._progress = self.create_publisher(CollectionProgress, 'collection_progress',
+                                               qos.LATCHED)
         self._collected: list[np.ndarray] = []
         spheres = self._cell.spheres
         self._coupling = None if spheres is None else self._model.chain(
@@ -304,6 +308,7 @@ class KinematicIdentifier(Node):
             feedback.predicted_rms_error = prediction.rms_mm * 1e-3
             feedback.robot_time = self._robot.robot_seconds - start
             self._publish_capture(feedback.target, capture)
+            self._publish_progress(collection_id, feedback, feedback.recorded, planned=True)
             goal_handle.publish_feedback(feedback)
 
         self._robot.speed_scale = self._p('speed_scale')
@@ -360,10 +365,13 @@ class KinematicIdentifier(Node):
                 self._publish_markers(capture.q)
             feedback.recorded, feedback.skipped = run.recorded, run.skipped
             feedback.robot_time = self._robot.robot_seconds - start
+            self._publish_progress(collection_id, feedback, before + run.recorded)
             goal_handle.publish_feedback(feedback)
 
         self._robot.speed_scale = self._p('speed_scale')
-        run = collect(plan, self._collections.load(collection_id).next_index, self._robot,
+        stored = self._collections.load(collection_id)
+        before = len(stored.index)
+        run = collect(plan, stored.next_index, self._robot,
                       self._store(collection_id), hold=hold, laser=laser,
                       cancelled=lambda: goal_handle.is_cancel_requested, on_pose=on_pose)
         total = self._robot.robot_seconds - start
@@ -383,6 +391,19 @@ class KinematicIdentifier(Node):
         self._captures.publish(marks.capture_mark(target, self._model.joint_names,
                                                   capture.q, capture.std,
                                                   now_ns(self)))
+
+    def _publish_progress(self, collection_id: str, feedback, poses: int,
+                          planned: bool = False) -> None:
+        """A pose's collect_sphere_data feedback again, on collection_progress; ``poses``
+        stored in the collection so far."""
+        max_error = feedback.predicted_max_error if planned else math.inf
+        self._progress.publish(CollectionProgress(
+            header=Header(stamp=ns_to_stamp(now_ns(self))), collection_id=collection_id,
+            target=feedback.target, planned=planned, poses=poses,
+            poses_max=feedback.total, skipped=feedback.skipped,
+            predicted_max_error=max_error, predicted_max_error_mm=max_error * 1e3,
+            predicted_rms_error=feedback.predicted_rms_error if planned else math.inf,
+            robot_time=feedback.robot_time))
 
     # -- identification -------------------------------------------------------------------
     def _on_identify(self, goal_handle):

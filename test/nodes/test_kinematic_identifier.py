@@ -10,8 +10,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 from rclpy.action import ActionClient
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
 from cobot_calib_msgs.action import CollectSphereData, IdentifyKinematics
+from cobot_calib_msgs.msg import CollectionProgress
 from cobot_calib_msgs.srv import CalibrateUserFrame, SetActiveCalibration
 from cobot_calib_ros.ros.calls import run_action, spin_until
 from cobot_calib_ros.core.kinematics import fk, model_by_name, plans
@@ -41,6 +43,18 @@ def _run(ros, client, goal, feedback=None, timeout=300.0):
     return run_action(ros, client, goal, timeout, feedback, ros.executor_for_tests)[1]
 
 
+@pytest.fixture
+def progress(ros):
+    """The collection_progress messages published while the test runs (its QoS, deeper)."""
+    got = []
+    profile = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    subscription = ros.create_subscription(CollectionProgress, 'collection_progress',
+                                           got.append, profile)
+    yield got
+    ros.destroy_subscription(subscription)
+
+
 @pytest.fixture(scope='module')
 def collected(ros, actions, trial_data):
     """A small sphere collection (20 poses per sphere) and a laser-tracker volume set."""
@@ -65,7 +79,7 @@ def test_collection_stores_every_pose_with_feedback(collected, trial_data):
     assert np.isfinite(CollectionStore(trial_data).load(tracker.collection_id).p).all()
 
 
-def test_a_canceled_collection_resumes_where_it_stopped(ros, actions, trial_data):
+def test_a_canceled_collection_resumes_where_it_stopped(ros, actions, trial_data, progress):
     got = []
 
     def cancel_after_five(message):
@@ -89,6 +103,13 @@ def test_a_canceled_collection_resumes_where_it_stopped(ros, actions, trial_data
     assert resumed.error_code == 0, resumed.message
     data = CollectionStore(trial_data).load(first.collection_id)
     assert len(data.q) + len(data.skipped) == 24 and data.meta['status'] == 'done'
+    # collection_progress counts the collection's poses across both goals
+    spin_until(ros, lambda: sum(m.collection_id == first.collection_id for m in progress)
+               >= len(data.q), 10.0, ros.executor_for_tests)
+    mine = [m for m in progress if m.collection_id == first.collection_id]
+    assert [m.poses for m in mine] == list(range(1, len(data.q) + 1))
+    assert all(not m.planned and m.poses_max == 24 for m in mine)
+    assert all(np.isinf([m.predicted_max_error, m.predicted_max_error_mm]).all() for m in mine)
     again = _run(ros, client, Collect(collection_id=first.collection_id))
     assert again.error_code == CollectSphereData.Result.INVALID_GOAL
     assert 'complete' in again.message
@@ -135,12 +156,14 @@ def test_identification_is_validated_stored_and_exported_as_urdf(ros, actions, c
 
 
 def test_a_planned_collection_predicts_stops_and_is_stored_with_its_calibration(
-        ros, actions, trial_data):
+        ros, actions, trial_data, progress):
     """Issue 20: collect_sphere_data planned: feedback with the prediction and robot time,
-    the stop reason, the plan and predictions stored with the collection and the calibration."""
+    the same on collection_progress (for the live view's plot), the stop reason, the plan and
+    predictions stored with the collection and the calibration."""
     got = []
     collected = _run(ros, actions[0], Collect(planned=True, max_poses=40, hold=0.02),
                      feedback=lambda m: got.append(m.feedback), timeout=900.0)
+    spin_until(ros, lambda: len(progress) >= 40, 10.0, ros.executor_for_tests)
     assert collected.error_code == 0, collected.message
     assert collected.recorded == 40 and collected.stop_reason == 'max_poses: 40 poses measured'
     assert [f.recorded for f in got] == list(range(1, 41)) and got[-1].total == 40
@@ -148,6 +171,13 @@ def test_a_planned_collection_predicts_stops_and_is_stored_with_its_calibration(
     assert np.isinf(predicted[0]) and np.isfinite(predicted[-1])
     assert 1e-7 < collected.predicted_max_error == predicted[-1] < 5e-5     # [m]
     assert 0.0 < got[-1].robot_time <= collected.robot_time
+    mine = [m for m in progress if m.collection_id == collected.collection_id]
+    assert [m.poses for m in mine] == list(range(1, 41))
+    assert all(m.planned and m.poses_max == 40 for m in mine)
+    assert [m.predicted_max_error for m in mine] == predicted
+    assert [m.predicted_max_error_mm for m in mine] == [p * 1e3 for p in predicted]
+    assert [m.robot_time for m in mine] == [f.robot_time for f in got]
+    assert [m.target for m in mine] == [f.target for f in got]
     assert collected.robot_time_at_paper_hold == pytest.approx(
         collected.robot_time + 40 * (1.0 - 0.02))
     meta = CollectionStore(trial_data).load(collected.collection_id).meta
