@@ -43,11 +43,20 @@ class DriverPreset:
     notes: str = ''
 
     def move_seconds(self, q_from: ArrayLike, q_to: ArrayLike, speed_scale: float) -> float:
-        """The trajectory's duration [s]: the largest joint step at the scaled joint speed
-        (``speed_scale`` 0 = 1, clipped to [0.01, 1])."""
-        scale = min(max(speed_scale or 1.0, 0.01), 1.0)
-        step = float(np.max(np.abs(np.asarray(q_to, float) - np.asarray(q_from, float))))
-        return step / (self.max_joint_velocity * self.velocity_scaling * scale)
+        """The trajectory's duration [s] (:func:`move_seconds` at this arm's joint speed)."""
+        return float(move_seconds(q_from, q_to,
+                                  self.max_joint_velocity * self.velocity_scaling, speed_scale))
+
+
+def move_seconds(q_from: ArrayLike, q_to: ArrayLike, joint_speed: float,
+                 speed_scale: float = 1.0):
+    """A joint-space move's duration [s]: the largest joint step at ``joint_speed`` [rad/s]
+    times ``speed_scale`` (0 = 1, clipped to [0.01, 1]). Every robot here times a move this
+    way: the ros2_control driver, mock_robot, the sim's DirectRobot and the pose planner.
+    ``q_to`` may be a stack of targets (a time for each)."""
+    scale = min(max(speed_scale or 1.0, 0.01), 1.0)
+    step = np.abs(np.asarray(q_to, float) - np.asarray(q_from, float)).max(axis=-1)
+    return step / (joint_speed * scale)
 
 
 def parse_presets(data: Any) -> dict[str, DriverPreset] | Failure:

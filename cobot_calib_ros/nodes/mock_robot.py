@@ -42,6 +42,7 @@ from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import JointState
 
 from cobot_calib_ros import paths
+from cobot_calib_ros.core.driver import move_seconds
 from cobot_calib_ros.core.errors import ErrorCode, Failure
 from cobot_calib_ros.core.sensors.joint_buffer import StampGaps, StampMarks
 from cobot_calib_ros.ros import convert, qos, results, spin
@@ -312,8 +313,8 @@ class MockRobot(Node):
         """Move along a joint-space line (feedback after each step unless
         ``publish_feedback`` is None); returns True when canceled."""
         q_start = self._robot.q
-        velocity = self._param('joint_velocity') * min(max(speed_scale, 0.01), 1.0)
-        self._motion_s = float(np.max(np.abs(q_target - q_start))) / velocity   # simulated
+        self._motion_s = float(move_seconds(q_start, q_target, self._param('joint_velocity'),
+                                            speed_scale))                     # simulated
         feedback = MoveTo.Feedback()
 
         def step(q, progress):

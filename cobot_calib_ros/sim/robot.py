@@ -16,6 +16,7 @@ from numpy.typing import NDArray
 
 from cobot_calib_ros.core import frames, kinematics
 from cobot_calib_ros.core.cell import tool_down_orientation
+from cobot_calib_ros.core.driver import move_seconds
 from cobot_calib_ros.core.errors import ErrorCode, Failure
 from cobot_calib_ros.core.robot_port import Capture, CaptureFailed, MoveFailed
 from cobot_calib_ros.core.sensors.probe import (average, ProbeCurve, Reading, read_distance,
@@ -160,7 +161,7 @@ class SimRobot:
 class DirectRobot:
     """core.robot_port.RobotPort on a SimRobot, in-process (no ROS): for tests.
 
-    Moves settle at once (robot time: the largest joint step over ``joint_velocity``, as
+    Moves settle at once (robot time: core.driver.move_seconds at ``joint_velocity``, as
     mock_robot reports it), a touch is the simulated operator's hand-guiding (as mock_robot's
     hand_guide), a capture averages encoder readings at the cell's joint_states rate, and the
     probe reads ``samples`` voltages through ``probe_table``, the user's calibration table, and
@@ -178,7 +179,7 @@ class DirectRobot:
     def _go(self, q: Array | Failure) -> Array:
         if isinstance(q, Failure):
             raise MoveFailed(q.message)
-        self.robot_seconds += float(np.max(np.abs(q - self.sim.q))) / self.joint_velocity
+        self.robot_seconds += float(move_seconds(self.sim.q, q, self.joint_velocity))
         self.sim.settle(q)
         self.moves += 1
         return self.sim.q

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 import yaml
 
-from cobot_calib_ros.core.driver import (joint_order, not_settled, parse_presets, SettleWatch,
-                                         trajectory_failure)
+from cobot_calib_ros.core.driver import (joint_order, move_seconds, not_settled, parse_presets,
+                                         SettleWatch, trajectory_failure)
 from cobot_calib_ros.core.errors import ErrorCode, Failure
 from cobot_calib_ros.core.kinematics import model_by_name
 
@@ -66,6 +66,15 @@ def test_move_seconds_is_the_largest_step_at_the_scaled_speed(presets):
     ur = presets['ur']        # 1.0 rad/s * 0.3
     assert ur.move_seconds([0, 0], [0.3, -0.6], 0.0) == pytest.approx(2.0)
     assert ur.move_seconds([0, 0], [0.3, -0.6], 0.5) == pytest.approx(4.0)
+    assert ur.move_seconds([0, 0], [0.3, -0.6], 1e-6) == pytest.approx(200.0)   # 1 % at least
+
+
+def test_move_seconds_times_a_stack_of_targets_each():
+    """As the pose planner times its candidates: one duration per row."""
+    targets = np.array([[0.5, 0.1], [-0.2, 0.4], [0.0, 0.0]])
+    assert move_seconds([0.1, 0.0], targets, 2.0).tolist() == pytest.approx([0.2, 0.2, 0.05])
+    assert move_seconds([0.1, 0.0], targets, 2.0, 0.5).tolist() == pytest.approx(
+        [0.4, 0.4, 0.1])
 
 
 def test_settle_needs_a_whole_quiet_window():

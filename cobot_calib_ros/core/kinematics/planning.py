@@ -17,8 +17,8 @@ then the fit's residual estimate).
   arm-angle null space, :func:`sphere_candidates`): the pose that most increases
   log det M (D-optimal, rank-3 update), or most decreases the predicted task-volume mean square
   error (V-optimal, Woodbury), given every pose measured so far; by default per robot second:
-  the hold plus the move from the last pose (its largest joint step at ``joint_speed``, as
-  mock_robot and DriverPreset.move_seconds time a move), the move weighted ``travel_weight``
+  the hold plus the move from the last pose (core.driver.move_seconds at ``joint_speed``,
+  as every robot here times a move), the move weighted ``travel_weight``
   (a far pose now costs moves back later, which the one-step greedy does not see). Offline
   on the mock iiwa 7 (1 s hold, 1 rad/s, 5 um prior noise), 100 poses from a pool in 30 deg
   tilt steps: per pose 362 s of robot time; per second with travel_weight 1: 188 s,
@@ -48,6 +48,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from cobot_calib_ros.core.cell import Cell
+from cobot_calib_ros.core.driver import move_seconds
 from cobot_calib_ros.core.errors import ErrorCode
 from cobot_calib_ros.core.kinematics.identification.identifiability import base_motion_columns
 from cobot_calib_ros.core.kinematics.identification.observations import SphereObservations
@@ -367,8 +368,8 @@ class SpherePlanner:
         s = self.settings
         if not s.joint_speed > 0.0:
             return None
-        move = 0.0 if here is None else np.abs(self.pool_q[idx] - here).max(axis=1)
-        return s.pose_seconds + s.travel_weight * move / s.joint_speed
+        move = 0.0 if here is None else move_seconds(here, self.pool_q[idx], s.joint_speed)
+        return s.pose_seconds + s.travel_weight * move
 
     def start(self) -> PlanState:
         """The plan before the robot moves: up to max_poses poses and their predictions."""
