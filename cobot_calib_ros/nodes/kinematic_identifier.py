@@ -299,6 +299,7 @@ class KinematicIdentifier(Node):
             planner.start()
         feedback = Collect.Feedback(total=planner.settings.max_poses)
         start = self._robot.robot_seconds
+        self._collected = []
 
         def on_pose(record, capture, run, prediction) -> None:
             feedback.index, feedback.recorded = len(planner.q) - 1, len(planner.q)
@@ -308,6 +309,8 @@ class KinematicIdentifier(Node):
             feedback.predicted_rms_error = prediction.rms_mm * 1e-3
             feedback.robot_time = self._robot.robot_seconds - start
             self._publish_capture(feedback.target, capture)
+            if self._coupling is not None:
+                self._publish_markers(capture.q)
             self._publish_progress(collection_id, feedback, feedback.recorded, planned=True)
             goal_handle.publish_feedback(feedback)
 

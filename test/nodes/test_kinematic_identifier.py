@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from rclpy.action import ActionClient
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from visualization_msgs.msg import MarkerArray
 
 from cobot_calib_msgs.action import CollectSphereData, IdentifyKinematics
 from cobot_calib_msgs.msg import CollectionProgress
@@ -21,11 +22,12 @@ from cobot_calib_ros.core.kinematics.identification import SphereObservations
 from cobot_calib_ros.core.kinematics.kinematic_calibration import CalibrationJob
 from cobot_calib_ros.core.kinematics.urdf import model_from_urdf
 from cobot_calib_ros.paths import cell_file
+from cobot_calib_ros.ros import markers
 from cobot_calib_ros.sim.robot import SimRobot
 from cobot_calib_ros.sim.scenario import load_simulation
 from cobot_calib_ros.store.collections import CollectionStore
 from cobot_calib_ros import store
-from rosutil import call, cli
+from rosutil import call, cli, listen_late
 
 Collect, Identify = CollectSphereData.Goal, IdentifyKinematics.Goal
 
@@ -178,6 +180,10 @@ def test_a_planned_collection_predicts_stops_and_is_stored_with_its_calibration(
     assert [m.predicted_max_error_mm for m in mine] == [p * 1e3 for p in predicted]
     assert [m.robot_time for m in mine] == [f.robot_time for f in got]
     assert [m.target for m in mine] == [f.target for f in got]
+    # the live view's markers: the coupling at each of this goal's 40 poses
+    drawn = _pose_markers(listen_late(ros, MarkerArray, markers.TOPIC, markers.QOS,
+                                      _pose_markers))
+    assert drawn and len(drawn[-1].points) == 40
     assert collected.robot_time_at_paper_hold == pytest.approx(
         collected.robot_time + 40 * (1.0 - 0.02))
     meta = CollectionStore(trial_data).load(collected.collection_id).meta
@@ -199,6 +205,11 @@ def test_a_planned_collection_predicts_stops_and_is_stored_with_its_calibration(
     finally:
         if result.calibration_id:
             store.open(trial_data).kinematics.retire(result.calibration_id)
+
+
+def _pose_markers(arrays) -> list:
+    """The 'kinematics/poses' markers (kinematic_identifier's) of these MarkerArrays."""
+    return [m for a in arrays for m in a.markers if m.ns == 'kinematics/poses']
 
 
 def test_bad_goals_get_a_reason(ros, actions):
