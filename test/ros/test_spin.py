@@ -97,7 +97,6 @@ def test_a_node_runs_and_exits_cleanly_on_a_signal(domain, kind, signum):
     assert 'Traceback' not in out, out
 
 
-
 @pytest.mark.parametrize('value, reason', [
     ('100.0', 'out of range Min: 0.01, Max: 10.0, value: 100.0'),
     ('fast', "of type 'STRING', expecting type 'DOUBLE'")])
