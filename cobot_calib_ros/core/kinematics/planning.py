@@ -396,7 +396,10 @@ class SpherePlanner:
     def resume(self, indices: Sequence[int], q: ArrayLike,
                skipped: Sequence[int] = ()) -> Prediction | None:
         """Poses measured before (a resumed collection): candidate ``indices`` at joints q
-        (m, n) [rad] and the ``skipped`` ones, with one refit; the prediction after them."""
+        (m, n) [rad] and the ``skipped`` ones; the prediction after them. The fits are
+        replayed pose by pose, each from the one before, as the uninterrupted collection made
+        them (one fit from the nominal model lands elsewhere near the threshold of
+        identifiability)."""
         for index in skipped:
             self.skipped(index)
         for index, row in zip(indices, np.atleast_2d(np.asarray(q, dtype=float))):
@@ -404,9 +407,10 @@ class SpherePlanner:
             self.q.append(row)
             self.target.append(int(self.pool_target[index]))
             self.state.chosen.append(int(index))
+            self._refit(relinearise=False)
         if not len(indices):
             return None
-        self._refit()
+        self._relinearise()
         prediction = self.prediction()
         self.state.predictions.append(prediction)
         return prediction
@@ -416,9 +420,10 @@ class SpherePlanner:
         self.available[index] = False
         self.state.skipped.append(int(index))
 
-    def _refit(self) -> None:
+    def _refit(self, relinearise: bool = True) -> None:
         """Identify on the data so far once they determine every unknown with some margin
-        (3 rows per pose for D unknowns, twice over); the noise estimate from its residuals."""
+        (3 rows per pose for D unknowns, twice over); the noise estimate from its residuals;
+        then the linearisation at the new estimate (unless told not to)."""
         if 3 * len(self.q) < 2 * self.lin.D:
             return
         try:    # too few rows on a sphere, or a known distance's sphere not yet visited
@@ -436,7 +441,8 @@ class SpherePlanner:
             self._centres = np.array([centres[s] for s in self.lin.spheres])
         residual_count = 3 * len(self.q) + len(self.known_distances)
         self.sigma = result.rms_m * math.sqrt(residual_count / (residual_count - self.lin.D))
-        self._relinearise()
+        if relinearise:
+            self._relinearise()
 
     def stop_reason(self) -> str | None:
         """Why to stop now, or None (module doc)."""

@@ -149,9 +149,6 @@ def _check_inputs(parameter_set: ParameterSet, observations, params0: Array,
                          f'the nominal model)')
     if tool_xyz0.shape != (3,) or not np.all(np.isfinite(tool_xyz0)):
         raise ValueError(f'tool_xyz0 must be 3 finite values [m], got {tool_xyz0}')
-    if len(observations.q) < len(parameter_set.free):
-        raise ValueError(f'{len(observations.q)} rows for {len(parameter_set.free)} free '
-                         f'parameters: record more poses or free fewer parameters')
 
 
 def _standard_deviations(J: Array, r: Array, n_free: int) -> tuple[Array, NDArray[np.bool_]]:
@@ -214,7 +211,9 @@ def identify(parameter_set: ParameterSet,
     problem = _objective(parameter_set, observations, objective, pairs, p0, t0,
                          distance_weight)
     x0 = problem.x0
-    if problem.residual_count < len(x0):
+    # more residuals than unknowns (parameters, tool, sphere centres), so the noise and the
+    # standard deviations can be estimated: a pose on a sphere is 3 residuals, not 1
+    if problem.residual_count <= len(x0):
         raise ValueError(f'{problem.residual_count} residuals for {len(x0)} unknowns: record '
                          f'more poses or free fewer parameters')
     monitor = _Monitor(problem, loss, f_scale, callback)

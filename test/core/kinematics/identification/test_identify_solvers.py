@@ -130,7 +130,8 @@ def test_bad_input_raises_with_advice(data):
     with pytest.raises(ValueError, match='repeated'):
         ParameterSet(MODEL, ('d_3', 'd_3'))
     few = SphereObservations(data.q[:2], np.array([0, 0]))
-    with pytest.raises(ValueError, match='2 rows for 4 free parameters: record more poses'):
+    # 2 poses on one sphere: 6 residuals for 4 parameters and the sphere's centre
+    with pytest.raises(ValueError, match='6 residuals for 7 unknowns: record more poses'):
         identify(ps, few, tool_xyz0=TOOL)
     with pytest.raises(ValueError, match='needs PositionObservations'):
         identify(ps, data, tool_xyz0=TOOL, objective='absolute')
