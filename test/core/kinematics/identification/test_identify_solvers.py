@@ -113,6 +113,16 @@ def test_soft_l1_resists_an_outlier(truth, data):
     assert worst['soft_l1'] < 0.1 * worst['linear']
 
 
+def test_fewer_poses_than_free_parameters_are_enough_when_the_residuals_outnumber_the_unknowns(
+        data):
+    """Three poses on one sphere: 9 residuals for the 4 parameters and the centre (7). A
+    rule of one pose per free parameter refused this (and a planned collection that stopped
+    at 20 poses of a 24-parameter Sawyer, 60 residuals for 36 unknowns)."""
+    few = SphereObservations(data.q[:3], np.array([0, 0, 0]))
+    result = identify(ParameterSet(MODEL, FREE), few, tool_xyz0=TOOL, loss='linear')
+    assert result.params.shape == MODEL.nominal.shape and np.isfinite(result.params).all()
+
+
 def test_bad_input_raises_with_advice(data):
     ps = ParameterSet(MODEL, FREE)
     q = data.q.copy()
