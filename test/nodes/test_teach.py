@@ -56,13 +56,15 @@ def test_teach_waits_for_the_confirm_service_when_stdin_is_closed(ros):
             call(ros, Trigger, '/cobot_calib_teach/confirm', timeout=2.0)
             confirmations += 1
         except CallError:
-            pass                # not up yet, or between points
+            pass                # not up yet, between points, or the answer came late
         time.sleep(0.3)
     out, err = teach.communicate(timeout=10)
     assert teach.returncode == 0, err
     assert 'waiting for /cobot_calib_teach/confirm' in out
-    assert 'P1:' in out and 'P5:' in out and 'residual RMS' in out
-    assert confirmations >= 3
+    # with standard input closed only the service confirms: all three points captured means
+    # three calls reached teach (this client saw 2 of the 3 answers once, on a loaded machine)
+    assert all(f'{name}:' in out for name in ('P1', 'P2', 'P5')) and 'residual RMS' in out
+    assert confirmations >= 1
 
 
 def test_teach_quit_stores_nothing_and_unknown_points_are_refused(ros, trial_data):
