@@ -44,7 +44,7 @@ class BatchReader:
 
     def destroy(self) -> None:
         self._stop.set()
-        self._thread.join(timeout=2.0)
+        self._thread.join(timeout=1.0)      # it wakes every WAKE_PERIOD
         self.node.destroy_node()
 
     def _run(self) -> None:

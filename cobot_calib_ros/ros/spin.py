@@ -23,6 +23,7 @@ the context down first, and every goal still running then failed with a tracebac
 """
 from __future__ import annotations
 
+import faulthandler
 import os
 import signal
 import sys
@@ -44,6 +45,7 @@ EXECUTORS = ('events', 'single')
 DEFAULT_EXECUTOR = 'single'
 WAKE_PERIOD = 0.1     # [s] longest wait of one spin_once of a loop that checks for a stop
 STOP_GRACE = 3.0      # [s] for callbacks in flight to end after a stop, before the teardown
+TEARDOWN_DUMP = 4.0   # [s] a teardown still running this long prints every thread's stack
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 _stopping = threading.Event()     # set once this process is shutting down
 
@@ -146,6 +148,10 @@ def _teardown(node: Node | None) -> None:
     seen here); ignoring SIGINT from here on drops it.
     """
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    # a node that outlived its teardown was killed (-9) twice in test suites, with nothing in
+    # its log; if it happens again, the log shows where each thread stood (not cancelled: it
+    # fires only while the process is still alive, in the teardown or at interpreter exit)
+    faulthandler.dump_traceback_later(TEARDOWN_DUMP)
     if node is not None:
         node.destroy_node()
     rclpy.try_shutdown()
@@ -209,7 +215,7 @@ class Companion:
         # Stop the spinning thread before shutting its executor down: Executor.shutdown()
         # destroys the guard condition a concurrent wait may still hold (a segfault at exit).
         self._running = False
-        self._thread.join(timeout=5.0)
+        self._thread.join(timeout=2.0)      # it wakes every WAKE_PERIOD: only a blocked callback
         if self._thread.is_alive():
             return                      # still blocked: leave the rest to process exit
         self._executor.shutdown(timeout_sec=1.0)
