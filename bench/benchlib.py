@@ -20,6 +20,7 @@ import tempfile
 import time
 from typing import Callable, Iterator
 
+import cobot_calib_ros  # noqa: F401  (before numpy: its one BLAS thread, as the nodes and CLI)
 import domain_coordinator
 import numpy as np
 from rclpy.executors import SingleThreadedExecutor

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 import math
+from typing import Iterator
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -86,13 +87,13 @@ class Chain:
         return len(self.joint_names)
 
 
-def _as_batch(chain: Chain, q: ArrayLike) -> Array:
+def _as_batch(chain: 'Chain | KinematicModel', q: ArrayLike) -> Array:
     """(n,) or (m, n) joint angles [rad] -> (m, n); ValueError on a wrong shape."""
     qa = np.asarray(q, dtype=float)
-    if qa.ndim not in (1, 2) or qa.shape[-1] != chain.dof:
-        raise ValueError(f'expected q of shape ({chain.dof},) or (m, {chain.dof}), '
-                         f'got {qa.shape}')
-    return qa.reshape(-1, chain.dof)
+    n = len(chain.joint_names)
+    if qa.ndim not in (1, 2) or qa.shape[-1] != n:
+        raise ValueError(f'expected q of shape ({n},) or (m, {n}), got {qa.shape}')
+    return qa.reshape(-1, n)
 
 
 def _right_mul(T: Array, M: Array) -> Array:
@@ -288,6 +289,44 @@ def dh_model(name: str, joint_names: tuple[str, ...], dh_rows: ArrayLike,
     return _model(name, 'mdh', tuple(joint_names), rows, limits, flange)
 
 
+def _moving_axes(model: KinematicModel, params: ArrayLike | None,
+                 q: Array) -> Iterator[tuple[bool, int, bool, Array, Array]]:
+    """Along the chain at q (m, n): (is a joint, its parameter or joint index, turns (else
+    slides), axis u (m, 3), a point o on it (m, 3)) in the base frame, for every parameter's
+    elementary motion and every joint."""
+    rows = model.rows(params)
+    slide = np.zeros(len(rows), bool) if np.size(model.prismatic) == 0 else model.prismatic
+    T = np.broadcast_to(np.eye(4), (len(q), 4, 4)).copy()
+    k = model.fields_per_joint
+    for i, row in enumerate(rows):
+        for motion, axis, idx in _MOTIONS[model.kind]:
+            T = _right_mul(T, _motion(motion, axis, row[idx]))
+            yield False, i * k + idx, motion == 'r', T[:, :3, axis], T[:, :3, 3]
+        yield True, i, not slide[i], T[:, :3, 2], T[:, :3, 3]
+        _move_joint(T, q[:, i], bool(slide[i]))
+
+
+def parameter_twists(model: KinematicModel, params: ArrayLike | None,
+                     q_batch: ArrayLike) -> tuple[Array, Array]:
+    """Twists (v, w) in the base frame of every parameter (m, 6, P) and every joint (m, 6, n).
+
+    Moving parameter k (or joint i) by h moves everything past it rigidly: to first order every
+    point p of the tool side goes to p + h (v + w x p) and rotations R to R + h [w]x R. A
+    rotation about the unit axis u through o has w = u, v = o x u; a translation along u has
+    v = u, w = 0. q_batch (m, n) [rad]; params default nominal. Independent of the tool.
+    """
+    q = _as_batch(model, q_batch)
+    twists = np.zeros((len(q), 6, model.nominal.size))
+    joints = np.zeros((len(q), 6, len(model.joint_names)))
+    for is_joint, index, turns, u, o in _moving_axes(model, params, q):
+        out = (joints if is_joint else twists)[:, :, index]
+        if turns:
+            out[:, :3], out[:, 3:] = np.cross(o, u), u
+        else:
+            out[:, :3] = u
+    return twists, joints
+
+
 def position_jacobian_wrt_params(model: KinematicModel, params: ArrayLike | None,
                                  q_batch: ArrayLike, tool: ArrayLike | None = None) -> Array:
     """Analytic d(tool position)/d(params), shape (m, 3, P) [m/m or m/rad].
@@ -295,17 +334,11 @@ def position_jacobian_wrt_params(model: KinematicModel, params: ArrayLike | None
     q_batch (m, n) [rad]; params default nominal; tool T_flange_tool (default I), held fixed.
     Reshape to (3 m, P) for a stacked least-squares Jacobian.
     """
-    rows = model.rows(params)
     chain = model.chain(params, tool)
     q = _as_batch(chain, q_batch)
     p_tool = fk(chain, q)[:, :3, 3]
-    J = np.empty((len(q), 3, rows.size))
-    T = np.broadcast_to(np.eye(4), (len(q), 4, 4)).copy()
-    k = model.fields_per_joint
-    for i, row in enumerate(rows):
-        for motion, axis, idx in _MOTIONS[model.kind]:
-            T = _right_mul(T, _motion(motion, axis, row[idx]))
-            u = T[:, :3, axis]  # motion axis in base, through the origin of T
-            J[:, :, i * k + idx] = u if motion == 't' else np.cross(u, p_tool - T[:, :3, 3])
-        _move_joint(T, q[:, i], bool(chain.prismatic[i]))
+    J = np.empty((len(q), 3, model.nominal.size))
+    for is_joint, index, turns, u, o in _moving_axes(model, params, q):
+        if not is_joint:
+            J[:, :, index] = np.cross(u, p_tool - o) if turns else u
     return J

@@ -113,25 +113,36 @@ def find_redundant(model: KinematicModel, q: ArrayLike, tool_xyz: ArrayLike,
                        J_keep])
 
     base_columns = fixed.shape[1] - len(keep)
+    rows = len(J)
 
-    def rank_and_condition(columns: Array) -> tuple[int, float]:
+    def rank_and_condition(columns: Array, fixed: Array = fixed) -> tuple[int, float]:
+        """numpy's matrix_rank and cond of [columns fixed] as if it had ``rows`` rows, from
+        one SVD."""
         full = np.hstack([columns, fixed])
-        return (int(np.linalg.matrix_rank(full, rtol=rank_rtol)) - base_columns,
-                float(np.linalg.cond(full)))
+        s = np.linalg.svd(full, compute_uv=False)
+        rtol = rank_rtol if rank_rtol is not None else max(rows, full.shape[1]) * np.finfo(
+            float).eps
+        return int(np.count_nonzero(s > s[0] * rtol)) - base_columns, float(s[0] / s[-1])
 
     dropped = []
     for name, reason in excluded.items():
         k = names.index(name)
-        before = rank_and_condition(J)[1]
+        before = dropped[-1].condition_after if dropped else rank_and_condition(J)[1]
         J, _ = np.delete(J, k, axis=1), names.pop(k)
         dropped.append(Dropped(name, reason, before, rank_and_condition(J)[1]))
-    if keep and rank_and_condition(J[:, :0])[0] < len(keep):
+    # Every trial below is a subset of the columns of [J fixed] = Q R, whose singular values
+    # are those of the same columns of R (Q has orthonormal columns): the trials run on R,
+    # (c, c) instead of (3 m, c) (the bench's 1875 poses: 0.55 s -> 0.02 s). Reduced after the
+    # exclusions, so that the same candidates give the same choices with or without them.
+    R = np.linalg.qr(np.hstack([J, fixed]), mode='r')
+    J, fixed = R[:, :J.shape[1]], R[:, J.shape[1]:]
+    if keep and rank_and_condition(J[:, :0], fixed)[0] < len(keep):
         raise ValueError(f'the kept parameters {keep} are themselves redundant on these data')
-    rank, condition = rank_and_condition(J)
+    rank, condition = rank_and_condition(J, fixed)
     while rank - len(keep) < J.shape[1]:
         best, best_condition = -1, np.inf
         for k in range(J.shape[1]):
-            trial_rank, c = rank_and_condition(np.delete(J, k, axis=1))
+            trial_rank, c = rank_and_condition(np.delete(J, k, axis=1), fixed)
             if trial_rank == rank and (best < 0 or c < best_condition):
                 best, best_condition = k, c
         J = np.delete(J, best, axis=1)

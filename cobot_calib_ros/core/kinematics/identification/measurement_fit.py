@@ -8,7 +8,8 @@ Error models (``ERROR_MODELS``) over a :class:`KinematicModel` (from a URDF, or 
 - ``mdh``: every joint's alpha, a, theta, d (kind 'mdh' models: the paper's).
 
 Unknowns are the free model parameters then the measurement's nuisance (base and target
-frames, markers, sphere centres, planes: :mod:`.measurements`). Jacobians are central
+frames, markers, sphere centres, planes: :mod:`.measurements`). Jacobians: the model
+parameters' through the tip pose's twists (:mod:`.tip_jacobian`), the nuisance's by central
 differences of the residuals (step ``FD_STEP``, accurate to ~1e-9 relative, which the rank
 tolerance below is far above); the solver is scipy's trust-region least squares, with a
 robust loss if asked (``soft_l1``, the CLI's default: inliers within the median residual of
@@ -38,6 +39,8 @@ from scipy.optimize import least_squares
 
 from cobot_calib_ros.core.kinematics.identification.measurements import (
     Kind, make_kind, Measurements, textbook_minimum)
+from cobot_calib_ros.core.kinematics.identification.tip_jacobian import (
+    residual_jacobian, tip_twists)
 from cobot_calib_ros.core.kinematics.model import fk_placements, KinematicModel, placement
 
 Array = NDArray[np.float64]
@@ -77,22 +80,20 @@ class ErrorModel:
 
     def placements(self, names: tuple[str, ...], values: Array) -> tuple[Array, Array]:
         """(placements (n, 4, 4), joint offsets (n,)) with the named parameters at values."""
-        rows = np.array(self.model.rows(), dtype=float)
-        offsets = np.zeros(len(rows))
-        width = self.model.fields_per_joint
+        params, offsets = self.parameters(names, values)
+        return np.stack([placement(self.model.kind, r)
+                         for r in self.model.rows(params)]), offsets
+
+    def parameters(self, names: tuple[str, ...], values: Array) -> tuple[Array, Array]:
+        """(model parameters (P,), joint offsets (n,)) with the named ones at values."""
+        params = np.array(self.model.nominal, dtype=float)
+        offsets = np.zeros(len(self.model.joint_names))
         for name, v in zip(names, values):
             if name.startswith('offset_'):
                 offsets[self.model.joint_names.index(name[7:])] = v
             else:
-                i = self.model.parameter_names.index(name)
-                rows[i // width, i % width] = v
-        return np.stack([placement(self.model.kind, r) for r in rows]), offsets
-
-    def joint_of(self, name: str) -> int:
-        """Index of the joint a parameter belongs to."""
-        if name.startswith('offset_'):
-            return self.model.joint_names.index(name[7:])
-        return self.model.parameter_names.index(name) // self.model.fields_per_joint
+                params[self.model.parameter_names.index(name)] = v
+        return params, offsets
 
     def start(self, names: tuple[str, ...]) -> Array:
         lookup = dict(zip(self.model.parameter_names, self.model.nominal))
@@ -117,35 +118,21 @@ class _Problem:
         return self.kind.residuals(self.tip(x), x[self.n:])
 
     def jacobian(self, x: Array) -> Array:
-        """Central differences; a model parameter re-places its own joint only, a nuisance
-        unknown reuses the tip poses."""
-        placements, offsets = self.errors.placements(self.names, x[:self.n])
-        q = self.data.q + offsets
-        end = self.errors.model.flange
-        slide = self.errors.model.prismatic
-        T = fk_placements(placements, end, q, slide)
+        """The model parameters through the tip's twists (:mod:`.tip_jacobian`), each
+        nuisance unknown by central differences on the same tip poses."""
+        T = self.tip(x)
         nuisance = x[self.n:]
-        columns = []
-        for k in range(len(x)):
+        twists = tip_twists(self.errors.model, *self.errors.parameters(self.names, x[:self.n]),
+                            self.names, self.data.q)
+        columns = [residual_jacobian(self.kind, T, nuisance, twists, FD_STEP)]
+        for k in range(len(nuisance)):
             pair = []
             for h in (FD_STEP, -FD_STEP):
-                if k < self.n:
-                    name, i = self.names[k], self.errors.joint_of(self.names[k])
-                    moved, qm = placements.copy(), q.copy()
-                    if name.startswith('offset_'):
-                        qm[:, i] += h
-                    else:
-                        value = x[:self.n].copy()
-                        value[k] += h
-                        moved[i] = self.errors.placements(self.names, value)[0][i]
-                    pair.append(self.kind.residuals(fk_placements(moved, end, qm, slide),
-                                                    nuisance))
-                else:
-                    step = nuisance.copy()
-                    step[k - self.n] += h
-                    pair.append(self.kind.residuals(T, step))
-            columns.append((pair[0] - pair[1]) / (2.0 * FD_STEP))
-        return np.stack(columns, axis=1)
+                step = nuisance.copy()
+                step[k] += h
+                pair.append(self.kind.residuals(T, step))
+            columns.append(((pair[0] - pair[1]) / (2.0 * FD_STEP))[:, None])
+        return np.hstack(columns)
 
     def solve(self, max_nfev: int = 200, loss: str = 'linear') -> tuple[Array, bool]:
         if not np.all(np.isfinite(self.residuals(self.x0))):

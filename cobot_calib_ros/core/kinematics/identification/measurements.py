@@ -145,7 +145,13 @@ def _rotation_errors(R_measured: Array, R_model: Array) -> Array:
 
 
 class Kind:
-    """Nuisance unknowns and residuals of one kind of measurement (module docstring)."""
+    """Nuisance unknowns and residuals of one kind of measurement (module docstring).
+
+    ``residuals`` gives ``per_row`` values for each row, in row order, each of its own row's tip
+    pose only; any after those depend on no tip pose (the spheres' distances).
+    """
+
+    per_row = 0
 
     def __init__(self, data: Measurements, T_tip: Array) -> None:
         """Start values of the nuisance for ``data`` with start tip poses T_tip (m, 4, 4)."""
@@ -181,6 +187,8 @@ class Kind:
 
 
 class PointsKind(Kind):
+    per_row = 3
+
     def _start(self, T_tip):
         d = self.data
         self.markers = tuple(int(k) for k in np.unique(d.target))
@@ -222,6 +230,8 @@ class PointsKind(Kind):
 
 
 class PoseKind(Kind):
+    per_row = 6
+
     def _start(self, T_tip):
         d = self.data
         if len(d) >= 3:
@@ -256,6 +266,8 @@ class PoseKind(Kind):
 
 
 class SpheresKind(Kind):
+    per_row = 3
+
     def _start(self, T_tip):
         d = self.data
         self.spheres = tuple(int(s) for s in np.unique(d.target))
@@ -317,6 +329,8 @@ class _HeldOutSpheres(SpheresKind):
 
 
 class PlaneKind(Kind):
+    per_row = 1
+
     def _start(self, T_tip):
         d = self.data
         self.planes = tuple(int(s) for s in np.unique(d.target))

@@ -242,14 +242,36 @@ def identify(parameter_set: ParameterSet,
 
 def _solve_lm(problem, monitor: _Monitor, loss: str, f_scale: float, tolerance: float,
               max_iterations: int | None) -> tuple[Array, int, Stop]:
+    """trf with ``loss``; a robust loss starts from the least-squares solution.
+
+    From the nominal start the residuals (~1 mm) lie far out in a robust loss's tail
+    (f_scale 0.1 mm), where trf's rescaled steps crawl: soft-L1 took 22 iterations on the
+    bench's 3 x 625 poses where the linear loss takes 3. From the least-squares solution it
+    takes 2 more, to the same minimum of the robust cost (3e-11 m apart there, within the
+    stopping tolerance). ``max_iterations`` caps the residual evaluations of both stages.
+    """
+    last_x = [b'']
+
     def jacobian(x: Array) -> Array:
         J = problem.jacobian(x)
-        monitor.iteration()  # trf evaluates the Jacobian once per accepted step
+        if x.tobytes() != last_x[0]:   # not the second stage's start, the first's end
+            monitor.iteration()        # trf evaluates the Jacobian once per accepted step
+        last_x[0] = x.tobytes()
         return J
 
-    res = least_squares(monitor.residuals, problem.x0, jac=jacobian, method='trf', loss=loss,
-                        f_scale=f_scale, x_scale='jac', ftol=tolerance, xtol=tolerance,
-                        gtol=tolerance, max_nfev=max_iterations)
+    def solve(x0: Array, stage_loss: str, max_nfev: int | None):
+        return least_squares(monitor.residuals, x0, jac=jacobian, method='trf',
+                             loss=stage_loss, f_scale=f_scale, x_scale='jac', ftol=tolerance,
+                             xtol=tolerance, gtol=tolerance, max_nfev=max_nfev)
+
+    x0, budget = problem.x0, max_iterations
+    if loss != 'linear':
+        first = solve(x0, 'linear', budget)
+        if first.status <= 0:
+            return first.x, monitor.iterations, Stop(False, str(first.message))
+        x0 = first.x
+        budget = None if budget is None else max(budget - first.nfev, 1)
+    res = solve(x0, loss, budget)
     return res.x, monitor.iterations, Stop(res.status > 0, str(res.message))
 
 
