@@ -27,12 +27,12 @@ Array = NDArray[np.float64]
 
 def tip_twists(model: KinematicModel, params: Array, offsets: Array, names: tuple[str, ...],
                q: Array) -> Array:
-    """(m, 6, len(names)) twists of the named parameters (model parameter names, or
+    """(len(names), m, 6) twists of the named parameters (model parameter names, or
     ``offset_<joint>``: q_model = q + offset) at ``params`` (P,), joint ``offsets`` (n,)."""
     twists, joints = parameter_twists(model, params, q + offsets)
-    columns = [joints[:, :, model.joint_names.index(n[7:])] if n.startswith('offset_')
-               else twists[:, :, model.parameter_names.index(n)] for n in names]
-    return np.stack(columns, axis=2) if columns else np.empty((len(q), 6, 0))
+    rows = [joints[model.joint_names.index(n[7:])] if n.startswith('offset_')
+            else twists[model.parameter_names.index(n)] for n in names]
+    return np.stack(rows) if rows else np.empty((0, len(q), 6))
 
 
 def _unit_motions(h: float) -> Array:
@@ -50,14 +50,14 @@ def _unit_motions(h: float) -> Array:
 def residual_jacobian(kind: Kind, T_tip: Array, nuisance: Array, twists: Array,
                       step: float) -> Array:
     """(N, K) d kind.residuals(T_tip, nuisance) / d parameters whose tip twists are
-    ``twists`` (m, 6, K); central differences of ``step`` [m, rad] along the unit twists."""
+    ``twists`` (K, m, 6); central differences of ``step`` [m, rad] along the unit twists."""
     plus, minus = _unit_motions(step), _unit_motions(-step)
     D = np.stack([(kind.residuals(plus[j] @ T_tip, nuisance)
                    - kind.residuals(minus[j] @ T_tip, nuisance)) / (2.0 * step)
                   for j in range(6)], axis=1)
-    m, K = twists.shape[0], twists.shape[2]
+    K, m = twists.shape[:2]
     tied = m * kind.per_row
     J = np.zeros((len(D), K))
-    J[:tied] = np.einsum('mrj,mjk->mrk', D[:tied].reshape(m, kind.per_row, 6),
+    J[:tied] = np.einsum('mrj,kmj->mrk', D[:tied].reshape(m, kind.per_row, 6),
                          twists).reshape(tied, K)
     return J
