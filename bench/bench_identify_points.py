@@ -13,6 +13,7 @@ noise), the joints as the encoders read them. Pure computation, no ROS; seeded.
 """
 from __future__ import annotations
 
+import benchlib  # first: cobot_calib_ros before numpy (one BLAS thread), run alone too
 import csv
 from pathlib import Path
 import tempfile
@@ -21,7 +22,6 @@ import time
 import numpy as np
 import yaml
 
-import benchlib
 from benchlib import Figures
 from cobot_calib_ros.cli.identify_measured import identify_file
 from cobot_calib_ros.core import kinematics
