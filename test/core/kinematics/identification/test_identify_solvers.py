@@ -95,6 +95,31 @@ def test_callback_returning_none_does_not_cancel(data):
     assert result.code == ErrorCode.SUCCESS and result.rms_m < 1e-9
 
 
+def test_a_robust_loss_ends_at_its_own_minimum_from_the_least_squares_start(truth, data):
+    """identify() runs a robust loss from the least-squares solution (issue 28.8: from the
+    nominal start soft-L1 crawled through its L1 tail): the same minimum of the robust cost as
+    scipy run from the nominal start, with an outlier that moves the least-squares one; the
+    callback counts the iterations of both stages once each."""
+    from scipy.optimize import least_squares
+    from cobot_calib_ros.core.kinematics.identification.objectives import CentresObjective
+    q = data.q.copy()
+    q[5, 0] += 0.01
+    bad = SphereObservations(q, data.sphere, data.known_distances)
+    ps = ParameterSet(MODEL, FREE)
+    calls, callback = recorder()
+    robust = identify(ps, bad, tool_xyz0=TOOL, loss='soft_l1', f_scale=1e-5, callback=callback)
+    linear = identify(ps, bad, tool_xyz0=TOOL, loss='linear')
+    problem = CentresObjective(ps, bad, MODEL.nominal, TOOL)
+    direct = least_squares(problem.residuals, problem.x0, jac=problem.jacobian, method='trf',
+                           loss='soft_l1', f_scale=1e-5, x_scale='jac', ftol=1e-12,
+                           xtol=1e-12, gtol=1e-12)
+    assert robust.converged
+    assert np.abs(free_values(robust) - free_values(linear)).max() > 1e-5   # the outlier
+    assert free_values(robust) == pytest.approx(direct.x[:len(FREE)], abs=1e-10)
+    assert robust.cost == pytest.approx(direct.cost, rel=1e-9)
+    assert [c[0] for c in calls] == list(range(robust.iterations + 1))
+
+
 def test_soft_l1_resists_an_outlier(truth, data):
     """One coupling recorded 0.01 rad off on joint 1 (~6 mm at the tool): the robust loss
     keeps the held-out error near 0, least squares does not."""
