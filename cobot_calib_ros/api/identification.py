@@ -183,8 +183,9 @@ def identify_from_bag(folder: str | Path, cell_name: str, *, solver: str = 'lm',
                       loss: str = 'soft_l1', max_configs: int = 0):
     """(report, outcome) of a recorded sphere session identified offline: the poses
     kinematic_identifier published on /cobot_calib/captures (frame_id = sphere name), by the
-    same core job as the node. BagError for an unreadable bag; ValueError (or KeyError) when
-    it holds no usable pose or the job refuses the data."""
+    same core job as the node, with its gates (``outcome.verdict``; core.errors.Refusal for
+    data they refuse before the solve). BagError for an unreadable bag; ValueError (or
+    KeyError) when it holds no usable pose."""
     from cobot_calib_ros.bags.sphere_captures import sphere_observations
     from cobot_calib_ros.loaders import load_cell
     from cobot_calib_ros.core.kinematics import model_for
@@ -197,6 +198,7 @@ def identify_from_bag(folder: str | Path, cell_name: str, *, solver: str = 'lm',
                              max_configs=max_configs).run()
     r = outcome.result
     report = {'source': str(folder), 'poses': poses, 'message': outcome.summary(),
+              'verdict': outcome.verdict.to_dict(), 'converged': r.converged,
               'dropped_parameters': [d.name for d in outcome.identifiability.dropped],
               'identified': [{'name': n, 'value': float(v), 'nominal': float(v0),
                               'std': float(sd)} for n, v, v0, sd in

@@ -6,9 +6,12 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from cobot_calib_ros.cli.common import EXIT_OK, EXIT_USAGE, fail
+from cobot_calib_ros.cli.common import EXIT_FAILED, EXIT_OK, EXIT_USAGE, fail
+from cobot_calib_ros.core.kinematics.identification.gates import (MAX_DEVIATION_M,
+                                                                   MAX_DEVIATION_RAD)
 
 DEFAULT_FOLDS = 5
+MAX_CORRELATED_LINES = 10
 
 
 def add_arguments(p) -> None:
@@ -22,6 +25,13 @@ def add_arguments(p) -> None:
     p.add_argument('--dh', default=None, help='a DH table (YAML) instead of --urdf')
     p.add_argument('--model', choices=('offsets', 'full', 'mdh'), default=None,
                    help='error model (default: full for a URDF, mdh for a DH table)')
+    p.add_argument('--max-deviation-mm', type=float, default=MAX_DEVIATION_M * 1e3,
+                   metavar='MM', help='the most a length of the model may move from nominal '
+                   f'[mm] (default {MAX_DEVIATION_M * 1e3:g}); a parameter that ends there is '
+                   'not determined by the data and the result is refused')
+    p.add_argument('--max-deviation-mrad', type=float, default=MAX_DEVIATION_RAD * 1e3,
+                   metavar='MRAD', help='the same for angles and zero offsets [mrad] (default '
+                   f'{MAX_DEVIATION_RAD * 1e3:g})')
     held = p.add_mutually_exclusive_group()
     held.add_argument('--folds', type=int, default=None, metavar='K',
                       help=f'k-fold validation, row i in fold i %% K (default {DEFAULT_FOLDS})')
@@ -30,14 +40,20 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
+    from cobot_calib_ros.core.errors import Refusal
     try:
         report = identify(args)
+    except Refusal as e:
+        return fail(f'identify {args.source}: {e}', EXIT_FAILED)
     except ValueError as e:
         return fail(f'identify: {e}', EXIT_USAGE)
     if args.json:
         print(json.dumps(report, indent=2))
     else:
         print(summary(report))
+    if not report['verdict']['passed']:
+        return fail(f'identify {args.source}: REFUSED: '
+                    f'{"; ".join(report["verdict"]["problems"])}', EXIT_FAILED)
     return EXIT_OK
 
 
@@ -83,18 +99,26 @@ def identify(args) -> dict:
     return identify_file(args.source, args.measurement, urdf=args.urdf,
                          base_link=args.base_link, tip_link=args.tip_link, dh=args.dh,
                          model=args.model, folds=args.folds, leave_out=args.leave_out,
-                         ball=args.ball, loss=args.loss)
+                         ball=args.ball, loss=args.loss,
+                         max_deviation=(args.max_deviation_mm * 1e-3,
+                                        args.max_deviation_mrad * 1e-3))
 
 
 def identify_file(source: str | Path, measurement: str, *, urdf: str | None = None,
                   base_link: str | None = None, tip_link: str | None = None,
                   dh: str | None = None, model: str | None = None, folds: int | None = None,
                   leave_out: str | None = None, ball=(0.0, 0.0, 0.04),
-                  loss: str = 'soft_l1') -> dict:
+                  loss: str = 'soft_l1',
+                  max_deviation: tuple[float, float] = (MAX_DEVIATION_M, MAX_DEVIATION_RAD)
+                  ) -> dict:
     """Identify a measurement file (or MUKCa folder) held out: the report of core
-    measurement_fit.identify_measurements with the source, validation and frames. ValueError
-    (one line) for bad data or arguments."""
+    measurement_fit.identify_measurements with the source, validation and frames, and the
+    gates' verdict (``report['verdict']``). ValueError (one line) for bad data or arguments;
+    core.errors.Refusal (one line, REFUSED: ...) for data the gates refuse before the fit.
+    ``max_deviation``: (m, rad) bounds of the identified deviations."""
     from cobot_calib_ros.core.kinematics.identification import measurement_fit as mf
+    from cobot_calib_ros.core.kinematics.identification.gates import DeviationBounds
+    bounds = DeviationBounds(*max_deviation)
     source = Path(source).expanduser()
     file = _source(source, ball)
     if file.measurements.kind != measurement:
@@ -112,7 +136,8 @@ def identify_file(source: str | Path, measurement: str, *, urdf: str | None = No
         held = mf.held_out_rows(file.sample, mf.kfold(file.samples, k))
         labels, validation = tuple(f'fold {i}' for i in range(k)), {'folds': k}
     report = mf.identify_measurements(errors, file.measurements, held, labels=labels,
-                                      sample=file.sample, loss=loss)
+                                      sample=file.sample, loss=loss, bounds=bounds,
+                                      noise_m=file.noise_m)
     return {'source': file.source, 'validation': validation, 'frames': file.frames, **report}
 
 
@@ -128,17 +153,29 @@ def summary(report: dict) -> str:
     lines = [f'{report["robot"]}, {report["measurement"]} ({report["samples"]} samples), '
              f'model {report["model"]}: {report["parameters_kept"]} parameters kept '
              f'(textbook minimum {report["parameters_minimum"]}), condition number '
-             f'{report["condition_number"]:.1f}',
+             f'{report["condition_number"]:.1f}, converged: '
+             f'{"yes" if report["converged"] else "NO"}',
              f'held out ({how}) {"rmse":>8} {"mean":>8} {"max":>8} {"rot rms":>9}']
     for name in ('nominal', 'calibrated'):
         s = report['held_out'][name]
         rot = '' if s['rot_rms_mrad'] is None else f'{s["rot_rms_mrad"]:>6.2f} mrad'
         lines.append(f'{name:<{len(how) + 11}} {s["rmse_mm"]:>5.3f} mm {s["mean_mm"]:>5.3f} mm '
                      f'{s["max_mm"]:>5.3f} mm {rot}')
+    verdict = report['verdict']
+    lines.append('gate: passed (deviations within '
+                 f'{report["bounds"]["length_mm"]:g} mm / {report["bounds"]["angle_mrad"]:g} '
+                 'mrad, held out no worse than nominal)' if verdict['passed'] else
+                 'gate: REFUSED: ' + '; '.join(verdict['problems']))
     for d in report['dropped']:
         lines.append(f'dropped {d["name"]}: {d["reason"]}')
-    for c in report['correlated']:
+    parameters = {p['name'] for p in report['identified']}
+    pairs = [c for c in report['correlated'] if c['a'] in parameters or c['b'] in parameters]
+    for c in pairs[:MAX_CORRELATED_LINES]:
         lines.append(f'correlated {c["a"]} ~ {c["b"]}: {c["correlation"]:+.3f}')
+    hidden = len(report['correlated']) - min(len(pairs), MAX_CORRELATED_LINES)
+    if hidden:
+        lines.append(f'{hidden} more correlated pairs (of the frames and targets, or past the '
+                     f'first {MAX_CORRELATED_LINES}): --json lists them')
     for o in report['outliers']:
         lines.append(f'outlier: sample {o["sample"]} ({o["error_mm"]:.3f} mm)')
     return '\n'.join(lines)

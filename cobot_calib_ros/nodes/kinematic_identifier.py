@@ -434,11 +434,22 @@ class KinematicIdentifier(Node):
         except JobCancelled:
             return self._end(goal_handle, result, Identify.Result.CANCELED, 'canceled; '
                              'nothing stored')
+        except Refusal as e:
+            self._health.set(WARN, f'identification refused: {e}', job='')
+            return self._end(goal_handle, result,
+                             results.code('IdentifyKinematics', e.failure.code),
+                             '; '.join(filter(None, (str(e), 'nothing stored', partial))))
         except (ValueError, np.linalg.LinAlgError) as e:
             self._health.set(WARN, f'identification failed: {e}', job='')
             return self._end(goal_handle, result, Identify.Result.SOLVER_FAILED,
                              '; '.join(filter(None, (str(e), partial))))
         self._fill(result, outcome)
+        if not outcome.verdict.passed:
+            self._health.set(WARN, f'identification {outcome.verdict.line()}', job='')
+            return self._end(goal_handle, result,
+                             results.code('IdentifyKinematics', ErrorCode.IMPLAUSIBLE_FIT),
+                             '; '.join(filter(None, (outcome.summary(), 'nothing stored',
+                                                     partial))))
         if not goal.dry_run:
             try:
                 saved = self._calibrations.save_outcome(
