@@ -42,6 +42,8 @@ from cobot_calib_ros.core.kinematics.planning import (PlanSettings, Prediction,
 from cobot_calib_ros.core.kinematics.identification.observations import (
     PositionObservations, SphereObservations)
 from cobot_calib_ros.core.kinematics.identification.solvers import LOSSES, SOLVERS
+from cobot_calib_ros.core.kinematics.identification.gates import (
+    DeviationBounds, MAX_DEVIATION_M, MAX_DEVIATION_RAD)
 from cobot_calib_ros.core.kinematics.kinematic_calibration import CalibrationJob, JobCancelled
 from cobot_calib_ros.bags.errors import BagError
 from cobot_calib_ros.bags.sphere_captures import is_bag, sphere_observations
@@ -154,6 +156,13 @@ class KinematicIdentifier(Node):
         declare(self, 'candidate_tilt_step', math.radians(TILT_STEP_DEG),
                 'Planned collections: step of the candidate tilts on a sphere [rad] (coarser: '
                 'fewer candidates to solve IK for and choose from, longer moves)', 0.05, 1.05)
+        declare(self, 'max_deviation_length', MAX_DEVIATION_M,
+                'Identification gate: the most a length of the model (and the tool centre) '
+                'may be off nominal [m]; a result with a parameter beyond is refused, nothing '
+                'stored', 1e-5, 0.1)
+        declare(self, 'max_deviation_angle', MAX_DEVIATION_RAD,
+                'Identification gate: the most an angle or zero offset may be off nominal '
+                '[rad]; a result with a parameter beyond is refused, nothing stored', 1e-5, 0.5)
 
     def _p(self, name: str):
         return self.get_parameter(name).value
@@ -503,7 +512,10 @@ class KinematicIdentifier(Node):
         return CalibrationJob(self._cell, self._model, data, source=source,
                               solver=goal.solver or 'lm', loss=goal.loss or 'soft_l1',
                               objective=goal.objective or None, max_configs=goal.max_configs,
-                              validation=validation), partial, planning
+                              validation=validation,
+                              bounds=DeviationBounds(self._p('max_deviation_length'),
+                                                     self._p('max_deviation_angle'))), \
+            partial, planning
 
     def _collection(self, collection_id: str, source: str, region: str | None = None,
                     required: bool = True):

@@ -157,6 +157,41 @@ def test_identification_is_validated_stored_and_exported_as_urdf(ros, actions, c
             store.open(trial_data).kinematics.retire(result.calibration_id)
 
 
+def _set_identifier_parameter(ros, name: str, value: float) -> None:
+    from rcl_interfaces.srv import SetParameters
+    from rclpy.parameter import Parameter
+    from cobot_calib_ros.ros.calls import call_service
+    client = ros.create_client(SetParameters, '/kinematic_identifier/set_parameters')
+    try:
+        result = call_service(ros, client, SetParameters.Request(parameters=[
+            Parameter(name, value=value).to_parameter_msg()]), 10.0, ros.executor_for_tests)
+    finally:
+        ros.destroy_client(client)
+    assert result.results[0].successful, result.results[0].reason
+
+
+def test_a_result_outside_the_deviation_bounds_is_refused_and_nothing_is_stored(
+        ros, actions, collected, trial_data):
+    """Issue 28: the live path has the measurement path's gate. The mock Sawyer's joint
+    origins are off by tenths of a millimetre: with the length bound at 0.01 mm the same
+    identification that passes above is refused, and no calibration is stored or made
+    active."""
+    spheres, tracker, _ = collected
+    kinematics = store.open(trial_data).kinematics
+    before, active = len(kinematics.history()), kinematics.active('sawyer')
+    _set_identifier_parameter(ros, 'max_deviation_length', 1e-5)
+    try:
+        result = _run(ros, actions[1], Identify(collection_id=spheres.collection_id,
+                                                validation_volume=tracker.collection_id))
+    finally:
+        _set_identifier_parameter(ros, 'max_deviation_length', 0.005)
+    assert result.error_code == IdentifyKinematics.Result.SOLVER_FAILED
+    assert result.message.startswith('REFUSED: ') and 'ran to its bound' in result.message
+    assert 'bound 0.01 mm' in result.message and 'nothing stored' in result.message
+    assert result.calibration_id == '' and result.yaml_path == ''
+    assert len(kinematics.history()) == before and kinematics.active('sawyer') == active
+
+
 def test_a_planned_collection_predicts_stops_and_is_stored_with_its_calibration(
         ros, actions, trial_data, progress):
     """Issue 20: collect_sphere_data planned: feedback with the prediction and robot time,

@@ -82,8 +82,8 @@ def at_bounds(model: KinematicModel, names: tuple[str, ...], deltas: ArrayLike,
     for name, d, w in zip(names, deltas, widths):
         if not abs(d) < AT_BOUND * w:
             unit, scale = ('mrad', 1e3) if is_angle(model, name) else ('mm', 1e3)
-            out.append(f'{name} ran to its bound ({d * scale:+.3f} {unit}, bound '
-                       f'{w * scale:g} {unit}): the data do not determine it (too few or too '
+            out.append(f'{name} ran to its bound ({d * scale:+.3f} {unit} off nominal, '
+                       f'bound {w * scale:g} {unit}): the data do not determine it (too few or too '
                        'alike poses, or a measurement that cannot see it: try --model '
                        'offsets), or the arm is off by more than a real arm is (check the '
                        'units; the bound is --max-deviation-mm / --max-deviation-mrad)')
