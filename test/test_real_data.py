@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from cobot_calib_ros.cli.identify_measured import identify_file
+from cobot_calib_ros.api.identification import identify_file
 
 DATA = Path(__file__).resolve().parent / 'data'
 UR10E = DATA / 'figaroh-ur10e'

@@ -1,16 +1,16 @@
 """`cobot-calib identify --measurement KIND --source FILE`: any arm from its URDF (or a DH table),
 identified offline from a measurement file (CSV + YAML sidecar, or a MUKCa folder), validated
-on held-out rows (k-fold by default, or one group at a time)."""
+on held-out rows (k-fold by default, or one group at a time). Parses and prints; the work is
+api.identification.identify_file."""
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 from cobot_calib_ros.cli.common import EXIT_FAILED, EXIT_OK, EXIT_USAGE, fail
+from cobot_calib_ros.api.identification import DEFAULT_FOLDS
 from cobot_calib_ros.core.kinematics.identification.gates import (MAX_DEVIATION_M,
                                                                    MAX_DEVIATION_RAD)
 
-DEFAULT_FOLDS = 5
 MAX_CORRELATED_LINES = 10
 
 
@@ -57,93 +57,15 @@ def run(args) -> int:
     return EXIT_OK
 
 
-def _source(source: Path, ball):
-    from cobot_calib_ros.loaders.measurements import (load_measurements,
-                                                      load_socket_measurements)
-    if source.is_dir() and any(source.glob('*/hole_0.csv')):
-        return load_socket_measurements(source, ball)
-    if not source.is_file():
-        raise ValueError(f'--source {source}: no such file; give a measurement CSV with its '
-                         'YAML sidecar, or a MUKCa folder')
-    return load_measurements(source)
-
-
-def _model(source: Path, frames: dict, urdf: str | None, base_link: str | None,
-           tip_link: str | None, dh: str | None):
-    from cobot_calib_ros.core.kinematics.urdf import model_from_urdf
-    from cobot_calib_ros.loaders.measurements import load_dh_table
-    if dh:
-        return load_dh_table(dh)
-    if urdf:
-        path = Path(urdf).expanduser()
-    elif source.is_dir() and (source.parent / 'iiwa14.urdf').is_file():
-        path = source.parent / 'iiwa14.urdf'              # MUKCa's layout
-    else:
-        raise ValueError('give the robot: --urdf FILE --base-link L --tip-link L, or --dh FILE')
-    base = base_link or frames.get('base') or 'base_link'
-    tip = tip_link or frames.get('tip')
-    if not tip:
-        raise ValueError('give --tip-link (the sidecar names no frames.tip)')
-    try:
-        text = path.read_text(encoding='utf-8')
-    except OSError as e:
-        raise ValueError(f'--urdf {path}: cannot read ({e.strerror})') from None
-    try:
-        return model_from_urdf(text, base, tip, path.stem)
-    except ValueError as e:
-        raise ValueError(f'--urdf {path}: {e}') from None
-
-
 def identify(args) -> dict:
-    """The report of the command line's data (:func:`identify_file`)."""
+    """The report of the command line's data (api.identification.identify_file)."""
+    from cobot_calib_ros.api.identification import identify_file
     return identify_file(args.source, args.measurement, urdf=args.urdf,
                          base_link=args.base_link, tip_link=args.tip_link, dh=args.dh,
                          model=args.model, folds=args.folds, leave_out=args.leave_out,
                          ball=args.ball, loss=args.loss,
                          max_deviation=(args.max_deviation_mm * 1e-3,
                                         args.max_deviation_mrad * 1e-3))
-
-
-def identify_file(source: str | Path, measurement: str, *, urdf: str | None = None,
-                  base_link: str | None = None, tip_link: str | None = None,
-                  dh: str | None = None, model: str | None = None, folds: int | None = None,
-                  leave_out: str | None = None, ball=(0.0, 0.0, 0.04),
-                  loss: str = 'soft_l1',
-                  max_deviation: tuple[float, float] = (MAX_DEVIATION_M, MAX_DEVIATION_RAD)
-                  ) -> dict:
-    """Identify a measurement file (or MUKCa folder) held out: the report of core
-    measurement_fit.identify_measurements with the source, validation and frames, and the
-    gates' verdict (``report['verdict']``). ValueError (one line) for bad data or arguments;
-    core.errors.Refusal (one line, REFUSED: ...) for data the gates refuse before the fit.
-    ``max_deviation``: (m, rad) bounds of the identified deviations."""
-    from cobot_calib_ros.core.kinematics.identification import measurement_fit as mf
-    from cobot_calib_ros.core.kinematics.identification.gates import DeviationBounds
-    bounds = DeviationBounds(*max_deviation)
-    source = Path(source).expanduser()
-    file = _source(source, ball)
-    if file.measurements.kind != measurement:
-        raise ValueError(f'{file.source} holds {file.measurements.kind} measurements, not '
-                         f'{measurement}: pass --measurement {file.measurements.kind}')
-    robot = _model(source, file.frames, urdf, base_link, tip_link, dh)
-    file = file.in_joint_order(robot.joint_names)
-    errors = mf.ErrorModel(robot, model or ('mdh' if robot.kind == 'mdh' else 'full'))
-    leave_out = leave_out or (None if folds else _default_group(file))
-    if leave_out:
-        labels, held = mf.by_group(file.groups(leave_out))
-        validation = {'leave_out': leave_out, 'groups': list(labels)}
-    else:
-        k = folds or DEFAULT_FOLDS
-        held = mf.held_out_rows(file.sample, mf.kfold(file.samples, k))
-        labels, validation = tuple(f'fold {i}' for i in range(k)), {'folds': k}
-    report = mf.identify_measurements(errors, file.measurements, held, labels=labels,
-                                      sample=file.sample, loss=loss, bounds=bounds,
-                                      noise_m=file.noise_m)
-    return {'source': file.source, 'validation': validation, 'frames': file.frames, **report}
-
-
-def _default_group(file) -> str | None:
-    """A MUKCa folder is held out by location (its tool placements)."""
-    return 'location' if 'socket' in file.columns and 'location' in file.columns else None
 
 
 def summary(report: dict) -> str:

@@ -291,3 +291,40 @@ def load_dh_table(path: str | Path):
     except (yaml.YAMLError, KeyError, TypeError, ValueError) as e:
         raise _fail(path, f'not a DH table (name, joints, rows [[d, theta, r, alpha]], '
                           f'limits): {e}') from None
+
+
+def open_source(source: Path, ball=(0.0, 0.0, 0.04)) -> 'MeasurementFile':
+    """A measurement CSV with its sidecar, or a MUKCa folder (read as spheres)."""
+    if source.is_dir() and any(source.glob('*/hole_0.csv')):
+        return load_socket_measurements(source, ball)
+    if not source.is_file():
+        raise ValueError(f'--source {source}: no such file; give a measurement CSV with its '
+                         'YAML sidecar, or a MUKCa folder')
+    return load_measurements(source)
+
+
+def robot_model(source: Path, frames: dict, urdf: str | None, base_link: str | None,
+                tip_link: str | None, dh: str | None):
+    """The arm of a measurement source: a DH table, or a URDF's chain from ``base_link`` to
+    ``tip_link`` (default the sidecar's frames; a MUKCa folder: iiwa14.urdf beside it)."""
+    from cobot_calib_ros.core.kinematics.urdf import model_from_urdf
+    if dh:
+        return load_dh_table(dh)
+    if urdf:
+        path = Path(urdf).expanduser()
+    elif source.is_dir() and (source.parent / 'iiwa14.urdf').is_file():
+        path = source.parent / 'iiwa14.urdf'              # MUKCa's layout
+    else:
+        raise ValueError('give the robot: --urdf FILE --base-link L --tip-link L, or --dh FILE')
+    base = base_link or frames.get('base') or 'base_link'
+    tip = tip_link or frames.get('tip')
+    if not tip:
+        raise ValueError('give --tip-link (the sidecar names no frames.tip)')
+    try:
+        text = path.read_text(encoding='utf-8')
+    except OSError as e:
+        raise ValueError(f'--urdf {path}: cannot read ({e.strerror})') from None
+    try:
+        return model_from_urdf(text, base, tip, path.stem)
+    except ValueError as e:
+        raise ValueError(f'--urdf {path}: {e}') from None
