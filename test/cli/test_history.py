@@ -70,3 +70,14 @@ def test_history_table_names_the_warning(filled, capsys):
     out = capsys.readouterr().out
     assert 'cell cell_07: 4 user frame(s)' in out
     assert 'WARN: user frame moved 0.' in out and 'since cell_07-day1' in out
+
+
+def test_history_of_an_unknown_cell_names_the_known_ones(filled, capsys):
+    """Issue 31 item 9: it answered 'cell typo: 0 user frame(s)'."""
+    root, url = filled
+    assert main(['history', '--no-plots', '--db', url, '--data-dir', str(root),
+                 '--cell', 'typo']) == 2
+    captured = capsys.readouterr()
+    assert '0 user frame(s)' not in captured.out
+    assert (f"history: no results of cell 'typo' in {root}; the cells with results: "
+            'cell_07, cell_08') in captured.err
