@@ -40,10 +40,12 @@ def run(args) -> int:
     from cobot_calib_ros.cli.db import cell_of
     root = paths.data_dir(args.data_dir)
     try:
-        cell, problem = cell_of(args, store.open(root, args.db))
+        every = store.open(root, args.db)           # an id is found in any cell's results
+        cell, problem = cell_of(args, every) if args.cell or args.id == 'active' else (
+            None, '')
         if problem:
             return fail(f'export: {problem}', EXIT_USAGE)
-        repo = store.open(root, args.db, cell)
+        repo = store.open(root, args.db, cell) if cell else every
         found = find_frame(repo, args.id)
     except ValueError as exc:
         return fail(f'export: {exc}', EXIT_USAGE)

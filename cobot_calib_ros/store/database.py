@@ -233,12 +233,14 @@ class Database:
             if connection.execute(results.update().where(key).values(**row)).rowcount == 0:
                 connection.execute(results.insert().values(**row))
 
-    def rows(self, cell: str, kind: str, since_ns: int = 0) -> list[dict[str, Any]]:
-        """(provenance columns + body) of one cell's results of ``kind``, oldest first."""
+    def rows(self, cell: str | None, kind: str, since_ns: int = 0) -> list[dict[str, Any]]:
+        """(provenance columns + body) of one cell's results of ``kind`` (None: every
+        cell's), oldest first."""
         results = self.t.results
-        query = (results.select().where((results.c.cell == cell) & (results.c.kind == kind)
-                                        & (results.c.stamp_ns >= since_ns))
-                 .order_by(results.c.stamp_ns, results.c.id))
+        which = (results.c.kind == kind) & (results.c.stamp_ns >= since_ns)
+        if cell is not None:
+            which = which & (results.c.cell == cell)
+        query = results.select().where(which).order_by(results.c.stamp_ns, results.c.id)
         with _as_storage_error(self.url), self.engine.connect() as connection:
             return [dict(r._mapping) for r in connection.execute(query)]
 
@@ -292,7 +294,8 @@ class DbCalibrationHistory(CalibrationStore):
     """A calibration history of one cell and kind in the database, with the activation rules
     of :class:`CalibrationStore` (whose records it reads once, then serves from memory, as
     the folder store: open the repository again to see another process's writes).
-    ``cell``: whose rows (None: those of cell ``default``, stored before keying by cell);
+    ``cell``: whose rows (None: every cell's, writing as cell ``default``: the store as
+    before results were keyed by cell);
     ``directory``: where files that go beside a record are written (kinematics' YAML, URDF)."""
 
     def __init__(self, database: Database, cell: ResultsCell | None, kind: str,
@@ -318,8 +321,9 @@ class DbCalibrationHistory(CalibrationStore):
     def _stored(self):
         """The rows of this cell, and the legacy ones (cell ``default``) for a cell to take:
         (record, cell: '' for legacy, robot: the record's, else its row's robot_model)."""
-        cells = (self.cell_name,) if self.cell is None else (self.cell_name, LEGACY_CELL)
-        for cell in dict.fromkeys(cells):
+        cells = (None,) if self.cell is None else tuple(dict.fromkeys((self.cell_name,
+                                                                        LEGACY_CELL)))
+        for cell in cells:
             for row in self.database.rows(cell, self.kind):
                 record = json.loads(row['body'])
                 problem = _record_problem(record)
@@ -327,7 +331,7 @@ class DbCalibrationHistory(CalibrationStore):
                     self._warn(f'{self}: {row["id"]} skipped, {problem}')
                     continue
                 robot = str(record.get('robot') or row['robot_model'] or '')
-                yield record, '' if cell == LEGACY_CELL else cell, robot
+                yield record, '' if row['cell'] == LEGACY_CELL else row['cell'], robot
 
     def _elsewhere(self, record_id: str) -> str:
         why = super()._elsewhere(record_id)

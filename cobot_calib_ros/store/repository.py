@@ -25,7 +25,8 @@ are made on (a ResultsCell: name and robot; nodes give theirs, ResultsCell.of); 
 hold that cell's records only, every record it saves carries the cell's name and robot, and
 a record of another cell or robot is refused by name. Many cells share one data dir or one
 database; ``cells()`` names those with results. With no cell: the store as it was before
-results were keyed (readers of old data dirs, tests).
+results were keyed (every cell's records, one active per kind and scope among them; what
+it saves names no cell): for readers that look a record up by id, and old data dirs.
 
 Activation and its gate (the one way a calibration becomes active)::
 

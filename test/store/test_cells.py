@@ -13,7 +13,7 @@ import shutil
 import pytest
 
 from cobot_calib_ros import store
-from cobot_calib_ros.store.cells import ForeignResult, ResultsCell
+from cobot_calib_ros.store.cells import ForeignResult, LEGACY_CELL, ResultsCell
 from cobot_calib_ros.store.database import Database
 from cobot_calib_ros.store.repository import FolderRepository
 
@@ -119,10 +119,25 @@ def test_a_5252a67_folder_store_is_read_by_the_cell_of_each_record_s_robot(tmp_p
         '20261125T150121.468359984Z-three_point'
 
 
-def test_database_rows_from_before_the_keying_go_to_the_cell_of_their_robot(db_url, tmp_path,
+@pytest.fixture
+def legacy_rows(db_url):
+    """The database of db_url, its rows of cell 'default' removed afterwards (the session's
+    PostgreSQL is shared: other tests' cells would take them)."""
+    yield db_url
+    database = Database(db_url)
+    results, selections = database.t.results, database.t.selections
+    with database.engine.connect().execution_options(writing=True) as connection, \
+            connection.begin():
+        connection.execute(results.delete().where(results.c.cell == LEGACY_CELL))
+        connection.execute(selections.delete().where(selections.c.cell == LEGACY_CELL))
+
+
+def test_database_rows_from_before_the_keying_go_to_the_cell_of_their_robot(legacy_rows,
+                                                                           tmp_path,
                                                                            monkeypatch):
     """What 85479bc stored from `up --cell sawyer_close` (cell 'default', the robot in the
     provenance) is the Sawyer cell's, not the iiwa's that `up --cell iiwa7_close` starts."""
+    db_url = legacy_rows
     default_rows = store.open(tmp_path / 'old', db_url).user_frames       # no cell: 'default'
     monkeypatch.setenv('COBOT_CALIB_ROBOT', 'sawyer')
     name = f'legacy_{id(tmp_path)}'
