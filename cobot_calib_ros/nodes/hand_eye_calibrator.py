@@ -106,6 +106,8 @@ class HandEyeCalibrator(Node):
             goal_callback=self._accept, cancel_callback=lambda _: CancelResponse.ACCEPT,
             callback_group=ReentrantCallbackGroup())
         active = self._store.active()
+        for warning in self._store.warnings:    # e.g. results from before keying by cell
+            self.get_logger().warning(warning)
         if active is not None:
             self._publish(active)
         problem = '' if self._cell.camera and self._cell.landmarks and \
