@@ -44,12 +44,13 @@ def known_cells_text(cells: dict[str, list[str]]) -> str:
 def cell_of(args, repo) -> tuple[str | None, str]:
     """(the results cell --cell names, or the only one that has results, None: the store as
     before cells; '') or (None, why not: an unknown --cell, or several cells and none given).
-    ``repo``: the data dir's repository opened with no cell."""
+    ``repo``: the data dir's repository opened with no cell. (Cell 'default': the results
+    stored before keying by cell, store.cells.)"""
     from cobot_calib_ros.store.cells import LEGACY_CELL
     cells = repo.cells()
     if args.cell:
         if args.cell in cells:
-            return (None if args.cell == LEGACY_CELL else args.cell), ''
+            return args.cell, ''
         return None, (f'no results of cell {args.cell!r} in {repo.root}; the cells with '
                       f'results: {known_cells_text(cells)}')
     keyed = [c for c in cells if c != LEGACY_CELL]

@@ -51,8 +51,8 @@ def run(args) -> int:
             if problem:
                 return fail(f'history: {problem}', EXIT_USAGE)
         cells = [args.cell] if args.cell else list(every.cells()) or [LEGACY_CELL]
-        reports = [_cell_report(store.open(root, args.db, None if cell == LEGACY_CELL
-                                           else cell), cell, start) for cell in cells]
+        reports = [_cell_report(store.open(root, args.db, cell), cell, start)
+                   for cell in cells]
     except DatabaseError as exc:
         return fail(f'history: {exc}')
     for report in reports:
