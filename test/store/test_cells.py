@@ -155,3 +155,23 @@ def test_database_rows_from_before_the_keying_go_to_the_cell_of_their_robot(lega
     assert Database(db_url).rows(f'{name}_sawyer', 'user_frame')[0]['robot_model'] == 'sawyer'
     assert store.open(tmp_path, db_url, f'{name}_sawyer').user_frames.active()['id'] == \
         f'{name}-c'                             # a name alone: the robot its results name
+
+
+def test_db_import_keeps_each_record_in_its_cell_with_its_choice(tmp_path):
+    from cobot_calib_ros.store.importer import import_folder
+    from cobot_calib_ros.store.repository import DatabaseRepository
+    source = tmp_path / 'old'
+    shutil.copytree(STORE_5252A67, source)
+    folder_sawyer = FolderRepository(source, SAWYER)
+    folder_sawyer.user_frames.save(_frame('frame-sawyer-2', 2))
+    folder_sawyer.user_frames.activate('20261125T150121.468359984Z-three_point')
+    target = DatabaseRepository(tmp_path / 'new', f'sqlite:///{tmp_path / "db.sqlite"}')
+    import_folder(source, target)
+    assert set(target.cells()) == {'default', 'sawyer_close'}
+    sawyer = store.open(tmp_path / 'new', target.database.url, SAWYER)
+    assert sawyer.user_frames.active() == folder_sawyer.user_frames.active()
+    assert sawyer.user_frames.active()['id'] == '20261125T150121.468359984Z-three_point'
+    assert [r['id'] for r in sawyer.user_frames.history()] == [
+        r['id'] for r in FolderRepository(source, SAWYER).user_frames.history()]
+    assert store.open(tmp_path / 'new', target.database.url, IIWA).kinematics.resolve(
+        'latest', 'iiwa7')['id'] == _stored('kinematics')['id']
