@@ -137,8 +137,9 @@ def test_identification_is_validated_stored_and_exported_as_urdf(ros, actions, c
         nominal, calibrated = result.validation_nominal, result.validation_calibrated
         assert nominal.count == calibrated.count == 30
         assert calibrated.max < nominal.max
-        record = store.open(trial_data, cell=CELL).kinematics.get(result.calibration_id)
-        assert record is not None and store.open(trial_data, cell=CELL).kinematics.active('sawyer')['id'] == \
+        kinematic_store = store.open(trial_data, cell=CELL).kinematics
+        record = kinematic_store.get(result.calibration_id)
+        assert record is not None and kinematic_store.active('sawyer')['id'] == \
             result.calibration_id
         assert 'table6' in Path(result.yaml_path).read_text()
         urdf = model_from_urdf(Path(result.urdf_path).read_text(), 'base_link', 'tool0',
@@ -243,7 +244,8 @@ def _identified_in_process(trial_data) -> str:
         sphere.append(step['target'])
     data = SphereObservations(np.array(q), np.array(sphere), sim.cell.spheres.known_distances())
     outcome = CalibrationJob(sim.cell, robot.model, data, source='in-process').run()
-    return store.open(trial_data, cell=CELL).kinematics.save_outcome(outcome, activate=False).record.id
+    saved = store.open(trial_data, cell=CELL).kinematics.save_outcome(outcome, activate=False)
+    return saved.record.id
 
 
 def test_demo_with_kinematics_cuts_the_kinematic_part_of_the_frame_error(ros, trial_data):
