@@ -37,8 +37,15 @@ def find_frame(repo, record_id: str):
 def run(args) -> int:
     from cobot_calib_ros import paths, store
     from cobot_calib_ros.core.vendor_frames import FORMATS, paste_text, to_values
-    repo = store.open(paths.data_dir(args.data_dir), args.db, args.cell)
+    from cobot_calib_ros.cli.db import cell_of
+    root = paths.data_dir(args.data_dir)
     try:
+        every = store.open(root, args.db)           # an id is found in any cell's results
+        cell, problem = cell_of(args, every) if args.cell or args.id == 'active' else (
+            None, '')
+        if problem:
+            return fail(f'export: {problem}', EXIT_USAGE)
+        repo = store.open(root, args.db, cell) if cell else every
         found = find_frame(repo, args.id)
     except ValueError as exc:
         return fail(f'export: {exc}', EXIT_USAGE)

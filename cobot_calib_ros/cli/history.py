@@ -35,8 +35,9 @@ def since_ns(text: str | None) -> int:
 
 def run(args) -> int:
     from cobot_calib_ros import paths, store
+    from cobot_calib_ros.cli.db import cell_of
+    from cobot_calib_ros.store.cells import LEGACY_CELL
     from cobot_calib_ros.store.database import DatabaseError
-    from cobot_calib_ros.store.repository import DatabaseRepository
     try:
         start = since_ns(args.since)
     except ValueError:
@@ -44,11 +45,14 @@ def run(args) -> int:
                     '2026-11-01 or 2026-11-01T08:00:00', EXIT_USAGE)
     root = paths.data_dir(args.data_dir)
     try:
-        repo = store.open(root, args.db, args.cell)
-        own = getattr(repo, 'cell', args.cell or 'default')
-        cells = [own] if args.cell or not isinstance(repo, DatabaseRepository) else \
-            repo.database.cells() or [own]
-        reports = [_cell_report(store.open(root, args.db, cell), cell, start) for cell in cells]
+        every = store.open(root, args.db)
+        if args.cell:
+            problem = cell_of(args, every)[1]
+            if problem:
+                return fail(f'history: {problem}', EXIT_USAGE)
+        cells = [args.cell] if args.cell else list(every.cells()) or [LEGACY_CELL]
+        reports = [_cell_report(store.open(root, args.db, cell), cell, start)
+                   for cell in cells]
     except DatabaseError as exc:
         return fail(f'history: {exc}')
     for report in reports:

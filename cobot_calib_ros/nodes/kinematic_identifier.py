@@ -54,6 +54,7 @@ from cobot_calib_ros.ros.diagnostics import Diagnostics, OK, WARN
 from cobot_calib_ros.ros.params import declare, read_once
 from cobot_calib_ros.ros.robot_calls import RobotCalls
 from cobot_calib_ros.ros.time import now_ns, ns_to_stamp
+from cobot_calib_ros.store.cells import ResultsCell
 from cobot_calib_ros.store.collections import Collection, CollectionStore
 from cobot_calib_ros.store.files import check_id
 
@@ -105,7 +106,8 @@ class KinematicIdentifier(Node):
         self._declare_parameters()
         self._cell = load_cell(paths.cell_file(self._p('cell_file')), self._p('layout') or None)
         self._model = kinematics.model_for(self._cell)
-        repository = store.open(paths.data_dir(self._p('data_dir')))
+        repository = store.open(paths.data_dir(self._p('data_dir')),
+                                cell=ResultsCell.of(self._cell, self.get_namespace()))
         self._collections = repository.collections
         self._calibrations = repository.kinematics
         self._answers = spin.Companion(self, 'clients')

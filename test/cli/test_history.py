@@ -70,3 +70,42 @@ def test_history_table_names_the_warning(filled, capsys):
     out = capsys.readouterr().out
     assert 'cell cell_07: 4 user frame(s)' in out
     assert 'WARN: user frame moved 0.' in out and 'since cell_07-day1' in out
+
+
+def test_history_of_an_unknown_cell_names_the_known_ones(filled, capsys):
+    """Issue 31 item 9: it answered 'cell typo: 0 user frame(s)'."""
+    root, url = filled
+    assert main(['history', '--no-plots', '--db', url, '--data-dir', str(root),
+                 '--cell', 'typo']) == 2
+    captured = capsys.readouterr()
+    assert '0 user frame(s)' not in captured.out
+    assert (f"history: no results of cell 'typo' in {root}; the cells with results: "
+            'cell_07, cell_08') in captured.err
+
+
+def test_history_keeps_results_from_before_the_keying_apart(tmp_path, capsys):
+    """Cell 'default' (stored before results were keyed by cell) shows those alone; the cell
+    of their robot shows them with its own; another robot's cell none of them."""
+    from cobot_calib_ros.store.cells import ResultsCell
+    url = f'sqlite:///{tmp_path / "plant.sqlite"}'
+    legacy = _frame_record(SIM, 0, 'before-keying')
+    legacy_dict = {**legacy.to_dict(), 'robot': 'sawyer'}
+    store.open(tmp_path, url).user_frames.save_and_activate(legacy_dict)   # as 85479bc did
+    store.open(tmp_path, url, ResultsCell('sawyer_close', 'sawyer')).user_frames \
+        .save_and_activate(_frame_record(SIM, 1, 'sawyer-own'))
+    store.open(tmp_path, url, ResultsCell('iiwa7_close', 'iiwa7')).user_frames \
+        .save_and_activate(_frame_record(SIM, 2, 'iiwa-own'))
+    assert main(['history', '--json', '--no-plots', '--db', url, '--data-dir',
+                 str(tmp_path)]) == 0
+    reports = {r['cell']: [s['id'] for s in r['user_frames']]
+               for r in map(json.loads, capsys.readouterr().out.splitlines())}
+    assert reports == {'default': ['before-keying'], 'iiwa7_close': ['iiwa-own'],
+                       'sawyer_close': ['before-keying', 'sawyer-own']}
+
+
+def _frame_record(sim, day: int, record_id: str) -> UserFrameRecord:
+    run = calibrate_user_frame(sim, 10 + day)
+    record = UserFrameRecord.from_fit(run.fit, None, run.names, run.p_user, run.p_base,
+                                      ('base', 'user'), NOV_1 + day * DAY_NS)
+    record.id = record_id
+    return record

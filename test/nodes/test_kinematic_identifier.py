@@ -25,11 +25,13 @@ from cobot_calib_ros.paths import cell_file
 from cobot_calib_ros.ros import markers
 from cobot_calib_ros.sim.robot import SimRobot
 from cobot_calib_ros.sim.scenario import load_simulation
+from cobot_calib_ros.store.cells import ResultsCell
 from cobot_calib_ros.store.collections import CollectionStore
 from cobot_calib_ros import store
 from rosutil import call, cli, listen_late
 
 Collect, Identify = CollectSphereData.Goal, IdentifyKinematics.Goal
+CELL = ResultsCell('sawyer_close', 'sawyer')      # the suite's results (no namespace)
 
 
 @pytest.fixture(scope='module')
@@ -135,8 +137,9 @@ def test_identification_is_validated_stored_and_exported_as_urdf(ros, actions, c
         nominal, calibrated = result.validation_nominal, result.validation_calibrated
         assert nominal.count == calibrated.count == 30
         assert calibrated.max < nominal.max
-        record = store.open(trial_data).kinematics.get(result.calibration_id)
-        assert record is not None and store.open(trial_data).kinematics.active('sawyer')['id'] == \
+        kinematic_store = store.open(trial_data, cell=CELL).kinematics
+        record = kinematic_store.get(result.calibration_id)
+        assert record is not None and kinematic_store.active('sawyer')['id'] == \
             result.calibration_id
         assert 'table6' in Path(result.yaml_path).read_text()
         urdf = model_from_urdf(Path(result.urdf_path).read_text(), 'base_link', 'tool0',
@@ -154,7 +157,7 @@ def test_identification_is_validated_stored_and_exported_as_urdf(ros, actions, c
         assert 'no_such_id' in named.message
     finally:
         if result.calibration_id:   # later tests calibrate with 'latest': back to nominal
-            store.open(trial_data).kinematics.retire(result.calibration_id)
+            store.open(trial_data, cell=CELL).kinematics.retire(result.calibration_id)
 
 
 def _set_identifier_parameter(ros, name: str, value: float) -> None:
@@ -233,13 +236,13 @@ def test_a_planned_collection_predicts_stops_and_is_stored_with_its_calibration(
     result = _run(ros, actions[1], Identify(collection_id=collected.collection_id))
     try:
         assert result.error_code == 0, result.message
-        record = store.open(trial_data).kinematics.get(result.calibration_id)
+        record = store.open(trial_data, cell=CELL).kinematics.get(result.calibration_id)
         assert record['planning']['collection'] == collected.collection_id
         assert record['planning']['state']['stop'] == collected.stop_reason
         assert 'task_q' not in record['planning']
     finally:
         if result.calibration_id:
-            store.open(trial_data).kinematics.retire(result.calibration_id)
+            store.open(trial_data, cell=CELL).kinematics.retire(result.calibration_id)
 
 
 def _pose_markers(arrays) -> list:
@@ -276,7 +279,8 @@ def _identified_in_process(trial_data) -> str:
         sphere.append(step['target'])
     data = SphereObservations(np.array(q), np.array(sphere), sim.cell.spheres.known_distances())
     outcome = CalibrationJob(sim.cell, robot.model, data, source='in-process').run()
-    return store.open(trial_data).kinematics.save_outcome(outcome, activate=False).record.id
+    saved = store.open(trial_data, cell=CELL).kinematics.save_outcome(outcome, activate=False)
+    return saved.record.id
 
 
 def test_demo_with_kinematics_cuts_the_kinematic_part_of_the_frame_error(ros, trial_data):
@@ -298,7 +302,7 @@ def test_demo_with_kinematics_cuts_the_kinematic_part_of_the_frame_error(ros, tr
             os.environ.pop('COBOT_CALIB_DATA')
         else:
             os.environ['COBOT_CALIB_DATA'] = env_before
-        store.open(trial_data).kinematics.retire(calibration_id)
+        store.open(trial_data, cell=CELL).kinematics.retire(calibration_id)
     assert out.returncode == 0, out.stderr
     result = json.loads(out.stdout)
     rigid = result['systematic_reduction']['rigid']
@@ -316,7 +320,7 @@ def test_an_iiwa7_calibration_in_the_data_dir_leaves_the_sawyer_working(ros, tri
     data dir) became 'latest' for every robot, and this Sawyer calibration was refused with
     "... is for robot 'iiwa7', not 'sawyer'". Left active here: later Sawyer tests run with it."""
     iiwa = model_by_name('iiwa7')
-    store.open(trial_data).kinematics.save({
+    store.open(trial_data, cell=ResultsCell('iiwa7_close', 'iiwa7')).kinematics.save({
         'id': 'iiwa7-elsewhere-nelder-mead', 'stamp_ns': time.time_ns(), 'robot': 'iiwa7',
         'method': 'relative-nelder-mead', 'inputs': {'source': 'another cell'},
         'result': {'parameter_names': list(iiwa.parameter_names),
@@ -325,7 +329,7 @@ def test_an_iiwa7_calibration_in_the_data_dir_leaves_the_sawyer_working(ros, tri
                point_names=['P1', 'P2', 'P3'])
     try:
         assert res.error_code == CalibrateUserFrame.Response.SUCCESS, res.message
-        sawyer = store.open(trial_data).kinematics.resolve('latest', 'sawyer')
+        sawyer = store.open(trial_data, cell=CELL).kinematics.resolve('latest', 'sawyer')
         assert res.calibration.kinematics == ('nominal' if sawyer is None else sawyer['id'])
         assert res.calibration.rms_residual < 1e-3
     finally:
