@@ -70,3 +70,29 @@ def test_history_table_names_the_warning(filled, capsys):
     out = capsys.readouterr().out
     assert 'cell cell_07: 4 user frame(s)' in out
     assert 'WARN: user frame moved 0.' in out and 'since cell_07-day1' in out
+
+
+def test_history_help_says_one_json_line_per_cell(capsys):
+    """Issue 31.9: the help said one JSON line per result; it prints one per cell (README)."""
+    with pytest.raises(SystemExit):
+        main(['history', '--help'])
+    help_text = ' '.join(capsys.readouterr().out.split())
+    assert 'one JSON line per cell' in help_text and 'per result' not in help_text
+
+
+def test_the_trend_plot_labels_each_calibration_and_draws_both_tolerances(filled, capsys):
+    """Issue 31.9: the PNG had ticks at 1.5, 2.5 ..., no ERROR line, no dates or ids."""
+    from cobot_calib_ros.cli.history import trend_figure
+    root, url = filled
+    assert main(['history', '--json', '--no-plots', '--db', url, '--data-dir', str(root),
+                 '--cell', 'cell_07']) == 0
+    report = json.loads(capsys.readouterr().out)
+    fig = trend_figure(report)
+    moved, turned = fig.axes
+    assert list(turned.get_xticks()) == [1, 2, 3]
+    assert [t.get_text() for t in turned.get_xticklabels()] == [
+        f'2026-11-0{day + 1} 00:00\ncell_07-day{day}' for day in (1, 2, 3)]
+    for ax, warn, error in ((moved, 0.2, 1.0), (turned, 1.0, 5.0)):
+        lines = {line.get_label(): line.get_ydata()[0] for line in ax.get_lines()}
+        assert lines['WARN tolerance'] == pytest.approx(warn)
+        assert lines['ERROR tolerance'] == pytest.approx(error)
