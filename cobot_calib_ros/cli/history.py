@@ -8,7 +8,7 @@ from pathlib import Path
 
 from cobot_calib_ros.cli.common import EXIT_FAILED, EXIT_OK, EXIT_USAGE, fail
 from cobot_calib_ros.cli.db import add_db_options
-from cobot_calib_ros.ros.time import s_to_ns
+from cobot_calib_ros.ros.time import ns_to_s, s_to_ns
 
 
 def add_parser(subparsers):
@@ -180,5 +180,5 @@ def trend_figure(report: dict):
 
 
 def _tick_label(step: dict) -> str:
-    when = datetime.fromtimestamp(step['stamp_ns'] / 1e9, tz=timezone.utc)
+    when = datetime.fromtimestamp(ns_to_s(step['stamp_ns']), tz=timezone.utc)
     return f'{when:%Y-%m-%d %H:%M}\n{step["id"]}'
