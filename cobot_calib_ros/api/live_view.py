@@ -31,9 +31,10 @@ SCAN_PERIOD = 1.0        # [s] between looks for new topics
 DISCOVERY_WAIT = 5.0     # [s] at most, for the topics on the graph before the server listens
 DISCOVERY_QUIET = 1.5    # [s] of no new topic: discovery is taken as done
 SERVE_PERIOD = 0.05      # [s] between looks at the windows' (un)subscriptions
-# [s] after a window subscribes, its latched messages are sent: the server tells of a
-# subscription before it routes the channel's messages to it (foxglove-sdk 0.30.3 calls
-# on_subscribe, then subscribes the client in its context)
+# [s] after a window subscribes, its latched messages are sent, once the channel has a
+# subscriber at all: the server tells of a subscription before it routes the channel's
+# messages to it (foxglove-sdk 0.30.3 calls on_subscribe, then subscribes the client in its
+# context; has_sinks() tells when that happened for the first window, not for a second one)
 REPLAY_AFTER = 0.3
 LATCHED_KEPT = 8         # last messages kept per latched topic (one per publisher, typically)
 
@@ -165,11 +166,16 @@ class LiveView(Node):
                 self._subscribe(topic)
             elif self.viewers[topic] <= 0 and topic in self.ros_subscriptions:
                 self.destroy_subscription(self.ros_subscriptions.pop(topic))
-        now = time.monotonic()
+        now, sent = time.monotonic(), set()
         for due, topic in [d for d in self._due if d[0] <= now]:
-            self._due.remove((due, topic))
-            for data in self._latched.get(topic, ()):
-                self.channels[topic].log(data, log_time=time.time_ns())
+            if self.viewers[topic] <= 0:            # the window left before: nobody to send to
+                self._due.remove((due, topic))
+            elif self.channels[topic].has_sinks():
+                self._due.remove((due, topic))
+                if topic not in sent:               # windows that came together: once
+                    sent.add(topic)
+                    for data in self._latched.get(topic, ()):
+                        self.channels[topic].log(data, log_time=time.time_ns())
 
     def destroy_node(self):
         self.bridge.stop()
