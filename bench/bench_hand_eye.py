@@ -4,6 +4,7 @@ in-process (no ROS), over SEEDS noise draws: the 12 views calibrate_hand_eye pla
 at the arm's joints, the board detected and posed), solved (solve_hand_eye) and compared with
 the simulation's true T_flange_optical. One run is one draw of the robot's noise; the
 README's figures are this spread, not one run's.
+
 - ``hand_eye_error_{min,median,p90,max}_{mm,mrad}``: translation / rotation error;
 - ``hand_eye_noise_ratio_max`` [1]: the largest residual / expected-from-noise ratio (the gate
   rejects above 3).
