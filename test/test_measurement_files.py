@@ -98,6 +98,16 @@ def test_a_urdf_without_the_named_link_is_refused(capsys):
     assert "gripper" in err and 'robot.urdf' in err
 
 
+def test_mdh_and_full_each_say_which_robot_description_they_need(capsys):
+    """Issue 31.9: `--model mdh --urdf` was refused with "needs a model of kind 'mdh'" while
+    the README listed mdh beside --urdf; the refusal now says what to give instead."""
+    err = refusal(capsys, model='mdh')
+    assert '--model mdh needs a DH table (--dh FILE)' in err and 'use --model full' in err
+    err = refusal(capsys, model='full', urdf=None, dh=str(DATA / 'industrial-calibration-'
+                                                           'positioner' / 'positioner_dh.yaml'))
+    assert '--model full needs a URDF (--urdf FILE)' in err and 'use --model mdh' in err
+
+
 def test_the_wrong_measurement_kind_is_refused(capsys):
     assert 'holds pose measurements, not points' in refusal(capsys, measurement='points')
 

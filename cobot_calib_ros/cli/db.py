@@ -7,10 +7,12 @@ from pathlib import Path
 from cobot_calib_ros.cli.common import EXIT_FAILED, EXIT_OK, EXIT_USAGE, fail
 
 
+DATA_DIR_HELP = 'results root (default $COBOT_CALIB_DATA, else ~/.ros/cobot_calib)'
+
+
 def add_db_options(p) -> None:
     """--data-dir, --db, --cell: which repository (shared by db, history, check)."""
-    p.add_argument('--data-dir', help='results root (default $COBOT_CALIB_DATA or '
-                                      '~/.ros/cobot_calib)')
+    p.add_argument('--data-dir', help=DATA_DIR_HELP)
     p.add_argument('--db', help='database URL, e.g. postgresql://user@host/db (default '
                                 '$COBOT_CALIB_DB, else the SQLite file in the data dir)')
     p.add_argument('--cell', help="the results' cell: its name (a suite's namespace, e.g. "

@@ -24,7 +24,9 @@ def add_arguments(p) -> None:
                    help='--urdf: the chain\'s last link (default: the sidecar\'s frames.tip)')
     p.add_argument('--dh', default=None, help='a DH table (YAML) instead of --urdf')
     p.add_argument('--model', choices=('offsets', 'full', 'mdh'), default=None,
-                   help='error model (default: full for a URDF, mdh for a DH table)')
+                   help='error model: offsets (one per joint, any robot), full (--urdf: '
+                        'every joint origin; its default), mdh (--dh: every DH row; its '
+                        'default)')
     p.add_argument('--max-deviation-mm', type=float, default=MAX_DEVIATION_M * 1e3,
                    metavar='MM', help='the most a length of the model may move from nominal '
                    f'[mm] (default {MAX_DEVIATION_M * 1e3:g}); a parameter that ends there is '

@@ -377,14 +377,16 @@ class KinematicIdentifier(Node):
             self._publish_capture(feedback.target, capture)
             if not laser and self._coupling is not None:
                 self._publish_markers(capture.q)
-            feedback.recorded, feedback.skipped = run.recorded, run.skipped
+            # the collection's poses, as the result counts them (a resume goes on counting)
+            feedback.recorded = before + run.recorded
+            feedback.skipped = skipped_before + run.skipped
             feedback.robot_time = self._robot.robot_seconds - start
-            self._publish_progress(collection_id, feedback, before + run.recorded)
+            self._publish_progress(collection_id, feedback, feedback.recorded)
             goal_handle.publish_feedback(feedback)
 
         self._robot.speed_scale = self._p('speed_scale')
         stored = self._collections.load(collection_id)
-        before = len(stored.index)
+        before, skipped_before = len(stored.index), len(stored.skipped)
         run = collect(plan, stored.next_index, self._robot,
                       self._store(collection_id), hold=hold, laser=laser,
                       cancelled=lambda: goal_handle.is_cancel_requested, on_pose=on_pose)

@@ -103,8 +103,13 @@ def test_a_canceled_collection_resumes_where_it_stopped(ros, actions, trial_data
     assert 'resume' in first.message
     stored = CollectionStore(trial_data).load(first.collection_id)
     assert stored.meta['status'] == 'aborted' and 5 <= stored.next_index < 24
-    resumed = _run(ros, client, Collect(collection_id=first.collection_id, hold=0.02))
+    resumed_feedback = []
+    resumed = _run(ros, client, Collect(collection_id=first.collection_id, hold=0.02),
+                   feedback=lambda message: resumed_feedback.append(message.feedback))
     assert resumed.error_code == 0, resumed.message
+    # issue 31.9: the resume's first new pose said "1 recorded"; it is the collection's next
+    assert resumed_feedback[0].recorded == len(stored.q) + 1
+    assert resumed_feedback[0].skipped >= len(stored.skipped)
     data = CollectionStore(trial_data).load(first.collection_id)
     assert len(data.q) + len(data.skipped) == 24 and data.meta['status'] == 'done'
     # collection_progress counts the collection's poses across both goals

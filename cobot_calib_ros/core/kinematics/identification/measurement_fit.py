@@ -5,7 +5,7 @@ Error models (``ERROR_MODELS``) over a :class:`KinematicModel` (from a URDF, or 
 - ``offsets``: one offset per joint, q_model = q + offset (``offset_<joint>``);
 - ``full``: every joint origin's x, y, z, roll, pitch, yaw (kind 'origin' models: FIGAROH's
   ``full_params``);
-- ``mdh``: every joint's alpha, a, theta, d (kind 'mdh' models: the paper's).
+- ``mdh``: every joint's alpha, a, theta, d (kind 'mdh' models, a DH table: the paper's).
 
 Unknowns are the free model parameters then the measurement's nuisance (base and target
 frames, markers, sphere centres, planes: :mod:`.measurements`). Jacobians are central
@@ -61,11 +61,17 @@ class ErrorModel:
     def __post_init__(self) -> None:
         if self.name not in ERROR_MODELS:
             raise ValueError(f'unknown error model {self.name!r}; use one of {ERROR_MODELS}')
-        need = {'full': 'origin', 'mdh': 'mdh'}.get(self.name)
-        if need and self.model.kind != need:
-            raise ValueError(f'--model {self.name} needs a model of kind {need!r} (a URDF for '
-                             f'full, an MDH table for mdh); {self.model.name} is '
-                             f'{self.model.kind!r}')
+        # the parameters of each error model are fields of one kind of model: a URDF's joint
+        # origins are not MDH rows (an exact conversion needs a base transform the MDH chain
+        # lacks, and is not unique where consecutive axes are parallel), nor the reverse
+        if self.name == 'mdh' and self.model.kind != 'mdh':
+            raise ValueError(f'--model mdh needs a DH table (--dh FILE); {self.model.name} is '
+                             'a URDF: use --model full (x, y, z, roll, pitch, yaw of every '
+                             'joint origin, which covers alpha, a, theta, d) or offsets')
+        if self.name == 'full' and self.model.kind != 'origin':
+            raise ValueError(f'--model full needs a URDF (--urdf FILE); {self.model.name} is a '
+                             'DH table: use --model mdh (alpha, a, theta, d of every joint) '
+                             'or offsets')
 
     @property
     def candidates(self) -> tuple[str, ...]:
