@@ -23,7 +23,7 @@ import numpy as np
 import yaml
 
 from benchlib import Figures
-from cobot_calib_ros.cli.identify_measured import identify_file
+from cobot_calib_ros.api.identification import identify_file
 from cobot_calib_ros.core import kinematics
 from cobot_calib_ros.paths import cell_file
 from cobot_calib_ros.sim.robot import SimRobot

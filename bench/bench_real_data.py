@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import benchlib
 from benchlib import Figures
-from cobot_calib_ros.cli.identify_measured import identify_file
+from cobot_calib_ros.api.identification import identify_file
 
 DATA = benchlib.REPO_ROOT / 'test' / 'data'
 UR10E = DATA / 'figaroh-ur10e'

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from cobot_calib_ros.cli import identify_measured
-from cobot_calib_ros.cli.common import EXIT_USAGE
+from cobot_calib_ros.cli.common import EXIT_FAILED, EXIT_USAGE
 from cobot_calib_ros.loaders.measurements import load_measurements
 
 DATA = Path(__file__).resolve().parent / 'data'
@@ -81,13 +81,13 @@ def args(**given) -> argparse.Namespace:
     defaults = dict(urdf=str(UR10E / 'robot.urdf'), base_link=None, tip_link=None, dh=None,
                     source=str(UR10E / 'calibration.csv'), measurement='pose', model=None,
                     folds=None, leave_out=None, json=True, ball=(0.0, 0.0, 0.04),
-                    loss='soft_l1')
+                    loss='soft_l1', max_deviation_mm=5.0, max_deviation_mrad=50.0)
     defaults.update(given)
     return argparse.Namespace(**defaults)
 
 
-def refusal(capsys, **given) -> str:
-    assert identify_measured.run(args(**given)) == EXIT_USAGE
+def refusal(capsys, code: int = EXIT_USAGE, **given) -> str:
+    assert identify_measured.run(args(**given)) == code
     out, err = capsys.readouterr()
     assert out == '' and err.count('\n') == 1
     return err
@@ -98,6 +98,16 @@ def test_a_urdf_without_the_named_link_is_refused(capsys):
     assert "gripper" in err and 'robot.urdf' in err
 
 
+def test_mdh_and_full_each_say_which_robot_description_they_need(capsys):
+    """Issue 31.9: `--model mdh --urdf` was refused with "needs a model of kind 'mdh'" while
+    the README listed mdh beside --urdf; the refusal now says what to give instead."""
+    err = refusal(capsys, model='mdh')
+    assert '--model mdh needs a DH table (--dh FILE)' in err and 'use --model full' in err
+    err = refusal(capsys, model='full', urdf=None, dh=str(DATA / 'industrial-calibration-'
+                                                           'positioner' / 'positioner_dh.yaml'))
+    assert '--model full needs a URDF (--urdf FILE)' in err and 'use --model mdh' in err
+
+
 def test_the_wrong_measurement_kind_is_refused(capsys):
     assert 'holds pose measurements, not points' in refusal(capsys, measurement='points')
 
@@ -106,8 +116,8 @@ def test_too_few_rows_for_the_parameters_are_refused(tmp_path, capsys):
     lines = (UR10E / 'calibration.csv').read_text().splitlines()
     (tmp_path / 'few.csv').write_text('\n'.join(lines[:6]) + '\n')
     shutil.copy(UR10E / 'calibration.yaml', tmp_path / 'few.yaml')
-    err = refusal(capsys, source=str(tmp_path / 'few.csv'), folds=2)
-    assert 'rows give' in err and 'unknowns' in err and 'measure more rows' in err
+    err = refusal(capsys, EXIT_FAILED, source=str(tmp_path / 'few.csv'), folds=2)
+    assert 'REFUSED: 5 rows give 30 equations for' in err and 'measure more rows' in err
 
 
 def test_a_leave_out_column_that_is_not_there_is_refused(capsys):
@@ -157,8 +167,12 @@ def test_the_command_line_reaches_the_measurement_path(capsys):
     assert main(['identify', '--urdf', str(UR10E / 'robot.urdf'), '--base-link', 'base_link',
                  '--tip-link', 'wrist_3_link', '--source', str(UR10E / 'calibration.csv'),
                  '--measurement', 'pose', '--model', 'offsets', '--folds', '3', '--loss',
-                 'linear', '--json']) == 0
-    report = json.loads(capsys.readouterr().out)
+                 'linear', '--json']) == EXIT_FAILED
+    out, err = capsys.readouterr()
+    report = json.loads(out)
+    # 16 unknowns on 15 training rows per fold over-fit: held out worse than nominal
+    assert not report['verdict']['passed'] and 'worse than nominal' in err
+    assert report['held_out']['calibrated']['rmse_mm'] > report['held_out']['nominal']['rmse_mm']
     assert report['validation'] == {'folds': 3} and report['model'] == 'offsets'
     assert set(report['held_out']['calibrated']) >= {'rmse_mm', 'mean_mm', 'max_mm',
                                                       'rot_rms_mrad'}

@@ -1,7 +1,9 @@
 """Kinematic identification through the suite: collect on the robot, identify, validate.
 
 Used by ``cobot-calib identify`` and ``cobot-calib demo --kinematics``. One rclpy node with
-action clients for ``collect_sphere_data`` and ``identify_kinematics``.
+action clients for ``collect_sphere_data`` and ``identify_kinematics``; offline, a recorded
+session (:func:`identify_from_bag`) and a measurement file or MUKCa folder
+(:func:`identify_file`: the CLI, bench and tests call it).
 """
 from __future__ import annotations
 
@@ -9,7 +11,11 @@ from pathlib import Path
 import time
 from typing import Callable
 
+from cobot_calib_ros.core.kinematics.identification.gates import (MAX_DEVIATION_M,
+                                                                   MAX_DEVIATION_RAD)
+
 PAPER_RATIO_PERCENT = 41.6     # the paper's max error, calibrated / nominal (0.990 / 2.381 mm)
+DEFAULT_FOLDS = 5
 
 
 class IdentificationFailed(RuntimeError):
@@ -183,8 +189,9 @@ def identify_from_bag(folder: str | Path, cell_name: str, *, solver: str = 'lm',
                       loss: str = 'soft_l1', max_configs: int = 0):
     """(report, outcome) of a recorded sphere session identified offline: the poses
     kinematic_identifier published on /cobot_calib/captures (frame_id = sphere name), by the
-    same core job as the node. BagError for an unreadable bag; ValueError (or KeyError) when
-    it holds no usable pose or the job refuses the data."""
+    same core job as the node, with its gates (``outcome.verdict``; core.errors.Refusal for
+    data they refuse before the solve). BagError for an unreadable bag; ValueError (or
+    KeyError) when it holds no usable pose."""
     from cobot_calib_ros.bags.sphere_captures import sphere_observations
     from cobot_calib_ros.loaders import load_cell
     from cobot_calib_ros.core.kinematics import model_for
@@ -197,6 +204,7 @@ def identify_from_bag(folder: str | Path, cell_name: str, *, solver: str = 'lm',
                              max_configs=max_configs).run()
     r = outcome.result
     report = {'source': str(folder), 'poses': poses, 'message': outcome.summary(),
+              'verdict': outcome.verdict.to_dict(), 'converged': r.converged,
               'dropped_parameters': [d.name for d in outcome.identifiability.dropped],
               'identified': [{'name': n, 'value': float(v), 'nominal': float(v0),
                               'std': float(sd)} for n, v, v0, sd in
@@ -204,3 +212,46 @@ def identify_from_bag(folder: str | Path, cell_name: str, *, solver: str = 'lm',
               'validation': {}, 'validation_workspace': {}, 'solve_seconds': r.solve_seconds,
               'rms_mm': r.rms_m * 1e3, 'calibration_id': '', 'table6': outcome.table}
     return report, outcome
+
+
+def identify_file(source: str | Path, measurement: str, *, urdf: str | None = None,
+                  base_link: str | None = None, tip_link: str | None = None,
+                  dh: str | None = None, model: str | None = None, folds: int | None = None,
+                  leave_out: str | None = None, ball=(0.0, 0.0, 0.04),
+                  loss: str = 'soft_l1',
+                  max_deviation: tuple[float, float] = (MAX_DEVIATION_M, MAX_DEVIATION_RAD)
+                  ) -> dict:
+    """Identify a measurement file (or MUKCa folder) held out: the report of core
+    measurement_fit.identify_measurements with the source, validation and frames, and the
+    gates' verdict (``report['verdict']``). ValueError (one line) for bad data or arguments;
+    core.errors.Refusal (one line, REFUSED: ...) for data the gates refuse before the fit.
+    ``max_deviation``: (m, rad) bounds of the identified deviations."""
+    from cobot_calib_ros.core.kinematics.identification import measurement_fit as mf
+    from cobot_calib_ros.core.kinematics.identification.gates import DeviationBounds
+    bounds = DeviationBounds(*max_deviation)
+    from cobot_calib_ros.loaders.measurements import open_source, robot_model
+    source = Path(source).expanduser()
+    file = open_source(source, ball)
+    if file.measurements.kind != measurement:
+        raise ValueError(f'{file.source} holds {file.measurements.kind} measurements, not '
+                         f'{measurement}: pass --measurement {file.measurements.kind}')
+    robot = robot_model(source, file.frames, urdf, base_link, tip_link, dh)
+    errors = mf.ErrorModel(robot, model or ('mdh' if robot.kind == 'mdh' else 'full'))
+    file = file.in_joint_order(robot.joint_names)
+    leave_out = leave_out or (None if folds else _default_group(file))
+    if leave_out:
+        labels, held = mf.by_group(file.groups(leave_out))
+        validation = {'leave_out': leave_out, 'groups': list(labels)}
+    else:
+        k = folds or DEFAULT_FOLDS
+        held = mf.held_out_rows(file.sample, mf.kfold(file.samples, k))
+        labels, validation = tuple(f'fold {i}' for i in range(k)), {'folds': k}
+    report = mf.identify_measurements(errors, file.measurements, held, labels=labels,
+                                      sample=file.sample, loss=loss, bounds=bounds,
+                                      noise_m=file.noise_m)
+    return {'source': file.source, 'validation': validation, 'frames': file.frames, **report}
+
+
+def _default_group(file) -> str | None:
+    """A MUKCa folder is held out by location (its tool placements)."""
+    return 'location' if 'socket' in file.columns and 'location' in file.columns else None

@@ -105,6 +105,8 @@ class BagRecorder(Node):
         self._without_info = spin.executor_kind() == 'events'
         self._started = self.get_clock().now()
         self._ticks = 0
+        self._started_steady = time.monotonic()
+        self._warned = False
         self._closed = False
         steady = Clock(clock_type=ClockType.STEADY_TIME)    # also under use_sim_time
         self._scan_timer = self.create_timer(STARTUP_SCAN_PERIOD, self._tick, clock=steady)
@@ -145,14 +147,19 @@ class BagRecorder(Node):
             self._warn_unpublished()
 
     def _warn_unpublished(self) -> None:
-        """Once discovery has settled: name the wanted topics that nothing publishes (a typo,
-        a node that is not up); they are still recorded if a publisher appears later."""
+        """Once discovery has settled, or at the end of a shorter recording: name the wanted
+        topics that nothing publishes (a typo, a node that is not up); they are still recorded
+        if a publisher appears later."""
+        if self._warned:
+            return
+        self._warned = True
         missing = sorted((self.wanted or set()) - set(self.subscriptions_by_topic)
                          - self._skipped)
         if missing:
+            elapsed = time.monotonic() - self._started_steady
             self.report(f'warning: nothing publishes {", ".join(missing)} (after '
-                        f'{STARTUP_SCANS_S:g} s); recorded only if a publisher appears (see '
-                        '`cobot-calib list`)')
+                        f'{min(elapsed, STARTUP_SCANS_S):.2g} s); recorded only if a publisher '
+                        'appears (see `cobot-calib list`)')
 
     def _scan(self) -> None:
         for name in new_topics(self, self.subscriptions_by_topic, self._skipped, self.wanted,
@@ -218,6 +225,7 @@ class BagRecorder(Node):
         if self._closed:
             return
         self._closed = True
+        self._warn_unpublished()        # a recording shorter than discovery's settling
         for topic, sub in list(self.subscriptions_by_topic.items()):
             self._drain(topic, sub)
             try:

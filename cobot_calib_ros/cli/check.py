@@ -47,13 +47,15 @@ def run(args) -> int:
     from cobot_calib_ros.core.robot_port import PortError
     from cobot_calib_ros.ros import spin
     from cobot_calib_ros.ros.robot_calls import RobotCalls
+    from cobot_calib_ros.store.cells import ResultsCell
     with ros_node('cobot_calib_check', args.namespace.strip('/')) as node:
         try:
             cell = load_cell(paths.cell_file(args.robot_cell or _suite_cell(node)))
         except CellFileError as e:
             return fail(str(e), EXIT_USAGE)
-        repo = store.open(paths.data_dir(args.data_dir), args.db, args.cell or (
-            args.namespace.strip('/').replace('/', '.') or None))
+        results_cell = (ResultsCell(args.cell, cell.robot) if args.cell
+                        else ResultsCell.of(cell, args.namespace))
+        repo = store.open(paths.data_dir(args.data_dir), args.db, results_cell)
         model = kinematics.model_for(cell)
         prepare = _user_frame if args.what == 'user-frame' else _kinematics
         try:
@@ -95,8 +97,8 @@ def _user_frame(args, cell, model, repo):
         raise ValueError(f'unknown point(s) {unknown}; the cell has {cell.point_names}')
     active = repo.user_frames.active()
     if active is None:
-        raise KeyError('no active user frame in this cell\'s results; calibrate first '
-                       '(cobot-calib teach, or call calibrate_user_frame)')
+        raise KeyError(f'no active user frame in the results of cell {repo.cell}; calibrate '
+                       'first (cobot-calib teach, or call calibrate_user_frame)')
     kinematic = repo.kinematics.resolve(active.get('kinematics') or 'nominal', model.name)
     chain = chain_of(kinematic, model, cell.tool_offset)
     p_user = np.array([cell.marker(n).nominal_top for n in args.points])

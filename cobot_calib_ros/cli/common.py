@@ -13,6 +13,43 @@ EXIT_USAGE = 2       # the user's input does not fit (as argparse uses 2)
 EXIT_INTERRUPTED = 130   # Ctrl-C (128 + SIGINT, as a shell reports it)
 
 
+class GuardedStdout:
+    """sys.stdout while a verb runs. Once its reader has gone (`| head` closed the pipe), the
+    rest of the output goes to /dev/null instead of raising BrokenPipeError out of the verb,
+    so the verb ends as it would have and a refusal keeps its non-zero exit code; a verb
+    that prints an endless stream stops when reader_gone()."""
+
+    def __init__(self, stream) -> None:
+        self._stream = stream
+        self.reader_gone = False
+
+    def write(self, text: str) -> int:
+        try:
+            return self._stream.write(text)
+        except BrokenPipeError:
+            self._drop()
+            return len(text)
+
+    def flush(self) -> None:
+        try:
+            self._stream.flush()
+        except BrokenPipeError:
+            self._drop()
+
+    def _drop(self) -> None:
+        self.reader_gone = True
+        # what is still buffered, and the interpreter's last flush, go nowhere
+        os.dup2(os.open(os.devnull, os.O_WRONLY), self._stream.fileno())
+
+    def __getattr__(self, name):
+        return getattr(self._stream, name)
+
+
+def reader_gone() -> bool:
+    """The reader of stdout has gone (GuardedStdout)."""
+    return getattr(sys.stdout, 'reader_gone', False)
+
+
 def domain_id() -> str:
     return os.environ.get('ROS_DOMAIN_ID', '0')
 

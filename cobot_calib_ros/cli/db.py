@@ -7,14 +7,16 @@ from pathlib import Path
 from cobot_calib_ros.cli.common import EXIT_FAILED, EXIT_OK, EXIT_USAGE, fail
 
 
+DATA_DIR_HELP = 'results root (default $COBOT_CALIB_DATA, else ~/.ros/cobot_calib)'
+
+
 def add_db_options(p) -> None:
     """--data-dir, --db, --cell: which repository (shared by db, history, check)."""
-    p.add_argument('--data-dir', help='results root (default $COBOT_CALIB_DATA or '
-                                      '~/.ros/cobot_calib)')
+    p.add_argument('--data-dir', help=DATA_DIR_HELP)
     p.add_argument('--db', help='database URL, e.g. postgresql://user@host/db (default '
                                 '$COBOT_CALIB_DB, else the SQLite file in the data dir)')
-    p.add_argument('--cell', help='cell name of the results (default $COBOT_CALIB_CELL or '
-                                  "'default')")
+    p.add_argument('--cell', help="the results' cell: its name (a suite's namespace, e.g. "
+                                  'cell_07, else its cell file\'s name, e.g. sawyer_close)')
 
 
 def add_parser(subparsers):
@@ -29,6 +31,37 @@ def add_parser(subparsers):
     return p
 
 
+def known_cells_text(cells: dict[str, list[str]]) -> str:
+    """'a (sawyer), b (iiwa7)' of repository.cells(); 'none' when there is none."""
+    from cobot_calib_ros.store.cells import LEGACY_CELL
+
+    def one(name: str, robots: list[str]) -> str:
+        if name == LEGACY_CELL:
+            return f'{name} (stored before results were keyed by cell)'
+        robots = [r for r in robots if r]
+        return f'{name} ({", ".join(robots)})' if robots else name
+    return ', '.join(one(n, r) for n, r in cells.items()) or 'none'
+
+
+def cell_of(args, repo) -> tuple[str | None, str]:
+    """(the results cell --cell names, or the only one that has results, None: the store as
+    before cells; '') or (None, why not: an unknown --cell, or several cells and none given).
+    ``repo``: the data dir's repository opened with no cell. (Cell 'default': the results
+    stored before keying by cell, store.cells.)"""
+    from cobot_calib_ros.store.cells import LEGACY_CELL
+    cells = repo.cells()
+    if args.cell:
+        if args.cell in cells:
+            return args.cell, ''
+        return None, (f'no results of cell {args.cell!r} in {repo.root}; the cells with '
+                      f'results: {known_cells_text(cells)}')
+    keyed = [c for c in cells if c != LEGACY_CELL]
+    if len(keyed) > 1:
+        return None, (f'the results of several cells are stored: {known_cells_text(cells)}; '
+                      'give --cell')
+    return (keyed[0] if keyed else None), ''
+
+
 def open_database_repository(args):
     """The database repository of --data-dir/--db/--cell, or an error message."""
     from cobot_calib_ros import paths, store
@@ -37,14 +70,8 @@ def open_database_repository(args):
     root = paths.data_dir(args.data_dir)
     repo = store.open(root, args.db, args.cell)
     if not isinstance(repo, DatabaseRepository):   # a folder store: its own database
-        repo = DatabaseRepository(root, sqlite_url(root), args.cell or repo_cell())
+        repo = store.open(root, sqlite_url(root), args.cell)
     return repo
-
-
-def repo_cell() -> str:
-    import os
-    from cobot_calib_ros.store.database import CELL_ENV, DEFAULT_CELL
-    return os.environ.get(CELL_ENV) or DEFAULT_CELL
 
 
 def run(args) -> int:
@@ -77,5 +104,6 @@ def _import(args, repo) -> int:
     report = import_folder(source, repo)
     for line in report.skipped:
         print(f'skipped: {line}')
-    print(f'{report.summary()} into {repo.database} (cell {repo.cell})')
+    where = f'cell {repo.cell_name}' if repo.cell else 'the cells the records name'
+    print(f'{report.summary()} into {repo.database} ({where})')
     return EXIT_FAILED if report.skipped else EXIT_OK

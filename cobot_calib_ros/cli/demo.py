@@ -27,7 +27,8 @@ from cobot_calib_ros.core import frames, kinematics, user_frame
 from cobot_calib_ros.loaders import load_cell
 from cobot_calib_ros.paths import cell_file, data_dir, DEFAULT_CELL
 from cobot_calib_ros import store
-from cobot_calib_ros.store.database import CELL_ENV, DB_ENV
+from cobot_calib_ros.store.cells import ResultsCell
+from cobot_calib_ros.store.database import DB_ENV
 from cobot_calib_ros.store.kinematics import chain_of, NOMINAL
 
 POINTS = ('P1', 'P2', 'P3', 'P4', 'P5')
@@ -41,17 +42,18 @@ STORING_NODES = ('user_frame_solver', 'repeatability_trial', 'hand_eye_calibrato
 def _suite(args):
     """The data dir of the demo's suite (None with --attach: the running suite's). Without
     --attach: a suite on a private domain storing in a temporary data dir (its own SQLite,
-    $COBOT_CALIB_DB and $COBOT_CALIB_CELL left out while it runs), removed at the end, so
-    that no other suite's results change (the active user frame above all); the user's
-    kinematic calibrations are copied in for --kinematics latest|ID."""
+    $COBOT_CALIB_DB left out while it runs), removed at the end, so that no other suite's
+    results change (the active user frame above all); the user's kinematic calibrations of
+    the cell are copied in for --kinematics latest|ID."""
     if args.attach:
         yield None
         return
     with tempfile.TemporaryDirectory(prefix='cobot_calib_demo_') as tmp:
-        source = store.open(data_dir('')) if args.kinematics != NOMINAL else None
-        with _without_env(DB_ENV, CELL_ENV):
+        cell = _results_cell(args.cell)
+        source = store.open(data_dir(''), cell=cell) if args.kinematics != NOMINAL else None
+        with _without_env(DB_ENV):
             if source is not None:
-                _copy_kinematics(source, store.open(tmp))
+                _copy_kinematics(source, store.open(tmp, cell=cell))
             overrides = {n: {'data_dir': tmp} for n in STORING_NODES}
             with launcher.private_suite(args.cell, overrides,
                                         say=lambda text: say(args, text)):
@@ -66,6 +68,11 @@ def _without_env(*names: str):
         yield
     finally:
         os.environ.update(saved)
+
+
+def _results_cell(name: str) -> ResultsCell:
+    """The cell the results of a suite of cell file ``name`` (no namespace) are stored as."""
+    return ResultsCell.of(load_cell(cell_file(name)))
 
 
 def _copy_kinematics(source, target) -> None:
@@ -223,7 +230,7 @@ def _run(args, client: DemoClient, root: Path | None) -> dict:
     p_true = np.array([true_by_name[n] for n in POINTS])
     true_chain = _truth_model(truth, cell)
     records = [None] + ([] if args.kinematics == NOMINAL else
-                        [_kinematics(args, client, kinematics.model_for(cell).name, root)])
+                        [_kinematics(args, client, cell, root)])
     say(args, f'touching {", ".join(POINTS)} and capturing joints ...')
     captures = [client.touch_and_capture(n) for n in POINTS]
     p_user = cell.nominal_points_user()[[cell.point_names.index(n) for n in POINTS]]
@@ -255,11 +262,12 @@ def _run(args, client: DemoClient, root: Path | None) -> dict:
     return result
 
 
-def _kinematics(args, client: DemoClient, robot: str, root: Path) -> dict:
-    """The kinematic calibration record --kinematics names for ``robot`` in data dir ``root``;
-    'latest' with none of that robot stored identifies one on the mock first."""
+def _kinematics(args, client: DemoClient, cell, root: Path) -> dict:
+    """The kinematic calibration record --kinematics names for ``cell``'s robot in data dir
+    ``root``; 'latest' with none of that robot stored identifies one on the mock first."""
     from cobot_calib_ros.api import identification
-    kinematic_store = store.open(root).kinematics
+    robot = kinematics.model_for(cell).name
+    kinematic_store = store.open(root, cell=ResultsCell.of(cell)).kinematics
     try:
         record = kinematic_store.resolve(args.kinematics, robot)
     except (KeyError, ValueError) as e:
@@ -276,7 +284,8 @@ def _kinematics(args, client: DemoClient, robot: str, root: Path) -> dict:
             raise RuntimeError(str(e)) from None
         finally:
             identifier.close()
-        record = store.open(root).kinematics.get(report['calibration_id'])
+        record = store.open(root, cell=ResultsCell.of(cell)).kinematics.get(
+            report['calibration_id'])
     return record
 
 

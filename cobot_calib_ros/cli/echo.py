@@ -5,7 +5,7 @@ import sys
 import time
 
 from cobot_calib_ros.cli.common import (
-    absolute, fail, not_found_hint, print_message, ros_node)
+    absolute, fail, not_found_hint, print_message, reader_gone, ros_node)
 
 
 def add_parser(subparsers):
@@ -60,6 +60,6 @@ def _print_received(node, received: list, topic: str, args) -> int:
         spin_until(node, lambda: bool(received), min(1.0, deadline - time.monotonic()))
         while received:
             print_message(to_dict(received.pop(0)), args.json)
-            if args.once:
+            if args.once or reader_gone():        # `cobot-calib echo ... | head`
                 return 0
     return fail(f'no message on {topic} within {args.timeout:g} s')

@@ -169,7 +169,8 @@ def run_report(args) -> int:
     """`cobot-calib report TRIAL...`: PNG box plot and the paper's table for stored trials."""
     data_dir = paths.data_dir(args.data_dir)
     try:
-        png, table_file, table = report.write_report(store.open(data_dir).trials, args.trials,
+        png, table_file, table = report.write_report(store.open(data_dir, args.db,
+                                                                args.cell).trials, args.trials,
                                                      _report_dir(args, data_dir))
     except ValueError as e:
         print(f'report failed: {e}', file=sys.stderr)

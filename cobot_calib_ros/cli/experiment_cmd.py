@@ -2,6 +2,7 @@
 cli/experiment.py."""
 from __future__ import annotations
 
+from cobot_calib_ros.cli.db import DATA_DIR_HELP
 from cobot_calib_ros.paths import DEFAULT_CELL
 
 
@@ -29,7 +30,7 @@ def add_parser(subparsers):
                         'its error against the mock\'s truth is printed), or use the cell\'s '
                         'nominal hand-eye')
     p.add_argument('--cell', default=DEFAULT_CELL, help='cell YAML path or name')
-    p.add_argument('--data-dir', help='where trials are stored (default ~/.ros/cobot_calib)')
+    p.add_argument('--data-dir', help=DATA_DIR_HELP)
     p.add_argument('--out', help='report folder (default <data dir>/reports)')
     p.add_argument('--json', action='store_true')
     return p

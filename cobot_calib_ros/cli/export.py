@@ -17,8 +17,9 @@ def add_parser(subparsers):
     p.add_argument('id', help="a user-frame calibration id, or 'active' (the cell's active "
                               "user frame)")
     p.add_argument('--format', required=True, choices=list(FORMATS))
-    p.add_argument('--index', type=int, default=1,
-                   help='base / user frame number on the controller (default 1)')
+    p.add_argument('--index', type=int,
+                   help='base / user frame number on the controller (default 1): kuka 1-32, '
+                        'fanuc 1-9, yaskawa 1-63; abb and ur frames have a --name instead')
     p.add_argument('--name', default='cell_frame', help='variable name (ABB wobjdata, UR)')
     p.add_argument('--json', action='store_true', help='the values as one JSON line')
     add_db_options(p)
@@ -36,9 +37,21 @@ def find_frame(repo, record_id: str):
 
 def run(args) -> int:
     from cobot_calib_ros import paths, store
-    from cobot_calib_ros.core.vendor_frames import FORMATS, paste_text, to_values
-    repo = store.open(paths.data_dir(args.data_dir), args.db, args.cell)
+    from cobot_calib_ros.core.vendor_frames import (FORMATS, check_frame_number, paste_text,
+                                                    to_values)
+    from cobot_calib_ros.cli.db import cell_of
     try:
+        check_frame_number(args.format, args.index)
+    except ValueError as exc:
+        return fail(f'export: --index: {exc}', EXIT_USAGE)
+    root = paths.data_dir(args.data_dir)
+    try:
+        every = store.open(root, args.db)           # an id is found in any cell's results
+        cell, problem = cell_of(args, every) if args.cell or args.id == 'active' else (
+            None, '')
+        if problem:
+            return fail(f'export: {problem}', EXIT_USAGE)
+        repo = store.open(root, args.db, cell) if cell else every
         found = find_frame(repo, args.id)
     except ValueError as exc:
         return fail(f'export: {exc}', EXIT_USAGE)

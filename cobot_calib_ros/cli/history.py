@@ -8,7 +8,7 @@ from pathlib import Path
 
 from cobot_calib_ros.cli.common import EXIT_FAILED, EXIT_OK, EXIT_USAGE, fail
 from cobot_calib_ros.cli.db import add_db_options
-from cobot_calib_ros.ros.time import s_to_ns
+from cobot_calib_ros.ros.time import ns_to_s, s_to_ns
 
 
 def add_parser(subparsers):
@@ -17,7 +17,9 @@ def add_parser(subparsers):
     add_db_options(p)
     p.add_argument('--since', help='only results from this time on (ISO 8601, e.g. '
                                    '2026-11-01 or 2026-11-01T08:00; UTC unless it says)')
-    p.add_argument('--json', action='store_true', help='one JSON line per result')
+    p.add_argument('--json', action='store_true',
+                   help='one JSON line per cell (its user frames, kinematic calibrations and '
+                        'checks)')
     p.add_argument('--plots', help='folder for the trend PNGs (default <data dir>/reports)')
     p.add_argument('--no-plots', action='store_true', help='print only')
     return p
@@ -35,8 +37,9 @@ def since_ns(text: str | None) -> int:
 
 def run(args) -> int:
     from cobot_calib_ros import paths, store
+    from cobot_calib_ros.cli.db import cell_of
+    from cobot_calib_ros.store.cells import LEGACY_CELL
     from cobot_calib_ros.store.database import DatabaseError
-    from cobot_calib_ros.store.repository import DatabaseRepository
     try:
         start = since_ns(args.since)
     except ValueError:
@@ -44,11 +47,14 @@ def run(args) -> int:
                     '2026-11-01 or 2026-11-01T08:00:00', EXIT_USAGE)
     root = paths.data_dir(args.data_dir)
     try:
-        repo = store.open(root, args.db, args.cell)
-        own = getattr(repo, 'cell', args.cell or 'default')
-        cells = [own] if args.cell or not isinstance(repo, DatabaseRepository) else \
-            repo.database.cells() or [own]
-        reports = [_cell_report(store.open(root, args.db, cell), cell, start) for cell in cells]
+        every = store.open(root, args.db)
+        if args.cell:
+            problem = cell_of(args, every)[1]
+            if problem:
+                return fail(f'history: {problem}', EXIT_USAGE)
+        cells = [args.cell] if args.cell else list(every.cells()) or [LEGACY_CELL]
+        reports = [_cell_report(store.open(root, args.db, cell), cell, start)
+                   for cell in cells]
     except DatabaseError as exc:
         return fail(f'history: {exc}')
     for report in reports:
@@ -127,7 +133,22 @@ def _print(report: dict, as_json: bool) -> None:
 
 
 def _plot(report: dict, out: Path) -> Path:
-    """Frame change per calibration with its k-sigma band and the warn tolerance."""
+    """The trend figure of ``report`` as ``out``/history-<cell>.png."""
+    import matplotlib.pyplot as plt
+    fig = trend_figure(report)
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / f'history-{report["cell"]}.png'
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+MAX_TICKS = 20      # calibrations labelled on the x axis at most (every n-th beyond)
+
+
+def trend_figure(report: dict):
+    """Frame change per calibration (one tick each, labelled with its date and id) with its
+    k-sigma band and the WARN and ERROR tolerances."""
     import matplotlib
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
@@ -135,25 +156,33 @@ def _plot(report: dict, out: Path) -> Path:
     limits = DriftLimits()
     steps = [s for s in report['user_frames'] if s['moved_mm'] is not None]
     x = list(range(1, len(steps) + 1))
-    fig, axes = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
-    for ax, key, sigma, tol, unit in ((axes[0], 'moved_mm', 'sigma_mm', limits.warn_m * 1e3,
-                                       'mm'),
-                                      (axes[1], 'turned_mrad', 'sigma_mrad',
-                                       limits.warn_rad * 1e3, 'mrad')):
+    fig, axes = plt.subplots(2, 1, figsize=(max(8.0, 2.0 + 0.6 * min(len(x), MAX_TICKS)), 7),
+                             sharex=True)
+    for ax, key, sigma, warn, error, unit in (
+            (axes[0], 'moved_mm', 'sigma_mm', limits.warn_m * 1e3, limits.error_m * 1e3, 'mm'),
+            (axes[1], 'turned_mrad', 'sigma_mrad', limits.warn_rad * 1e3,
+             limits.error_rad * 1e3, 'mrad')):
         values = [s[key] for s in steps]
         band = [limits.k * s[sigma] for s in steps]
         ax.fill_between(x, 0, band, alpha=0.3, label=f'{limits.k:g} standard errors')
         ax.plot(x, values, 'o-', label='change since the previous calibration')
-        ax.axhline(tol, color='tab:orange', ls='--', label='WARN tolerance')
+        ax.axhline(warn, color='tab:orange', ls='--', label='WARN tolerance')
+        ax.axhline(error, color='tab:red', ls='-', label='ERROR tolerance')
         for xi, s in zip(x, steps):
             if s['level']:
                 ax.plot(xi, s[key], 'o', color='tab:red')
         ax.set_ylabel(f'{key.split("_")[0]} [{unit}]')
+    every = -(-len(x) // MAX_TICKS) if x else 1
+    shown = x[::every]
+    axes[1].set_xticks(shown, [_tick_label(steps[i - 1]) for i in shown], rotation=30,
+                       ha='right', fontsize=7)
     axes[0].legend(fontsize=8)
     axes[0].set_title(f'cell {report["cell"]}: user frame drift')
-    axes[1].set_xlabel('calibration (after the first)')
-    out.mkdir(parents=True, exist_ok=True)
-    path = out / f'history-{report["cell"]}.png'
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+    axes[1].set_xlabel('calibration (UTC, id), against the one before it')
+    fig.tight_layout()
+    return fig
+
+
+def _tick_label(step: dict) -> str:
+    when = datetime.fromtimestamp(ns_to_s(step['stamp_ns']), tz=timezone.utc)
+    return f'{when:%Y-%m-%d %H:%M}\n{step["id"]}'

@@ -24,7 +24,6 @@ from cobot_calib_ros.paths import DEFAULT_CELL
 
 CELLS = {'iiwa7': 'iiwa7_close', 'sawyer': DEFAULT_CELL,   # --robot: its default cell
          'ur10e': 'ur10e_close'}
-MUKCA_PUBLISHED_MM = 0.2       # MUKCa paper: mean error after calibration
 
 
 def add_parser(subparsers):
@@ -176,6 +175,10 @@ def _print(args, report: dict) -> None:
         print(json.dumps(report, indent=2))
         return
     print(f'\n{report["message"]}')
+    verdict = report.get('verdict', {'passed': True, 'problems': []})   # a suite's: passed
+    print('gate: passed (converged, every deviation within its bound, validation no worse '
+          'than nominal)' if verdict['passed'] else
+          'gate: REFUSED: ' + '; '.join(verdict['problems']))
     spheres = report.get('collections', {}).get('spheres', {})
     if 'robot_s' in spheres:
         print(f'robot time of the sphere collection: {spheres["robot_s"]:.1f} s '
@@ -221,12 +224,15 @@ def _bag(args, folder: Path) -> int:
     """A recorded sphere session (api.identification.identify_from_bag)."""
     from cobot_calib_ros.api.identification import identify_from_bag
     from cobot_calib_ros.bags.errors import BagError
+    from cobot_calib_ros.core.errors import Refusal
     try:
         report, outcome = identify_from_bag(folder, args.cell or CELLS[args.robot or 'iiwa7'],
                                             solver=args.solver, loss=args.loss,
                                             max_configs=args.max_configs)
     except BagError as e:
         return fail(f'identify: {e}')
+    except Refusal as e:
+        return fail(f'identify {folder}: {e}', EXIT_FAILED)
     except (KeyError, ValueError) as e:
         return fail(str(e) if str(folder) in str(e) else f'{folder}: {e}', EXIT_FAILED)
     if args.json:
@@ -234,39 +240,14 @@ def _bag(args, folder: Path) -> int:
     else:
         _print(args, report)
         print(f'\n{outcome.table}')
+    if not outcome.verdict.passed:
+        return fail(f'identify {folder}: {outcome.verdict.line()}', EXIT_FAILED)
     return EXIT_OK
 
 
 def _mukca(args, folder: Path) -> int:
-    """Real MUKCa sphere-socket data: identify on two locations, evaluate on the third, each in
-    turn (MUKCa's metric: mean distance of the ball centre from its socket's centroid)."""
-    from cobot_calib_ros.core.kinematics.identification import sockets
-    from cobot_calib_ros.loaders import load_socket_data
-    from cobot_calib_ros.core.kinematics.urdf import model_from_urdf
-    urdf = Path(args.urdf) if args.urdf else folder.parent / 'iiwa14.urdf'
-    try:
-        model = model_from_urdf(urdf.read_text(encoding='utf-8'), 'base_link', 'tool0',
-                                urdf.stem)
-        data = load_socket_data(folder)
-        loo = sockets.leave_one_location_out(model, data, args.ball, solver=args.solver,
-                                             loss=args.loss)
-    except OSError as e:
-        return fail(f'{urdf}: {e.strerror}; give the nominal URDF with --urdf', EXIT_USAGE)
-    except ValueError as e:
-        return fail(str(e) if str(folder) in str(e) else f'{folder}: {e}', EXIT_FAILED)
-    report = {'robot': model.name, 'folds': [
-        {'held_out': f.location, 'free_parameters': len(f.free),
-         'mae_before_mm': f.before['mae_mm'], 'mae_after_mm': f.after['mae_mm'],
-         'max_after_mm': f.after['max_mm'], 'train_mae_after_mm': f.train_after['mae_mm']}
-        for f in loo.folds],
-        'mean_mae_before_mm': loo.mean_mae_mm_before, 'mean_mae_after_mm': loo.mean_mae_mm_after,
-        'mukca_published_mm': MUKCA_PUBLISHED_MM}
-    if args.json:
-        print(json.dumps(report, indent=2))
-        return EXIT_OK
-    print(f'{model.name}: identify on two locations, MUKCa mean ball error on the third [mm]')
-    print(loo.table())
-    print(f'held-out mean {loo.mean_mae_mm_before:.3f} -> {loo.mean_mae_mm_after:.3f} mm '
-          f'(MUKCa published about {MUKCA_PUBLISHED_MM} mm on this robot, after removing '
-          'outliers)')
-    return EXIT_OK
+    """Real MUKCa sphere-socket data: the measurement path (spheres, one location held out at
+    a time; MUKCa's metric is the held-out mean distance of the ball centre from its socket's
+    centroid), with its gates."""
+    args.measurement = 'spheres'
+    return identify_measured.run(args)

@@ -1,14 +1,17 @@
 """`cobot-calib identify --measurement KIND --source FILE`: any arm from its URDF (or a DH table),
 identified offline from a measurement file (CSV + YAML sidecar, or a MUKCa folder), validated
-on held-out rows (k-fold by default, or one group at a time)."""
+on held-out rows (k-fold by default, or one group at a time). Parses and prints; the work is
+api.identification.identify_file."""
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
-from cobot_calib_ros.cli.common import EXIT_OK, EXIT_USAGE, fail
+from cobot_calib_ros.cli.common import EXIT_FAILED, EXIT_OK, EXIT_USAGE, fail
+from cobot_calib_ros.api.identification import DEFAULT_FOLDS
+from cobot_calib_ros.core.kinematics.identification.gates import (MAX_DEVIATION_M,
+                                                                   MAX_DEVIATION_RAD)
 
-DEFAULT_FOLDS = 5
+MAX_CORRELATED_LINES = 10
 
 
 def add_arguments(p) -> None:
@@ -21,7 +24,16 @@ def add_arguments(p) -> None:
                    help='--urdf: the chain\'s last link (default: the sidecar\'s frames.tip)')
     p.add_argument('--dh', default=None, help='a DH table (YAML) instead of --urdf')
     p.add_argument('--model', choices=('offsets', 'full', 'mdh'), default=None,
-                   help='error model (default: full for a URDF, mdh for a DH table)')
+                   help='error model: offsets (one per joint, any robot), full (--urdf: '
+                        'every joint origin; its default), mdh (--dh: every DH row; its '
+                        'default)')
+    p.add_argument('--max-deviation-mm', type=float, default=MAX_DEVIATION_M * 1e3,
+                   metavar='MM', help='the most a length of the model may move from nominal '
+                   f'[mm] (default {MAX_DEVIATION_M * 1e3:g}); a parameter that ends there is '
+                   'not determined by the data and the result is refused')
+    p.add_argument('--max-deviation-mrad', type=float, default=MAX_DEVIATION_RAD * 1e3,
+                   metavar='MRAD', help='the same for angles and zero offsets [mrad] (default '
+                   f'{MAX_DEVIATION_RAD * 1e3:g})')
     held = p.add_mutually_exclusive_group()
     held.add_argument('--folds', type=int, default=None, metavar='K',
                       help=f'k-fold validation, row i in fold i %% K (default {DEFAULT_FOLDS})')
@@ -30,95 +42,32 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
+    from cobot_calib_ros.core.errors import Refusal
     try:
         report = identify(args)
+    except Refusal as e:
+        return fail(f'identify {args.source}: {e}', EXIT_FAILED)
     except ValueError as e:
         return fail(f'identify: {e}', EXIT_USAGE)
     if args.json:
         print(json.dumps(report, indent=2))
     else:
         print(summary(report))
+    if not report['verdict']['passed']:
+        return fail(f'identify {args.source}: REFUSED: '
+                    f'{"; ".join(report["verdict"]["problems"])}', EXIT_FAILED)
     return EXIT_OK
 
 
-def _source(source: Path, ball):
-    from cobot_calib_ros.loaders.measurements import (load_measurements,
-                                                      load_socket_measurements)
-    if source.is_dir() and any(source.glob('*/hole_0.csv')):
-        return load_socket_measurements(source, ball)
-    if not source.is_file():
-        raise ValueError(f'--source {source}: no such file; give a measurement CSV with its '
-                         'YAML sidecar, or a MUKCa folder')
-    return load_measurements(source)
-
-
-def _model(source: Path, frames: dict, urdf: str | None, base_link: str | None,
-           tip_link: str | None, dh: str | None):
-    from cobot_calib_ros.core.kinematics.urdf import model_from_urdf
-    from cobot_calib_ros.loaders.measurements import load_dh_table
-    if dh:
-        return load_dh_table(dh)
-    if urdf:
-        path = Path(urdf).expanduser()
-    elif source.is_dir() and (source.parent / 'iiwa14.urdf').is_file():
-        path = source.parent / 'iiwa14.urdf'              # MUKCa's layout
-    else:
-        raise ValueError('give the robot: --urdf FILE --base-link L --tip-link L, or --dh FILE')
-    base = base_link or frames.get('base') or 'base_link'
-    tip = tip_link or frames.get('tip')
-    if not tip:
-        raise ValueError('give --tip-link (the sidecar names no frames.tip)')
-    try:
-        text = path.read_text(encoding='utf-8')
-    except OSError as e:
-        raise ValueError(f'--urdf {path}: cannot read ({e.strerror})') from None
-    try:
-        return model_from_urdf(text, base, tip, path.stem)
-    except ValueError as e:
-        raise ValueError(f'--urdf {path}: {e}') from None
-
-
 def identify(args) -> dict:
-    """The report of the command line's data (:func:`identify_file`)."""
+    """The report of the command line's data (api.identification.identify_file)."""
+    from cobot_calib_ros.api.identification import identify_file
     return identify_file(args.source, args.measurement, urdf=args.urdf,
                          base_link=args.base_link, tip_link=args.tip_link, dh=args.dh,
                          model=args.model, folds=args.folds, leave_out=args.leave_out,
-                         ball=args.ball, loss=args.loss)
-
-
-def identify_file(source: str | Path, measurement: str, *, urdf: str | None = None,
-                  base_link: str | None = None, tip_link: str | None = None,
-                  dh: str | None = None, model: str | None = None, folds: int | None = None,
-                  leave_out: str | None = None, ball=(0.0, 0.0, 0.04),
-                  loss: str = 'soft_l1') -> dict:
-    """Identify a measurement file (or MUKCa folder) held out: the report of core
-    measurement_fit.identify_measurements with the source, validation and frames. ValueError
-    (one line) for bad data or arguments."""
-    from cobot_calib_ros.core.kinematics.identification import measurement_fit as mf
-    source = Path(source).expanduser()
-    file = _source(source, ball)
-    if file.measurements.kind != measurement:
-        raise ValueError(f'{file.source} holds {file.measurements.kind} measurements, not '
-                         f'{measurement}: pass --measurement {file.measurements.kind}')
-    robot = _model(source, file.frames, urdf, base_link, tip_link, dh)
-    file = file.in_joint_order(robot.joint_names)
-    errors = mf.ErrorModel(robot, model or ('mdh' if robot.kind == 'mdh' else 'full'))
-    leave_out = leave_out or (None if folds else _default_group(file))
-    if leave_out:
-        labels, held = mf.by_group(file.groups(leave_out))
-        validation = {'leave_out': leave_out, 'groups': list(labels)}
-    else:
-        k = folds or DEFAULT_FOLDS
-        held = mf.held_out_rows(file.sample, mf.kfold(file.samples, k))
-        labels, validation = tuple(f'fold {i}' for i in range(k)), {'folds': k}
-    report = mf.identify_measurements(errors, file.measurements, held, labels=labels,
-                                      sample=file.sample, loss=loss)
-    return {'source': file.source, 'validation': validation, 'frames': file.frames, **report}
-
-
-def _default_group(file) -> str | None:
-    """A MUKCa folder is held out by location (its tool placements)."""
-    return 'location' if 'socket' in file.columns and 'location' in file.columns else None
+                         ball=args.ball, loss=args.loss,
+                         max_deviation=(args.max_deviation_mm * 1e-3,
+                                        args.max_deviation_mrad * 1e-3))
 
 
 def summary(report: dict) -> str:
@@ -128,17 +77,29 @@ def summary(report: dict) -> str:
     lines = [f'{report["robot"]}, {report["measurement"]} ({report["samples"]} samples), '
              f'model {report["model"]}: {report["parameters_kept"]} parameters kept '
              f'(textbook minimum {report["parameters_minimum"]}), condition number '
-             f'{report["condition_number"]:.1f}',
+             f'{report["condition_number"]:.1f}, converged: '
+             f'{"yes" if report["converged"] else "NO"}',
              f'held out ({how}) {"rmse":>8} {"mean":>8} {"max":>8} {"rot rms":>9}']
     for name in ('nominal', 'calibrated'):
         s = report['held_out'][name]
         rot = '' if s['rot_rms_mrad'] is None else f'{s["rot_rms_mrad"]:>6.2f} mrad'
         lines.append(f'{name:<{len(how) + 11}} {s["rmse_mm"]:>5.3f} mm {s["mean_mm"]:>5.3f} mm '
                      f'{s["max_mm"]:>5.3f} mm {rot}')
+    verdict = report['verdict']
+    lines.append('gate: passed (deviations within '
+                 f'{report["bounds"]["length_mm"]:g} mm / {report["bounds"]["angle_mrad"]:g} '
+                 'mrad, held out no worse than nominal)' if verdict['passed'] else
+                 'gate: REFUSED: ' + '; '.join(verdict['problems']))
     for d in report['dropped']:
         lines.append(f'dropped {d["name"]}: {d["reason"]}')
-    for c in report['correlated']:
+    parameters = {p['name'] for p in report['identified']}
+    pairs = [c for c in report['correlated'] if c['a'] in parameters or c['b'] in parameters]
+    for c in pairs[:MAX_CORRELATED_LINES]:
         lines.append(f'correlated {c["a"]} ~ {c["b"]}: {c["correlation"]:+.3f}')
+    hidden = len(report['correlated']) - min(len(pairs), MAX_CORRELATED_LINES)
+    if hidden:
+        lines.append(f'{hidden} more correlated pairs (of the frames and targets, or past the '
+                     f'first {MAX_CORRELATED_LINES}): --json lists them')
     for o in report['outliers']:
         lines.append(f'outlier: sample {o["sample"]} ({o["error_mm"]:.3f} mm)')
     return '\n'.join(lines)

@@ -43,14 +43,17 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
-    args = build_parser().parse_args(argv)
+    from cobot_calib_ros.cli.common import EXIT_INTERRUPTED, GuardedStdout
+    stdout = sys.stdout
+    sys.stdout = GuardedStdout(stdout)     # `cobot-calib ... | head`: the verb's own exit code
     try:
+        args = build_parser().parse_args(argv)
         return args.run(args)
     except KeyboardInterrupt:
-        return 130
-    except BrokenPipeError:                       # `cobot-calib echo ... | head`
-        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
-        return 0
+        return EXIT_INTERRUPTED
+    finally:
+        sys.stdout.flush()
+        sys.stdout = stdout
 
 
 if __name__ == '__main__':

@@ -33,8 +33,8 @@ def add_parser(subparsers):
                    'default: the cell file\'s own')
     p.add_argument('--namespace', default='',
                    help='run the suite under this ROS namespace (e.g. cell_07: /cell_07/...), '
-                        'its results stored as that cell\'s (COBOT_CALIB_CELL); several '
-                        'suites on one machine or one DDS domain, one database')
+                        'its results stored as that cell\'s (else as the cell file\'s name); '
+                        'several suites on one machine or one DDS domain, one database')
     p.add_argument('--db', default='', help='results database URL for every node, e.g. '
                    'postgresql://user@host/plant (default $COBOT_CALIB_DB, else the SQLite '
                    'file in the data dir)')
@@ -69,7 +69,7 @@ def run(args) -> int:
                         'use another --namespace, or pass --force to start a second one '
                         'anyway')
     return _serve(launcher.Suite(launcher.default_log_dir(), own_group=True), specs,
-                  suite_environment(namespace, args.db, _robot_of(args.cell)), namespace)
+                  suite_environment(args.db, _robot_of(args.cell)), namespace)
 
 
 def _robot_of(cell: str) -> str:
@@ -92,15 +92,14 @@ def namespace_problem(namespace: str) -> str:
     return ''
 
 
-def suite_environment(namespace: str, db: str, robot: str = '') -> dict[str, str] | None:
-    """The nodes' environment: the cell their results are stored under (the namespace), the
-    database, the robot model for the results' provenance; None: this process's own."""
-    from cobot_calib_ros.store.database import CELL_ENV, DB_ENV, PROVENANCE_ENV
-    if not namespace and not db and not robot:
+def suite_environment(db: str, robot: str = '') -> dict[str, str] | None:
+    """The nodes' environment: the database, the robot model for the results' provenance;
+    None: this process's own. (The cell their results are stored under each node knows from
+    its cell file and namespace: store.cells.ResultsCell.of.)"""
+    from cobot_calib_ros.store.database import DB_ENV, PROVENANCE_ENV
+    if not db and not robot:
         return None
     env = dict(os.environ)
-    if namespace:
-        env[CELL_ENV] = namespace.replace('/', '.')
     if db:
         env[DB_ENV] = db
     if robot:

@@ -2,9 +2,11 @@
 
 A Foxglove WebSocket server (foxglove-sdk) on 127.0.0.1:8765 by default: open
 ws://127.0.0.1:8765 in the Foxglove app or Lichtblick (Open connection -> Foxglove WebSocket).
-Every topic on the exported ROS_DOMAIN_ID is streamed as it is published (ros2msg schema, cdr
-messages), the calibration markers on cobot_calib/markers included; latched topics are sent
-again to each window that subscribes. Ctrl-C stops it.
+Both names of the protocol are accepted (foxglove.sdk.v1, foxglove.websocket.v1: Lichtblick
+and older Foxglove releases). Every topic on the exported ROS_DOMAIN_ID is offered (ros2msg
+schema, cdr messages), the calibration markers on cobot_calib/markers included, and subscribed
+on ROS only while a window shows it (no camera images rendered for nobody); latched topics are
+sent once to each window that subscribes. Ctrl-C stops it.
 """
 from __future__ import annotations
 
@@ -44,7 +46,7 @@ def run(args) -> int:
         return view
     try:
         spin.run(make_node, args=[sys.argv[0]])
-    except RuntimeError as exc:          # the port is taken, the address is not ours
+    except (RuntimeError, OSError) as exc:   # the port is taken, the address is not ours
         return fail(f'view: cannot serve on {args.host}:{args.port}: {exc}; pick another '
                     '--port')
     return EXIT_OK

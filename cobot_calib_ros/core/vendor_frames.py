@@ -81,6 +81,24 @@ def quaternion_wxyz(R: ArrayLike) -> Array:
     first = next((v for v in q if abs(v) > 1e-15), 1.0)
     return (-q if first < 0 else q) + 0.0
 
+# The frame numbers each controller has (ABB names a wobjdata, UR a variable: no number):
+# KUKA KRC4 BASE_DATA[1..32], FANUC UFRAME[1..9] (0 is the world frame), Yaskawa UF#1..63
+FRAME_NUMBERS = {'kuka': range(1, 33), 'fanuc': range(1, 10), 'yaskawa': range(1, 64)}
+
+
+def check_frame_number(fmt: str, index: int | None) -> None:
+    """ValueError unless ``index`` (None: not given) is a frame number ``fmt``'s controller
+    has; ABB and UR frames have a name, not a number."""
+    if fmt not in FORMATS:
+        raise ValueError(_unknown(fmt))
+    numbers = FRAME_NUMBERS.get(fmt)
+    if numbers is None:
+        if index is not None:
+            raise ValueError(f'{fmt} frames have no number: name the variable with --name '
+                             'instead of --index')
+    elif index is not None and index not in numbers:
+        raise ValueError(f'{fmt} frame number {index}: give {numbers[0]}..{numbers[-1]}')
+
 
 def to_values(T: ArrayLike, fmt: str) -> tuple[float, ...]:
     """The vendor values of ``T`` [m] in ``fmt`` (see the module table). ValueError: unknown
@@ -125,11 +143,14 @@ def from_values(values: ArrayLike, fmt: str) -> Array:
     return make_transform(zyx_matrix(a, b, c), t)
 
 
-def paste_text(T: ArrayLike, fmt: str, name: str = 'cell_frame', index: int = 1,
+def paste_text(T: ArrayLike, fmt: str, name: str = 'cell_frame', index: int | None = None,
                comment: str = '') -> str:
     """``T`` (a base or user frame, [m]) as the controller's own syntax, ready to paste, with
-    ``comment`` (e.g. where the frame comes from) as the language's comment."""
+    ``comment`` (e.g. where the frame comes from) as the language's comment; ``index`` the
+    frame number (check_frame_number; default 1 where the controller numbers its frames)."""
+    check_frame_number(fmt, index)
     v = to_values(T, fmt)
+    index = 1 if index is None else index
     body = _PASTE[fmt](v, name, index)
     mark = {'kuka': ';', 'abb': '!', 'fanuc': '!', 'ur': '#', 'yaskawa': '//'}[fmt]
     head = [f'{mark} {line}' for line in comment.splitlines()] if comment else []

@@ -9,9 +9,12 @@ it, which says what the columns are (README, "Measurement files"):
     frames: {measured_in: camera, base: base_link, tip: wrist_3_link, target: board}
     # pose:    position: [x, y, z]; rotation: [a, b, c] (rpy | rotvec) or [qw, qx, qy, qz]
     #          (quaternion_wxyz); rotation_format; camera: fixed | on_arm; rotation_weight [m/rad]
-    # points:  markers: {m1: [x1, y1, z1], m2: [x2, y2, z2]}  (an empty cell: not seen)
+    # points:  markers: {m1: [x1, y1, z1], m2: [x2, y2, z2]}  (an empty cell: not seen; NaN
+    #          or inf is refused)
     # spheres: sphere: COLUMN; distances: [[i, j, D], ...]; ball: [x, y, z] (in the tip)
     # plane:   plane: COLUMN (optional, one plane without); ball: [x, y, z]
+    noise: 0.05                    # optional: one row's RMS error (units.length), the floor
+                                   # below which a held-out error is degenerate
 
 Every other column may name groups (``--leave-out COLUMN``). Errors are ValueError with one
 line naming the file and the problem.
@@ -49,6 +52,7 @@ class MeasurementFile:
     columns: dict
     frames: dict
     samples: int
+    noise_m: float = 0.0      # the sidecar's noise [m]: one row's RMS error (0: not given)
 
     def in_joint_order(self, names: tuple[str, ...]) -> 'MeasurementFile':
         """The same file with q's columns in ``names`` order; ValueError naming the missing."""
@@ -62,7 +66,7 @@ class MeasurementFile:
         data = Measurements(m.kind, m.q[:, order], m.target, m.values, m.distances, m.ball,
                             m.rotation_weight)
         return MeasurementFile(self.source, data, self.sample, tuple(names), self.columns,
-                               self.frames, self.samples)
+                               self.frames, self.samples, self.noise_m)
 
     def groups(self, column: str) -> np.ndarray:
         """The group label of every measurement row from ``column``."""
@@ -113,9 +117,10 @@ def _numbers(path: Path, header: list[str], rows: list[list[str]], names: list[s
             except ValueError:
                 raise _fail(path, f'line {i + 2}, column {names[j]!r}: {text!r} is not a '
                                   'number') from None
-    if not blank_ok and not np.all(np.isfinite(out)):
-        line = int(np.flatnonzero(~np.isfinite(out).all(axis=1))[0]) + 2
-        raise _fail(path, f'line {line}: a {what} value is not finite')
+            if not np.isfinite(out[i, j]):
+                blank = '; leave the cell empty for a marker not seen' if blank_ok else ''
+                raise _fail(path, f'line {i + 2}, column {names[j]!r}: {text!r} is not a '
+                                  f'finite number{blank}')
     return out
 
 
@@ -241,7 +246,21 @@ def load_measurements(path: str | Path) -> MeasurementFile:
         raise _fail(path, str(e)) from None
     columns = {h: [r[k] for r in rows] for k, h in enumerate(header)}
     return MeasurementFile(str(path), data, sample, tuple(joints), columns,
-                           dict(side.get('frames') or {}), len(rows))
+                           dict(side.get('frames') or {}), len(rows),
+                           _noise(side, sidecar, length))
+
+
+def _noise(side: dict, sidecar: Path, length: float) -> float:
+    """The sidecar's ``noise`` [m]: one row's RMS error as the held-out errors count it."""
+    value = side.get('noise', 0.0)
+    try:
+        noise = float(value) * length
+    except (TypeError, ValueError):
+        noise = -1.0
+    if not (noise >= 0.0 and np.isfinite(noise)):
+        raise _fail(sidecar, f'"noise" must be a length >= 0 (one row\'s RMS error, in '
+                             f'units.length), got {value!r}')
+    return noise
 
 
 def load_socket_measurements(folder: str | Path, ball=(0.0, 0.0, 0.04)) -> MeasurementFile:
@@ -272,3 +291,40 @@ def load_dh_table(path: str | Path):
     except (yaml.YAMLError, KeyError, TypeError, ValueError) as e:
         raise _fail(path, f'not a DH table (name, joints, rows [[d, theta, r, alpha]], '
                           f'limits): {e}') from None
+
+
+def open_source(source: Path, ball=(0.0, 0.0, 0.04)) -> 'MeasurementFile':
+    """A measurement CSV with its sidecar, or a MUKCa folder (read as spheres)."""
+    if source.is_dir() and any(source.glob('*/hole_0.csv')):
+        return load_socket_measurements(source, ball)
+    if not source.is_file():
+        raise ValueError(f'--source {source}: no such file; give a measurement CSV with its '
+                         'YAML sidecar, or a MUKCa folder')
+    return load_measurements(source)
+
+
+def robot_model(source: Path, frames: dict, urdf: str | None, base_link: str | None,
+                tip_link: str | None, dh: str | None):
+    """The arm of a measurement source: a DH table, or a URDF's chain from ``base_link`` to
+    ``tip_link`` (default the sidecar's frames; a MUKCa folder: iiwa14.urdf beside it)."""
+    from cobot_calib_ros.core.kinematics.urdf import model_from_urdf
+    if dh:
+        return load_dh_table(dh)
+    if urdf:
+        path = Path(urdf).expanduser()
+    elif source.is_dir() and (source.parent / 'iiwa14.urdf').is_file():
+        path = source.parent / 'iiwa14.urdf'              # MUKCa's layout
+    else:
+        raise ValueError('give the robot: --urdf FILE --base-link L --tip-link L, or --dh FILE')
+    base = base_link or frames.get('base') or 'base_link'
+    tip = tip_link or frames.get('tip')
+    if not tip:
+        raise ValueError('give --tip-link (the sidecar names no frames.tip)')
+    try:
+        text = path.read_text(encoding='utf-8')
+    except OSError as e:
+        raise ValueError(f'--urdf {path}: cannot read ({e.strerror})') from None
+    try:
+        return model_from_urdf(text, base, tip, path.stem)
+    except ValueError as e:
+        raise ValueError(f'--urdf {path}: {e}') from None

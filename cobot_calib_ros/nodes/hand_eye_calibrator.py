@@ -53,6 +53,7 @@ from cobot_calib_ros.ros.landmark_watch import LandmarkWatch
 from cobot_calib_ros.ros.robot_calls import RobotCalls
 from cobot_calib_ros.ros.tf_static import StaticBroadcaster
 from cobot_calib_ros.ros.time import now_ns
+from cobot_calib_ros.store.cells import ResultsCell
 from cobot_calib_ros.store.records import HandEyeInputs, HandEyeRecord, HandEyeResult
 
 Action = CalibrateHandEye
@@ -89,7 +90,8 @@ class HandEyeCalibrator(Node):
         self._model = kinematics.model_for(self._cell)
         self._chain = self._model.chain()
         self._root = paths.data_dir(self._p('data_dir'))
-        self._store = store.open(self._root).hand_eye
+        self._results_cell = ResultsCell.of(self._cell, self.get_namespace())
+        self._store = store.open(self._root, cell=self._results_cell).hand_eye
         self._user_frame = parse_user_frame(self._p('user_frame'))
         self._answers = spin.Companion(self, 'clients')
         self._robot = RobotCalls(self._answers)
@@ -104,6 +106,8 @@ class HandEyeCalibrator(Node):
             goal_callback=self._accept, cancel_callback=lambda _: CancelResponse.ACCEPT,
             callback_group=ReentrantCallbackGroup())
         active = self._store.active()
+        for warning in self._store.warnings:    # e.g. results from before keying by cell
+            self.get_logger().warning(warning)
         if active is not None:
             self._publish(active)
         problem = '' if self._cell.camera and self._cell.landmarks and \
@@ -174,7 +178,7 @@ class HandEyeCalibrator(Node):
     def _T_base_user(self) -> np.ndarray:
         if self._user_frame is not None:
             return self._user_frame
-        record = store.open(self._root).user_frames.active()
+        record = store.open(self._root, cell=self._results_cell).user_frames.active()
         if record is None or record['result'].get('T_base_user') is None:
             raise ValueError('no user frame to find the board by: set the user_frame parameter '
                              'or calibrate the user frame first (calibrate_user_frame)')
@@ -263,7 +267,7 @@ class HandEyeCalibrator(Node):
         return HandEyeRecord(
             id=record_id('hand_eye'), stamp_ns=now_ns(self), method='park+least_squares',
             kinematics='nominal', flange_frame=self._p('flange_frame'),
-            camera_frame=self._cell.camera.frame_id, cell=self._cell.name,
+            camera_frame=self._cell.camera.frame_id, cell=self._results_cell.name,
             inputs=HandEyeInputs(joints=joints, T_base_flange=flange, T_optical_board=boards,
                                  board_covariances=covariances, skipped=skipped,
                                  planned_views=planned),

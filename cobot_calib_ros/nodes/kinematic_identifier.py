@@ -42,6 +42,8 @@ from cobot_calib_ros.core.kinematics.planning import (PlanSettings, Prediction,
 from cobot_calib_ros.core.kinematics.identification.observations import (
     PositionObservations, SphereObservations)
 from cobot_calib_ros.core.kinematics.identification.solvers import LOSSES, SOLVERS
+from cobot_calib_ros.core.kinematics.identification.gates import (
+    DeviationBounds, MAX_DEVIATION_M, MAX_DEVIATION_RAD)
 from cobot_calib_ros.core.kinematics.kinematic_calibration import CalibrationJob, JobCancelled
 from cobot_calib_ros.bags.errors import BagError
 from cobot_calib_ros.bags.sphere_captures import is_bag, sphere_observations
@@ -52,6 +54,7 @@ from cobot_calib_ros.ros.diagnostics import Diagnostics, OK, WARN
 from cobot_calib_ros.ros.params import declare, read_once
 from cobot_calib_ros.ros.robot_calls import RobotCalls
 from cobot_calib_ros.ros.time import now_ns, ns_to_stamp
+from cobot_calib_ros.store.cells import ResultsCell
 from cobot_calib_ros.store.collections import Collection, CollectionStore
 from cobot_calib_ros.store.files import check_id
 
@@ -103,7 +106,8 @@ class KinematicIdentifier(Node):
         self._declare_parameters()
         self._cell = load_cell(paths.cell_file(self._p('cell_file')), self._p('layout') or None)
         self._model = kinematics.model_for(self._cell)
-        repository = store.open(paths.data_dir(self._p('data_dir')))
+        repository = store.open(paths.data_dir(self._p('data_dir')),
+                                cell=ResultsCell.of(self._cell, self.get_namespace()))
         self._collections = repository.collections
         self._calibrations = repository.kinematics
         self._answers = spin.Companion(self, 'clients')
@@ -154,6 +158,13 @@ class KinematicIdentifier(Node):
         declare(self, 'candidate_tilt_step', math.radians(TILT_STEP_DEG),
                 'Planned collections: step of the candidate tilts on a sphere [rad] (coarser: '
                 'fewer candidates to solve IK for and choose from, longer moves)', 0.05, 1.05)
+        declare(self, 'max_deviation_length', MAX_DEVIATION_M,
+                'Identification gate: the most a length of the model (and the tool centre) '
+                'may be off nominal [m]; a result with a parameter beyond is refused, nothing '
+                'stored', 1e-5, 0.1)
+        declare(self, 'max_deviation_angle', MAX_DEVIATION_RAD,
+                'Identification gate: the most an angle or zero offset may be off nominal '
+                '[rad]; a result with a parameter beyond is refused, nothing stored', 1e-5, 0.5)
 
     def _p(self, name: str):
         return self.get_parameter(name).value
@@ -366,14 +377,16 @@ class KinematicIdentifier(Node):
             self._publish_capture(feedback.target, capture)
             if not laser and self._coupling is not None:
                 self._publish_markers(capture.q)
-            feedback.recorded, feedback.skipped = run.recorded, run.skipped
+            # the collection's poses, as the result counts them (a resume goes on counting)
+            feedback.recorded = before + run.recorded
+            feedback.skipped = skipped_before + run.skipped
             feedback.robot_time = self._robot.robot_seconds - start
-            self._publish_progress(collection_id, feedback, before + run.recorded)
+            self._publish_progress(collection_id, feedback, feedback.recorded)
             goal_handle.publish_feedback(feedback)
 
         self._robot.speed_scale = self._p('speed_scale')
         stored = self._collections.load(collection_id)
-        before = len(stored.index)
+        before, skipped_before = len(stored.index), len(stored.skipped)
         run = collect(plan, stored.next_index, self._robot,
                       self._store(collection_id), hold=hold, laser=laser,
                       cancelled=lambda: goal_handle.is_cancel_requested, on_pose=on_pose)
@@ -434,11 +447,22 @@ class KinematicIdentifier(Node):
         except JobCancelled:
             return self._end(goal_handle, result, Identify.Result.CANCELED, 'canceled; '
                              'nothing stored')
+        except Refusal as e:
+            self._health.set(WARN, f'identification refused: {e}', job='')
+            return self._end(goal_handle, result,
+                             results.code('IdentifyKinematics', e.failure.code),
+                             '; '.join(filter(None, (str(e), 'nothing stored', partial))))
         except (ValueError, np.linalg.LinAlgError) as e:
             self._health.set(WARN, f'identification failed: {e}', job='')
             return self._end(goal_handle, result, Identify.Result.SOLVER_FAILED,
                              '; '.join(filter(None, (str(e), partial))))
         self._fill(result, outcome)
+        if not outcome.verdict.passed:
+            self._health.set(WARN, f'identification {outcome.verdict.line()}', job='')
+            return self._end(goal_handle, result,
+                             results.code('IdentifyKinematics', ErrorCode.IMPLAUSIBLE_FIT),
+                             '; '.join(filter(None, (outcome.summary(), 'nothing stored',
+                                                     partial))))
         if not goal.dry_run:
             try:
                 saved = self._calibrations.save_outcome(
@@ -492,7 +516,10 @@ class KinematicIdentifier(Node):
         return CalibrationJob(self._cell, self._model, data, source=source,
                               solver=goal.solver or 'lm', loss=goal.loss or 'soft_l1',
                               objective=goal.objective or None, max_configs=goal.max_configs,
-                              validation=validation), partial, planning
+                              validation=validation,
+                              bounds=DeviationBounds(self._p('max_deviation_length'),
+                                                     self._p('max_deviation_angle'))), \
+            partial, planning
 
     def _collection(self, collection_id: str, source: str, region: str | None = None,
                     required: bool = True):

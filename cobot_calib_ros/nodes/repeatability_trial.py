@@ -29,6 +29,7 @@ from cobot_calib_ros.core.repeatability import PointStats
 from cobot_calib_ros.core.landmarks.views import setup_problem
 from cobot_calib_ros.core.robot_port import PortError
 from cobot_calib_ros.loaders import load_cell
+from cobot_calib_ros.store.cells import ResultsCell
 from cobot_calib_ros.store.files import check_id
 from cobot_calib_ros.store.kinematics import chain_of, NOMINAL
 from cobot_calib_ros.store.records import TrialSetup
@@ -74,7 +75,9 @@ class RepeatabilityTrial(Node):
         self._declare_parameters()
         self._cell = load_cell(paths.cell_file(self._p('cell_file')), self._p('layout') or None)
         self._model = kinematics.model_for(self._cell)
-        self._store = store.open(paths.data_dir(self._p('data_dir'))).trials
+        self._results_cell = ResultsCell.of(self._cell, self.get_namespace())
+        self._store = store.open(paths.data_dir(self._p('data_dir')),
+                                 cell=self._results_cell).trials
         self._answers = spin.Companion(self, 'clients')
         self._calls = RobotCalls(self._answers, self._p('speed_scale'),
                                  probe_window=self._p('probe_window'), operator=self.get_name())
@@ -296,11 +299,12 @@ class RepeatabilityTrial(Node):
         active hand-eye as the camera's tool); the choice's label (id or nominal)."""
         data_dir = paths.data_dir(self._p('data_dir'))
         try:
-            record = store.open(data_dir).kinematics.resolve(choice, self._model.name)
+            record = store.open(data_dir, cell=self._results_cell).kinematics.resolve(
+                choice, self._model.name)
             chain = chain_of(record, self._model, self._cell.tool_offset)
             rig = None
             if self._camera is not None:
-                X, _ = active_hand_eye(data_dir, self._cell)
+                X, _ = active_hand_eye(data_dir, self._cell, self._results_cell)
                 rig = trialmod.LandmarkRig(self._camera, self._cell, self._model.chain(tool=X),
                                            chain_of(record, self._model, X), self._marks)
         except (KeyError, ValueError) as e:

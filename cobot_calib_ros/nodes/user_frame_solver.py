@@ -48,6 +48,7 @@ from cobot_calib_ros.ros.landmark_watch import LandmarkWatch
 from cobot_calib_ros.ros.robot_calls import RobotCalls
 from cobot_calib_ros.ros.time import now_ns, ns_to_stamp
 from cobot_calib_ros.ros.tf_static import StaticBroadcaster
+from cobot_calib_ros.store.cells import ResultsCell
 from cobot_calib_ros.store.history import user_frame_change
 from cobot_calib_ros.store.kinematics import chain_of, NOMINAL
 from cobot_calib_ros.store.records import UserFrameRecord
@@ -108,7 +109,9 @@ class UserFrameSolver(Node):
         self._declare_parameters()
         self._cell = load_cell(paths.cell_file(self._p('cell_file')), self._p('layout') or None)
         self._model = kinematics.model_for(self._cell)
-        self._store = store.open(paths.data_dir(self._p('data_dir'))).user_frames
+        # results are this cell's: its user frames, hand-eye and kinematics (store.cells)
+        self._results_cell = ResultsCell.of(self._cell, self.get_namespace())
+        self._store = store.open(self._data_dir(), cell=self._results_cell).user_frames
         self._store_lock = threading.Lock()     # the calibrator thread writes, this one reads
         self._health = Diagnostics(self)
         # '<node>: drift': the newest calibration against the one active before it
@@ -187,6 +190,9 @@ class UserFrameSolver(Node):
 
     def _p(self, name: str):
         return self.get_parameter(name).value
+
+    def _data_dir(self):
+        return paths.data_dir(self._p('data_dir'))
 
     # -- frame ids -------------------------------------------------------------------------
     def _frame_parameters_problem(self) -> str:
@@ -320,7 +326,7 @@ class UserFrameSolver(Node):
         """The chain for a kinematics choice and its label (a calibration id or nominal),
         read fresh: kinematic_identifier may have stored a new one since. ``tool``: T_flange_tool
         of the chain, default the cell's tool offset."""
-        kinematic_store = store.open(paths.data_dir(self._p('data_dir'))).kinematics
+        kinematic_store = store.open(self._data_dir(), cell=self._results_cell).kinematics
         try:
             record = kinematic_store.resolve(choice, self._model.name)
             chain = chain_of(record, self._model,
@@ -370,7 +376,7 @@ class UserFrameSolver(Node):
         if problem:
             raise Refusal(Failure(ErrorCode.INVALID_INPUT, f'{request.method}: {problem}'))
         guess = self._user_frame_guess()
-        X, hand_eye = active_hand_eye(paths.data_dir(self._p('data_dir')), self._cell)
+        X, hand_eye = active_hand_eye(self._data_dir(), self._cell, self._results_cell)
         chain, model_used = self._kinematic_chain(request.kinematics or self._p('kinematics'),
                                                   tool=X)
         result = views.measure_frame(

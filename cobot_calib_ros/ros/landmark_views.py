@@ -23,11 +23,11 @@ from cobot_calib_ros.core.robot_port import Capture
 from cobot_calib_ros.ros import marks
 
 
-def active_hand_eye(data_dir: Path, cell) -> tuple[np.ndarray, str]:
-    """(T_flange_optical, its label): the active stored hand-eye calibration, else the cell's
-    nominal one ('nominal')."""
+def active_hand_eye(data_dir: Path, cell, results_cell) -> tuple[np.ndarray, str]:
+    """(T_flange_optical, its label): the active hand-eye calibration of ``results_cell``
+    (store.cells.ResultsCell), else ``cell``'s nominal one ('nominal')."""
     try:
-        record = store.open(data_dir).hand_eye.active()
+        record = store.open(data_dir, cell=results_cell).hand_eye.active()
     except (OSError, ValueError):
         record = None
     if record is not None:

@@ -2,20 +2,28 @@
 and which one is active: ``<root>/calibrations/active.json`` (chosen ids, retired ids).
 
 Activation is scoped: a store built with ``scope_key`` (kinematics: ``'robot'``) keeps one
-active record per value of that key, so one robot's calibration never becomes another's."""
+active record per value of that key, so one robot's calibration never becomes another's.
+
+Keyed by cell (store.cells): a store opened for a cell holds that cell's records only (and
+the legacy ones it takes, see store.cells); many cells' records share the directory, each
+cell's active choice is its entry in ``active.json``'s ``cells``."""
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
+import contextlib
 from dataclasses import dataclass
+import fcntl
 import json
 from pathlib import Path
 from typing import Any
 
+from cobot_calib_ros.store.cells import ForeignResult, LEGACY_CELL, legacy_note, ResultsCell
 from cobot_calib_ros.store.files import (atomic_write_text, check_id, ensure_dir, ID_PATTERN,
-                                         is_int, to_plain, WarningLog)
+                                         is_int, read_mapping, to_plain, WarningLog)
 
 RECORD_KEYS = ('id', 'stamp_ns', 'method', 'inputs', 'result')
 ACTIVE_FILE = 'active.json'
+LOCK_FILE = '.active.lock'
 RESERVED_IDS = (ACTIVE_FILE.removesuffix('.json'),)
 
 
@@ -55,24 +63,41 @@ def stored_gate_problem(record: Mapping[str, Any]) -> str:
 
 def _read_selection(path: Path) -> tuple[dict[str, Any], str]:
     """active.json's mapping and '', or {} and what is wrong with the file."""
-    try:
-        data = json.loads(path.read_text(encoding='utf-8'))
-    except (OSError, UnicodeDecodeError, ValueError) as exc:
-        return {}, f'unreadable: {" ".join(str(exc).split())}'
-    if not isinstance(data, dict):
-        return {}, 'not a mapping'
+    data, problem = read_mapping(path)
+    if problem:
+        return {}, problem
+    cells = data.get('cells', {})
+    if not isinstance(cells, dict) or not all(isinstance(c, dict) for c in cells.values()):
+        return {}, f'cells must map cell names to their choices, got {cells!r}'
+    for choices in (data, *cells.values()):
+        problem = _choices_problem(choices)
+        if problem:
+            return {}, problem
+    return data, ''
+
+
+def _choices_problem(data: Mapping[str, Any]) -> str:
+    """'' if ``data`` holds valid choices (active_id, active_ids, retired), else why not."""
     chosen, retired = data.get('active_id'), data.get('retired', [])
     if chosen is not None and not (isinstance(chosen, str) and ID_PATTERN.fullmatch(chosen)):
-        return {}, f'active_id must be null or a calibration id, got {chosen!r}'
+        return f'active_id must be null or a calibration id, got {chosen!r}'
     scoped = data.get('active_ids', {})
     if not isinstance(scoped, dict) or not all(
             isinstance(k, str) and isinstance(v, str) and ID_PATTERN.fullmatch(v)
             for k, v in scoped.items()):
-        return {}, f'active_ids must map scopes to calibration ids, got {scoped!r}'
+        return f'active_ids must map scopes to calibration ids, got {scoped!r}'
     if not isinstance(retired, list) or not all(
             isinstance(r, str) and ID_PATTERN.fullmatch(r) for r in retired):
-        return {}, f'retired must be a list of calibration ids, got {retired!r}'
-    return data, ''
+        return f'retired must be a list of calibration ids, got {retired!r}'
+    return ''
+
+
+@contextlib.contextmanager
+def _locked(directory: Path) -> Iterator[None]:
+    """One writer of ``directory``'s active.json at a time (several cells share it)."""
+    with open(directory / LOCK_FILE, 'a') as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        yield
 
 
 class CalibrationStore(WarningLog):
@@ -102,19 +127,32 @@ class CalibrationStore(WarningLog):
     :meth:`active` takes the scope. In ``active.json`` a chosen id of scope '' is
     ``active_id`` (the format before scopes; an ``active_id`` of a scoped record counts for
     that record's scope), the others are in ``active_ids`` {scope: id}.
+
+    ``cell`` (store.cells.ResultsCell): the cell whose records this store holds; saved
+    records get its name and robot (a record of another is refused: ForeignResult, a
+    ValueError), :meth:`get` of another cell's id is refused naming both. Its choices are
+    ``cells: {name: {active_ids, retired}}`` in ``active.json``; the top-level ones are those
+    made before results were keyed by cell (and of a store opened with no cell: every record,
+    as before).
     """
 
     def __init__(self, root: Path, subdir: str = 'calibrations', scope_key: str = '',
-                 gate: Callable[[Mapping[str, Any]], str] = stored_gate_problem) -> None:
+                 gate: Callable[[Mapping[str, Any]], str] = stored_gate_problem,
+                 cell: ResultsCell | None = None) -> None:
         super().__init__()
         self.gate = gate
         self.root = Path(root)
         self.directory = self.root / subdir
         self.selection_path = self.directory / ACTIVE_FILE
         self.scope_key = scope_key
+        self.cell = cell
         self._records: dict[str, dict[str, Any]] | None = None
+        self._others: dict[str, str] = {}       # id -> why it is not this cell's
+        self._legacy: frozenset[str] = frozenset()   # taken from before keying by cell
         self._chosen: dict[str, str] | None = None     # scope -> chosen id
         self._retired: frozenset[str] | None = None
+        self._legacy_chosen: dict[str, str] = {}
+        self._legacy_retired: frozenset[str] = frozenset()
 
     def scope_of(self, record: Mapping[str, Any]) -> str:
         """The activation scope ``record`` belongs to ('' in an unscoped store)."""
@@ -127,15 +165,37 @@ class CalibrationStore(WarningLog):
         problem = _record_problem(plain)
         if problem:
             raise ValueError(f'invalid calibration record: {problem}')
+        plain = self._keyed(plain)
         ensure_dir(self.directory)
         path = self._path(plain['id'])
         atomic_write_text(path, json.dumps(plain) + '\n')  # indent= is the slow encoder
         self._index()[plain['id']] = plain
         return path
 
+    def _keyed(self, plain: dict[str, Any]) -> dict[str, Any]:
+        """``plain`` with this store's cell name and robot; ForeignResult if it is another
+        cell's or was made on another robot."""
+        if self.cell is None:
+            return plain
+        why = self.cell.problem(str(plain.get('cell') or ''), str(plain.get('robot') or ''))
+        if why:
+            raise ForeignResult(f'calibration {plain["id"]} refused: {why}')
+        return {**plain, 'cell': self.cell.name,
+                **({'robot': self.cell.robot} if self.cell.robot else {})}
+
     def get(self, record_id: str) -> dict[str, Any] | None:
-        """The record with this id, or None if absent or unreadable (see ``warnings``)."""
-        return self._index().get(check_id(record_id))
+        """The record with this id, or None if absent or unreadable (see ``warnings``);
+        ForeignResult (a ValueError) naming both if it is another cell's or robot's."""
+        record = self._index().get(check_id(record_id))
+        if record is None:
+            why = self._elsewhere(record_id)
+            if why:
+                raise ForeignResult(f'calibration {record_id} is not this cell\'s: {why}')
+        return record
+
+    def _elsewhere(self, record_id: str) -> str:
+        """Why ``record_id`` is not this cell's if it is stored for another, else ''."""
+        return self._others.get(record_id, '')
 
     def history(self, max_count: int = 0) -> list[dict[str, Any]]:
         """Readable records, newest first; at most ``max_count`` of them (0: all)."""
@@ -231,54 +291,114 @@ class CalibrationStore(WarningLog):
         return self._chosen
 
     def _select(self, chosen: dict[str, str], retired: frozenset[str]) -> None:
-        """Store the choices (only where they differ from the default) and the retired ids."""
+        """Store the choices (only where they differ from the default, or from a legacy
+        choice, see store.cells) and the retired ids."""
         kept = {}
-        for scope, record_id in chosen.items():
+        for scope in chosen.keys() | self._legacy_chosen.keys():
+            record_id, legacy = chosen.get(scope), self._legacy_chosen.get(scope)
             newest = self._newest(scope, retired)
-            if newest is None or newest['id'] != record_id:
+            if record_id is None:       # back to the newest: said over a legacy choice
+                if legacy is not None and newest is not None:
+                    kept[scope] = newest['id']
+            elif (newest is None or newest['id'] != record_id or legacy not in (None, record_id)
+                  or record_id in self._legacy_retired):
                 kept[scope] = record_id
         if (kept, retired) == (self._choices(), self.retired()):
             return
         self._write_selection(kept, retired)
-        self._chosen, self._retired = kept, retired
+        self._set_choices(kept, retired)
+
+    def _set_choices(self, own_chosen: dict[str, str], own_retired: frozenset[str]) -> None:
+        """The choices in force: this cell's own over the legacy ones it took (a legacy
+        retired id stays retired unless this cell chose it)."""
+        self._chosen = {**self._legacy_chosen, **own_chosen}
+        self._retired = frozenset((own_retired | self._legacy_retired)
+                                  - set(own_chosen.values()))
 
     def _write_selection(self, kept: dict[str, str], retired: frozenset[str]) -> None:
-        """Store the choices {scope: id} and the retired ids atomically (active.json)."""
+        """Store the choices {scope: id} and the retired ids atomically (active.json: the
+        cell's entry, or the top level for a store opened with no cell)."""
         ensure_dir(self.directory)
-        scoped = {scope: record_id for scope, record_id in sorted(kept.items()) if scope}
-        atomic_write_text(self.selection_path, json.dumps(
-            {'active_id': kept.get(''), **({'active_ids': scoped} if scoped else {}),
-             'retired': sorted(retired)}) + '\n')
+        with _locked(self.directory):       # other cells' entries are kept as they are now
+            data = self._read_selection_file()[0] or {}
+            if self.cell is not None:
+                cells = {**data.get('cells', {}), self.cell.name: {
+                    'active_ids': dict(sorted(kept.items())), 'retired': sorted(retired)}}
+                data = {**data, 'cells': dict(sorted(cells.items()))}
+            else:
+                scoped = {scope: record_id for scope, record_id in sorted(kept.items())
+                          if scope}
+                data = {'active_id': kept.get(''), **({'active_ids': scoped} if scoped else {}),
+                        'retired': sorted(retired),
+                        **({'cells': data['cells']} if data.get('cells') else {})}
+            atomic_write_text(self.selection_path, json.dumps(data) + '\n')
 
-    def _stored_selection(self) -> tuple[dict[str, Any] | None, str]:
-        """The stored choices as active.json's mapping and '', None if none is stored, or
-        {} and what is wrong with them."""
+    def _read_selection_file(self) -> tuple[dict[str, Any] | None, str]:
         if not self.selection_path.exists():
             return None, ''
         return _read_selection(self.selection_path)
 
+    def _stored_selections(self) -> tuple[tuple[dict[str, Any] | None, str],
+                                          tuple[dict[str, Any] | None, str]]:
+        """(this cell's stored choices, the legacy ones), each as active.json's mapping and
+        '', None if none is stored, or {} and what is wrong with them."""
+        data, problem = self._read_selection_file()
+        if data is None or problem or self.cell is None:
+            return (data, problem), (None, '')
+        return (data.get('cells', {}).get(self.cell.name), ''), (data, '')
+
     def _load_selection(self) -> None:
-        self._chosen, self._retired = {}, frozenset()
-        data, problem = self._stored_selection()
+        self._index()           # which records are legacy ones this cell took
+        own, legacy = self._stored_selections()
+        legacy_chosen, legacy_retired = self._choices_of(*legacy)
+        self._legacy_chosen = {scope: record_id for scope, record_id in legacy_chosen.items()
+                               if record_id in self._legacy}
+        self._legacy_retired = legacy_retired & self._legacy
+        self._set_choices(*self._choices_of(*own))
+
+    def _choices_of(self, data: Mapping[str, Any] | None, problem: str
+                    ) -> tuple[dict[str, str], frozenset[str]]:
+        """{scope: chosen id} and the retired ids of stored choices."""
         if data is None:
-            return
+            return {}, frozenset()
         if problem:
             self._warn(f'{self.selection_path}: ignored ({problem}); the newest calibration '
                        'is active and none is retired until set_active_calibration is called')
-            return
+            return {}, frozenset()
         chosen = dict(data.get('active_ids', {}))
         legacy = self._index().get(data.get('active_id') or '')
         if legacy is not None:      # the id chosen in scope '', or before scopes existed
             chosen.setdefault(self.scope_of(legacy), legacy['id'])
-        self._chosen, self._retired = chosen, frozenset(data.get('retired', []))
+        return chosen, frozenset(data.get('retired', []))
 
     def _index(self) -> dict[str, dict[str, Any]]:
+        """This cell's records (its own and the legacy ones it takes, store.cells)."""
         if self._records is None:
-            paths = (sorted(p for p in self.directory.glob('*.json')
-                            if p.name != ACTIVE_FILE) if self.directory.is_dir() else [])
-            loaded = (self._load(p) for p in paths)
-            self._records = {r['id']: r for r in loaded if r is not None}
+            records, others, legacy = {}, {}, []
+            for record, cell, robot in self._stored():
+                why = self.cell.problem(cell, robot) if self.cell else ''
+                if why:
+                    others[record['id']] = why
+                    continue
+                records[record['id']] = record
+                if self.cell and cell in ('', LEGACY_CELL):
+                    legacy.append(record['id'])
+            self._records, self._others, self._legacy = records, others, frozenset(legacy)
+            if legacy:
+                self._warn(legacy_note(self.cell, str(self), sorted(legacy)))
         return self._records
+
+    def _stored(self) -> Iterator[tuple[dict[str, Any], str, str]]:
+        """(record, its cell, its robot: '' where not recorded) of every readable record."""
+        paths = (sorted(p for p in self.directory.glob('*.json')
+                        if p.name != ACTIVE_FILE) if self.directory.is_dir() else [])
+        for path in paths:
+            record = self._load(path)
+            if record is not None:
+                yield record, str(record.get('cell') or ''), str(record.get('robot') or '')
+
+    def __str__(self) -> str:
+        return str(self.directory)
 
     def _path(self, record_id: str) -> Path:
         return self.directory / f'{record_id}.json'

@@ -6,8 +6,10 @@ alembic (``store/migrations``, applied on first use of a URL in a process). Tabl
 
 ==============  ==============================================================================
 ``results``     one row per stored result: (cell, kind, id) key, scope (the robot for
-                kinematics), stamp_ns, method, gate_problem, provenance columns, the record
-                as JSON (``body``, the mapping the folder store writes)
+                kinematics), stamp_ns, method, gate_problem, provenance columns (the robot
+                in ``robot_model``), the record as JSON (``body``, the mapping the folder
+                store writes); cell ``default``: rows stored before results were keyed by
+                cell (store.cells)
 ``selections``  (cell, kind, scope) -> the chosen active id (only where it is not the newest)
 ``retired``     (cell, kind, id) of retired records
 ==============  ==============================================================================
@@ -40,13 +42,12 @@ import time
 from typing import Any
 
 from cobot_calib_ros.store.calibrations import _record_problem, CalibrationStore
+from cobot_calib_ros.store.cells import LEGACY_CELL, ResultsCell
 from cobot_calib_ros.store.files import to_plain
 from cobot_calib_ros.store.kinematics import KinematicHistory
 
 SQLITE_FILE = 'cobot_calib.sqlite'
 DB_ENV = 'COBOT_CALIB_DB'            # a database URL for every node and command
-CELL_ENV = 'COBOT_CALIB_CELL'        # the cell name results are stored under
-DEFAULT_CELL = 'default'
 BUSY_TIMEOUT_S = 60.0
 HEAD_REVISION = '0001'        # the newest of store/migrations/versions (test_database)
 KINDS = ('user_frame', 'hand_eye', 'kinematics', 'check', 'trial', 'collection')
@@ -232,20 +233,36 @@ class Database:
             if connection.execute(results.update().where(key).values(**row)).rowcount == 0:
                 connection.execute(results.insert().values(**row))
 
-    def rows(self, cell: str, kind: str, since_ns: int = 0) -> list[dict[str, Any]]:
-        """(provenance columns + body) of one cell's results of ``kind``, oldest first."""
+    def rows(self, cell: str | None, kind: str, since_ns: int = 0) -> list[dict[str, Any]]:
+        """(provenance columns + body) of one cell's results of ``kind`` (None: every
+        cell's), oldest first."""
         results = self.t.results
-        query = (results.select().where((results.c.cell == cell) & (results.c.kind == kind)
-                                        & (results.c.stamp_ns >= since_ns))
-                 .order_by(results.c.stamp_ns, results.c.id))
+        which = (results.c.kind == kind) & (results.c.stamp_ns >= since_ns)
+        if cell is not None:
+            which = which & (results.c.cell == cell)
+        query = results.select().where(which).order_by(results.c.stamp_ns, results.c.id)
         with _as_storage_error(self.url), self.engine.connect() as connection:
             return [dict(r._mapping) for r in connection.execute(query)]
 
-    def cells(self) -> list[str]:
+    def cells(self) -> dict[str, list[str]]:
+        """{cell: the robots its results were made on ('' : not recorded)}."""
         import sqlalchemy as sa
+        results = self.t.results
+        cells: dict[str, list[str]] = {}
         with _as_storage_error(self.url), self.engine.connect() as connection:
-            return [r[0] for r in connection.execute(
-                sa.select(self.t.results.c.cell).distinct().order_by(self.t.results.c.cell))]
+            for cell, robot in connection.execute(
+                    sa.select(results.c.cell, results.c.robot_model).distinct()
+                    .order_by(results.c.cell, results.c.robot_model)):
+                cells.setdefault(cell, []).append(robot)
+        return cells
+
+    def find(self, kind: str, record_id: str) -> list[tuple[str, str]]:
+        """(cell, robot) of every row of ``kind`` with this id, whichever cell stored it."""
+        results = self.t.results
+        query = (results.select().with_only_columns(results.c.cell, results.c.robot_model)
+                 .where((results.c.kind == kind) & (results.c.id == record_id)))
+        with _as_storage_error(self.url), self.engine.connect() as connection:
+            return [(r.cell, r.robot_model) for r in connection.execute(query)]
 
     def selection(self, cell: str, kind: str) -> tuple[dict[str, str], list[str]]:
         s, r = self.t.selections, self.t.retired
@@ -277,15 +294,18 @@ class DbCalibrationHistory(CalibrationStore):
     """A calibration history of one cell and kind in the database, with the activation rules
     of :class:`CalibrationStore` (whose records it reads once, then serves from memory, as
     the folder store: open the repository again to see another process's writes).
+    ``cell``: whose rows (None: every cell's, writing as cell ``default``: the store as
+    before results were keyed by cell);
     ``directory``: where files that go beside a record are written (kinematics' YAML, URDF)."""
 
-    def __init__(self, database: Database, cell: str, kind: str, data_dir: Path, subdir: str,
-                 scope_key: str = '', **kwargs) -> None:
-        super().__init__(data_dir, subdir, scope_key=scope_key, **kwargs)
-        self.database, self.cell, self.kind = database, cell, kind
+    def __init__(self, database: Database, cell: ResultsCell | None, kind: str,
+                 data_dir: Path, subdir: str, scope_key: str = '', **kwargs) -> None:
+        super().__init__(data_dir, subdir, scope_key=scope_key, cell=cell, **kwargs)
+        self.database, self.kind = database, kind
+        self.cell_name = cell.name if cell else LEGACY_CELL
 
     def __str__(self) -> str:
-        return f'{_hide_password(self.database.url)} (cell {self.cell}, {self.kind})'
+        return f'{_hide_password(self.database.url)} (cell {self.cell_name}, {self.kind})'
 
     def save(self, record) -> str:
         """Write ``record`` in one transaction; returns where: '<url>#<cell>/<kind>/<id>'."""
@@ -293,34 +313,47 @@ class DbCalibrationHistory(CalibrationStore):
         problem = _record_problem(plain)
         if problem:
             raise ValueError(f'invalid calibration record: {problem}')
-        self.database.put(self.cell, self.kind, plain, self.scope_of(plain))
+        plain = self._keyed(plain)
+        self.database.put(self.cell_name, self.kind, plain, self.scope_of(plain))
         self._index()[plain['id']] = plain
-        return f'{_hide_password(self.database.url)}#{self.cell}/{self.kind}/{plain["id"]}'
+        return f'{_hide_password(self.database.url)}#{self.cell_name}/{self.kind}/{plain["id"]}'
 
-    def _index(self) -> dict[str, dict[str, Any]]:
-        if self._records is None:
-            records = {}
-            for row in self.database.rows(self.cell, self.kind):
+    def _stored(self):
+        """The rows of this cell, and the legacy ones (cell ``default``) for a cell to take:
+        (record, cell: '' for legacy, robot: the record's, else its row's robot_model)."""
+        cells = (None,) if self.cell is None else tuple(dict.fromkeys((self.cell_name,
+                                                                        LEGACY_CELL)))
+        for cell in cells:
+            for row in self.database.rows(cell, self.kind):
                 record = json.loads(row['body'])
                 problem = _record_problem(record)
                 if problem:
                     self._warn(f'{self}: {row["id"]} skipped, {problem}')
-                else:
-                    records[record['id']] = record
-            self._records = records
-        return self._records
+                    continue
+                robot = str(record.get('robot') or row['robot_model'] or '')
+                yield record, '' if row['cell'] == LEGACY_CELL else row['cell'], robot
+
+    def _elsewhere(self, record_id: str) -> str:
+        why = super()._elsewhere(record_id)
+        if why or self.cell is None:
+            return why
+        return next((why for cell, robot in self.database.find(self.kind, record_id)
+                     if (why := self.cell.problem(cell, robot))), '')
 
     def _write_selection(self, kept: dict[str, str], retired: frozenset[str]) -> None:
-        self.database.set_selection(self.cell, self.kind, kept, retired)
+        self.database.set_selection(self.cell_name, self.kind, kept, retired)
 
-    def _stored_selection(self) -> tuple[dict[str, Any] | None, str]:
-        chosen, retired = self.database.selection(self.cell, self.kind)
-        return {'active_ids': chosen, 'retired': retired}, ''
+    def _stored_selections(self):
+        def stored(cell: str):
+            chosen, retired = self.database.selection(cell, self.kind)
+            return {'active_ids': chosen, 'retired': retired}, ''
+        legacy = stored(LEGACY_CELL) if self.cell is not None else (None, '')
+        return stored(self.cell_name), legacy
 
 
 class DbKinematicStore(KinematicHistory, DbCalibrationHistory):
     """Kinematic calibrations in the database; their YAML and URDF files in the data dir."""
 
-    def __init__(self, database: Database, cell: str, data_dir: Path) -> None:
+    def __init__(self, database: Database, cell: ResultsCell | None, data_dir: Path) -> None:
         super().__init__(database, cell, 'kinematics', data_dir, 'kinematics',
                          scope_key='robot')

@@ -7,6 +7,10 @@ folders are copied into the repository's data dir (when it is another folder), a
 and collection is also stored as a result (its metadata and its log's text, byte for byte).
 Files the folder store cannot read are listed (``skipped``), never dropped silently.
 Importing again replaces the same ids: nothing is duplicated.
+
+Cells (store.cells): into a repository opened for a cell, everything goes under that cell;
+else each record under the cell it names (with its choices), and records that name none
+under cell ``default``, for the cell of their robot to take.
 """
 from __future__ import annotations
 
@@ -14,6 +18,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 import shutil
 
+from cobot_calib_ros.store.cells import LEGACY_CELL
 from cobot_calib_ros.store.repository import DatabaseRepository, FolderRepository
 
 # repository attribute -> database kind
@@ -35,13 +40,19 @@ def import_folder(source: Path, target: DatabaseRepository) -> ImportReport:
     """Bring the folder store at ``source`` into ``target`` (see the module docstring)."""
     source = Path(source)
     folder, report = FolderRepository(source), ImportReport()
-    database, cell = target.database, target.cell
+    database, cell = target.database, target.cell_name
     for attribute, kind in HISTORIES.items():
         history = getattr(folder, attribute)
         records = history.history()
         for record in reversed(records):
-            database.put(cell, kind, record, history.scope_of(record))
+            database.put(cell if target.cell else str(record.get('cell') or LEGACY_CELL),
+                         kind, record, history.scope_of(record))
         database.set_selection(cell, kind, history._choices(), history.retired())
+        if target.cell is None:
+            stored = history._read_selection_file()[0] or {}
+            for name, choices in stored.get('cells', {}).items():
+                database.set_selection(name, kind, choices.get('active_ids', {}),
+                                       frozenset(choices.get('retired', [])))
         report.counts[kind] = len(records)
         report.skipped += history.warnings
     _copy_files(source / 'kinematics', target.root / 'kinematics', ('*.yaml', '*.urdf'))

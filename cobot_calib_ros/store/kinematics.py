@@ -3,10 +3,10 @@
 Under ``<root>/kinematics``: ``<id>.json`` (the record, what the suite reads), ``<id>.yaml``
 (the same for people: the identified table as the paper's Table 6, validation figures) and
 ``<id>.urdf`` (the calibrated model for MoveIt, RViz, robot_state_publisher). Activation is
-per robot (the record's ``robot``): a plant keeps many robots' results in one data dir, and
-``kinematics: latest`` in user_frame_solver and repeatability_trial is the active calibration
-*of the cell's robot* (:class:`CalibrationStore` rules within that robot: chosen, else the
-newest non-retired), nominal when that robot has none.
+per cell (store.cells) and robot (the record's ``robot``): a plant keeps many robots'
+results in one data dir, and ``kinematics: latest`` in user_frame_solver and
+repeatability_trial is the active calibration *of the cell's robot* (:class:`CalibrationStore`
+rules within that robot: chosen, else the newest non-retired), nominal when it has none.
 """
 from __future__ import annotations
 
@@ -79,8 +79,8 @@ class KinematicHistory:
 
 
 class KinematicStore(KinematicHistory, CalibrationStore):
-    def __init__(self, root: Path) -> None:
-        super().__init__(root, 'kinematics', scope_key='robot')
+    def __init__(self, root: Path, cell=None) -> None:
+        super().__init__(root, 'kinematics', scope_key='robot', cell=cell)
 
 
 def chain_of(record: dict[str, Any] | None, model: KinematicModel, tool) -> Chain:

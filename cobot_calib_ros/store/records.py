@@ -10,6 +10,10 @@ Gate: every calibration record carries ``gate_problem`` ('' : it passes the gate
 else why not). The builder of a record sets it with its kind's criterion (e.g. a hand-eye
 whose residual is beyond what its views' noise allows); the store never activates a record
 with a gate problem (see store.repository). The key is written only when it is not empty.
+
+Cell: every calibration record names the cell it was made on (``cell``) and its robot
+(``robot``); the store of a cell sets both when it saves (store.cells). Records written before
+that lack them (hand-eye records always named their cell file).
 """
 from __future__ import annotations
 
@@ -25,7 +29,7 @@ from cobot_calib_ros.core.errors import ErrorCode
 from cobot_calib_ros.core.ids import record_id
 from cobot_calib_ros.store.files import to_plain
 
-OMITTED_WHEN_EMPTY = ('gate_problem', 'hand_eye')   # keys older files do not have
+OMITTED_WHEN_EMPTY = ('gate_problem', 'hand_eye', 'cell', 'robot')   # keys older files lack
 OMITTED_WHEN_NONE = frozenset({'converged'})   # keys older records lack
 
 
@@ -133,6 +137,8 @@ class UserFrameRecord(Record):
     inputs: UserFrameInputs
     result: UserFrameResult
     gate_problem: str = ''
+    cell: str = ''              # set by the cell's store (store.cells)
+    robot: str = ''
 
     @classmethod
     def from_fit(cls, fit: user_frame.FrameFit, surface: user_frame.SurfaceModel | None,
@@ -199,6 +205,7 @@ class HandEyeRecord(Record):
     inputs: HandEyeInputs
     result: HandEyeResult
     gate_problem: str = ''
+    robot: str = ''              # set by the cell's store (store.cells)
 
 
 # -- kinematic calibration (kinematic_identifier) ----------------------------------------------
@@ -248,6 +255,7 @@ class KinematicRecord(Record):
     inputs: KinematicInputs
     result: KinematicResult
     gate_problem: str = ''
+    cell: str = ''               # set by the cell's store (store.cells)
 
     @classmethod
     def from_outcome(cls, outcome, wall_ns: int | None = None) -> KinematicRecord:

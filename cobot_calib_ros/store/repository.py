@@ -12,13 +12,21 @@ place. A :class:`Repository` has one history per calibration kind and the two me
 =====================  ======================  ==================================================
 attribute              kind (store.records)    activation scope
 =====================  ======================  ==================================================
-``user_frames``        UserFrameRecord         one active per data dir (= per cell)
-``hand_eye``           HandEyeRecord           one active per data dir (= per cell)
-``kinematics``         KinematicRecord         one active per robot (the record's ``robot``)
+``user_frames``        UserFrameRecord         one active per cell
+``hand_eye``           HandEyeRecord           one active per cell
+``kinematics``         KinematicRecord         one active per cell and robot
 ``checks``             check_record            (none: quick health checks are never activated)
 ``trials``             trial.yaml + readings   (none: trials are not activated)
 ``collections``        collection + rows       (none)
 =====================  ======================  ==================================================
+
+Keyed by cell (store.cells): ``store.open(data_dir, db, cell)`` with the cell the results
+are made on (a ResultsCell: name and robot; nodes give theirs, ResultsCell.of); its histories
+hold that cell's records only, every record it saves carries the cell's name and robot, and
+a record of another cell or robot is refused by name. Many cells share one data dir or one
+database; ``cells()`` names those with results. With no cell: the store as it was before
+results were keyed (every cell's records, one active per kind and scope among them; what
+it saves names no cell): for readers that look a record up by id, and old data dirs.
 
 Activation and its gate (the one way a calibration becomes active)::
 
@@ -48,6 +56,7 @@ from pathlib import Path
 from typing import Any, Protocol
 
 from cobot_calib_ros.store.calibrations import Activation, CalibrationStore
+from cobot_calib_ros.store.cells import LEGACY_CELL, ResultsCell
 from cobot_calib_ros.store.collections import CollectionStore
 from cobot_calib_ros.store.kinematics import KinematicStore
 from cobot_calib_ros.store.trials import TrialStore
@@ -74,7 +83,9 @@ class Repository(Protocol):
     """Everything the suite stores for one cell (see the module docstring)."""
 
     root: Path
+    cell: ResultsCell | None
 
+    def cells(self) -> dict[str, list[str]]: ...
     @property
     def user_frames(self) -> CalibrationHistory: ...
     @property
@@ -104,30 +115,40 @@ class _MeasurementLogs:
 
 
 class FolderRepository(_MeasurementLogs):
-    """The folder implementation: JSON / YAML / CSV files under ``root`` (store.files)."""
+    """The folder implementation: JSON / YAML / CSV files under ``root`` (store.files), the
+    records of every cell side by side (each names its cell)."""
 
-    def __init__(self, root: Path) -> None:
-        self.root = Path(root)
+    def __init__(self, root: Path, cell: ResultsCell | None = None) -> None:
+        self.root, self.cell = Path(root), cell
 
     @cached_property
     def user_frames(self) -> CalibrationStore:
-        return CalibrationStore(self.root, 'calibrations')
+        return CalibrationStore(self.root, 'calibrations', cell=self.cell)
 
     @cached_property
     def hand_eye(self) -> CalibrationStore:
-        return CalibrationStore(self.root, 'hand_eye')
+        return CalibrationStore(self.root, 'hand_eye', cell=self.cell)
 
     @cached_property
     def kinematics(self) -> KinematicStore:
-        return KinematicStore(self.root)
+        return KinematicStore(self.root, self.cell)
 
     @cached_property
     def checks(self) -> CalibrationStore:
         """Quick health checks (cli check): results like calibrations, never activated."""
-        return CalibrationStore(self.root, 'checks')
+        return CalibrationStore(self.root, 'checks', cell=self.cell)
+
+    def cells(self) -> dict[str, list[str]]:
+        """{cell: the robots its results were made on ('' : not recorded)}; records stored
+        before results were keyed by cell are cell 'default'."""
+        cells: dict[str, set[str]] = {}
+        for subdir in (*FOLDER_RESULTS, 'checks'):
+            for _, cell, robot in CalibrationStore(self.root, subdir)._stored():
+                cells.setdefault(cell or LEGACY_CELL, set()).add(robot)
+        return {cell: sorted(robots) for cell, robots in sorted(cells.items())}
 
     def __repr__(self) -> str:
-        return f'FolderRepository({str(self.root)!r})'
+        return f'FolderRepository({str(self.root)!r}, cell={self.cell!r})'
 
 
 class DatabaseRepository(_MeasurementLogs):
@@ -135,10 +156,18 @@ class DatabaseRepository(_MeasurementLogs):
     rows of a SQLite file or a PostgreSQL server; the measurement logs (trials, collections)
     stay append-only files under ``root`` (each reading fsynced as it comes)."""
 
-    def __init__(self, root: Path, url: str, cell: str) -> None:
+    def __init__(self, root: Path, url: str, cell: ResultsCell | None = None) -> None:
         from cobot_calib_ros.store.database import Database
         self.root, self.cell = Path(root), cell
         self.database = Database(url)
+
+    @property
+    def cell_name(self) -> str:
+        """The cell of this repository's rows ('default': before keying by cell)."""
+        return self.cell.name if self.cell else LEGACY_CELL
+
+    def cells(self) -> dict[str, list[str]]:
+        return self.database.cells()
 
     def _history(self, kind: str, subdir: str):
         from cobot_calib_ros.store.database import DbCalibrationHistory
@@ -184,13 +213,21 @@ def database_url(data_dir: Path | str, db: str | None = None) -> str:
 
 
 def open(data_dir: Path | str, db: str | None = None,   # noqa: A001 (store.open, as io.open)
-         cell: str | None = None) -> Repository:
-    """The repository of ``data_dir`` (a resolved data directory, see paths.data_dir): its
-    database (:func:`database_url`; ``cell``, default $COBOT_CALIB_CELL or 'default', names
-    the cell's rows), or the folder store of a data dir written before the database."""
-    from cobot_calib_ros.store.database import CELL_ENV, DEFAULT_CELL
+         cell: ResultsCell | str | None = None) -> Repository:
+    """The repository of ``data_dir`` (a resolved data directory, see paths.data_dir) for
+    ``cell`` (a ResultsCell; a name alone: its robot is the one its results were made on):
+    its database (:func:`database_url`), or the folder store of a data dir written before the
+    database. No cell: the store as before results were keyed by cell."""
     url = database_url(data_dir, db)
-    if not url:
-        return FolderRepository(Path(data_dir))
-    return DatabaseRepository(Path(data_dir), url,
-                              cell or os.environ.get(CELL_ENV) or DEFAULT_CELL)
+
+    def build(for_cell: ResultsCell | None) -> Repository:
+        if not url:
+            return FolderRepository(Path(data_dir), for_cell)
+        return DatabaseRepository(Path(data_dir), url, for_cell)
+    given = ResultsCell(cell) if isinstance(cell, str) else cell
+    repo = build(given)
+    if given is not None and not given.robot:
+        robots = [r for r in repo.cells().get(given.name, []) if r]
+        if len(robots) == 1:
+            repo = build(ResultsCell(given.name, robots[0]))
+    return repo

@@ -62,3 +62,24 @@ def test_all_topics_late_ones_too_hidden_ones_not(bag_domain, tmp_path):
         assert '/_hidden/topic' not in bag.topics
         got = [bag.deserialize(m.rawdata, m.msgtype).data for m in bag.messages(['/late_topic'])]
     assert got == [f'late {i}' for i in range(10)]
+
+
+def test_a_recording_shorter_than_discovery_still_names_what_nothing_publishes(bag_domain,
+                                                                                 tmp_path):
+    """Issue 31.9: `record --duration 2 /unpublished` said nothing (the warning came after
+    3 s of discovery); the end of the recording gives it."""
+    context = Context()
+    rclpy.init(context=context, domain_id=bag_domain[0])
+    lines = []
+    recorder = BagRecorder(str(tmp_path / 'short'), ['/nothing_publishes_31'],
+                           report=lines.append, context=context)
+    try:
+        assert not any(line.startswith('warning:') for line in lines)
+    finally:
+        recorder.destroy_node()                           # ends it (as --duration does)
+        rclpy.try_shutdown(context=context)
+    warnings = [line for line in lines if line.startswith('warning:')]
+    assert len(warnings) == 1, lines
+    assert warnings[0].startswith('warning: nothing publishes /nothing_publishes_31 (after ')
+    assert warnings[0].endswith(' s); recorded only if a publisher appears (see '
+                                '`cobot-calib list`)')

@@ -163,3 +163,19 @@ def test_echo_qos_matches_every_publisher_as_ros2_topic_echo(publishers, reliabi
                                                               durability):
     qos = ros_graph.subscription_qos([_publisher(*p) for p in publishers])
     assert (qos.reliability, qos.durability) == (reliability, durability)
+
+
+def test_report_help_names_the_data_dir_it_reads(tmp_path, monkeypatch, capsys):
+    """Issue 31.9: `report --help` said the default was ~/.ros/cobot_calib; it is
+    $COBOT_CALIB_DATA when set (as every verb's)."""
+    import shutil
+    with pytest.raises(SystemExit):
+        main.main(['report', '--help'])
+    assert 'default $COBOT_CALIB_DATA, else ~/.ros/cobot_calib' in ' '.join(
+        capsys.readouterr().out.split())
+    data = tmp_path / 'data'
+    shutil.copytree(os.path.join(os.path.dirname(__file__), '..', 'data', 'store-5252a67'), data)
+    monkeypatch.setenv('COBOT_CALIB_DATA', str(data))
+    monkeypatch.delenv('COBOT_CALIB_DB', raising=False)
+    assert main.main(['report', 'trial-1']) == 0
+    assert f'figure: {data / "reports"}' in capsys.readouterr().out

@@ -43,3 +43,25 @@ def test_export_of_an_unknown_id_says_where_it_looked(capsys):
     assert main(['export', 'no-such-id', '--format', 'ur', '--data-dir', str(STORE)]) == 1
     assert "no user-frame calibration 'no-such-id'" in capsys.readouterr().err
     assert main(['export', '../etc', '--format', 'ur', '--data-dir', str(STORE)]) == 2
+
+
+@pytest.mark.parametrize('fmt, index', [('fanuc', '0'), ('fanuc', '-1'), ('fanuc', '10'),
+                                        ('kuka', '33'), ('kuka', '99'), ('yaskawa', '64'),
+                                        ('abb', '2'), ('ur', '1')])
+def test_export_refuses_a_frame_number_the_controller_does_not_have(fmt, index, capsys):
+    """Issue 31.9: --index 0, -1 and 99 were written out (FANUC UFRAME 1-9, KUKA BASE 1-32);
+    ABB and UR frames are named (--name), not numbered."""
+    assert main(['export', RIGID, '--format', fmt, '--index', index,
+                 '--data-dir', str(STORE)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith('export: --index: ')
+    assert ('--name' in err) if fmt in ('abb', 'ur') else (
+        {'fanuc': 'give 1..9', 'kuka': 'give 1..32', 'yaskawa': 'give 1..63'}[fmt] in err)
+
+
+@pytest.mark.parametrize('fmt, index, line', [('fanuc', '9', 'UFRAME[9]=PR[59] ;'),
+                                              ('kuka', '32', 'BASE_DATA[32]={X ')])
+def test_export_takes_the_last_frame_number(fmt, index, line, capsys):
+    assert main(['export', RIGID, '--format', fmt, '--index', index,
+                 '--data-dir', str(STORE)]) == 0
+    assert any(x.startswith(line) for x in capsys.readouterr().out.splitlines())

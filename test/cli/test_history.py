@@ -70,3 +70,94 @@ def test_history_table_names_the_warning(filled, capsys):
     out = capsys.readouterr().out
     assert 'cell cell_07: 4 user frame(s)' in out
     assert 'WARN: user frame moved 0.' in out and 'since cell_07-day1' in out
+
+
+def test_history_of_an_unknown_cell_names_the_known_ones(filled, capsys):
+    """Issue 31 item 9: it answered 'cell typo: 0 user frame(s)'."""
+    root, url = filled
+    assert main(['history', '--no-plots', '--db', url, '--data-dir', str(root),
+                 '--cell', 'typo']) == 2
+    captured = capsys.readouterr()
+    assert '0 user frame(s)' not in captured.out
+    assert (f"history: no results of cell 'typo' in {root}; the cells with results: "
+            'cell_07, cell_08') in captured.err
+
+
+def test_history_keeps_results_from_before_the_keying_apart(tmp_path, capsys):
+    """Cell 'default' (stored before results were keyed by cell) shows those alone; the cell
+    of their robot shows them with its own; another robot's cell none of them."""
+    from cobot_calib_ros.store.cells import ResultsCell
+    url = f'sqlite:///{tmp_path / "plant.sqlite"}'
+    legacy = _frame_record(SIM, 0, 'before-keying')
+    legacy_dict = {**legacy.to_dict(), 'robot': 'sawyer'}
+    store.open(tmp_path, url).user_frames.save_and_activate(legacy_dict)   # as 85479bc did
+    store.open(tmp_path, url, ResultsCell('sawyer_close', 'sawyer')).user_frames \
+        .save_and_activate(_frame_record(SIM, 1, 'sawyer-own'))
+    store.open(tmp_path, url, ResultsCell('iiwa7_close', 'iiwa7')).user_frames \
+        .save_and_activate(_frame_record(SIM, 2, 'iiwa-own'))
+    assert main(['history', '--json', '--no-plots', '--db', url, '--data-dir',
+                 str(tmp_path)]) == 0
+    reports = {r['cell']: [s['id'] for s in r['user_frames']]
+               for r in map(json.loads, capsys.readouterr().out.splitlines())}
+    assert reports == {'default': ['before-keying'], 'iiwa7_close': ['iiwa-own'],
+                       'sawyer_close': ['before-keying', 'sawyer-own']}
+
+
+def _frame_record(sim, day: int, record_id: str) -> UserFrameRecord:
+    run = calibrate_user_frame(sim, 10 + day)
+    record = UserFrameRecord.from_fit(run.fit, None, run.names, run.p_user, run.p_base,
+                                      ('base', 'user'), NOV_1 + day * DAY_NS)
+    record.id = record_id
+    return record
+
+
+def test_history_help_says_one_json_line_per_cell(capsys):
+    """Issue 31.9: the help said one JSON line per result; it prints one per cell (README)."""
+    with pytest.raises(SystemExit):
+        main(['history', '--help'])
+    help_text = ' '.join(capsys.readouterr().out.split())
+    assert 'one JSON line per cell' in help_text and 'per result' not in help_text
+
+
+def test_the_trend_plot_labels_each_calibration_and_draws_both_tolerances(filled, capsys):
+    """Issue 31.9: the PNG had ticks at 1.5, 2.5 ..., no ERROR line, no dates or ids."""
+    from cobot_calib_ros.cli.history import trend_figure
+    root, url = filled
+    assert main(['history', '--json', '--no-plots', '--db', url, '--data-dir', str(root),
+                 '--cell', 'cell_07']) == 0
+    report = json.loads(capsys.readouterr().out)
+    fig = trend_figure(report)
+    moved, turned = fig.axes
+    assert list(turned.get_xticks()) == [1, 2, 3]
+    assert [t.get_text() for t in turned.get_xticklabels()] == [
+        f'2026-11-0{day + 1} 00:00\ncell_07-day{day}' for day in (1, 2, 3)]
+    for ax, warn, error in ((moved, 0.2, 1.0), (turned, 1.0, 5.0)):
+        lines = {line.get_label(): line.get_ydata()[0] for line in ax.get_lines()}
+        assert lines['WARN tolerance'] == pytest.approx(warn)
+        assert lines['ERROR tolerance'] == pytest.approx(error)
+
+
+def test_a_failing_history_keeps_its_exit_code_when_its_reader_leaves(tmp_path):
+    """Issue 31.9: `history | head -1` at ERROR exited 0: the print into the closed pipe
+    raised BrokenPipeError, which main turned into success."""
+    import os
+    import subprocess
+    import sys
+    url = f'sqlite:///{tmp_path / "plant.sqlite"}'
+    repo = store.open(tmp_path, url, 'cell_09')
+    for day, sim in enumerate([SIM, moved_table(SIM, [0, 2e-3, 0])]):
+        run = calibrate_user_frame(sim, 10 + day)
+        record = UserFrameRecord.from_fit(run.fit, None, run.names, run.p_user, run.p_base,
+                                          ('base', 'user'), NOV_1 + day * DAY_NS)
+        record.id = f'cell_09-day{day}'
+        repo.user_frames.save_and_activate(record)
+    command = [sys.executable, '-m', 'cobot_calib_ros.cli.main', 'history', '--no-plots',
+               '--db', url, '--data-dir', str(tmp_path), '--cell', 'cell_09']
+    whole = subprocess.run(command, capture_output=True, text=True, timeout=60)
+    assert whole.returncode == 1 and 'ERROR: user frame moved ' in whole.stdout
+    cut = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                           env=dict(os.environ))
+    cut.stdout.close()                         # the reader has gone before the first line
+    _, err = cut.communicate(timeout=60)
+    assert cut.returncode == 1, err.decode()
+    assert b'Traceback' not in err and b'BrokenPipe' not in err

@@ -2,21 +2,25 @@
 import json
 from pathlib import Path
 
+import pytest
+
 from cobot_calib_ros.cli.main import main
 
 MUKCA = Path(__file__).resolve().parents[1] / 'data' / 'mukca-kuka-iiwa14' / 'kuka_14'
 
 
 def test_real_mukca_data_held_out_error_falls_on_every_location(capsys):
+    """A MUKCa folder as --source goes through the measurement path (spheres, one location
+    held out at a time), gates included."""
     assert main(['identify', '--source', str(MUKCA), '--json']) == 0
     report = json.loads(capsys.readouterr().out)
-    assert [f['held_out'] for f in report['folds']] == ['front', 'left_back', 'raised_left']
+    assert report['measurement'] == 'spheres' and report['verdict']['passed']
+    assert report['validation'] == {'leave_out': 'location',
+                                    'groups': ['front', 'left_back', 'raised_left']}
     for fold in report['folds']:
-        assert fold['mae_after_mm'] < 0.6 * fold['mae_before_mm']
-    assert abs(report['mean_mae_before_mm'] - 0.778) < 1e-3   # the data README's nominal
-    assert report['mean_mae_after_mm'] < 0.3
-    print(f"\nMUKCa held-out MAE {report['mean_mae_before_mm']:.3f} -> "
-          f"{report['mean_mae_after_mm']:.3f} mm (published about 0.2 mm)")
+        assert fold['calibrated']['mean_mm'] < 0.6 * fold['nominal']['mean_mm']
+    assert report['held_out']['nominal']['mean_mm'] == pytest.approx(0.705, abs=1e-3)
+    assert report['held_out']['calibrated']['mean_mm'] == pytest.approx(0.232, abs=1e-3)
 
 
 def test_wrong_sources_say_what_is_accepted(capsys, tmp_path):
@@ -25,7 +29,7 @@ def test_wrong_sources_say_what_is_accepted(capsys, tmp_path):
     assert main(['identify', '--source', str(tmp_path)]) == 2
     assert 'not a collection folder' in capsys.readouterr().err
     assert main(['identify', '--source', str(MUKCA), '--urdf', str(tmp_path / 'x.urdf')]) == 2
-    assert 'give the nominal URDF with --urdf' in capsys.readouterr().err
+    assert 'x.urdf: cannot read (No such file or directory)' in capsys.readouterr().err
     assert main(['identify', '--max-configs', '-1']) == 2
 
 
@@ -57,9 +61,9 @@ def test_an_empty_or_malformed_socket_file_is_named_without_a_numpy_warning(caps
     urdf = str(MUKCA.parent / 'iiwa14.urdf')
     for text, why in (('', 'empty'), ('0,0,x,0,0,0,0\n', 'not a numeric table')):
         folder = _socket_folder(tmp_path / why.replace(' ', '_'), text)
-        assert main(['identify', '--source', str(folder), '--urdf', urdf]) == 1
+        assert main(['identify', '--source', str(folder), '--urdf', urdf]) == 2
         err = capsys.readouterr().err
-        assert err.startswith(f'{folder / "front" / "hole_0.csv"}: {why}'), err
+        assert err.startswith(f'identify: {folder / "front" / "hole_0.csv"}: {why}'), err
         assert 'expected one row per configuration, one column per joint' in err
     assert not [str(w.message) for w in recwarn]
 

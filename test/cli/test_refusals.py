@@ -142,7 +142,7 @@ def test_demo_without_attach_stores_in_a_temporary_data_dir(monkeypatch, tmp_pat
     args = SimpleNamespace(attach=False, cell='sawyer_close', kinematics='latest', json=False)
     with demo._suite(args) as root:
         assert root is not None and shared not in root.parents
-        copied = store.open(root).kinematics
+        copied = store.open(root, cell='sawyer_close').kinematics     # the demo cell's
         assert sorted(r['id'] for r in copied.history()) == ['k1', 'k2']
         assert copied.active('sawyer')['id'] == 'k1'
     assert started == {'cell': 'sawyer_close', 'db': None,

@@ -1,11 +1,19 @@
-"""`cobot-calib up` checks the whole cell file before it starts any node."""
+"""`cobot-calib up` checks the whole cell file before it starts any node; two cells' suites on
+one data dir each activate only their own results (real `up` processes, Ctrl-C between)."""
+import contextlib
+import json
 import os
+from pathlib import Path
+import signal
 import subprocess
 import sys
 
 import pytest
 
+from cobot_calib_ros import store
 from cobot_calib_ros.paths import cell_file
+from cobot_calib_ros.store.cells import ResultsCell
+from proc_lines import Lines
 
 
 @pytest.mark.parametrize('old, new, words', [
@@ -25,3 +33,94 @@ def test_up_refuses_a_broken_cell_file_before_starting_anything(tmp_path, old, n
     assert f'{broken}:' in out.stderr and 'nothing started' in out.stderr
     for word in words:
         assert word in out.stderr
+
+
+# -- two cells on one data dir (issue 31 item 1) -----------------------------------------------
+
+SQUARE = ('[{x: 0.0, y: 0.0, z: 0.0}, {x: 0.2, y: 0.0, z: 0.0}, {x: 0.2, y: 0.15, z: 0.0}, '
+          '{x: 0.0, y: 0.15, z: 0.0}]')
+SHIFTED = ('[{x: 0.5, y: 0.1, z: 0.05}, {x: 0.7, y: 0.1, z: 0.05}, {x: 0.7, y: 0.25, z: 0.05}, '
+           '{x: 0.5, y: 0.25, z: 0.05}]')
+READY_TIMEOUT = 240.0       # [s] nine node processes starting on two loaded cores
+SAWYER, IIWA = ResultsCell('sawyer_close', 'sawyer'), ResultsCell('iiwa7_close', 'iiwa7')
+
+
+def _cli(*args) -> list[str]:
+    return [sys.executable, '-m', 'cobot_calib_ros.cli.main', *args]
+
+
+@contextlib.contextmanager
+def _up(env: dict[str, str], cell: str):
+    """`cobot-calib up --cell CELL` as a user runs it, until 'ready'; Ctrl-C (SIGINT to its
+    process group) at the end, and it has stopped."""
+    proc = subprocess.Popen(_cli('up', '--cell', cell), stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True, env=env,
+                            start_new_session=True)
+    lines = Lines(proc.stdout)
+    try:
+        ready = lines.match(r'^ready: all \d+ nodes answer$', READY_TIMEOUT)
+        assert ready, f'up --cell {cell} not ready:\n{"".join(lines.seen)}'
+        yield lambda *args, timeout=120.0: subprocess.run(
+            _cli(*args), capture_output=True, text=True, timeout=timeout, env=env)
+    finally:
+        os.killpg(proc.pid, signal.SIGINT)
+        try:
+            proc.wait(timeout=60)
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    assert proc.returncode == 0, ''.join(lines.seen)
+
+
+def _sawyer_hand_eye() -> dict:
+    """A hand-eye calibration of the Sawyer cell (as 5252a67 stored it)."""
+    folder = Path(__file__).resolve().parents[1] / 'data' / 'store-5252a67' / 'hand_eye'
+    return json.loads(next(folder.glob('*.json')).read_text())
+
+
+def test_a_second_cell_on_the_same_data_dir_activates_none_of_the_first_s_results(tmp_path):
+    """`up --cell sawyer_close`, a user frame calibrated and a hand-eye active; Ctrl-C; then
+    `up --cell iiwa7_close` on the same data dir: the iiwa's suite publishes neither on
+    user_frame / hand_eye (on 85479bc it published the Sawyer's as its own), refuses the
+    Sawyer's frame by name, and the Sawyer's results are still its own, active."""
+    import domain_coordinator
+    data = tmp_path / 'data'
+    hand_eye = _sawyer_hand_eye()
+    assert store.open(data, cell=SAWYER).hand_eye.save_and_activate(hand_eye)
+    with domain_coordinator.domain_id() as domain:
+        env = {k: v for k, v in os.environ.items() if k not in ('COBOT_CALIB_DB',
+                                                                 'COBOT_CALIB_CELL')}
+        env.update(ROS_DOMAIN_ID=str(domain), COBOT_CALIB_DATA=str(data),
+                   ROS_LOG_DIR=str(tmp_path / 'logs'))
+        with _up(env, 'sawyer_close') as run:
+            out = run('call', 'calibrate_user_frame',
+                      f'{{method: rigid, points_user: {SQUARE}, points_base: {SHIFTED}}}',
+                      '--json')
+            frame = json.loads(out.stdout)['calibration']
+            assert out.returncode == 0 and frame['id'], out.stderr
+            latched = run('echo', 'user_frame', '--once', '--json')
+            assert json.loads(latched.stdout)['id'] == frame['id'], latched.stderr
+            he = run('echo', 'hand_eye', '--once', '--json')
+            assert he.returncode == 0, he.stderr
+            x = json.loads(he.stdout)['transform']['translation']['x']
+            assert x == pytest.approx(hand_eye['result']['T_flange_optical'][0][3], abs=1e-12)
+        with _up(env, 'iiwa7_close') as run:
+            listed = json.loads(run('call', 'list_calibrations', '{}', '--json').stdout)
+            assert listed['active_id'] == '' and listed['calibrations'] == []
+            assert run('echo', 'user_frame', '--once', '--timeout', '5').returncode == 1
+            assert run('echo', 'hand_eye', '--once', '--timeout', '5').returncode == 1
+            refused = run('call', 'set_active_calibration',
+                          f'{{calibration_id: {frame["id"]}, action: 0}}', '--json')
+            answer = json.loads(refused.stdout)
+            assert answer['error_code'] == 2 and answer['active']['id'] == ''
+            assert ("made in cell 'sawyer_close' on the sawyer; this is cell 'iiwa7_close' on "
+                    "the iiwa7") in answer['message']
+            check = run('check', 'user-frame', timeout=180)
+            assert check.returncode == 1 and ('no active user frame in the results of cell '
+                                              'iiwa7_close (iiwa7)') in check.stderr
+    sawyer = store.open(data, cell=SAWYER)
+    assert sawyer.user_frames.active()['id'] == frame['id']
+    assert sawyer.hand_eye.active()['id'] == hand_eye['id']
+    assert (sawyer.user_frames.active()['cell'], sawyer.user_frames.active()['robot']) == (
+        'sawyer_close', 'sawyer')
+    assert store.open(data, cell=IIWA).user_frames.history() == []

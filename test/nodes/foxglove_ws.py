@@ -1,5 +1,7 @@
 """A minimal Foxglove WebSocket protocol client on the standard library, for tests: connect,
-read the advertised channels, subscribe, read message data (RFC 6455 frames, client-masked)."""
+read the advertised channels, subscribe, read message data (RFC 6455 frames, client-masked).
+It offers both names of the subprotocol unless told which: Foxglove's app offers
+foxglove.sdk.v1, Lichtblick and older Foxglove releases foxglove.websocket.v1 alone."""
 from __future__ import annotations
 
 import base64
@@ -9,24 +11,30 @@ import socket
 import struct
 import time
 
-PROTOCOLS = 'foxglove.sdk.v1, foxglove.websocket.v1'
+PROTOCOLS = ('foxglove.sdk.v1', 'foxglove.websocket.v1')
 MESSAGE_DATA = 0x01          # binary opcode of the protocol: a message on a subscription
 
 
 class FoxgloveClient:
-    def __init__(self, host: str, port: int, timeout: float = 10.0) -> None:
+    def __init__(self, host: str, port: int, timeout: float = 10.0,
+                 protocols: tuple[str, ...] = PROTOCOLS) -> None:
         self.sock = socket.create_connection((host, port), timeout=timeout)
         key = base64.b64encode(os.urandom(16)).decode()
         self.sock.sendall((f'GET / HTTP/1.1\r\nHost: {host}:{port}\r\nUpgrade: websocket\r\n'
                            f'Connection: Upgrade\r\nSec-WebSocket-Key: {key}\r\n'
-                           f'Sec-WebSocket-Version: 13\r\nSec-WebSocket-Protocol: {PROTOCOLS}'
-                           '\r\n\r\n').encode())
+                           'Sec-WebSocket-Version: 13\r\n'
+                           f'Sec-WebSocket-Protocol: {", ".join(protocols)}\r\n\r\n').encode())
         head = b''
         while b'\r\n\r\n' not in head:
             head += self.sock.recv(1)
         status = head.split(b'\r\n', 1)[0]
         if b' 101 ' not in status:
             raise ConnectionError(f'no WebSocket upgrade: {status!r}')
+        # the subprotocol the server chose (a browser drops a connection whose choice it
+        # did not offer)
+        self.protocol = next((line.split(b':', 1)[1].strip().decode()
+                              for line in head.split(b'\r\n')
+                              if line.lower().startswith(b'sec-websocket-protocol:')), None)
         self.channels: dict[int, dict] = {}
 
     def _exact(self, n: int) -> bytes:
@@ -66,8 +74,15 @@ class FoxgloveClient:
 
     def message(self, topic: str, timeout: float) -> tuple[dict, bytes]:
         """Subscribe to ``topic`` once it is advertised; (its channel, the first payload)."""
-        deadline, wanted = time.monotonic() + timeout, None
-        while time.monotonic() < deadline:
+        channel, payloads = self.messages(topic, timeout, enough=1)
+        return channel, payloads[0]
+
+    def messages(self, topic: str, timeout: float, enough: int | None = None
+                 ) -> tuple[dict, list[bytes]]:
+        """Subscribe to ``topic`` once it is advertised; (its channel, the payloads that came
+        within ``timeout`` s, or the first ``enough`` of them). TimeoutError if none came."""
+        deadline, wanted, payloads = time.monotonic() + timeout, None, []
+        while time.monotonic() < deadline and (enough is None or len(payloads) < enough):
             self.sock.settimeout(max(0.1, deadline - time.monotonic()))
             try:
                 opcode, payload = self.frame()
@@ -85,9 +100,11 @@ class FoxgloveClient:
             elif opcode == 0x2 and payload[0] == MESSAGE_DATA and wanted is not None:
                 subscription, _stamp = struct.unpack('<IQ', payload[1:13])
                 if subscription == 1:
-                    return wanted, payload[13:]
-        raise TimeoutError(f'no message on {topic} within {timeout} s '
-                           f'(advertised: {[c["topic"] for c in self.channels.values()]})')
+                    payloads.append(payload[13:])
+        if not payloads:
+            raise TimeoutError(f'no message on {topic} within {timeout} s '
+                               f'(advertised: {[c["topic"] for c in self.channels.values()]})')
+        return wanted, payloads
 
     def close(self) -> None:
         self.sock.close()

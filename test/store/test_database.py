@@ -15,6 +15,7 @@ import pytest
 
 from cobot_calib_ros import store
 from cobot_calib_ros.store.calibrations import CalibrationStore
+from cobot_calib_ros.store.cells import ResultsCell
 from cobot_calib_ros.store.database import (Database, provenance_of, software_version,
                                             SQLITE_FILE)
 from cobot_calib_ros.store.importer import import_folder
@@ -36,7 +37,7 @@ def _record(record_id, stamp_ns, **extra):
 
 
 def test_activation_rules_are_the_folder_stores(db_url, cell, tmp_path):
-    folder = FolderRepository(tmp_path / 'folder').kinematics
+    folder = FolderRepository(tmp_path / 'folder', ResultsCell(cell)).kinematics
     db = store.open(tmp_path / 'd', db_url, cell).kinematics
     steps = [('save', _record('k1', 1, robot='iiwa7')), ('save', _record('k2', 2, robot='iiwa7')),
              ('save', _record('s1', 3, robot='sawyer')), ('activate', 'k1'),
@@ -135,7 +136,7 @@ def test_import_of_a_5252a67_file_store_keeps_every_record(db_url, cell, tmp_pat
     source = tmp_path / 'old'
     shutil.copytree(STORE_5252A67, source)
     CalibrationStore(source, 'calibrations').activate('20261125T150121.468359984Z-three_point')
-    target = DatabaseRepository(tmp_path / 'new', db_url, cell)
+    target = DatabaseRepository(tmp_path / 'new', db_url, ResultsCell(cell))
     report = import_folder(source, target)
     import_folder(source, target)
     assert report.counts == {'user_frame': 2, 'hand_eye': 1, 'kinematics': 1, 'trial': 1,

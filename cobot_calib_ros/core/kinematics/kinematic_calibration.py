@@ -14,7 +14,11 @@ The one place that strings the identification core together, used by the
 3. validation: absolute errors against laser-tracker sets, nominal against calibrated, as the
    paper's Table 5; each model registered to the tracker by its own best rigid fit (a relative
    calibration has no world frame);
-4. the outcome, which the store turns into a record (store.records.KinematicRecord) and writes
+4. the gates (:mod:`.identification.gates`), as for a measurement file: the data plausible for
+   the arm before the solve (a Refusal), then the verdict on the result: converged, every
+   deviation inside ``bounds``, no worse than nominal on the validation sets. A result whose
+   verdict did not pass is reported with it and never stored or made active;
+5. the outcome, which the store turns into a record (store.records.KinematicRecord) and writes
    as JSON, YAML and a calibrated URDF.
 """
 from __future__ import annotations
@@ -26,7 +30,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from cobot_calib_ros.core.cell import Cell
-from cobot_calib_ros.core.errors import ErrorCode
+from cobot_calib_ros.core.errors import ErrorCode, Failure, Refusal
+from cobot_calib_ros.core.kinematics.identification import gates
+from cobot_calib_ros.core.kinematics.identification.gates import DeviationBounds, Verdict
 from cobot_calib_ros.core.kinematics.identification.identifiability import (
     find_redundant, Identifiability)
 from cobot_calib_ros.core.kinematics.identification.observations import (
@@ -77,14 +83,14 @@ class Outcome:
     nominal_values: Array             # the same parameters of the nominal model [m, rad]
     validation: dict[str, dict]       # region -> {'nominal': stats, 'calibrated': stats}
     table: str                        # the identified model as the paper's Table 6
+    verdict: Verdict = Verdict()      # the gates' (module doc, step 4)
 
     def summary(self) -> str:
         r = self.result
-        parts = [f'{len(r.free)} parameters identified, '
+        parts = [] if self.verdict.passed else [self.verdict.line()]
+        parts += [f'{len(r.free)} parameters identified, '
                  f'{len(self.identifiability.dropped)} dropped, RMS {r.rms_m * 1e3:.4f} mm in '
                  f'{r.solve_seconds:.2f} s ({r.iterations} iterations)']
-        if not r.converged:
-            parts.insert(0, f'NOT CONVERGED, the model may be far from the optimum ({r.message})')
         for region, table in self.validation.items():
             parts.append(f'{region}: max error {table["nominal"]["max_mm"]:.3f} -> '
                          f'{table["calibrated"]["max_mm"]:.3f} mm')
@@ -104,6 +110,7 @@ class CalibrationJob:
     validation: dict[str, PositionObservations] = field(default_factory=dict)
     tool_xyz0: Array | None = None    # nominal tool centre in the flange [m]
     solver_options: dict[str, Any] = field(default_factory=dict)
+    bounds: DeviationBounds = field(default_factory=DeviationBounds)
 
     def __post_init__(self) -> None:
         if self.tool_xyz0 is None:
@@ -116,6 +123,9 @@ class CalibrationJob:
 
     def run(self, callback: Callable[[int, float, float], bool] | None = None) -> Outcome:
         model = self.model
+        problems = self.data_problems()
+        if problems:
+            raise Refusal(Failure(ErrorCode.IMPLAUSIBLE_FIT, Verdict(tuple(problems)).line()))
         identifiability = identifiable(model, self.data.q, self.tool_xyz0)
         parameter_set = ParameterSet(model, identifiability.kept)
         options = self.solver_options or (NM_CONVERGED if self.solver == 'nelder-mead'
@@ -132,9 +142,26 @@ class CalibrationJob:
         free_values = parameter_set.values(result.params, result.tool_xyz)
         nominal_values = parameter_set.values(model.nominal, self.tool_xyz0)
         table = table6(model, result.params)
+        verdict = Verdict(tuple(
+            gates.at_bounds(model, result.free, free_values - nominal_values, self.bounds)
+            + ([] if result.converged else [f'the solver did not converge ({result.message}): '
+                                            'the model may be far from the optimum'])
+            + [p for region, t in validation.items() for p in gates.result_problems(
+                True, t['nominal']['mean_mm'] * 1e-3, t['calibrated']['mean_mm'] * 1e-3,
+                what=f'mean tracker error ({region})')]))
         return Outcome(model, self._inputs(result), result, identifiability, free_values,
-                       nominal_values,
-                       validation, table)
+                       nominal_values, validation, table, verdict)
+
+    def data_problems(self) -> list[str]:
+        """Gate 1: joint values inside the arm's limits; known sphere distances like those
+        of the centres the nominal arm reaches."""
+        problems = gates.joint_problems(self.model, self.data.q)
+        if problems or not isinstance(self.data, SphereObservations):
+            return problems
+        p = tool_kinematics(self.model, None, self.tool_xyz0, self.data.q)[0]
+        ids = np.unique(self.data.sphere)
+        centres = {int(i): p[self.data.sphere == i].mean(axis=0) for i in ids}
+        return gates.distance_problems(self.data.known_distances, centres)
 
     def validate(self, result: IdentificationResult, data: PositionObservations) -> dict:
         """Table 5 rows for ``data``: nominal and calibrated, each registered by its best

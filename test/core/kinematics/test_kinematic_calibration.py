@@ -48,11 +48,12 @@ def test_a_solve_stopped_by_its_cap_says_so_in_the_summary_and_the_record(data):
     capped = CalibrationJob(SIM.cell, MODEL, data, solver='nelder-mead',
                             solver_options={'max_evaluations': 60}).run()
     assert not capped.result.converged
-    assert capped.summary().startswith('NOT CONVERGED, the model may be far from the optimum '
-                                       '(did not converge: Maximum number of function '
-                                       'evaluations has been exceeded.)')
+    assert capped.summary().startswith('REFUSED: the solver did not converge (did not '
+                                       'converge: Maximum number of function evaluations has '
+                                       'been exceeded.): the model may be far from the optimum')
+    assert not capped.verdict.passed
     assert KinematicRecord.from_outcome(capped).result.converged is False
     lm = CalibrationJob(SIM.cell, MODEL, data).run()
     assert lm.result.converged and KinematicRecord.from_outcome(lm).result.converged is True
-    assert 'CONVERGED' not in lm.summary()
+    assert 'CONVERGED' not in lm.summary() and lm.verdict.passed
     assert capped.result.rms_m > 2 * lm.result.rms_m

@@ -5,7 +5,7 @@ Error models (``ERROR_MODELS``) over a :class:`KinematicModel` (from a URDF, or 
 - ``offsets``: one offset per joint, q_model = q + offset (``offset_<joint>``);
 - ``full``: every joint origin's x, y, z, roll, pitch, yaw (kind 'origin' models: FIGAROH's
   ``full_params``);
-- ``mdh``: every joint's alpha, a, theta, d (kind 'mdh' models: the paper's).
+- ``mdh``: every joint's alpha, a, theta, d (kind 'mdh' models, a DH table: the paper's).
 
 Unknowns are the free model parameters then the measurement's nuisance (base and target
 frames, markers, sphere centres, planes: :mod:`.measurements`). Jacobians: the model
@@ -37,6 +37,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import least_squares
 
+from cobot_calib_ros.core.errors import ErrorCode, Failure, Refusal
+from cobot_calib_ros.core.kinematics.identification import gates
+from cobot_calib_ros.core.kinematics.identification.gates import DeviationBounds, Verdict
 from cobot_calib_ros.core.kinematics.identification.measurements import (
     Kind, make_kind, Measurements, textbook_minimum)
 from cobot_calib_ros.core.kinematics.identification.tip_jacobian import (
@@ -46,7 +49,7 @@ from cobot_calib_ros.core.kinematics.model import fk_placements, KinematicModel,
 Array = NDArray[np.float64]
 ERROR_MODELS = ('offsets', 'full', 'mdh')
 FD_STEP = 1e-6            # [m or rad] central-difference step
-RANK_TOL = 1e-4           # a column is kept if >= this fraction of it is new (scaled columns)
+RANK_TOL = 1e-3           # a column is kept if >= this fraction of it is new (scaled columns)
 CORRELATED = 0.9
 OUTLIER_MADS = 5.0        # a row is an outlier beyond median + 5 scaled MADs of the errors
 
@@ -61,11 +64,17 @@ class ErrorModel:
     def __post_init__(self) -> None:
         if self.name not in ERROR_MODELS:
             raise ValueError(f'unknown error model {self.name!r}; use one of {ERROR_MODELS}')
-        need = {'full': 'origin', 'mdh': 'mdh'}.get(self.name)
-        if need and self.model.kind != need:
-            raise ValueError(f'--model {self.name} needs a model of kind {need!r} (a URDF for '
-                             f'full, an MDH table for mdh); {self.model.name} is '
-                             f'{self.model.kind!r}')
+        # the parameters of each error model are fields of one kind of model: a URDF's joint
+        # origins are not MDH rows (an exact conversion needs a base transform the MDH chain
+        # lacks, and is not unique where consecutive axes are parallel), nor the reverse
+        if self.name == 'mdh' and self.model.kind != 'mdh':
+            raise ValueError(f'--model mdh needs a DH table (--dh FILE); {self.model.name} is '
+                             'a URDF: use --model full (x, y, z, roll, pitch, yaw of every '
+                             'joint origin, which covers alpha, a, theta, d) or offsets')
+        if self.name == 'full' and self.model.kind != 'origin':
+            raise ValueError(f'--model full needs a URDF (--urdf FILE); {self.model.name} is a '
+                             'DH table: use --model mdh (alpha, a, theta, d of every joint) '
+                             'or offsets')
 
     @property
     def candidates(self) -> tuple[str, ...]:
@@ -134,7 +143,17 @@ class _Problem:
             columns.append(((pair[0] - pair[1]) / (2.0 * FD_STEP))[:, None])
         return np.hstack(columns)
 
-    def solve(self, max_nfev: int = 200, loss: str = 'linear') -> tuple[Array, bool]:
+    def bounds(self, bounds: DeviationBounds) -> tuple[Array, Array]:
+        """(lower, upper) of x: the model parameters within ``bounds`` of nominal, the
+        nuisance free."""
+        width = bounds.half_widths(self.errors.model, self.names)
+        lower = np.full(len(self.x0), -np.inf)
+        upper = np.full(len(self.x0), np.inf)
+        lower[:self.n], upper[:self.n] = self.x0[:self.n] - width, self.x0[:self.n] + width
+        return lower, upper
+
+    def solve(self, max_nfev: int = 200, loss: str = 'linear',
+              bounds: DeviationBounds = DeviationBounds()) -> tuple[Array, bool]:
         if not np.all(np.isfinite(self.residuals(self.x0))):
             raise ValueError('the start model gives non-finite residuals: check the joint '
                              'columns and the units in the sidecar')
@@ -142,8 +161,9 @@ class _Problem:
         if loss != 'linear':      # inliers: within ~ the start's median residual
             f_scale = max(float(np.median(np.abs(self.residuals(self.x0)))), 1e-9)
         r = least_squares(self.residuals, self.x0, jac=lambda x: self.jacobian(x),
-                          method='trf', x_scale='jac', xtol=1e-15, ftol=1e-15, gtol=1e-15,
-                          max_nfev=max_nfev, loss=loss, f_scale=f_scale)
+                          bounds=self.bounds(bounds), method='trf', x_scale='jac',
+                          xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=max_nfev, loss=loss,
+                          f_scale=f_scale)
         return r.x, bool(r.status > 0)
 
 
@@ -250,6 +270,11 @@ class Fit:
     converged: bool
     problem: _Problem
 
+    @property
+    def deltas(self) -> Array:
+        """The identified values less nominal [m or rad]."""
+        return self.values - self.problem.errors.start(self.names)
+
     def row_errors(self, data: Measurements) -> tuple[Array, Array]:
         """Position [m] and rotation [rad] errors of ``data``'s rows with this fit."""
         T = self.problem.errors.tip_poses(self.names, self.values, data.q)
@@ -258,10 +283,11 @@ class Fit:
 
 
 def fit(errors: ErrorModel, data: Measurements, names: tuple[str, ...],
-        nuisance: Array | None = None, loss: str = 'linear') -> Fit:
+        nuisance: Array | None = None, loss: str = 'linear',
+        bounds: DeviationBounds = DeviationBounds()) -> Fit:
     """Least squares over the named model parameters (none: the nuisance alone) and the
     nuisance on ``data``, from the nominal model and ``nuisance`` (default: the kind's
-    start)."""
+    start), the parameters kept within ``bounds`` of nominal."""
     problem = _Problem(errors, data, names, nuisance)
     minimum = len(problem.x0)
     count = len(problem.residuals(problem.x0))
@@ -269,7 +295,7 @@ def fit(errors: ErrorModel, data: Measurements, names: tuple[str, ...],
         raise ValueError(f'{len(data)} rows give {count} equations for {minimum} unknowns '
                          f'({len(names)} parameters + {minimum - len(names)} frames/targets): '
                          f'measure more rows or use a smaller --model')
-    x, converged = problem.solve(loss=loss)
+    x, converged = problem.solve(loss=loss, bounds=bounds)
     return Fit(tuple(names), x[:problem.n], x[problem.n:], converged, problem)
 
 
@@ -311,7 +337,8 @@ class CrossValidation:
 
 def cross_validate(errors: ErrorModel, data: Measurements, held_out: list[Array],
                    labels: tuple[str, ...] | None = None,
-                   rank_tol: float = RANK_TOL, loss: str = 'linear') -> CrossValidation:
+                   rank_tol: float = RANK_TOL, loss: str = 'linear',
+                   bounds: DeviationBounds = DeviationBounds()) -> CrossValidation:
     """For each fold: identifiability and fits on the other rows, errors on the held-out."""
     m = len(data)
     pos = {'nominal': np.full(m, np.nan), 'calibrated': np.full(m, np.nan)}
@@ -325,7 +352,7 @@ def cross_validate(errors: ErrorModel, data: Measurements, held_out: list[Array]
         entry = {'held_out': labels[f] if labels else f, 'rows': int(len(rows)),
                  'parameters': len(ident.kept)}
         for name, result in (('nominal', nominal), ('calibrated', fit(
-                errors, train, ident.kept, nominal.nuisance, loss))):
+                errors, train, ident.kept, nominal.nuisance, loss, bounds))):
             e_pos, e_rot = result.row_errors(test)
             pos[name][rows], rot[name][rows] = e_pos, e_rot
             entry[name] = stats(e_pos, e_rot)
@@ -350,23 +377,66 @@ def held_out_rows(sample: Array, folds: list[Array]) -> list[Array]:
     return [np.flatnonzero(np.isin(sample, f)) for f in folds]
 
 
+def data_problems(errors: ErrorModel, data: Measurements) -> list[str]:
+    """Gate 1 (:mod:`.gates`): the joint values and the measured lengths against the arm."""
+    problems = gates.joint_problems(errors.model, data.q) or gates.offset_problems(
+        errors.model, data.ball, 'ball' if data.kind in ('spheres', 'plane') else 'marker')
+    if problems:
+        return problems
+    T = errors.tip_poses((), np.empty(0), data.q)
+    at_ball = np.einsum('mij,j->mi', T[:, :3, :3], data.ball) + T[:, :3, 3]
+    if data.kind == 'points':
+        return gates.scale_problems(data.values, at_ball, 'measured marker positions')
+    if data.kind == 'pose':
+        return gates.scale_problems(data.values[:, :3, 3], T[:, :3, 3],
+                                    'measured target positions')
+    if data.kind == 'spheres' and data.distances:
+        ids = np.unique(data.target)
+        centres = np.zeros((int(ids.max()) + 1, 3))
+        for i in ids:
+            centres[i] = at_ball[data.target == i].mean(axis=0)
+        return gates.distance_problems(data.distances, centres)
+    return []
+
+
+def refuse(problems: list[str], code: ErrorCode = ErrorCode.IMPLAUSIBLE_FIT) -> None:
+    """Raise the problems as one Refusal line (nothing fitted, nothing stored)."""
+    if problems:
+        raise Refusal(Failure(code, Verdict(tuple(problems)).line()))
+
+
 def identify_measurements(errors: ErrorModel, data: Measurements, held_out: list[Array], *,
                           labels: tuple[str, ...] | None = None, sample: Array | None = None,
-                          rank_tol: float = RANK_TOL, loss: str = 'linear') -> dict:
-    """Cross-validation, then identifiability, the fit and the outlier rule on all rows: the
-    report of ``cobot-calib identify --measurement`` (JSON-ready). ``sample`` maps rows to
-    samples (CSV data rows) for the outliers (default: the rows themselves)."""
+                          rank_tol: float = RANK_TOL, loss: str = 'linear',
+                          bounds: DeviationBounds = DeviationBounds(),
+                          noise_m: float = 0.0) -> dict:
+    """The gates' data checks (a Refusal before any fit), cross-validation, then
+    identifiability, the fit and the outlier rule on all rows, and the gates' verdict on the
+    result: the report of ``cobot-calib identify --measurement`` (JSON-ready). ``sample`` maps
+    rows to samples (CSV data rows) for the outliers (default: the rows themselves);
+    ``noise_m``: the measurement's own RMS error [m] as the row errors count it (0: unknown)."""
     sample = np.arange(len(data)) if sample is None else np.asarray(sample)
+    refuse(data_problems(errors, data))
     nominal = fit(errors, data, (), loss=loss)
     ident = identifiable(errors, data, rank_tol, nominal.nuisance)
-    final = fit(errors, data, ident.kept, nominal.nuisance, loss)
-    cv = cross_validate(errors, data, held_out, labels, rank_tol, loss)
+    equations = len(nominal.problem.residuals(nominal.problem.x0))
+    refuse(gates.equation_problems(equations, len(ident.kept) + len(nominal.nuisance),
+                                   len(data)), ErrorCode.TOO_FEW_POINTS)
+    final = fit(errors, data, ident.kept, nominal.nuisance, loss, bounds)
+    cv = cross_validate(errors, data, held_out, labels, rank_tol, loss, bounds)
     e_pos, e_rot = final.row_errors(data)
+    verdict = Verdict(tuple(
+        gates.at_bounds(errors.model, final.names, final.deltas, bounds)
+        + gates.result_problems(final.converged, cv.nominal['rmse_mm'] * 1e-3,
+                                cv.calibrated['rmse_mm'] * 1e-3, noise_m)))
     nominal = dict(zip(errors.candidates, errors.start(errors.candidates)))
     return {
         'measurement': data.kind, 'model': errors.name, 'robot': errors.model.name,
         'loss': loss,
         'rows': len(data), 'samples': int(len(np.unique(sample))),
+        'verdict': verdict.to_dict(),
+        'bounds': {'length_mm': bounds.length_m * 1e3, 'angle_mrad': bounds.angle_rad * 1e3},
+        'noise_mm': noise_m * 1e3,
         'held_out': {'nominal': cv.nominal, 'calibrated': cv.calibrated},
         'folds': list(cv.folds),
         'training': stats(e_pos, e_rot),

@@ -1,4 +1,5 @@
-"""MUKCa sphere-socket data: its tables, MUKCa's consistency metric, leave-one-location-out.
+"""MUKCa sphere-socket data: its tables and MUKCa's consistency metric (identified held out
+by the measurement path: loaders.measurements.load_socket_measurements, measurement_fit).
 
 The core identification modules are imported directly (not through the package
 ``__init__``), so that the package may re-export this module.
@@ -19,12 +20,8 @@ from typing import Sequence
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from cobot_calib_ros.core.kinematics.identification.identifiability import find_redundant
 from cobot_calib_ros.core.kinematics.identification.observations import SphereObservations
-from cobot_calib_ros.core.kinematics.identification.parameters import (
-    default_candidates, ParameterSet, tool_kinematics)
-from cobot_calib_ros.core.kinematics.identification.solvers import (
-    identify, IdentificationResult)
+from cobot_calib_ros.core.kinematics.identification.parameters import tool_kinematics
 from cobot_calib_ros.core.kinematics.model import KinematicModel
 
 Array = NDArray[np.float64]
@@ -137,55 +134,6 @@ def mukca_metrics(positions: ArrayLike, socket_ids: ArrayLike,
             'centroid_distances_mm': tuple(1e3 * d for d in distances)}
 
 
-# --- leave one location out ----------------------------------------------------------------
-
-@dataclass(frozen=True)
-class HeldOutLocation:
-    """One fold: identified on the other locations, MUKCa's metric on ``location`` [mm].
-
-    ``before``/``after``: :func:`mukca_metrics` of the held-out location with the start model
-    (params0, tool_xyz0) and with the identified one; ``train_before``/``train_after`` the same
-    on the training locations together.
-    """
-
-    location: str
-    training: tuple[str, ...]
-    free: tuple[str, ...]          # identified parameters (find_redundant on the training q)
-    before: dict
-    after: dict
-    train_before: dict
-    train_after: dict
-    result: IdentificationResult
-
-
-@dataclass(frozen=True)
-class LeaveOneLocationOut:
-    """All folds, in location order, and the mean held-out MAE before/after [mm]."""
-
-    folds: tuple[HeldOutLocation, ...]
-
-    @property
-    def mean_mae_mm_before(self) -> float:
-        return float(np.mean([f.before['mae_mm'] for f in self.folds]))
-
-    @property
-    def mean_mae_mm_after(self) -> float:
-        return float(np.mean([f.after['mae_mm'] for f in self.folds]))
-
-    def table(self) -> str:
-        """One line per held-out location: free count, held-out and training MAE [mm]."""
-        lines = [f'{"held out":<12} {"free":>4} {"MAE before":>10} {"MAE after":>9} '
-                 f'{"max after":>9} {"dist err after":>14} {"train MAE after":>15}']
-        for f in self.folds:
-            lines.append(f'{f.location:<12} {len(f.free):>4} {f.before["mae_mm"]:>10.3f} '
-                         f'{f.after["mae_mm"]:>9.3f} {f.after["max_mm"]:>9.3f} '
-                         f'{f.after["distance_error_mm"]:>14.3f} '
-                         f'{f.train_after["mae_mm"]:>15.3f}')
-        lines.append(f'{"mean":<12} {"":>4} {self.mean_mae_mm_before:>10.3f} '
-                     f'{self.mean_mae_mm_after:>9.3f}')
-        return '\n'.join(lines)
-
-
 def location_metrics(model: KinematicModel, params: ArrayLike | None, tool_xyz: ArrayLike,
                      data: SocketData, locations: Sequence[str | int] | None = None) -> dict:
     """:func:`mukca_metrics` of the ball centres (tool at ``tool_xyz`` [m] in the flange) on
@@ -193,42 +141,3 @@ def location_metrics(model: KinematicModel, params: ArrayLike | None, tool_xyz: 
     obs = data.observations(locations)
     p, _, _ = tool_kinematics(model, params, tool_xyz, obs.q)
     return mukca_metrics(p, obs.sphere, obs.known_distances)
-
-
-def leave_one_location_out(model: KinematicModel, data: SocketData, tool_xyz0: ArrayLike, *,
-                           params0: ArrayLike | None = None,
-                           candidates: Sequence[str] | None = None,
-                           excluded: dict[str, str] | None = None,
-                           **identify_options) -> LeaveOneLocationOut:
-    """For each location: identify on the others, evaluate MUKCa's metric on it.
-
-    The free parameters of a fold are those :func:`find_redundant` keeps (a rigid base motion
-    held, which relative data cannot see) among ``candidates``
-    (default :func:`default_candidates`: all but the first joint's row, plus the tool/ball
-    offset) on the training configurations at ``params0``/``tool_xyz0`` [m]. ``identify`` gets
-    the training locations' SphereObservations (each socket its own sphere, the 0.050 m
-    between the two sockets of a location) and ``identify_options`` (solver, loss, f_scale...).
-    The held-out location's socket centres are not needed: MUKCa's metric is centred on them.
-    ValueError with fewer than 2 locations.
-    """
-    if len(data.locations) < 2:
-        raise ValueError(f'need at least 2 locations to hold one out, got {data.locations}')
-    p0 = np.array(model.nominal if params0 is None else params0, dtype=float)
-    t0 = np.asarray(tool_xyz0, dtype=float)
-    names = tuple(default_candidates(model) if candidates is None else candidates)
-    folds = []
-    for held in data.locations:
-        training = tuple(loc for loc in data.locations if loc != held)
-        obs = data.observations(training)
-        kept = find_redundant(model, obs.q, t0, names, excluded, base_frame=True).kept
-        result = identify(ParameterSet(model, kept), obs, tool_xyz0=t0, params0=p0,
-                          **identify_options)
-        folds.append(HeldOutLocation(
-            held, training, kept,
-            before=location_metrics(model, p0, t0, data, [held]),
-            after=location_metrics(model, result.params, result.tool_xyz, data, [held]),
-            train_before=location_metrics(model, p0, t0, data, training),
-            train_after=location_metrics(model, result.params, result.tool_xyz, data,
-                                         training),
-            result=result))
-    return LeaveOneLocationOut(tuple(folds))

@@ -193,7 +193,7 @@ def test_too_few_rows_for_the_parameters_is_refused(ur10e):
 
 
 def test_error_model_must_fit_the_model_kind(ur10e):
-    with pytest.raises(ValueError, match="needs a model of kind 'mdh'"):
+    with pytest.raises(ValueError, match=r'--model mdh needs a DH table \(--dh FILE\)'):
         mf.ErrorModel(ur10e, 'mdh')
 
 

@@ -1,4 +1,5 @@
-"""MUKCa KUKA iiwa 14 sphere-socket data (real robot): loading, MUKCa's metric, held-out MAE."""
+"""MUKCa KUKA iiwa 14 sphere-socket data (real robot): loading and MUKCa's metric (held out:
+test/test_real_data.py and test/cli/test_identify.py, through the measurement path)."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -7,12 +8,11 @@ import numpy as np
 from numpy.testing import assert_allclose
 import pytest
 
-from cobot_calib_ros.core.errors import ErrorCode
 from cobot_calib_ros.core.kinematics import fk
 from cobot_calib_ros.core.kinematics.identification import (
-    default_candidates, identify, ParameterSet, SphereObservations, TOOL_NAMES)
+    identify, ParameterSet, SphereObservations, TOOL_NAMES)
 from cobot_calib_ros.core.kinematics.identification.sockets import (
-    leave_one_location_out, location_metrics, mukca_metrics, SocketData)
+    location_metrics, mukca_metrics, SocketData)
 from cobot_calib_ros.loaders import load_socket_data
 from cobot_calib_ros.core.kinematics.urdf import model_from_urdf
 
@@ -124,43 +124,3 @@ def test_fitting_only_the_ball_reproduces_the_readme(data, model):
     assert_allclose((result.tool_xyz + a7_to_tool0) * 1e3, [-0.11, -0.23, 166.61], atol=5e-3)
     mae = location_metrics(model, None, result.tool_xyz, data)['mae_mm']
     assert mae == pytest.approx(0.704, abs=1e-3)
-
-
-def _translations(model):
-    return tuple(n for n in default_candidates(model)
-                 if n.split('_')[0] in ('x', 'y', 'z')) + TOOL_NAMES
-
-
-# (name, candidates given the model or None for default_candidates, identify options)
-VARIANTS = [
-    ('find_redundant, soft_l1 (identify default)', None, {}),
-    ('find_redundant, linear', None, {'loss': 'linear'}),
-    ('translations only, linear', _translations, {'loss': 'linear'}),
-]
-
-
-@pytest.mark.parametrize('name, candidates, options', VARIANTS, ids=[v[0] for v in VARIANTS])
-def test_leave_one_location_out_lowers_the_held_out_mae(data, model, name, candidates, options):
-    loo = leave_one_location_out(model, data, BALL,
-                                 candidates=None if candidates is None else candidates(model),
-                                 **options)
-    print(f'\n{name}: held-out MUKCa MAE [mm] (MUKCa publishes ~0.2 mm after calibration, on '
-          f'its own data, outliers removed)\n{loo.table()}')
-    assert [f.location for f in loo.folds] == list(data.locations)
-    for fold in loo.folds:
-        assert fold.location not in fold.training and len(fold.training) == 2
-        assert fold.before['mae_mm'] == pytest.approx(REFERENCE[fold.location][0], abs=1e-3)
-        assert fold.after['mae_mm'] < 0.6 * fold.before['mae_mm']
-        assert fold.train_after['mae_mm'] < fold.train_before['mae_mm']
-        assert fold.result.code == ErrorCode.SUCCESS
-        assert set(fold.free) <= set(default_candidates(model))
-    assert loo.mean_mae_mm_before == pytest.approx(np.mean([r[0] for r in REFERENCE.values()]),
-                                                   abs=1e-3)
-    assert loo.mean_mae_mm_after < 0.35
-
-
-def test_leave_one_location_out_needs_two_locations(data, model):
-    one = SocketData(data.locations[:1], data.q[data.location == 0],
-                     data.location[data.location == 0], data.socket[data.location == 0])
-    with pytest.raises(ValueError, match='at least 2 locations'):
-        leave_one_location_out(model, one, BALL)
