@@ -38,7 +38,7 @@ from cobot_calib_ros.core.kinematics.identification.identifiability import (
 from cobot_calib_ros.core.kinematics.identification.observations import (
     PositionObservations, SphereObservations)
 from cobot_calib_ros.core.kinematics.identification.parameters import (
-    default_candidates, ParameterSet, tool_kinematics, TOOL_NAMES)
+    default_candidates, ParameterSet, tool_frames, TOOL_NAMES)
 from cobot_calib_ros.core.kinematics.identification.solvers import (
     identify, IdentificationResult, NM_CONVERGED)
 from cobot_calib_ros.core.kinematics.identification.validation import (
@@ -158,7 +158,7 @@ class CalibrationJob:
         problems = gates.joint_problems(self.model, self.data.q)
         if problems or not isinstance(self.data, SphereObservations):
             return problems
-        p = tool_kinematics(self.model, None, self.tool_xyz0, self.data.q)[0]
+        p = tool_frames(self.model, None, self.tool_xyz0, self.data.q)[:, :3, 3]
         ids = np.unique(self.data.sphere)
         centres = {int(i): p[self.data.sphere == i].mean(axis=0) for i in ids}
         return gates.distance_problems(self.data.known_distances, centres)
@@ -171,7 +171,7 @@ class CalibrationJob:
         return {'nominal': {**error_stats(nominal), 'count': len(nominal)},
                 'calibrated': {**error_stats(calibrated), 'count': len(calibrated)},
                 'spread_mm': _spread_mm(
-                    tool_kinematics(self.model, None, self.tool_xyz0, data.q)[0])}
+                    tool_frames(self.model, None, self.tool_xyz0, data.q)[:, :3, 3])}
 
     def _inputs(self, result: IdentificationResult) -> JobInputs:
         objective = result.extra.get('objective') or self.objective or (
