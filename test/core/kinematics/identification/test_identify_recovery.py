@@ -15,7 +15,7 @@ from cobot_calib_ros.core import frames
 from cobot_calib_ros.core.errors import ErrorCode
 from cobot_calib_ros.core.kinematics.identification import (
     absolute_errors, all_pairs, default_candidates, find_redundant, identify, ParameterSet,
-    PositionObservations, SphereObservations, TOOL_NAMES, tool_frames, uniform_configurations)
+    PositionObservations, SphereObservations, tool_frames, uniform_configurations)
 from sphere_scene import (CENTRES_BASE, KNOWN_DISTANCES, MODEL, sphere_data, TOOL,
                           true_robot)
 
@@ -27,10 +27,7 @@ TOLERANCE_M = 1e-9  # 1e-6 mm
 @pytest.fixture(scope='module')
 def free() -> tuple[str, ...]:
     q = uniform_configurations(MODEL, 29, 0)
-    # which of a redundant pair goes is rounding (find_redundant's caveat); with the tool kept,
-    # as the product keeps it, theta_7 and d_7 go whatever the arithmetic (kept instead,
-    # theta_7 turns a 3 cm lever: 1e-9 rad of it is far below the 1e-9 m recovered)
-    return find_redundant(MODEL, q, TOOL, default_candidates(MODEL), keep=TOOL_NAMES).kept
+    return find_redundant(MODEL, q, TOOL, default_candidates(MODEL)).kept
 
 
 @pytest.fixture(scope='module')
