@@ -9,7 +9,7 @@ class TrialClient:
 
     Ctrl-C cancels the goal and raises TrialClient.Stopped. The wait ends with a CallError when
     the repeatability_trial node is gone from the graph for GONE_AFTER s (a crashed node: after
-    the DDS lease, 20 s), or sends no feedback for ``stall_timeout`` s (it sends one at least
+    the DDS lease, 20 s) or restarted meanwhile (ros.calls.ServerWatch), or sends no feedback for ``stall_timeout`` s (it sends one at least
     every 2 s while it runs, so silence means it is hung or frozen).
     """
 
@@ -141,15 +141,18 @@ class TrialClient:
                 raise CallError('run_trial did not answer the goal within 10 s')
 
     def _follow(self, handle, trial_id: str, timeout: float | None):
-        from cobot_calib_ros.ros.calls import CallError
+        from cobot_calib_ros.ros.calls import CallError, ServerWatch
+        watch = ServerWatch(self.node, self._client)     # gone, or restarted: goal lost
         result = handle.get_result_async()
         deadline = None if timeout is None else time.monotonic() + timeout
         resume = f'resume it with: cobot-calib trial --trial-id {trial_id}'
         while not self._spin(result.done, 0.25):
             if self._interrupts:
                 return self._stop(handle, result, trial_id)
-            if self._gone():
-                raise CallError(self._gone_line(trial_id))
+            ended = watch.ended()
+            if ended:
+                raise CallError(f'{ended}; trial {trial_id} is stored up to its last '
+                                f'reading: {resume}')
             late = self._late(trial_id, deadline, timeout)
             if late:
                 raise CallError(f'{late}; trial {trial_id} {self._cancel(handle)}: check the '
