@@ -317,7 +317,7 @@ class KinematicIdentifier(Node):
         self._robot.speed_scale = self._p('speed_scale')
         run, time = collect_planned(planner, self._robot, self._store(collection_id),
                                     hold=hold, on_pose=on_pose,
-                                    cancelled=lambda: goal_handle.is_cancel_requested)
+                                    cancelled=self._stopped(goal_handle))
         last = planner.state.predictions[-1] if planner.state.predictions else None
         result.stop_reason = planner.state.stop or ''
         result.predicted_max_error = last.max_mm * 1e-3 if last else float('inf')
@@ -333,7 +333,7 @@ class KinematicIdentifier(Node):
                     f'{collection_id}: could not store the planning: {e}; check data_dir', time)
         if run.ending is Ending.DONE:
             return Collect.Result.SUCCESS, f'stopped on {run.message}', time
-        return self._ended(run, collection_id), time
+        return (*self._ended(run, collection_id), time)
 
     def _store(self, collection_id: str):
         def store(record: PoseRecord) -> None:
@@ -343,12 +343,21 @@ class KinematicIdentifier(Node):
         return store
 
     @staticmethod
+    def _stopped(goal_handle):
+        """A collection's ``cancelled``: the goal's cancel, or this node shutting down (its
+        goal then ends aborted, the collection resumable)."""
+        return lambda: goal_handle.is_cancel_requested or spin.stopping()
+
+    @staticmethod
     def _ended(run, collection_id: str) -> tuple[int, str]:
         code = {Ending.CANCELED: Collect.Result.CANCELED,
                 Ending.MOTION_FAILED: Collect.Result.MOTION_FAILED,
                 Ending.CAPTURE_FAILED: Collect.Result.CAPTURE_FAILED}[run.ending]
-        return code, (f'{collection_id}: {run.message}; give the same collection_id to '
-                      'resume')
+        why = run.message
+        if run.ending is Ending.CANCELED and spin.stopping():
+            why = ('the kinematic_identifier node is shutting down (Ctrl-C or SIGTERM): '
+                   + why.replace('canceled', 'stopped', 1))
+        return code, f'{collection_id}: {why}; give the same collection_id to resume'
 
     def _visit(self, goal_handle, collection_id: str, meta: dict, hold: float,
                result) -> tuple[int, str, RobotTime]:
@@ -376,7 +385,7 @@ class KinematicIdentifier(Node):
         before = len(stored.index)
         run = collect(plan, stored.next_index, self._robot,
                       self._store(collection_id), hold=hold, laser=laser,
-                      cancelled=lambda: goal_handle.is_cancel_requested, on_pose=on_pose)
+                      cancelled=self._stopped(goal_handle), on_pose=on_pose)
         total = self._robot.robot_seconds - start
         time = RobotTime(total - run.recorded * hold, run.recorded * hold, run.recorded)
         if run.ending is Ending.DONE:

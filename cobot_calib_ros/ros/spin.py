@@ -236,6 +236,25 @@ def log_info(logger, message: str) -> None:
                                      caller.f_lineno)
 
 
+def stopping() -> bool:
+    """Whether this process is shutting down (Ctrl-C, SIGTERM): a procedure stops at its next
+    step, as if its goal were cancelled, and its goal ends aborted."""
+    return _stopping.is_set()
+
+
+def until(ready: Callable[[], bool], timeout: float) -> bool:
+    """Look at ``ready()`` every WAKE_PERIOD until it is True (True) or ``timeout`` [s] passed
+    (False); raises Stopping as soon as the process shuts down. For a server or service to
+    appear: rclpy's wait_for_server / wait_for_service sleep through a shutdown."""
+    deadline = time.monotonic() + timeout
+    while not ready():
+        remaining = deadline - time.monotonic()
+        if remaining <= 0:
+            return False
+        pause(min(WAKE_PERIOD, remaining))
+    return True
+
+
 def pause(seconds: float) -> None:
     """Sleep ``seconds``, or raise Stopping as soon as the process shuts down."""
     if _stopping.wait(seconds):
