@@ -16,6 +16,7 @@ from cobot_calib_ros.cli.db import add_db_options
 from cobot_calib_ros.paths import DEFAULT_CELL
 
 DEFAULT_POINTS = ('P1', 'P3', 'P5')
+SUITE_WAIT = 5.0        # [s] for the robot's calls to be discovered (a running suite: < 2 s)
 
 
 def add_parser(subparsers):
@@ -48,23 +49,27 @@ def run(args) -> int:
     from cobot_calib_ros.ros import spin
     from cobot_calib_ros.ros.robot_calls import RobotCalls
     with ros_node('cobot_calib_check', args.namespace.strip('/')) as node:
-        try:
-            cell = load_cell(paths.cell_file(args.robot_cell or _suite_cell(node)))
-        except CellFileError as e:
-            return fail(str(e), EXIT_USAGE)
-        repo = store.open(paths.data_dir(args.data_dir), args.db, args.cell or (
-            args.namespace.strip('/').replace('/', '.') or None))
-        model = kinematics.model_for(cell)
-        prepare = _user_frame if args.what == 'user-frame' else _kinematics
-        try:
-            prepared = prepare(args, cell, model, repo)
-        except (OSError, KeyError, ValueError) as exc:
-            return fail(f'check {args.what}: {exc.args[0] if exc.args else exc}',
-                        EXIT_USAGE if isinstance(exc, ValueError) else EXIT_FAILED)
-        method, against, run_check, print_details = prepared
         companion = spin.Companion(node, 'clients')
         try:
-            check = run_check(RobotCalls(companion))
+            robot = RobotCalls(companion)
+            absent = robot.absent(SUITE_WAIT)
+            if absent:      # every call would wait and fail: say so before anything else
+                return fail(f'check {args.what}: {_no_suite(args, absent)}; nothing checked')
+            try:
+                cell = load_cell(paths.cell_file(args.robot_cell or _suite_cell(node)))
+            except CellFileError as e:
+                return fail(str(e), EXIT_USAGE)
+            repo = store.open(paths.data_dir(args.data_dir), args.db, args.cell or (
+                args.namespace.strip('/').replace('/', '.') or None))
+            model = kinematics.model_for(cell)
+            prepare = _user_frame if args.what == 'user-frame' else _kinematics
+            try:
+                prepared = prepare(args, cell, model, repo)
+            except (OSError, KeyError, ValueError) as exc:
+                return fail(f'check {args.what}: {exc.args[0] if exc.args else exc}',
+                            EXIT_USAGE if isinstance(exc, ValueError) else EXIT_FAILED)
+            method, against, run_check, print_details = prepared
+            check = run_check(robot)
         except (PortError, ValueError) as exc:
             return fail(f'check stopped: {exc}; nothing stored')
         except KeyboardInterrupt:
@@ -72,6 +77,19 @@ def run(args) -> int:
         finally:
             companion.destroy()          # its thread stops before the session shuts down
     return _report(args, repo, check, method, against, print_details)
+
+
+def _no_suite(args, absent: list[str]) -> str:
+    """Why the check cannot run: no suite at all, or which of its nodes are missing."""
+    from cobot_calib_ros.cli.common import domain_id
+    from cobot_calib_ros.ros.robot_calls import RobotCalls
+    namespace = args.namespace.strip('/')
+    where = f'ROS_DOMAIN_ID={domain_id()}' + (f' in namespace /{namespace}' if namespace
+                                               else '')
+    if len(absent) == len(RobotCalls.CALLS):
+        return f'no suite running on {where}; start one with cobot-calib up'
+    return (f'the suite on {where} is missing {", ".join(absent)}; start it whole with '
+            'cobot-calib up')
 
 
 def _suite_cell(node) -> str:

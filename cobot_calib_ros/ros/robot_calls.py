@@ -43,6 +43,9 @@ RobotCallError = PortError     # a move or capture that did not happen (MoveFail
 class RobotCalls:
     """The RobotPort; ``operator``: the node's name, for its ``confirm_touch`` service."""
 
+    CALLS = ('move_to (mock_robot, or robot_adapter for a driver)',    # what absent() names
+             'capture_joints (joint_state_monitor)', 'probe/average (proximity_sensor)')
+
     def __init__(self, answers: Companion, speed_scale: float = 0.0, *,
                  probe_window: float = 0.2, operator: str = '') -> None:
         self._answers = answers
@@ -66,17 +69,20 @@ class RobotCalls:
 
     def missing(self, timeout: float = SERVER_WAIT) -> str:
         """'' when move_to, capture_joints and probe/average answer, else what is missing."""
-        missing = []
         try:
-            if not until(self.move_client.server_is_ready, timeout):
-                missing.append('move_to (mock_robot, or robot_adapter for a driver)')
-            for client, who in ((self.capture_client, 'joint_state_monitor'),
-                                (self.probe_client, 'proximity_sensor')):
-                if not until(client.service_is_ready, timeout):
-                    missing.append(f'{client.srv_name} ({who})')
+            missing = self.absent(timeout)
         except Stopping as e:
             return str(e)
         return f'not available: {", ".join(missing)}; is the node suite up?' if missing else ''
+
+    def absent(self, timeout: float = SERVER_WAIT) -> list[str]:
+        """Which of move_to, capture_joints and probe/average are not on the graph after up to
+        ``timeout`` s (one wait for all: as soon as all are there); Stopping."""
+        ready = dict(zip(self.CALLS, (self.move_client.server_is_ready,
+                                      self.capture_client.service_is_ready,
+                                      self.probe_client.service_is_ready)))
+        until(lambda: all(is_ready() for is_ready in ready.values()), timeout)
+        return [name for name, is_ready in ready.items() if not is_ready()]
 
     def move(self, goal: MoveTo.Goal) -> MoveTo.Result:
         """Run a move_to goal to its end (MOVE_TIMEOUT); MoveFailed unless it succeeded (the
