@@ -38,7 +38,8 @@ from cobot_calib_ros.core.kinematics.collection import collect, Ending, PoseReco
 from cobot_calib_ros.core.kinematics.planned_collection import collect_planned, RobotTime
 from cobot_calib_ros.core.kinematics.planning import (PlanSettings, Prediction,
                                                       sphere_candidates, SpherePlanner,
-                                                      tilt_grid_deg, TILT_STEP_DEG)
+                                                      tilt_grid_deg, TILT_STEP_DEG,
+                                                      too_few_poses)
 from cobot_calib_ros.core.kinematics.identification.observations import (
     PositionObservations, SphereObservations)
 from cobot_calib_ros.core.kinematics.identification.solvers import LOSSES, SOLVERS
@@ -234,6 +235,13 @@ class KinematicIdentifier(Node):
                 return goal.collection_id, meta
         source = goal.source or 'spheres'
         region = goal.region or 'volume'
+        if goal.planned and source != 'spheres':
+            raise ValueError('planned applies to source spheres only')
+        if goal.planned:        # refused in a second, before the candidate IK and any move
+            problem = too_few_poses(self._cell, self._model,
+                                    goal.max_poses or PLANNED_MAX_POSES)
+            if problem:
+                raise ValueError(problem)
         if source == 'spheres':
             if goal.planned:
                 step_deg = math.degrees(self._p('candidate_tilt_step'))
@@ -261,8 +269,6 @@ class KinematicIdentifier(Node):
                                   'coupling_offset_xyz': self._cell.spheres.coupling_offset[:3, 3]}
         else:
             raise ValueError(f'unknown source {source!r}; use spheres or laser_tracker')
-        if goal.planned and source != 'spheres':
-            raise ValueError('planned applies to source spheres only')
         collection_id = goal.collection_id or record_id(
             source if source == 'spheres' else f'tracker-{region}')
         meta = self._collections.create(
