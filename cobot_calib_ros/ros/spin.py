@@ -153,9 +153,10 @@ def _finish_work_in_flight(executor, context) -> None:
 
     while context.ok() and time.monotonic() < deadline and busy():
         executor.spin_once(timeout_sec=WAKE_PERIOD)
-    if context.ok() and busy():
-        print(f'work still in flight {STOP_GRACE:.0f} s after the stop: the node is torn '
-              'down under it', file=sys.stderr, flush=True)
+    if context.ok() and busy():     # where it waits, in the node's log
+        print(f'work still in flight {STOP_GRACE:.0f} s after the stop, torn down under it; '
+              'every thread:', file=sys.stderr, flush=True)
+        faulthandler.dump_traceback(all_threads=True)
 
 
 def _queued(executor) -> bool:
