@@ -148,7 +148,7 @@ class TrialClient:
         resume = f'resume it with: cobot-calib trial --trial-id {trial_id}'
         while not self._spin(result.done, 0.25):
             if self._interrupts:
-                return self._stop(handle, result, trial_id)
+                return self._stop(handle, result, trial_id, watch)
             ended = watch.ended()
             if ended:
                 raise CallError(f'{ended}; trial {trial_id} is stored up to its last '
@@ -189,8 +189,9 @@ class TrialClient:
         return ('not canceled (no answer to the cancel within '
                 f'{self.CANCEL_WAIT:.0f} s: it may go on if the node recovers)')
 
-    def _stop(self, handle, result, trial_id: str):
-        """Ctrl-C: cancel the goal, wait briefly for the node to acknowledge it and stop."""
+    def _stop(self, handle, result, trial_id: str, watch):
+        """Ctrl-C: cancel the goal, wait briefly for the node to acknowledge it and stop.
+        ``watch``: the goal's ServerWatch (a restarted node lost the goal: nothing to stop)."""
         from action_msgs.msg import GoalStatus
         self._interrupts = 0                             # a second Ctrl-C ends the waits
         cancel = handle.cancel_goal_async()
@@ -200,6 +201,10 @@ class TrialClient:
             self._spin(result.done, self.CANCEL_WAIT)
         if result.done() and result.result().status != GoalStatus.STATUS_CANCELED:
             return result.result().result                # it ended before the cancel came
+        if not acknowledged and watch.restarted():
+            raise self.Stopped(f'{watch.lost_line()}; trial {trial_id} is stored up to its '
+                               f'last reading: resume it with: cobot-calib trial --trial-id '
+                               f'{trial_id}')
         raise self.Stopped(self._stopped_line(trial_id, acknowledged, result.done()))
 
     def _stopped_line(self, trial_id: str, acknowledged: bool, stopped: bool) -> str:
