@@ -126,7 +126,9 @@ class RobotCalls:
             f'then call {full_name} (std_srvs/Trigger)')
         self.awaiting_operator.set()
         try:
-            confirmed = self._confirmed.wait(TOUCH_TIMEOUT)
+            confirmed = until(self._confirmed.is_set, TOUCH_TIMEOUT)
+        except Stopping as e:
+            raise MoveFailed(f'touch {name}: {e}')
         finally:
             self.awaiting_operator.clear()
         if not confirmed:
