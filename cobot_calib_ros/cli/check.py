@@ -41,10 +41,12 @@ def add_parser(subparsers):
 
 
 def run(args) -> int:
-    from cobot_calib_ros import paths, store
-    from cobot_calib_ros.core import kinematics
-    from cobot_calib_ros.core.cell import CellFileError
-    from cobot_calib_ros.loaders import load_cell
+    from cobot_calib_ros.cli.common import cell_problem
+    if args.poses is not None and args.poses < 4:       # the user's input first (exit 2)
+        return fail(f'check {args.what}: --poses {args.poses}: give 4 or more', EXIT_USAGE)
+    problem = cell_problem(args.robot_cell) if args.robot_cell else ''
+    if problem:
+        return fail(problem, EXIT_USAGE)
     from cobot_calib_ros.core.robot_port import PortError
     from cobot_calib_ros.ros import spin
     from cobot_calib_ros.ros.robot_calls import RobotCalls
@@ -55,6 +57,10 @@ def run(args) -> int:
             absent = robot.absent(SUITE_WAIT)
             if absent:      # every call would wait and fail: say so before anything else
                 return fail(f'check {args.what}: {_no_suite(args, absent)}; nothing checked')
+            from cobot_calib_ros import paths, store    # seconds of imports: after the refusal
+            from cobot_calib_ros.core import kinematics
+            from cobot_calib_ros.core.cell import CellFileError
+            from cobot_calib_ros.loaders import load_cell
             try:
                 cell = load_cell(paths.cell_file(args.robot_cell or _suite_cell(node)))
             except CellFileError as e:
@@ -140,8 +146,6 @@ def _kinematics(args, cell, model, repo):
         raise ValueError(f'cell {cell.name!r} has no spheres (config/cells/iiwa7_close.yaml '
                          'has); give --robot-cell')
     poses = KINEMATIC_POSES if args.poses is None else args.poses
-    if poses < 4:
-        raise ValueError(f'--poses {poses}: give 4 or more')
     record = repo.kinematics.active(model.name)
     tool = np.array(cell.spheres.coupling_offset, dtype=float)
     if record is not None:
