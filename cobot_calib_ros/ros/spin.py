@@ -18,7 +18,7 @@ On Ctrl-C or SIGTERM a node's work in flight ends first: every ``wait`` for an a
 ``Stopping`` (a TimeoutError), so a goal that waits on the robot fails the way a lost robot
 makes it fail (a trial or collection is marked aborted, resumable, its data on disk, and the
 goal ends aborted for its client), while the executor still spins, for up to STOP_GRACE s;
-then the node is destroyed. rclpy's own signal handlers are not installed for this: they shut
+then the node is destroyed and the process exits 0 at once (_exit_now says why). rclpy's own signal handlers are not installed for this: they shut
 the context down first, and every goal still running then failed with a traceback.
 """
 from __future__ import annotations
