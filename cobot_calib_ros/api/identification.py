@@ -154,7 +154,8 @@ def _collect(client: IdentifyClient, goal, say, spheres: str):
         raise IdentificationFailed(f'{what}: {e}', spheres) from None
     if result.error_code != 0 or status != GoalStatus.STATUS_SUCCEEDED:
         why = result.message or 'the node ended the goal without a result (see its log)'
-        raise IdentificationFailed(f'{what} failed: {why}', spheres)
+        refused = result.error_code == client.Collect.Result.INVALID_GOAL   # nothing stored
+        raise IdentificationFailed(f'{what} failed: {why}', '' if refused else spheres)
     return result
 
 
