@@ -8,8 +8,10 @@ BagPlayer with /clock whose services are spun, and the client node spun on a thr
 own meanwhile), drains what comes back and leaves; the player, the session and the suite are
 shut down in that order whatever happened.
 
-A check whose nodes take the bag best effort replays in passes (``passes``): a pass that lost
-something is followed by another at half the rate, not below ``min(rate, min_rate)``.
+A check whose nodes take the bag best effort gives the player flow control
+(bags.player.FlowControl: it counts what came back from the node, so the node's queue cannot
+overflow whatever the load) and replays in passes (``passes``): a pass that lost something on
+the best-effort way is followed by another at half the rate, not below ``min(rate, min_rate)``.
 """
 from __future__ import annotations
 
@@ -61,13 +63,14 @@ class ReplaySuite:
 
     @contextlib.contextmanager
     def playing(self, bag, topics: list[str], rate: float, clock_hz: float,
-                waits_for: str = ''):
-        """A BagPlayer of ``topics`` with /clock at ``clock_hz``, its services spun, and the
-        client node spun on a thread of its own while the block runs. ``waits_for``: name of
-        the node that must subscribe first (within SUBSCRIBE_TIMEOUT), else CheckError."""
+                waits_for: str = '', flow=None):
+        """A BagPlayer of ``topics`` with /clock at ``clock_hz`` (and ``flow`` control), its
+        services spun, and the client node spun on a thread of its own while the block runs.
+        ``waits_for``: name of the node that must subscribe first (within SUBSCRIBE_TIMEOUT),
+        else CheckError."""
         from cobot_calib_ros.bags.player import BagPlayer, spinning
         player = BagPlayer(bag, rate=rate, topics=topics, clock_hz=clock_hz,
-                           wait_subscribers=SUBSCRIBE_TIMEOUT, report=self.say,
+                           wait_subscribers=SUBSCRIBE_TIMEOUT, report=self.say, flow=flow,
                            context=self.node.context)
         self.players.append(player)
         stop_spinning = spin_in_background(self.executor, self.node.context)
@@ -89,6 +92,12 @@ def passes(player, rate: float, count: int, min_rate: float) -> Iterator[int]:
         if number > 1:
             player.rate = max(min(rate, min_rate), player.rate / 2)
         yield number
+
+
+def flow_note(result) -> str:
+    """', N sent again, M written off' of a flow-controlled PlayResult ('' when none)."""
+    return (f', {result.resent} sent again' if result.resent else '') + (
+        f', {result.written_off} written off as lost' if result.written_off else '')
 
 
 def spin_in_background(executor, context) -> Callable[[], None]:
