@@ -478,6 +478,8 @@ def main(args=None) -> None:
             result = player.play()
         log.info(f'published {result.published} messages in {result.wall_s:.3f} s '
                  f'({result.speed:.2f}x real time)')
+        if result.written_off:
+            log.warning(f'{result.written_off} messages never counted on ~/consumed')
         if result.unacknowledged:
             log.warning('subscribers did not acknowledge the last messages on '
                         + ', '.join(result.unacknowledged))
