@@ -300,7 +300,8 @@ def _replay(bag, expected: dict, rate: float, clock_hz: float, wanted: int, need
                 missing = len(needed - {x[0] for x in samples})
                 say(f'pass {attempt}: replayed {result.published} voltages in '
                     f'{result.wall_s:.2f} s ({result.speed:.1f}x real time, window {WINDOW}'
-                    f'{replay_harness.flow_note(result)}), {len(samples) - before}/{wanted} distances back; '
+                    f'{replay_harness.flow_note(result)}), '
+                    f'{len(samples) - before}/{wanted} distances back; '
                     + (f'{missing} of the {len(needed)} readings the averages need still '
                        'missing' if missing else
                        f'all {len(needed)} readings the averages need are in'))

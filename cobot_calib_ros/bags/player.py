@@ -12,7 +12,22 @@
   for them every few hundred messages plays slower than real time), and they only say the
   sample reached the reader's history, which a slow subscriber then overwrites (keep-last) all
   the same; a publisher with keep-all history did not block either (measured). A subscriber
-  that must see every message at rate 0 needs a history as deep as the bag, or a finite rate.
+  that must see every message needs a history as deep as the bag, a rate it keeps up with
+  whatever the load, or flow control.
+- Flow control (``flow``; off unless asked for, so plain replay is ``ros2 bag play``): the
+  consumers report a running count of the counted messages they have taken (a replay check
+  counts what came back from the node under test; another process publishes its count on
+  ``~/consumed``, std_msgs/UInt64, given ``window``). The player keeps at most ``window``
+  counted messages published and not yet counted: it waits before the next one with /clock
+  held at the last message's stamp (a window in sim time cannot pass while the pipeline is
+  behind), and the rate is only an upper bound. A window no deeper than the consumer's queue
+  cannot overflow it, whatever the load. Until the first is counted, what was sent goes out
+  again every RESEND_S (messages sent before a subscription has matched the player on the
+  subscriber's side are lost; with each, the newest message of every other topic sent before
+  it, such as its camera_info); a count that does not move for WRITE_OFF_S while messages are
+  out writes those off as lost (``PlayResult.written_off``), so a message lost on a best-effort
+  path cannot stop the replay. play() returns when every counted message is counted or written
+  off.
 - Before starting it waits, up to ``wait_subscribers`` seconds, until every topic has a
   subscriber matched to its publisher (and every subscriber the graph knows of is matched):
   a publisher needs 0.02-3.5 s to match one in another process here, and messages sent before
@@ -29,10 +44,10 @@ play() runs on the caller's thread.
 As its own process (``main``; ``ros2 run cobot_calib_ros bag_player --ros-args -p bag:=DIR
 -p rate:=2.0 -p clock_hz:=40.0``, also ``.venv/lib/cobot_calib_ros/bag_player``) it takes the
 parameters ``bag``, ``rate``, ``loop``, ``topics``, ``clock_hz`` (0: no /clock),
-``start_paused`` and ``wait_subscribers`` (read at start-up, described in ``ros2 param
-describe``), plays the bag once (or until shut down with ``loop``) and exits. Given a Bag from
-Python (``cobot-calib replay``, the --check modules) the arguments are the values, and the
-parameters show them.
+``start_paused``, ``wait_subscribers`` and ``window`` (flow control with ``~/consumed``; read
+at start-up, described in ``ros2 param describe``), plays the bag once (or until shut down
+with ``loop``) and exits. Given a Bag from Python (``cobot-calib replay``, the --check
+modules) the arguments are the values, and the parameters show them.
 """
 from __future__ import annotations
 
@@ -179,7 +194,11 @@ class BagPlayer(Node):
         self.flow = flow
         self._sent = 0                  # counted messages published (flow control)
         self._written_off = 0
-        self._unanswered: list = []     # (topic, bytes) sent before anything was consumed
+        # before anything was consumed: the counted messages sent, each after the newest
+        # message of every other topic sent before it (a camera_info before its image), to
+        # send again; (topic, bytes)
+        self._unanswered: list = []
+        self._lead_in: dict = {}        # topic -> bytes, not counted, since the last counted
         self._answered = False          # something was consumed (or written off)
 
     def _select(self, bag: Bag, rate: float, topics) -> dict:
@@ -333,7 +352,10 @@ class BagPlayer(Node):
                 self._tick_clock(time.monotonic_ns(), stamp, stamp)
             publishers[message.topic].publish(message.rawdata)
             if flow is not None and not self._answered:
-                self._unanswered.append((message.topic, message.rawdata))
+                self._lead_in[message.topic] = message.rawdata
+                if counted:
+                    self._unanswered += self._lead_in.items()
+                    self._lead_in = {}
             if counted:
                 self._sent += 1
             self._last_publish_wall = time.monotonic_ns()
@@ -380,7 +402,7 @@ class BagPlayer(Node):
     def _answer(self) -> None:
         """The path to the consumers works (or is given up on): no more sending again."""
         self._answered = True
-        self._unanswered.clear()
+        self._unanswered, self._lead_in = [], {}
 
     def _hold(self, stamp: int) -> int:
         """While paused: keep /clock at ``stamp``; the wall time [ns] spent paused."""
