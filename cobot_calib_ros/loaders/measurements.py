@@ -10,6 +10,7 @@ it, which says what the columns are (README, "Measurement files"):
     frames: {measured_in: camera, base: base_link, tip: wrist_3_link, target: board}
     # pose:    position: [x, y, z]; rotation: [a, b, c] (rpy | rotvec) or [qw, qx, qy, qz]
     #          (quaternion_wxyz); rotation_format; camera: fixed | on_arm; rotation_weight [m/rad]
+    #          or auto (each by its own scatter on the training rows)
     # points:  markers: {m1: [x1, y1, z1], m2: [x2, y2, z2]}  (an empty cell: not seen; NaN
     #          or inf is refused)
     # spheres: sphere: COLUMN; distances: [[i, j, D], ...]; ball: [x, y, z] (in the tip)
@@ -219,7 +220,7 @@ def load_measurements(path: str | Path) -> MeasurementFile:
     sample = np.arange(len(rows))
     target, values, distances = None, None, ()
     ball = _vector(side, 'ball', sidecar, length)
-    weight = float(side.get('rotation_weight', DEFAULT_ROTATION_WEIGHT))
+    weight = _rotation_weight(side, sidecar)
     if kind == 'pose':
         values = _poses(path, side, header, rows, length, angle)
     elif kind == 'points':
@@ -256,6 +257,21 @@ def load_measurements(path: str | Path) -> MeasurementFile:
     return MeasurementFile(str(path), data, sample, tuple(joints), columns,
                            dict(side.get('frames') or {}), len(rows),
                            _noise(side, sidecar, length), length / angle)
+
+
+def _rotation_weight(side: dict, sidecar: Path) -> float | None:
+    """The sidecar's rotation_weight [m/rad]; None for ``auto``."""
+    value = side.get('rotation_weight', DEFAULT_ROTATION_WEIGHT)
+    if value == 'auto':
+        return None
+    try:
+        weight = float(value)
+    except (TypeError, ValueError):
+        weight = -1.0
+    if not (weight > 0.0 and np.isfinite(weight)):
+        raise _fail(sidecar, f'"rotation_weight" must be a number > 0 [m/rad] or auto, got '
+                             f'{value!r}')
+    return weight
 
 
 def _noise(side: dict, sidecar: Path, length: float) -> float:
