@@ -81,10 +81,6 @@ class ErrorModel:
         return self.name.removesuffix(compliance.SUFFIX)
 
     @property
-    def geometric(self) -> str:
-        return self.name.removesuffix(compliance.SUFFIX)
-
-    @property
     def candidates(self) -> tuple[str, ...]:
         extra = compliance.candidates(self.model) if self.name != self.geometric else ()
         if self.geometric == 'offsets':
