@@ -238,7 +238,7 @@ def identify_file(source: str | Path, measurement: str, *, urdf: str | None = No
                          f'{measurement}: pass --measurement {file.measurements.kind}')
     robot = robot_model(source, file.frames, urdf, base_link, tip_link, dh)
     errors = mf.ErrorModel(robot, model or ('mdh' if robot.kind == 'mdh' else 'full'))
-    file = file.in_joint_order(robot.joint_names)
+    file = file.in_joint_order(robot.joint_names, robot.prismatic)
     leave_out = leave_out or (None if folds else _default_group(file))
     if leave_out:
         labels, held = mf.by_group(file.groups(leave_out))
