@@ -2,11 +2,15 @@
 
 Replay: a bag of BENCH_BAG_REPLAY_SECONDS (default 20) of 1 kHz JointState (7 joints) is
 played by `cobot-calib replay` (its own process) to a raw, reliable, keep-last 1000 subscriber
-in this bench process, at ``--rate`` 4, 8, 16 and max. Figures per rate: the real-time
-factor the player reports (recorded time played / wall time from its first to its last
-publish), the fraction of messages the subscriber received (each counted once, by stamp), and
-the player's CPU (% of one core over its whole run, start-up included). Goal: >= 4x real time
-with nothing lost.
+in this bench process, at ``--rate`` 4, 8, 16 and max: plain (``bag_replay_rate4_*``: as
+``ros2 bag play``, no back-pressure) and with flow control (``bag_replay_window_rate4_*``:
+``--window`` WINDOW, the subscriber publishing how many it has taken on
+/bag_player/consumed every REPORT_EVERY messages and every spin). Figures per rate: the
+real-time factor the player reports (recorded time played / wall time from its first to its
+last publish), the fraction of messages the subscriber received (each counted once, by
+stamp), and the player's CPU (% of one core over its whole run, start-up included). Goal:
+>= 4x real time with nothing lost (with flow control nothing can be: the subscriber's history
+holds the window; the speed is what the load leaves).
 
 Publish cost: one JointState published from its recorded bytes (rclpy publish_raw, what the
 player does) against deserialize_message + publish of the message object, no subscriber.
@@ -40,6 +44,7 @@ import time
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import JointState
+from std_msgs.msg import UInt64
 
 import benchlib
 from benchlib import BenchFailed, Figures, Ros
@@ -55,6 +60,8 @@ STAMP = struct.Struct('<iI')
 PUBLISHED = re.compile(r'published (\d+) messages in ([\d.]+) s \(([\d.]+|inf)x real time\)')
 PUBLISH_CALLS = 20_000
 RATES = ('4', '8', '16', 'max')
+WINDOW = 500             # messages out at most with flow control (the subscriber holds 1000)
+REPORT_EVERY = 100       # messages between two counts on /bag_player/consumed
 
 
 def cobot_calib(*args: str) -> list[str]:
@@ -79,14 +86,32 @@ def stamp_key(data: bytes) -> int:
     return sec * 1000 + nanosec
 
 
-def measure_replay(ros: Ros, env: dict, bag: Path, count: int, rate: str) -> Figures:
-    """Play the bag at ``rate`` to a subscriber here; speed, received fraction, player CPU."""
+def replay_label(rate: str, window: int) -> str:
+    """'rate4', 'max', 'window_rate4', ... in the figures' names."""
+    return ('window_' if window else '') + ('max' if rate == 'max' else f'rate{rate}')
+
+
+def measure_replay(ros: Ros, env: dict, bag: Path, count: int, rate: str,
+                   window: int = 0) -> Figures:
+    """Play the bag at ``rate`` (flow control with ``window`` > 0) to a subscriber here; speed,
+    received fraction, player CPU."""
     received: set[int] = set()
+    progress = ros.node.create_publisher(UInt64, 'bag_player/consumed', QoSProfile(
+        depth=10, reliability=ReliabilityPolicy.RELIABLE)) if window else None
+
+    def report() -> None:
+        if progress is not None:
+            progress.publish(UInt64(data=len(received)))
+
+    def on_message(data: bytes) -> None:
+        received.add(stamp_key(data))
+        if len(received) % REPORT_EVERY == 0:
+            report()
     sub = ros.node.create_subscription(
-        JointState, 'joint_states', lambda data: received.add(stamp_key(data)),
+        JointState, 'joint_states', on_message,
         QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE), raw=True)
     player = subprocess.Popen(cobot_calib('replay', str(bag), '--rate', rate,
-                                          '--wait-subscribers', '60'),
+                                          '--wait-subscribers', '60', '--window', str(window)),
                               stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                               env=env)
     started = time.monotonic()
@@ -94,6 +119,7 @@ def measure_replay(ros: Ros, env: dict, bag: Path, count: int, rate: str) -> Fig
     try:
         while player.poll() is None and time.monotonic() - started < 600:
             ros.spin_for(0.05)
+            report()
             value = benchlib.process_cpu_seconds(player.pid)
             cpu = value if value == value else cpu              # NaN once it has exited
         wall = time.monotonic() - started
@@ -103,10 +129,13 @@ def measure_replay(ros: Ros, env: dict, bag: Path, count: int, rate: str) -> Fig
         if player.poll() is None:
             player.kill()
         ros.node.destroy_subscription(sub)
+        if progress is not None:
+            ros.node.destroy_publisher(progress)
     match = PUBLISHED.search(out)
     if player.returncode != 0 or match is None:
-        raise BenchFailed(f'replay --rate {rate} failed ({player.returncode}): {out.strip()}')
-    label = 'max' if rate == 'max' else f'rate{rate}'
+        raise BenchFailed(f'replay --rate {rate} --window {window} failed '
+                          f'({player.returncode}): {out.strip()}')
+    label = replay_label(rate, window)
     got = len(received)
     return {
         f'bag_replay_{label}_speed_x': (float(match.group(3)), 'x real time'),
@@ -146,11 +175,12 @@ def run_replay(seconds: float) -> Figures:
         bag = Path(scratch) / 'joint_states_1khz'
         count = joint_states_bag(bag, seconds)
         figures.update(measure_publish_cost(ros))
-        for rate in RATES:
-            load = benchlib.load_average_1min()
-            figures.update(measure_replay(ros, env, bag, count, rate))
-            figures[f'bag_replay_{"max" if rate == "max" else "rate" + rate}_load_average'] = (
-                0.5 * (load + benchlib.load_average_1min()), 'load')
+        for window in (0, WINDOW):
+            for rate in RATES:
+                load = benchlib.load_average_1min()
+                figures.update(measure_replay(ros, env, bag, count, rate, window))
+                figures[f'bag_replay_{replay_label(rate, window)}_load_average'] = (
+                    0.5 * (load + benchlib.load_average_1min()), 'load')
     return figures
 
 

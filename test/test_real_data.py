@@ -19,7 +19,8 @@ POSITIONER = DATA / 'industrial-calibration-positioner'
 UR10E_NOMINAL_MM, UR10E_MM = 4.528, 4.156
 UR10E_NOMINAL_MRAD, UR10E_MRAD = 9.933, 7.608
 MUKCA_NOMINAL_MM, MUKCA_MM = 0.705, 0.232
-POSITIONER_NOMINAL_MM, POSITIONER_MM, POSITIONER_MRAD = 0.465, 0.414, 0.924
+MUKCA_COMPLIANCE_MM = 0.136            # per location 0.090, 0.080, 0.249
+POSITIONER_NOMINAL_MM, POSITIONER_MM, POSITIONER_MRAD = 0.460, 0.410, 0.927
 
 
 def held_out(report: dict, which: str, key: str) -> float:
@@ -49,9 +50,31 @@ def test_mukca_iiwa14_leave_one_location_out():
     assert held_out(r, 'calibrated', 'mean_mm') == pytest.approx(MUKCA_MM, abs=2e-3)
 
 
+def test_mukca_iiwa14_with_joint_compliance_leave_one_location_out():
+    """Issue 28 item 7: the geometric model leaves 0.407 mm at the raised location; a joint
+    compliance per revolute joint (full+compliance: a deflection in proportion to the joint's
+    gravity torque) brings the held-out MAE to 0.136 mm (goal <= 0.20 mm: met), the raised
+    location to 0.249 mm. The first and last axes carry no gravity torque here (a1 vertical,
+    the ball on a7's axis): their compliances are dropped."""
+    r = identify_file(MUKCA / 'kuka_14', 'spheres', urdf=str(MUKCA / 'iiwa14.urdf'),
+                      base_link='base_link', tip_link='tool0', leave_out='location',
+                      model='full+compliance')
+    assert r['verdict']['passed'] and r['converged']
+    assert held_out(r, 'nominal', 'mean_mm') == pytest.approx(MUKCA_NOMINAL_MM, abs=2e-3)
+    assert held_out(r, 'calibrated', 'mean_mm') == pytest.approx(MUKCA_COMPLIANCE_MM, abs=2e-3)
+    assert held_out(r, 'calibrated', 'mean_mm') <= 0.20
+    assert [round(f['calibrated']['mean_mm'], 3) for f in r['folds']] == \
+        pytest.approx([0.090, 0.080, 0.249], abs=2e-3)
+    springs = {p['name'] for p in r['identified'] if p['name'].startswith('compliance_')}
+    assert springs == {f'compliance_joint_a{i}' for i in range(2, 7)}
+
+
 def test_two_axis_positioner_dh_five_fold():
     """Anchor 0.465 -> 0.413 mm, 0.932 -> 0.922 mrad; goal <= 0.41 mm with the DH model
-    calibrated: missed by a few micrometres."""
+    calibrated. The sidecar's rotation_weight is auto (issue 28 item 7): rotation counts
+    against position by the ratio of their scatter under the nominal model on each fold's
+    training rows (~0.5 m/rad; at 1 m/rad: 0.465 -> 0.414 mm, 0.924 mrad). 0.40999 mm: at the
+    goal, with no margin to speak of."""
     r = identify_file(POSITIONER / 'measurements.csv', 'pose',
                       dh=str(POSITIONER / 'positioner_dh.yaml'), folds=5)
     assert r['model'] == 'mdh' and {p['name'] for p in r['identified']} == {'alpha_2', 'a_2'}
@@ -59,3 +82,5 @@ def test_two_axis_positioner_dh_five_fold():
     assert held_out(r, 'nominal', 'rmse_mm') == pytest.approx(POSITIONER_NOMINAL_MM, abs=2e-3)
     assert held_out(r, 'calibrated', 'rmse_mm') == pytest.approx(POSITIONER_MM, abs=2e-3)
     assert held_out(r, 'calibrated', 'rot_rms_mrad') == pytest.approx(POSITIONER_MRAD, abs=2e-3)
+    assert held_out(r, 'calibrated', 'rmse_mm') <= 0.41
+    assert r['rotation_weight'] == pytest.approx(0.497, abs=5e-3)

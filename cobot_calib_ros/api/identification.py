@@ -154,7 +154,8 @@ def _collect(client: IdentifyClient, goal, say, spheres: str):
         raise IdentificationFailed(f'{what}: {e}', spheres) from None
     if result.error_code != 0 or status != GoalStatus.STATUS_SUCCEEDED:
         why = result.message or 'the node ended the goal without a result (see its log)'
-        raise IdentificationFailed(f'{what} failed: {why}', spheres)
+        refused = result.error_code == client.Collect.Result.INVALID_GOAL   # nothing stored
+        raise IdentificationFailed(f'{what} failed: {why}', '' if refused else spheres)
     return result
 
 
@@ -237,7 +238,7 @@ def identify_file(source: str | Path, measurement: str, *, urdf: str | None = No
                          f'{measurement}: pass --measurement {file.measurements.kind}')
     robot = robot_model(source, file.frames, urdf, base_link, tip_link, dh)
     errors = mf.ErrorModel(robot, model or ('mdh' if robot.kind == 'mdh' else 'full'))
-    file = file.in_joint_order(robot.joint_names)
+    file = file.in_joint_order(robot.joint_names, robot.prismatic)
     leave_out = leave_out or (None if folds else _default_group(file))
     if leave_out:
         labels, held = mf.by_group(file.groups(leave_out))

@@ -44,6 +44,7 @@ TOL_M = 1e-6
 TOL_RAD = 1e-6
 SERVICE_TIMEOUT = replay_harness.SERVICE_TIMEOUT
 MARKS_TIMEOUT = 10.0     # [s] after play for the last marks to arrive
+MARKS_WINDOW = 50        # marks out at most (the check's subscription holds 100)
 
 
 CheckError = replay_harness.CheckError
@@ -149,6 +150,7 @@ def _replay_and_calibrate(bag, expected: dict, rate: float, clock_hz: float, say
 
     from cobot_calib_ros import paths
     from cobot_calib_ros.api.launcher import NodeSpec
+    from cobot_calib_ros.bags.player import FlowControl
     from cobot_calib_ros.ros.calls import call_service, CallError
 
     kinematics = str(expected.get('kinematics', 'nominal'))
@@ -170,7 +172,10 @@ def _replay_and_calibrate(bag, expected: dict, rate: float, clock_hz: float, say
         harness.wait_for(calibrate.service_is_ready, 'calibrate_user_frame')
         played: dict = {}
         recaptured = None
-        with harness.playing(bag, ['/joint_states', CAPTURES_TOPIC], rate, clock_hz) as player:
+        # the marks are counted as they come back, so play() ends when all are in
+        flow = FlowControl(MARKS_WINDOW, lambda: len(marks), frozenset([CAPTURES_TOPIC]))
+        with harness.playing(bag, ['/joint_states', CAPTURES_TOPIC], rate, clock_hz,
+                             waits_for='joint_state_monitor', flow=flow) as player:
             def play() -> None:
                 try:
                     played['result'] = player.play()

@@ -8,8 +8,10 @@ BagPlayer with /clock whose services are spun, and the client node spun on a thr
 own meanwhile), drains what comes back and leaves; the player, the session and the suite are
 shut down in that order whatever happened.
 
-A check whose nodes take the bag best effort replays in passes (``passes``): a pass that lost
-something is followed by another at half the rate, not below ``min(rate, min_rate)``.
+A check whose nodes take the bag best effort gives the player flow control
+(bags.player.FlowControl: it counts what came back from the node, so the node's queue cannot
+overflow whatever the load) and replays in passes (``passes``): a pass that lost something on
+the best-effort way is followed by another at half the rate, not below ``min(rate, min_rate)``.
 """
 from __future__ import annotations
 
@@ -22,8 +24,12 @@ import tempfile
 import threading
 import time
 
-SERVICE_TIMEOUT = 30.0   # [s] for the nodes under test to come up
-SUBSCRIBE_TIMEOUT = 10.0  # [s] for them to subscribe to the player's topics
+# The nodes under test are waited for until they are up or one of them has exited, so a slow
+# start on a loaded machine is not a failed check; the limit only ends a wait on a node that
+# runs but never comes up (measured: over 30 s to come up at load 30).
+STARTUP_LIMIT = 300.0    # [s] for the nodes under test to come up, and to subscribe to the player
+SERVICE_TIMEOUT = STARTUP_LIMIT
+LOOK_PERIOD = 0.5        # [s] between looks at whether a node under test has exited
 
 
 class CheckError(RuntimeError):
@@ -51,32 +57,38 @@ class ReplaySuite:
                                         for n, c in failed.items())
 
     def wait_for(self, done: Callable[[], bool], what: str,
-                 timeout: float = SERVICE_TIMEOUT) -> None:
+                 timeout: float = STARTUP_LIMIT) -> None:
         """Spin the client node until done(); CheckError '<what> did not come up' with the
-        logs' folder and any node that exited."""
+        logs' folder as soon as a node under test has exited, or after ``timeout``."""
         from cobot_calib_ros.ros.calls import spin_until
-        if not spin_until(self.node, done, timeout, self.executor):
-            raise CheckError(f'{what} did not come up; logs in {self.suite.log_dir}'
-                             + self.failed())
+        deadline = time.monotonic() + timeout
+        while not spin_until(self.node, done, LOOK_PERIOD, self.executor):
+            if self.suite.failed() or time.monotonic() > deadline:
+                raise CheckError(f'{what} did not come up; logs in {self.suite.log_dir}'
+                                 + self.failed())
 
     @contextlib.contextmanager
     def playing(self, bag, topics: list[str], rate: float, clock_hz: float,
-                waits_for: str = ''):
-        """A BagPlayer of ``topics`` with /clock at ``clock_hz``, its services spun, and the
-        client node spun on a thread of its own while the block runs. ``waits_for``: name of
-        the node that must subscribe first (within SUBSCRIBE_TIMEOUT), else CheckError."""
+                waits_for: str = '', flow=None):
+        """A BagPlayer of ``topics`` with /clock at ``clock_hz`` (and ``flow`` control), its
+        services spun, and the client node spun on a thread of its own while the block runs.
+        ``waits_for``: name of the node that must subscribe first (while it runs, up to
+        STARTUP_LIMIT), else CheckError."""
         from cobot_calib_ros.bags.player import BagPlayer, spinning
         player = BagPlayer(bag, rate=rate, topics=topics, clock_hz=clock_hz,
-                           wait_subscribers=SUBSCRIBE_TIMEOUT, report=self.say,
+                           wait_subscribers=LOOK_PERIOD, report=self.say, flow=flow,
                            context=self.node.context)
         self.players.append(player)
         stop_spinning = spin_in_background(self.executor, self.node.context)
         try:
             with spinning(player):
-                if waits_for and player.wait_for_subscribers():
-                    raise CheckError(f'{waits_for} did not subscribe to {", ".join(topics)} '
-                                     f'within {SUBSCRIBE_TIMEOUT:g} s; logs in '
-                                     f'{self.suite.log_dir}' + self.failed())
+                if waits_for:
+                    deadline = time.monotonic() + STARTUP_LIMIT
+                    while player.wait_for_subscribers():
+                        if self.suite.failed() or time.monotonic() > deadline:
+                            raise CheckError(f'{waits_for} did not subscribe to '
+                                             f'{", ".join(topics)}; logs in '
+                                             f'{self.suite.log_dir}' + self.failed())
                 yield player
         finally:
             stop_spinning()
@@ -89,6 +101,12 @@ def passes(player, rate: float, count: int, min_rate: float) -> Iterator[int]:
         if number > 1:
             player.rate = max(min(rate, min_rate), player.rate / 2)
         yield number
+
+
+def flow_note(result) -> str:
+    """', N sent again, M written off' of a flow-controlled PlayResult ('' when none)."""
+    return (f', {result.resent} sent again' if result.resent else '') + (
+        f', {result.written_off} written off as lost' if result.written_off else '')
 
 
 def spin_in_background(executor, context) -> Callable[[], None]:

@@ -21,12 +21,16 @@ cell's nominal one: ``hand_eye: nominal``), and the frame is fitted with the cor
 views.observation and views.landmark_frame, as the live solver does (:func:`fit_frame`). The
 frame must be within TOL_M and TOL_RAD of expected.yaml's.
 
-landmark_detector takes images best effort with a history of 1 and keeps only the newest
-when it falls behind, so the replay goes at a finite rate (DEFAULT_RATE, at most MAX_RATE) and
-every image must come back as a landmarks message: a pass that misses some is followed by
-another pass, of the images still missing and their camera_info, at half the rate (not below
-MIN_RATE), up to PASSES. Detection is per
-image and deterministic, so which pass brought an image's landmarks does not change the result.
+landmark_detector takes images best effort and keeps only the newest when it falls behind
+(one slot before its search), so the replay is flow-controlled (bags.player.FlowControl): the
+player publishes the next image only when the previous one came back as a landmarks message
+(WINDOW 1), so no image is replaced however slowly the machine lets the detector run; the rate
+(DEFAULT_RATE, at most MAX_RATE) only caps the speed. Until the first landmarks come back the
+player sends the first camera_info and image again (the warm-up: an event, not a sleep). Every
+image must come back as a landmarks message: a pass that misses some (lost on the best-effort
+way) is followed by another pass, of the images still missing and their camera_info, at half
+the rate (not below MIN_RATE), up to PASSES. Detection is per image and deterministic, so which
+pass brought an image's landmarks does not change the result.
 """
 from __future__ import annotations
 
@@ -52,7 +56,7 @@ DEFAULT_RATE = 2.0
 MAX_RATE = 20.0
 PASSES = 4
 MIN_RATE = 0.5
-WARMUP = 1.0             # [s] after the player sees the detector's subscriptions
+WINDOW = 1               # images out at most: the detector keeps only the newest
 DRAIN_TIMEOUT = 2.0      # [s] after a pass without a new landmarks message: the rest is lost
 DEFAULT_MAX_RMS = 1e-3   # user_frame_solver's defaults, when expected.yaml does not say
 DEFAULT_MAX_SCALE = 0.01
@@ -246,13 +250,16 @@ def _replay(bag, expected: dict, rate: float, clock_hz: float, needed: set[int],
 
     from cobot_calib_ros import paths
     from cobot_calib_ros.api.launcher import NodeSpec
+    from cobot_calib_ros.bags.player import FlowControl
 
     received: dict[int, object] = {}
+    arrived = [0]                   # landmarks messages, duplicates included (flow control)
     lock = threading.Lock()
 
     def on_landmarks(msg: Landmarks) -> None:
         with lock:
             received.setdefault(header_ns(msg), msg)
+            arrived[0] += 1
 
     def missing() -> set[int]:
         with lock:
@@ -266,9 +273,9 @@ def _replay(bag, expected: dict, rate: float, clock_hz: float, needed: set[int],
             QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE))
         harness.wait_for(lambda: sub.get_publisher_count() > 0, 'landmark_detector')
         passes = 0
+        flow = FlowControl(WINDOW, lambda: arrived[0], frozenset([IMAGE_TOPIC]))
         with harness.playing(bag, [IMAGE_TOPIC, INFO_TOPIC], rate, clock_hz,
-                             waits_for='landmark_detector') as player:
-            time.sleep(WARMUP)
+                             waits_for='landmark_detector', flow=flow) as player:
             for passes in replay_harness.passes(player, rate, PASSES, MIN_RATE):
                 if passes > 1:
                     player.bag = _Missing(bag, stamps, missing())
@@ -278,7 +285,7 @@ def _replay(bag, expected: dict, rate: float, clock_hz: float, needed: set[int],
                 lost = len(missing())
                 say(f'pass {passes}: replayed {result.published} messages in '
                     f'{result.wall_s:.2f} s ({result.speed:.1f}x real time, rate '
-                    f'{player.rate:g}); '
+                    f'{player.rate:g}, window {WINDOW}{replay_harness.flow_note(result)}); '
                     + (f'{lost} of {len(needed)} images without landmarks yet'
                        if lost else f'landmarks of all {len(needed)} images in'))
                 if not lost:

@@ -21,15 +21,17 @@ by eq 15 (core ``correct_distance``); the ISO 9283 statistics come from core
 ``point_statistics`` and are compared, RP_i and RP_all, with expected.yaml and with the last
 recorded ``/repeatability``: within TOL_M.
 
-proximity_sensor subscribes best effort with a history of 5, so the replay needs a finite
-rate it keeps up with: DEFAULT_RATE, at most MAX_RATE. Under load a best-effort reading can
-still be lost on the way (into the node or out of it), and the first ones go before the
-node's subscription has matched the player (WARMUP after the player sees it). The conversion
-is per message and stateless, so a pass that misses readings the averages need is followed
-by another pass over the bag at half the rate (not below MIN_RATE), up to PASSES; each reading
-is the node's conversion of its voltage whichever pass brought it, so the result does not
-depend on the losses. A reading still missing after that is a CheckError that says to lower
---rate.
+proximity_sensor subscribes best effort with a history of 5 and converts each voltage into one
+distance, so the replay is flow-controlled (bags.player.FlowControl): the player keeps at most
+WINDOW voltages published whose distance has not come back to the check, so the node's queue
+cannot overflow however slowly the machine lets it run, and /clock waits with the player. The
+rate (DEFAULT_RATE, at most MAX_RATE) only caps the speed. Until the first distance comes back
+the player sends the first voltages again (those sent before the node's subscription has
+matched the player are lost): that is the warm-up, an event and not a sleep. A reading can
+still be lost on the way in or out (best effort); the conversion is per message and stateless,
+so a pass that misses readings the averages need is followed by another pass over the bag, up
+to PASSES; each reading is the node's conversion of its voltage whichever pass brought it, so
+the result does not depend on the losses. A reading still missing after that is a CheckError.
 """
 from __future__ import annotations
 
@@ -55,7 +57,7 @@ DEFAULT_RATE = 2.0
 MAX_RATE = 20.0
 PASSES = 4               # replays of the bag at most, until every averaged reading came back
 MIN_RATE = 1.0           # a pass after a lossy one goes at half the rate, down to this
-WARMUP = 1.0             # [s] after the player sees proximity_sensor's subscription
+WINDOW = 4               # voltages out at most (proximity_sensor's queue holds 5)
 DRAIN_TIMEOUT = 1.0      # [s] after a pass without a new distance: the rest is lost
 TABLE_KEYS = ('calibration_distance', 'calibration_voltage', 'saturation_margin')
 
@@ -266,6 +268,7 @@ def _replay(bag, expected: dict, rate: float, clock_hz: float, wanted: int, need
     from cobot_calib_msgs.msg import ProximityReading
 
     from cobot_calib_ros.api.launcher import NodeSpec
+    from cobot_calib_ros.bags.player import FlowControl
     from cobot_calib_ros.core.sensors.probe import ReadingStatus
 
     params = {}
@@ -286,9 +289,9 @@ def _replay(bag, expected: dict, rate: float, clock_hz: float, wanted: int, need
             QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=wanted + 100,
                        reliability=ReliabilityPolicy.BEST_EFFORT))
         harness.wait_for(lambda: sub.get_publisher_count() > 0, 'proximity_sensor')
+        flow = FlowControl(WINDOW, lambda: len(samples))
         with harness.playing(bag, [VOLTAGE_TOPIC], rate, clock_hz,
-                             waits_for='proximity_sensor') as player:
-            time.sleep(WARMUP)
+                             waits_for='proximity_sensor', flow=flow) as player:
             for attempt in replay_harness.passes(player, rate, PASSES, MIN_RATE):
                 before = len(samples)
                 result = player.play()
@@ -296,7 +299,8 @@ def _replay(bag, expected: dict, rate: float, clock_hz: float, wanted: int, need
                                      lambda: len(samples) >= before + wanted, DRAIN_TIMEOUT)
                 missing = len(needed - {x[0] for x in samples})
                 say(f'pass {attempt}: replayed {result.published} voltages in '
-                    f'{result.wall_s:.2f} s ({result.speed:.1f}x real time), '
+                    f'{result.wall_s:.2f} s ({result.speed:.1f}x real time, window {WINDOW}'
+                    f'{replay_harness.flow_note(result)}), '
                     f'{len(samples) - before}/{wanted} distances back; '
                     + (f'{missing} of the {len(needed)} readings the averages need still '
                        'missing' if missing else

@@ -9,7 +9,7 @@ class TrialClient:
 
     Ctrl-C cancels the goal and raises TrialClient.Stopped. The wait ends with a CallError when
     the repeatability_trial node is gone from the graph for GONE_AFTER s (a crashed node: after
-    the DDS lease, 20 s), or sends no feedback for ``stall_timeout`` s (it sends one at least
+    the DDS lease, 20 s) or restarted meanwhile (ros.calls.ServerWatch), or sends no feedback for ``stall_timeout`` s (it sends one at least
     every 2 s while it runs, so silence means it is hung or frozen).
     """
 
@@ -141,15 +141,18 @@ class TrialClient:
                 raise CallError('run_trial did not answer the goal within 10 s')
 
     def _follow(self, handle, trial_id: str, timeout: float | None):
-        from cobot_calib_ros.ros.calls import CallError
+        from cobot_calib_ros.ros.calls import CallError, ServerWatch
+        watch = ServerWatch(self.node, self._client)     # gone, or restarted: goal lost
         result = handle.get_result_async()
         deadline = None if timeout is None else time.monotonic() + timeout
         resume = f'resume it with: cobot-calib trial --trial-id {trial_id}'
         while not self._spin(result.done, 0.25):
             if self._interrupts:
-                return self._stop(handle, result, trial_id)
-            if self._gone():
-                raise CallError(self._gone_line(trial_id))
+                return self._stop(handle, result, trial_id, watch)
+            ended = watch.ended()
+            if ended:
+                raise CallError(f'{ended}; trial {trial_id} is stored up to its last '
+                                f'reading: {resume}')
             late = self._late(trial_id, deadline, timeout)
             if late:
                 raise CallError(f'{late}; trial {trial_id} {self._cancel(handle)}: check the '
@@ -186,8 +189,9 @@ class TrialClient:
         return ('not canceled (no answer to the cancel within '
                 f'{self.CANCEL_WAIT:.0f} s: it may go on if the node recovers)')
 
-    def _stop(self, handle, result, trial_id: str):
-        """Ctrl-C: cancel the goal, wait briefly for the node to acknowledge it and stop."""
+    def _stop(self, handle, result, trial_id: str, watch):
+        """Ctrl-C: cancel the goal, wait briefly for the node to acknowledge it and stop.
+        ``watch``: the goal's ServerWatch (a restarted node lost the goal: nothing to stop)."""
         from action_msgs.msg import GoalStatus
         self._interrupts = 0                             # a second Ctrl-C ends the waits
         cancel = handle.cancel_goal_async()
@@ -197,6 +201,10 @@ class TrialClient:
             self._spin(result.done, self.CANCEL_WAIT)
         if result.done() and result.result().status != GoalStatus.STATUS_CANCELED:
             return result.result().result                # it ended before the cancel came
+        if not acknowledged and watch.restarted():
+            raise self.Stopped(f'{watch.lost_line()}; trial {trial_id} is stored up to its '
+                               f'last reading: resume it with: cobot-calib trial --trial-id '
+                               f'{trial_id}')
         raise self.Stopped(self._stopped_line(trial_id, acknowledged, result.done()))
 
     def _stopped_line(self, trial_id: str, acknowledged: bool, stopped: bool) -> str:

@@ -12,7 +12,22 @@
   for them every few hundred messages plays slower than real time), and they only say the
   sample reached the reader's history, which a slow subscriber then overwrites (keep-last) all
   the same; a publisher with keep-all history did not block either (measured). A subscriber
-  that must see every message at rate 0 needs a history as deep as the bag, or a finite rate.
+  that must see every message needs a history as deep as the bag, a rate it keeps up with
+  whatever the load, or flow control.
+- Flow control (``flow``; off unless asked for, so plain replay is ``ros2 bag play``): the
+  consumers report a running count of the counted messages they have taken (a replay check
+  counts what came back from the node under test; another process publishes its count on
+  ``~/consumed``, std_msgs/UInt64, given ``window``). The player keeps at most ``window``
+  counted messages published and not yet counted: it waits before the next one with /clock
+  held at the last message's stamp (a window in sim time cannot pass while the pipeline is
+  behind), and the rate is only an upper bound. A window no deeper than the consumer's queue
+  cannot overflow it, whatever the load. Until the first is counted, what was sent goes out
+  again every RESEND_S (messages sent before a subscription has matched the player on the
+  subscriber's side are lost; with each, the newest message of every other topic sent before
+  it, such as its camera_info); a count that does not move for WRITE_OFF_S while messages are
+  out writes those off as lost (``PlayResult.written_off``), so a message lost on a best-effort
+  path cannot stop the replay. play() returns when every counted message is counted or written
+  off.
 - Before starting it waits, up to ``wait_subscribers`` seconds, until every topic has a
   subscriber matched to its publisher (and every subscriber the graph knows of is matched):
   a publisher needs 0.02-3.5 s to match one in another process here, and messages sent before
@@ -29,10 +44,10 @@ play() runs on the caller's thread.
 As its own process (``main``; ``ros2 run cobot_calib_ros bag_player --ros-args -p bag:=DIR
 -p rate:=2.0 -p clock_hz:=40.0``, also ``.venv/lib/cobot_calib_ros/bag_player``) it takes the
 parameters ``bag``, ``rate``, ``loop``, ``topics``, ``clock_hz`` (0: no /clock),
-``start_paused`` and ``wait_subscribers`` (read at start-up, described in ``ros2 param
-describe``), plays the bag once (or until shut down with ``loop``) and exits. Given a Bag from
-Python (``cobot-calib replay``, the --check modules) the arguments are the values, and the
-parameters show them.
+``start_paused``, ``wait_subscribers`` and ``window`` (flow control with ``~/consumed``; read
+at start-up, described in ``ros2 param describe``), plays the bag once (or until shut down
+with ``loop``) and exits. Given a Bag from Python (``cobot-calib replay``, the --check
+modules) the arguments are the values, and the parameters show them.
 """
 from __future__ import annotations
 
@@ -49,6 +64,7 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosbags.interfaces import Qos, QosDurability, QosReliability
 from rosgraph_msgs.msg import Clock
+from std_msgs.msg import UInt64
 from std_srvs.srv import Trigger
 
 from cobot_calib_ros.bags.errors import BagError
@@ -65,6 +81,26 @@ FINAL_ACK_TIMEOUT = 5.0      # [s] after the last message (Fast DDS acknowledges
                              # 3 s heartbeat period)
 LATCHED_TOPICS = ('/tf_static',)
 SPIN_PERIOD = 0.05           # [s]
+RESEND_S = 0.5               # [s] of wall time without a first consumed message: send again
+WRITE_OFF_S = 5.0            # [s] of wall time without progress: the messages out are lost
+FLOW_POLL_S = 0.002          # [s] between looks at the consumers' count while the window is full
+
+
+@dataclass
+class FlowControl:
+    """Back-pressure from the consumers (see the module doc): at most ``window`` messages of
+    ``topics`` (None: every topic played) published and not yet counted by ``consumed()``, a
+    running count over the player's life (passes and plays included)."""
+    window: int
+    consumed: Callable[[], int]
+    topics: frozenset | None = None
+
+    def __post_init__(self) -> None:
+        if self.window < 1:
+            raise ValueError('the flow-control window must be >= 1 message')
+
+    def counts(self, topic: str) -> bool:
+        return self.topics is None or topic in self.topics
 
 
 def replay_qos(topic: str, offered: list[Qos], depth: int = DEPTH) -> QoSProfile:
@@ -96,6 +132,9 @@ class PlayResult:
                                      # pass, paused time left out
     bag_s: float = 0.0               # [s] of recorded time played (all passes)
     unacknowledged: tuple = ()       # topics whose subscribers did not acknowledge at the end
+    resent: int = 0                  # flow control: sent again before the first was consumed
+    written_off: int = 0             # flow control: counted messages never reported consumed
+                                     # (written off as lost on the way), all plays so far
 
     @property
     def speed(self) -> float:
@@ -111,15 +150,16 @@ class BagPlayer(Node):
                  topics: Iterable[str] | None = None, clock_hz: float | None = None,
                  start_paused: bool = False, wait_subscribers: float = 2.0,
                  depth: int = DEPTH, report: Callable[[str], None] | None = None,
+                 flow: FlowControl | None = None, window: int = 0,
                  node_name: str = NODE_NAME, **node_kwargs) -> None:
         self._own_bag = None
         if bag is not None:                 # refused before any rclpy set-up
             classes = self._select(bag, rate, topics)
         super().__init__(node_name, start_parameter_services=bag is None, **node_kwargs)
         values = self._declare_parameters(bag, rate, loop, topics, clock_hz, start_paused,
-                                          wait_subscribers)
+                                          wait_subscribers, window)
         if bag is None:
-            path, rate, loop, topics, clock_hz, start_paused, wait_subscribers = values
+            path, rate, loop, topics, clock_hz, start_paused, wait_subscribers, window = values
             if not path:
                 raise BagError('parameter bag: give the bag to play (-p bag:=DIR)')
             bag = self._own_bag = open_bag(path)
@@ -146,6 +186,20 @@ class BagPlayer(Node):
         self._stop = threading.Event()
         self.create_service(Trigger, '~/resume', self._on_resume)
         self.create_service(Trigger, '~/pause', self._on_pause)
+        self._reported = 0
+        if flow is None and window > 0:
+            flow = FlowControl(int(window), lambda: self._reported)
+            self.create_subscription(UInt64, '~/consumed', self._on_consumed,
+                                     QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
+        self.flow = flow
+        self._sent = 0                  # counted messages published (flow control)
+        self._written_off = 0
+        # before anything was consumed: the counted messages sent, each after the newest
+        # message of every other topic sent before it (a camera_info before its image), to
+        # send again; (topic, bytes)
+        self._unanswered: list = []
+        self._lead_in: dict = {}        # topic -> bytes, not counted, since the last counted
+        self._answered = False          # something was consumed (or written off)
 
     def _select(self, bag: Bag, rate: float, topics) -> dict:
         """Check the settings against the bag; the message class of each topic to play."""
@@ -159,7 +213,7 @@ class BagPlayer(Node):
         return {t: _message_class(bag, t) for t in self.topics}
 
     def _declare_parameters(self, bag, rate, loop, topics, clock_hz, start_paused,
-                            wait_subscribers) -> tuple:
+                            wait_subscribers, window) -> tuple:
         """Declare the parameters (the arguments as defaults); their values, in order."""
         return (
             read_once(self, 'bag', str(bag.path) if bag is not None else '',
@@ -175,7 +229,11 @@ class BagPlayer(Node):
             read_once(self, 'start_paused', bool(start_paused),
                       'Wait for a call to ~/resume (std_srvs/Trigger) before playing'),
             read_once(self, 'wait_subscribers', float(wait_subscribers),
-                      'Longest wait for subscribers to match before playing [s]', 0.0, 3600.0))
+                      'Longest wait for subscribers to match before playing [s]', 0.0, 3600.0),
+            read_once(self, 'window', int(window),
+                      'Flow control: at most this many messages published and not yet '
+                      'reported consumed on ~/consumed (std_msgs/UInt64, the consumers\' '
+                      'running count); 0 = none, as ros2 bag play', 0, 1_000_000))
 
     def destroy_node(self):
         try:
@@ -192,6 +250,9 @@ class BagPlayer(Node):
         response.message = 'resumed' if response.success else 'was not paused'
         self._paused.clear()
         return response
+
+    def _on_consumed(self, msg: UInt64) -> None:
+        self._reported = max(self._reported, int(msg.data))
 
     def _on_pause(self, request, response):
         response.success = not self._paused.is_set()
@@ -240,6 +301,9 @@ class BagPlayer(Node):
             result.passes += 1
             if not self.loop:
                 break
+        if self.flow is not None:
+            self._await_window(result, self._last_clock_ns, room=1)    # all consumed
+            result.written_off = self._written_off
         if started is not None:
             result.wall_s = (self._last_publish_wall - started - self._paused_ns) / NS_PER_S
         result.unacknowledged = self._wait_acknowledged(FINAL_ACK_TIMEOUT)
@@ -253,6 +317,7 @@ class BagPlayer(Node):
         self._last_clock_ns = -1
         previous = None
         publishers = self.publishers_by_topic
+        flow = self.flow
         for message in self.bag.messages(self.topics):
             if self._stop.is_set():
                 break
@@ -276,9 +341,23 @@ class BagPlayer(Node):
                 now = time.monotonic_ns()
             if self._stop.is_set():
                 break
+            counted = flow is not None and flow.counts(message.topic)
+            if counted:
+                held = self._await_window(result, previous if previous is not None else stamp)
+                if base_wall is not None:
+                    base_wall += held
+                if self._stop.is_set():
+                    break
             if self._clock_pub is not None:
                 self._tick_clock(time.monotonic_ns(), stamp, stamp)
             publishers[message.topic].publish(message.rawdata)
+            if flow is not None and not self._answered:
+                self._lead_in[message.topic] = message.rawdata
+                if counted:
+                    self._unanswered += self._lead_in.items()
+                    self._lead_in = {}
+            if counted:
+                self._sent += 1
             self._last_publish_wall = time.monotonic_ns()
             if first_wall is None:
                 first_wall = self._last_publish_wall
@@ -287,6 +366,43 @@ class BagPlayer(Node):
                 result.bag_s += (stamp - previous) / NS_PER_S
             previous = stamp
         return first_wall
+
+    def _await_window(self, result: PlayResult, stamp: int, room: int | None = None) -> int:
+        """Flow control: wait until fewer than ``room`` (the window) counted messages are out,
+        /clock held at ``stamp``; the wall time [ns] waited. Before the first is consumed,
+        what was sent goes out again every RESEND_S; WRITE_OFF_S without progress writes the
+        messages out off as lost."""
+        flow = self.flow
+        room = flow.window if room is None else room
+        start = time.monotonic_ns()
+        consumed = flow.consumed()
+        since = resent = start
+        while not self._stop.is_set():
+            self._written_off = min(self._written_off, max(0, self._sent - consumed))
+            if self._sent - consumed - self._written_off < room:
+                break
+            now = time.monotonic_ns()
+            self._tick_clock(now, stamp, stamp)
+            if now - since > WRITE_OFF_S * NS_PER_S:
+                self._written_off = self._sent - consumed
+                self._answer()
+                since = now
+            elif not self._answered and now - resent > RESEND_S * NS_PER_S:
+                for topic, data in self._unanswered:    # nothing has come back yet
+                    self.publishers_by_topic[topic].publish(data)
+                result.resent += len(self._unanswered)
+                resent = now
+            time.sleep(FLOW_POLL_S)
+            latest = flow.consumed()
+            if latest != consumed:
+                consumed, since = latest, time.monotonic_ns()
+                self._answer()
+        return time.monotonic_ns() - start
+
+    def _answer(self) -> None:
+        """The path to the consumers works (or is given up on): no more sending again."""
+        self._answered = True
+        self._unanswered, self._lead_in = [], {}
 
     def _hold(self, stamp: int) -> int:
         """While paused: keep /clock at ``stamp``; the wall time [ns] spent paused."""
@@ -384,6 +500,8 @@ def main(args=None) -> None:
             result = player.play()
         log.info(f'published {result.published} messages in {result.wall_s:.3f} s '
                  f'({result.speed:.2f}x real time)')
+        if result.written_off:
+            log.warning(f'{result.written_off} messages never counted on ~/consumed')
         if result.unacknowledged:
             log.warning('subscribers did not acknowledge the last messages on '
                         + ', '.join(result.unacknowledged))

@@ -16,6 +16,7 @@ from cobot_calib_ros.cli.db import add_db_options
 from cobot_calib_ros.paths import DEFAULT_CELL
 
 DEFAULT_POINTS = ('P1', 'P3', 'P5')
+SUITE_WAIT = 5.0        # [s] for the robot's calls to be discovered (a running suite: < 2 s)
 
 
 def add_parser(subparsers):
@@ -40,33 +41,43 @@ def add_parser(subparsers):
 
 
 def run(args) -> int:
-    from cobot_calib_ros import paths, store
-    from cobot_calib_ros.core import kinematics
-    from cobot_calib_ros.core.cell import CellFileError
-    from cobot_calib_ros.loaders import load_cell
+    from cobot_calib_ros.cli.common import cell_problem
+    if args.poses is not None and args.poses < 4:       # the user's input first (exit 2)
+        return fail(f'check {args.what}: --poses {args.poses}: give 4 or more', EXIT_USAGE)
+    problem = cell_problem(args.robot_cell) if args.robot_cell else ''
+    if problem:
+        return fail(problem, EXIT_USAGE)
     from cobot_calib_ros.core.robot_port import PortError
     from cobot_calib_ros.ros import spin
     from cobot_calib_ros.ros.robot_calls import RobotCalls
     from cobot_calib_ros.store.cells import ResultsCell
     with ros_node('cobot_calib_check', args.namespace.strip('/')) as node:
-        try:
-            cell = load_cell(paths.cell_file(args.robot_cell or _suite_cell(node)))
-        except CellFileError as e:
-            return fail(str(e), EXIT_USAGE)
-        results_cell = (ResultsCell(args.cell, cell.robot) if args.cell
-                        else ResultsCell.of(cell, args.namespace))
-        repo = store.open(paths.data_dir(args.data_dir), args.db, results_cell)
-        model = kinematics.model_for(cell)
-        prepare = _user_frame if args.what == 'user-frame' else _kinematics
-        try:
-            prepared = prepare(args, cell, model, repo)
-        except (OSError, KeyError, ValueError) as exc:
-            return fail(f'check {args.what}: {exc.args[0] if exc.args else exc}',
-                        EXIT_USAGE if isinstance(exc, ValueError) else EXIT_FAILED)
-        method, against, run_check, print_details = prepared
         companion = spin.Companion(node, 'clients')
         try:
-            check = run_check(RobotCalls(companion))
+            robot = RobotCalls(companion)
+            absent = robot.absent(SUITE_WAIT)
+            if absent:      # every call would wait and fail: say so before anything else
+                return fail(f'check {args.what}: {_no_suite(args, absent)}; nothing checked')
+            from cobot_calib_ros import paths, store    # seconds of imports: after the refusal
+            from cobot_calib_ros.core import kinematics
+            from cobot_calib_ros.core.cell import CellFileError
+            from cobot_calib_ros.loaders import load_cell
+            try:
+                cell = load_cell(paths.cell_file(args.robot_cell or _suite_cell(node)))
+            except CellFileError as e:
+                return fail(str(e), EXIT_USAGE)
+            results_cell = (ResultsCell(args.cell, cell.robot) if args.cell
+                            else ResultsCell.of(cell, args.namespace))
+            repo = store.open(paths.data_dir(args.data_dir), args.db, results_cell)
+            model = kinematics.model_for(cell)
+            prepare = _user_frame if args.what == 'user-frame' else _kinematics
+            try:
+                prepared = prepare(args, cell, model, repo)
+            except (OSError, KeyError, ValueError) as exc:
+                return fail(f'check {args.what}: {exc.args[0] if exc.args else exc}',
+                            EXIT_USAGE if isinstance(exc, ValueError) else EXIT_FAILED)
+            method, against, run_check, print_details = prepared
+            check = run_check(robot)
         except (PortError, ValueError) as exc:
             return fail(f'check stopped: {exc}; nothing stored')
         except KeyboardInterrupt:
@@ -74,6 +85,19 @@ def run(args) -> int:
         finally:
             companion.destroy()          # its thread stops before the session shuts down
     return _report(args, repo, check, method, against, print_details)
+
+
+def _no_suite(args, absent: list[str]) -> str:
+    """Why the check cannot run: no suite at all, or which of its nodes are missing."""
+    from cobot_calib_ros.cli.common import domain_id
+    from cobot_calib_ros.ros.robot_calls import RobotCalls
+    namespace = args.namespace.strip('/')
+    where = f'ROS_DOMAIN_ID={domain_id()}' + (f' in namespace /{namespace}' if namespace
+                                               else '')
+    if len(absent) == len(RobotCalls.CALLS):
+        return f'no suite running on {where}; start one with cobot-calib up'
+    return (f'the suite on {where} is missing {", ".join(absent)}; start it whole with '
+            'cobot-calib up')
 
 
 def _suite_cell(node) -> str:
@@ -124,8 +148,6 @@ def _kinematics(args, cell, model, repo):
         raise ValueError(f'cell {cell.name!r} has no spheres (config/cells/iiwa7_close.yaml '
                          'has); give --robot-cell')
     poses = KINEMATIC_POSES if args.poses is None else args.poses
-    if poses < 4:
-        raise ValueError(f'--poses {poses}: give 4 or more')
     record = repo.kinematics.active(model.name)
     tool = np.array(cell.spheres.coupling_offset, dtype=float)
     if record is not None:

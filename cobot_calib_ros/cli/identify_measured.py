@@ -11,6 +11,8 @@ from cobot_calib_ros.api.identification import DEFAULT_FOLDS
 from cobot_calib_ros.core.kinematics.identification.gates import (MAX_DEVIATION_M,
                                                                    MAX_DEVIATION_RAD)
 
+MODELS = ('offsets', 'full', 'mdh', 'offsets+compliance', 'full+compliance',
+          'mdh+compliance')
 MAX_CORRELATED_LINES = 10
 
 
@@ -23,10 +25,11 @@ def add_arguments(p) -> None:
     p.add_argument('--tip-link', default=None,
                    help='--urdf: the chain\'s last link (default: the sidecar\'s frames.tip)')
     p.add_argument('--dh', default=None, help='a DH table (YAML) instead of --urdf')
-    p.add_argument('--model', choices=('offsets', 'full', 'mdh'), default=None,
+    p.add_argument('--model', choices=MODELS, default=None,
                    help='error model: offsets (one per joint, any robot), full (--urdf: '
                         'every joint origin; its default), mdh (--dh: every DH row; its '
-                        'default)')
+                        'default); +compliance adds a joint deflection in proportion to its '
+                        'gravity torque')
     p.add_argument('--max-deviation-mm', type=float, default=MAX_DEVIATION_M * 1e3,
                    metavar='MM', help='the most a length of the model may move from nominal '
                    f'[mm] (default {MAX_DEVIATION_M * 1e3:g}); a parameter that ends there is '

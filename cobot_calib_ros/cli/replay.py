@@ -5,6 +5,10 @@ bytes, timed by the recorded receive stamps scaled by --rate (0 or max: as fast 
 DDS gives no back-pressure, so a subscriber slower than that loses what overflows its
 history). Before starting it waits up to --wait-subscribers seconds until every topic has a
 matched subscriber; after the last message, until reliable subscribers acknowledged it.
+--window N: flow control for a consumer that publishes how many messages it has taken
+(std_msgs/UInt64, a running count) on /bag_player/consumed: at most N messages out that it
+has not counted, /clock held while it catches up (bags.player); nothing is lost to a subscriber
+whose history holds N, whatever the load.
 
 --check: replay a sample bag through the pipeline on a private ROS_DOMAIN_ID with /clock
 (use_sim_time) and compare the result with the bag's expected.yaml; exit 0 when it matches,
@@ -62,6 +66,10 @@ def add_parser(subparsers):
                    help=f'wait for a call to /{NODE_NAME}/resume (std_srvs/srv/Trigger)')
     p.add_argument('--wait-subscribers', type=float, default=2.0, metavar='SECONDS',
                    help='longest wait for subscribers to match before playing (default 2)')
+    p.add_argument('--window', type=int, default=0, metavar='N',
+                   help='flow control: at most N messages published that the consumer has '
+                        f'not counted on /{NODE_NAME}/consumed (std_msgs/msg/UInt64, its '
+                        'running count); default 0: none, as ros2 bag play')
     p.add_argument('--check', action='store_true',
                    help='check a sample bag (every one under bags/) against its expected '
                         'result: a teach or landmark bag\'s frame (1e-6 m / 1e-6 rad), a '
@@ -86,6 +94,8 @@ def run(args) -> int:
         return fail('replay: --clock HZ must be > 0', EXIT_USAGE)
     if args.wait_subscribers < 0:
         return fail('replay: --wait-subscribers must be >= 0', EXIT_USAGE)
+    if args.window < 0:
+        return fail('replay: --window must be >= 0 (0: no flow control)', EXIT_USAGE)
     from cobot_calib_ros.bags.errors import BagError
     from cobot_calib_ros.bags.reader import open_bag
     try:
@@ -115,7 +125,8 @@ def _replay(bag, args) -> int:
     try:
         player = BagPlayer(bag, rate=args.rate, loop=args.loop, topics=args.topics,
                            clock_hz=args.clock, start_paused=args.start_paused,
-                           wait_subscribers=args.wait_subscribers, report=say)
+                           wait_subscribers=args.wait_subscribers, window=args.window,
+                           report=say)
         count = sum(bag.topics[t].count for t in player.topics)
         speed = 'as fast as possible' if args.rate == 0 else f'at {args.rate:g}x'
         say(f'replaying {bag.path}: {count} messages on {len(player.topics)} topics, '
@@ -129,6 +140,9 @@ def _replay(bag, args) -> int:
                 return fail('replay interrupted', EXIT_INTERRUPTED)
         say(f'published {result.published} messages in {result.wall_s:.3f} s '
             f'({result.speed:.2f}x real time)')
+        if args.window:
+            say(f'flow control: {result.resent} sent again before the first was counted, '
+                f'{result.written_off} never counted on /{NODE_NAME}/consumed')
         if result.unacknowledged:
             return fail('replay: subscribers did not acknowledge the last messages on '
                         + ', '.join(result.unacknowledged))
@@ -142,9 +156,9 @@ def _replay(bag, args) -> int:
 
 
 def _check(args) -> int:
-    if args.loop or args.start_paused or args.topics:
-        return fail('replay --check: --loop, --start-paused and --topics do not apply',
-                    EXIT_USAGE)
+    if args.loop or args.start_paused or args.topics or args.window:
+        return fail('replay --check: --loop, --start-paused, --topics and --window do not '
+                    'apply', EXIT_USAGE)
     if args.clock is not None and not args.clock > 0:
         return fail('replay: --clock HZ must be > 0', EXIT_USAGE)
     from cobot_calib_ros.api import (replay_check, replay_landmark_check, replay_sphere_check,

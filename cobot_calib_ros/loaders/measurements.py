@@ -4,11 +4,13 @@ A measurement file is ``NAME.csv`` (a header row, one sample per row) with ``NAM
 it, which says what the columns are (README, "Measurement files"):
 
     measurement: pose              # spheres | points | pose | plane
-    units: {length: m, angle: rad} # of every length / angle in the CSV and here (m|mm, rad|deg)
+    units: {length: m, angle: rad} # of every length / angle in the CSV and here (m|mm, rad|deg);
+                                   # a prismatic joint's column is a length
     joints: [j1, j2, ...]          # the joint-angle columns
     frames: {measured_in: camera, base: base_link, tip: wrist_3_link, target: board}
     # pose:    position: [x, y, z]; rotation: [a, b, c] (rpy | rotvec) or [qw, qx, qy, qz]
     #          (quaternion_wxyz); rotation_format; camera: fixed | on_arm; rotation_weight [m/rad]
+    #          or auto (each by its own scatter on the training rows)
     # points:  markers: {m1: [x1, y1, z1], m2: [x2, y2, z2]}  (an empty cell: not seen; NaN
     #          or inf is refused)
     # spheres: sphere: COLUMN; distances: [[i, j, D], ...]; ball: [x, y, z] (in the tip)
@@ -53,9 +55,12 @@ class MeasurementFile:
     frames: dict
     samples: int
     noise_m: float = 0.0      # the sidecar's noise [m]: one row's RMS error (0: not given)
+    length_per_angle: float = 1.0   # units.length / units.angle: q is read as angles
 
-    def in_joint_order(self, names: tuple[str, ...]) -> 'MeasurementFile':
-        """The same file with q's columns in ``names`` order; ValueError naming the missing."""
+    def in_joint_order(self, names: tuple[str, ...],
+                       prismatic=None) -> 'MeasurementFile':
+        """The same file with q's columns in ``names`` order, the ``prismatic`` ones (flags in
+        that order) read in units.length; ValueError naming the missing."""
         missing = [n for n in names if n not in self.joints]
         if missing:
             raise ValueError(f'{self.source}: the model\'s joints {missing} are not among the '
@@ -63,10 +68,14 @@ class MeasurementFile:
                              '"joints"')
         order = [self.joints.index(n) for n in names]
         m = self.measurements
-        data = Measurements(m.kind, m.q[:, order], m.target, m.values, m.distances, m.ball,
+        q = m.q[:, order]
+        if prismatic is not None and np.size(prismatic):
+            q = np.where(np.asarray(prismatic, dtype=bool), q * self.length_per_angle, q)
+        data = Measurements(m.kind, q, m.target, m.values, m.distances, m.ball,
                             m.rotation_weight)
         return MeasurementFile(self.source, data, self.sample, tuple(names), self.columns,
-                               self.frames, self.samples, self.noise_m)
+                               self.frames, self.samples, self.noise_m,
+                               self.length_per_angle if prismatic is None else 1.0)
 
     def groups(self, column: str) -> np.ndarray:
         """The group label of every measurement row from ``column``."""
@@ -211,7 +220,7 @@ def load_measurements(path: str | Path) -> MeasurementFile:
     sample = np.arange(len(rows))
     target, values, distances = None, None, ()
     ball = _vector(side, 'ball', sidecar, length)
-    weight = float(side.get('rotation_weight', DEFAULT_ROTATION_WEIGHT))
+    weight = _rotation_weight(side, sidecar)
     if kind == 'pose':
         values = _poses(path, side, header, rows, length, angle)
     elif kind == 'points':
@@ -247,7 +256,22 @@ def load_measurements(path: str | Path) -> MeasurementFile:
     columns = {h: [r[k] for r in rows] for k, h in enumerate(header)}
     return MeasurementFile(str(path), data, sample, tuple(joints), columns,
                            dict(side.get('frames') or {}), len(rows),
-                           _noise(side, sidecar, length))
+                           _noise(side, sidecar, length), length / angle)
+
+
+def _rotation_weight(side: dict, sidecar: Path) -> float | None:
+    """The sidecar's rotation_weight [m/rad]; None for ``auto``."""
+    value = side.get('rotation_weight', DEFAULT_ROTATION_WEIGHT)
+    if value == 'auto':
+        return None
+    try:
+        weight = float(value)
+    except (TypeError, ValueError):
+        weight = -1.0
+    if not (weight > 0.0 and np.isfinite(weight)):
+        raise _fail(sidecar, f'"rotation_weight" must be a number > 0 [m/rad] or auto, got '
+                             f'{value!r}')
+    return weight
 
 
 def _noise(side: dict, sidecar: Path, length: float) -> float:
@@ -325,6 +349,6 @@ def robot_model(source: Path, frames: dict, urdf: str | None, base_link: str | N
     except OSError as e:
         raise ValueError(f'--urdf {path}: cannot read ({e.strerror})') from None
     try:
-        return model_from_urdf(text, base, tip, path.stem)
+        return model_from_urdf(text, base, tip, path.stem, free_pitch=True)
     except ValueError as e:
         raise ValueError(f'--urdf {path}: {e}') from None

@@ -38,7 +38,8 @@ from cobot_calib_ros.core.kinematics.collection import collect, Ending, PoseReco
 from cobot_calib_ros.core.kinematics.planned_collection import collect_planned, RobotTime
 from cobot_calib_ros.core.kinematics.planning import (PlanSettings, Prediction,
                                                       sphere_candidates, SpherePlanner,
-                                                      tilt_grid_deg, TILT_STEP_DEG)
+                                                      tilt_grid_deg, TILT_STEP_DEG,
+                                                      too_few_poses)
 from cobot_calib_ros.core.kinematics.identification.observations import (
     PositionObservations, SphereObservations)
 from cobot_calib_ros.core.kinematics.identification.solvers import LOSSES, SOLVERS
@@ -245,6 +246,13 @@ class KinematicIdentifier(Node):
                 return goal.collection_id, meta
         source = goal.source or 'spheres'
         region = goal.region or 'volume'
+        if goal.planned and source != 'spheres':
+            raise ValueError('planned applies to source spheres only')
+        if goal.planned:        # refused in a second, before the candidate IK and any move
+            problem = too_few_poses(self._cell, self._model,
+                                    goal.max_poses or PLANNED_MAX_POSES)
+            if problem:
+                raise ValueError(problem)
         if source == 'spheres':
             if goal.planned:
                 step_deg = math.degrees(self._p('candidate_tilt_step'))
@@ -272,8 +280,6 @@ class KinematicIdentifier(Node):
                                   'coupling_offset_xyz': self._cell.spheres.coupling_offset[:3, 3]}
         else:
             raise ValueError(f'unknown source {source!r}; use spheres or laser_tracker')
-        if goal.planned and source != 'spheres':
-            raise ValueError('planned applies to source spheres only')
         collection_id = goal.collection_id or record_id(
             source if source == 'spheres' else f'tracker-{region}')
         meta = self._collections.create(
@@ -328,7 +334,7 @@ class KinematicIdentifier(Node):
         self._robot.speed_scale = self._p('speed_scale')
         run, time = collect_planned(planner, self._robot, self._store(collection_id),
                                     hold=hold, on_pose=on_pose,
-                                    cancelled=lambda: goal_handle.is_cancel_requested)
+                                    cancelled=self._stopped(goal_handle))
         last = planner.state.predictions[-1] if planner.state.predictions else None
         result.stop_reason = planner.state.stop or ''
         result.predicted_max_error = last.max_mm * 1e-3 if last else float('inf')
@@ -344,7 +350,7 @@ class KinematicIdentifier(Node):
                     f'{collection_id}: could not store the planning: {e}; check data_dir', time)
         if run.ending is Ending.DONE:
             return Collect.Result.SUCCESS, f'stopped on {run.message}', time
-        return self._ended(run, collection_id), time
+        return (*self._ended(run, collection_id), time)
 
     def _store(self, collection_id: str):
         def store(record: PoseRecord) -> None:
@@ -354,12 +360,21 @@ class KinematicIdentifier(Node):
         return store
 
     @staticmethod
+    def _stopped(goal_handle):
+        """A collection's ``cancelled``: the goal's cancel, or this node shutting down (its
+        goal then ends aborted, the collection resumable)."""
+        return lambda: goal_handle.is_cancel_requested or spin.stopping()
+
+    @staticmethod
     def _ended(run, collection_id: str) -> tuple[int, str]:
         code = {Ending.CANCELED: Collect.Result.CANCELED,
                 Ending.MOTION_FAILED: Collect.Result.MOTION_FAILED,
                 Ending.CAPTURE_FAILED: Collect.Result.CAPTURE_FAILED}[run.ending]
-        return code, (f'{collection_id}: {run.message}; give the same collection_id to '
-                      'resume')
+        why = run.message
+        if run.ending is Ending.CANCELED and spin.stopping():
+            why = ('the kinematic_identifier node is shutting down (Ctrl-C or SIGTERM): '
+                   + why.replace('canceled', 'stopped', 1))
+        return code, f'{collection_id}: {why}; give the same collection_id to resume'
 
     def _visit(self, goal_handle, collection_id: str, meta: dict, hold: float,
                result) -> tuple[int, str, RobotTime]:
@@ -389,7 +404,7 @@ class KinematicIdentifier(Node):
         before, skipped_before = len(stored.index), len(stored.skipped)
         run = collect(plan, stored.next_index, self._robot,
                       self._store(collection_id), hold=hold, laser=laser,
-                      cancelled=lambda: goal_handle.is_cancel_requested, on_pose=on_pose)
+                      cancelled=self._stopped(goal_handle), on_pose=on_pose)
         total = self._robot.robot_seconds - start
         time = RobotTime(total - run.recorded * hold, run.recorded * hold, run.recorded)
         if run.ending is Ending.DONE:

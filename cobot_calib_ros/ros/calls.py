@@ -68,62 +68,117 @@ def run_action(node: Node, client: ActionClient, goal, timeout: float = 60.0,
                feedback=None, executor=None):
     """Send a goal, wait for its result; returns (status, result). Ctrl-C (KeyboardInterrupt)
     while it runs cancels the goal, waits up to CANCEL_WAIT s for it to end and raises
-    Interrupted. A server that leaves the graph meanwhile ends the wait (ServerWatch)."""
+    Interrupted. A server that leaves the graph meanwhile, or is replaced by a new instance
+    that does not know the goal (a restarted node), ends the wait (ServerWatch)."""
     if not spin_until(node, client.server_is_ready, min(timeout, 10.0), executor):
         raise CallError(f'action {client._action_name} is not available; '
                         'is the node suite up (cobot-calib up)?')
     send = client.send_goal_async(goal, feedback_callback=feedback)
+    watch = None
     try:
         if not spin_until(node, send.done, 10.0, executor):
             raise CallError(f'action {client._action_name} did not accept the goal in time')
         handle = send.result()
         if not handle.accepted:
             raise CallError(f'action {client._action_name} rejected the goal (busy?)')
-        result = handle.get_result_async()
         watch = ServerWatch(node, client)
+        result = handle.get_result_async()
         deadline = time.monotonic() + timeout
         while not spin_until(node, result.done, min(WATCH_PERIOD, deadline - time.monotonic()),
                              executor):
-            if watch.gone():
-                raise CallError(watch.gone_line())
+            ended = watch.ended()
+            if ended:
+                raise CallError(ended)
             if time.monotonic() >= deadline:
                 handle.cancel_goal_async()
                 raise CallError(f'action {client._action_name} did not finish within '
                                 f'{timeout:.0f} s')
     except KeyboardInterrupt:
-        raise _cancelled(node, client, send, executor) from None
+        raise _cancelled(node, client, send, executor, watch) from None
     return result.result().status, result.result().result
 
 
 WATCH_PERIOD = 0.25       # [s] between two looks at the graph while a goal runs
+UNKNOWN_NODE = '_NODE_NAME_UNKNOWN_'    # rmw's node name of an endpoint before its node's info
 
 
 class ServerWatch:
-    """Whether an action's server is still on the graph, for a client waiting on a goal.
+    """Whether the action server instance that accepted a goal still serves it, for a client
+    waiting on that goal.
 
-    A node that exits cleanly leaves the graph at once; a killed one (kill -9, a crash) only
-    when DDS's participant lease runs out (Fast DDS: 20 s). The server counts as gone once it
-    has been out of the graph for GONE_AFTER s; gone_line() names its node (found on the graph
-    when the watch starts) and says how to go on.
+    The instance is known by the graph ids (GIDs) of its status publisher, taken when the watch
+    starts (right after the goal was accepted). A node that exits cleanly leaves the graph at
+    once; a killed one (kill -9, a crash) only when DDS's participant lease runs out (Fast DDS:
+    20 s). Once the instance has been out of the graph for GONE_AFTER s, ended() says so: the
+    node is gone, or, when another instance serves the action (`cobot-calib up` restarted the
+    node), it restarted and the goal was lost with the old instance: a new server never knows
+    an old one's goals, so waiting on would never end.
     """
 
     GONE_AFTER = 3.0      # [s] unseen before the server counts as gone
 
     def __init__(self, node: Node, client: ActionClient) -> None:
-        self._client, self.action = client, client._action_name
-        self.server_node = action_server_node(node, self.action) or 'server'
+        self._node, self._client, self.action = node, client, client._action_name
+        self._status_topic = _resolved(node, self.action) + '/_action/status'
+        self._name = ''
+        self._accepted = set(self._servers())
         self._seen = time.monotonic()
 
-    def gone(self) -> bool:
+    def _servers(self) -> dict[tuple, str]:
+        """The action's server instances on the graph now: GID -> node name ('' while DDS
+        has not told it yet)."""
+        with contextlib.suppress(Exception):      # a graph query during shutdown
+            servers = {tuple(info.endpoint_gid): info.node_name for info in
+                       self._node.get_publishers_info_by_topic(self._status_topic)}
+            servers = {gid: '' if name == UNKNOWN_NODE else name
+                       for gid, name in servers.items()}
+            self._name = self._name or next(filter(None, servers.values()), '')
+            return servers
+        return {}
+
+    @property
+    def server_node(self) -> str:
+        """The name of the node serving the action (the first one the graph named)."""
+        if not self._name:
+            self._servers()
+        return self._name or action_server_node(self._node, self.action) or 'server'
+
+    def ended(self) -> str:
+        """'' while the accepting instance is there (or out of the graph under GONE_AFTER s);
+        else why the goal will not end: the node is gone, or it restarted (goal lost)."""
         now = time.monotonic()
-        if self._client.server_is_ready():
+        servers = self._servers()
+        there = (self._accepted & servers.keys()) if self._accepted \
+            else self._client.server_is_ready()
+        if there:
             self._seen = now
-        return now - self._seen > self.GONE_AFTER
+            return ''
+        if now - self._seen <= self.GONE_AFTER:
+            return ''
+        return self.lost_line() if servers else self.gone_line()
+
+    def restarted(self) -> bool:
+        """Another instance serves the action and the accepting one is out of the graph."""
+        servers = self._servers()
+        return bool(self._accepted and servers and not self._accepted & servers.keys())
 
     def gone_line(self) -> str:
         return (f'the {self.server_node} node is gone ({self.action} unavailable for '
                 f'{self.GONE_AFTER:.0f} s): restart it (cobot-calib up starts the suite; its '
                 'log is in ~/.ros/log)')
+
+    def lost_line(self) -> str:
+        return (f'the {self.server_node} node restarted: goal lost (the new {self.server_node} '
+                f'does not know the {self.action} goal of the one that accepted it; its log '
+                'in ~/.ros/log says why the old one ended)')
+
+
+def _resolved(node: Node, action: str) -> str:
+    """``action``'s full name as this node resolves it (namespace, remappings)."""
+    try:
+        return node.resolve_topic_name(action)
+    except Exception:       # noqa: BLE001 - an invalid name: as given, in the root namespace
+        return '/' + action.lstrip('/')
 
 
 def action_server_node(node: Node, action: str) -> str:
@@ -139,8 +194,10 @@ def action_server_node(node: Node, action: str) -> str:
     return ''
 
 
-def _cancelled(node: Node, client: ActionClient, send, executor) -> Interrupted:
-    """After a Ctrl-C: cancel the goal sent by ``send`` and wait for its end (CANCEL_WAIT)."""
+def _cancelled(node: Node, client: ActionClient, send, executor,
+               watch: ServerWatch | None = None) -> Interrupted:
+    """After a Ctrl-C: cancel the goal sent by ``send`` and wait for its end (CANCEL_WAIT).
+    ``watch``: the ServerWatch of the accepted goal, to say when its server restarted."""
     from action_msgs.msg import GoalStatus
     name = client._action_name
     if not spin_until(node, send.done, CANCEL_WAIT, executor) or not send.result().accepted:
@@ -148,12 +205,21 @@ def _cancelled(node: Node, client: ActionClient, send, executor) -> Interrupted:
     handle = send.result()
     cancel, result = handle.cancel_goal_async(), handle.get_result_async()
     if not spin_until(node, result.done, CANCEL_WAIT, executor):
+        if watch is not None and watch.restarted():
+            return Interrupted(watch.lost_line())
         answered = cancel.done() and bool(cancel.result().goals_canceling)
         return Interrupted(f'{name}: cancel {"accepted" if answered else "not answered"} but '
                            f'the goal did not end within {CANCEL_WAIT:.0f} s; it may still '
                            'complete (see the node log)')
     status, done = result.result().status, result.result().result
     message = getattr(done, 'message', '') or ''
+    if status == GoalStatus.STATUS_UNKNOWN:     # asked again: a server that never had it
+        return Interrupted(watch.lost_line() if watch is not None else
+                           f'{name}: the server does not know the goal (restarted?): goal '
+                           'lost', None)
     if status == GoalStatus.STATUS_CANCELED:
         return Interrupted(message or f'{name}: cancelled', done)
-    return Interrupted(f'{name}: ended before the cancel came: {message}', done)
+    words = {GoalStatus.STATUS_SUCCEEDED: 'it succeeded',
+             GoalStatus.STATUS_ABORTED: 'aborted without a message'}
+    return Interrupted(f'{name}: ended before the cancel came: '
+                       f'{message or words.get(status, f"status {status}")}', done)

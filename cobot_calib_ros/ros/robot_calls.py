@@ -14,7 +14,6 @@ mock_robot serves) is called instead when it answers.
 from __future__ import annotations
 
 import threading
-import time
 
 from cobot_calib_msgs.action import MoveTo
 from cobot_calib_msgs.msg import ProximityReading
@@ -26,7 +25,7 @@ from std_srvs.srv import Trigger
 from cobot_calib_ros.core.robot_port import Capture, CaptureFailed, MoveFailed, PortError
 from cobot_calib_ros.core.sensors.probe import Reading, ReadingStatus
 from cobot_calib_ros.ros.convert import matrix_to_pose
-from cobot_calib_ros.ros.spin import Companion, wait
+from cobot_calib_ros.ros.spin import Companion, pause, Stopping, until, wait
 
 SERVER_WAIT = 5.0       # [s] for move_to / capture_joints to be discovered
 MOVE_TIMEOUT = 120.0    # [s] for one move_to to finish (every caller's bound on a hung move)
@@ -43,6 +42,9 @@ RobotCallError = PortError     # a move or capture that did not happen (MoveFail
 
 class RobotCalls:
     """The RobotPort; ``operator``: the node's name, for its ``confirm_touch`` service."""
+
+    CALLS = ('move_to (mock_robot, or robot_adapter for a driver)',    # what absent() names
+             'capture_joints (joint_state_monitor)', 'probe/average (proximity_sensor)')
 
     def __init__(self, answers: Companion, speed_scale: float = 0.0, *,
                  probe_window: float = 0.2, operator: str = '') -> None:
@@ -67,21 +69,30 @@ class RobotCalls:
 
     def missing(self, timeout: float = SERVER_WAIT) -> str:
         """'' when move_to, capture_joints and probe/average answer, else what is missing."""
-        missing = []
-        if not self.move_client.wait_for_server(timeout_sec=timeout):
-            missing.append('move_to (mock_robot, or robot_adapter for a driver)')
-        for client, who in ((self.capture_client, 'joint_state_monitor'),
-                            (self.probe_client, 'proximity_sensor')):
-            if not client.wait_for_service(timeout_sec=timeout):
-                missing.append(f'{client.srv_name} ({who})')
+        try:
+            missing = self.absent(timeout)
+        except Stopping as e:
+            return str(e)
         return f'not available: {", ".join(missing)}; is the node suite up?' if missing else ''
 
+    def absent(self, timeout: float = SERVER_WAIT) -> list[str]:
+        """Which of move_to, capture_joints and probe/average are not on the graph after up to
+        ``timeout`` s (one wait for all: as soon as all are there); Stopping."""
+        ready = dict(zip(self.CALLS, (self.move_client.server_is_ready,
+                                      self.capture_client.service_is_ready,
+                                      self.probe_client.service_is_ready)))
+        until(lambda: all(is_ready() for is_ready in ready.values()), timeout)
+        return [name for name, is_ready in ready.items() if not is_ready()]
+
     def move(self, goal: MoveTo.Goal) -> MoveTo.Result:
-        """Run a move_to goal to its end (MOVE_TIMEOUT); MoveFailed unless it succeeded."""
-        if not self.move_client.wait_for_server(timeout_sec=SERVER_WAIT):
-            raise MoveFailed(NO_MOVE_TO)
+        """Run a move_to goal to its end (MOVE_TIMEOUT); MoveFailed unless it succeeded (the
+        node shutting down included)."""
         try:
+            if not until(self.move_client.server_is_ready, SERVER_WAIT):
+                raise MoveFailed(NO_MOVE_TO)
             result = self._answers.run_action(self.move_client, goal, 10.0, MOVE_TIMEOUT)
+        except Stopping as e:
+            raise MoveFailed(f'move_to: {e}')
         except TimeoutError as e:
             raise MoveFailed(f'move_to: {e}; is mock_robot (or robot_adapter) up?')
         if result is None:
@@ -95,10 +106,14 @@ class RobotCalls:
         """The tool tip onto cell point ``name``: the mock's simulated operator when
         mock_robot/hand_guide answers, else the operator, who confirms (TOUCH_TIMEOUT). The
         robot's move_to must be up either way (what it moves next, and a sign of a driver)."""
-        if not self.move_client.wait_for_server(timeout_sec=SERVER_WAIT):    # no robot at all
-            raise MoveFailed(NO_MOVE_TO)
-        if self._simulated_operator is None:
-            self._simulated_operator = self._hand_guide.wait_for_service(timeout_sec=SERVER_WAIT)
+        try:
+            if not until(self.move_client.server_is_ready, SERVER_WAIT):   # no robot at all
+                raise MoveFailed(NO_MOVE_TO)
+            if self._simulated_operator is None:
+                self._simulated_operator = until(self._hand_guide.service_is_ready,
+                                                 SERVER_WAIT)
+        except Stopping as e:
+            raise MoveFailed(f'touch {name}: {e}')
         if self._simulated_operator:
             return self._hand_guided(name)
         if not self.confirm_service:
@@ -111,7 +126,9 @@ class RobotCalls:
             f'then call {full_name} (std_srvs/Trigger)')
         self.awaiting_operator.set()
         try:
-            confirmed = self._confirmed.wait(TOUCH_TIMEOUT)
+            confirmed = until(self._confirmed.is_set, TOUCH_TIMEOUT)
+        except Stopping as e:
+            raise MoveFailed(f'touch {name}: {e}')
         finally:
             self.awaiting_operator.clear()
         if not confirmed:
@@ -162,20 +179,28 @@ class RobotCalls:
         for a moment) is tried again, up to CAPTURE_ATTEMPTS times, after a growing pause;
         every such retry counts in ``capture_retries`` (the nodes show it on /diagnostics and
         in their results, so a stalling stream shows)."""
-        if not self.capture_client.wait_for_service(timeout_sec=SERVER_WAIT):
-            raise CaptureFailed('capture_joints not available (is joint_state_monitor up?)')
-        req = CaptureJoints.Request(duration=duration)
-        for attempt in range(1, CAPTURE_ATTEMPTS + 1):
-            try:
-                res = wait(self.capture_client.call_async(req), req.duration + 10.0)
-            except TimeoutError as e:
-                raise CaptureFailed(f'capture_joints: {e}; is joint_state_monitor up?')
-            if res.error_code != CaptureJoints.Response.NO_DATA or attempt == CAPTURE_ATTEMPTS:
-                break
-            self.capture_retries += 1
-            self._answers.node.get_logger().warning(
-                f'capture_joints: {res.message}; trying again ({attempt}/{CAPTURE_ATTEMPTS})')
-            time.sleep(CAPTURE_RETRY_PAUSE * attempt)
+        try:
+            if not until(self.capture_client.service_is_ready, SERVER_WAIT):
+                raise CaptureFailed('capture_joints not available (is joint_state_monitor '
+                                    'up?)')
+            req = CaptureJoints.Request(duration=duration)
+            for attempt in range(1, CAPTURE_ATTEMPTS + 1):
+                try:
+                    res = wait(self.capture_client.call_async(req), req.duration + 10.0)
+                except Stopping:
+                    raise
+                except TimeoutError as e:
+                    raise CaptureFailed(f'capture_joints: {e}; is joint_state_monitor up?')
+                if res.error_code != CaptureJoints.Response.NO_DATA \
+                        or attempt == CAPTURE_ATTEMPTS:
+                    break
+                self.capture_retries += 1
+                self._answers.node.get_logger().warning(
+                    f'capture_joints: {res.message}; trying again ({attempt}/'
+                    f'{CAPTURE_ATTEMPTS})')
+                pause(CAPTURE_RETRY_PAUSE * attempt)
+        except Stopping as e:
+            raise CaptureFailed(f'capture_joints: {e}')
         if res.error_code != CaptureJoints.Response.SUCCESS:
             raise CaptureFailed(f'capture_joints: {res.message}')
         self.robot_seconds += req.duration
@@ -187,11 +212,12 @@ class RobotCalls:
         if self._laser_client is None:
             self._laser_client = self._answers.node.create_client(MeasurePosition,
                                                                   'laser_tracker/measure')
-        if not self._laser_client.wait_for_service(timeout_sec=SERVER_WAIT):
-            raise CaptureFailed('laser_tracker/measure not available (no tracker driver up?)')
         try:
+            if not until(self._laser_client.service_is_ready, SERVER_WAIT):
+                raise CaptureFailed('laser_tracker/measure not available (no tracker driver '
+                                    'up?)')
             res = wait(self._laser_client.call_async(MeasurePosition.Request()), 10.0)
-        except TimeoutError as e:
+        except TimeoutError as e:        # Stopping too
             raise CaptureFailed(f'laser_tracker/measure: {e}')
         if res.error_code != MeasurePosition.Response.SUCCESS:
             raise CaptureFailed(f'laser_tracker/measure: {res.message}')

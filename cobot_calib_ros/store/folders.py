@@ -10,10 +10,8 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, ClassVar
 
-import yaml
-
-from cobot_calib_ros.store.files import (atomic_write_text, check_id, ensure_dir, fsync_dir,
-                                         read_mapping, to_plain, WarningLog)
+from cobot_calib_ros.store.files import (atomic_write_text, check_id, dump_yaml, ensure_dir,
+                                         fsync_dir, read_mapping, to_plain, WarningLog)
 
 
 class FolderStore(WarningLog):
@@ -44,7 +42,7 @@ class FolderStore(WarningLog):
 
     def _write_meta(self, meta: dict[str, Any]) -> None:
         atomic_write_text(self.directory / meta['id'] / self.META_FILE,
-                          yaml.safe_dump(to_plain(meta), sort_keys=False, allow_unicode=True))
+                          dump_yaml(to_plain(meta), sort_keys=False, allow_unicode=True))
         self._meta[meta['id']] = meta
 
     def meta_problem(self, record_id: str) -> str:

@@ -37,6 +37,10 @@ def test_replay_usage_errors(tmp_path):
     assert cobot_calib('replay', str(tmp_path), '--rate', '-1').returncode == 2
     out = cobot_calib('replay', str(tmp_path), '--clock', '0')
     assert out.returncode == 2 and '--clock HZ must be > 0' in out.stderr
+    out = cobot_calib('replay', str(tmp_path), '--window', '-1')
+    assert out.returncode == 2 and '--window must be >= 0' in out.stderr
+    out = cobot_calib('replay', str(tmp_path), '--check', '--window', '5')
+    assert out.returncode == 2 and '--window do not apply' in out.stderr
 
 
 def test_replay_of_an_unknown_topic_or_type(tmp_path):

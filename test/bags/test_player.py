@@ -17,7 +17,7 @@ from tf2_msgs.msg import TFMessage
 
 from bagutil import RELIABLE, cdr, joint_state
 from cobot_calib_ros.bags import metadata
-from cobot_calib_ros.bags.player import BagPlayer, replay_qos, spinning
+from cobot_calib_ros.bags.player import BagPlayer, FlowControl, replay_qos, spinning
 from cobot_calib_ros.bags.reader import open_bag
 from cobot_calib_ros.bags.writer import BagWriter
 
@@ -177,3 +177,55 @@ def test_start_paused_until_resume_then_loop(sample_bag, client, player_context)
     with open_bag(sample_bag) as bag:
         recorded = [m.rawdata for m in bag.messages(['/joint_states'])]
     assert joints[:40] == recorded + recorded
+
+
+@pytest.fixture(scope='module')
+def best_effort_bag(tmp_path_factory):
+    """300 /probe/joint_states at 1 kHz, recorded best effort (as probe/voltage and images)."""
+    path = tmp_path_factory.mktemp('bags') / 'best_effort'
+    with BagWriter(path) as bag:
+        bag.add_topic('/slow/joint_states', 'sensor_msgs/msg/JointState',
+                      [metadata.qos(reliability='best_effort')])
+        for i in range(300):
+            bag.write('/slow/joint_states', cdr(joint_state(i)), T0 + i * MS)
+    return path
+
+
+def test_flow_control_loses_nothing_to_a_consumer_slower_than_the_player(
+        best_effort_bag, client, player_context):
+    """Issue 31.5: a best-effort subscriber with a history of 3 that takes one message per
+    executor round and stalls between rounds (a node on a loaded machine) gets every message of
+    a bag played as fast as possible, in order, when the player keeps at most 2 of them out.
+    (Without flow control it keeps only what its history held when it looked.)"""
+    got = []
+    client.node.create_subscription(
+        JointState, '/slow/joint_states', got.append,
+        QoSProfile(depth=3, reliability=ReliabilityPolicy.BEST_EFFORT), raw=True)
+    stop = threading.Event()
+
+    def slow_consumer() -> None:
+        while not stop.is_set():
+            client.executor.spin_once(timeout_sec=0.01)
+            time.sleep(0.003)                       # busy elsewhere between rounds
+    with open_bag(best_effort_bag) as bag:
+        player = BagPlayer(bag, rate=0, wait_subscribers=10.0, context=player_context,
+                           flow=FlowControl(2, lambda: len(got)))
+        consumer = threading.Thread(target=slow_consumer, daemon=True)
+        consumer.start()
+        try:
+            with spinning(player):
+                result = player.play()
+        finally:
+            stop.set()
+            consumer.join(timeout=5)
+        recorded = [m.rawdata for m in bag.messages()]
+        player.destroy_node()
+    assert result.written_off == 0
+    assert result.published == 300
+    assert got[-300:] == recorded                   # the first may have come twice (resent)
+    assert got[:len(got) - 300] == recorded[:len(got) - 300]
+
+
+def test_flow_control_window_must_hold_a_message():
+    with pytest.raises(ValueError, match='window must be >= 1'):
+        FlowControl(0, lambda: 0)

@@ -104,6 +104,80 @@ def test_a_killed_kinematic_identifier_is_named_not_waited_on(cell):
     assert 'Traceback' not in err
 
 
+def _kill_and_restart(suite, key: str = 'kinematic_identifier') -> float:
+    """kill -9, then start it again as `cobot-calib up` does (Suite.restart); when killed."""
+    suite.processes[key].kill()
+    suite.processes[key].wait()
+    killed = time.monotonic()
+    suite.restart(key)
+    return killed
+
+
+def test_a_restarted_kinematic_identifier_lost_the_goal_and_the_wait_ends(cell):
+    """issue 31 item 2: the restarted node was back on the graph, so the client waited on a
+    goal the new instance never knew (667 s, then Ctrl-C)."""
+    suite, env, store = cell
+    proc = _identify(env)                               # 3 x 625 poses: minutes of work
+    try:
+        _until_poses_come(proc)
+        killed = _kill_and_restart(suite)
+        _, err = proc.communicate(timeout=240)
+    finally:
+        proc.kill()
+    # the killed instance leaves the graph after its 20 s lease; + 3 s unseen
+    assert time.monotonic() - killed < 90.0, err
+    assert proc.returncode == 1, err
+    assert 'the kinematic_identifier node restarted: goal lost' in err, err
+    (collection_id,) = [m['id'] for m in store.list_collections()]
+    assert err.strip().endswith(f'--attach --resume {collection_id}'), err
+    assert 'Traceback' not in err
+
+
+def test_ctrl_c_after_a_restart_says_the_goal_was_lost(cell):
+    """issue 31 item 2: a Ctrl-C while the client waited on the lost goal printed an empty
+    reason ('ended before the cancel came: ;')."""
+    suite, env, store = cell
+    proc = _identify(env)
+    try:
+        _until_poses_come(proc)
+        _kill_and_restart(suite)
+        log = suite.log_path('kinematic_identifier')
+        deadline = time.monotonic() + 120
+        while log.read_text().count('collections in') < 2:      # the new instance is up
+            assert time.monotonic() < deadline, log.read_text()
+            time.sleep(0.5)
+        time.sleep(3.0)         # discovered by the client (its cancel and result reach it)
+        assert proc.poll() is None        # still waiting: the old instance is in its lease
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        proc.kill()
+    assert proc.returncode == 130, err
+    assert 'identify stopped (Ctrl-C): the kinematic_identifier node restarted: goal lost' \
+        in err, err
+    assert 'came: ;' not in err
+    (collection_id,) = [m['id'] for m in store.list_collections()]
+    assert err.strip().endswith(f'--attach --resume {collection_id}'), err
+
+
+def test_a_planned_collection_with_too_few_poses_is_refused_before_anything_moves(cell):
+    """issue 31 item 4: --max-poses 3 ran the candidate IK and moved for 82 s before the
+    identification refused the data."""
+    suite, env, store = cell
+    proc = _identify(env, '--planned', '--max-poses', '3')
+    _, err = proc.communicate(timeout=180)
+    assert proc.returncode == 1, err
+    assert err.strip() == (
+        'identify failed: collect_sphere_data (spheres '
+        + err.split('collect_sphere_data (spheres ')[1].split(')')[0]
+        + ") failed: max_poses 3 is too few: the sawyer model's 24 free parameters and 3 "
+          'sphere centres (33 unknowns) need 11 poses or more (3 residuals a pose, 3 known '
+          'distances, 2 poses a sphere); give max_poses 11 or more'), err
+    assert store.list_collections() == []               # nothing stored, nothing to resume
+    log = suite.log_path('kinematic_identifier').read_text()
+    assert 'solving IK for the candidate' not in log, log
+
+
 def test_resume_says_what_it_needs(tmp_path):
     env = dict(os.environ, COBOT_CALIB_DATA=str(tmp_path))
     out = subprocess.run([sys.executable, '-m', 'cobot_calib_ros.cli.main', 'identify',

@@ -1,6 +1,7 @@
 """`cobot-calib up` as a user runs it, a real process on a ROS domain of its own: 'ready' once
 every node answers, a killed node restarted while the others keep running, Ctrl-C (SIGINT to
 the process group, as a terminal sends it) stopping every node cleanly while a trial runs."""
+import contextlib
 import json
 import os
 from pathlib import Path
@@ -14,6 +15,7 @@ import numpy as np
 import pytest
 
 from cobot_calib_ros.api.launcher import SUITE
+from cobot_calib_ros.store.collections import CollectionStore
 from cobot_calib_ros.store.trials import TrialStore
 from machine import machine_unloaded
 from proc_lines import Lines
@@ -71,8 +73,9 @@ class Up:
                               env=self.env)
 
 
-@pytest.fixture(scope='module')
-def up(tmp_path_factory):
+@contextlib.contextmanager
+def _running_up(tmp_path_factory):
+    """`cobot-calib up` on a domain of its own, storing in a fresh data dir."""
     import domain_coordinator
     data = tmp_path_factory.mktemp('up_data')
     with domain_coordinator.domain_id() as domain:
@@ -90,6 +93,12 @@ def up(tmp_path_factory):
                 except subprocess.TimeoutExpired:
                     os.killpg(running.proc.pid, signal.SIGKILL)
                     running.proc.wait()
+
+
+@pytest.fixture(scope='module')
+def up(tmp_path_factory):
+    with _running_up(tmp_path_factory) as running:
+        yield running
 
 
 def test_ready_comes_once_every_node_answers(up):
@@ -165,6 +174,46 @@ def test_ctrl_c_stops_every_node_cleanly_while_a_trial_runs(up):
     # teardown. Never SIGKILL (-9), never a crash.
     allowed = {'0'} if machine_unloaded() else {'0', '-15'}
     assert set(codes.values()) <= allowed, (codes, os.getloadavg())
+
+
+def test_ctrl_c_during_a_collection_aborts_its_goal_for_the_client_and_every_node_exits_0(
+        tmp_path_factory):
+    """issue 31 item 3: SIGINT to `up`'s process group while kinematic_identifier collects:
+    the client gets the aborted result with the reason and the resume line (it said 'node is
+    gone'), the collection is stored aborted, and every node exits 0 of itself (6 of 9 needed
+    SIGTERM)."""
+    with _running_up(tmp_path_factory) as running:
+        running.ready()
+        client = subprocess.Popen(
+            _cli('identify', '--robot', 'sawyer', '--attach', '--hold', '0.02',
+                 '--validation-configs', '0', '--dry-run'),
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=running.env)
+        try:
+            _wait_line(client, '  pose ', 180.0)         # the collection's first feedback
+            os.killpg(running.proc.pid, signal.SIGINT)
+            code = running.proc.wait(timeout=30)
+            _, err = client.communicate(timeout=60)
+        finally:
+            client.kill()
+        rest = running.output.leftover() + running.proc.stdout.read()
+        out = ''.join(running.lines) + rest
+    assert code == 0, out
+    (collection_id,) = [m['id'] for m in CollectionStore(
+        Path(running.env['COBOT_CALIB_DATA'])).list_collections()]
+    assert client.returncode == 1, err
+    assert (f'failed: {collection_id}: the kinematic_identifier node is shutting down (Ctrl-C '
+            'or SIGTERM): stopped at pose ') in err, err
+    assert err.strip().endswith(f'--attach --resume {collection_id}'), err
+    stored = CollectionStore(Path(running.env['COBOT_CALIB_DATA'])).load(collection_id)
+    assert stored.meta['status'] == 'aborted' and len(stored.q) >= 1
+    assert not len(stored.skipped)          # the move the stop ended is not a skipped pose
+    stopped = re.search(r'^stopped in [\d.]+ s: (.*)$', rest, re.M)
+    assert stopped, out
+    codes = dict(re.findall(r'(\w+) \((-?\d+)\)', stopped.group(1)))
+    assert list(codes) == list(SUITE)
+    assert set(codes.values()) == {'0'}, (codes, os.getloadavg())
+    for log in running.log_dir.glob('*.log'):
+        assert 'Traceback' not in log.read_text(errors='replace'), log
 
 
 def _wait_line(proc: subprocess.Popen, text: str, timeout: float) -> list[str]:

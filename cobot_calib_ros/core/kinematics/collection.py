@@ -7,7 +7,10 @@ averaged over a hold, and for a laser tracker the tool position is measured; eve
 ``log`` before the next move, so a collection that stops (Ctrl-C, a crash) resumes at the first
 pose without a record. A pose the robot cannot reach is logged as skipped; more than
 ``max_skipped_in_a_row`` in a row end the run, as does a capture that fails. ``cancelled()``
-is looked at between poses (never inside a port call): the run stops at that pose boundary.
+is looked at between poses (never inside a port call): the run stops at that pose boundary. A
+move or capture that fails once ``cancelled()`` is True failed because of the stop (a node
+shutting down ends its calls in flight): the run ends cancelled at that pose, which is not
+logged, so a resume visits it.
 
 Runs the same over ROS (kinematic_identifier with ros.robot_calls) and in-process on the
 simulation (sim.robot.DirectRobot), where a test knows the truth.
@@ -83,13 +86,14 @@ def collect(plan: Sequence[Mapping[str, Any]], start: int, robot: RobotPort,
     for i in range(start, len(plan)):
         run.next_index = i
         if cancelled():
-            run.ending, run.message = Ending.CANCELED, f'canceled at pose {i} of {len(plan)}'
-            return run
+            return _stopped_at(run, i, len(plan))
         step = plan[i]
         t0 = clock()
         try:
             robot.move_joints(np.asarray(step['q'], dtype=float), compliant=not laser)
         except MoveFailed as e:
+            if cancelled():
+                return _stopped_at(run, i, len(plan))
             log(PoseRecord(i, int(step['target']), None, note=str(e)))
             run.skipped, in_a_row = run.skipped + 1, in_a_row + 1
             if in_a_row > max_skipped_in_a_row:
@@ -104,6 +108,8 @@ def collect(plan: Sequence[Mapping[str, Any]], start: int, robot: RobotPort,
             capture = robot.capture(hold)
             p = robot.measure_position() if laser else None
         except CaptureFailed as e:
+            if cancelled():
+                return _stopped_at(run, i, len(plan))
             run.ending, run.message = Ending.CAPTURE_FAILED, f'pose {i}: {e}'
             return run
         t2 = clock()
@@ -117,4 +123,11 @@ def collect(plan: Sequence[Mapping[str, Any]], start: int, robot: RobotPort,
         if on_pose is not None:
             on_pose(record, capture, run)
     run.next_index = len(plan)
+    return run
+
+
+def _stopped_at(run: CollectionRun, index: int, poses: int) -> CollectionRun:
+    """``run`` ended cancelled at plan index ``index`` (not logged: a resume visits it)."""
+    run.next_index = index
+    run.ending, run.message = Ending.CANCELED, f'canceled at pose {index} of {poses}'
     return run

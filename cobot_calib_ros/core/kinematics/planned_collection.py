@@ -67,9 +67,7 @@ def collect_planned(planner: SpherePlanner, robot: RobotPort,
             run.message = stop
             return run, time
         if cancelled():
-            run.ending = Ending.CANCELED
-            run.message = f'canceled after {len(planner.q)} planned poses'
-            return run, time
+            return _stopped(run, planner), time
         index = planner.next_pose()
         target = int(planner.pool_target[index])
         before = robot.robot_seconds
@@ -77,6 +75,8 @@ def collect_planned(planner: SpherePlanner, robot: RobotPort,
             robot.move_joints(planner.pool_q[index], compliant=True)
         except MoveFailed as e:
             time.move += robot.robot_seconds - before
+            if cancelled():         # failed because of the stop (collection's module doc)
+                return _stopped(run, planner), time
             log(PoseRecord(index, target, None, note=str(e)))
             planner.skipped(index)
             run.skipped, in_a_row = run.skipped + 1, in_a_row + 1
@@ -91,6 +91,8 @@ def collect_planned(planner: SpherePlanner, robot: RobotPort,
         try:
             capture = robot.capture(hold)
         except CaptureFailed as e:
+            if cancelled():
+                return _stopped(run, planner), time
             run.ending, run.message = Ending.CAPTURE_FAILED, f'pose {index}: {e}'
             return run, time
         time.hold += robot.robot_seconds - moved
@@ -102,3 +104,9 @@ def collect_planned(planner: SpherePlanner, robot: RobotPort,
         prediction = planner.measured(index, record.q)
         if on_pose is not None:
             on_pose(record, capture, run, prediction)
+
+
+def _stopped(run: CollectionRun, planner: SpherePlanner) -> CollectionRun:
+    run.ending = Ending.CANCELED
+    run.message = f'canceled after {len(planner.q)} planned poses'
+    return run

@@ -93,6 +93,38 @@ def sphere_candidates(cell: Cell, model: KinematicModel,
     return sphere_plan(cell, model, angles_deg=tuple(tilt_deg), arm_angles_deg=tuple(arm_deg))
 
 
+def fewest_poses(free: int, spheres: int, known_distances: int) -> int:
+    """The fewest sphere poses whose data can determine ``free`` parameters (the tool's
+    included) and the centres of ``spheres`` spheres: more residuals (3 a pose, 1 a known
+    distance) than unknowns (free + 3 a sphere), the solver's rule, and 2 poses on every sphere
+    (SphereObservations' rule: a centre from one pose is that pose)."""
+    unknowns = free + 3 * spheres
+    return max(2 * spheres, (unknowns - known_distances) // 3 + 1)
+
+
+FEWEST_POSES_SAMPLE = 30    # paper-grid poses whose identifiability counts the free parameters
+#                             before the candidate IK (30 s): the pool's count on the mock Sawyer
+#                             (24) and iiwa 7 (25), from 12 poses up
+
+
+def too_few_poses(cell: Cell, model: KinematicModel, max_poses: int) -> str:
+    """'' if a planned collection of up to ``max_poses`` poses on ``cell``'s spheres can
+    determine its unknowns, else why not and how many it needs; in about a second (a small
+    plan's IK and identifiability, not the candidate pool's)."""
+    plan, _ = sphere_plan(cell, model, FEWEST_POSES_SAMPLE)
+    q = np.array([step['q'] for step in plan], dtype=float)
+    free = len(ParameterSet(model, identifiable(model, q, cell.spheres.coupling_offset[:3, 3])
+                            .kept).free)
+    spheres, distances = len(cell.spheres.names), len(cell.spheres.known_distances())
+    fewest = fewest_poses(free, spheres, distances)
+    if max_poses >= fewest:
+        return ''
+    return (f'max_poses {max_poses} is too few: the {model.name} model\'s {free} free '
+            f'parameters and {spheres} sphere centres ({free + 3 * spheres} unknowns) need '
+            f'{fewest} poses or more (3 residuals a pose, {distances} known distances, 2 poses '
+            f'a sphere); give max_poses {fewest} or more')
+
+
 @dataclass(frozen=True)
 class Prediction:
     """Predicted held-out error in the task volume after ``poses`` poses [mm]."""

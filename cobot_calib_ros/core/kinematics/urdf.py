@@ -6,7 +6,10 @@
 next revolute joint's placement, or into ``flange`` after the last one. A revolute joint whose
 axis is not +z gets a re-oriented model frame ``F' = F_urdf @ R_axis`` with ``R_axis @ z = axis``:
 its placement and the next one absorb ``R_axis`` (the parameters are then those of the converted
-placement, not the URDF's literal numbers). FK is unchanged: ``fk(model.chain(), q)`` is the pose
+placement, not the URDF's literal numbers). With ``free_pitch`` (identification's models), a
+frame whose placement would have a pitch beyond 60 deg (near gimbal lock, where roll and yaw
+turn about one axis and are one parameter) is also turned about its own axis, which frees the
+pitch. FK is unchanged: ``fk(model.chain(), q)`` is the pose
 of ``tip_link`` in ``base_link``.
 
 :func:`calibrated_urdf` writes a URDF whose chain from ``base_link`` to ``tool_link`` reproduces
@@ -31,6 +34,7 @@ Array = NDArray[np.float64]
 
 _MOVING = ('revolute', 'continuous', 'prismatic')
 _XACRO_NS = 'http://www.ros.org/wiki/xacro'
+GIMBAL_SIN = math.sin(math.radians(60.0))   # |pitch| beyond 60 deg: the frame is turned
 
 
 # --- small geometry ----------------------------------------------------------------------
@@ -226,7 +230,8 @@ class _Serial:
     axes: list[Array]     # per moving joint: (4, 4) R_axis
 
 
-def _serial(path: list[_Joint], base_link: str, tip_link: str) -> _Serial:
+def _serial(path: list[_Joint], base_link: str, tip_link: str,
+            free_pitch: bool = False) -> _Serial:
     moving, before, axes = [], [], []
     acc = np.eye(4)
     for joint in path:
@@ -245,7 +250,31 @@ def _serial(path: list[_Joint], base_link: str, tip_link: str) -> _Serial:
                              'continuous, prismatic and fixed joints can be on the chain')
     if not moving:
         raise ValueError(f'no moving joint between {base_link!r} and {tip_link!r}')
+    if free_pitch:
+        _unlock(moving, before, axes)
     return _Serial(moving, before, acc, axes)
+
+
+def _unlock(moving: list[_Joint], before: list[Array], axes: list[Array]) -> None:
+    """In place: turn a joint's model frame about its own axis (R_i <- R_i Rz(phi), free:
+    the next placement absorbs it) wherever its placement would have pitch near +-pi/2, where
+    roll and yaw turn about one axis and the error model 'full' loses a parameter (an axis y
+    after an axis x converts to pitch -pi/2). phi = pi/2 (exact) when it frees the pitch."""
+    prev = np.eye(4)
+    for i, (joint, F) in enumerate(zip(moving, before)):
+        M = (prev.T @ F @ joint.origin @ axes[i])[:3, :3]
+        if abs(M[2, 0]) > GIMBAL_SIN:        # M[2, 0] = -sin(pitch)
+            turn = np.eye(4)
+            c, s = (0.0, 1.0) if abs(M[2, 1]) <= GIMBAL_SIN else _level(M)
+            turn[:2, :2] = [[c, -s], [s, c]]
+            axes[i] = axes[i] @ turn
+        prev = axes[i]
+
+
+def _level(M: Array) -> tuple[float, float]:
+    """(cos, sin) of the turn phi about z with (M Rz(phi))[2, 0] = 0 (pitch 0)."""
+    phi = math.atan2(-M[2, 0], M[2, 1])
+    return math.cos(phi), math.sin(phi)
 
 
 def _placements(serial: _Serial) -> list[Array]:
@@ -269,19 +298,21 @@ def _literal(serial: _Serial) -> list[bool]:
 
 # --- public API --------------------------------------------------------------------------
 
-def model_from_urdf(text: str, base_link: str, tip_link: str, name: str) -> KinematicModel:
+def model_from_urdf(text: str, base_link: str, tip_link: str, name: str, *,
+                    free_pitch: bool = False) -> KinematicModel:
     """Model (kind 'origin') of the revolute chain from ``base_link`` to ``tip_link``.
 
     fk(model.chain(), q) is T_base_link_tip_link, q in the order of the revolute/continuous/
     prismatic joints on the path (continuous joints get limits +-inf; a prismatic joint slides
     along its axis, q in m). A joint whose origin needs no
     conversion (no fixed joint before it, +z axis here and on the previous revolute joint)
-    keeps the URDF's literal xyz/rpy as its parameters.
+    keeps the URDF's literal xyz/rpy as its parameters. ``free_pitch``: no placement near
+    gimbal lock (module docstring; a literal joint there is converted), for identification.
     ValueError (naming the link/joint) for malformed XML or numbers, unknown links, no serial
     path, floating/planar/mimic joints on the path, xacro text.
     """
     urdf = _parse(text)
-    serial = _serial(_path(urdf, base_link, tip_link), base_link, tip_link)
+    serial = _serial(_path(urdf, base_link, tip_link), base_link, tip_link, free_pitch)
     rows = []
     for joint, literal, P in zip(serial.moving, _literal(serial), _placements(serial)):
         if literal:
@@ -399,9 +430,10 @@ def _rewrite_urdf(model: KinematicModel, rows: Array, placements: Array, end: Ar
         raise ValueError(f'the revolute joints from {base_link!r} to {last_child!r} are '
                          f'{list(names)}, the model has {list(model.joint_names)}; pass the '
                          'base_link the model was built from')
-    nominal = _placements(serial)
-    stale = [j.name for j, P, Q in zip(serial.moving, nominal, model.chain().placements)
-             if not np.allclose(P, Q, rtol=0.0, atol=1e-9)]
+    stale = _stale(serial, model)
+    if stale:        # a model built with free_pitch turns some frames
+        turned = _serial(_path(urdf, base_link, last_child), base_link, last_child, True)
+        serial, stale = (turned, []) if not _stale(turned, model) else (serial, stale)
     if stale:
         raise ValueError(f'the nominal placements of {stale} in model {model.name!r} differ '
                          'from original_text: build the model with model_from_urdf on this text')
@@ -417,6 +449,13 @@ def _rewrite_urdf(model: KinematicModel, rows: Array, placements: Array, end: Ar
     _place_tool(urdf, last_child, tool_link, target)
     urdf.root.set('name', robot_name)
     return '<?xml version="1.0" ?>\n' + ET.tostring(urdf.root, encoding='unicode') + '\n'
+
+
+def _stale(serial: _Serial, model: KinematicModel) -> list[str]:
+    """The joints whose nominal placement in ``serial`` is not the model's."""
+    return [j.name for j, P, Q in zip(serial.moving, _placements(serial),
+                                      model.chain().placements)
+            if not np.allclose(P, Q, rtol=0.0, atol=1e-9)]
 
 
 def _place_tool(urdf: _Urdf, last_child: str, tool_link: str, target: Array) -> None:

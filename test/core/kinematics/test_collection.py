@@ -7,7 +7,7 @@ import pytest
 from cobot_calib_ros.core import frames, kinematics
 from cobot_calib_ros.core.kinematics import plans
 from cobot_calib_ros.core.kinematics.collection import collect, Ending
-from cobot_calib_ros.core.robot_port import CaptureFailed
+from cobot_calib_ros.core.robot_port import CaptureFailed, MoveFailed
 from cobot_calib_ros.paths import cell_file
 from cobot_calib_ros.sim.robot import DirectRobot, SimRobot
 from cobot_calib_ros.sim.scenario import load_simulation
@@ -56,6 +56,25 @@ def test_a_cancel_stops_at_the_next_pose_boundary_and_the_run_resumes_there(plan
     assert rest.ending is Ending.DONE and rest.recorded == 23
     assert robot.moves == moves + 23                    # no pose visited twice
     assert [r.index for r in log] == list(range(30))
+
+
+def test_a_move_that_fails_after_the_stop_ends_the_run_there_not_logged_as_skipped(plan):
+    """A node shutting down ends its move in flight (issue 31 item 3): that pose was not
+    unreachable, so it is not logged; a resume visits it."""
+    robot, log, stop = _robot(), [], []
+    move = robot.move_joints
+
+    def stopped_midway(q, **kwargs):
+        if len(log) == 4:
+            stop.append(True)
+            raise MoveFailed('move_to: the node is shutting down')
+        return move(q, **kwargs)
+
+    robot.move_joints = stopped_midway
+    run = collect(plan, 0, robot, log.append, hold=HOLD, cancelled=lambda: bool(stop))
+    assert run.ending is Ending.CANCELED and run.next_index == 4
+    assert run.message == 'canceled at pose 4 of 30'
+    assert [r.index for r in log] == [0, 1, 2, 3] and all(r.q is not None for r in log)
 
 
 def test_unreachable_poses_are_skipped_until_too_many_in_a_row(plan):

@@ -13,9 +13,10 @@ from cobot_calib_ros.core.kinematics.collection import Ending
 from cobot_calib_ros.core.kinematics.identification import (identify, register_rigid,
                                                             SphereObservations)
 from cobot_calib_ros.core.kinematics.planned_collection import collect_planned, PAPER_HOLD
-from cobot_calib_ros.core.kinematics.planning import (_pick, PlanSettings, predict,
-                                                      sphere_candidates, SpherePlanner,
-                                                      tilt_grid_deg)
+from cobot_calib_ros.core.kinematics.planning import (_pick, fewest_poses, PlanSettings,
+                                                      predict, sphere_candidates,
+                                                      SpherePlanner, tilt_grid_deg,
+                                                      too_few_poses)
 from cobot_calib_ros.core.robot_port import MoveFailed
 from cobot_calib_ros.paths import cell_file
 from cobot_calib_ros.sim.robot import DirectRobot, SimRobot
@@ -205,6 +206,28 @@ def test_a_sphere_with_one_pose_defers_the_refit_instead_of_failing(planner_temp
     planner.resume(indices, planner.pool_q[indices])
     assert np.array_equal(planner.params, MODEL.nominal)    # no refit yet
     assert len(planner.q) == len(indices) and planner.sigma == planner.settings.sigma_prior
+
+
+def test_the_fewest_poses_give_more_residuals_than_unknowns_and_two_a_sphere():
+    # 25 free parameters + 3 centres = 34 unknowns, 3 known distances: 3 n + 3 > 34 from 11
+    assert fewest_poses(25, 3, 3) == 11
+    assert 3 * 10 + 3 <= 25 + 9 < 3 * 11 + 3
+    assert fewest_poses(24, 3, 0) == 12                # 36 > 33, not 33
+    assert fewest_poses(1, 3, 3) == 6                  # two on each sphere
+
+
+def test_too_few_poses_are_refused_with_the_count_the_planner_uses(planner_template):
+    """issue 31 item 4: max_poses 3 moved the robot for 82 s before the identification
+    refused the data; the count comes from a 30-pose plan in a second, not the pool's IK."""
+    problem = too_few_poses(SIM.cell, MODEL, 3)
+    assert problem == ("max_poses 3 is too few: the iiwa7 model's 25 free parameters and 3 "
+                       'sphere centres (34 unknowns) need 11 poses or more (3 residuals a '
+                       'pose, 3 known distances, 2 poses a sphere); give max_poses 11 or more')
+    assert too_few_poses(SIM.cell, MODEL, 10).startswith('max_poses 10 is too few')
+    assert too_few_poses(SIM.cell, MODEL, 11) == ''
+    # the unknowns the planner itself solves for, on its candidate pool
+    assert len(planner_template.parameter_set.free) == 25
+    assert planner_template.lin.D == 25 + 3 * 3
 
 
 def test_robot_time_is_the_ports_moves_and_holds(planned_30):

@@ -39,7 +39,7 @@ SMALLEST_JOINT_SPAN_RAD = 0.2    # all joints within 11.5 deg: no arm is calibra
                                  # (2 pi rad read as degrees is 0.11 rad)
 SCALE_BAND = 5.0                 # measured spread / the tip's spread within [1/5, 5]
 EQUATIONS_PER_UNKNOWN = 2.0      # fewer equations than twice the unknowns: refused
-_ANGLE_FIELDS = ('roll', 'pitch', 'yaw', 'alpha', 'theta')
+_ANGLE_FIELDS = ('roll', 'pitch', 'yaw', 'alpha', 'theta', 'compliance')  # (compliance.py)
 
 
 @dataclass(frozen=True)

@@ -5,7 +5,9 @@ Error models (``ERROR_MODELS``) over a :class:`KinematicModel` (from a URDF, or 
 - ``offsets``: one offset per joint, q_model = q + offset (``offset_<joint>``);
 - ``full``: every joint origin's x, y, z, roll, pitch, yaw (kind 'origin' models: FIGAROH's
   ``full_params``);
-- ``mdh``: every joint's alpha, a, theta, d (kind 'mdh' models, a DH table: the paper's).
+- ``mdh``: every joint's alpha, a, theta, d (kind 'mdh' models, a DH table: the paper's);
+- ``<one of them>+compliance``: and one compliance per revolute joint, a deflection in
+  proportion to its gravity torque (:mod:`.compliance`), after the geometric candidates.
 
 Unknowns are the free model parameters then the measurement's nuisance (base and target
 frames, markers, sphere centres, planes: :mod:`.measurements`). Jacobians: the model
@@ -30,7 +32,7 @@ rows' errors pooled. An outlier rule (:func:`outliers`) names rows.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 import math
 
 import numpy as np
@@ -38,16 +40,17 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import least_squares
 
 from cobot_calib_ros.core.errors import ErrorCode, Failure, Refusal
-from cobot_calib_ros.core.kinematics.identification import gates
+from cobot_calib_ros.core.kinematics.identification import compliance, gates
 from cobot_calib_ros.core.kinematics.identification.gates import DeviationBounds, Verdict
 from cobot_calib_ros.core.kinematics.identification.measurements import (
-    Kind, make_kind, Measurements, textbook_minimum)
+    DEFAULT_ROTATION_WEIGHT, Kind, make_kind, Measurements, textbook_minimum)
 from cobot_calib_ros.core.kinematics.identification.tip_jacobian import (
     residual_jacobian, tip_twists)
 from cobot_calib_ros.core.kinematics.model import fk_placements, KinematicModel, placement
 
 Array = NDArray[np.float64]
-ERROR_MODELS = ('offsets', 'full', 'mdh')
+GEOMETRIC_MODELS = ('offsets', 'full', 'mdh')
+ERROR_MODELS = GEOMETRIC_MODELS + tuple(m + compliance.SUFFIX for m in GEOMETRIC_MODELS)
 FD_STEP = 1e-6            # [m or rad] central-difference step
 RANK_TOL = 1e-3           # a column is kept if >= this fraction of it is new (scaled columns)
 CORRELATED = 0.9
@@ -67,25 +70,41 @@ class ErrorModel:
         # the parameters of each error model are fields of one kind of model: a URDF's joint
         # origins are not MDH rows (an exact conversion needs a base transform the MDH chain
         # lacks, and is not unique where consecutive axes are parallel), nor the reverse
-        if self.name == 'mdh' and self.model.kind != 'mdh':
+        if self.geometric == 'mdh' and self.model.kind != 'mdh':
             raise ValueError(f'--model mdh needs a DH table (--dh FILE); {self.model.name} is '
                              'a URDF: use --model full (x, y, z, roll, pitch, yaw of every '
                              'joint origin, which covers alpha, a, theta, d) or offsets')
-        if self.name == 'full' and self.model.kind != 'origin':
+        if self.geometric == 'full' and self.model.kind != 'origin':
             raise ValueError(f'--model full needs a URDF (--urdf FILE); {self.model.name} is a '
                              'DH table: use --model mdh (alpha, a, theta, d of every joint) '
                              'or offsets')
 
     @property
+    def geometric(self) -> str:
+        return self.name.removesuffix(compliance.SUFFIX)
+
+    @property
     def candidates(self) -> tuple[str, ...]:
-        if self.name == 'offsets':
-            return tuple(f'offset_{j}' for j in self.model.joint_names)
-        return self.model.parameter_names
+        extra = compliance.candidates(self.model) if self.name != self.geometric else ()
+        if self.geometric == 'offsets':
+            return tuple(f'offset_{j}' for j in self.model.joint_names) + extra
+        return self.model.parameter_names + extra
 
     def tip_poses(self, names: tuple[str, ...], values: Array, q: Array) -> Array:
         """(m, 4, 4) T_base_tip with the named parameters at ``values`` (others nominal)."""
         placements, offsets = self.placements(names, values)
-        return fk_placements(placements, self.model.flange, q + offsets, self.model.prismatic)
+        q_model = q + offsets
+        springs = self.q_dependent(names)
+        if springs:
+            tau = compliance.gravity_torques(self.model, q)
+            for k in springs:
+                j = compliance.joint_index(self.model, names[k])
+                q_model[:, j] += values[k] * tau[:, j]
+        return fk_placements(placements, self.model.flange, q_model, self.model.prismatic)
+
+    def q_dependent(self, names: tuple[str, ...]) -> list[int]:
+        """Indices of ``names`` whose effect varies with the joint values (compliances)."""
+        return [k for k, n in enumerate(names) if n.startswith(compliance.PREFIX)]
 
     def placements(self, names: tuple[str, ...], values: Array) -> tuple[Array, Array]:
         """(placements (n, 4, 4), joint offsets (n,)) with the named parameters at values."""
@@ -100,7 +119,7 @@ class ErrorModel:
         for name, v in zip(names, values):
             if name.startswith('offset_'):
                 offsets[self.model.joint_names.index(name[7:])] = v
-            else:
+            elif not name.startswith(compliance.PREFIX):
                 params[self.model.parameter_names.index(name)] = v
         return params, offsets
 
@@ -128,11 +147,18 @@ class _Problem:
 
     def jacobian(self, x: Array) -> Array:
         """The model parameters through the tip's twists (:mod:`.tip_jacobian`), each
-        nuisance unknown by central differences on the same tip poses."""
-        T = self.tip(x)
+        nuisance unknown by central differences on the same tip poses; at the joints without
+        deflections, a compliance's column zero (:meth:`columns` differences those)."""
+        params, offsets = self.errors.parameters(self.names, x[:self.n])
+        placements, _ = self.errors.placements(self.names, x[:self.n])
+        model = self.errors.model
+        T = fk_placements(placements, model.flange, self.data.q + offsets, model.prismatic)
         nuisance = x[self.n:]
-        twists = tip_twists(self.errors.model, *self.errors.parameters(self.names, x[:self.n]),
-                            self.names, self.data.q)
+        springs = self.errors.q_dependent(self.names)
+        geometric = [k for k in range(self.n) if k not in springs]
+        twists = np.zeros((self.n, len(T), 6))
+        twists[geometric] = tip_twists(model, params, offsets,
+                                       tuple(self.names[k] for k in geometric), self.data.q)
         columns = [residual_jacobian(self.kind, T, nuisance, twists, FD_STEP)]
         for k in range(len(nuisance)):
             pair = []
@@ -142,6 +168,18 @@ class _Problem:
                 pair.append(self.kind.residuals(T, step))
             columns.append(((pair[0] - pair[1]) / (2.0 * FD_STEP))[:, None])
         return np.hstack(columns)
+
+    def columns(self, x: Array) -> Array:
+        """:meth:`jacobian`, the columns of terms that vary with the joint values
+        (compliances) by central differences of the residuals. The other columns are taken
+        at the joints without the deflections (~1 mrad): exact at the start (no deflection),
+        a search direction off by ~1e-3 after; the residuals are exact."""
+        J = self.jacobian(x)
+        for k in self.errors.q_dependent(self.names):
+            step = np.zeros(len(x))
+            step[k] = FD_STEP
+            J[:, k] = (self.residuals(x + step) - self.residuals(x - step)) / (2.0 * FD_STEP)
+        return J
 
     def bounds(self, bounds: DeviationBounds) -> tuple[Array, Array]:
         """(lower, upper) of x: the model parameters within ``bounds`` of nominal, the
@@ -160,7 +198,7 @@ class _Problem:
         f_scale = 1.0
         if loss != 'linear':      # inliers: within ~ the start's median residual
             f_scale = max(float(np.median(np.abs(self.residuals(self.x0)))), 1e-9)
-        r = least_squares(self.residuals, self.x0, jac=lambda x: self.jacobian(x),
+        r = least_squares(self.residuals, self.x0, jac=self.columns,
                           bounds=self.bounds(bounds), method='trf', x_scale='jac',
                           xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=max_nfev, loss=loss,
                           f_scale=f_scale)
@@ -207,7 +245,7 @@ def identifiable(errors: ErrorModel, data: Measurements, rank_tol: float = RANK_
     problem = _Problem(errors, data, candidates, nuisance)
     x0 = problem.x0
     gauge = problem.kind.gauge(problem.tip(x0), x0[problem.n:])
-    J = _unit_columns(np.hstack([problem.jacobian(x0), gauge]))
+    J = _unit_columns(np.hstack([problem.columns(x0), gauge]))
     labels = candidates + problem.kind.names + tuple(
         f'base_rotation_{c}' for c in 'xyz'[:gauge.shape[1]])
     nuisance = len(candidates) + len(problem.kind.names)
@@ -299,6 +337,18 @@ def fit(errors: ErrorModel, data: Measurements, names: tuple[str, ...],
     return Fit(tuple(names), x[:problem.n], x[problem.n:], converged, problem)
 
 
+def balanced(errors: ErrorModel, data: Measurements, loss: str = 'linear') -> Measurements:
+    """``data`` with a rotation_weight of None (a sidecar's ``auto``) set to the ratio of the
+    nominal model's RMS position and rotation errors on these rows (its frames fitted at
+    1 m/rad), so that each counts by its own scatter; other data unchanged."""
+    if data.kind != 'pose' or data.rotation_weight is not None:
+        return data
+    start = replace(data, rotation_weight=DEFAULT_ROTATION_WEIGHT)
+    position, rotation = fit(errors, start, (), loss=loss).row_errors(start)
+    return replace(data, rotation_weight=float(np.sqrt(np.mean(position ** 2)
+                                                       / np.mean(rotation ** 2))))
+
+
 def stats(position: Array, rotation: Array) -> dict:
     """{rmse_mm, mean_mm, max_mm, rot_rms_mrad (None without rotation), count}."""
     p = np.asarray(position) * 1e3
@@ -345,7 +395,7 @@ def cross_validate(errors: ErrorModel, data: Measurements, held_out: list[Array]
     rot = {'nominal': np.full(m, np.nan), 'calibrated': np.full(m, np.nan)}
     folds = []
     for f, rows in enumerate(held_out):
-        train = data.take(np.setdiff1d(np.arange(m), rows))
+        train = balanced(errors, data.take(np.setdiff1d(np.arange(m), rows)), loss)
         test = data.take(rows)
         nominal = fit(errors, train, (), loss=loss)
         ident = identifiable(errors, train, rank_tol, nominal.nuisance)
@@ -417,13 +467,16 @@ def identify_measurements(errors: ErrorModel, data: Measurements, held_out: list
     ``noise_m``: the measurement's own RMS error [m] as the row errors count it (0: unknown)."""
     sample = np.arange(len(data)) if sample is None else np.asarray(sample)
     refuse(data_problems(errors, data))
+    weight = data.rotation_weight
+    data = balanced(errors, data, loss)
     nominal = fit(errors, data, (), loss=loss)
     ident = identifiable(errors, data, rank_tol, nominal.nuisance)
     equations = len(nominal.problem.residuals(nominal.problem.x0))
     refuse(gates.equation_problems(equations, len(ident.kept) + len(nominal.nuisance),
                                    len(data)), ErrorCode.TOO_FEW_POINTS)
     final = fit(errors, data, ident.kept, nominal.nuisance, loss, bounds)
-    cv = cross_validate(errors, data, held_out, labels, rank_tol, loss, bounds)
+    cv = cross_validate(errors, replace(data, rotation_weight=weight), held_out, labels,
+                        rank_tol, loss, bounds)
     e_pos, e_rot = final.row_errors(data)
     verdict = Verdict(tuple(
         gates.at_bounds(errors.model, final.names, final.deltas, bounds)
@@ -432,7 +485,7 @@ def identify_measurements(errors: ErrorModel, data: Measurements, held_out: list
     nominal = dict(zip(errors.candidates, errors.start(errors.candidates)))
     return {
         'measurement': data.kind, 'model': errors.name, 'robot': errors.model.name,
-        'loss': loss,
+        'loss': loss, 'rotation_weight': data.rotation_weight if data.has_rotation else None,
         'rows': len(data), 'samples': int(len(np.unique(sample))),
         'verdict': verdict.to_dict(),
         'bounds': {'length_mm': bounds.length_m * 1e3, 'angle_mrad': bounds.angle_rad * 1e3},

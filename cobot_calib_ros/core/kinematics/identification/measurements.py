@@ -9,7 +9,8 @@ Every kind measures something rigid on the tip link, in a frame the data fix:
   T_tip_target (6 + 6). A camera fixed in the cell measures T_camera_board (world = camera,
   target = board); a camera on the arm measures T_camera_board with the board fixed: the data
   are inverted to T_board_camera (world = board, target = camera). Rotation errors count
-  ``rotation_weight`` [m/rad] against position errors;
+  ``rotation_weight`` [m/rad] against position errors (None: balanced, each by its own
+  scatter: :func:`..measurement_fit.balanced`);
 - ``spheres`` (sphere / socket coupling): the ball centre b (in the tip) is at the same point
   c_s of sphere s every time, with known centre distances; unknowns b (3) and every c_s (3);
   nothing fixes the world frame, so a rigid motion of the base is invisible;
@@ -72,7 +73,7 @@ class Measurements:
     values: Array | None = None
     distances: tuple[tuple[int, int, float], ...] = ()
     ball: Array = field(default_factory=lambda: np.zeros(3))
-    rotation_weight: float = DEFAULT_ROTATION_WEIGHT
+    rotation_weight: float | None = DEFAULT_ROTATION_WEIGHT    # None: balanced on the data
 
     def __post_init__(self) -> None:
         if self.kind not in KINDS:
@@ -93,7 +94,7 @@ class Measurements:
         object.__setattr__(self, 'ball', _rows(self.ball, (), 'ball', 3))
         object.__setattr__(self, 'distances', tuple(
             (int(i), int(j), float(d)) for i, j, d in self.distances))
-        if not self.rotation_weight > 0.0:
+        if self.rotation_weight is not None and not self.rotation_weight > 0.0:
             raise ValueError(f'rotation_weight must be > 0 [m/rad], got {self.rotation_weight}')
 
     def __len__(self) -> int:
@@ -253,7 +254,8 @@ class PoseKind(Kind):
         T = self._predict(T_tip, x)
         dp = T[:, :3, 3] - self.data.values[:, :3, 3]
         dr = _rotation_errors(self.data.values[:, :3, :3], T[:, :3, :3])
-        return np.hstack([dp, self.data.rotation_weight * dr]).ravel()
+        weight = self.data.rotation_weight or DEFAULT_ROTATION_WEIGHT   # None: not yet balanced
+        return np.hstack([dp, weight * dr]).ravel()
 
     def errors(self, T_tip, x, data):
         T = self._predict(T_tip, x)

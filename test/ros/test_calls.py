@@ -1,0 +1,86 @@
+"""ros.calls.run_action against a server process that is killed and started again (issue 31
+item 2): the new instance does not know the goal, so the wait ends naming the node and saying
+the goal was lost, instead of waiting for a result that never comes. Real processes, real
+signals, on a ROS domain of their own."""
+import os
+import subprocess
+import time
+
+import domain_coordinator
+import pytest
+import rclpy
+from rclpy.action import ActionClient
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.qos import qos_profile_sensor_data
+from sensor_msgs.msg import JointState
+
+from cobot_calib_msgs.action import MoveTo
+from cobot_calib_ros.api import launcher
+from cobot_calib_ros.ros.calls import CallError, run_action, spin_until
+
+START_TIMEOUT = 60.0     # [s] for a node to start (cold imports on a loaded machine)
+GOAL_TIMEOUT = 150.0     # [s] run_action's own bound: beyond the move (50 s) and the lease
+
+
+@pytest.fixture
+def server(tmp_path):
+    """mock_robot in real time (a slow move lasts long), restartable, and a client node."""
+    with domain_coordinator.domain_id() as domain:
+        env = dict(os.environ, ROS_DOMAIN_ID=str(domain),
+                   ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', PYTHONUNBUFFERED='1')
+        cmd = launcher.NodeSpec('mock_robot', {'time_scale': '1.0'}).command()
+        procs = []
+
+        def start() -> subprocess.Popen:
+            procs.append(subprocess.Popen(cmd, stdout=subprocess.DEVNULL,
+                                          stderr=subprocess.DEVNULL, env=env))
+            return procs[-1]
+
+        context = Context()
+        rclpy.init(context=context, domain_id=domain)
+        node = rclpy.create_node('run_action_test', context=context)
+        executor = SingleThreadedExecutor(context=context)
+        executor.add_node(node)
+        try:
+            yield start, node, executor
+        finally:
+            for proc in procs:
+                if proc.poll() is None:
+                    proc.kill()
+                    proc.wait()
+            node.destroy_node()
+            rclpy.try_shutdown(context=context)
+
+
+def test_a_goal_lost_to_a_restarted_server_ends_the_wait_naming_the_node(server):
+    start, node, executor = server
+    first = start()
+    seen = []
+    node.create_subscription(JointState, 'joint_states', seen.append, qos_profile_sensor_data)
+    client = ActionClient(node, MoveTo, 'move_to')
+    assert spin_until(node, lambda: seen and client.server_is_ready(), START_TIMEOUT, executor)
+    target = list(seen[-1].position)
+    target[0] += 1.0
+    # 1 rad at 2 % of 1 rad/s: 50 s of motion, killed at its first feedback
+    goal = MoveTo.Goal(target_type=MoveTo.Goal.TARGET_JOINTS, positions=target,
+                       speed_scale=0.02)
+    killed = []
+
+    def kill_and_restart(_feedback) -> None:
+        if not killed:
+            first.kill()                   # SIGKILL: its participant stays until the lease
+            first.wait()
+            killed.append(time.monotonic())
+            start()                        # as `cobot-calib up` restarts a node that exited
+
+    with pytest.raises(CallError) as error:
+        run_action(node, client, goal, GOAL_TIMEOUT, feedback=kill_and_restart,
+                   executor=executor)
+    assert killed, 'no feedback before the wait ended'
+    message = str(error.value)
+    assert message.startswith('the mock_robot node restarted: goal lost'), message
+    assert 'move_to goal' in message, message
+    # the goal's own deadline was not what ended it: the lease (20 s) and GONE_AFTER (3 s)
+    waited = time.monotonic() - killed[0]
+    assert waited < GOAL_TIMEOUT - 50.0, waited
