@@ -4,7 +4,7 @@ import subprocess
 import sys
 
 from cobot_calib_ros.ros.calls import call_service, spin_until
-from machine import machine_unloaded  # noqa: F401 - the node tests import it from here
+from machine import STARTUP_TIMEOUT, STOP_TIMEOUT  # noqa: F401 - the node tests import them from here
 
 
 def call(node, srv_type, name, timeout=10.0, **fields):

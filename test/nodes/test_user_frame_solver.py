@@ -17,7 +17,7 @@ from cobot_calib_ros.ros import convert
 from cobot_calib_ros.ros.calls import spin_until
 from cobot_calib_ros.core import frames
 from cobot_calib_ros.paths import cell_file
-from rosutil import call, listen_late
+from rosutil import call, listen_late, STOP_TIMEOUT
 
 Res = CalibrateUserFrame.Response
 Conv = ConvertPoints.Response
@@ -115,7 +115,7 @@ def spare(ros, tmp_path_factory):
         logs = '\n'.join(f'--- {n}\n{running.log_tail(n)}' for n in running.processes)
         pytest.fail(f'spare user_frame_solvers did not come up in 30 s:\n{logs}')
     yield running
-    codes = running.stop()
+    codes = running.stop(STOP_TIMEOUT)
     assert codes[ORPHAN] == 0, f'/orphan/user_frame_solver did not exit cleanly: {codes}'
 
 
