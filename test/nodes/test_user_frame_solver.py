@@ -1,6 +1,5 @@
 """user_frame_solver across processes: refusals with a reason, fits, conversion, history."""
 import math
-import time
 
 from cobot_calib_msgs.msg import UserFrameCalibration
 from cobot_calib_msgs.srv import CalibrateUserFrame, ConvertPoints, ListCalibrations
@@ -279,18 +278,17 @@ def test_plausibility_limits_are_the_node_parameters(ros, spare):
 
 
 def test_failed_live_capture_says_what_to_start(ros, spare):
-    """No move_to under /orphan: the node waits ~5 s for the server, then refuses."""
+    """No move_to under /orphan: the node waits for the server (ros.robot_calls.SERVER_WAIT;
+    bench/bench_waits.py times it), then refuses naming what to start."""
     empty = _convert(ros, '/orphan/user_to_robot', P_USER)
     assert empty.error_code == Conv.NO_CALIBRATION, empty.message
     assert 'calibrate_user_frame' in empty.message
-    start = time.monotonic()
     res = call(ros, CalibrateUserFrame, '/orphan/calibrate_user_frame', timeout=30.0,
                 point_names=['P1', 'P2', 'P3'])
-    elapsed = time.monotonic() - start
     assert res.error_code == Res.CAPTURE_FAILED, res.message
     assert 'P1' in res.message and 'move_to' in res.message and 'mock_robot' in res.message
+    assert 'not available' in res.message             # its wait for the server ran out
     assert res.calibration.id == ''
-    assert 4.0 < elapsed < 20.0                       # it did wait for the action server
     assert ORPHAN not in spare.failed()
     assert _history(ros, '/orphan/list_calibrations') == []
     good = _calibrate(ros, '/orphan/calibrate_user_frame', method='rigid')
