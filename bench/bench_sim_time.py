@@ -7,8 +7,8 @@ domain; this process publishes /clock (ros.sim_clock) at each rate and, after a 
 (the monitor's first samples on that clock), asks for a 0.5 s capture and a 0.4 s probe
 average, each timed from request to response:
 
-- ``sim_time_<rate>x_capture_wall_s`` (rate 2 or 0_5) (0.25 s at 2x, 1.0 s at 0.5x on an unloaded machine)
-  and ``_capture_samples`` (joint_states at 1 kHz of wall time: ~250 and ~1000);
+- ``sim_time_<rate>x_capture_wall_s`` (rate 2 or 0_5; 0.25 s at 2x, 1.0 s at 0.5x on an
+  unloaded machine) and ``_capture_samples`` (joint_states at 1 kHz of wall time: ~250 and ~1000);
 - ``sim_time_<rate>x_probe_wall_s`` (0.2 s, 0.8 s) and ``_probe_samples`` (200 Hz of wall
   time: ~40, ~160; readings in and out of range, the probe rests where mock_robot starts);
 - ``sim_time_load_average_1min``.
@@ -45,7 +45,8 @@ def run() -> Figures:
                 benchlib.wait_for_service(ros, suite, 'proximity_sensor', probe)
                 for rate in RATES:
                     clock.rate = rate
-                    figures.update(windows(ros, capture, probe, f'sim_time_{rate:g}x'.replace('.', '_')))
+                    name = f'sim_time_{rate:g}x'.replace('.', '_')
+                    figures.update(windows(ros, capture, probe, name))
         finally:
             clock.stop()
     figures['sim_time_load_average_1min'] = (benchlib.load_average_1min(), 'load')

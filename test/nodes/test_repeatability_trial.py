@@ -27,7 +27,7 @@ from cobot_calib_ros.sim.scenario import load_simulation
 from cobot_calib_ros.store.trials import TrialStore
 from proc_lines import Lines
 from rosutil import (
-    call, cli, cli_command, STOP_TIMEOUT, wait_goals_ended, wait_subscribed)
+    call, cli, cli_command, STARTUP_TIMEOUT, STOP_TIMEOUT, wait_goals_ended, wait_subscribed)
 
 CYCLES = 4
 HEALTH = 'repeatability_trial: health'
@@ -348,7 +348,7 @@ def _latched(ros, spec: launcher.NodeSpec, log_dir) -> Repeatability:
     sub = ros.create_subscription(Repeatability, '/replay/repeatability', got.append,
                                   qos.LATCHED)
     try:
-        assert spin_until(ros, lambda: got, 30.0, ros.executor_for_tests), \
+        assert spin_until(ros, lambda: got, STARTUP_TIMEOUT, ros.executor_for_tests), \
             nodes.log_tail('replay.repeatability_trial')
     finally:
         ros.destroy_subscription(sub)

@@ -16,7 +16,7 @@ from cobot_calib_ros.ros import convert
 from cobot_calib_ros.ros.calls import spin_until
 from cobot_calib_ros.core import frames
 from cobot_calib_ros.paths import cell_file
-from rosutil import call, listen_late, STOP_TIMEOUT
+from rosutil import call, listen_late, STARTUP_TIMEOUT, STOP_TIMEOUT
 
 Res = CalibrateUserFrame.Response
 Conv = ConvertPoints.Response
@@ -109,10 +109,10 @@ def spare(ros, tmp_path_factory):
     wanted = {'/orphan/calibrate_user_frame', '/scratch/user_to_robot',
               '/frames/calibrate_user_frame', '/frames/user_frame_solver/set_parameters'}
     if not spin_until(ros, lambda: wanted <= {n for n, _ in ros.get_service_names_and_types()},
-                      30.0, ros.executor_for_tests):
+                      STARTUP_TIMEOUT, ros.executor_for_tests):
         running.stop()
         logs = '\n'.join(f'--- {n}\n{running.log_tail(n)}' for n in running.processes)
-        pytest.fail(f'spare user_frame_solvers did not come up in 30 s:\n{logs}')
+        pytest.fail(f'spare user_frame_solvers did not come up in {STARTUP_TIMEOUT} s:\n{logs}')
     yield running
     codes = running.stop(STOP_TIMEOUT)
     assert codes[ORPHAN] == 0, f'/orphan/user_frame_solver did not exit cleanly: {codes}'
