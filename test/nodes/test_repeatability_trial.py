@@ -3,6 +3,7 @@ from dataclasses import dataclass
 import json
 import math
 import os
+from pathlib import Path
 import re
 import signal
 import subprocess
@@ -257,6 +258,9 @@ def test_trial_health_is_on_diagnostics(ros):
         ros.destroy_subscription(sub)
 
 
+SHORT_LEASE = Path(__file__).with_name('fastdds_short_lease.xml')
+
+
 @dataclass
 class _OnTheSuitesRobot(launcher.NodeSpec):
     """A second repeatability_trial in its own namespace, using the suite's robot and probe."""
@@ -271,12 +275,14 @@ class _OnTheSuitesRobot(launcher.NodeSpec):
 
 def test_the_client_gives_up_on_a_stalled_or_dead_trial_node(ros, tmp_path):
     """No feedback for --stall-timeout s, or the node gone from the graph (a SIGKILL: after
-    DDS's 20 s lease): a clear message and exit 1, not an hour's wait."""
+    the DDS lease, 20 s by default, 12 s for this node: SHORT_LEASE): a clear message and
+    exit 1, not an hour's wait."""
     cell = str(paths.cell_file('sawyer_close'))
     nodes = launcher.Suite(tmp_path / 'logs')
     nodes.start([_OnTheSuitesRobot('repeatability_trial', {'cell_file': cell,
                                                            'data_dir': str(tmp_path)},
-                                   namespace='doomed')])
+                                   namespace='doomed')],
+                env=dict(os.environ, FASTRTPS_DEFAULT_PROFILES_FILE=str(SHORT_LEASE)))
     node = nodes.processes['doomed.repeatability_trial']
     ros_args = ('--ros-args', '-r', '__ns:=/doomed')
     try:
