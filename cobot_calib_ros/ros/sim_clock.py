@@ -11,10 +11,10 @@ import time
 
 from rosgraph_msgs.msg import Clock
 
-from cobot_calib_ros.ros.time import ns_to_stamp
+from cobot_calib_ros.ros.time import ns_to_stamp, s_to_ns
 
 PERIOD = 0.002          # [s] of wall time between /clock messages
-START_NS = 1_000 * 1_000_000_000
+START_NS = s_to_ns(1_000.0)
 
 
 class SimClock:
@@ -32,7 +32,7 @@ class SimClock:
         last = time.monotonic()
         while not self._stop.wait(self._period):
             now = time.monotonic()
-            self.sim_ns += int((now - last) * self.rate * 1e9)
+            self.sim_ns += s_to_ns((now - last) * self.rate)
             last = now
             self._pub.publish(Clock(clock=ns_to_stamp(self.sim_ns)))
 

@@ -18,7 +18,7 @@ from cobot_calib_ros.core import frames
 from cobot_calib_ros.core.cell import tool_down_orientation
 from cobot_calib_ros.ros import convert, marks
 from cobot_calib_ros.ros.sim_clock import SimClock
-from cobot_calib_ros.ros.time import stamp_to_ns
+from cobot_calib_ros.ros.time import ns_to_s, stamp_to_ns
 from rosutil import call, STARTUP_TIMEOUT, STOP_TIMEOUT
 
 NS = 'simtime'
@@ -102,7 +102,7 @@ def test_a_probe_average_is_in_ros_time(ros, sim_clock, rate):
     assert res.error_code == AverageProximity.Response.SUCCESS, res.message
     assert res.distance == pytest.approx(0.0012, abs=2e-4)
     mark = marks.read_average_mark(served[-1])
-    after_t0 = [(stamp - mark.t0_ns) * 1e-9 for stamp in mark.stamps_ns]
+    after_t0 = [ns_to_s(stamp - mark.t0_ns) for stamp in mark.stamps_ns]
     assert len(after_t0) == res.sample_count + res.rejected_count >= 2
     # readings over 0.4 s of ROS time (a wait of 0.4 s of wall time would end at 0.2 s of it
     # at 0.5x)
