@@ -14,7 +14,7 @@ export PYTHONDONTWRITEBYTECODE := 1
 
 setup: $(STAMP)/package $(STAMP)/postgres
 
-# PostgreSQL server binaries for the database tests' throwaway cluster (test/pg_cluster.py)
+# PostgreSQL server binaries for the database tests' throwaway cluster (tools/pg_cluster.py)
 $(STAMP)/postgres: tools/ensure_postgres.sh
 	tools/ensure_postgres.sh
 	mkdir -p $(STAMP) && touch $@

@@ -23,6 +23,7 @@ import tempfile
 import time
 
 from cobot_calib_ros.ros.marks import CAPTURES_TOPIC
+from printed import start_logged, wait_printed
 
 HERE = Path(__file__).resolve().parent
 NAME = 'iiwa_spheres'
@@ -30,6 +31,7 @@ CELL = 'iiwa7_close'
 POSES = 150
 HOLD = 0.05
 CLI = [sys.executable, '-m', 'cobot_calib_ros.cli.main']
+UP_TIMEOUT = 120.0          # [s] for the suite to answer, and for the recorder to subscribe
 
 
 def main(argv=None) -> int:
@@ -47,18 +49,19 @@ def main(argv=None) -> int:
             tempfile.TemporaryDirectory(prefix='cobot_calib_sample_') as tmp:
         env = dict(os.environ, ROS_DOMAIN_ID=str(domain), COBOT_CALIB_DATA=tmp,
                    ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
-        up = subprocess.Popen(CLI + ['up', '--cell', CELL], env=env,
-                              stdout=subprocess.DEVNULL)
+        logs = Path(tmp)
+        up = start_logged(CLI + ['up', '--cell', CELL], env, logs / 'up.log')
         try:
-            time.sleep(10.0)            # the suite's nodes, and their publishers, are up
-            record = subprocess.Popen(CLI + ['record', '-o', str(out), CAPTURES_TOPIC,
-                                             '--compress', 'zstd'], env=env)
-            time.sleep(3.0)
+            wait_printed(up, logs / 'up.log', ['ready: '], UP_TIMEOUT)   # every node answers
+            record = start_logged(CLI + ['record', '-o', str(out), CAPTURES_TOPIC,
+                                         '--compress', 'zstd'], env, logs / 'record.log')
+            wait_printed(record, logs / 'record.log', [f'recording {CAPTURES_TOPIC} ('],
+                         UP_TIMEOUT)
             report = subprocess.run(
                 CLI + ['identify', '--attach', '--json', '--max-configs', str(POSES),
                        '--hold', str(HOLD), '--validation-configs', '0', '--dry-run'],
                 env=env, capture_output=True, text=True, check=True)
-            time.sleep(1.0)
+            time.sleep(1.0)         # the last messages on their way to the recorder
             record.send_signal(signal.SIGINT)
             record.wait(30)
         finally:

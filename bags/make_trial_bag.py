@@ -48,6 +48,7 @@ import time
 
 from cobot_calib_ros.paths import DEFAULT_CELL
 from cobot_calib_ros.ros.marks import PROBE_AVERAGES_TOPIC
+from printed import start_logged, wait_printed
 
 HERE = Path(__file__).resolve().parent
 REPO = HERE.parent
@@ -62,6 +63,7 @@ CLI = [sys.executable, '-m', 'cobot_calib_ros.cli.main']
 VOLTAGE_TOPIC = '/probe/voltage'
 MARKS_TOPIC = PROBE_AVERAGES_TOPIC
 STATS_TOPIC = '/repeatability'
+UP_TIMEOUT = 120.0          # [s] for the suite to answer, and for the recorder to subscribe
 
 
 def main(argv=None) -> int:
@@ -94,13 +96,17 @@ def main(argv=None) -> int:
 
 def record(raw: Path, env: dict) -> None:
     """The live part: the suite, the recorder and the trial."""
-    up = subprocess.Popen(CLI + ['up', '--cell', CELL], env=env, stdout=subprocess.DEVNULL)
+    logs = raw.parent
+    up = start_logged(CLI + ['up', '--cell', CELL], env, logs / 'up.log')
     try:
-        time.sleep(10.0)            # the suite's nodes, and their publishers, are up
-        recorder = subprocess.Popen(CLI + ['record', '-o', str(raw), VOLTAGE_TOPIC, MARKS_TOPIC,
-                                           STATS_TOPIC, '--compress', 'zstd'], env=env)
+        wait_printed(up, logs / 'up.log', ['ready: '], UP_TIMEOUT)    # every node answers
+        recorder = start_logged(CLI + ['record', '-o', str(raw), VOLTAGE_TOPIC, MARKS_TOPIC,
+                                       STATS_TOPIC, '--compress', 'zstd'], env,
+                                logs / 'record.log')
         try:
-            time.sleep(4.0)         # every topic subscribed (the recorder scans the graph)
+            wait_printed(recorder, logs / 'record.log',
+                         [f'recording {t} (' for t in (VOLTAGE_TOPIC, MARKS_TOPIC, STATS_TOPIC)],
+                         UP_TIMEOUT)
             started = time.monotonic()
             result = subprocess.run(
                 CLI + ['trial', '--method', METHOD, '--axis', AXIS, '--cycles', str(CYCLES),
@@ -110,7 +116,7 @@ def record(raw: Path, env: dict) -> None:
                 raise SystemExit(f'trial failed ({result.returncode}): {result.stderr}')
             print(f'trial: {time.monotonic() - started:.1f} s, {result.stdout.strip()}',
                   flush=True)
-            time.sleep(1.0)
+            time.sleep(1.0)         # the last messages on their way to the recorder
         finally:
             recorder.send_signal(signal.SIGINT)
             recorder.wait(30)

@@ -1,5 +1,5 @@
 """Results database under load (issue 19 must-show 1): CELLS cell processes write RESULTS user
-frames each at once, to one throwaway PostgreSQL (test/pg_cluster.py) and to one shared SQLite
+frames each at once, to one throwaway PostgreSQL (tools/pg_cluster.py) and to one shared SQLite
 file (the worst case for SQLite: every cell in one file, WAL, BEGIN IMMEDIATE).
 
 Each process opens its repository first (connects, checks the schema: a node does this once
@@ -26,8 +26,8 @@ import numpy as np
 import benchlib
 from benchlib import BenchFailed, Figures
 
-sys.path.insert(0, str(benchlib.REPO_ROOT / 'test'))
-from pg_cluster import throwaway_cluster  # noqa: E402 (a test helper, shared with the tests)
+sys.path.insert(0, str(benchlib.REPO_ROOT / 'tools'))
+from pg_cluster import throwaway_cluster  # noqa: E402 (shared with test/store)
 
 CELLS = 20
 RESULTS = 30

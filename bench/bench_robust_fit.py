@@ -1,6 +1,6 @@
 """Outlier test of the robust user-frame fit: detection and false-rejection rates, new vs OLD.
 
-Monte-Carlo of test/core/user_frame/robust_sim.py (layouts, trial draws, and the OLD fixed
+Monte-Carlo of cobot_calib_ros/sim/robust_monte_carlo.py (layouts, trial draws, and the OLD fixed
 0.5 mm rule kept there for comparison only): layouts close5-8 (the first paper's "close" layout
 and side midpoints), small5-8 (the same in 9 x 6 cm) and corner8 (9 x 6 cm: a cluster and one
 far corner), 0.1 and 0.036 mm of Gaussian noise per coordinate, a random rigid pose per trial;
@@ -21,8 +21,7 @@ import sys
 import benchlib
 from benchlib import Figures
 
-sys.path.insert(0, str(benchlib.REPO_ROOT / 'test' / 'core' / 'user_frame'))
-import robust_sim as rs  # noqa: E402  (a test helper, shared with test_robust_sim.py)
+from cobot_calib_ros.sim import robust_monte_carlo as rs
 
 NEW_TRIALS = 2000
 OLD_TRIALS = 300

@@ -1,7 +1,7 @@
 """Plausibility gate of five_point_lsq: clean data refused and mistakes detected, new vs OLD.
 
-Monte-Carlo of test/core/user_frame/scale_sim.py (layout families box, slab and plane of 5-8
-points, a fresh layout and rigid pose per trial, 0.1 mm of Gaussian noise per coordinate; the
+Monte-Carlo of cobot_calib_ros/sim/scale_gate_monte_carlo.py (layout families box, slab and
+plane of 5-8 points, a fresh layout and rigid pose per trial, 0.1 mm of Gaussian noise per coordinate; the
 OLD fixed 1 % scale rule kept there for comparison only). Figures, per rule (new | old) and
 family:
 
@@ -19,8 +19,7 @@ import sys
 import benchlib
 from benchlib import Figures
 
-sys.path.insert(0, str(benchlib.REPO_ROOT / 'test' / 'core' / 'user_frame'))
-import scale_sim as ss  # noqa: E402  (a test helper, shared with test_scale_gate.py)
+from cobot_calib_ros.sim import scale_gate_monte_carlo as ss
 
 CLEAN_TRIALS = 1000
 MISTAKE_TRIALS = 100

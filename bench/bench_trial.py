@@ -6,7 +6,9 @@ private domain; the bench sends run_trial goals and times each from goal to resu
 reference trial (5 probe visits per cycle) and a rigid trial (10: the calibration pass that
 fits M_n, then the measurement pass). Trial set-up (touch and capture each marker, find the
 offsets F_i) is included. The trial drives every node (actions and services through
-spin.Companion threads), so it is also the end-to-end check of each executor.
+spin.Companion threads), so it is also the end-to-end check of each executor. The hold and
+probe windows the trial retried (``_capture_retries``, ``_probe_retries``: 0 on an unloaded
+machine, a stalling stream shows here) are counted too.
 """
 from __future__ import annotations
 
@@ -55,7 +57,9 @@ def run_trial(ros, client, method: str) -> Figures:
     if result.error_code != RunTrial.Result.SUCCESS:
         raise BenchFailed(f'{method} trial: {result.message}')
     return {f'trial_{method}_30x5_wall_s': (time.perf_counter() - start, 's'),
-            f'trial_{method}_rp_all_mm': (result.statistics.rp_all_mm, 'mm')}
+            f'trial_{method}_rp_all_mm': (result.statistics.rp_all_mm, 'mm'),
+            f'trial_{method}_capture_retries': (result.capture_retries, 'count'),
+            f'trial_{method}_probe_retries': (result.probe_retries, 'count')}
 
 
 def run() -> Figures:

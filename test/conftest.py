@@ -1,9 +1,13 @@
 """Every test session gets its own ROS_DOMAIN_ID and keeps DDS on loopback."""
 import os
+from pathlib import Path
+import sys
 
 import pytest
 
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+# tools/pg_cluster.py: the throwaway PostgreSQL of test/store (and bench_database)
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'tools'))
 
 
 @pytest.fixture(scope='session', autouse=True)

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # The PostgreSQL server binaries (initdb, pg_ctl) that the database tests and `make bench`
-# start a throwaway cluster with (test/pg_cluster.py). Installed from Debian where missing
+# start a throwaway cluster with (tools/pg_cluster.py). Installed from Debian where missing
 # (as root, or with sudo); nothing is started or enabled here.
 set -euo pipefail
 if command -v pg_ctl >/dev/null || ls /usr/lib/postgresql/*/bin/pg_ctl >/dev/null 2>&1; then

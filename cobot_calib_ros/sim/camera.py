@@ -212,6 +212,17 @@ class SimCamera:
         """The true optical frame in base at joints ``q`` [rad]."""
         return kinematics.fk(self.chain, q)
 
+    def joints_looking_down(self, xy, height: float) -> Array:
+        """Joints [rad] that put the TRUE camera straight above user (x, y) at ``height`` [m];
+        ValueError if the true chain cannot reach it."""
+        sim = self.sim
+        T = sim.world.T_base_user @ frames.make_transform(frames.rot_x(np.pi), [*xy, height])
+        result = kinematics.solve_ik_with_restarts(self.chain, T, sim.cell.home, sim.cell.home)
+        if not result:
+            raise ValueError(f'the camera cannot look down at {xy} from {height} m: '
+                             f'{result.message}')
+        return result.q
+
     def T_optical_targets(self, q: Array) -> dict[tuple[str, int], Array]:
         """(kind, id) -> true T_optical_target at joints ``q``: ('marker', id), ('board',
         first marker id)."""

@@ -80,6 +80,9 @@ def test_a_bag_no_check_knows_is_named_with_the_kinds(real_bag):
 
 
 def test_landmark_bag_is_checked_by_the_cli():
+    """The frame within TOL_M and TOL_RAD (exit 0), from the images the live solver used
+    (test_landmark_bag tests the check's failures)."""
     done = replay_check(BAGS / 'landmark_multi_close')
     assert done.returncode == 0, done.stdout + done.stderr
     assert 'translation differs by 0.000e+00 m' in done.stdout, done.stdout
+    assert 'with the images the live solver used' in done.stdout, done.stdout

@@ -7,8 +7,7 @@ from rclpy.executors import SingleThreadedExecutor
 from cobot_calib_ros.api import launcher
 from cobot_calib_ros.ros.calls import CallError, spin_until
 from cobot_calib_ros.api.client import wait_for_suite
-
-STARTUP_TIMEOUT = 30.0
+from machine import STARTUP_TIMEOUT, STOP_TIMEOUT
 
 
 @pytest.fixture(scope='session')
@@ -38,7 +37,7 @@ def suite(domain_id, trial_data, tmp_path_factory):
     running = launcher.Suite(tmp_path_factory.mktemp('logs'))
     running.start(specs)
     yield running
-    codes = running.stop()
+    codes = running.stop(STOP_TIMEOUT)
     assert all(c == 0 for c in codes.values()), f'nodes did not exit cleanly: {codes}'
 
 

@@ -4,7 +4,7 @@ import subprocess
 import sys
 
 from cobot_calib_ros.ros.calls import call_service, spin_until
-from machine import machine_unloaded  # noqa: F401 - the node tests import it from here
+from machine import STARTUP_TIMEOUT, STOP_TIMEOUT  # noqa: F401 - node tests import them here
 
 
 def call(node, srv_type, name, timeout=10.0, **fields):
@@ -32,8 +32,9 @@ def cli_command(*args) -> list[str]:
     return [sys.executable, '-m', 'cobot_calib_ros.cli.main', *args]
 
 
-def cli(*args, timeout=30.0) -> subprocess.CompletedProcess:
-    """Run `cobot-calib ARGS` on the session's domain; its completed process."""
+def cli(*args, timeout=STARTUP_TIMEOUT) -> subprocess.CompletedProcess:
+    """Run `cobot-calib ARGS` on the session's domain; its completed process (a cold start of
+    the interpreter and rclpy is part of ``timeout``)."""
     return subprocess.run(cli_command(*args), capture_output=True, text=True,
                           timeout=timeout, env=dict(os.environ))
 

@@ -7,7 +7,7 @@ import subprocess
 
 import pytest
 
-from rosutil import cli, cli_command
+from rosutil import cli, cli_command, STOP_TIMEOUT
 
 SUITE_NODES = {'/mock_robot', '/joint_state_monitor', '/proximity_sensor',
                '/user_frame_solver', '/repeatability_trial'}
@@ -87,7 +87,7 @@ def test_a_starved_stream_is_no_data_naming_the_window(ros, tmp_path):
     try:
         res = call(ros, CaptureJoints, '/starved/capture_joints', timeout=30.0, duration=0.2)
     finally:
-        assert starved.stop() == {'starved.joint_state_monitor': 0}
+        assert starved.stop(STOP_TIMEOUT) == {'starved.joint_state_monitor': 0}
     assert res.error_code == CaptureJoints.Response.NO_DATA
     assert res.message == ('only 0 joint_states samples in 0.200 s (need 100); is the robot '
                            'driver (mock_robot) publishing joint_states?')

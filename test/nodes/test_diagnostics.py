@@ -4,6 +4,7 @@ import pytest
 
 from cobot_calib_ros.api import launcher
 from cobot_calib_ros.ros.calls import spin_until
+from rosutil import STOP_TIMEOUT
 
 TIMEOUT = 10.0  # [s] for every node's status to arrive (they publish at 1 Hz)
 EXPECTED_KEYS = {
@@ -28,7 +29,7 @@ def quiet_probe(suite, tmp_path_factory):
     node = launcher.Suite(tmp_path_factory.mktemp('quiet_probe_logs'))
     node.start([launcher.NodeSpec('proximity_sensor', namespace='quiet')])
     yield node
-    assert all(c == 0 for c in node.stop().values())
+    assert all(c == 0 for c in node.stop(STOP_TIMEOUT).values())
 
 
 @pytest.fixture(scope='module')

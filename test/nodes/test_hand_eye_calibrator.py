@@ -32,11 +32,10 @@ from cobot_calib_ros.ros.time import stamp_to_ns
 from cobot_calib_ros.sim.scenario import load_simulation
 from cobot_calib_ros import store
 from cobot_calib_ros.store.cells import ResultsCell
-from rosutil import cli_command
+from rosutil import cli_command, STARTUP_TIMEOUT, STOP_TIMEOUT
 
 NODES = ('mock_robot', 'joint_state_monitor', 'mock_camera', 'landmark_detector',
          'hand_eye_calibrator')
-STARTUP_TIMEOUT = 60.0          # [s] cold imports on a loaded 2-core machine
 CELL = ResultsCell('sawyer_close', 'sawyer')      # the node's results (no namespace)
 # Where the views are planned: the user frame roughly as a user-frame calibration knows it
 # (the truth is 0.35 -0.05 0 / 0.002 -0.0015 0.03): a few mm and mrad off on purpose.
@@ -79,7 +78,7 @@ def hand_eye_suite(tmp_path_factory):
             executor.shutdown(timeout_sec=1.0)
             node.destroy_node()
             context.try_shutdown()
-            codes = suite.stop()
+            codes = suite.stop(STOP_TIMEOUT)
         assert all(c == 0 for c in codes.values()), f'nodes did not exit cleanly: {codes}'
 
 

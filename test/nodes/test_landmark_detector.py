@@ -34,9 +34,9 @@ from cobot_calib_ros.ros import convert
 from cobot_calib_ros.sim.camera import SimCamera
 from cobot_calib_ros.sim.robot import SimRobot
 from cobot_calib_ros.sim.scenario import load_simulation
+from rosutil import STARTUP_TIMEOUT, STOP_TIMEOUT
 
 NODES = ('mock_robot', 'mock_camera', 'landmark_detector')
-STARTUP_TIMEOUT = 60.0          # [s] cold imports on a loaded 2-core machine
 STATUS = 'landmark_detector: health'
 BORDER_PX = 4                   # a marker this close to the image border may not be found
 
@@ -69,7 +69,7 @@ def camera_suite(tmp_path_factory):
             executor.shutdown(timeout_sec=1.0)
             node.destroy_node()
             context.try_shutdown()
-            codes = suite.stop()
+            codes = suite.stop(STOP_TIMEOUT)
         assert all(c == 0 for c in codes.values()), f'nodes did not exit cleanly: {codes}'
 
 

@@ -31,10 +31,10 @@ from cobot_calib_ros.ros.calls import call_service, spin_until
 from cobot_calib_ros.store.trials import TrialStore
 from foxglove_ws import FoxgloveClient
 from proc_lines import Lines
+from rosutil import STARTUP_TIMEOUT, STOP_TIMEOUT
 
 NODES = ('mock_robot', 'joint_state_monitor', 'proximity_sensor', 'user_frame_solver',
          'repeatability_trial')
-STARTUP_TIMEOUT = 60.0
 
 
 @pytest.fixture(scope='module')
@@ -62,7 +62,7 @@ def driver_suite(tmp_path_factory):
         finally:
             node.destroy_node()
             rclpy.try_shutdown(context=context)
-            codes = suite.stop()
+            codes = suite.stop(STOP_TIMEOUT)
             logs = '\n'.join(f'--- {n}\n{suite.log_tail(n)}' for n in suite.processes)
             assert all(c == 0 for c in codes.values()), f'unclean exit {codes}:\n{logs}'
 

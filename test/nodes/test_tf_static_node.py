@@ -32,11 +32,10 @@ from cobot_calib_ros.ros.calls import spin_until
 from cobot_calib_ros.core import frames
 from cobot_calib_ros.paths import cell_file
 from cobot_calib_ros.ros import convert, qos
-from rosutil import call, listen_late
+from rosutil import call, listen_late, STARTUP_TIMEOUT, STOP_TIMEOUT
 
 Res = CalibrateUserFrame.Response
 Choice = SetActiveCalibration
-STARTUP_TIMEOUT = 60.0   # [s] a node process on a loaded 2-core machine
 TIMEOUT = 15.0           # [s] discovery plus a latched message
 QUIET = 3.0              # [s] listened to when nothing may arrive
 # tf2_ros StaticListenerQoS: what tf2 listeners, rviz2 and MoveIt subscribe /tf_static with.
@@ -152,7 +151,7 @@ class PrivateSolver:
                         f'{self.suite.log_tail("user_frame_solver")}')
 
     def stop(self) -> int:
-        return self.suite.stop()['user_frame_solver']
+        return self.suite.stop(STOP_TIMEOUT)['user_frame_solver']
 
     def restart(self) -> None:
         code = self.stop()

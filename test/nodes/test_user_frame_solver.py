@@ -1,6 +1,5 @@
 """user_frame_solver across processes: refusals with a reason, fits, conversion, history."""
 import math
-import time
 
 from cobot_calib_msgs.msg import UserFrameCalibration
 from cobot_calib_msgs.srv import CalibrateUserFrame, ConvertPoints, ListCalibrations
@@ -17,7 +16,7 @@ from cobot_calib_ros.ros import convert
 from cobot_calib_ros.ros.calls import spin_until
 from cobot_calib_ros.core import frames
 from cobot_calib_ros.paths import cell_file
-from rosutil import call, listen_late
+from rosutil import call, listen_late, STARTUP_TIMEOUT, STOP_TIMEOUT
 
 Res = CalibrateUserFrame.Response
 Conv = ConvertPoints.Response
@@ -110,12 +109,12 @@ def spare(ros, tmp_path_factory):
     wanted = {'/orphan/calibrate_user_frame', '/scratch/user_to_robot',
               '/frames/calibrate_user_frame', '/frames/user_frame_solver/set_parameters'}
     if not spin_until(ros, lambda: wanted <= {n for n, _ in ros.get_service_names_and_types()},
-                      30.0, ros.executor_for_tests):
+                      STARTUP_TIMEOUT, ros.executor_for_tests):
         running.stop()
         logs = '\n'.join(f'--- {n}\n{running.log_tail(n)}' for n in running.processes)
-        pytest.fail(f'spare user_frame_solvers did not come up in 30 s:\n{logs}')
+        pytest.fail(f'spare user_frame_solvers did not come up in {STARTUP_TIMEOUT} s:\n{logs}')
     yield running
-    codes = running.stop()
+    codes = running.stop(STOP_TIMEOUT)
     assert codes[ORPHAN] == 0, f'/orphan/user_frame_solver did not exit cleanly: {codes}'
 
 
@@ -279,18 +278,17 @@ def test_plausibility_limits_are_the_node_parameters(ros, spare):
 
 
 def test_failed_live_capture_says_what_to_start(ros, spare):
-    """No move_to under /orphan: the node waits ~5 s for the server, then refuses."""
+    """No move_to under /orphan: the node waits for the server (ros.robot_calls.SERVER_WAIT;
+    bench/bench_waits.py times it), then refuses naming what to start."""
     empty = _convert(ros, '/orphan/user_to_robot', P_USER)
     assert empty.error_code == Conv.NO_CALIBRATION, empty.message
     assert 'calibrate_user_frame' in empty.message
-    start = time.monotonic()
     res = call(ros, CalibrateUserFrame, '/orphan/calibrate_user_frame', timeout=30.0,
                 point_names=['P1', 'P2', 'P3'])
-    elapsed = time.monotonic() - start
     assert res.error_code == Res.CAPTURE_FAILED, res.message
     assert 'P1' in res.message and 'move_to' in res.message and 'mock_robot' in res.message
+    assert 'not available' in res.message             # its wait for the server ran out
     assert res.calibration.id == ''
-    assert 4.0 < elapsed < 20.0                       # it did wait for the action server
     assert ORPHAN not in spare.failed()
     assert _history(ros, '/orphan/list_calibrations') == []
     good = _calibrate(ros, '/orphan/calibrate_user_frame', method='rigid')

@@ -1,4 +1,5 @@
-"""Monte-Carlo of the robust method's outlier test, beside the OLD fixed-limit rule (robust_sim).
+"""Monte-Carlo of the robust method's outlier test, beside the OLD fixed-limit rule
+(sim.robust_monte_carlo).
 
 0.1 mm of Gaussian noise per coordinate, a random rigid pose per trial, seeded generators (the
 figures, and so the assertions, are deterministic). The table is printed even without -s; the
@@ -9,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import robust_sim as rs
+from cobot_calib_ros.sim import robust_monte_carlo as rs
 from cobot_calib_ros.core import user_frame as uf
 
 SIGMA = 1e-4          # [m] noise per coordinate

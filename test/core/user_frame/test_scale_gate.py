@@ -2,9 +2,10 @@
 
 The user report: five_point_lsq on 6 non-planar points spanning 8 cm with 0.1 mm noise was
 refused (scale 1.0156, IMPLAUSIBLE_FIT) by the fixed 1 % scale limit, though the fit equals a
-reference affine fit. The Monte-Carlo (scale_sim, seeded: the figures repeat) prints the gate's
-false-refusal rate on clean data over 5-8 point layouts beside the OLD rule's, and its
-detection rate of real mistakes; bench/bench_scale_gate.py runs more trials.
+reference affine fit. The Monte-Carlo (sim.scale_gate_monte_carlo, seeded: the figures
+repeat) prints the gate's false-refusal rate on clean data over 5-8 point layouts beside the
+OLD rule's, and its detection rate of real mistakes; bench/bench_scale_gate.py runs more
+trials.
 """
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-import scale_sim as ss
+from cobot_calib_ros.sim import scale_gate_monte_carlo as ss
 from cobot_calib_ros.core import user_frame as uf
 from cobot_calib_ros.core.errors import ErrorCode
 from cobot_calib_ros.core.frames import apply, make_transform, transform_error

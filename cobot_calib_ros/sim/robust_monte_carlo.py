@@ -1,7 +1,7 @@
 """Monte-Carlo of the robust method's outlier rule, beside the OLD fixed-limit rule it replaced.
 
-Shared by test_robust_sim.py and bench/bench_robust_fit.py. Rigid layouts of 5-8 points
-(z = 0.02 m): ``close`` is the first paper's "close" layout (P1-P5) extended with the side
+Shared by test/core/user_frame/test_robust_sim.py and bench/bench_robust_fit.py. Rigid layouts
+of 5-8 points (z = 0.02 m): ``close`` is the first paper's "close" layout (P1-P5) extended with the side
 midpoints P6-P8; ``small`` the same shape in 9 x 6 cm; ``corner`` a 9 x 6 cm layout of a tight
 cluster (2 x 2 cm) and one far corner, whose prediction from the others has a large leverage
 (the user report: the OLD rule rejected that good corner in about a fifth of trials). Each

@@ -1,11 +1,11 @@
 """Monte-Carlo of the plausibility gate on five_point_lsq fits, beside the OLD fixed 1 % rule.
 
-Shared by test_scale_gate_sim.py and bench/bench_scale_gate.py. Layout families of 5-8 points,
-each trial drawing a fresh layout, a random rigid pose and Gaussian noise per coordinate on the
-base points: ``box`` uniform in an 8 cm cube (the user report: 6 points, 0.1 mm, scale 1.0156
-refused), ``slab`` uniform in 8 x 8 x 2 cm (thin: the scale along z is poorly determined), and
-``plane`` robust_sim's close/small layouts (coplanar; M's normal column is completed). Mistakes a
-user makes, each applied to one trial's data:
+Shared by test/core/user_frame/test_scale_gate.py and bench/bench_scale_gate.py. Layout
+families of 5-8 points, each trial drawing a fresh layout, a random rigid pose and Gaussian
+noise per coordinate on the base points: ``box`` uniform in an 8 cm cube (the user report: 6
+points, 0.1 mm, scale 1.0156 refused), ``slab`` uniform in 8 x 8 x 2 cm (thin: the scale along
+z is poorly determined), and ``plane`` robust_monte_carlo's close/small layouts (coplanar; M's
+normal column is completed). Mistakes a user makes, each applied to one trial's data:
 
 - ``base_mm`` / ``user_mm``: the base (user) points in millimetres, the others in metres;
 - ``mirrored``: the user layout with its x axis negated (left-handed coordinates); on a coplanar
@@ -25,7 +25,7 @@ from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
-from robust_sim import LAYOUTS as PLANE_LAYOUTS, random_pose
+from cobot_calib_ros.sim.robust_monte_carlo import LAYOUTS as PLANE_LAYOUTS, random_pose
 
 from cobot_calib_ros.core import user_frame as uf
 from cobot_calib_ros.core.errors import ErrorCode
