@@ -44,6 +44,12 @@ class MoveFailed(PortError):
     """A move or a touch did not end where it was sent (unreachable, refused, timed out)."""
 
 
+class RobotStopped(MoveFailed):
+    """The robot ended the move itself without reaching the target because it stopped (its
+    driver shutting down): not a pose it cannot reach, so a collection ends there and a
+    resume visits the pose again."""
+
+
 class CaptureFailed(PortError):
     """A joint capture, probe reading, tracker measurement or camera image did not come."""
 

@@ -103,7 +103,7 @@ class PacedLoop:
                 time.sleep(remaining)
 
 
-_SHUTTING_DOWN = Failure(ErrorCode.MOTION_FAILED, 'the mock robot is shutting down (Ctrl-C or '
+_SHUTTING_DOWN = Failure(ErrorCode.CANCELED, 'the mock robot is shutting down (Ctrl-C or '
                          'SIGTERM); the arm stopped where it was')
 
 

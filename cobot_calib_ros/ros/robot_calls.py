@@ -22,7 +22,8 @@ import numpy as np
 from rclpy.action import ActionClient
 from std_srvs.srv import Trigger
 
-from cobot_calib_ros.core.robot_port import Capture, CaptureFailed, MoveFailed, PortError
+from cobot_calib_ros.core.robot_port import (Capture, CaptureFailed, MoveFailed, PortError,
+                                             RobotStopped)
 from cobot_calib_ros.core.sensors.probe import Reading, ReadingStatus
 from cobot_calib_ros.ros.convert import matrix_to_pose
 from cobot_calib_ros.ros.spin import Companion, pause, Stopping, until, wait
@@ -97,6 +98,8 @@ class RobotCalls:
             raise MoveFailed(f'move_to: {e}; is mock_robot (or robot_adapter) up?')
         if result is None:
             raise MoveFailed('move_to rejected the goal (robot busy)')
+        if result.error_code == MoveTo.Result.CANCELED:
+            raise RobotStopped(f'move_to: {result.message}')
         if result.error_code != MoveTo.Result.SUCCESS:
             raise MoveFailed(f'move_to: {result.message}')
         self.robot_seconds += result.duration

@@ -28,7 +28,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from cobot_calib_ros.core.robot_port import (Cancelled, Capture, CaptureFailed, MoveFailed,
-                                             never, RobotPort)
+                                             never, RobotPort, RobotStopped)
 
 Array = NDArray[np.float64]
 MAX_SKIPPED_IN_A_ROW = 20     # more unreachable poses in a row than this end the collection
@@ -94,6 +94,8 @@ def collect(plan: Sequence[Mapping[str, Any]], start: int, robot: RobotPort,
         except MoveFailed as e:
             if cancelled():
                 return _stopped_at(run, i, len(plan))
+            if isinstance(e, RobotStopped):     # before this node heard of the stop, if ever
+                return _stopped_at(run, i, len(plan), str(e))
             log(PoseRecord(i, int(step['target']), None, note=str(e)))
             run.skipped, in_a_row = run.skipped + 1, in_a_row + 1
             if in_a_row > max_skipped_in_a_row:
@@ -126,8 +128,11 @@ def collect(plan: Sequence[Mapping[str, Any]], start: int, robot: RobotPort,
     return run
 
 
-def _stopped_at(run: CollectionRun, index: int, poses: int) -> CollectionRun:
-    """``run`` ended cancelled at plan index ``index`` (not logged: a resume visits it)."""
+def _stopped_at(run: CollectionRun, index: int, poses: int, robot: str = '') -> CollectionRun:
+    """``run`` ended cancelled at plan index ``index`` (not logged: a resume visits it);
+    ``robot``: why the robot stopped the move itself, when it did."""
     run.next_index = index
-    run.ending, run.message = Ending.CANCELED, f'canceled at pose {index} of {poses}'
+    run.ending = Ending.CANCELED
+    run.message = (f'stopped at pose {index} of {poses}: {robot}' if robot else
+                   f'canceled at pose {index} of {poses}')
     return run

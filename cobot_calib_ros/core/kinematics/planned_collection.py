@@ -24,7 +24,7 @@ from cobot_calib_ros.core.kinematics.collection import (CollectionRun, Ending,
                                                         MAX_SKIPPED_IN_A_ROW, PoseRecord)
 from cobot_calib_ros.core.kinematics.planning import Prediction, SpherePlanner
 from cobot_calib_ros.core.robot_port import (Cancelled, Capture, CaptureFailed, MoveFailed,
-                                             never, RobotPort)
+                                             never, RobotPort, RobotStopped)
 
 PAPER_HOLD = 1.0     # [s] the second paper's hold per pose
 
@@ -75,7 +75,7 @@ def collect_planned(planner: SpherePlanner, robot: RobotPort,
             robot.move_joints(planner.pool_q[index], compliant=True)
         except MoveFailed as e:
             time.move += robot.robot_seconds - before
-            if cancelled():         # failed because of the stop (collection's module doc)
+            if cancelled() or isinstance(e, RobotStopped):   # the stop (collection's doc)
                 return _stopped(run, planner), time
             log(PoseRecord(index, target, None, note=str(e)))
             planner.skipped(index)

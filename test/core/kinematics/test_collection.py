@@ -7,7 +7,7 @@ import pytest
 from cobot_calib_ros.core import frames, kinematics
 from cobot_calib_ros.core.kinematics import plans
 from cobot_calib_ros.core.kinematics.collection import collect, Ending
-from cobot_calib_ros.core.robot_port import CaptureFailed, MoveFailed
+from cobot_calib_ros.core.robot_port import CaptureFailed, MoveFailed, RobotStopped
 from cobot_calib_ros.paths import cell_file
 from cobot_calib_ros.sim.robot import DirectRobot, SimRobot
 from cobot_calib_ros.sim.scenario import load_simulation
@@ -74,6 +74,27 @@ def test_a_move_that_fails_after_the_stop_ends_the_run_there_not_logged_as_skipp
     run = collect(plan, 0, robot, log.append, hold=HOLD, cancelled=lambda: bool(stop))
     assert run.ending is Ending.CANCELED and run.next_index == 4
     assert run.message == 'canceled at pose 4 of 30'
+    assert [r.index for r in log] == [0, 1, 2, 3] and all(r.q is not None for r in log)
+
+
+def test_a_move_the_robot_stopped_before_this_node_heard_of_the_stop_is_not_skipped(plan):
+    """Ctrl-C to up's process group reaches mock_robot and kinematic_identifier at once: the
+    robot may end the move in flight (its result CANCELED: RobotStopped) before this node's
+    own stop is seen. That pose was not unreachable (it was logged skipped in a full run of
+    the merged suite, and a resume never visited it again): the run ends there."""
+    robot, log = _robot(), []
+    move = robot.move_joints
+
+    def robot_shutting_down(q, **kwargs):
+        if len(log) == 4:
+            raise RobotStopped('move_to: the mock robot is shutting down (Ctrl-C or SIGTERM)')
+        return move(q, **kwargs)
+
+    robot.move_joints = robot_shutting_down
+    run = collect(plan, 0, robot, log.append, hold=HOLD)
+    assert run.ending is Ending.CANCELED and run.next_index == 4 and run.skipped == 0
+    assert run.message == ('stopped at pose 4 of 30: move_to: the mock robot is shutting down '
+                           '(Ctrl-C or SIGTERM)')
     assert [r.index for r in log] == [0, 1, 2, 3] and all(r.q is not None for r in log)
 
 
