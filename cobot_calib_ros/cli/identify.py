@@ -175,10 +175,9 @@ def _print(args, report: dict) -> None:
         print(json.dumps(report, indent=2))
         return
     print(f'\n{report["message"]}')
-    verdict = report.get('verdict', {'passed': True, 'problems': []})   # a suite's: passed
+    verdict = identify_measured.verdict_of(report)     # a suite's report has none: passed
     print('gate: passed (converged, every deviation within its bound, validation no worse '
-          'than nominal)' if verdict['passed'] else
-          'gate: REFUSED: ' + '; '.join(verdict['problems']))
+          'than nominal)' if verdict.passed else f'gate: {verdict.line()}')
     spheres = report.get('collections', {}).get('spheres', {})
     if 'robot_s' in spheres:
         print(f'robot time of the sphere collection: {spheres["robot_s"]:.1f} s '

@@ -9,7 +9,7 @@ import json
 from cobot_calib_ros.cli.common import EXIT_FAILED, EXIT_OK, EXIT_USAGE, fail
 from cobot_calib_ros.api.identification import DEFAULT_FOLDS
 from cobot_calib_ros.core.kinematics.identification.gates import (MAX_DEVIATION_M,
-                                                                   MAX_DEVIATION_RAD)
+                                                                   MAX_DEVIATION_RAD, Verdict)
 
 MODELS = ('offsets', 'full', 'mdh', 'offsets+compliance', 'full+compliance',
           'mdh+compliance')
@@ -57,8 +57,7 @@ def run(args) -> int:
     else:
         print(summary(report))
     if not report['verdict']['passed']:
-        return fail(f'identify {args.source}: REFUSED: '
-                    f'{"; ".join(report["verdict"]["problems"])}', EXIT_FAILED)
+        return fail(f'identify {args.source}: {verdict_of(report).line()}', EXIT_FAILED)
     return EXIT_OK
 
 
@@ -88,11 +87,11 @@ def summary(report: dict) -> str:
         rot = '' if s['rot_rms_mrad'] is None else f'{s["rot_rms_mrad"]:>6.2f} mrad'
         lines.append(f'{name:<{len(how) + 11}} {s["rmse_mm"]:>5.3f} mm {s["mean_mm"]:>5.3f} mm '
                      f'{s["max_mm"]:>5.3f} mm {rot}')
-    verdict = report['verdict']
+    verdict = verdict_of(report)
     lines.append('gate: passed (deviations within '
                  f'{report["bounds"]["length_mm"]:g} mm / {report["bounds"]["angle_mrad"]:g} '
-                 'mrad, held out no worse than nominal)' if verdict['passed'] else
-                 'gate: REFUSED: ' + '; '.join(verdict['problems']))
+                 'mrad, held out no worse than nominal)' if verdict.passed else
+                 f'gate: {verdict.line()}')
     for d in report['dropped']:
         lines.append(f'dropped {d["name"]}: {d["reason"]}')
     parameters = {p['name'] for p in report['identified']}
@@ -106,3 +105,8 @@ def summary(report: dict) -> str:
     for o in report['outliers']:
         lines.append(f'outlier: sample {o["sample"]} ({o["error_mm"]:.3f} mm)')
     return '\n'.join(lines)
+
+
+def verdict_of(report: dict) -> Verdict:
+    """The gates' verdict of a report (its JSON form back)."""
+    return Verdict(tuple(report.get('verdict', {}).get('problems', ())))
