@@ -30,7 +30,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from cobot_calib_ros.core.cell import Cell
-from cobot_calib_ros.core.errors import ErrorCode, Failure, Refusal
+from cobot_calib_ros.core.errors import ErrorCode
 from cobot_calib_ros.core.kinematics.identification import gates
 from cobot_calib_ros.core.kinematics.identification.gates import DeviationBounds, Verdict
 from cobot_calib_ros.core.kinematics.identification.identifiability import (
@@ -123,9 +123,7 @@ class CalibrationJob:
 
     def run(self, callback: Callable[[int, float, float], bool] | None = None) -> Outcome:
         model = self.model
-        problems = self.data_problems()
-        if problems:
-            raise Refusal(Failure(ErrorCode.IMPLAUSIBLE_FIT, Verdict(tuple(problems)).line()))
+        gates.refuse(self.data_problems())
         identifiability = identifiable(model, self.data.q, self.tool_xyz0)
         parameter_set = ParameterSet(model, identifiability.kept)
         options = self.solver_options or (NM_CONVERGED if self.solver == 'nelder-mead'

@@ -28,6 +28,7 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from cobot_calib_ros.core.errors import ErrorCode, Failure, Refusal
 from cobot_calib_ros.core.kinematics.model import KinematicModel
 
 Array = NDArray[np.float64]
@@ -105,6 +106,12 @@ class Verdict:
 
     def to_dict(self) -> dict:
         return {'passed': self.passed, 'problems': list(self.problems)}
+
+
+def refuse(problems: list[str], code: ErrorCode = ErrorCode.IMPLAUSIBLE_FIT) -> None:
+    """Raise the problems as one Refusal line (nothing fitted, nothing stored)."""
+    if problems:
+        raise Refusal(Failure(code, Verdict(tuple(problems)).line()))
 
 
 def joint_problems(model: KinematicModel, q: ArrayLike) -> list[str]:

@@ -39,7 +39,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import least_squares
 
-from cobot_calib_ros.core.errors import ErrorCode, Failure, Refusal
+from cobot_calib_ros.core.errors import ErrorCode
 from cobot_calib_ros.core.kinematics.identification import compliance, gates
 from cobot_calib_ros.core.kinematics.identification.gates import DeviationBounds, Verdict
 from cobot_calib_ros.core.kinematics.identification.measurements import (
@@ -449,12 +449,6 @@ def data_problems(errors: ErrorModel, data: Measurements) -> list[str]:
     return []
 
 
-def refuse(problems: list[str], code: ErrorCode = ErrorCode.IMPLAUSIBLE_FIT) -> None:
-    """Raise the problems as one Refusal line (nothing fitted, nothing stored)."""
-    if problems:
-        raise Refusal(Failure(code, Verdict(tuple(problems)).line()))
-
-
 def identify_measurements(errors: ErrorModel, data: Measurements, held_out: list[Array], *,
                           labels: tuple[str, ...] | None = None, sample: Array | None = None,
                           rank_tol: float = RANK_TOL, loss: str = 'linear',
@@ -466,13 +460,13 @@ def identify_measurements(errors: ErrorModel, data: Measurements, held_out: list
     rows to samples (CSV data rows) for the outliers (default: the rows themselves);
     ``noise_m``: the measurement's own RMS error [m] as the row errors count it (0: unknown)."""
     sample = np.arange(len(data)) if sample is None else np.asarray(sample)
-    refuse(data_problems(errors, data))
+    gates.refuse(data_problems(errors, data))
     weight = data.rotation_weight
     data = balanced(errors, data, loss)
     nominal = fit(errors, data, (), loss=loss)
     ident = identifiable(errors, data, rank_tol, nominal.nuisance)
     equations = len(nominal.problem.residuals(nominal.problem.x0))
-    refuse(gates.equation_problems(equations, len(ident.kept) + len(nominal.nuisance),
+    gates.refuse(gates.equation_problems(equations, len(ident.kept) + len(nominal.nuisance),
                                    len(data)), ErrorCode.TOO_FEW_POINTS)
     final = fit(errors, data, ident.kept, nominal.nuisance, loss, bounds)
     cv = cross_validate(errors, replace(data, rotation_weight=weight), held_out, labels,
