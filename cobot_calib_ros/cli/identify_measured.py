@@ -5,6 +5,7 @@ api.identification.identify_file."""
 from __future__ import annotations
 
 import json
+import math
 
 from cobot_calib_ros.cli.common import EXIT_FAILED, EXIT_OK, EXIT_USAGE, fail
 from cobot_calib_ros.api.identification import DEFAULT_FOLDS
@@ -64,6 +65,10 @@ def run(args) -> int:
 def identify(args) -> dict:
     """The report of the command line's data (api.identification.identify_file)."""
     from cobot_calib_ros.api.identification import identify_file
+    for flag, value in (('--max-deviation-mm', args.max_deviation_mm),
+                        ('--max-deviation-mrad', args.max_deviation_mrad)):
+        if not (math.isfinite(value) and value > 0.0):
+            raise ValueError(f'{flag} must be a finite number > 0, got {value}')
     return identify_file(args.source, args.measurement, urdf=args.urdf,
                          base_link=args.base_link, tip_link=args.tip_link, dh=args.dh,
                          model=args.model, folds=args.folds, leave_out=args.leave_out,

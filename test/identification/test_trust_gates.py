@@ -147,3 +147,11 @@ def test_the_bounds_are_the_users_to_set(capsys, urdf, tmp_path):
     assert code == 1 and r['bounds'] == {'length_mm': 2.0, 'angle_mrad': 50.0}
     assert max(abs(p['delta']) for p in r['identified']
                if not gates.is_angle(None, p['name'])) <= 2e-3 + 1e-12
+
+
+@pytest.mark.parametrize('value', ['nan', '-1', '0'])
+def test_a_bound_that_is_no_bound_is_refused_naming_the_flag(capsys, urdf, tmp_path, value):
+    code, r, err = identify(capsys, 'points', scene.points_file(tmp_path), urdf,
+                            '--max-deviation-mm', value)
+    assert (code, r) == (2, None)
+    assert f'--max-deviation-mm must be a finite number > 0, got {float(value)}' in err
