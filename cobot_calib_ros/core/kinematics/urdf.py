@@ -12,9 +12,12 @@ turn about one axis and are one parameter) is also turned about its own axis, wh
 pitch. FK is unchanged: ``fk(model.chain(), q)`` is the pose
 of ``tip_link`` in ``base_link``.
 
-:func:`calibrated_urdf` writes a URDF whose chain from ``base_link`` to ``tool_link`` reproduces
-``fk(model.chain(params, Trans(tool_xyz)), q)``: either by rewriting the joint origins of the
-original URDF (links, meshes and everything else kept) or as a minimal kinematic URDF.
+:func:`rewrite_urdf` is the write-back: the robot's own URDF with only its chain's joint
+origins changed to a calibrated model's (of either kind: a modified-DH model's frames are tied to
+the URDF link frames by fixed transforms found at the nominal parameters). :func:`calibrated_urdf`
+writes a URDF whose chain from ``base_link`` to ``tool_link`` reproduces
+``fk(model.chain(params, Trans(tool_xyz)), q)``: the rewrite plus a tool link, or a minimal
+kinematic URDF when there is no original.
 
 Only ``xml.etree``; lengths in metres, angles in radians.
 """
@@ -353,13 +356,11 @@ def calibrated_urdf(model: KinematicModel, params: ArrayLike, tool_xyz: ArrayLik
                     original_text: str | None = None) -> str:
     """URDF text whose chain base_link -> tool_link is fk(model.chain(params, Trans(tool_xyz))).
 
-    With ``original_text`` (kind 'origin' models only, e.g. from :func:`model_from_urdf` on
-    that text): the model's joints are found by name on the path from ``base_link``; their
-    <origin> is rewritten (fixed joints, links, meshes, limits kept; at the nominal parameters
-    the origins come back unchanged up to rounding). ``tool_link``: if it exists it must hang
-    below the last model joint through fixed joints only, and the fixed joint above it is
-    rewritten; otherwise a fixed joint ``<tool_link>_joint`` is added on the last joint's child.
-    The robot is renamed ``robot_name``.
+    With ``original_text``: :func:`rewrite_urdf` of it (links, meshes, limits kept), and the
+    tool: ``tool_link``, if it exists, must hang below the last model joint through fixed
+    joints only, and the fixed joint above it is rewritten; otherwise a fixed joint
+    ``<tool_link>_joint`` is added on the last joint's child. The robot is renamed
+    ``robot_name``.
 
     Without it: a minimal kinematic URDF, links ``base_link``, ``link_1`` .. ``link_n``,
     ``tool_link``; revolute joints named as the model's with origin xyz/rpy from each
@@ -369,16 +370,103 @@ def calibrated_urdf(model: KinematicModel, params: ArrayLike, tool_xyz: ArrayLik
     rows = model.rows(params)  # ValueError on a wrong size
     if not np.all(np.isfinite(rows)):
         raise ValueError('params must be finite')
-    chain = model.chain(params)
-    end = model.flange @ _tool_matrix(tool_xyz)
+    tool = _tool_matrix(tool_xyz)
     if original_text is None:
-        return _minimal_urdf(model, chain.placements, end, robot_name, base_link, tool_link)
-    if model.kind != 'origin':
-        raise ValueError(f"original_text needs an 'origin' model whose joints are the URDF's "
-                         f"(got kind {model.kind!r}, whose frames are not the URDF link frames: "
-                         "the meshes would move); leave original_text None for a minimal URDF")
-    return _rewrite_urdf(model, rows, chain.placements, end, robot_name, base_link, tool_link,
-                         original_text)
+        return _minimal_urdf(model, model.chain(params).placements, model.flange @ tool,
+                             robot_name, base_link, tool_link)
+    return rewrite_urdf(original_text, model, params, base_link=base_link, tool_link=tool_link,
+                        tool=tool, robot_name=robot_name)
+
+
+def rewrite_urdf(text: str, model: KinematicModel, params: ArrayLike, *, base_link: str,
+                 tip_link: str | None = None, tool_link: str | None = None,
+                 tool: ArrayLike | None = None, robot_name: str | None = None,
+                 note: str = '') -> str:
+    """The URDF ``text`` with only the origins of its chain's moving joints changed, so that
+    every link of the chain sits where the model with ``params`` puts it; everything else
+    (links, visuals, collisions, limits, joints off the chain, comments) is kept.
+
+    The model's joints are the URDF's moving joints from ``base_link``: by name when the
+    URDF has them all, else in order up to ``tip_link`` (a model with its own frames, e.g. a
+    modified-DH table). Each URDF link frame must be fixed to its model joint frame (checked at
+    the nominal parameters: the URDF joint axis is the model's z through the same point); the
+    link keeps that fixed transform C_i, so joint i's origin becomes
+    F_i^-1 C_{i-1}^-1 P_i C_i (F_i the fixed joints before it, P_i the calibrated placement; a
+    joint zero offset thus folds into the origin as a turn about the joint axis). At the
+    nominal parameters the origins come back unchanged up to rounding, and a model built from
+    this text (:func:`model_from_urdf`) has its literal xyz/rpy written as they are.
+
+    ``tool_link``: also place that link at flange @ ``tool`` (see :func:`calibrated_urdf`).
+    ``note``: an XML comment put first in <robot> (which calibration this is).
+    ``robot_name``: rename the robot (default: keep the name, which an SRDF refers to).
+    ValueError when the chain does not match the model.
+    """
+    rows = model.rows(params)
+    if not np.all(np.isfinite(rows)):
+        raise ValueError('params must be finite')
+    urdf = _parse(text)
+    serial, frames, literal = _chain_frames(urdf, model, base_link, tip_link)
+    placements = model.chain(params).placements
+    for i, (joint, F, P) in enumerate(zip(serial.moving, serial.before, placements)):
+        if literal[i]:  # the parameters are this joint's xyz/rpy: write them as they are
+            _set_origin(joint.element, xyz_rpy=(rows[i, :3], rows[i, 3:]))
+        else:
+            _set_origin(joint.element, invert(F) @ invert(frames[i]) @ P @ frames[i + 1])
+    if tool_link is not None:
+        end = model.flange @ (np.eye(4) if tool is None else np.asarray(tool, dtype=float))
+        _place_tool(urdf, serial.moving[-1].child, tool_link, invert(frames[-1]) @ end)
+    if robot_name is not None:
+        urdf.root.set('name', robot_name)
+    if note:
+        comment = ET.Comment(f' {note.replace("--", "- -")} ')
+        comment.tail = '\n' + (urdf.root.text or '\n')
+        urdf.root.insert(0, comment)
+    return '<?xml version="1.0" ?>\n' + ET.tostring(urdf.root, encoding='unicode') + '\n'
+
+
+def _chain_frames(urdf: _Urdf, model: KinematicModel, base_link: str, tip_link: str | None
+                  ) -> tuple[_Serial, list[Array], list[bool]]:
+    """The URDF chain of the model's joints, the fixed transforms C_0 = I, C_1 .. C_n from
+    each model joint frame to its URDF child link frame (at q = 0), and per joint whether its
+    parameters are its literal URDF xyz/rpy. ValueError naming what does not match."""
+    if all(name in urdf.joints for name in model.joint_names):
+        tip = urdf.joints[model.joint_names[-1]].child
+    elif tip_link is None:
+        raise ValueError(f'the joints of model {model.name!r} are not all in the URDF; name '
+                         'the link at the end of its chain (tip_link) to match them in order')
+    else:
+        tip = tip_link
+    path = _path(urdf, base_link, tip)
+    while path and path[-1].type not in _MOVING:
+        path.pop()
+    serial = _serial(path, base_link, tip)
+    names = tuple(j.name for j in serial.moving)
+    if len(names) != len(model.joint_names) or (
+            set(model.joint_names) <= set(urdf.joints) and names != model.joint_names):
+        raise ValueError(f'the moving joints from {base_link!r} to {tip!r} are {list(names)}, '
+                         f'the model has {list(model.joint_names)}; pass the base_link the '
+                         'model was built from')
+    for joint, slides in zip(serial.moving, model.prismatic):
+        if (joint.type == 'prismatic') != bool(slides):
+            raise ValueError(f'joint {joint.name!r} is {joint.type} in the URDF but '
+                             f'{"prismatic" if slides else "revolute"} in model {model.name!r}')
+    frames = [np.eye(4)]
+    for joint, F, P in zip(serial.moving, serial.before, model.chain().placements):
+        C = invert(P) @ frames[-1] @ F @ joint.origin
+        axis = joint.axis / np.linalg.norm(joint.axis)
+        if not (np.allclose(C[:3, :3] @ axis, [0, 0, 1], rtol=0, atol=1e-9)
+                and np.allclose(C[:2, 3], 0, rtol=0, atol=1e-9)):
+            raise ValueError(f'joint {joint.name!r}: its axis is not the nominal model joint '
+                             f'{model.joint_names[len(frames) - 1]!r} of {model.name!r} (the '
+                             'URDF link frames are not fixed to the model frames); build the '
+                             'model from this URDF (model_from_urdf)')
+        frames.append(C)
+    for turned in (False, True):   # a model built from this URDF: its exact axis frames
+        exact = _serial(path, base_link, tip, turned)
+        if all(np.allclose(C, R.T, rtol=0, atol=1e-9) for C, R in zip(frames[1:], exact.axes)):
+            literal = _literal(exact) if model.kind == 'origin' else [False] * len(names)
+            return exact, [np.eye(4)] + [R.T for R in exact.axes], literal
+    return serial, frames, [False] * len(names)
 
 
 def _minimal_urdf(model: KinematicModel, placements: Array, end: Array, robot_name: str,
@@ -415,47 +503,6 @@ def _minimal_urdf(model: KinematicModel, placements: Array, end: Array, robot_na
 def _serialise(root: ET.Element) -> str:
     ET.indent(root, space='  ')
     return '<?xml version="1.0" ?>\n' + ET.tostring(root, encoding='unicode') + '\n'
-
-
-def _rewrite_urdf(model: KinematicModel, rows: Array, placements: Array, end: Array,
-                  robot_name: str, base_link: str, tool_link: str, text: str) -> str:
-    urdf = _parse(text)
-    missing = [j for j in model.joint_names if j not in urdf.joints]
-    if missing:
-        raise ValueError(f'joints {missing} of model {model.name!r} are not in original_text')
-    last_child = urdf.joints[model.joint_names[-1]].child
-    serial = _serial(_path(urdf, base_link, last_child), base_link, last_child)
-    names = tuple(j.name for j in serial.moving)
-    if names != model.joint_names:
-        raise ValueError(f'the revolute joints from {base_link!r} to {last_child!r} are '
-                         f'{list(names)}, the model has {list(model.joint_names)}; pass the '
-                         'base_link the model was built from')
-    stale = _stale(serial, model)
-    if stale:        # a model built with free_pitch turns some frames
-        turned = _serial(_path(urdf, base_link, last_child), base_link, last_child, True)
-        serial, stale = (turned, []) if not _stale(turned, model) else (serial, stale)
-    if stale:
-        raise ValueError(f'the nominal placements of {stale} in model {model.name!r} differ '
-                         'from original_text: build the model with model_from_urdf on this text')
-    prev = np.eye(4)
-    for joint, F, R, P, row, literal in zip(serial.moving, serial.before, serial.axes,
-                                            placements, rows, _literal(serial)):
-        if literal:  # the parameters are this joint's xyz/rpy: write them as they are
-            _set_origin(joint.element, xyz_rpy=(row[:3], row[3:]))
-        else:
-            _set_origin(joint.element, invert(F) @ prev @ P @ R.T)  # F^-1 R_{i-1} P_i R_i^T
-        prev = R
-    target = serial.axes[-1] @ end  # T_last_child_tool
-    _place_tool(urdf, last_child, tool_link, target)
-    urdf.root.set('name', robot_name)
-    return '<?xml version="1.0" ?>\n' + ET.tostring(urdf.root, encoding='unicode') + '\n'
-
-
-def _stale(serial: _Serial, model: KinematicModel) -> list[str]:
-    """The joints whose nominal placement in ``serial`` is not the model's."""
-    return [j.name for j, P, Q in zip(serial.moving, _placements(serial),
-                                      model.chain().placements)
-            if not np.allclose(P, Q, rtol=0.0, atol=1e-9)]
 
 
 def _place_tool(urdf: _Urdf, last_child: str, tool_link: str, target: Array) -> None:

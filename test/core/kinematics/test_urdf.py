@@ -365,7 +365,8 @@ def test_sawyer_xacro_unexpanded_is_refused():
 def test_calibrated_urdf_errors():
     text = MUKCA_URDF.read_text()
     model = model_from_urdf(text, 'base_link', 'tool0', 'iiwa14')
-    with pytest.raises(ValueError, match="'origin' model"):
+    # the URDF's +-0.436 mm A2/A4 offsets: its link frames are not fixed to the MDH frames
+    with pytest.raises(ValueError, match="'joint_a2': its axis is not the nominal model joint"):
         calibrated_urdf(model_by_name('iiwa14'), model_by_name('iiwa14').nominal,
                         robot_name='x', original_text=text)
     with pytest.raises(ValueError, match='expected'):
@@ -378,11 +379,11 @@ def test_calibrated_urdf_errors():
     with pytest.raises(ValueError, match="tool_link 'link_7' is the link of the last joint"):
         calibrated_urdf(model, model.nominal, robot_name='x', original_text=text,
                         tool_link='link_7')
-    with pytest.raises(ValueError, match='nominal placements'):
+    with pytest.raises(ValueError, match="'right_j1': its axis is not"):
         calibrated_urdf(model_by_name('sawyer'), model_by_name('sawyer').nominal,
                         robot_name='x', original_text=_sawyer_with_other_j1(),
                         base_link='right_arm_base_link')
-    with pytest.raises(ValueError, match='not in original_text'):
+    with pytest.raises(ValueError, match='not all in the URDF; name the link at the end'):
         calibrated_urdf(model_by_name('sawyer'), model_by_name('sawyer').nominal,
                         robot_name='x', original_text=text)
     with pytest.raises(ValueError, match='collide'):
