@@ -30,7 +30,8 @@ FRAME_ID_CHARS = frozenset('abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ
 
 _POSE = {'xyz': None, 'rpy': None}
 CELL_KEYS: dict[str, Any] = {
-    'name': None, 'robot': {'urdf': None, 'name': None, 'base_link': None, 'tip_link': None},
+    'name': None, 'robot': {'urdf': None, 'name': None, 'base_link': None, 'tip_link': None,
+                               'model': None},
     'base_frame': None, 'tool_frame': None, 'user_frame': None, 'home': None,
     'tool_offset': _POSE, 'markers': {'size': None}, 'layout': None, 'layouts': None,
     'spheres': {'diameter': None, 'centres': None, 'plate': _POSE, 'coupling_offset': _POSE,
@@ -324,13 +325,19 @@ def parse_cell(text: str, path: str | Path, layout: str | None = None) -> Cell:
 
 def _robot(r: CellReader) -> tuple[str, UrdfRobot | None]:
     """(model name, None) of a built-in robot, or (name, UrdfRobot without its text yet) of
-    ``robot: {urdf: FILE, base_link: LINK, tip_link: LINK[, name: NAME]}``."""
+    ``robot: {urdf: FILE, base_link: LINK, tip_link: LINK[, name: NAME]}``; with ``model:
+    BUILT_IN`` the built-in model is the kinematics and the URDF the robot's description (the
+    calibrated URDF is written back into it)."""
     robot = r.get('robot')
     if isinstance(robot, dict):
         urdf = r.name('robot', 'urdf')
-        name = r.name('robot', 'name', default=Path(urdf).stem)
+        model = r.get('robot', 'model', default='')
+        if model and model not in ROBOTS:
+            raise r.fail(('robot', 'model'), f'unknown robot model {model!r}; use one of '
+                         f'{", ".join(ROBOTS)}, or leave it out to take the URDF chain')
+        name = model or r.name('robot', 'name', default=Path(urdf).stem)
         return name, UrdfRobot(name, urdf, r.name('robot', 'base_link'),
-                               r.name('robot', 'tip_link'))
+                               r.name('robot', 'tip_link'), model=model)
     robot = r.name('robot')
     if robot not in ROBOTS:
         raise r.fail(('robot',), f'unknown robot {robot!r}; use one of {", ".join(ROBOTS)}, or '

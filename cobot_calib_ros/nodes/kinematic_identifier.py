@@ -481,8 +481,9 @@ class KinematicIdentifier(Node):
         if not goal.dry_run:
             try:
                 saved = self._calibrations.save_outcome(
-                    outcome, extra={'planning': planning} if planning else None)
-            except OSError as e:
+                    outcome, extra={'planning': planning} if planning else None,
+                    description=self._cell.urdf_robot)
+            except (OSError, ValueError) as e:     # ValueError: the cell's URDF is not the chain
                 return self._end(goal_handle, result, Identify.Result.STORAGE_FAILED,
                                  f'could not store the kinematic calibration: {e}')
             result.calibration_id = saved.record.id

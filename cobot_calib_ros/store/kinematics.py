@@ -2,7 +2,9 @@
 
 Under ``<root>/kinematics``: ``<id>.json`` (the record, what the suite reads), ``<id>.yaml``
 (the same for people: the identified table as the paper's Table 6, validation figures) and
-``<id>.urdf`` (the calibrated model for MoveIt, RViz, robot_state_publisher). Activation is
+``<id>.urdf`` (the calibrated model for MoveIt, RViz, robot_state_publisher: the cell's own
+URDF with the identified joint origins when the cell names it, else a minimal chain) and, for a
+UR arm, ``<id>.ur_kinematics.yaml`` (``kinematics_params`` of the UR ROS 2 description). Activation is
 per cell (store.cells) and robot (the record's ``robot``): a plant keeps many robots'
 results in one data dir, and ``kinematics: latest`` in user_frame_solver and
 repeatability_trial is the active calibration *of the cell's robot* (:class:`CalibrationStore`
@@ -11,6 +13,7 @@ rules within that robot: chosen, else the newest non-retired), nominal when it h
 from __future__ import annotations
 
 from dataclasses import dataclass
+from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
@@ -18,12 +21,16 @@ import numpy as np
 import yaml
 
 from cobot_calib_ros.core.kinematics.model import Chain, KinematicModel
-from cobot_calib_ros.core.kinematics.urdf import calibrated_urdf
+from cobot_calib_ros.core.kinematics.robots import UrdfRobot
+from cobot_calib_ros.core.kinematics.ur_description import (is_ur, ur_kinematics,
+                                                            ur_kinematics_yaml)
+from cobot_calib_ros.core.kinematics.urdf import calibrated_urdf, rewrite_urdf
 from cobot_calib_ros.store.calibrations import Activation, CalibrationStore
 from cobot_calib_ros.store.files import atomic_write_text, ensure_dir
 from cobot_calib_ros.store.records import KinematicRecord
 
 NOMINAL = 'nominal'
+SUFFIXES = {'urdf': '.urdf', 'ur_kinematics': '.ur_kinematics.yaml'}   # beside <id>.json
 LATEST = 'latest'
 
 
@@ -44,23 +51,25 @@ class KinematicHistory:
     (in ``directory``), and the choice of a model by name."""
 
     def save_outcome(self, outcome, activate: bool = True, wall_ns: int | None = None,
-                     extra: dict[str, Any] | None = None) -> SavedKinematics:
-        """Write the record of a core CalibrationJob outcome (JSON), its YAML and URDF; make it
-        its robot's active one (if ``activate`` and it passes its gate). ``extra``: more
-        top-level keys of the record (e.g. the planning of a planned collection)."""
+                     extra: dict[str, Any] | None = None,
+                     description: UrdfRobot | None = None) -> SavedKinematics:
+        """Write the record of a core CalibrationJob outcome (JSON), its YAML and URDF (and a
+        UR arm's kinematics YAML); make it its robot's active one (if ``activate`` and it
+        passes its gate). ``extra``: more top-level keys of the record (e.g. the planning of a
+        planned collection). ``description``: the cell's robot URDF (with its text), which
+        the URDF is written back into (:func:`calibrated_descriptions`)."""
         typed = KinematicRecord.from_outcome(outcome, wall_ns)
         typed.extra.update(extra or {})
         record = typed.to_dict()
-        paths = {'yaml': self.directory / f'{typed.id}.yaml',
-                 'urdf': self.directory / f'{typed.id}.urdf'}
+        paths = {'yaml': self.directory / f'{typed.id}.yaml'}
+        texts = calibrated_descriptions(typed, outcome.model, description)  # before any write
         stored = self.save(record)       # a path, or where in a database
         ensure_dir(self.directory)
         atomic_write_text(paths['yaml'], yaml.safe_dump(_readable(record), sort_keys=False,
                                                         width=100))
-        model = outcome.model
-        atomic_write_text(paths['urdf'], calibrated_urdf(
-            model, np.array(typed.result.params), np.array(typed.result.tool_xyz),
-            robot_name=f'{model.name}_calibrated'))
+        for kind, text in texts.items():
+            paths[kind] = self.directory / f'{typed.id}{SUFFIXES[kind]}'
+            atomic_write_text(paths[kind], text)
         activation = self.activate(typed.id) if activate else None
         return SavedKinematics(typed, {'json': stored, **paths}, activation)
 
@@ -96,6 +105,31 @@ def chain_of(record: dict[str, Any] | None, model: KinematicModel, tool) -> Chai
         raise ValueError(f'kinematic calibration {record["id"]} is for robot '
                          f'{record.get("robot")!r}, not {model.name!r}')
     return model.chain(np.array(result['params'], dtype=float), tool=tool)
+
+
+def calibrated_descriptions(record: KinematicRecord, model: KinematicModel,
+                            description: UrdfRobot | None) -> dict[str, str]:
+    """The texts a kinematic calibration is written back as: 'urdf', the robot's own URDF
+    (``description``, with its text) with the identified joint origins and a comment naming
+    the calibration, else a minimal URDF of the chain (the tool at the identified tool
+    position); and 'ur_kinematics', the UR description's kinematics YAML, for a UR arm with
+    its URDF. ValueError when the URDF's chain is not the model's."""
+    params = np.array(record.result.params, dtype=float)
+    stamp = datetime.fromtimestamp(record.stamp_ns / 1e9, timezone.utc)
+    note = (f'calibrated by cobot_calib_ros: kinematic calibration {record.id} of robot '
+            f'{record.robot}, {stamp:%Y-%m-%d %H:%M:%S} UTC, {record.method} from '
+            f'{record.inputs.source}; only the origins of {", ".join(model.joint_names)} '
+            'differ from the nominal description')
+    if description is None or not description.urdf:
+        return {'urdf': calibrated_urdf(model, params, np.array(record.result.tool_xyz),
+                                        robot_name=f'{model.name}_calibrated')}
+    urdf = rewrite_urdf(description.urdf, model, params, base_link=description.base_link,
+                        tip_link=description.tip_link, note=note)
+    texts = {'urdf': urdf}
+    if is_ur(model.joint_names):
+        texts['ur_kinematics'] = ur_kinematics_yaml(ur_kinematics(urdf),
+                                                    f'cobot_calib_{record.id}', note)
+    return texts
 
 
 def _readable(record: dict[str, Any]) -> dict[str, Any]:

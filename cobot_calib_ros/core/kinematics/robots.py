@@ -3,7 +3,8 @@
 A cell names its robot either by a built-in model (ROBOTS: the URDF-origin Sawyer, the iiwa
 modified-DH tables, pybotics' UR10) or by a URDF and the two links of the chain
 (``robot: {urdf: FILE, base_link: ..., tip_link: ...}``: a UrdfRobot, whose text the cell
-loader read). ``model_for`` turns either into the KinematicModel every node, the simulation
+loader read; with ``model: NAME`` a built-in model is its kinematics and the URDF its
+description, where the calibration is written back). ``model_for`` turns either into the KinematicModel every node, the simulation
 and the CLI use.
 """
 from __future__ import annotations
@@ -26,6 +27,7 @@ class UrdfRobot:
     base_link: str
     tip_link: str
     urdf: str = ''          # the URDF text (read by the loader)
+    model: str = ''         # a built-in model of this chain (its kinematics), else the URDF's
 
 
 def model_by_name(name: str) -> KinematicModel:
@@ -42,6 +44,8 @@ def model_for(robot) -> KinematicModel:
     when unknown or when the URDF has no such chain."""
     if hasattr(robot, 'urdf_robot'):                # a Cell
         robot = robot.urdf_robot or robot.robot
+    if isinstance(robot, UrdfRobot) and robot.model:
+        return model_by_name(robot.model)
     if isinstance(robot, UrdfRobot):
         from cobot_calib_ros.core.kinematics.urdf import model_from_urdf
         if not robot.urdf:
