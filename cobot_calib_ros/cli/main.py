@@ -25,6 +25,7 @@ VERBS = (
     'record', 'bag', 'replay',      # bags (rosbag2): record, bag info, replay
     'detect',
     'export',
+    'filter_cmd',                   # program filtering for a controller's nominal kinematics
     'db',
     'history',
     'check',
