@@ -18,7 +18,7 @@ URDF_ROBOT = '  robot: {urdf: iiwa14.urdf, base_link: base_link, tip_link: tool0
 
 
 def _cell_with_robot(tmp_path: Path, robot_line: str) -> Path:
-    text, count = re.subn(r'^  robot: sawyer\b.*$', robot_line,
+    text, count = re.subn(r'^  robot: \{model: sawyer\b.*$', robot_line,
                           cell_file(DEFAULT_CELL).read_text(), count=1, flags=re.M)
     assert count == 1
     path = tmp_path / 'urdf_cell.yaml'
@@ -26,10 +26,22 @@ def _cell_with_robot(tmp_path: Path, robot_line: str) -> Path:
     return path
 
 
-def test_a_built_in_robot_resolves_by_name():
+def test_a_built_in_robot_resolves_by_name(tmp_path):
+    bare = load_cell(_cell_with_robot(tmp_path, '  robot: sawyer'))
+    assert bare.robot == 'sawyer' and bare.urdf_robot is None
+    assert model_for(bare).name == 'sawyer' and 'sawyer' in ROBOTS
+
+
+def test_a_built_in_model_with_its_description_keeps_the_built_in_kinematics(tmp_path):
     cell = load_cell(cell_file(DEFAULT_CELL))
-    assert cell.robot == 'sawyer' and cell.urdf_robot is None
-    assert model_for(cell).name == 'sawyer' and 'sawyer' in ROBOTS
+    assert cell.robot == 'sawyer' and cell.urdf_robot.model == 'sawyer'
+    assert model_for(cell).name == 'sawyer' and model_for(cell).kind == 'origin'
+    assert '<joint name="right_j6"' in cell.urdf_robot.urdf          # its description
+    iiwa = load_cell(cell_file('iiwa7_close'))           # a DH model, a URDF of other frames
+    assert model_for(iiwa).kind == 'mdh' and iiwa.urdf_robot.base_link == 'lbr_link_0'
+    with pytest.raises(CellFileError, match=r"cell.robot.model: unknown robot model 'ur3'"):
+        load_cell(_cell_with_robot(tmp_path, '  robot: {model: ur3, urdf: sawyer.urdf, '
+                                             'base_link: a, tip_link: b}'))
 
 
 def test_a_urdf_robot_is_read_beside_the_cell_file_and_resolved(tmp_path):

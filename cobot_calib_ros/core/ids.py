@@ -11,3 +11,8 @@ def record_id(suffix: str, wall_ns: int | None = None) -> str:
     wall_ns = time.time_ns() if wall_ns is None else wall_ns
     return (time.strftime('%Y%m%dT%H%M%S', time.gmtime(wall_ns // 1_000_000_000))
             + f'.{wall_ns % 1_000_000_000:09d}Z-{suffix}')
+
+
+def utc_text(wall_ns: int) -> str:
+    """'YYYY-MM-DD HH:MM:SS UTC' of a wall-clock stamp [ns] (for people: notes in files)."""
+    return time.strftime('%Y-%m-%d %H:%M:%S UTC', time.gmtime(wall_ns // 1_000_000_000))

@@ -13,13 +13,13 @@ rules within that robot: chosen, else the newest non-retired), nominal when it h
 from __future__ import annotations
 
 from dataclasses import dataclass
-from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import yaml
 
+from cobot_calib_ros.core.ids import utc_text
 from cobot_calib_ros.core.kinematics.model import Chain, KinematicModel
 from cobot_calib_ros.core.kinematics.robots import UrdfRobot
 from cobot_calib_ros.core.kinematics.ur_description import (is_ur, ur_kinematics,
@@ -115,9 +115,8 @@ def calibrated_descriptions(record: KinematicRecord, model: KinematicModel,
     position); and 'ur_kinematics', the UR description's kinematics YAML, for a UR arm with
     its URDF. ValueError when the URDF's chain is not the model's."""
     params = np.array(record.result.params, dtype=float)
-    stamp = datetime.fromtimestamp(record.stamp_ns / 1e9, timezone.utc)
     note = (f'calibrated by cobot_calib_ros: kinematic calibration {record.id} of robot '
-            f'{record.robot}, {stamp:%Y-%m-%d %H:%M:%S} UTC, {record.method} from '
+            f'{record.robot}, {utc_text(record.stamp_ns)}, {record.method} from '
             f'{record.inputs.source}; only the origins of {", ".join(model.joint_names)} '
             'differ from the nominal description')
     if description is None or not description.urdf:

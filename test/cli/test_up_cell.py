@@ -4,6 +4,7 @@ import contextlib
 import json
 import os
 from pathlib import Path
+import shutil
 import signal
 import subprocess
 import sys
@@ -17,7 +18,7 @@ from proc_lines import Lines
 
 
 @pytest.mark.parametrize('old, new, words', [
-    ('  robot: sawyer ', '  robt: sawyer ', ["cell.robt: unknown key 'robt'; did you mean 'robot'"]),
+    ('  robot: {model', '  robt: {model', ["cell.robt: unknown key 'robt'; did you mean 'robot'"]),
     ('  seed: 7', '  seed: seven', ['simulation.seed: expected a finite number']),
     ('  layout: close', '  layout: narrow', ['cell.layout', 'close, wide'])])
 def test_up_refuses_a_broken_cell_file_before_starting_anything(tmp_path, old, new, words):
@@ -25,6 +26,7 @@ def test_up_refuses_a_broken_cell_file_before_starting_anything(tmp_path, old, n
     assert old in text
     broken = tmp_path / 'broken.yaml'
     broken.write_text(text.replace(old, new, 1))
+    shutil.copy(cell_file('sawyer_close').parent / 'sawyer.urdf', tmp_path)
     out = subprocess.run([sys.executable, '-m', 'cobot_calib_ros.cli.main', 'up', '--cell',
                           str(broken)], capture_output=True, text=True, timeout=60,
                          env=dict(os.environ, ROS_DOMAIN_ID='101'))

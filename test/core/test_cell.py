@@ -1,4 +1,6 @@
 """The nominal cell file: what the user configures, and clear errors for files that do not fit."""
+import shutil
+
 import numpy as np
 import pytest
 
@@ -24,13 +26,15 @@ def _broken(tmp_path, old: str, new: str):
     assert old in text
     path = tmp_path / 'broken.yaml'
     path.write_text(text.replace(old, new, 1))
+    shutil.copy(SAWYER.parent / 'sawyer.urdf', tmp_path)     # the robot's URDF, beside it
     return path
 
 
 @pytest.mark.parametrize('old, new, words', [
-    ('  robot: sawyer ', '  robt: sawyer ', ['broken.yaml:', 'cell.robt', 'unknown key',
+    ('  robot: {model', '  robt: {model', ['broken.yaml:', 'cell.robt', 'unknown key',
                                              "did you mean 'robot'?"]),
-    ('  robot: sawyer ', '  robot: ur5 ', ['cell.robot', "unknown robot 'ur5'"]),
+    ('  robot: {model: sawyer, urdf: sawyer.urdf, base_link: right_arm_base_link, '
+     'tip_link: right_hand}', '  robot: ur5', ['cell.robot', "unknown robot 'ur5'"]),
     ('  layout: close', '  layout: narrow', ['cell.layout', 'close, wide']),
     ('    xyz: [0.0, 0.0, 0.100]', '    xyz: [0.0, 0.1]', ['cell.tool_offset.xyz', '3 finite']),
     ('  user_frame: user_frame', "  user_frame: 'bad frame!'", ['cell.user_frame', 'tf2']),

@@ -1,4 +1,6 @@
 """The cell file's wrist camera and landmarks (issue 11): optional, validated with file:line."""
+import shutil
+
 import numpy as np
 import pytest
 
@@ -45,6 +47,7 @@ def _broken(tmp_path, old: str, new: str):
     assert old in text
     path = tmp_path / 'broken.yaml'
     path.write_text(text.replace(old, new, 1))
+    shutil.copy(SAWYER.parent / 'sawyer.urdf', tmp_path)     # the robot's URDF, beside it
     return path
 
 

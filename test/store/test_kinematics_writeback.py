@@ -26,6 +26,7 @@ def record_of(model, params) -> KinematicRecord:
 
 
 @pytest.mark.parametrize('cell_name, base, tip, files', [
+    ('sawyer_close', 'right_arm_base_link', 'right_hand', {'urdf'}),
     ('iiwa7_close', 'lbr_link_0', 'lbr_link_ee', {'urdf'}),
     ('ur10e_close', 'base_link', 'tool0', {'urdf', 'ur_kinematics'}),
 ])
@@ -50,9 +51,8 @@ def test_a_cell_with_its_urdf_gets_its_own_urdf_back(cell_name, base, tip, files
         assert hash_ == 'cobot_calib_k-20261127-101500'
 
 
-def test_a_built_in_robot_without_a_urdf_gets_the_minimal_chain():
-    cell = load_cell(cell_file('sawyer_close'))
-    model = model_for(cell)
-    texts = calibrated_descriptions(record_of(model, model.nominal), model, cell.urdf_robot)
+def test_a_cell_without_a_urdf_gets_the_minimal_chain():
+    model = model_for(load_cell(cell_file('sawyer_close')))
+    texts = calibrated_descriptions(record_of(model, model.nominal), model, None)
     assert set(texts) == {'urdf'}
     assert ET.fromstring(texts['urdf']).get('name') == 'sawyer_calibrated'
