@@ -147,13 +147,14 @@ def test_identification_is_validated_stored_and_exported_as_urdf(ros, actions, c
         assert record is not None and kinematic_store.active('sawyer')['id'] == \
             result.calibration_id
         assert 'table6' in Path(result.yaml_path).read_text()
-        urdf = model_from_urdf(Path(result.urdf_path).read_text(), 'base_link', 'tool0',
-                               'check')
+        # the cell's own Sawyer URDF, written back (issue 29 item 3)
+        text = Path(result.urdf_path).read_text()
+        assert f'kinematic calibration {result.calibration_id} of robot sawyer' in text
+        assert '<link name="head"' in text and 'right_hand_camera' in text
+        urdf = model_from_urdf(text, 'right_arm_base_link', 'right_hand', 'check')
         params = np.array(record['result']['params'])
-        tool = np.eye(4)
-        tool[:3, 3] = record['result']['tool_xyz']
         q = np.random.default_rng(1).uniform(model.lower, model.upper, (20, 7))
-        np.testing.assert_allclose(fk(urdf.chain(), q), fk(model.chain(params, tool), q),
+        np.testing.assert_allclose(fk(urdf.chain(), q), fk(model.chain(params), q),
                                    atol=1e-9)
         # the solver maps joint captures through the named model
         named = call(ros, CalibrateUserFrame, 'calibrate_user_frame', 30.0, method='rigid',

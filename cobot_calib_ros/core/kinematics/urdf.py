@@ -419,7 +419,7 @@ def rewrite_urdf(text: str, model: KinematicModel, params: ArrayLike, *, base_li
         urdf.root.set('name', robot_name)
     if note:
         comment = ET.Comment(f' {note.replace("--", "- -")} ')
-        comment.tail = '\n' + (urdf.root.text or '\n')
+        comment.tail = urdf.root.text or '\n'
         urdf.root.insert(0, comment)
     return '<?xml version="1.0" ?>\n' + ET.tostring(urdf.root, encoding='unicode') + '\n'
 
