@@ -11,16 +11,23 @@ from cobot_calib_ros.paths import DEFAULT_CELL
 
 
 def add_parser(subparsers):
+    from cobot_calib_ros.core.kinematics.program_filter import FORMAT_NAMES
     p = subparsers.add_parser(
         'filter', help='correct pose targets for a controller with nominal kinematics',
         description='Solve each target with the calibrated model, write the pose the nominal '
                     'model reaches at those joints (what the controller must be given) and the '
                     'joints. Targets: CSV name,x,y,z,qx,qy,qz,qw (tool pose, m, unit '
-                    'quaternion). Nothing is written unless every target can be reached; each '
-                    'one that cannot is named.')
+                    "quaternion), or name and a controller's values (--format). Nothing is "
+                    'written unless every target can be reached; each one that cannot is '
+                    'named.')
     p.add_argument('--targets', required=True, help='the program: CSV name,x,y,z,qx,qy,qz,qw')
     p.add_argument('--out', required=True, help='the filtered program (CSV: the same columns, '
                                                 'then the joints [rad])')
+    p.add_argument('--format', choices=FORMAT_NAMES, default='csv',
+                   help="the pose columns, in and out: csv x,y,z,qx,qy,qz,qw [m] (default), or "
+                        "a controller's values as `export` prints them (kuka X,Y,Z,A,B,C "
+                        "[mm, deg], abb x,y,z,q1..q4 [mm], fanuc X,Y,Z,W,P,R, ur x,y,z,rx,ry,rz "
+                        "[m, rad], yaskawa X,Y,Z,Rx,Ry,Rz)")
     p.add_argument('--frame', choices=('base', 'user'), default='base',
                    help="the targets' frame: the robot base, or the active user frame of the "
                         "cell's results (default base); the output is in the same frame")
@@ -69,7 +76,8 @@ def run(args) -> int:
     try:
         cell = load_cell(paths.cell_file(args.robot_cell))
         model = model_for(cell)
-        targets = parse_targets(Path(args.targets).read_text(encoding='utf-8'), args.targets)
+        targets = parse_targets(Path(args.targets).read_text(encoding='utf-8'), args.targets,
+                                args.format)
     except (CellFileError, ValueError) as exc:
         return fail(f'filter: {exc}', EXIT_USAGE)
     except (OSError, UnicodeDecodeError) as exc:
@@ -98,7 +106,8 @@ def run(args) -> int:
         return fail(f'filter: {len(result.unreachable)} of {len(targets)} targets cannot be '
                     f'reached; nothing written to {args.out}', EXIT_FAILED)
     try:
-        atomic_write_text(Path(args.out), filtered_csv(result.filtered, model.joint_names))
+        atomic_write_text(Path(args.out), filtered_csv(result.filtered, model.joint_names,
+                                                          args.format))
     except OSError as exc:
         return fail(f'filter: --out {args.out}: {exc}')
     largest_mm = max(f.correction_m for f in result.filtered) * 1e3

@@ -6,11 +6,13 @@ reaches at the joints the calibrated model needs: q = IK_calibrated(T), T' = FK_
 Its nominal inverse kinematics of T' then gives q again (same branch, seeded near; a redundant
 arm's controller resolves its redundancy its own way, so there only T' is exact).
 
-Targets are a CSV with the header ``name,x,y,z,qx,qy,qz,qw``: the tool pose in the targets'
-frame (the base, or a user frame), position [m] and unit quaternion (x, y, z, w; the sign is
-free). The filtered program has the same columns for the corrected pose, then the calibrated
-model's joints [rad, m for prismatic] by joint name. A target the calibrated model cannot
-reach (out of the workspace or the joint limits) is named with the solver's reason.
+Targets are a CSV: ``name`` and the tool pose in the targets' frame (the base, or a user
+frame), by default ``x,y,z,qx,qy,qz,qw`` (position [m], unit quaternion x y z w, the sign free),
+or in a controller's own values and units (``fmt`` one of core.vendor_frames.FORMATS, e.g. kuka
+``X,Y,Z,A,B,C`` [mm, deg], as a pendant shows a position). The filtered program has the same
+columns for the corrected pose, then the calibrated model's joints [rad, m for prismatic] by
+joint name. A target the calibrated model cannot reach (out of the workspace or the joint
+limits) is named with the solver's reason.
 """
 from __future__ import annotations
 
@@ -25,10 +27,12 @@ from numpy.typing import ArrayLike, NDArray
 from cobot_calib_ros.core.frames import from_pose, invert, to_pose, transform_error
 from cobot_calib_ros.core.kinematics.ik import solve_ik_with_restarts
 from cobot_calib_ros.core.kinematics.model import Chain, fk
+from cobot_calib_ros.core.vendor_frames import FORMATS, from_values, to_values
 
 Array = NDArray[np.float64]
 
-COLUMNS = ('name', 'x', 'y', 'z', 'qx', 'qy', 'qz', 'qw')
+COLUMNS = ('name', 'x', 'y', 'z', 'qx', 'qy', 'qz', 'qw')   # the default format, 'csv'
+FORMAT_NAMES = ('csv',) + tuple(FORMATS)
 _UNIT = 1e-3          # |1 - |quaternion|| above this: not a rotation, refused
 
 
@@ -62,21 +66,39 @@ class FilterResult:
     unreachable: tuple[Unreachable, ...]
 
 
-def parse_targets(text: str, where: str = 'targets') -> list[Target]:
-    """The targets of a CSV text (header ``name,x,y,z,qx,qy,qz,qw``); ValueError naming the
-    line and column of a missing or non-finite number, a quaternion that is not unit, a
-    repeated name or an empty file."""
+def columns(fmt: str = 'csv') -> tuple[str, ...]:
+    """The header of a targets file in ``fmt`` ('csv' or a vendor format); ValueError if
+    unknown."""
+    if fmt == 'csv':
+        return COLUMNS
+    if fmt not in FORMATS:
+        raise ValueError(f'unknown targets format {fmt!r}; use one of {", ".join(FORMAT_NAMES)}')
+    return ('name',) + FORMATS[fmt].labels
+
+
+def _units(fmt: str) -> str:
+    if fmt == 'csv':
+        return 'position [m], unit quaternion x y z w'
+    return ', '.join(f'{label} [{unit}]' if unit else label
+                     for label, unit in zip(FORMATS[fmt].labels, FORMATS[fmt].units))
+
+
+def parse_targets(text: str, where: str = 'targets', fmt: str = 'csv') -> list[Target]:
+    """The targets of a CSV text (header :func:`columns` of ``fmt``); ValueError naming the
+    line and column of a missing or non-finite number, a rotation that is not one, a repeated
+    name or an empty file."""
+    header_names = columns(fmt)
     rows = csv.reader(io.StringIO(text))
     header = next(rows, None)
-    if header is None or [h.strip() for h in header] != list(COLUMNS):
-        raise ValueError(f'{where}: line 1: expected the header {",".join(COLUMNS)} (position '
-                         '[m], unit quaternion x y z w)')
+    if header is None or [h.strip() for h in header] != list(header_names):
+        raise ValueError(f'{where}: line 1: expected the header {",".join(header_names)} '
+                         f'({_units(fmt)})')
     targets, seen = [], set()
     for line, row in enumerate(rows, start=2):
         if not row or not ''.join(row).strip():
             continue
-        if len(row) != len(COLUMNS):
-            raise ValueError(f'{where}: line {line}: expected {len(COLUMNS)} columns, got '
+        if len(row) != len(header_names):
+            raise ValueError(f'{where}: line {line}: expected {len(header_names)} columns, got '
                              f'{len(row)}')
         name = row[0].strip()
         if not name or name in seen:
@@ -84,7 +106,7 @@ def parse_targets(text: str, where: str = 'targets') -> list[Target]:
                              'each target its own name')
         seen.add(name)
         values = []
-        for column, cell in zip(COLUMNS[1:], row[1:]):
+        for column, cell in zip(header_names[1:], row[1:]):
             try:
                 value = float(cell)
             except ValueError:
@@ -93,15 +115,31 @@ def parse_targets(text: str, where: str = 'targets') -> list[Target]:
                 raise ValueError(f'{where}: line {line}: {column}: expected a finite number, '
                                  f'got {cell.strip()!r}')
             values.append(value)
-        quaternion = np.array(values[3:])
-        norm = float(np.linalg.norm(quaternion))
-        if abs(norm - 1.0) > _UNIT:
-            raise ValueError(f'{where}: line {line}: the quaternion (qx qy qz qw) has norm '
-                             f'{norm:.6g}; give a unit quaternion')
-        targets.append(Target(name, from_pose(values[:3], quaternion / norm)))
+        try:
+            targets.append(Target(name, _pose(values, fmt)))
+        except ValueError as exc:
+            raise ValueError(f'{where}: line {line}: {exc}') from None
     if not targets:
         raise ValueError(f'{where}: no targets after the header')
     return targets
+
+
+def _pose(values: list[float], fmt: str) -> Array:
+    if fmt != 'csv':
+        return from_values(values, fmt)
+    quaternion = np.array(values[3:])
+    norm = float(np.linalg.norm(quaternion))
+    if abs(norm - 1.0) > _UNIT:
+        raise ValueError(f'the quaternion (qx qy qz qw) has norm {norm:.6g}; give a unit '
+                         'quaternion')
+    return from_pose(values[:3], quaternion / norm)
+
+
+def _values(pose: Array, fmt: str) -> tuple[float, ...]:
+    if fmt != 'csv':
+        return to_values(pose, fmt)
+    position, quaternion = to_pose(pose)
+    return tuple(position) + tuple(-quaternion if quaternion[3] < 0 else quaternion)
 
 
 def filter_targets(targets: list[Target], calibrated: Chain, nominal: Chain, home: ArrayLike,
@@ -126,14 +164,13 @@ def filter_targets(targets: list[Target], calibrated: Chain, nominal: Chain, hom
     return FilterResult(tuple(filtered), tuple(unreachable))
 
 
-def filtered_csv(filtered: tuple[Filtered, ...], joint_names: tuple[str, ...]) -> str:
-    """The filtered program: name, corrected pose (x y z [m], qx qy qz qw with qw >= 0), the
-    calibrated joints; numbers as the shortest round-trip decimals."""
+def filtered_csv(filtered: tuple[Filtered, ...], joint_names: tuple[str, ...],
+                 fmt: str = 'csv') -> str:
+    """The filtered program: name, corrected pose in ``fmt`` (csv: qw >= 0), the calibrated
+    joints; numbers as the shortest round-trip decimals."""
     out = io.StringIO()
     writer = csv.writer(out, lineterminator='\n')
-    writer.writerow(COLUMNS + tuple(joint_names))
+    writer.writerow(columns(fmt) + tuple(joint_names))
     for f in filtered:
-        position, quaternion = to_pose(f.pose)
-        quaternion = -quaternion if quaternion[3] < 0 else quaternion
-        writer.writerow([f.name] + [repr(float(v)) for v in (*position, *quaternion, *f.q)])
+        writer.writerow([f.name] + [repr(float(v)) for v in (*_values(f.pose, fmt), *f.q)])
     return out.getvalue()

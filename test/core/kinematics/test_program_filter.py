@@ -9,8 +9,10 @@ import pytest
 from cobot_calib_ros.core.frames import from_pose, to_pose
 from cobot_calib_ros.core.kinematics import fk, model_for
 from cobot_calib_ros.core.kinematics.ik import solve_ik
-from cobot_calib_ros.core.kinematics.program_filter import (COLUMNS, filter_targets,
-                                                            filtered_csv, parse_targets, Target)
+from cobot_calib_ros.core.kinematics.program_filter import (columns, COLUMNS,
+                                                            filter_targets, filtered_csv,
+                                                            parse_targets, Target)
+from cobot_calib_ros.core.vendor_frames import to_values
 from cobot_calib_ros.loaders import load_cell
 from cobot_calib_ros.paths import cell_file
 
@@ -107,6 +109,24 @@ def test_the_filtered_csv_reads_back_as_targets_with_the_joints_beside():
     assert all(float(line.split(',')[7]) >= 0 for line in lines)     # qw >= 0
 
 
+@pytest.mark.parametrize('fmt', ['kuka', 'abb', 'fanuc', 'ur', 'yaskawa'])
+def test_a_program_in_a_controllers_values_comes_back_in_them(fmt):
+    cell, nominal, calibrated = ur10e()
+    q = program(cell.home, np.random.default_rng(7), 4)
+    poses = fk(calibrated, q)
+    text = ','.join(columns(fmt)) + '\n' + ''.join(
+        f'w{k},' + ','.join(repr(v) for v in to_values(T, fmt)) + '\n'
+        for k, T in enumerate(poses))
+    targets = parse_targets(text, 'p.csv', fmt)
+    assert_allclose(np.array([t.pose for t in targets]), poses, rtol=0, atol=1e-12)
+    result = filter_targets(targets, calibrated, nominal, cell.home)
+    header, *lines = filtered_csv(result.filtered, nominal.joint_names, fmt).splitlines()
+    assert header.split(',') == list(columns(fmt) + nominal.joint_names)
+    n = len(columns(fmt))
+    assert_allclose([[float(v) for v in line.split(',')[1:n]] for line in lines],
+                    [to_values(T, fmt) for T in fk(nominal, q)], rtol=0, atol=1e-6)
+
+
 @pytest.mark.parametrize('text, words', [
     ('x,y,z\n', 'line 1: expected the header name,x,y,z,qx,qy,qz,qw'),
     ('name,x,y,z,qx,qy,qz,qw\n', 'no targets after the header'),
@@ -117,8 +137,12 @@ def test_the_filtered_csv_reads_back_as_targets_with_the_joints_beside():
                                                        "got 'zero'"),
     ('name,x,y,z,qx,qy,qz,qw\na,0,0,0,0,0,0,2\n', 'line 2: the quaternion (qx qy qz qw) has '
                                                   'norm 2'),
+    ('name,x,y,z,qx,qy,qz,qw\n', 'line 1: expected the header name,X,Y,Z,A,B,C (X [mm], Y [mm], '
+                                 'Z [mm], A [deg], B [deg], C [deg])'),
+    ('name,x,y,z,q1,q2,q3,q4\na,0,0,0,0.5,0,0,0\n', 'line 2: abb: the quaternion'),
 ])
 def test_a_broken_targets_file_names_line_and_column(text, words):
+    fmt = 'kuka' if 'A [deg]' in words else 'abb' if 'abb' in words else 'csv'
     with pytest.raises(ValueError) as caught:
-        parse_targets(text, 'prog.csv')
+        parse_targets(text, 'prog.csv', fmt)
     assert str(caught.value).startswith('prog.csv: ') and words in str(caught.value)
