@@ -30,7 +30,7 @@ import xml.etree.ElementTree as ET
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from cobot_calib_ros.core.frames import from_xyz_rpy, invert, skew
+from cobot_calib_ros.core.frames import from_xyz_rpy, invert, rotation_angle, skew
 from cobot_calib_ros.core.kinematics.model import _model, KinematicModel
 
 Array = NDArray[np.float64]
@@ -429,16 +429,16 @@ def _chain_frames(urdf: _Urdf, model: KinematicModel, base_link: str, tip_link: 
     """The URDF chain of the model's joints, the fixed transforms C_0 = I, C_1 .. C_n from
     each model joint frame to its URDF child link frame (at q = 0), and per joint whether its
     parameters are its literal URDF xyz/rpy. ValueError naming what does not match."""
-    if all(name in urdf.joints for name in model.joint_names):
+    if tip_link is not None:
+        tip = tip_link
+    elif all(name in urdf.joints for name in model.joint_names):
         tip = urdf.joints[model.joint_names[-1]].child
-    elif tip_link is None:
+    else:
         raise ValueError(f'the joints of model {model.name!r} are not all in the URDF; name '
                          'the link at the end of its chain (tip_link) to match them in order')
-    else:
-        tip = tip_link
-    path = _path(urdf, base_link, tip)
+    path, below = _path(urdf, base_link, tip), []
     while path and path[-1].type not in _MOVING:
-        path.pop()
+        below.insert(0, path.pop())
     serial = _serial(path, base_link, tip)
     names = tuple(j.name for j in serial.moving)
     if len(names) != len(model.joint_names) or (
@@ -461,12 +461,30 @@ def _chain_frames(urdf: _Urdf, model: KinematicModel, base_link: str, tip_link: 
                              'URDF link frames are not fixed to the model frames); build the '
                              'model from this URDF (model_from_urdf)')
         frames.append(C)
+    if tip_link is not None:
+        _check_tip(model, frames[-1], below, tip_link)
     for turned in (False, True):   # a model built from this URDF: its exact axis frames
         exact = _serial(path, base_link, tip, turned)
         if all(np.allclose(C, R.T, rtol=0, atol=1e-9) for C, R in zip(frames[1:], exact.axes)):
             literal = _literal(exact) if model.kind == 'origin' else [False] * len(names)
             return exact, [np.eye(4)] + [R.T for R in exact.axes], literal
     return serial, frames, [False] * len(names)
+
+
+def _check_tip(model: KinematicModel, C_last: Array, below: list[_Joint], tip_link: str) -> None:
+    """ValueError unless ``tip_link`` (fixed joints ``below`` the last moving one) is the
+    model's flange at the nominal parameters: a joint origin shifted along or turned about its
+    axis passes the axis check but moves everything after it."""
+    T = C_last
+    for joint in below:
+        T = T @ joint.origin
+    gap = invert(model.flange) @ T
+    offset, angle = float(np.linalg.norm(gap[:3, 3])), rotation_angle(gap)
+    if offset > 1e-9 or angle > 1e-9:
+        raise ValueError(f'tip_link {tip_link!r} is {offset * 1e3:.6g} mm / {angle * 1e3:.6g} '
+                         f'mrad from the flange of model {model.name!r} at the nominal '
+                         'parameters: the URDF and the model describe different arms (or name '
+                         "the model's flange link as tip_link)")
 
 
 def _minimal_urdf(model: KinematicModel, placements: Array, end: Array, robot_name: str,

@@ -144,6 +144,12 @@ def test_a_dh_model_on_a_urdf_whose_frames_are_not_its_own_is_refused():
     with pytest.raises(ValueError, match='name the link at the end of its chain'):
         rewrite_urdf((CELLS / 'iiwa7.urdf').read_text(), iiwa7, iiwa7.nominal,
                      base_link='lbr_link_0')
+    shifted = (CELLS / 'iiwa7.urdf').read_text().replace('xyz="0.0 0.0707 0.091"',
+                                                         'xyz="0.0 0.0707 0.092"', 1)
+    with pytest.raises(ValueError, match=r"tip_link 'lbr_link_ee' is 1 mm / 0 mrad from the "
+                                         r"flange of model 'iiwa7'"):   # A7 1 mm up its axis
+        rewrite_urdf(shifted, iiwa7, iiwa7.nominal, base_link='lbr_link_0',
+                     tip_link='lbr_link_ee')
     with pytest.raises(ValueError, match=r"moving joints from 'lbr_link_0' to 'lbr_link_5'"):
         rewrite_urdf((CELLS / 'iiwa7.urdf').read_text(), iiwa7, iiwa7.nominal,
                      base_link='lbr_link_0', tip_link='lbr_link_5')
