@@ -4,8 +4,8 @@ Under ``<root>/kinematics``: ``<id>.json`` (the record, what the suite reads), `
 (the same for people: the identified table as the paper's Table 6, validation figures) and
 ``<id>.urdf`` (the calibrated model for MoveIt, RViz, robot_state_publisher: the cell's own
 URDF with the identified joint origins when the cell names it, else a minimal chain) and, for a
-UR arm, ``<id>.ur_kinematics.yaml`` (``kinematics_params`` of the UR ROS 2 description). Activation is
-per cell (store.cells) and robot (the record's ``robot``): a plant keeps many robots'
+UR arm, ``<id>.ur_kinematics.yaml`` (``kinematics_params`` of the UR ROS 2 description).
+Activation is per cell (store.cells) and robot (the record's ``robot``): a plant keeps many robots'
 results in one data dir, and ``kinematics: latest`` in user_frame_solver and
 repeatability_trial is the active calibration *of the cell's robot* (:class:`CalibrationStore`
 rules within that robot: chosen, else the newest non-retired), nominal when it has none.

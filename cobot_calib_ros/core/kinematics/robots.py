@@ -4,8 +4,8 @@ A cell names its robot either by a built-in model (ROBOTS: the URDF-origin Sawye
 modified-DH tables, pybotics' UR10) or by a URDF and the two links of the chain
 (``robot: {urdf: FILE, base_link: ..., tip_link: ...}``: a UrdfRobot, whose text the cell
 loader read; with ``model: NAME`` a built-in model is its kinematics and the URDF its
-description, where the calibration is written back). ``model_for`` turns either into the KinematicModel every node, the simulation
-and the CLI use.
+description, where the calibration is written back). ``model_for`` turns either into the
+KinematicModel every node, the simulation and the CLI use.
 """
 from __future__ import annotations
 
