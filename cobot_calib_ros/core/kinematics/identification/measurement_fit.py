@@ -146,8 +146,8 @@ class _Problem:
         return self.kind.residuals(self.tip(x), x[self.n:])
 
     def jacobian(self, x: Array) -> Array:
-        """The model parameters through the tip's twists (:mod:`.tip_jacobian`), each
-        nuisance unknown by central differences on the same tip poses; at the joints without
+        """The model parameters through the tip's twists (:mod:`.tip_jacobian`), the nuisance
+        by the kind (:meth:`Kind.nuisance_jacobian`) on the same tip poses; at the joints without
         deflections, a compliance's column zero (:meth:`columns` differences those)."""
         params, offsets = self.errors.parameters(self.names, x[:self.n])
         placements, _ = self.errors.placements(self.names, x[:self.n])
@@ -159,15 +159,8 @@ class _Problem:
         twists = np.zeros((self.n, len(T), 6))
         twists[geometric] = tip_twists(model, params, offsets,
                                        tuple(self.names[k] for k in geometric), self.data.q)
-        columns = [residual_jacobian(self.kind, T, nuisance, twists, FD_STEP)]
-        for k in range(len(nuisance)):
-            pair = []
-            for h in (FD_STEP, -FD_STEP):
-                step = nuisance.copy()
-                step[k] += h
-                pair.append(self.kind.residuals(T, step))
-            columns.append(((pair[0] - pair[1]) / (2.0 * FD_STEP))[:, None])
-        return np.hstack(columns)
+        return np.hstack([residual_jacobian(self.kind, T, nuisance, twists, FD_STEP),
+                          self.kind.nuisance_jacobian(T, nuisance, FD_STEP)])
 
     def columns(self, x: Array) -> Array:
         """:meth:`jacobian`, the columns of terms that vary with the joint values

@@ -186,6 +186,30 @@ class Kind:
         the cost that no unknown spans (identifiability holds them fixed); none by default."""
         return np.empty((len(self.residuals(T_tip, x)), 0))
 
+    def tip_derivatives(self, T_tip: Array, x: Array, step: float) -> Array:
+        """(residuals, 6): d residuals / d a motion of every tip along the unit twists of the
+        base frame (translation along x, y, z, rotation about x, y, z, as
+        T_tip -> Exp(h e_j) T_tip); by central differences of ``step`` unless a kind knows
+        them in closed form."""
+        plus, minus = _unit_motions(step), _unit_motions(-step)
+        return np.stack([(self.residuals(plus[j] @ T_tip, x)
+                          - self.residuals(minus[j] @ T_tip, x)) / (2.0 * step)
+                         for j in range(6)], axis=1)
+
+    def nuisance_jacobian(self, T_tip: Array, x: Array, step: float) -> Array:
+        """(residuals, len(x)) d residuals / d nuisance; by central differences of ``step``
+        unless a kind knows it in closed form."""
+        columns = []
+        for k in range(len(x)):
+            pair = []
+            for h in (step, -step):
+                moved = np.array(x, dtype=float)
+                moved[k] += h
+                pair.append(self.residuals(T_tip, moved))
+            columns.append((pair[0] - pair[1]) / (2.0 * step))
+        return np.stack(columns, axis=1) if columns else np.empty(
+            (len(self.residuals(T_tip, x)), 0))
+
 
 class PointsKind(Kind):
     per_row = 3
@@ -294,6 +318,31 @@ class SpheresKind(Kind):
                 for a, b, D in self.dist]
         return np.concatenate([r, gaps])
 
+    def tip_derivatives(self, T_tip, x, step):
+        """Closed form: the ball p = R b + t moves by v + w x p = v - [p]x w."""
+        p = _ball(T_tip, x[:3])
+        D = np.zeros((len(self.residuals(T_tip, x)), 6))
+        tied = 3 * len(p)
+        D[:tied, :3] = np.tile(np.eye(3), (len(p), 1))
+        D[:tied, 3:] = -skew(p).reshape(-1, 3)
+        return D
+
+    def nuisance_jacobian(self, T_tip, x, step):
+        """Closed form (the live path's sphere-centre objective): d (p_i - c_s) / d b = R_i,
+        / d c_s = -I; a distance row sqrt(w) u, u the unit vector between its centres."""
+        m, S = len(T_tip), len(self.spheres)
+        J = np.zeros((3 * m + len(self.dist), 3 + 3 * S))
+        J[:3 * m, :3] = T_tip[:, :3, :3].reshape(-1, 3)
+        rows = np.arange(3 * m)
+        J[rows, 3 + 3 * np.repeat(self.row_sphere, 3) + rows % 3] = -1.0
+        centres = x[3:].reshape(-1, 3)
+        for k, (a, b, _) in enumerate(self.dist):
+            gap = centres[a] - centres[b]
+            u = self.sqrt_w * gap / np.linalg.norm(gap)
+            J[3 * m + k, 3 + 3 * a:6 + 3 * a] += u
+            J[3 * m + k, 3 + 3 * b:6 + 3 * b] -= u
+        return J
+
     def gauge(self, T_tip, x):
         """A rotation of the base, the centres turned with it, turns every residual p - c
         (the cost is invariant; the residual vector is not, away from zero residuals):
@@ -398,6 +447,18 @@ KIND_CLASSES = {'points': PointsKind, 'pose': PoseKind, 'spheres': SpheresKind,
 
 def make_kind(data: Measurements, T_tip: Array) -> Kind:
     return KIND_CLASSES[data.kind](data, T_tip)
+
+
+def _unit_motions(h: float) -> Array:
+    """(6, 4, 4) Exp(h e_j): translations by h along x, y, z, rotations by h about x, y, z."""
+    c, s = math.cos(h), math.sin(h)
+    motions = np.tile(np.eye(4), (6, 1, 1))
+    for axis in range(3):
+        motions[axis, axis, 3] = h
+        j, k = (axis + 1) % 3, (axis + 2) % 3
+        R = motions[3 + axis]
+        R[j, j], R[j, k], R[k, j], R[k, k] = c, -s, s, c
+    return motions
 
 
 def _ball(T_tip: Array, b: Array) -> Array:
