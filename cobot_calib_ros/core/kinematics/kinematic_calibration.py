@@ -160,8 +160,7 @@ class CalibrationJob:
                        nominal_values, validation, table6(model, result.params), verdict)
 
     def error_model(self) -> mf.ErrorModel:
-        """The model's own: every row of a DH table, every joint origin of a URDF."""
-        return mf.ErrorModel(self.model, 'mdh' if self.model.kind == 'mdh' else 'full')
+        return error_model(self.model)
 
     def measurements(self) -> Measurements:
         """The observations as the measurement kind they are (module doc, step 1)."""
@@ -173,8 +172,7 @@ class CalibrationJob:
             need = 'SphereObservations' if wanted == 'relative' else 'PositionObservations'
             raise ValueError(f'objective {wanted!r} needs {need}, got {type(data).__name__}')
         if relative:
-            return Measurements('spheres', data.q, data.sphere,
-                                distances=data.known_distances, ball=self.tool_xyz0)
+            return sphere_measurements(data, self.tool_xyz0)
         return Measurements('points', data.q, np.zeros(len(data.q), int), data.p,
                             ball=self.tool_xyz0)
 
@@ -209,6 +207,27 @@ class CalibrationJob:
     def _inputs(self) -> JobInputs:
         return JobInputs(self.source, len(self.data.q), self.solver, self.loss,
                          self._objective())
+
+
+def error_model(model: KinematicModel) -> mf.ErrorModel:
+    """A model's own error model: every row of a DH table, every joint origin of a URDF."""
+    return mf.ErrorModel(model, 'mdh' if model.kind == 'mdh' else 'full')
+
+
+def sphere_measurements(data: SphereObservations, tool_xyz0: Array) -> Measurements:
+    """Sphere couplings as the measurement kind ``spheres``, the coupling's centre the ball;
+    distances between spheres the data touch."""
+    present = set(data.spheres)
+    return Measurements('spheres', data.q, data.sphere, ball=tool_xyz0, distances=tuple(
+        d for d in data.known_distances if d[0] in present and d[1] in present))
+
+
+def free_parameters(model: KinematicModel, data: SphereObservations,
+                    tool_xyz0: Array) -> tuple[str, ...]:
+    """What a CalibrationJob on ``data`` identifies: the identifiable parameters
+    (:func:`measurement_fit.identifiable`), then tool_x, tool_y, tool_z (the ball)."""
+    return mf.identifiable(error_model(model), sphere_measurements(data, tool_xyz0)).kept \
+        + TOOL_NAMES
 
 
 def _subset(data: Observations, limit: int) -> Observations:
