@@ -42,7 +42,7 @@ from cobot_calib_ros.core.kinematics.planning import (PlanSettings, Prediction,
                                                       too_few_poses)
 from cobot_calib_ros.core.kinematics.identification.observations import (
     PositionObservations, SphereObservations)
-from cobot_calib_ros.core.kinematics.identification.solvers import LOSSES, SOLVERS
+from cobot_calib_ros.core.kinematics.identification.measurement_fit import LOSSES, SOLVERS
 from cobot_calib_ros.core.kinematics.identification.gates import (
     DeviationBounds, MAX_DEVIATION_M, MAX_DEVIATION_RAD)
 from cobot_calib_ros.core.kinematics.kinematic_calibration import CalibrationJob, JobCancelled
