@@ -230,6 +230,17 @@ def free_parameters(model: KinematicModel, data: SphereObservations,
         + TOOL_NAMES
 
 
+def fit_spheres(model: KinematicModel, data: SphereObservations, tool_xyz0: Array,
+                free: tuple[str, ...]) -> tuple[Array, Array, mf.Fit]:
+    """Least squares of the parameters named in ``free`` on sphere data, from the nominal
+    model (tool_x, tool_y, tool_z: the ball, a nuisance unknown, always fitted), without the
+    gates: (params (P,), tool_xyz (3,), the fit). For planning and its benches."""
+    errors = error_model(model)
+    fit = mf.fit(errors, sphere_measurements(data, tool_xyz0),
+                 tuple(n for n in free if n not in TOOL_NAMES))
+    return errors.parameters(fit.names, fit.values)[0], fit.nuisance[:3].copy(), fit
+
+
 def _subset(data: Observations, limit: int) -> Observations:
     keep = even_subset(len(data.q), limit)
     if len(keep) == len(data.q):

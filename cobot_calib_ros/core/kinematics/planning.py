@@ -49,12 +49,9 @@ from numpy.typing import ArrayLike, NDArray
 
 from cobot_calib_ros.core.cell import Cell
 from cobot_calib_ros.core.driver import move_seconds
-from cobot_calib_ros.core.kinematics.identification.identifiability import base_motion_columns
 from cobot_calib_ros.core.kinematics.identification.observations import SphereObservations
-from cobot_calib_ros.core.kinematics.identification import measurement_fit as mf
-from cobot_calib_ros.core.kinematics.identification.parameters import ParameterSet, TOOL_NAMES
-from cobot_calib_ros.core.kinematics.kinematic_calibration import (
-    error_model, free_parameters, sphere_measurements)
+from cobot_calib_ros.core.kinematics.identification.parameters import ParameterSet
+from cobot_calib_ros.core.kinematics.kinematic_calibration import fit_spheres, free_parameters
 from cobot_calib_ros.core.kinematics.model import KinematicModel
 from cobot_calib_ros.core.kinematics.plans import even_subset, sphere_plan
 
@@ -100,6 +97,15 @@ def fewest_poses(free: int, spheres: int, known_distances: int) -> int:
     (SphereObservations' rule: a centre from one pose is that pose)."""
     unknowns = free + 3 * spheres
     return max(2 * spheres, (unknowns - known_distances) // 3 + 1)
+
+
+def base_motion_columns(p: ArrayLike) -> Array:
+    """(3 m, 6) d p / d (small rigid motion of the base: translation [m], rotation [rad]) for
+    positions p (m, 3) [m]: the 6 dof a world frame (or relative data) leaves unobservable."""
+    p = np.asarray(p, dtype=float)
+    translation = np.broadcast_to(np.eye(3), (len(p), 3, 3))
+    rotation = -np.cross(p[:, :, None], np.eye(3)[None, :, :], axis=1)  # w x p = -[p]x w
+    return np.concatenate([translation, rotation], axis=2).reshape(-1, 6)
 
 
 FEWEST_POSES_SAMPLE = 30    # paper-grid poses whose identifiability counts the free parameters
@@ -460,16 +466,13 @@ class SpherePlanner:
         then the linearisation at the new estimate (unless told not to)."""
         if 3 * len(self.q) < 2 * self.lin.D:
             return
-        errors = error_model(self.model)
-        names = tuple(n for n in self.parameter_set.free if n not in TOOL_NAMES)
         try:    # too few rows on a sphere, or a known distance's sphere not yet visited
             data = SphereObservations(np.array(self.q), np.array(self.target),
                                       self.known_distances)
-            fit = mf.fit(errors, sphere_measurements(data, self.tool_xyz0), names)
+            self.params, self.tool_xyz, fit = fit_spheres(self.model, data, self.tool_xyz0,
+                                                          self.parameter_set.free)
         except ValueError:
             return
-        self.params = errors.parameters(fit.names, fit.values)[0]
-        self.tool_xyz = fit.nuisance[:3].copy()
         centres = dict(zip(fit.problem.kind.spheres, fit.nuisance[3:].reshape(-1, 3)))
         if all(s in centres for s in self.lin.spheres):
             self._centres = np.array([centres[s] for s in self.lin.spheres])
