@@ -165,9 +165,18 @@ class _Problem:
         start = self.kind.x0 if nuisance is None else np.asarray(nuisance, dtype=float)
         self.x0 = np.concatenate([errors.start(self.names), start])
         self.n = len(self.names)
+        self._tip_key, self._tip = b'', np.empty((0, 4, 4))
+        self._columns_key, self._columns = b'', np.empty((0, 0))
 
     def tip(self, x: Array, q: Array | None = None) -> Array:
-        return self.errors.tip_poses(self.names, x[:self.n], self.data.q if q is None else q)
+        if q is not None:
+            return self.errors.tip_poses(self.names, x[:self.n], q)
+        key = np.asarray(x[:self.n], dtype=float).tobytes()
+        if key != self._tip_key or not len(self._tip):   # the solver asks for residuals
+            # and the Jacobian at one point, and the nuisance moves alone in a nominal fit
+            self._tip = self.errors.tip_poses(self.names, x[:self.n], self.data.q)
+            self._tip_key = key
+        return self._tip
 
     def residuals(self, x: Array) -> Array:
         return self.kind.residuals(self.tip(x), x[self.n:])
@@ -177,11 +186,14 @@ class _Problem:
         by the kind (:meth:`Kind.nuisance_jacobian`) on the same tip poses; at the joints without
         deflections, a compliance's column zero (:meth:`columns` differences those)."""
         params, offsets = self.errors.parameters(self.names, x[:self.n])
-        placements, _ = self.errors.placements(self.names, x[:self.n])
         model = self.errors.model
-        T = fk_placements(placements, model.flange, self.data.q + offsets, model.prismatic)
         nuisance = x[self.n:]
         springs = self.errors.q_dependent(self.names)
+        if springs:     # the tip without the deflections
+            placements, _ = self.errors.placements(self.names, x[:self.n])
+            T = fk_placements(placements, model.flange, self.data.q + offsets, model.prismatic)
+        else:
+            T = self.tip(x)
         geometric = [k for k in range(self.n) if k not in springs]
         twists = np.zeros((self.n, len(T), 6))
         if geometric:
@@ -195,11 +207,15 @@ class _Problem:
         (compliances) by central differences of the residuals. The other columns are taken
         at the joints without the deflections (~1 mrad): exact at the start (no deflection),
         a search direction off by ~1e-3 after; the residuals are exact."""
+        key = np.asarray(x, dtype=float).tobytes()
+        if key == self._columns_key:     # the solver's last, asked again for the std
+            return self._columns.copy()
         J = self.jacobian(x)
         for k in self.errors.q_dependent(self.names):
             step = np.zeros(len(x))
             step[k] = FD_STEP
             J[:, k] = (self.residuals(x + step) - self.residuals(x - step)) / (2.0 * FD_STEP)
+        self._columns_key, self._columns = key, J.copy()
         return J
 
     def bounds(self, bounds: DeviationBounds) -> tuple[Array, Array]:
