@@ -15,7 +15,7 @@ from cobot_calib_ros.core.kinematics import model_for, plans
 from cobot_calib_ros.core.kinematics.identification import measurement_fit as mf
 from cobot_calib_ros.core.kinematics.identification.gates import DeviationBounds
 from cobot_calib_ros.core.kinematics.identification.observations import SphereObservations
-from cobot_calib_ros.core.kinematics.kinematic_calibration import CalibrationJob
+from cobot_calib_ros.core.kinematics.kinematic_calibration import CalibrationJob, JobCancelled
 from cobot_calib_ros.paths import cell_file
 from cobot_calib_ros.sim.robot import SimRobot
 from cobot_calib_ros.sim.scenario import load_simulation
@@ -148,3 +148,24 @@ def test_a_deviation_on_its_bound_is_refused_the_same_way(live, tmp_path):
     at_bound = [p for p in outcome.verdict.problems if 'ran to its bound' in p]
     assert at_bound and not outcome.verdict.passed
     assert at_bound == [p for p in report['verdict']['problems'] if 'ran to its bound' in p]
+
+
+@pytest.mark.parametrize('solver', ['lm', 'nelder-mead'])
+def test_the_solve_reports_progress_and_stops_when_the_callback_says(live, solver):
+    """The node's feedback and cancel: the callback sees the start (iteration 0) and every
+    iteration with the cost so far; returning False stops the solve (JobCancelled)."""
+    sim, model, data = live
+    seen = []
+
+    def stop_after_two(iteration: int, cost: float, rms: float) -> bool:
+        seen.append((iteration, cost, rms))
+        return iteration < 2
+    with pytest.raises(JobCancelled, match='cancelled by the callback at iteration 2'):
+        CalibrationJob(sim.cell, model, data, solver=solver).run(stop_after_two)
+    assert [s[0] for s in seen] == [0, 1, 2]
+    assert seen[2][1] <= seen[1][1] <= seen[0][1] and seen[0][2] > 0.0
+    if solver == 'lm':
+        iterations = []
+        outcome = CalibrationJob(sim.cell, model, data).run(
+            lambda i, cost, rms: iterations.append(i) is None)
+        assert iterations == list(range(outcome.result.iterations + 1))
