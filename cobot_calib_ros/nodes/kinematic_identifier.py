@@ -8,7 +8,8 @@ answers cancels and feedback):
   through ``laser_tracker/measure``; every pose is stored as it is measured and a collection
   resumes after a restart. ``planned``: each sphere pose is chosen with the data so far
   (core.kinematics.planning), with a predicted accuracy and a stopping rule.
-- ``identify_kinematics``: identifiability (Algorithm 1), Levenberg-Marquardt or Nelder-Mead,
+- ``identify_kinematics``: the one identification engine (core.kinematics.kinematic_calibration:
+  the data as measurements, identifiability, Levenberg-Marquardt or Nelder-Mead, the gates),
   validation on laser-tracker collections, stored as JSON + YAML + calibrated URDF and made
   the active kinematic calibration that user_frame_solver and repeatability_trial use.
 """
