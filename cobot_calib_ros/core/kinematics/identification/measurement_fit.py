@@ -1,5 +1,10 @@
 """Identify an arm's kinematic errors from measurements (any kind), validated on held-out rows.
 
+The one identification engine: :func:`calibrate` is the call every path ends in (a
+measurement file or MUKCa folder through :func:`identify_measurements`; live collections,
+bags and the suite through core.kinematics.kinematic_calibration.CalibrationJob, which turns
+its observations into measurements).
+
 Error models (``ERROR_MODELS``) over a :class:`KinematicModel` (from a URDF, or an MDH table):
 
 - ``offsets``: one offset per joint, q_model = q + offset (``offset_<joint>``);
@@ -11,11 +16,14 @@ Error models (``ERROR_MODELS``) over a :class:`KinematicModel` (from a URDF, or 
 
 Unknowns are the free model parameters then the measurement's nuisance (base and target
 frames, markers, sphere centres, planes: :mod:`.measurements`). Jacobians: the model
-parameters' through the tip pose's twists (:mod:`.tip_jacobian`), the nuisance's by central
-differences of the residuals (step ``FD_STEP``, accurate to ~1e-9 relative, which the rank
-tolerance below is far above); the solver is scipy's trust-region least squares, with a
-robust loss if asked (``soft_l1``, the CLI's default: inliers within the median residual of
-the start, the nominal model with its fitted frames).
+parameters' through the tip pose's twists (:mod:`.tip_jacobian`), the nuisance's from the
+kind: in closed form for spheres, else by central differences of the residuals (step
+``FD_STEP``, accurate to ~1e-9 relative, which the rank tolerance below is far above). The
+solver (:meth:`_Problem.solve`) is scipy's trust-region least squares ('lm'), the model
+parameters within the gates' deviation bounds, with a robust loss if asked (``soft_l1``, the
+CLI's default: inliers within the median residual of the start, the nominal model with its
+fitted frames), or Nelder-Mead on the same cost ('nelder-mead'); a callback sees every
+iteration and may stop the solve (:class:`Cancelled`).
 
 Identifiability (:func:`identifiable`) on the data's own Jacobian at the start point, columns
 scaled to unit norm: the nuisance columns first, then the model's parameters in a fixed order
