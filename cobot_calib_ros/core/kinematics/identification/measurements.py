@@ -242,6 +242,35 @@ class PointsKind(Kind):
     def residuals(self, T_tip, x):
         return (self._predict(T_tip, x, self.data) - self.data.values).ravel()
 
+    def _in_base(self, T_tip, x):
+        """(marker positions in the robot base (m, 3), R_world_base)."""
+        offsets = x[6:].reshape(-1, 3)[self.row_marker]
+        p = np.einsum('mij,mj->mi', T_tip[:, :3, :3], offsets) + T_tip[:, :3, 3]
+        return p, self.base0[:3, :3] @ Rotation.from_rotvec(x[3:6]).as_matrix()
+
+    def tip_derivatives(self, T_tip, x, step):
+        """Closed form (the live path's tracker objective): a tip twist (v, w) in the robot
+        base moves the marker by R_world_base (v - [p]x w)."""
+        p, R = self._in_base(T_tip, x)
+        return np.einsum('ab,mbj->maj', R, np.concatenate(
+            [np.broadcast_to(np.eye(3), (len(p), 3, 3)), -skew(p)], axis=2)).reshape(-1, 6)
+
+    def nuisance_jacobian(self, T_tip, x, step):
+        """Closed form: T_world_base = base0 (Exp(w), t): d / d t = R0; d / d w = R0 (-[Exp(w)
+        p]x) J_l(w) (J_l: SO(3)'s left Jacobian); d / d marker k = R_world_base R_tip on its
+        rows."""
+        p, R = self._in_base(T_tip, x)
+        R0, m = self.base0[:3, :3], len(p)
+        J = np.zeros((m, 3, len(x)))
+        J[:, :, :3] = R0
+        turned = p @ Rotation.from_rotvec(x[3:6]).as_matrix().T
+        J[:, :, 3:6] = np.einsum('ab,mbc->mac', R0, -skew(turned)) @ _left_jacobian(x[3:6])
+        on_tip = np.einsum('ab,mbc->mac', R, T_tip[:, :3, :3])
+        for k in range(len(self.markers)):
+            rows = self.row_marker == k
+            J[rows, :, 6 + 3 * k:9 + 3 * k] = on_tip[rows]
+        return J.reshape(3 * m, len(x))
+
     def errors(self, T_tip, x, data):
         unknown = set(int(t) for t in data.target) - set(self.markers)
         if unknown:
@@ -447,6 +476,16 @@ KIND_CLASSES = {'points': PointsKind, 'pose': PoseKind, 'spheres': SpheresKind,
 
 def make_kind(data: Measurements, T_tip: Array) -> Kind:
     return KIND_CLASSES[data.kind](data, T_tip)
+
+
+def _left_jacobian(w: Array) -> Array:
+    """(3, 3) SO(3)'s left Jacobian: Exp(w + dw) = Exp(J_l(w) dw) Exp(w) to first order."""
+    theta = float(np.linalg.norm(w))
+    W = skew(w)
+    if theta < 1e-6:
+        return np.eye(3) + W / 2.0 + W @ W / 6.0
+    return (np.eye(3) + (1.0 - math.cos(theta)) / theta ** 2 * W
+            + (theta - math.sin(theta)) / theta ** 3 * W @ W)
 
 
 def _unit_motions(h: float) -> Array:
