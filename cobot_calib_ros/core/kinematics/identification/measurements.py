@@ -249,8 +249,8 @@ class PointsKind(Kind):
         return p, self.base0[:3, :3] @ Rotation.from_rotvec(x[3:6]).as_matrix()
 
     def tip_derivatives(self, T_tip, x, step):
-        """Closed form (the live path's tracker objective): a tip twist (v, w) in the robot
-        base moves the marker by R_world_base (v - [p]x w)."""
+        """Closed form: a tip twist (v, w) in the robot base moves the marker by
+        R_world_base (v - [p]x w)."""
         p, R = self._in_base(T_tip, x)
         return np.einsum('ab,mbj->maj', R, np.concatenate(
             [np.broadcast_to(np.eye(3), (len(p), 3, 3)), -skew(p)], axis=2)).reshape(-1, 6)
@@ -357,8 +357,8 @@ class SpheresKind(Kind):
         return D
 
     def nuisance_jacobian(self, T_tip, x, step):
-        """Closed form (the live path's sphere-centre objective): d (p_i - c_s) / d b = R_i,
-        / d c_s = -I; a distance row sqrt(w) u, u the unit vector between its centres."""
+        """Closed form: d (p_i - c_s) / d b = R_i, / d c_s = -I; a distance row sqrt(w) u,
+        u the unit vector between its centres."""
         m, S = len(T_tip), len(self.spheres)
         J = np.zeros((3 * m + len(self.dist), 3 + 3 * S))
         J[:3 * m, :3] = T_tip[:, :3, :3].reshape(-1, 3)
