@@ -417,11 +417,6 @@ class Identifiability:
     def parameters_kept(self) -> int:
         return len(self.kept) + self.frame_dofs
 
-    @property
-    def rank(self) -> int:
-        """Independent unknowns the textbook minimum counts: the same as parameters_kept."""
-        return self.parameters_kept
-
 
 def _unit_columns(J: Array) -> Array:
     norms = np.linalg.norm(J, axis=0)
