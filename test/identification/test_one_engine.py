@@ -169,3 +169,16 @@ def test_the_solve_reports_progress_and_stops_when_the_callback_says(live, solve
         outcome = CalibrationJob(sim.cell, model, data).run(
             lambda i, cost, rms: iterations.append(i) is None)
         assert iterations == list(range(outcome.result.iterations + 1))
+
+
+def test_a_recorded_session_takes_the_same_call(spy):
+    """`identify --source BAG` (api.identification.identify_from_bag): the bag's captures as
+    spheres measurements through measurement_fit.calibrate, its problems the outcome's."""
+    from pathlib import Path
+    from cobot_calib_ros.api.identification import identify_from_bag
+    bag = Path(__file__).resolve().parents[2] / 'bags' / 'iiwa_spheres'
+    report, outcome = identify_from_bag(bag, 'iiwa7_close')
+    (_, measurements, _, calibration), = spy
+    assert measurements.kind == 'spheres' and len(measurements) == report['poses'] == 150
+    assert calibration.fit.names + ('tool_x', 'tool_y', 'tool_z') == outcome.result.free
+    assert outcome.verdict.problems == calibration.problems == ()
