@@ -332,7 +332,7 @@ class SpheresKind(Kind):
             raise ValueError(f'spheres {few} have fewer than 2 rows: a centre needs at least 2')
         self.dist = [(self.spheres.index(i), self.spheres.index(j), D)
                      for i, j, D in d.distances]
-        self.sqrt_w = math.sqrt(len(d))       # as CentresObjective: the distance holds the scale
+        self.sqrt_w = math.sqrt(len(d))       # a distance weighs as m rows: it holds the scale
         p = _ball(T_tip, d.ball)
         centres = np.array([p[self.row_sphere == k].mean(axis=0)
                             for k in range(len(self.spheres))])
