@@ -39,8 +39,9 @@ import benchlib
 from benchlib import Figures
 from cobot_calib_ros.core import frames, kinematics
 from cobot_calib_ros.core.kinematics import plans
-from cobot_calib_ros.core.kinematics.identification import (identify, register_rigid,
+from cobot_calib_ros.core.kinematics.identification import (register_rigid,
                                                             SphereObservations)
+from cobot_calib_ros.core.kinematics.kinematic_calibration import fit_spheres
 from cobot_calib_ros.core.kinematics.planned_collection import collect_planned, RobotTime
 from cobot_calib_ros.core.kinematics.planning import (PlanSettings, Prediction,
                                                       sphere_candidates, SpherePlanner)
@@ -110,8 +111,8 @@ class Bench:
 
     def identify_mm(self, parameter_set, q, target) -> tuple[float, float]:
         data = SphereObservations(q, target, self.distances)
-        result = identify(parameter_set, data, tool_xyz0=self.tool0, loss='linear')
-        return self.held_out_mm(result.params, result.tool_xyz)
+        params, tool_xyz, _ = fit_spheres(self.model, data, self.tool0, parameter_set.free)
+        return self.held_out_mm(params, tool_xyz)
 
 
 @dataclass
@@ -278,9 +279,9 @@ def recollected_means(bench: Bench, planner: SpherePlanner, counts) -> dict[int,
             data = SphereObservations(np.array(q[:count]),
                                       np.array([s['target'] for s in chosen[:count]]),
                                       bench.distances)
-            result = identify(planner.parameter_set, data, tool_xyz0=bench.tool0,
-                              loss='linear')
-            repeats[count].append(bench.held_out_mm(result.params, result.tool_xyz)[0])
+            params, tool_xyz, _ = fit_spheres(bench.model, data, bench.tool0,
+                                              planner.parameter_set.free)
+            repeats[count].append(bench.held_out_mm(params, tool_xyz)[0])
     return {count: float(np.mean(values)) for count, values in repeats.items()}
 
 

@@ -8,7 +8,8 @@ answers cancels and feedback):
   through ``laser_tracker/measure``; every pose is stored as it is measured and a collection
   resumes after a restart. ``planned``: each sphere pose is chosen with the data so far
   (core.kinematics.planning), with a predicted accuracy and a stopping rule.
-- ``identify_kinematics``: identifiability (Algorithm 1), Levenberg-Marquardt or Nelder-Mead,
+- ``identify_kinematics``: the one identification engine (core.kinematics.kinematic_calibration:
+  the data as measurements, identifiability, Levenberg-Marquardt or Nelder-Mead, the gates),
   validation on laser-tracker collections, stored as JSON + YAML + calibrated URDF and made
   the active kinematic calibration that user_frame_solver and repeatability_trial use.
 """
@@ -42,7 +43,7 @@ from cobot_calib_ros.core.kinematics.planning import (PlanSettings, Prediction,
                                                       too_few_poses)
 from cobot_calib_ros.core.kinematics.identification.observations import (
     PositionObservations, SphereObservations)
-from cobot_calib_ros.core.kinematics.identification.solvers import LOSSES, SOLVERS
+from cobot_calib_ros.core.kinematics.identification.measurement_fit import LOSSES, SOLVERS
 from cobot_calib_ros.core.kinematics.identification.gates import (
     DeviationBounds, MAX_DEVIATION_M, MAX_DEVIATION_RAD)
 from cobot_calib_ros.core.kinematics.kinematic_calibration import CalibrationJob, JobCancelled

@@ -230,7 +230,7 @@ class KinematicResult(Record):
     values: Any = None
     std: Any = None
     dropped: list[dict[str, str]] = field(default_factory=list)
-    rank: int = 0
+    rank: int = 0              # independent parameters identified: len(free)
     condition_number: float = 0.0
     rms_m: float = 0.0
     iterations: int = 0
@@ -274,7 +274,7 @@ class KinematicRecord(Record):
                 std=result.std,
                 dropped=[{'name': d.name, 'reason': d.reason}
                          for d in outcome.identifiability.dropped],
-                rank=outcome.identifiability.rank,
+                rank=len(result.free),
                 condition_number=outcome.identifiability.condition_number,
                 rms_m=result.rms_m, iterations=result.iterations,
                 solve_seconds=result.solve_seconds, message=result.message,

@@ -9,9 +9,8 @@ import numpy as np
 import pytest
 
 from cobot_calib_ros.core.kinematics import fk, model_for, plans
-from cobot_calib_ros.core.kinematics.identification import (absolute_errors,
-                                                            SphereObservations,
-                                                            uniform_configurations)
+from cobot_calib_ros.core.kinematics.identification import absolute_errors, SphereObservations
+from cobot_calib_ros.core.kinematics.plans import uniform_configurations
 from cobot_calib_ros.core.kinematics.identification import measurement_fit as mf
 from cobot_calib_ros.core.kinematics.identification.measurements import Measurements
 from cobot_calib_ros.core.kinematics.kinematic_calibration import CalibrationJob

@@ -1,24 +1,27 @@
-"""One kinematic calibration, start to end: identifiability, solve, validate, the outcome.
+"""One kinematic calibration of live data, start to end: the identification, validation, outcome.
 
-The one place that strings the identification core together, used by the
-``kinematic_identifier`` node (and through it by ``cobot-calib identify``):
+The live path of the one identification engine, used by the ``kinematic_identifier`` node
+(and through it by ``cobot-calib identify --attach`` / ``--source COLLECTION``, bags) and the
+demo:
 
-1. Algorithm 1 (:func:`find_redundant`) on the calibration configurations themselves picks the
-   identifiable parameters among all but the first joint's (tied to the world frame) plus the
-   tool centre, with a rigid base motion held in the Jacobian: relative data cannot see it and
-   the absolute objective fits it, so parameters equivalent to it go too. The tool centre is
-   always kept: where an arm parameter and the tool are redundant (the last joint's d against
-   tool_z), the difference is the coupling's mounting, and the arm stays nominal there, so
-   another tool on the same flange (the probe) does not inherit the coupling's offset;
-2. :func:`identify` with the chosen solver and loss;
+1. the observations become :class:`Measurements` (sphere couplings: kind ``spheres``, the
+   coupling's nominal centre as the ball; a laser tracker: kind ``points``, the reflector as
+   the marker), the model's own error model (``mdh`` for a DH table, ``full`` for a URDF);
+2. :func:`measurement_fit.calibrate`, the call a measurement file ends in too: the gates' data
+   checks (a Refusal), identifiability on the data's Jacobian (the base motion relative data
+   cannot see, and the tool centre, come first, so the first joint's row and every parameter
+   equivalent to moving the base go, and the tool centre is always kept: where an arm
+   parameter and the tool are redundant, the last joint's d against the ball's z, the
+   difference is the coupling's mounting, and the arm stays nominal there, so another tool on
+   the same flange, the probe, does not inherit the coupling's offset), the bounded solve with
+   the chosen solver and loss (progress and cancel through ``callback``), the gates' problems
+   with the fit (a parameter on its bound, not converged);
 3. validation: absolute errors against laser-tracker sets, nominal against calibrated, as the
    paper's Table 5; each model registered to the tracker by its own best rigid fit (a relative
-   calibration has no world frame);
-4. the gates (:mod:`.identification.gates`), as for a measurement file: the data plausible for
-   the arm before the solve (a Refusal), then the verdict on the result: converged, every
-   deviation inside ``bounds``, no worse than nominal on the validation sets. A result whose
-   verdict did not pass is reported with it and never stored or made active;
-5. the outcome, which the store turns into a record (store.records.KinematicRecord) and writes
+   calibration has no world frame); a calibrated mean error above the nominal one is a gate
+   problem too. A result whose verdict did not pass is reported with it and never stored or
+   made active;
+4. the outcome, which the store turns into a record (store.records.KinematicRecord) and writes
    as JSON, YAML and a calibrated URDF.
 """
 from __future__ import annotations
@@ -30,17 +33,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from cobot_calib_ros.core.cell import Cell
-from cobot_calib_ros.core.errors import ErrorCode
 from cobot_calib_ros.core.kinematics.identification import gates
+from cobot_calib_ros.core.kinematics.identification import measurement_fit as mf
 from cobot_calib_ros.core.kinematics.identification.gates import DeviationBounds, Verdict
-from cobot_calib_ros.core.kinematics.identification.identifiability import (
-    find_redundant, Identifiability)
+from cobot_calib_ros.core.kinematics.identification.measurements import Measurements
 from cobot_calib_ros.core.kinematics.identification.observations import (
     PositionObservations, SphereObservations)
-from cobot_calib_ros.core.kinematics.identification.parameters import (
-    default_candidates, ParameterSet, tool_frames, TOOL_NAMES)
-from cobot_calib_ros.core.kinematics.identification.solvers import (
-    identify, IdentificationResult, NM_CONVERGED)
+from cobot_calib_ros.core.kinematics.identification.parameters import tool_frames, TOOL_NAMES
 from cobot_calib_ros.core.kinematics.identification.validation import (
     absolute_errors, error_stats, table6)
 from cobot_calib_ros.core.kinematics.model import KinematicModel
@@ -48,16 +47,8 @@ from cobot_calib_ros.core.kinematics.plans import even_subset
 
 Array = NDArray[np.float64]
 Observations = SphereObservations | PositionObservations
-BASE_ROW_REASON = 'places joint 1 in the base: tied to the world frame (paper, section 3.1)'
-# URDF models round pi/2 (the Sawyer's 1.57079632679): near-redundancies just above numpy's
-# default rank tolerance would be kept at a condition number ~1e12 (find_redundant's note);
-# measured on the mock Sawyer, 1e-8 still kept a set with condition 8e6 whose weak direction
-# took 3 um of coupling noise to a 0.4 mrad tilt of the model; 1e-6 keeps condition ~1e3
-ROUNDED_MODEL_RTOL = 1e-6
-
-
-class JobCancelled(Exception):
-    """The callback asked to stop; nothing is stored."""
+JobCancelled = mf.Cancelled      # the callback asked to stop; nothing is stored
+OBJECTIVES = ('relative', 'absolute')
 
 
 @dataclass(frozen=True)
@@ -72,18 +63,45 @@ class JobInputs:
 
 
 @dataclass(frozen=True)
+class IdentificationResult:
+    """Identified parameters and how the fit went.
+
+    ``params`` (P,) the whole model [m, rad], ``tool_xyz`` (3,) the identified tool centre in
+    the flange [m]; ``free`` the identified names (the model's, then tool_x, tool_y, tool_z),
+    ``std`` their standard deviations sqrt(diag(s^2 (J^T J)^-1)) [m or rad] (inf: not
+    determined). ``cost`` 0.5 f^2 sum(rho((r/f)^2)) [m^2], ``rms_m`` the RMS of the residuals
+    [m]; ``iterations`` as the callback saw them (the start is 0); ``converged``: the solver
+    met its stopping tolerances (else ``message`` starts with "did not converge"). ``extra``:
+    'objective' ('relative' or 'absolute'), 'nuisance' {name: value} (sphere centres, base
+    frame, the ball or marker) [m, rad].
+    """
+
+    params: Array
+    tool_xyz: Array
+    free: tuple[str, ...]
+    std: Array
+    iterations: int
+    cost: float
+    rms_m: float
+    solve_seconds: float
+    message: str
+    extra: dict = field(default_factory=dict)
+    converged: bool = True
+
+
+@dataclass(frozen=True)
 class Outcome:
     """What a job found; store.records.KinematicRecord.from_outcome makes the stored record."""
 
     model: KinematicModel
     inputs: JobInputs
     result: IdentificationResult
-    identifiability: Identifiability
+    identifiability: mf.Identifiability
     free_values: Array                # identified values of result.free [m, rad]
     nominal_values: Array             # the same parameters of the nominal model [m, rad]
     validation: dict[str, dict]       # region -> {'nominal': stats, 'calibrated': stats}
     table: str                        # the identified model as the paper's Table 6
-    verdict: Verdict = Verdict()      # the gates' (module doc, step 4)
+    verdict: Verdict = Verdict()      # the gates' (module doc, steps 2-3)
 
     def summary(self) -> str:
         r = self.result
@@ -122,44 +140,56 @@ class CalibrationJob:
         self.data = _subset(self.data, self.max_configs)
 
     def run(self, callback: Callable[[int, float, float], bool] | None = None) -> Outcome:
-        model = self.model
-        gates.refuse(self.data_problems())
-        identifiability = identifiable(model, self.data.q, self.tool_xyz0)
-        parameter_set = ParameterSet(model, identifiability.kept)
-        options = self.solver_options or (NM_CONVERGED if self.solver == 'nelder-mead'
-                                          else {})
-        result = identify(parameter_set, self.data, tool_xyz0=self.tool_xyz0,
-                          solver=self.solver, loss=self.loss, objective=self.objective,
-                          callback=callback, **options)
-        if result.code == ErrorCode.CANCELED:
-            raise JobCancelled(result.message)
-        if not (np.all(np.isfinite(result.params)) and np.all(np.isfinite(result.tool_xyz))):
-            raise ValueError(f'the solver returned non-finite parameters: {result.message}')
+        """The module doc's steps; ``callback(iteration, cost, rms_m)`` as
+        :func:`measurement_fit.calibrate`'s (False: JobCancelled). core.errors.Refusal for data
+        the gates refuse before the solve, ValueError for data that cannot be fitted."""
+        model, errors = self.model, self.error_model()
+        calibration = mf.calibrate(errors, self.measurements(), loss=self.loss,
+                                   bounds=self.bounds, solver=self.solver,
+                                   options=self.solver_options or None, callback=callback)
+        result = self._result(calibration)
         validation = {region: self.validate(result, data)
                       for region, data in self.validation.items()}
-        free_values = parameter_set.values(result.params, result.tool_xyz)
-        nominal_values = parameter_set.values(model.nominal, self.tool_xyz0)
-        table = table6(model, result.params)
-        verdict = Verdict(tuple(
-            gates.at_bounds(model, result.free, free_values - nominal_values, self.bounds)
-            + ([] if result.converged else [f'the solver did not converge ({result.message}): '
-                                            'the model may be far from the optimum'])
-            + [p for region, t in validation.items() for p in gates.result_problems(
+        free_values = np.concatenate([calibration.fit.values, result.tool_xyz])
+        nominal_values = np.concatenate([errors.start(calibration.fit.names), self.tool_xyz0])
+        verdict = Verdict(calibration.problems + tuple(
+            p for region, t in validation.items() for p in gates.result_problems(
                 True, t['nominal']['mean_mm'] * 1e-3, t['calibrated']['mean_mm'] * 1e-3,
-                what=f'mean tracker error ({region})')]))
-        return Outcome(model, self._inputs(result), result, identifiability, free_values,
-                       nominal_values, validation, table, verdict)
+                what=f'mean tracker error ({region})')))
+        return Outcome(model, self._inputs(), result, calibration.identifiability, free_values,
+                       nominal_values, validation, table6(model, result.params), verdict)
 
-    def data_problems(self) -> list[str]:
-        """Gate 1: joint values inside the arm's limits; known sphere distances like those
-        of the centres the nominal arm reaches."""
-        problems = gates.joint_problems(self.model, self.data.q)
-        if problems or not isinstance(self.data, SphereObservations):
-            return problems
-        p = tool_frames(self.model, None, self.tool_xyz0, self.data.q)[:, :3, 3]
-        ids = np.unique(self.data.sphere)
-        centres = {int(i): p[self.data.sphere == i].mean(axis=0) for i in ids}
-        return gates.distance_problems(self.data.known_distances, centres)
+    def error_model(self) -> mf.ErrorModel:
+        return error_model(self.model)
+
+    def measurements(self) -> Measurements:
+        """The observations as the measurement kind they are (module doc, step 1)."""
+        data, wanted = self.data, self.objective
+        relative = isinstance(data, SphereObservations)
+        if wanted is not None and wanted not in OBJECTIVES:
+            raise ValueError(f'objective must be one of {OBJECTIVES}, got {wanted!r}')
+        if wanted is not None and (wanted == 'relative') != relative:
+            need = 'SphereObservations' if wanted == 'relative' else 'PositionObservations'
+            raise ValueError(f'objective {wanted!r} needs {need}, got {type(data).__name__}')
+        if relative:
+            return sphere_measurements(data, self.tool_xyz0)
+        return Measurements('points', data.q, np.zeros(len(data.q), int), data.p,
+                            ball=self.tool_xyz0)
+
+    def _result(self, calibration: mf.Calibration) -> IdentificationResult:
+        fit, errors = calibration.fit, self.error_model()
+        params, _ = errors.parameters(fit.names, fit.values)
+        n, names = len(fit.names), fit.problem.kind.names
+        tool = names.index('ball_x' if 'ball_x' in names else 'marker_0_x')
+        std = fit.standard_deviations()
+        solution = fit.solution
+        return IdentificationResult(
+            params, fit.nuisance[tool:tool + 3].copy(), fit.names + TOOL_NAMES,
+            np.concatenate([std[:n], std[n + tool:n + tool + 3]]), solution.iterations,
+            solution.cost, solution.rms_m, solution.seconds, solution.message,
+            {'objective': self._objective(),
+             'nuisance': dict(zip(names, (float(v) for v in fit.nuisance)))},
+            solution.converged)
 
     def validate(self, result: IdentificationResult, data: PositionObservations) -> dict:
         """Table 5 rows for ``data``: nominal and calibrated, each registered by its best
@@ -171,19 +201,44 @@ class CalibrationJob:
                 'spread_mm': _spread_mm(
                     tool_frames(self.model, None, self.tool_xyz0, data.q)[:, :3, 3])}
 
-    def _inputs(self, result: IdentificationResult) -> JobInputs:
-        objective = result.extra.get('objective') or self.objective or (
-            'relative' if isinstance(self.data, SphereObservations) else 'absolute')
-        return JobInputs(self.source, len(self.data.q), self.solver, self.loss, objective)
+    def _objective(self) -> str:
+        return 'relative' if isinstance(self.data, SphereObservations) else 'absolute'
+
+    def _inputs(self) -> JobInputs:
+        return JobInputs(self.source, len(self.data.q), self.solver, self.loss,
+                         self._objective())
 
 
-def identifiable(model: KinematicModel, q: Array, tool_xyz0: Array) -> Identifiability:
-    """Step 1 of the module doc: Algorithm 1 on configurations q (m, n) [rad]."""
-    base_row = model.parameter_names[:model.fields_per_joint]
-    return find_redundant(
-        model, q, tool_xyz0, default_candidates(model),
-        excluded={name: BASE_ROW_REASON for name in base_row}, base_frame=True,
-        rank_rtol=ROUNDED_MODEL_RTOL if model.kind == 'origin' else None, keep=TOOL_NAMES)
+def error_model(model: KinematicModel) -> mf.ErrorModel:
+    """A model's own error model: every row of a DH table, every joint origin of a URDF."""
+    return mf.ErrorModel(model, 'mdh' if model.kind == 'mdh' else 'full')
+
+
+def sphere_measurements(data: SphereObservations, tool_xyz0: Array) -> Measurements:
+    """Sphere couplings as the measurement kind ``spheres``, the coupling's centre the ball;
+    distances between spheres the data touch."""
+    present = set(data.spheres)
+    return Measurements('spheres', data.q, data.sphere, ball=tool_xyz0, distances=tuple(
+        d for d in data.known_distances if d[0] in present and d[1] in present))
+
+
+def free_parameters(model: KinematicModel, data: SphereObservations,
+                    tool_xyz0: Array) -> tuple[str, ...]:
+    """What a CalibrationJob on ``data`` identifies: the identifiable parameters
+    (:func:`measurement_fit.identifiable`), then tool_x, tool_y, tool_z (the ball)."""
+    return mf.identifiable(error_model(model), sphere_measurements(data, tool_xyz0)).kept \
+        + TOOL_NAMES
+
+
+def fit_spheres(model: KinematicModel, data: SphereObservations, tool_xyz0: Array,
+                free: tuple[str, ...]) -> tuple[Array, Array, mf.Fit]:
+    """Least squares of the parameters named in ``free`` on sphere data, from the nominal
+    model (tool_x, tool_y, tool_z: the ball, a nuisance unknown, always fitted), without the
+    gates: (params (P,), tool_xyz (3,), the fit). For planning and its benches."""
+    errors = error_model(model)
+    fit = mf.fit(errors, sphere_measurements(data, tool_xyz0),
+                 tuple(n for n in free if n not in TOOL_NAMES))
+    return errors.parameters(fit.names, fit.values)[0], fit.nuisance[:3].copy(), fit
 
 
 def _subset(data: Observations, limit: int) -> Observations:

@@ -49,12 +49,9 @@ from numpy.typing import ArrayLike, NDArray
 
 from cobot_calib_ros.core.cell import Cell
 from cobot_calib_ros.core.driver import move_seconds
-from cobot_calib_ros.core.errors import ErrorCode
-from cobot_calib_ros.core.kinematics.identification.identifiability import base_motion_columns
 from cobot_calib_ros.core.kinematics.identification.observations import SphereObservations
 from cobot_calib_ros.core.kinematics.identification.parameters import ParameterSet
-from cobot_calib_ros.core.kinematics.identification.solvers import identify
-from cobot_calib_ros.core.kinematics.kinematic_calibration import identifiable
+from cobot_calib_ros.core.kinematics.kinematic_calibration import fit_spheres, free_parameters
 from cobot_calib_ros.core.kinematics.model import KinematicModel
 from cobot_calib_ros.core.kinematics.plans import even_subset, sphere_plan
 
@@ -102,6 +99,15 @@ def fewest_poses(free: int, spheres: int, known_distances: int) -> int:
     return max(2 * spheres, (unknowns - known_distances) // 3 + 1)
 
 
+def base_motion_columns(p: ArrayLike) -> Array:
+    """(3 m, 6) d p / d (small rigid motion of the base: translation [m], rotation [rad]) for
+    positions p (m, 3) [m]: the 6 dof a world frame (or relative data) leaves unobservable."""
+    p = np.asarray(p, dtype=float)
+    translation = np.broadcast_to(np.eye(3), (len(p), 3, 3))
+    rotation = -np.cross(p[:, :, None], np.eye(3)[None, :, :], axis=1)  # w x p = -[p]x w
+    return np.concatenate([translation, rotation], axis=2).reshape(-1, 6)
+
+
 FEWEST_POSES_SAMPLE = 30    # paper-grid poses whose identifiability counts the free parameters
 #                             before the candidate IK (30 s): the pool's count on the mock Sawyer
 #                             (24) and iiwa 7 (25), from 12 poses up
@@ -112,9 +118,10 @@ def too_few_poses(cell: Cell, model: KinematicModel, max_poses: int) -> str:
     determine its unknowns, else why not and how many it needs; in about a second (a small
     plan's IK and identifiability, not the candidate pool's)."""
     plan, _ = sphere_plan(cell, model, FEWEST_POSES_SAMPLE)
-    q = np.array([step['q'] for step in plan], dtype=float)
-    free = len(ParameterSet(model, identifiable(model, q, cell.spheres.coupling_offset[:3, 3])
-                            .kept).free)
+    data = SphereObservations(np.array([step['q'] for step in plan], dtype=float),
+                              np.array([int(step['target']) for step in plan]),
+                              cell.spheres.known_distances())
+    free = len(free_parameters(model, data, cell.spheres.coupling_offset[:3, 3]))
     spheres, distances = len(cell.spheres.names), len(cell.spheres.known_distances())
     fewest = fewest_poses(free, spheres, distances)
     if max_poses >= fewest:
@@ -293,8 +300,8 @@ class SpherePlanner:
     ``candidates``: steps {'q': [rad], 'target': sphere index} (:func:`sphere_candidates`);
     ``test_q`` (k, n): configurations of the task volume [rad]; ``known_distances`` as
     SphereObservations' (sphere indices of the candidates' targets). ``rng`` draws the fixed
-    normals of the expected max; ``parameter_set`` the free parameters (default: Algorithm 1
-    on the pool, as the identification does on the data). Use: :meth:`next_pose`, then :meth:`measured` (or
+    normals of the expected max; ``parameter_set`` the free parameters (default: the
+    identification's, kinematic_calibration.free_parameters, on the pool). Use: :meth:`next_pose`, then :meth:`measured` (or
     :meth:`skipped`), until :meth:`stop_reason` says why to stop.
     """
 
@@ -315,8 +322,9 @@ class SpherePlanner:
         self.known_distances = tuple((int(a), int(b), float(d)) for a, b, d in known_distances)
         spheres = tuple(int(s) for s in np.unique(self.pool_target))
         subset = even_subset(len(self.pool_q), IDENTIFIABILITY_ROWS)
-        self.parameter_set = parameter_set or ParameterSet(model, identifiable(
-            model, self.pool_q[subset], self.tool_xyz0).kept)
+        self.parameter_set = parameter_set or ParameterSet(model, free_parameters(
+            model, SphereObservations(self.pool_q[subset], self.pool_target[subset],
+                                      self.known_distances), self.tool_xyz0))
         self.params, self.tool_xyz = model.nominal.copy(), self.tool_xyz0.copy()
         self.sigma = settings.sigma_prior
         self.draws = (rng or np.random.default_rng(0)).standard_normal(
@@ -461,18 +469,16 @@ class SpherePlanner:
         try:    # too few rows on a sphere, or a known distance's sphere not yet visited
             data = SphereObservations(np.array(self.q), np.array(self.target),
                                       self.known_distances)
-            result = identify(self.parameter_set, data, tool_xyz0=self.tool_xyz,
-                              params0=self.params, loss='linear')
+            self.params, self.tool_xyz, fit = fit_spheres(self.model, data, self.tool_xyz0,
+                                                          self.parameter_set.free)
         except ValueError:
             return
-        if result.code != ErrorCode.SUCCESS:
-            return
-        self.params, self.tool_xyz = result.params, result.tool_xyz
-        centres = result.extra.get('sphere_centres_base')
-        if centres is not None:
+        centres = dict(zip(fit.problem.kind.spheres, fit.nuisance[3:].reshape(-1, 3)))
+        if all(s in centres for s in self.lin.spheres):
             self._centres = np.array([centres[s] for s in self.lin.spheres])
         residual_count = 3 * len(self.q) + len(self.known_distances)
-        self.sigma = result.rms_m * math.sqrt(residual_count / (residual_count - self.lin.D))
+        self.sigma = fit.solution.rms_m * math.sqrt(residual_count
+                                                    / (residual_count - self.lin.D))
         if relinearise:
             self._relinearise()
 

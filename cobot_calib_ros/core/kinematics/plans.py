@@ -158,3 +158,11 @@ def _workspace_draw(chain):
         p = fk(chain, q)[:3, 3]
         return q if p[2] > WORKSPACE_MIN_Z and p[0] > 0.1 else None
     return draw
+
+
+def uniform_configurations(model: KinematicModel, count: int, seed: int) -> Array:
+    """(count, n) joint angles [rad] drawn uniformly within the joint limits (paper: 29)."""
+    if not (np.all(np.isfinite(model.lower)) and np.all(np.isfinite(model.upper))):
+        raise ValueError(f'model {model.name!r} has unbounded joints: give configurations')
+    rng = np.random.default_rng(seed)
+    return rng.uniform(model.lower, model.upper, (count, len(model.lower)))

@@ -5,10 +5,11 @@ import numpy as np
 import pytest
 
 from cobot_calib_ros.core import kinematics
-from cobot_calib_ros.core.kinematics import kinematic_calibration, plans
+from cobot_calib_ros.core.kinematics import plans
 from cobot_calib_ros.core.kinematics.collection import collect
 from cobot_calib_ros.core.kinematics.identification import SphereObservations
-from cobot_calib_ros.core.kinematics.identification.solvers import NM_CONVERGED
+from cobot_calib_ros.core.kinematics.identification import measurement_fit as mf
+from cobot_calib_ros.core.kinematics.identification.measurement_fit import NM_CONVERGED
 from cobot_calib_ros.core.kinematics.kinematic_calibration import CalibrationJob
 from cobot_calib_ros.paths import cell_file
 from cobot_calib_ros.sim.robot import DirectRobot, SimRobot
@@ -30,18 +31,18 @@ def data() -> SphereObservations:
 
 
 def test_nelder_mead_runs_to_convergence_by_default(data, monkeypatch):
-    seen = {}
-    real = kinematic_calibration.identify
+    seen = []
+    real = mf._nelder_mead
 
-    def spy(*args, **kwargs):
-        seen.update(kwargs)
-        return real(*args, **{**kwargs, 'max_evaluations': 60})   # the solve itself: capped
-    monkeypatch.setattr(kinematic_calibration, 'identify', spy)
+    def spy(monitor, x0, lower, upper, options):
+        seen.append(options)
+        return real(monitor, x0, lower, upper, {**options, 'max_evaluations': 60})   # capped
+    monkeypatch.setattr(mf, '_nelder_mead', spy)
     CalibrationJob(SIM.cell, MODEL, data, solver='nelder-mead').run()
-    assert {k: seen[k] for k in NM_CONVERGED} == NM_CONVERGED
+    assert seen == [NM_CONVERGED]
     seen.clear()
     CalibrationJob(SIM.cell, MODEL, data).run()                      # LM: its own stopping
-    assert not set(NM_CONVERGED) & set(seen)
+    assert not seen
 
 
 def test_a_solve_stopped_by_its_cap_says_so_in_the_summary_and_the_record(data):

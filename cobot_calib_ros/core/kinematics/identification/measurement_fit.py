@@ -1,5 +1,10 @@
 """Identify an arm's kinematic errors from measurements (any kind), validated on held-out rows.
 
+The one identification engine: :func:`calibrate` is the call every path ends in (a
+measurement file or MUKCa folder through :func:`identify_measurements`; live collections,
+bags and the suite through core.kinematics.kinematic_calibration.CalibrationJob, which turns
+its observations into measurements).
+
 Error models (``ERROR_MODELS``) over a :class:`KinematicModel` (from a URDF, or an MDH table):
 
 - ``offsets``: one offset per joint, q_model = q + offset (``offset_<joint>``);
@@ -11,11 +16,14 @@ Error models (``ERROR_MODELS``) over a :class:`KinematicModel` (from a URDF, or 
 
 Unknowns are the free model parameters then the measurement's nuisance (base and target
 frames, markers, sphere centres, planes: :mod:`.measurements`). Jacobians: the model
-parameters' through the tip pose's twists (:mod:`.tip_jacobian`), the nuisance's by central
-differences of the residuals (step ``FD_STEP``, accurate to ~1e-9 relative, which the rank
-tolerance below is far above); the solver is scipy's trust-region least squares, with a
-robust loss if asked (``soft_l1``, the CLI's default: inliers within the median residual of
-the start, the nominal model with its fitted frames).
+parameters' through the tip pose's twists (:mod:`.tip_jacobian`), the nuisance's from the
+kind: in closed form for spheres, else by central differences of the residuals (step
+``FD_STEP``, accurate to ~1e-9 relative, which the rank tolerance below is far above). The
+solver (:meth:`_Problem.solve`) is scipy's trust-region least squares ('lm'), the model
+parameters within the gates' deviation bounds, with a robust loss if asked (``soft_l1``, the
+CLI's default: inliers within the median residual of the start, the nominal model with its
+fitted frames), or Nelder-Mead on the same cost ('nelder-mead'); a callback sees every
+iteration and may stop the solve (:class:`Cancelled`).
 
 Identifiability (:func:`identifiable`) on the data's own Jacobian at the start point, columns
 scaled to unit norm: the nuisance columns first, then the model's parameters in a fixed order
@@ -34,10 +42,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 import math
+import time
+from typing import Callable
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.optimize import least_squares
+from scipy.optimize import least_squares, minimize
 
 from cobot_calib_ros.core.errors import ErrorCode
 from cobot_calib_ros.core.kinematics.identification import compliance, gates
@@ -55,6 +65,31 @@ FD_STEP = 1e-6            # [m or rad] central-difference step
 RANK_TOL = 1e-3           # a column is kept if >= this fraction of it is new (scaled columns)
 CORRELATED = 0.9
 OUTLIER_MADS = 5.0        # a row is an outlier beyond median + 5 scaled MADs of the errors
+TOLERANCE = 1e-12         # trf's xtol, ftol and gtol
+MAX_EVALUATIONS = 200     # trf's residual evaluations, both stages of a robust loss
+SOLVERS = ('lm', 'nelder-mead')
+# rho(z), z = (r / f_scale)^2, as scipy.optimize.least_squares defines its losses
+LOSSES: dict[str, Callable[[Array], Array]] = {
+    'linear': lambda z: z,
+    'soft_l1': lambda z: 2.0 * (np.sqrt(1.0 + z) - 1.0),
+    'huber': lambda z: np.where(z <= 1.0, z, 2.0 * np.sqrt(z) - 1.0),
+    'cauchy': np.log1p,
+    'arctan': np.arctan,
+}
+NM_STEP = 1e-3  # Nelder-Mead initial simplex edge along each unknown: 1 mm or 1 mrad
+# Nelder-Mead run to convergence (the product's setting and make bench's): the simplex within
+# 0.1 um / 0.1 urad and the cost within 1e-16 m^2 (the RMS no longer moves in the 5th digit);
+# a tighter xatol (1e-6) ran for over 12 CPU minutes on noisy data without changing the
+# held-out error. scipy's own caps (200 iterations per unknown) stop it long before: 0.178 mm
+# held-out max where LM reaches 0.083 mm (iiwa 7, 300 poses, issue 16.6)
+NM_CONVERGED = {'max_iterations': 400_000, 'max_evaluations': 400_000, 'xatol': 1e-4,
+                'fatol': 1e-16}
+# callback(iteration, cost [m^2], rms [m]) -> False to stop (:func:`calibrate`)
+Callback = Callable[[int, float, float], 'bool | None']
+
+
+class Cancelled(Exception):
+    """The callback asked to stop the solve; nothing is kept."""
 
 
 @dataclass(frozen=True)
@@ -138,47 +173,57 @@ class _Problem:
         start = self.kind.x0 if nuisance is None else np.asarray(nuisance, dtype=float)
         self.x0 = np.concatenate([errors.start(self.names), start])
         self.n = len(self.names)
+        self._tip_key, self._tip = b'', np.empty((0, 4, 4))
+        self._columns_key, self._columns = b'', np.empty((0, 0))
 
     def tip(self, x: Array, q: Array | None = None) -> Array:
-        return self.errors.tip_poses(self.names, x[:self.n], self.data.q if q is None else q)
+        if q is not None:
+            return self.errors.tip_poses(self.names, x[:self.n], q)
+        key = np.asarray(x[:self.n], dtype=float).tobytes()
+        if key != self._tip_key or not len(self._tip):   # the solver asks for residuals
+            # and the Jacobian at one point, and the nuisance moves alone in a nominal fit
+            self._tip = self.errors.tip_poses(self.names, x[:self.n], self.data.q)
+            self._tip_key = key
+        return self._tip
 
     def residuals(self, x: Array) -> Array:
         return self.kind.residuals(self.tip(x), x[self.n:])
 
     def jacobian(self, x: Array) -> Array:
-        """The model parameters through the tip's twists (:mod:`.tip_jacobian`), each
-        nuisance unknown by central differences on the same tip poses; at the joints without
+        """The model parameters through the tip's twists (:mod:`.tip_jacobian`), the nuisance
+        by the kind (:meth:`Kind.nuisance_jacobian`) on the same tip poses; at the joints without
         deflections, a compliance's column zero (:meth:`columns` differences those)."""
         params, offsets = self.errors.parameters(self.names, x[:self.n])
-        placements, _ = self.errors.placements(self.names, x[:self.n])
         model = self.errors.model
-        T = fk_placements(placements, model.flange, self.data.q + offsets, model.prismatic)
         nuisance = x[self.n:]
         springs = self.errors.q_dependent(self.names)
+        if springs:     # the tip without the deflections
+            placements, _ = self.errors.placements(self.names, x[:self.n])
+            T = fk_placements(placements, model.flange, self.data.q + offsets, model.prismatic)
+        else:
+            T = self.tip(x)
         geometric = [k for k in range(self.n) if k not in springs]
         twists = np.zeros((self.n, len(T), 6))
-        twists[geometric] = tip_twists(model, params, offsets,
-                                       tuple(self.names[k] for k in geometric), self.data.q)
-        columns = [residual_jacobian(self.kind, T, nuisance, twists, FD_STEP)]
-        for k in range(len(nuisance)):
-            pair = []
-            for h in (FD_STEP, -FD_STEP):
-                step = nuisance.copy()
-                step[k] += h
-                pair.append(self.kind.residuals(T, step))
-            columns.append(((pair[0] - pair[1]) / (2.0 * FD_STEP))[:, None])
-        return np.hstack(columns)
+        if geometric:
+            twists[geometric] = tip_twists(model, params, offsets,
+                                           tuple(self.names[k] for k in geometric), self.data.q)
+        return np.hstack([residual_jacobian(self.kind, T, nuisance, twists, FD_STEP),
+                          self.kind.nuisance_jacobian(T, nuisance, FD_STEP)])
 
     def columns(self, x: Array) -> Array:
         """:meth:`jacobian`, the columns of terms that vary with the joint values
         (compliances) by central differences of the residuals. The other columns are taken
         at the joints without the deflections (~1 mrad): exact at the start (no deflection),
         a search direction off by ~1e-3 after; the residuals are exact."""
+        key = np.asarray(x, dtype=float).tobytes()
+        if key == self._columns_key:     # the solver's last, asked again for the std
+            return self._columns.copy()
         J = self.jacobian(x)
         for k in self.errors.q_dependent(self.names):
             step = np.zeros(len(x))
             step[k] = FD_STEP
             J[:, k] = (self.residuals(x + step) - self.residuals(x - step)) / (2.0 * FD_STEP)
+        self._columns_key, self._columns = key, J.copy()
         return J
 
     def bounds(self, bounds: DeviationBounds) -> tuple[Array, Array]:
@@ -190,19 +235,164 @@ class _Problem:
         lower[:self.n], upper[:self.n] = self.x0[:self.n] - width, self.x0[:self.n] + width
         return lower, upper
 
-    def solve(self, max_nfev: int = 200, loss: str = 'linear',
-              bounds: DeviationBounds = DeviationBounds()) -> tuple[Array, bool]:
-        if not np.all(np.isfinite(self.residuals(self.x0))):
+    def solve(self, max_nfev: int | None = MAX_EVALUATIONS, loss: str = 'linear',
+              bounds: DeviationBounds = DeviationBounds(), solver: str = 'lm',
+              callback: Callback | None = None, options: dict | None = None) -> Solution:
+        """The bounded solve from x0 (module docstring); ``callback`` as :func:`calibrate`'s.
+
+        'lm' with a robust loss starts from the least-squares solution: from the nominal
+        start the residuals lie far out in the loss's tail, where trf's rescaled steps crawl
+        (soft-L1 took 22 iterations on the bench's 3 x 625 poses where the linear loss takes
+        3); from the least-squares solution it takes a few more, to the same minimum of the
+        robust cost. ``max_nfev`` caps the residual evaluations of both stages.
+        'nelder-mead' (the sphere paper's choice) minimises the same cost without
+        derivatives on x = x0 + NM_STEP z inside the same bounds; ``options``: scipy's
+        maxiter / maxfev as max_iterations / max_evaluations, xatol, fatol, adaptive
+        (default NM_CONVERGED)."""
+        if solver not in SOLVERS:
+            raise ValueError(f'solver must be one of {SOLVERS}, got {solver!r}')
+        if loss not in LOSSES:
+            raise ValueError(f'loss must be one of {tuple(LOSSES)}, got {loss!r}')
+        r0 = self.residuals(self.x0)
+        if not np.all(np.isfinite(r0)):
             raise ValueError('the start model gives non-finite residuals: check the joint '
                              'columns and the units in the sidecar')
         f_scale = 1.0
         if loss != 'linear':      # inliers: within ~ the start's median residual
-            f_scale = max(float(np.median(np.abs(self.residuals(self.x0)))), 1e-9)
-        r = least_squares(self.residuals, self.x0, jac=self.columns,
-                          bounds=self.bounds(bounds), method='trf', x_scale='jac',
-                          xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=max_nfev, loss=loss,
-                          f_scale=f_scale)
-        return r.x, bool(r.status > 0)
+            f_scale = max(float(np.median(np.abs(r0))), 1e-9)
+        monitor = _Monitor(self.residuals, loss, f_scale, callback)
+        lower, upper = self.bounds(bounds)
+        start = time.perf_counter()
+        monitor.step(self.x0)
+        if solver == 'nelder-mead':
+            x, converged, message = _nelder_mead(monitor, self.x0, lower, upper,
+                                                 options or NM_CONVERGED)
+        else:
+            x, converged, message = self._trust_region(monitor, loss, f_scale, max_nfev,
+                                                       (lower, upper))
+        r = self.residuals(x)
+        return Solution(x, converged, message if converged else f'did not converge: {message}',
+                        monitor.iterations, time.perf_counter() - start, monitor.cost(r),
+                        float(np.sqrt(np.mean(r * r))))
+
+    def _trust_region(self, monitor: '_Monitor', loss: str, f_scale: float,
+                      max_nfev: int | None, bounds: tuple[Array, Array]
+                      ) -> tuple[Array, bool, str]:
+        """trf without the bounds first: where its minimum lies inside them it is the bounded
+        problem's too, reached in half the steps (trf's reflective steps and scaling near
+        bounds took 9 evaluations where the free solve takes 4: 3 x 625 sphere poses); else
+        (a collapsing fit) the bounded solve from the start."""
+        def jacobian(x: Array) -> Array:
+            monitor.step(x)          # trf takes the Jacobian once per accepted step
+            return self.columns(x)
+
+        def run(x0: Array, stage_loss: str, budget: int | None, box):
+            return least_squares(monitor.residuals, x0, jac=jacobian, bounds=box,
+                                 method='trf', x_scale='jac', xtol=TOLERANCE, ftol=TOLERANCE,
+                                 gtol=TOLERANCE, max_nfev=budget, loss=stage_loss,
+                                 f_scale=f_scale)
+
+        def stages(box) -> tuple[Array, bool, str]:
+            x0, budget = self.x0, max_nfev
+            if loss != 'linear':
+                first = run(x0, 'linear', budget, box)
+                if first.status <= 0:
+                    return first.x, False, str(first.message)
+                x0 = first.x
+                budget = None if budget is None else max(budget - first.nfev, 1)
+            r = run(x0, loss, budget, box)
+            return r.x, bool(r.status > 0), str(r.message)
+
+        lower, upper = bounds
+        x, converged, message = stages((-np.inf, np.inf))
+        if np.all((x > lower) & (x < upper)):
+            return x, converged, message
+        return stages(bounds)
+
+    def standard_deviations(self, x: Array) -> Array:
+        """sqrt(diag(s^2 (J^T J)^-1)) of every unknown at x, s^2 = sum(r^2) / (N - U) (N
+        residuals, U unknowns) [m or rad]; inf for one the data do not determine."""
+        J, r = self.columns(x), self.residuals(x)
+        N, U = J.shape
+        scale = np.linalg.norm(J, axis=0)
+        scale[scale == 0.0] = 1.0   # an all-zero column shows up as a zero singular value
+        _, sv, Vt = np.linalg.svd(J / scale, full_matrices=False)
+        null = sv <= sv[0] * max(N, U) * np.finfo(float).eps
+        s2 = float(r @ r) / (N - U) if N > U else np.inf
+        var = ((Vt[~null] / sv[~null, None]) ** 2).sum(axis=0) * s2 / scale ** 2
+        undetermined = (np.abs(Vt[null]) > 1e-8).any(axis=0)
+        return np.where(undetermined, np.inf, np.sqrt(var))
+
+
+@dataclass(frozen=True)
+class Solution:
+    """How a solve ended: x, whether it met its stopping tolerances (``message`` then the
+    solver's; else 'did not converge: ...'), solver iterations as the callback saw them,
+    seconds, the cost 0.5 f^2 sum(rho((r / f)^2)) [m^2] and the RMS of the residuals [m]."""
+
+    x: Array
+    converged: bool
+    message: str
+    iterations: int
+    seconds: float
+    cost: float
+    rms_m: float
+
+
+class _Monitor:
+    """Counts iterations and asks the callback whether to go on (:func:`calibrate`)."""
+
+    def __init__(self, residuals: Callable[[Array], Array], loss: str, f_scale: float,
+                 callback: Callback | None) -> None:
+        self.rho, self.f_scale, self.callback = LOSSES[loss], f_scale, callback
+        self._residuals = residuals
+        self.iterations = -1
+        self._last_x, self._last_r, self._stepped = b'', np.empty(0), b''
+
+    def cost(self, r: Array) -> float:
+        f2 = self.f_scale ** 2
+        return float(0.5 * f2 * np.sum(self.rho(r * r / f2)))
+
+    def residuals(self, x: Array) -> Array:
+        r = self._residuals(x)
+        self._last_x, self._last_r = np.asarray(x, dtype=float).tobytes(), r
+        return r
+
+    def step(self, x: Array) -> None:
+        """One iteration ended at x (the start: iteration 0); Cancelled when the callback
+        returns False."""
+        key = np.asarray(x, dtype=float).tobytes()
+        if key == self._stepped:     # a robust stage starting where the linear one ended
+            return
+        self._stepped = key
+        self.iterations += 1
+        if self.callback is None:
+            return
+        r = self._last_r if key == self._last_x else self.residuals(x)
+        keep_going = self.callback(self.iterations, self.cost(r),
+                                   float(np.sqrt(np.mean(r * r))))
+        if keep_going is not None and not keep_going:
+            raise Cancelled(f'cancelled by the callback at iteration {self.iterations}')
+
+
+def _nelder_mead(monitor: _Monitor, x0: Array, lower: Array, upper: Array,
+                 options: dict) -> tuple[Array, bool, str]:
+    U = len(x0)
+
+    def cost(z: Array) -> float:
+        return monitor.cost(monitor.residuals(x0 + NM_STEP * z))
+
+    simplex = np.vstack([np.zeros(U), np.eye(U)])
+    res = minimize(cost, np.zeros(U), method='Nelder-Mead',
+                   bounds=list(zip((lower - x0) / NM_STEP, (upper - x0) / NM_STEP)),
+                   callback=lambda z: monitor.step(x0 + NM_STEP * z),
+                   options={'maxiter': options.get('max_iterations'),
+                            'maxfev': options.get('max_evaluations'),
+                            'xatol': options.get('xatol', 1e-4),
+                            'fatol': options.get('fatol', 1e-4),
+                            'adaptive': options.get('adaptive', True),
+                            'initial_simplex': simplex})
+    return x0 + NM_STEP * res.x, bool(res.success), str(res.message)
 
 
 @dataclass(frozen=True)
@@ -300,13 +490,23 @@ def _correlated(J: Array, names: list[str]) -> tuple[tuple[str, str, float], ...
 
 @dataclass(frozen=True)
 class Fit:
-    """Identified values of ``names`` (model parameters) and the nuisance, converged or not."""
+    """Identified values of ``names`` (model parameters) and the nuisance, and how the solve
+    ended (``solution``)."""
 
     names: tuple[str, ...]
     values: Array
     nuisance: Array
-    converged: bool
     problem: _Problem
+    solution: Solution
+
+    @property
+    def converged(self) -> bool:
+        return self.solution.converged
+
+    def standard_deviations(self) -> Array:
+        """Of the named parameters, then the nuisance [m or rad] (:meth:`_Problem.
+        standard_deviations`)."""
+        return self.problem.standard_deviations(self.solution.x)
 
     @property
     def deltas(self) -> Array:
@@ -322,10 +522,11 @@ class Fit:
 
 def fit(errors: ErrorModel, data: Measurements, names: tuple[str, ...],
         nuisance: Array | None = None, loss: str = 'linear',
-        bounds: DeviationBounds = DeviationBounds()) -> Fit:
+        bounds: DeviationBounds = DeviationBounds(), solver: str = 'lm',
+        callback: Callback | None = None, options: dict | None = None) -> Fit:
     """Least squares over the named model parameters (none: the nuisance alone) and the
     nuisance on ``data``, from the nominal model and ``nuisance`` (default: the kind's
-    start), the parameters kept within ``bounds`` of nominal."""
+    start), the parameters kept within ``bounds`` of nominal (:meth:`_Problem.solve`)."""
     problem = _Problem(errors, data, names, nuisance)
     minimum = len(problem.x0)
     count = len(problem.residuals(problem.x0))
@@ -333,8 +534,10 @@ def fit(errors: ErrorModel, data: Measurements, names: tuple[str, ...],
         raise ValueError(f'{len(data)} rows give {count} equations for {minimum} unknowns '
                          f'({len(names)} parameters + {minimum - len(names)} frames/targets): '
                          f'measure more rows or use a smaller --model')
-    x, converged = problem.solve(loss=loss, bounds=bounds)
-    return Fit(tuple(names), x[:problem.n], x[problem.n:], converged, problem)
+    solution = problem.solve(loss=loss, bounds=bounds, solver=solver, callback=callback,
+                             options=options)
+    x = solution.x
+    return Fit(tuple(names), x[:problem.n], x[problem.n:], problem, solution)
 
 
 def balanced(errors: ErrorModel, data: Measurements, loss: str = 'linear') -> Measurements:
@@ -449,6 +652,49 @@ def data_problems(errors: ErrorModel, data: Measurements) -> list[str]:
     return []
 
 
+@dataclass(frozen=True)
+class Calibration:
+    """One identification on all rows (:func:`calibrate`): the data as fitted (pose data
+    balanced), the nuisance fitted with the nominal model, the identifiable parameters there,
+    their fit, and the gates' problems with that fit itself (a parameter on its bound, a
+    solve that did not converge)."""
+
+    data: Measurements
+    nominal: Fit
+    identifiability: Identifiability
+    fit: Fit
+    problems: tuple[str, ...]
+
+
+def calibrate(errors: ErrorModel, data: Measurements, *, loss: str = 'linear',
+              bounds: DeviationBounds = DeviationBounds(), rank_tol: float = RANK_TOL,
+              solver: str = 'lm', options: dict | None = None,
+              callback: Callback | None = None) -> Calibration:
+    """The identification every path ends in (a measurement file, a MUKCa folder, a
+    collection, a bag, the live suite): the gates' data checks (a Refusal before any fit), the
+    nuisance fitted with the nominal model, identifiability there (:func:`identifiable`),
+    enough equations (a Refusal, TOO_FEW_POINTS), the bounded fit of the identifiable
+    parameters (``solver`` 'lm' or 'nelder-mead', ``options`` for the latter:
+    :meth:`_Problem.solve`), and the gates' problems with that fit.
+
+    ``callback(iteration, cost [m^2], rms [m])`` at the start of the final solve (iteration
+    0) and after each of its iterations; returning False stops it: :class:`Cancelled`."""
+    gates.refuse(data_problems(errors, data))
+    data = balanced(errors, data, loss)
+    nominal = fit(errors, data, ())      # the start of the nuisance: least squares will do
+    ident = identifiable(errors, data, rank_tol, nominal.nuisance)
+    equations = len(nominal.problem.residuals(nominal.problem.x0))
+    gates.refuse(gates.equation_problems(equations, len(ident.kept) + len(nominal.nuisance),
+                                         len(data)), ErrorCode.TOO_FEW_POINTS)
+    final = fit(errors, data, ident.kept, nominal.nuisance, loss, bounds, solver, callback,
+                options)
+    problems = gates.at_bounds(errors.model, final.names, final.deltas, bounds)
+    if not final.converged:
+        problems.append(f'the solver did not converge ({final.solution.message}): the model '
+                        'may be far from the optimum')
+    return Calibration(data, nominal, ident, final, tuple(problems))
+
+
 def identify_measurements(errors: ErrorModel, data: Measurements, held_out: list[Array], *,
                           labels: tuple[str, ...] | None = None, sample: Array | None = None,
                           rank_tol: float = RANK_TOL, loss: str = 'linear',
@@ -460,22 +706,13 @@ def identify_measurements(errors: ErrorModel, data: Measurements, held_out: list
     rows to samples (CSV data rows) for the outliers (default: the rows themselves);
     ``noise_m``: the measurement's own RMS error [m] as the row errors count it (0: unknown)."""
     sample = np.arange(len(data)) if sample is None else np.asarray(sample)
-    gates.refuse(data_problems(errors, data))
-    weight = data.rotation_weight
-    data = balanced(errors, data, loss)
-    nominal = fit(errors, data, (), loss=loss)
-    ident = identifiable(errors, data, rank_tol, nominal.nuisance)
-    equations = len(nominal.problem.residuals(nominal.problem.x0))
-    gates.refuse(gates.equation_problems(equations, len(ident.kept) + len(nominal.nuisance),
-                                   len(data)), ErrorCode.TOO_FEW_POINTS)
-    final = fit(errors, data, ident.kept, nominal.nuisance, loss, bounds)
-    cv = cross_validate(errors, replace(data, rotation_weight=weight), held_out, labels,
-                        rank_tol, loss, bounds)
+    calibration = calibrate(errors, data, loss=loss, bounds=bounds, rank_tol=rank_tol)
+    final, ident = calibration.fit, calibration.identifiability
+    cv = cross_validate(errors, data, held_out, labels, rank_tol, loss, bounds)
+    data = calibration.data
     e_pos, e_rot = final.row_errors(data)
-    verdict = Verdict(tuple(
-        gates.at_bounds(errors.model, final.names, final.deltas, bounds)
-        + gates.result_problems(final.converged, cv.nominal['rmse_mm'] * 1e-3,
-                                cv.calibrated['rmse_mm'] * 1e-3, noise_m)))
+    verdict = Verdict(calibration.problems + tuple(gates.result_problems(
+        True, cv.nominal['rmse_mm'] * 1e-3, cv.calibrated['rmse_mm'] * 1e-3, noise_m)))
     nominal = dict(zip(errors.candidates, errors.start(errors.candidates)))
     return {
         'measurement': data.kind, 'model': errors.name, 'robot': errors.model.name,

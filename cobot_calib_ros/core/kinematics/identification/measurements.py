@@ -186,6 +186,30 @@ class Kind:
         the cost that no unknown spans (identifiability holds them fixed); none by default."""
         return np.empty((len(self.residuals(T_tip, x)), 0))
 
+    def tip_derivatives(self, T_tip: Array, x: Array, step: float) -> Array:
+        """(residuals, 6): d residuals / d a motion of every tip along the unit twists of the
+        base frame (translation along x, y, z, rotation about x, y, z, as
+        T_tip -> Exp(h e_j) T_tip); by central differences of ``step`` unless a kind knows
+        them in closed form."""
+        plus, minus = _unit_motions(step), _unit_motions(-step)
+        return np.stack([(self.residuals(plus[j] @ T_tip, x)
+                          - self.residuals(minus[j] @ T_tip, x)) / (2.0 * step)
+                         for j in range(6)], axis=1)
+
+    def nuisance_jacobian(self, T_tip: Array, x: Array, step: float) -> Array:
+        """(residuals, len(x)) d residuals / d nuisance; by central differences of ``step``
+        unless a kind knows it in closed form."""
+        columns = []
+        for k in range(len(x)):
+            pair = []
+            for h in (step, -step):
+                moved = np.array(x, dtype=float)
+                moved[k] += h
+                pair.append(self.residuals(T_tip, moved))
+            columns.append((pair[0] - pair[1]) / (2.0 * step))
+        return np.stack(columns, axis=1) if columns else np.empty(
+            (len(self.residuals(T_tip, x)), 0))
+
 
 class PointsKind(Kind):
     per_row = 3
@@ -217,6 +241,35 @@ class PointsKind(Kind):
 
     def residuals(self, T_tip, x):
         return (self._predict(T_tip, x, self.data) - self.data.values).ravel()
+
+    def _in_base(self, T_tip, x):
+        """(marker positions in the robot base (m, 3), R_world_base)."""
+        offsets = x[6:].reshape(-1, 3)[self.row_marker]
+        p = np.einsum('mij,mj->mi', T_tip[:, :3, :3], offsets) + T_tip[:, :3, 3]
+        return p, self.base0[:3, :3] @ Rotation.from_rotvec(x[3:6]).as_matrix()
+
+    def tip_derivatives(self, T_tip, x, step):
+        """Closed form: a tip twist (v, w) in the robot base moves the marker by
+        R_world_base (v - [p]x w)."""
+        p, R = self._in_base(T_tip, x)
+        return np.einsum('ab,mbj->maj', R, np.concatenate(
+            [np.broadcast_to(np.eye(3), (len(p), 3, 3)), -skew(p)], axis=2)).reshape(-1, 6)
+
+    def nuisance_jacobian(self, T_tip, x, step):
+        """Closed form: T_world_base = base0 (Exp(w), t): d / d t = R0; d / d w = R0 (-[Exp(w)
+        p]x) J_l(w) (J_l: SO(3)'s left Jacobian); d / d marker k = R_world_base R_tip on its
+        rows."""
+        p, R = self._in_base(T_tip, x)
+        R0, m = self.base0[:3, :3], len(p)
+        J = np.zeros((m, 3, len(x)))
+        J[:, :, :3] = R0
+        turned = p @ Rotation.from_rotvec(x[3:6]).as_matrix().T
+        J[:, :, 3:6] = np.einsum('ab,mbc->mac', R0, -skew(turned)) @ _left_jacobian(x[3:6])
+        on_tip = np.einsum('ab,mbc->mac', R, T_tip[:, :3, :3])
+        for k in range(len(self.markers)):
+            rows = self.row_marker == k
+            J[rows, :, 6 + 3 * k:9 + 3 * k] = on_tip[rows]
+        return J.reshape(3 * m, len(x))
 
     def errors(self, T_tip, x, data):
         unknown = set(int(t) for t in data.target) - set(self.markers)
@@ -279,7 +332,7 @@ class SpheresKind(Kind):
             raise ValueError(f'spheres {few} have fewer than 2 rows: a centre needs at least 2')
         self.dist = [(self.spheres.index(i), self.spheres.index(j), D)
                      for i, j, D in d.distances]
-        self.sqrt_w = math.sqrt(len(d))       # as CentresObjective: the distance holds the scale
+        self.sqrt_w = math.sqrt(len(d))       # a distance weighs as m rows: it holds the scale
         p = _ball(T_tip, d.ball)
         centres = np.array([p[self.row_sphere == k].mean(axis=0)
                             for k in range(len(self.spheres))])
@@ -293,6 +346,31 @@ class SpheresKind(Kind):
         gaps = [self.sqrt_w * (np.linalg.norm(centres[a] - centres[b]) - D)
                 for a, b, D in self.dist]
         return np.concatenate([r, gaps])
+
+    def tip_derivatives(self, T_tip, x, step):
+        """Closed form: the ball p = R b + t moves by v + w x p = v - [p]x w."""
+        p = _ball(T_tip, x[:3])
+        D = np.zeros((len(self.residuals(T_tip, x)), 6))
+        tied = 3 * len(p)
+        D[:tied, :3] = np.tile(np.eye(3), (len(p), 1))
+        D[:tied, 3:] = -skew(p).reshape(-1, 3)
+        return D
+
+    def nuisance_jacobian(self, T_tip, x, step):
+        """Closed form: d (p_i - c_s) / d b = R_i, / d c_s = -I; a distance row sqrt(w) u,
+        u the unit vector between its centres."""
+        m, S = len(T_tip), len(self.spheres)
+        J = np.zeros((3 * m + len(self.dist), 3 + 3 * S))
+        J[:3 * m, :3] = T_tip[:, :3, :3].reshape(-1, 3)
+        rows = np.arange(3 * m)
+        J[rows, 3 + 3 * np.repeat(self.row_sphere, 3) + rows % 3] = -1.0
+        centres = x[3:].reshape(-1, 3)
+        for k, (a, b, _) in enumerate(self.dist):
+            gap = centres[a] - centres[b]
+            u = self.sqrt_w * gap / np.linalg.norm(gap)
+            J[3 * m + k, 3 + 3 * a:6 + 3 * a] += u
+            J[3 * m + k, 3 + 3 * b:6 + 3 * b] -= u
+        return J
 
     def gauge(self, T_tip, x):
         """A rotation of the base, the centres turned with it, turns every residual p - c
@@ -398,6 +476,28 @@ KIND_CLASSES = {'points': PointsKind, 'pose': PoseKind, 'spheres': SpheresKind,
 
 def make_kind(data: Measurements, T_tip: Array) -> Kind:
     return KIND_CLASSES[data.kind](data, T_tip)
+
+
+def _left_jacobian(w: Array) -> Array:
+    """(3, 3) SO(3)'s left Jacobian: Exp(w + dw) = Exp(J_l(w) dw) Exp(w) to first order."""
+    theta = float(np.linalg.norm(w))
+    W = skew(w)
+    if theta < 1e-6:
+        return np.eye(3) + W / 2.0 + W @ W / 6.0
+    return (np.eye(3) + (1.0 - math.cos(theta)) / theta ** 2 * W
+            + (theta - math.sin(theta)) / theta ** 3 * W @ W)
+
+
+def _unit_motions(h: float) -> Array:
+    """(6, 4, 4) Exp(h e_j): translations by h along x, y, z, rotations by h about x, y, z."""
+    c, s = math.cos(h), math.sin(h)
+    motions = np.tile(np.eye(4), (6, 1, 1))
+    for axis in range(3):
+        motions[axis, axis, 3] = h
+        j, k = (axis + 1) % 3, (axis + 2) % 3
+        R = motions[3 + axis]
+        R[j, j], R[j, k], R[k, j], R[k, k] = c, -s, s, c
+    return motions
 
 
 def _ball(T_tip: Array, b: Array) -> Array:

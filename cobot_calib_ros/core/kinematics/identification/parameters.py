@@ -25,15 +25,6 @@ def tool_transform(tool_xyz: ArrayLike) -> Array:
     return make_transform(np.eye(3), np.asarray(tool_xyz, dtype=float))
 
 
-def default_candidates(model: KinematicModel) -> tuple[str, ...]:
-    """All model parameters except the first joint's row, then 'tool_x', 'tool_y', 'tool_z'.
-
-    The first row places joint 1 in the base frame, which is tied to the world frame (identified
-    apart, or invisible to relative data): excluded a priori, as in the paper (section 3.1).
-    """
-    return model.parameter_names[model.fields_per_joint:] + TOOL_NAMES
-
-
 @dataclass(frozen=True)
 class ParameterSet:
     """Free parameters: names of ``model.parameter_names`` and/or :data:`TOOL_NAMES`.

@@ -8,7 +8,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from cobot_calib_ros.core.frames import apply
-from cobot_calib_ros.core.kinematics.identification.parameters import tool_kinematics
+from cobot_calib_ros.core.kinematics.identification.parameters import tool_frames
 from cobot_calib_ros.core.kinematics.model import KinematicModel
 from cobot_calib_ros.core.frames import kabsch
 
@@ -47,7 +47,7 @@ def absolute_errors(model: KinematicModel, params: ArrayLike, tool_xyz: ArrayLik
     world frame, so comparing it with a tracker needs this best-fit registration, which absorbs
     6 dof of the error (report that alongside the figures).
     """
-    p_model, _, _ = tool_kinematics(model, params, tool_xyz, q)
+    p_model = tool_frames(model, params, tool_xyz, q)[:, :3, 3]
     pw = np.asarray(p_measured, dtype=float)
     T = register_rigid(p_model, pw) if T_world_base is None else np.asarray(T_world_base)
     return np.linalg.norm(apply(T, p_model) - pw, axis=1)

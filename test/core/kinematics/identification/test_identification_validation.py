@@ -6,7 +6,8 @@ import pytest
 
 from cobot_calib_ros.core import frames
 from cobot_calib_ros.core.kinematics.identification import (
-    absolute_errors, error_stats, register_rigid, table6, tool_frames, uniform_configurations)
+    absolute_errors, error_stats, register_rigid, table6, tool_frames)
+from cobot_calib_ros.core.kinematics.plans import uniform_configurations
 from cobot_calib_ros.core.kinematics.model import iiwa7, sawyer
 
 

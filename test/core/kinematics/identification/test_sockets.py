@@ -9,8 +9,8 @@ from numpy.testing import assert_allclose
 import pytest
 
 from cobot_calib_ros.core.kinematics import fk
-from cobot_calib_ros.core.kinematics.identification import (
-    identify, ParameterSet, SphereObservations, TOOL_NAMES)
+from cobot_calib_ros.core.kinematics.identification import SphereObservations, TOOL_NAMES
+from cobot_calib_ros.core.kinematics.kinematic_calibration import fit_spheres
 from cobot_calib_ros.core.kinematics.identification.sockets import (
     location_metrics, mukca_metrics, SocketData)
 from cobot_calib_ros.loaders import load_socket_data
@@ -118,9 +118,8 @@ def test_nominal_model_reproduces_the_readme_table(data, model):
 
 def test_fitting_only_the_ball_reproduces_the_readme(data, model):
     """README: ball-only fit, MAE 0.704 mm, ball (-0.11, -0.23, 166.61) mm in the A7 frame."""
-    result = identify(ParameterSet(model, TOOL_NAMES), data.observations(), tool_xyz0=BALL,
-                      loss='linear')
+    _, tool_xyz, _ = fit_spheres(model, data.observations(), BALL, TOOL_NAMES)
     a7_to_tool0 = np.array([0.0, 0.0, 0.126])  # joint_a7-tool0 [m]
-    assert_allclose((result.tool_xyz + a7_to_tool0) * 1e3, [-0.11, -0.23, 166.61], atol=5e-3)
-    mae = location_metrics(model, None, result.tool_xyz, data)['mae_mm']
+    assert_allclose((tool_xyz + a7_to_tool0) * 1e3, [-0.11, -0.23, 166.61], atol=5e-3)
+    mae = location_metrics(model, None, tool_xyz, data)['mae_mm']
     assert mae == pytest.approx(0.704, abs=1e-3)
