@@ -15,7 +15,10 @@ from scipy.spatial.transform import Rotation
 
 from cobot_calib_ros.core.frames import skew
 from cobot_calib_ros.core.user_frame.checks import _check_points, point_names
-from cobot_calib_ros.core.user_frame.estimators import _affine_fit, _estimator, DEFAULT_METHOD
+from cobot_calib_ros.core.user_frame.affine_jacobian import (
+    affine_jacobian, nearest_rigid_jacobian, scale_jacobian)
+from cobot_calib_ros.core.user_frame.estimators import (
+    _affine_fit, _affine_pose, _estimator, DEFAULT_METHOD)
 from cobot_calib_ros.core.user_frame.geometry import _as_points, _rms, Array, Estimator
 
 LIMIT_FACTOR = 3.0
@@ -87,29 +90,30 @@ def _propagated_covariance(estimate: Estimator, pu: Array, pb: Array, sigma: flo
     return _scaled(J @ J.T, sigma)
 
 
-def _scale_standard_errors(pu: Array, pb: Array, sigma: float) -> Array:
+def _scale_standard_errors(M: Array, dM: Array, sigma: float) -> Array:
     """(3,) standard errors of the affine M's column norms (eqs 6-8) for noise ``sigma`` [m].
 
-    Isotropic noise on p_base propagated through the fit by central differences (linearised):
-    ``sigma * sqrt(diag(J J^T))``. On a non-coplanar layout this is
-    ``sigma sqrt([(A^T A)^-1]_jj)``, large along a thin direction of the layout. An infinite
-    sigma gives inf.
+    Isotropic noise on p_base propagated through the fit, ``dM`` =
+    :func:`affine_jacobian` (linearised): ``sigma * sqrt(diag(J J^T))``. On a non-coplanar
+    layout this is ``sigma sqrt([(A^T A)^-1]_jj)``, large along a thin direction of the layout.
+    An infinite sigma gives inf.
     """
     if not math.isfinite(sigma):
         return np.full(3, math.inf)
-    flat = pb.ravel()
-    J = np.empty((3, flat.size))
-    for k in range(flat.size):
-        step = np.zeros_like(flat)
-        step[k] = _FD_STEP
-        plus = _affine_fit(pu, (flat + step).reshape(-1, 3))[0][:3, :3]
-        minus = _affine_fit(pu, (flat - step).reshape(-1, 3))[0][:3, :3]
-        J[:, k] = (np.linalg.norm(plus, axis=0) - np.linalg.norm(minus, axis=0)) / (2 * _FD_STEP)
+    J = scale_jacobian(M, dM)
     return sigma * np.sqrt((J ** 2).sum(axis=1))
 
 
 def _pose_jacobian(estimate: Estimator, pu: Array, pb: Array) -> Array:
-    """(6, 3N) d(rho, phi) / d p_base (row-major points) by central differences."""
+    """(6, 3N) d(rho, phi) / d p_base (row-major points): analytic for the affine fit, else
+    by central differences."""
+    if estimate is _affine_pose:
+        return nearest_rigid_jacobian(_affine_fit(pu, pb)[0], affine_jacobian(pu, pb))
+    return _central_difference_jacobian(estimate, pu, pb)
+
+
+def _central_difference_jacobian(estimate: Estimator, pu: Array, pb: Array) -> Array:
+    """(6, 3N) d(rho, phi) / d p_base of any estimator by central differences."""
     T0 = estimate(pu, pb)
     flat = pb.ravel()
     J = np.empty((6, flat.size))
