@@ -26,11 +26,11 @@ from numpy.typing import ArrayLike
 
 from cobot_calib_ros.core.errors import ErrorCode, Failure
 from cobot_calib_ros.core.frames import apply
-from cobot_calib_ros.core.user_frame.affine_jacobian import (
-    affine_jacobian, nearest_rigid_jacobian)
+from cobot_calib_ros.core.user_frame.jacobians import (
+    affine_jacobian, nearest_rigid_jacobian, three_point_jacobian)
 from cobot_calib_ros.core.user_frame.checks import _prepare
 from cobot_calib_ros.core.user_frame.covariance import (
-    _effective_dof, _noise_sigma, _pose_jacobian, _scale_standard_errors, _scaled)
+    _effective_dof, _noise_sigma, _scale_standard_errors, _scaled)
 from cobot_calib_ros.core.user_frame.estimators import (
     _affine_fit, _three_point_pose, DEFAULT_METHOD, METHODS, nearest_rigid)
 from cobot_calib_ros.core.user_frame.geometry import _join, _spread
@@ -85,7 +85,7 @@ def fit_three_point(p_user: ArrayLike, p_base: ArrayLike, *, sigma_prior: float 
         return _failure('three_point', failure)
     T = _three_point_pose(pu, pb)
     residuals = apply(T, pu) - pb
-    J = _pose_jacobian(_three_point_pose, pu, pb)
+    J = three_point_jacobian(pu, pb)
     dof = _effective_dof(J, pu, T[:3, :3])
     sigma, note = _noise_sigma(residuals, dof, sigma_prior)
     cov = _scaled(J @ J.T, sigma)

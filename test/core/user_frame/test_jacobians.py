@@ -1,9 +1,9 @@
-"""The analytic derivatives of the affine fit (affine_jacobian.py) equal central differences.
+"""The analytic derivatives of the estimators (jacobians.py) equal central differences.
 
-They replaced refitting per coordinate in five_point_lsq's covariance and scale standard errors
-(issue 31 item 8); these cases are the proof that the figures did not change: a non-coplanar
-box, a thin slab, the paper's coplanar layout (normal column completed), and a fit with a 3 %
-wrong drawing (M far from a rotation).
+They replaced refitting per coordinate in the covariance of five_point_lsq and three_point and
+in the scale standard errors (issue 31 item 8); these cases are the proof that the figures did
+not change: a non-coplanar box, a thin slab, a coplanar layout (the affine normal column
+completed), and a fit with a 3 % wrong drawing (M far from a rotation).
 """
 from __future__ import annotations
 
@@ -12,10 +12,12 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from cobot_calib_ros.core.frames import apply, make_transform
-from cobot_calib_ros.core.user_frame.affine_jacobian import (
-    affine_jacobian, nearest_rigid_jacobian, scale_jacobian)
-from cobot_calib_ros.core.user_frame.covariance import _central_difference_jacobian
-from cobot_calib_ros.core.user_frame.estimators import _affine_fit, _affine_pose
+from cobot_calib_ros.core.user_frame.covariance import _pose_delta
+from cobot_calib_ros.core.user_frame.estimators import (
+    _affine_fit, _affine_pose, _three_point_pose)
+from cobot_calib_ros.core.user_frame.jacobians import (
+    affine_jacobian, affine_pose_jacobian, nearest_rigid_jacobian, scale_jacobian,
+    three_point_jacobian)
 
 STEP = 1e-6               # [m]
 
@@ -44,6 +46,12 @@ def central_differences(f, pb: np.ndarray) -> np.ndarray:
     return np.stack(columns, axis=-1)
 
 
+def pose_differences(estimate, pu: np.ndarray, pb: np.ndarray) -> np.ndarray:
+    """(6, 3N) d(rho, phi) / d p_base of ``estimate`` by central differences."""
+    T0 = estimate(pu, pb)
+    return central_differences(lambda p: _pose_delta(estimate(pu, p), T0), pb)
+
+
 @pytest.mark.parametrize('name', ['box', 'slab', 'plane', 'stretched'])
 def test_analytic_derivatives_equal_central_differences(name: str) -> None:
     pu, pb = case(name)
@@ -56,8 +64,18 @@ def test_analytic_derivatives_equal_central_differences(name: str) -> None:
                                  pb)
     np.testing.assert_allclose(scale_jacobian(M, dM), scales, rtol=1e-6,
                                atol=1e-6 * np.abs(scales).max())
-    pose = _central_difference_jacobian(_affine_pose, pu, pb)
+    pose = pose_differences(_affine_pose, pu, pb)
     np.testing.assert_allclose(nearest_rigid_jacobian(M, dM), pose, rtol=1e-6,
+                               atol=1e-6 * np.abs(pose).max())
+    np.testing.assert_array_equal(affine_pose_jacobian(pu, pb), nearest_rigid_jacobian(M, dM))
+
+
+@pytest.mark.parametrize('name', ['box', 'slab', 'plane'])
+def test_the_three_point_jacobian_equals_central_differences(name: str) -> None:
+    pu, pb = case(name)
+    pose = pose_differences(_three_point_pose, pu, pb)
+    assert not pose[:, 9:].any()                     # only the first three points count
+    np.testing.assert_allclose(three_point_jacobian(pu, pb), pose, rtol=1e-6,
                                atol=1e-6 * np.abs(pose).max())
 
 
