@@ -58,13 +58,15 @@ def nearest_rigid_jacobian(M: Array, dM: Array) -> Array:
     """(6, 3N) d(rho, phi) of :func:`nearest_rigid` (M) given dM (covariance.py's convention).
 
     With M3 = R S (S = R^T M3 symmetric), R^T dM3 - dM3^T R = [(tr S I - S) w]x for the body
-    rotation w of dR = R [w]x; phi = R w is the same rotation in base axes.
+    rotation w of dR = R [w]x; phi = R w is the same rotation in base axes. tr S I - S is
+    singular only for a mirror (det M < 0, which check_plausible refuses) whose two smaller
+    singular values are equal: least squares keeps that case finite instead of raising.
     """
     R = nearest_rigid(M)[:3, :3]
     S = R.T @ M[:3, :3]
     Q = np.einsum('ka,kbx->abx', R, dM[:, :3])
     vee = np.stack([Q[2, 1] - Q[1, 2], Q[0, 2] - Q[2, 0], Q[1, 0] - Q[0, 1]])
-    body = np.linalg.solve(np.trace(S) * np.eye(3) - S, vee)
+    body = np.linalg.lstsq(np.trace(S) * np.eye(3) - S, vee, rcond=None)[0]
     return np.concatenate([dM[:, 3], R @ body])
 
 

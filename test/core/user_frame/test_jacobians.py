@@ -87,3 +87,13 @@ def test_the_scale_jacobian_of_a_non_coplanar_fit_is_the_closed_form() -> None:
     A = np.column_stack([pu, np.ones(len(pu))])
     np.testing.assert_allclose((J ** 2).sum(axis=1), np.diag(np.linalg.inv(A.T @ A))[:3],
                                rtol=1e-12)
+
+
+def test_an_exact_mirror_gives_a_finite_jacobian_not_an_error() -> None:
+    """M = diag(-1, 1, 1): its nearest rotation is not unique (tr S I - S is singular); the fit
+    is refused by check_plausible, but computing its covariance must not raise."""
+    M = np.diag([-1.0, 1.0, 1.0, 1.0])
+    dM = np.random.default_rng(4).normal(size=(3, 4, 15))
+    J = nearest_rigid_jacobian(M, dM)
+    assert J.shape == (6, 15) and np.isfinite(J).all()
+    np.testing.assert_array_equal(J[:3], dM[:, 3])
