@@ -251,20 +251,15 @@ def park_martin(F: Array, M: Array) -> Array:
     1994: the rotation by the orthogonal Procrustes fit of the motions' rotation vectors, then
     the translation by linear least squares); OpenCV 5's Python bindings lack
     calibrateHandEye, and this is its CALIB_HAND_EYE_PARK."""
-    alphas, betas, rows, rhs = [], [], [], []
-    pairs = [(i, j) for i in range(len(F)) for j in range(i + 1, len(F))]
-    for i, j in pairs:
-        A = np.linalg.inv(F[i]) @ F[j]               # flange motion
-        Bm = M[i] @ np.linalg.inv(M[j])              # camera motion
-        alphas.append(Rotation.from_matrix(A[:3, :3]).as_rotvec())
-        betas.append(Rotation.from_matrix(Bm[:3, :3]).as_rotvec())
-    R = frames.kabsch_rotation(np.array(betas), np.array(alphas))   # alpha = R beta
-    for i, j in pairs:
-        A = np.linalg.inv(F[i]) @ F[j]
-        Bm = M[i] @ np.linalg.inv(M[j])
-        rows.append(A[:3, :3] - np.eye(3))
-        rhs.append(R @ Bm[:3, 3] - A[:3, 3])
-    t = np.linalg.lstsq(np.vstack(rows), np.concatenate(rhs), rcond=None)[0]
+    i, j = np.triu_indices(len(F), 1)                    # every pair of views
+    A = np.linalg.inv(F)[i] @ F[j]                       # flange motions
+    Bm = M[i] @ np.linalg.inv(M)[j]                      # camera motions
+    alphas = Rotation.from_matrix(A[:, :3, :3]).as_rotvec()
+    betas = Rotation.from_matrix(Bm[:, :3, :3]).as_rotvec()
+    R = frames.kabsch_rotation(betas, alphas)            # alpha = R beta
+    rows = (A[:, :3, :3] - np.eye(3)).reshape(-1, 3)
+    rhs = (Bm[:, :3, 3] @ R.T - A[:, :3, 3]).ravel()
+    t = np.linalg.lstsq(rows, rhs, rcond=None)[0]
     return frames.make_transform(R, t)
 
 

@@ -1,6 +1,7 @@
 """User-frame calibration: the methods and calibrate() (fit), outlier rejection (robust), pose
 covariance and estimation limit (covariance), height correction (surface), sanity gate
-(plausibility); input checks (checks), pose estimators (estimators), FrameFit (result)."""
+(plausibility); input checks (checks), pose estimators (estimators) and their derivatives
+(jacobians), FrameFit (result)."""
 from cobot_calib_ros.core.user_frame.checks import MAX_COORDINATE, point_names
 from cobot_calib_ros.core.user_frame.covariance import (
     estimation_limit, LIMIT_FACTOR, pose_covariance)

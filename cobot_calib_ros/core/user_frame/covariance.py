@@ -15,14 +15,15 @@ from scipy.spatial.transform import Rotation
 
 from cobot_calib_ros.core.frames import skew
 from cobot_calib_ros.core.user_frame.checks import _check_points, point_names
-from cobot_calib_ros.core.user_frame.estimators import _affine_fit, _estimator, DEFAULT_METHOD
+from cobot_calib_ros.core.user_frame.estimators import (
+    _affine_pose, _estimator, _three_point_pose, DEFAULT_METHOD)
+from cobot_calib_ros.core.user_frame.jacobians import (
+    affine_pose_jacobian, scale_jacobian, three_point_jacobian)
 from cobot_calib_ros.core.user_frame.geometry import _as_points, _rms, Array, Estimator
 
 LIMIT_FACTOR = 3.0
 """An achieved frame error above ``LIMIT_FACTOR`` times :func:`estimation_limit` is suspect:
 for Gaussian noise it happens in well under 1 % of calibrations."""
-
-_FD_STEP = 1e-6           # [m] central-difference step of the covariance propagation
 
 
 def pose_covariance(p_user: ArrayLike, R: Array, sigma: float) -> Array:
@@ -87,39 +88,24 @@ def _propagated_covariance(estimate: Estimator, pu: Array, pb: Array, sigma: flo
     return _scaled(J @ J.T, sigma)
 
 
-def _scale_standard_errors(pu: Array, pb: Array, sigma: float) -> Array:
+def _scale_standard_errors(M: Array, dM: Array, sigma: float) -> Array:
     """(3,) standard errors of the affine M's column norms (eqs 6-8) for noise ``sigma`` [m].
 
-    Isotropic noise on p_base propagated through the fit by central differences (linearised):
-    ``sigma * sqrt(diag(J J^T))``. On a non-coplanar layout this is
-    ``sigma sqrt([(A^T A)^-1]_jj)``, large along a thin direction of the layout. An infinite
-    sigma gives inf.
+    Isotropic noise on p_base propagated through the fit, ``dM`` =
+    :func:`jacobians.affine_jacobian` (linearised): ``sigma * sqrt(diag(J J^T))``. On a non-coplanar
+    layout this is ``sigma sqrt([(A^T A)^-1]_jj)``, large along a thin direction of the layout.
+    An infinite sigma gives inf.
     """
     if not math.isfinite(sigma):
         return np.full(3, math.inf)
-    flat = pb.ravel()
-    J = np.empty((3, flat.size))
-    for k in range(flat.size):
-        step = np.zeros_like(flat)
-        step[k] = _FD_STEP
-        plus = _affine_fit(pu, (flat + step).reshape(-1, 3))[0][:3, :3]
-        minus = _affine_fit(pu, (flat - step).reshape(-1, 3))[0][:3, :3]
-        J[:, k] = (np.linalg.norm(plus, axis=0) - np.linalg.norm(minus, axis=0)) / (2 * _FD_STEP)
+    J = scale_jacobian(M, dM)
     return sigma * np.sqrt((J ** 2).sum(axis=1))
 
 
 def _pose_jacobian(estimate: Estimator, pu: Array, pb: Array) -> Array:
-    """(6, 3N) d(rho, phi) / d p_base (row-major points) by central differences."""
-    T0 = estimate(pu, pb)
-    flat = pb.ravel()
-    J = np.empty((6, flat.size))
-    for k in range(flat.size):
-        step = np.zeros_like(flat)
-        step[k] = _FD_STEP
-        plus = _pose_delta(estimate(pu, (flat + step).reshape(-1, 3)), T0)
-        minus = _pose_delta(estimate(pu, (flat - step).reshape(-1, 3)), T0)
-        J[:, k] = (plus - minus) / (2.0 * _FD_STEP)
-    return J
+    """(6, 3N) d(rho, phi) / d p_base (row-major points) of the three_point or affine pose."""
+    jacobian = {_three_point_pose: three_point_jacobian, _affine_pose: affine_pose_jacobian}
+    return jacobian[estimate](pu, pb)
 
 
 def _effective_dof(J: Array, pu: Array, R: Array) -> float:
@@ -132,17 +118,17 @@ def _effective_dof(J: Array, pu: Array, R: Array) -> float:
 
 
 def _pose_delta(T: Array, T0: Array) -> Array:
-    """(rho, phi) with T = (t0 + rho, Exp(phi) R0) [m, rad]."""
-    phi = Rotation.from_matrix(T[:3, :3] @ T0[:3, :3].T).as_rotvec()
-    return np.concatenate([T[:3, 3] - T0[:3, 3], phi])
+    """(rho, phi) with T = (t0 + rho, Exp(phi) R0) [m, rad]; (n, 6) for a stack T (n, 4, 4)."""
+    phi = Rotation.from_matrix(T[..., :3, :3] @ T0[:3, :3].T).as_rotvec()
+    return np.concatenate([T[..., :3, 3] - T0[:3, 3], phi], axis=-1)
 
 
 def _monte_carlo_errors(estimate: Estimator, pu: Array, sigma: float, n_trials: int,
                         rng: np.random.Generator | None) -> Array:
     """(n_trials, 6) pose errors of fits to p_user plus N(0, sigma^2) noise [m, rad]."""
     rng = np.random.default_rng(0) if rng is None else rng
-    return np.array([_pose_delta(estimate(pu, pu + rng.normal(0.0, sigma, pu.shape)),
-                                 np.eye(4)) for _ in range(n_trials)])
+    fits = [estimate(pu, pu + rng.normal(0.0, sigma, pu.shape)) for _ in range(n_trials)]
+    return _pose_delta(np.array(fits), np.eye(4))
 
 
 def _scaled(cov_unit: Array, sigma: float) -> Array:

@@ -31,30 +31,40 @@ def _three_point_pose(pu: Array, pb: Array) -> Array:
 
 def _affine_fit(pu: Array, pb: Array) -> tuple[Array, bool]:
     """Paper eqs 6-8: (4, 4) M with p_base ~ M p_user; True if the normal column was completed."""
+    A, basis = _affine_design(pu)
+    X = np.linalg.lstsq(A, pb, rcond=None)[0]
+    if basis is None:
+        M = np.eye(4)
+        M[:3, :] = X.T
+        return M, False
+    return _completed_affine(X, basis, pu.mean(axis=0)), True
+
+
+def _affine_design(pu: Array) -> tuple[Array, Array | None]:
+    """(A, basis): the affine fit solves A X = p_base (least squares) for X.
+
+    Non-coplanar: A rows [x y z 1], basis None. Coplanar: A rows [a b 1], the in-plane
+    coordinates of the centred points in ``basis`` = :func:`_plane_basis` of their normal.
+    """
     _, s, Vt = np.linalg.svd(pu - pu.mean(axis=0))
     if s[2] > PLANAR_TOL * s[0]:
-        A = np.column_stack([pu, np.ones(len(pu))])
-        M = np.eye(4)
-        M[:3, :] = np.linalg.lstsq(A, pb, rcond=None)[0].T
-        return M, False
-    return _planar_affine_fit(pu, pb, Vt[2]), True
+        return np.column_stack([pu, np.ones(len(pu))]), None
+    E = _plane_basis(Vt[2])
+    return np.column_stack([(pu - pu.mean(axis=0)) @ E[:, :2], np.ones(len(pu))]), E
 
 
-def _planar_affine_fit(pu: Array, pb: Array, normal: Array) -> Array:
-    """Fit M on in-plane coordinates, then complete M n from the in-plane columns.
+def _completed_affine(X: Array, E: Array, centre: Array) -> Array:
+    """M from the in-plane fit X (rows g_a, g_b, g_0), its normal column completed.
 
     With a z = 0 layout the basis is (x, +-y, +-z), so M's z column becomes the unit normal of
     its x and y columns, scaled by their mean norm (right-handed).
     """
-    E = _plane_basis(normal)
-    c = pu.mean(axis=0)
-    A = np.column_stack([(pu - c) @ E[:, :2], np.ones(len(pu))])
-    g_a, g_b, g_0 = np.linalg.lstsq(A, pb, rcond=None)[0]
+    g_a, g_b, g_0 = X
     normal_image = np.cross(g_a, g_b)
     mean_norm = 0.5 * (np.linalg.norm(g_a) + np.linalg.norm(g_b))
     normal_image *= mean_norm / np.linalg.norm(normal_image)
     M3 = np.column_stack([g_a, g_b, normal_image]) @ E.T
-    return make_transform(M3, g_0 - M3 @ c)
+    return make_transform(M3, g_0 - M3 @ centre)
 
 
 def _plane_basis(normal: Array) -> Array:

@@ -26,12 +26,13 @@ from numpy.typing import ArrayLike
 
 from cobot_calib_ros.core.errors import ErrorCode, Failure
 from cobot_calib_ros.core.frames import apply
+from cobot_calib_ros.core.user_frame.jacobians import (
+    affine_jacobian, nearest_rigid_jacobian, three_point_jacobian)
 from cobot_calib_ros.core.user_frame.checks import _prepare
 from cobot_calib_ros.core.user_frame.covariance import (
-    _effective_dof, _noise_sigma, _pose_jacobian, _propagated_covariance, _scale_standard_errors,
-    _scaled)
+    _effective_dof, _noise_sigma, _scale_standard_errors, _scaled)
 from cobot_calib_ros.core.user_frame.estimators import (
-    _affine_fit, _affine_pose, _three_point_pose, DEFAULT_METHOD, METHODS, nearest_rigid)
+    _affine_fit, _three_point_pose, DEFAULT_METHOD, METHODS, nearest_rigid)
 from cobot_calib_ros.core.user_frame.geometry import _join, _spread
 from cobot_calib_ros.core.user_frame.plausibility import (
     check_plausible, MAX_RMS_ERROR, MAX_SCALE_ERROR)
@@ -84,7 +85,7 @@ def fit_three_point(p_user: ArrayLike, p_base: ArrayLike, *, sigma_prior: float 
         return _failure('three_point', failure)
     T = _three_point_pose(pu, pb)
     residuals = apply(T, pu) - pb
-    J = _pose_jacobian(_three_point_pose, pu, pb)
+    J = three_point_jacobian(pu, pb)
     dof = _effective_dof(J, pu, T[:3, :3])
     sigma, note = _noise_sigma(residuals, dof, sigma_prior)
     cov = _scaled(J @ J.T, sigma)
@@ -109,7 +110,9 @@ def fit_five_point_lsq(p_user: ArrayLike, p_base: ArrayLike, *,
     residuals = apply(M, pu) - pb
     dof = residuals.size - (9 if completed else 12)
     sigma, note = _noise_sigma(residuals, dof, sigma_prior)
-    cov = _propagated_covariance(_affine_pose, pu, pb, sigma)
+    dM = affine_jacobian(pu, pb)
+    J = nearest_rigid_jacobian(M, dM)
+    cov = _scaled(J @ J.T, sigma)
     s = _spread(pu)
     cond = s[0] / s[1] if completed else s[0] / s[2]
     nearly = '' if completed or cond < 1e3 else (
@@ -117,7 +120,7 @@ def fit_five_point_lsq(p_user: ArrayLike, p_base: ArrayLike, *,
         'their normal is poorly determined')
     message = _join(_COMPLETED if completed else '', nearly, note)
     return _assemble('five_point_lsq', nearest_rigid(M), M, residuals, (pu, pb), cov, sigma,
-                     message, condition=cond, scale_se=_scale_standard_errors(pu, pb, sigma),
+                     message, condition=cond, scale_se=_scale_standard_errors(M, dM, sigma),
                      noise_dof=_noise_dof(dof, sigma_prior))
 
 
