@@ -16,7 +16,6 @@ answers cancels and feedback):
 from __future__ import annotations
 
 import math
-from pathlib import Path
 import sys
 import threading
 from time import monotonic
@@ -41,8 +40,6 @@ from cobot_calib_ros.core.kinematics.planning import (PlanSettings, Prediction,
                                                       sphere_candidates, SpherePlanner,
                                                       tilt_grid_deg, TILT_STEP_DEG,
                                                       too_few_poses)
-from cobot_calib_ros.core.kinematics.identification.observations import (
-    PositionObservations, SphereObservations)
 from cobot_calib_ros.core.kinematics.identification.measurement_fit import LOSSES, SOLVERS
 from cobot_calib_ros.core.kinematics.identification.gates import (
     DeviationBounds, MAX_DEVIATION_M, MAX_DEVIATION_RAD)
@@ -51,55 +48,18 @@ from cobot_calib_ros.bags.errors import BagError
 from cobot_calib_ros.bags.sphere_captures import is_bag, sphere_observations
 from cobot_calib_ros.core.ids import record_id
 from cobot_calib_ros.loaders import load_cell
+from cobot_calib_ros.loaders.sources import load_collection_folder, observations, partial_note
 from cobot_calib_ros.ros import markers, marks, qos, results, spin
 from cobot_calib_ros.ros.diagnostics import Diagnostics, OK, WARN
 from cobot_calib_ros.ros.params import declare, read_once
 from cobot_calib_ros.ros.robot_calls import RobotCalls
 from cobot_calib_ros.ros.time import now_ns, ns_to_stamp
 from cobot_calib_ros.store.cells import ResultsCell
-from cobot_calib_ros.store.collections import Collection, CollectionStore
 from cobot_calib_ros.store.files import check_id
 
 Collect, Identify = CollectSphereData, IdentifyKinematics
 PLANNED_MAX_POSES = 100
 PLANNING_TASK_SEED = 1      # the task volume's configurations (the validation set is seed 0)
-
-
-def observations(collection: Collection):
-    """The core's observations of a stored collection (relative for spheres, absolute for a
-    laser tracker); ValueError if it holds too little."""
-    meta = collection.meta
-    if meta['source'] == 'spheres':
-        return SphereObservations(collection.q, collection.target,
-                                  tuple(tuple(d) for d in meta['known_distances']))
-    return PositionObservations(collection.q, collection.p)
-
-
-def partial_note(collection: Collection) -> str:
-    """'' for a complete collection, else how many poses it lacks and how to resume it."""
-    planning = collection.meta.get('planning')      # a planned collection: up to max_poses
-    planned = planning['settings']['max_poses'] if planning else len(collection.meta['plan'])
-    visited = len(collection.q) + len(collection.skipped)
-    if collection.meta['status'] == 'done' or visited >= planned:
-        return ''
-    name = collection.meta['id']
-    how = f'cobot-calib identify --resume {name}' if collection.meta['source'] == 'spheres' \
-        else f'collect_sphere_data with collection_id {name}'
-    return (f'collection {name} is partial: {visited} of {planned} poses visited '
-            f'({planned - visited} missing; {len(collection.q)} measured); resume it with {how}')
-
-
-def load_collection_folder(folder: str) -> Collection:
-    """A collection folder given by path (one with collection.yaml and rows.csv)."""
-    path = Path(folder).expanduser().resolve()
-    if not (path / 'collection.yaml').is_file():
-        raise ValueError(f'{path}: not a collection folder (no collection.yaml); give a folder '
-                         'written by collect_sphere_data')
-    folder_store = CollectionStore.of_folder(path.parent)
-    data = folder_store.load(path.name)
-    if data is None:
-        raise ValueError(f'{path}: unreadable collection: {folder_store.meta_problem(path.name)}')
-    return data
 
 
 class KinematicIdentifier(Node):
