@@ -81,8 +81,9 @@ def _gate(report: dict) -> str:
     bounds = report.get('bounds')
     within = f'deviations within {bounds["length_mm"]:g} mm / {bounds["angle_mrad"]:g} mrad' \
         if bounds else 'every deviation within its bound'
-    compared = 'held out' if report.get('held_out') else 'validation'
-    return f'gate: passed (converged, {within}, {compared} no worse than nominal)'
+    compared = ', held out no worse than nominal' if report.get('held_out') else \
+        ', validation no worse than nominal' if report.get('tracker') else ''
+    return f'gate: passed (converged, {within}{compared})'
 
 
 def _correlated(report: dict) -> list[str]:
