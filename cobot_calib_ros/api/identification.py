@@ -222,8 +222,8 @@ def identify_source(path: str | Path, *, cell: str | None = None,
     kind = sources.recognise(path)
     bounds = DeviationBounds(*max_deviation)
     if kind in (sources.MEASUREMENT_FILE, sources.MUKCA):
-        _only_for('a bag or a collection folder', kind, ('--solver nelder-mead',
-                  solver != 'lm'), ('--max-configs', max_configs), ('--dry-run', False))
+        _only_for('a bag or a collection folder', kind,
+                  ('--solver nelder-mead', solver != 'lm'), ('--max-configs', max_configs))
         source = sources.load_source(path, urdf=urdf, base_link=base_link, tip_link=tip_link,
                                      dh=dh, ball=ball)
         return _identify_measurements(source, measurement, model, folds, leave_out, loss,
@@ -239,10 +239,12 @@ def identify_source(path: str | Path, *, cell: str | None = None,
         raise ValueError(f'{path}: a {kind} is identified on its cell: give --cell or --robot')
     try:
         source = sources.load_source(path, cell=load_cell(cell_file(cell)))
+        validation = sources.tracker_sets(path.parent, source.cell.robot) \
+            if kind == sources.COLLECTION else {}
         outcome = CalibrationJob(source.cell, source.model, source.observations,
                                  source=source.provenance.get('collection', str(path)),
                                  solver=solver, loss=loss, max_configs=max_configs,
-                                 validation=source.validation, bounds=bounds).run()
+                                 validation=validation, bounds=bounds).run()
     except (KeyError, ValueError) as e:
         message = str(e).strip("'")
         raise IdentificationFailed(message if str(path) in message else f'{path}: {message}') \

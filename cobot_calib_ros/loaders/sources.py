@@ -43,8 +43,7 @@ def recognise(path: str | Path) -> str:
 class Source:
     """What a source gives the engine. A measurement file or MUKCa folder: ``file`` (its
     measurements, q in the file's joint order: ``file.in_joint_order`` gives the model's). A bag or a collection: ``observations`` of
-    ``cell``'s spheres (or a laser tracker's points), joints in ``model``'s order, and
-    ``validation``: the laser-tracker collections beside a collection (region -> observations).
+    ``cell``'s spheres (or a laser tracker's points), joints in ``model``'s order.
     ``provenance``: where they came from (JSON-ready)."""
 
     kind: str
@@ -53,7 +52,6 @@ class Source:
     file: Any = None                  # loaders.measurements.MeasurementFile
     observations: Any = None          # SphereObservations | PositionObservations
     cell: Any = None                  # core.cell.Cell
-    validation: dict = field(default_factory=dict)
     provenance: dict = field(default_factory=dict)
 
     @property
@@ -89,7 +87,13 @@ def load_source(path: str | Path, *, cell=None, urdf: str | None = None,
         data, _ = sphere_observations(path, cell, model)
         return Source(kind, path, model, observations=data, cell=cell,
                       provenance={'source': str(path), 'source_kind': kind, 'cell': cell.name})
-    collection = load_collection_folder(path)
+    return of_collection(load_collection_folder(path), cell, model, path)
+
+
+def of_collection(collection, cell, model, path: Path | None = None) -> Source:
+    """A stored collection (store.collections.Collection) of ``cell``'s robot as a
+    :class:`Source`: its observations, how partial it is and its planning in the provenance.
+    ValueError for another robot's or one that holds too little."""
     meta = collection.meta
     if meta['robot'] != cell.robot:
         raise ValueError(f'collection {meta["id"]} is of a {meta["robot"]}, this cell is a '
@@ -99,13 +103,13 @@ def load_source(path: str | Path, *, cell=None, urdf: str | None = None,
         data = observations(collection)
     except ValueError as e:
         raise ValueError('; '.join(filter(None, (str(e), partial)))) from None
-    provenance = {'source': str(path), 'source_kind': kind, 'cell': cell.name,
-                  'collection': meta['id'], 'partial': partial}
+    provenance = {'source': str(path or meta['id']), 'source_kind': COLLECTION,
+                  'cell': cell.name, 'collection': meta['id'], 'partial': partial}
     if meta.get('planning') is not None:
         provenance['planning'] = {'collection': meta['id'], **{
             k: v for k, v in meta['planning'].items() if k != 'task_q'}}
-    return Source(kind, path, model, observations=data, cell=cell,
-                  validation=tracker_sets(path.parent, cell.robot), provenance=provenance)
+    return Source(COLLECTION, Path(path or meta['id']), model, observations=data, cell=cell,
+                  provenance=provenance)
 
 
 def observations(collection):

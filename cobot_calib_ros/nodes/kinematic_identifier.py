@@ -45,10 +45,9 @@ from cobot_calib_ros.core.kinematics.identification.gates import (
     DeviationBounds, MAX_DEVIATION_M, MAX_DEVIATION_RAD)
 from cobot_calib_ros.core.kinematics.kinematic_calibration import CalibrationJob, JobCancelled
 from cobot_calib_ros.bags.errors import BagError
-from cobot_calib_ros.bags.sphere_captures import is_bag, sphere_observations
 from cobot_calib_ros.core.ids import record_id
 from cobot_calib_ros.loaders import load_cell
-from cobot_calib_ros.loaders.sources import load_collection_folder, observations, partial_note
+from cobot_calib_ros.loaders import sources
 from cobot_calib_ros.ros import markers, marks, qos, results, spin
 from cobot_calib_ros.ros.diagnostics import Diagnostics, OK, WARN
 from cobot_calib_ros.ros.params import declare, read_once
@@ -461,41 +460,40 @@ class KinematicIdentifier(Node):
                                    ('objective', goal.objective, ('relative', 'absolute'))):
             if value and value not in known:
                 raise ValueError(f'unknown {name} {value!r}; use one of {", ".join(known)}')
-        if goal.file and is_bag(goal.file):     # a recorded session: its capture marks
-            try:
-                data, _ = sphere_observations(goal.file, self._cell, self._model)
-            except BagError as e:
-                raise ValueError(str(e))
-            source, partial = str(goal.file), ''
+        if goal.file:       # a collection folder or a recorded session (its capture marks)
+            source = self._file_source(goal.file)
         else:
-            collection = (load_collection_folder(goal.file) if goal.file else self._collection(
-                goal.collection_id,
-                'spheres' if goal.objective != 'absolute' else 'laser_tracker'))
-            if collection.meta['robot'] != self._cell.robot:
-                raise ValueError(f'collection {collection.meta["id"]} is of a '
-                                 f'{collection.meta["robot"]}, this cell is a {self._cell.robot}')
-            partial, source = partial_note(collection), collection.meta['id']
-            planning = collection.meta.get('planning')
-            if planning is not None:
-                planning = {'collection': source, **{k: v for k, v in planning.items()
-                                                     if k != 'task_q'}}
-            try:
-                data = observations(collection)
-            except ValueError as e:
-                raise ValueError('; '.join(filter(None, (str(e), partial)))) from None
+            source = sources.of_collection(self._collection(
+                goal.collection_id, 'spheres' if goal.objective != 'absolute' else
+                'laser_tracker'), self._cell, self._model)
+        data, partial = source.observations, source.provenance.get('partial', '')
+        planning = source.provenance.get('planning')
         validation = {}
         for key, given in (('volume', goal.validation_volume),
                            ('workspace', goal.validation_workspace)):
             collection = self._collection(given, 'laser_tracker', region=key, required=False)
             if collection is not None:
-                validation[key] = observations(collection)
-        return CalibrationJob(self._cell, self._model, data, source=source,
+                validation[key] = sources.observations(collection)
+        return CalibrationJob(self._cell, self._model, data,
+                              source=source.provenance.get('collection', goal.file),
                               solver=goal.solver or 'lm', loss=goal.loss or 'soft_l1',
                               objective=goal.objective or None, max_configs=goal.max_configs,
                               validation=validation,
                               bounds=DeviationBounds(self._p('max_deviation_length'),
                                                      self._p('max_deviation_angle'))), \
             partial, planning
+
+    def _file_source(self, file: str):
+        """The loaders.sources.Source of a goal's ``file``: a bag or a collection folder
+        (ValueError for anything else, or one that cannot be read)."""
+        kind = sources.recognise(file)
+        if kind not in (sources.BAG, sources.COLLECTION):
+            raise ValueError(f'{file}: a {kind} is identified offline: cobot-calib identify '
+                             f'--source {file}; the goal\'s file is a bag or a collection folder')
+        try:
+            return sources.load_source(file, cell=self._cell)
+        except BagError as e:
+            raise ValueError(str(e)) from None
 
     def _collection(self, collection_id: str, source: str, region: str | None = None,
                     required: bool = True):
