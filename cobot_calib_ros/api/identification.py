@@ -142,6 +142,26 @@ def identify_on_suite(client: IdentifyClient, *, say: Callable[[str], None],
         'urdf_path': result.urdf_path, 'paper_ratio_percent': PAPER_RATIO_PERCENT}
 
 
+def resumable(given: str, cell: str) -> tuple[str, bool]:
+    """(collection id, complete?) for --resume [ID]: the given id, else the newest unfinished
+    sphere collection of the cell's robot in the data dir ($COBOT_CALIB_DATA, the suite's
+    default). An id not in this data dir is sent as it is (an attached suite may store
+    elsewhere). ValueError when there is nothing to resume."""
+    from cobot_calib_ros import paths, store
+    from cobot_calib_ros.loaders import load_cell
+    from cobot_calib_ros.store.files import check_id
+    collections = store.open(paths.data_dir('')).collections
+    if given:
+        stored = collections.load(check_id(given))
+        return given, stored is not None and stored.meta['status'] == 'done'
+    robot = load_cell(paths.cell_file(cell)).robot
+    for meta in collections.list_collections():
+        if meta['source'] == 'spheres' and meta['robot'] == robot and meta['status'] != 'done':
+            return meta['id'], False
+    raise ValueError(f'no unfinished {robot} sphere collection in {collections.directory}; give '
+                     'its id (--resume ID)')
+
+
 def _collect(client: IdentifyClient, goal, say, spheres: str):
     """One collect_sphere_data goal to its end; its result. Ctrl-C cancels it
     (CollectionStopped), a failure or a node that is gone raises IdentificationFailed."""

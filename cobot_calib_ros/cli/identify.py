@@ -136,7 +136,7 @@ def run(args) -> int:
     resume, collected = '', False
     if args.resume is not None:
         try:
-            resume, collected = _resumable(args.resume, cell)
+            resume, collected = identification.resumable(args.resume, cell)
         except ValueError as e:
             return fail(f'identify --resume: {e}', EXIT_USAGE)
     suite = contextlib.nullcontext() if args.attach else launcher.private_suite(
@@ -203,23 +203,3 @@ def _resume_command(args, collection_id: str) -> str:
         else ''
     return f'cobot-calib identify{robot}{" --attach" if args.attach else ""} --resume ' \
         f'{collection_id}'
-
-
-def _resumable(given: str, cell: str) -> tuple[str, bool]:
-    """(collection id, complete?) for --resume [ID]: the given id, else the newest unfinished
-    sphere collection of the cell's robot in the data dir ($COBOT_CALIB_DATA, the suite's
-    default). An id not in this data dir is sent as it is (an attached suite may store
-    elsewhere). ValueError when there is nothing to resume."""
-    from cobot_calib_ros import paths, store
-    from cobot_calib_ros.loaders import load_cell
-    from cobot_calib_ros.store.files import check_id
-    collections = store.open(paths.data_dir('')).collections
-    if given:
-        stored = collections.load(check_id(given))
-        return given, stored is not None and stored.meta['status'] == 'done'
-    robot = load_cell(paths.cell_file(cell)).robot
-    for meta in collections.list_collections():
-        if meta['source'] == 'spheres' and meta['robot'] == robot and meta['status'] != 'done':
-            return meta['id'], False
-    raise ValueError(f'no unfinished {robot} sphere collection in {collections.directory}; give '
-                     'its id (--resume ID)')
