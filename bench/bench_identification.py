@@ -11,6 +11,10 @@ world frame), max and mean [mm].
   soft-L1 loss); total seconds include the data gates, identifiability and the standard
   deviations; the fastest of LM_FULL_REPEATS runs (``_total_cpu_seconds``: its CPU time,
   below the wall time when the machine is busy);
+- the same poses as a collection folder identified the way `cobot-calib identify --robot iiwa7
+  --source COLLECTION --dry-run` does (api.identification.identify_source: reading the folder,
+  the job, the report; ``kinematic_identify_collection_seconds``, the fastest of
+  LM_FULL_REPEATS);
 - the paper's set-up: 300 configurations (100 per sphere), least squares, LM and Nelder-Mead
   on the same residuals (the one engine's spheres measurement; the paper's eq 11 over all
   44,850 pairs has the same minimum and is no longer a form of its own), Nelder-Mead once
@@ -23,6 +27,8 @@ world frame), max and mean [mm].
 from __future__ import annotations
 
 import benchlib  # first: cobot_calib_ros before numpy (one BLAS thread), run alone too
+from pathlib import Path
+import tempfile
 import time
 
 import numpy as np
@@ -31,6 +37,7 @@ from rclpy.action import ActionClient
 
 from benchlib import BenchFailed, Figures
 from cobot_calib_ros.api import launcher
+from cobot_calib_ros.api.identification import identify_source
 from cobot_calib_ros.ros.calls import CallError, run_action
 from cobot_calib_ros.api.client import wait_for_suite
 from cobot_calib_ros.core import kinematics
@@ -94,6 +101,32 @@ def solve(name: str, robot, cell, data, q_held, repeats: int = 1, **options) -> 
             f'kinematic_{name}_heldout_mean_mm': (mean, 'mm')}
 
 
+def collection_seconds(cell, model, data: SphereObservations) -> Figures:
+    """``data`` stored as collect_sphere_data stores a collection, identified by
+    identify_source (the fastest of LM_FULL_REPEATS)."""
+    from cobot_calib_ros.store.collections import CollectionStore
+    with tempfile.TemporaryDirectory(prefix='cobot_bench_collection_') as scratch:
+        store = CollectionStore(Path(scratch))
+        store.create('grid', source='spheres', robot=cell.robot,
+                     joint_names=list(model.joint_names), targets=list(cell.spheres.names),
+                     plan=[{'q': q.tolist(), 'target': int(t)} for q, t in
+                           zip(data.q, data.sphere)],
+                     extra={'known_distances': [list(d) for d in data.known_distances]})
+        for index, (q, target) in enumerate(zip(data.q, data.sphere)):
+            store.append('grid', index, int(target), q)
+        store.set_status('grid', 'done')
+        runs = []
+        for _ in range(LM_FULL_REPEATS):
+            start = time.perf_counter()
+            report = identify_source(store.directory / 'grid', cell=CELL)
+            runs.append(time.perf_counter() - start)
+    if not report['verdict']['passed']:
+        raise BenchFailed(f'identify_source: {report["verdict"]["problems"]}')
+    return {'kinematic_identify_collection_seconds': (min(runs), 's'),
+            'kinematic_identify_collection_iterations': (float(report['iterations']),
+                                                         'iterations')}
+
+
 def solver_figures() -> Figures:
     sim = load_simulation(cell_file(CELL))
     robot = SimRobot(sim)
@@ -103,6 +136,7 @@ def solver_figures() -> Figures:
     figures: Figures = {'kinematic_grid_poses': (float(len(data.q)), 'poses')}
     figures.update(solve('lm_full', robot, sim.cell, data, q_held, repeats=LM_FULL_REPEATS))
     figures['kinematic_lm_full_load_1min'] = (benchlib.load_average_1min(), 'load')
+    figures.update(collection_seconds(sim.cell, robot.model, data))
     keep = plans.even_subset(len(data.q), PAPER_CONFIGS)
     paper = SphereObservations(data.q[keep], data.sphere[keep], data.known_distances)
     figures['kinematic_paper_poses'] = (float(len(paper.q)), 'poses')

@@ -1,12 +1,12 @@
 """Offline identification of 10,000 tracker points (issue 28 item 8), the path users take.
 
-`cobot-calib identify --measurement points --source FILE --urdf ...` (cli identify_file: its
+`cobot-calib identify --measurement points --source FILE --urdf ...` (api identify_source: its
 defaults, 5-fold held out, soft-L1 loss, the full error model of a URDF) on a measurement file
 of ROWS rows written from the truth of the mock ur10e_close cell: configurations drawn within
 80 % of the joint limits, the laser tracker measuring the true coupling centre (with its
 noise), the joints as the encoders read them. Pure computation, no ROS; seeded.
 
-- ``identify_points_10000_rows_seconds``: wall time of identify_file (reading the file
+- ``identify_points_10000_rows_seconds``: wall time of identify_source (reading the file
   included; writing it not); ``_cpu_seconds`` the CPU time it took (below the wall time: the
   machine was busy);
 - ``identify_points_10000_rows_held_out_{nominal,calibrated}_rmse_mm``: what it found.
@@ -23,7 +23,7 @@ import numpy as np
 import yaml
 
 from benchlib import Figures
-from cobot_calib_ros.api.identification import identify_file
+from cobot_calib_ros.api.identification import identify_source
 from cobot_calib_ros.core import kinematics
 from cobot_calib_ros.paths import cell_file
 from cobot_calib_ros.sim.robot import SimRobot
@@ -66,7 +66,7 @@ def run(rows: int = ROWS) -> Figures:
     with tempfile.TemporaryDirectory(prefix='cobot_bench_points_') as scratch:
         source, urdf = write_points_file(Path(scratch), rows)
         start, cpu = time.perf_counter(), time.process_time()
-        report = identify_file(source, 'points', urdf=str(urdf))
+        report = identify_source(source, measurement='points', urdf=str(urdf))
         seconds, cpu = time.perf_counter() - start, time.process_time() - cpu
     name = f'identify_points_{rows}_rows'
     held = report['held_out']

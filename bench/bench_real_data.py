@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import benchlib
 from benchlib import Figures
-from cobot_calib_ros.api.identification import identify_file
+from cobot_calib_ros.api.identification import identify_source
 
 DATA = benchlib.REPO_ROOT / 'test' / 'data'
 UR10E = DATA / 'figaroh-ur10e'
@@ -29,19 +29,20 @@ POSITIONER = DATA / 'industrial-calibration-positioner'
 
 
 def ur10e() -> dict:
-    return identify_file(UR10E / 'calibration.csv', 'pose', urdf=str(UR10E / 'robot.urdf'),
-                         folds=5)
+    return identify_source(UR10E / 'calibration.csv', measurement='pose',
+                           urdf=str(UR10E / 'robot.urdf'), folds=5)
 
 
 def mukca(model: str = 'full+compliance') -> dict:
-    return identify_file(MUKCA / 'kuka_14', 'spheres', urdf=str(MUKCA / 'iiwa14.urdf'),
-                         base_link='base_link', tip_link='tool0', leave_out='location',
-                         model=model)
+    return identify_source(MUKCA / 'kuka_14', measurement='spheres',
+                           urdf=str(MUKCA / 'iiwa14.urdf'), base_link='base_link',
+                           tip_link='tool0', leave_out='location',
+                           model=model)
 
 
 def positioner() -> dict:
-    return identify_file(POSITIONER / 'measurements.csv', 'pose',
-                         dh=str(POSITIONER / 'positioner_dh.yaml'), folds=5)
+    return identify_source(POSITIONER / 'measurements.csv', measurement='pose',
+                           dh=str(POSITIONER / 'positioner_dh.yaml'), folds=5)
 
 
 def _pair(figures: Figures, name: str, report: dict, key: str, unit: str) -> None:

@@ -9,7 +9,7 @@ import shutil
 import numpy as np
 import pytest
 
-from cobot_calib_ros.cli import identify_measured
+from cobot_calib_ros.cli import identify
 from cobot_calib_ros.cli.common import EXIT_FAILED, EXIT_USAGE
 from cobot_calib_ros.loaders.measurements import load_measurements
 
@@ -81,13 +81,14 @@ def args(**given) -> argparse.Namespace:
     defaults = dict(urdf=str(UR10E / 'robot.urdf'), base_link=None, tip_link=None, dh=None,
                     source=str(UR10E / 'calibration.csv'), measurement='pose', model=None,
                     folds=None, leave_out=None, json=True, ball=(0.0, 0.0, 0.04),
-                    loss='soft_l1', max_deviation_mm=5.0, max_deviation_mrad=50.0)
+                    loss='soft_l1', max_deviation_mm=5.0, max_deviation_mrad=50.0,
+                    cell=None, robot=None, solver='lm', max_configs=0, dry_run=False)
     defaults.update(given)
     return argparse.Namespace(**defaults)
 
 
 def refusal(capsys, code: int = EXIT_USAGE, **given) -> str:
-    assert identify_measured.run(args(**given)) == code
+    assert identify.offline(args(**given)) == code
     out, err = capsys.readouterr()
     assert out == '' and err.count('\n') == 1
     return err

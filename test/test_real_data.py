@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from cobot_calib_ros.api.identification import identify_file
+from cobot_calib_ros.api.identification import identify_source
 
 DATA = Path(__file__).resolve().parent / 'data'
 UR10E = DATA / 'figaroh-ur10e'
@@ -29,8 +29,8 @@ def held_out(report: dict, which: str, key: str) -> float:
 
 def test_ur10e_camera_poses_five_fold():
     """Anchor 4.49 -> 4.33 mm, 10.0 -> 7.7 mrad; goal <= 4.3 mm and <= 7.7 mrad."""
-    r = identify_file(UR10E / 'calibration.csv', 'pose', urdf=str(UR10E / 'robot.urdf'),
-                      folds=5)
+    r = identify_source(UR10E / 'calibration.csv', measurement='pose',
+                        urdf=str(UR10E / 'robot.urdf'), folds=5)
     assert r['parameters_kept'] == r['parameters_minimum'] == 30
     assert held_out(r, 'nominal', 'rmse_mm') == pytest.approx(UR10E_NOMINAL_MM, abs=5e-3)
     assert held_out(r, 'nominal', 'rot_rms_mrad') == pytest.approx(UR10E_NOMINAL_MRAD, abs=5e-3)
@@ -43,8 +43,9 @@ def test_ur10e_camera_poses_five_fold():
 def test_mukca_iiwa14_leave_one_location_out():
     """Anchor 0.778 -> 0.233 mm MAE (this project's sphere path 0.240); goal <= 0.20 mm:
     missed (MUKCa removes outliers before it evaluates; this does not)."""
-    r = identify_file(MUKCA / 'kuka_14', 'spheres', urdf=str(MUKCA / 'iiwa14.urdf'),
-                      base_link='base_link', tip_link='tool0', leave_out='location')
+    r = identify_source(MUKCA / 'kuka_14', measurement='spheres',
+                        urdf=str(MUKCA / 'iiwa14.urdf'), base_link='base_link',
+                        tip_link='tool0', leave_out='location')
     assert [f['held_out'] for f in r['folds']] == ['front', 'left_back', 'raised_left']
     assert held_out(r, 'nominal', 'mean_mm') == pytest.approx(MUKCA_NOMINAL_MM, abs=2e-3)
     assert held_out(r, 'calibrated', 'mean_mm') == pytest.approx(MUKCA_MM, abs=2e-3)
@@ -56,9 +57,10 @@ def test_mukca_iiwa14_with_joint_compliance_leave_one_location_out():
     gravity torque) brings the held-out MAE to 0.136 mm (goal <= 0.20 mm: met), the raised
     location to 0.249 mm. The first and last axes carry no gravity torque here (a1 vertical,
     the ball on a7's axis): their compliances are dropped."""
-    r = identify_file(MUKCA / 'kuka_14', 'spheres', urdf=str(MUKCA / 'iiwa14.urdf'),
-                      base_link='base_link', tip_link='tool0', leave_out='location',
-                      model='full+compliance')
+    r = identify_source(MUKCA / 'kuka_14', measurement='spheres',
+                        urdf=str(MUKCA / 'iiwa14.urdf'), base_link='base_link',
+                        tip_link='tool0', leave_out='location',
+                        model='full+compliance')
     assert r['verdict']['passed'] and r['converged']
     assert held_out(r, 'nominal', 'mean_mm') == pytest.approx(MUKCA_NOMINAL_MM, abs=2e-3)
     assert held_out(r, 'calibrated', 'mean_mm') == pytest.approx(MUKCA_COMPLIANCE_MM, abs=2e-3)
@@ -75,8 +77,8 @@ def test_two_axis_positioner_dh_five_fold():
     against position by the ratio of their scatter under the nominal model on each fold's
     training rows (~0.5 m/rad; at 1 m/rad: 0.465 -> 0.414 mm, 0.924 mrad). 0.40999 mm: at the
     goal, with no margin to speak of."""
-    r = identify_file(POSITIONER / 'measurements.csv', 'pose',
-                      dh=str(POSITIONER / 'positioner_dh.yaml'), folds=5)
+    r = identify_source(POSITIONER / 'measurements.csv', measurement='pose',
+                        dh=str(POSITIONER / 'positioner_dh.yaml'), folds=5)
     assert r['model'] == 'mdh' and {p['name'] for p in r['identified']} == {'alpha_2', 'a_2'}
     assert r['parameters_kept'] == r['parameters_minimum'] == 14
     assert held_out(r, 'nominal', 'rmse_mm') == pytest.approx(POSITIONER_NOMINAL_MM, abs=2e-3)

@@ -1,9 +1,10 @@
 """Kinematic identification through the suite: collect on the robot, identify, validate.
 
-Used by ``cobot-calib identify`` and ``cobot-calib demo --kinematics``. One rclpy node with
-action clients for ``collect_sphere_data`` and ``identify_kinematics``; offline, a recorded
-session (:func:`identify_from_bag`) and a measurement file or MUKCa folder
-(:func:`identify_file`: the CLI, bench and tests call it).
+Used by ``cobot-calib identify`` and ``cobot-calib demo --kinematics``. On the suite
+(:func:`identify_on_suite`): one rclpy node with action clients for ``collect_sphere_data`` and
+``identify_kinematics``. Offline, :func:`identify_source` is the one call for a measurement
+file, a MUKCa folder, a recorded session (bag) or a collection folder (loaders.sources
+recognises which): the CLI, bench and tests call it. Both give the same report shape.
 """
 from __future__ import annotations
 
@@ -123,20 +124,42 @@ def identify_on_suite(client: IdentifyClient, *, say: Callable[[str], None],
     if result.error_code != 0:
         raise IdentificationFailed(f'identify_kinematics failed: {result.message}')
     data = to_dict(result)
+    tracker = {region: _stats_pair(data[f'{prefix}_nominal'], data[f'{prefix}_calibrated'])
+               for region, prefix in (('volume', 'validation'), ('workspace', 'workspace'))}
     return {
-        'calibration_id': result.calibration_id, 'message': result.message,
-        'dropped_parameters': list(result.dropped_parameters),
-        'dropped_reasons': dict(zip(result.dropped_parameters, result.dropped_reasons)),
-        'identified': [{'name': n, 'value': v, 'nominal': n0, 'std': s} for n, v, n0, s in
-                       zip(result.parameter_names, result.values, result.nominal_values,
-                           result.std)],
-        'validation': _stats_pair(data['validation_nominal'], data['validation_calibrated']),
-        'validation_workspace': _stats_pair(data['workspace_nominal'],
-                                            data['workspace_calibrated']),
+        'source': source, 'source_kind': 'suite', 'calibration_id': result.calibration_id,
+        'message': result.message, 'verdict': {'passed': True, 'problems': []},
+        'converged': True,          # the node answers an error for anything its gates refuse
+        'identified': [{'name': n, 'value': v, 'nominal': n0, 'delta': v - n0, 'std': s}
+                       for n, v, n0, s in zip(result.parameter_names, result.values,
+                                              result.nominal_values, result.std)],
+        'dropped': [{'name': n, 'reason': r} for n, r in zip(result.dropped_parameters,
+                                                             result.dropped_reasons)],
+        'tracker': {region: table for region, table in tracker.items() if table},
         'rms_mm': result.rms * 1e3, 'iterations': result.iterations,
         'solve_seconds': result.solve_seconds, 'collections': collections,
         'collect_seconds': collect_seconds, 'yaml_path': result.yaml_path,
         'urdf_path': result.urdf_path, 'paper_ratio_percent': PAPER_RATIO_PERCENT}
+
+
+def resumable(given: str, cell: str) -> tuple[str, bool]:
+    """(collection id, complete?) for --resume [ID]: the given id, else the newest unfinished
+    sphere collection of the cell's robot in the data dir ($COBOT_CALIB_DATA, the suite's
+    default). An id not in this data dir is sent as it is (an attached suite may store
+    elsewhere). ValueError when there is nothing to resume."""
+    from cobot_calib_ros import paths, store
+    from cobot_calib_ros.loaders import load_cell
+    from cobot_calib_ros.store.files import check_id
+    collections = store.open(paths.data_dir('')).collections
+    if given:
+        stored = collections.load(check_id(given))
+        return given, stored is not None and stored.meta['status'] == 'done'
+    robot = load_cell(paths.cell_file(cell)).robot
+    for meta in collections.list_collections():
+        if meta['source'] == 'spheres' and meta['robot'] == robot and meta['status'] != 'done':
+            return meta['id'], False
+    raise ValueError(f'no unfinished {robot} sphere collection in {collections.directory}; give '
+                     'its id (--resume ID)')
 
 
 def _collect(client: IdentifyClient, goal, say, spheres: str):
@@ -163,11 +186,9 @@ def _stats_pair(nominal: dict, calibrated: dict) -> dict:
     """Table 5 rows in mm from ErrorStats messages [m]; empty when not validated."""
     if not nominal['count']:
         return {}
-    rows = {key: {f'{k}_mm': stats[k] * 1e3 for k in ('mean', 'std', 'min', 'max')}
-            | {'count': stats['count']} for key, stats in (('nominal', nominal),
-                                                            ('calibrated', calibrated))}
-    rows['ratio_max_percent'] = 100.0 * rows['calibrated']['max_mm'] / rows['nominal']['max_mm']
-    return rows
+    return _ratio({key: {f'{k}_mm': stats[k] * 1e3 for k in ('mean', 'std', 'min', 'max')}
+                   | {'count': stats['count']} for key, stats in (('nominal', nominal),
+                                                                   ('calibrated', calibrated))})
 
 
 def _progress(say):
@@ -186,57 +207,91 @@ def _progress(say):
     return on_feedback
 
 
-def identify_from_bag(folder: str | Path, cell_name: str, *, solver: str = 'lm',
-                      loss: str = 'soft_l1', max_configs: int = 0):
-    """(report, outcome) of a recorded sphere session identified offline: the poses
-    kinematic_identifier published on /cobot_calib/captures (frame_id = sphere name), by the
-    same core job as the node, with its gates (``outcome.verdict``; core.errors.Refusal for
-    data they refuse before the solve). BagError for an unreadable bag; ValueError (or
-    KeyError) when it holds no usable pose."""
-    from cobot_calib_ros.bags.sphere_captures import sphere_observations
-    from cobot_calib_ros.loaders import load_cell
-    from cobot_calib_ros.core.kinematics import model_for
-    from cobot_calib_ros.core.kinematics.kinematic_calibration import CalibrationJob
-    from cobot_calib_ros.paths import cell_file
-    cell = load_cell(cell_file(cell_name))
-    model = model_for(cell)
-    data, poses = sphere_observations(folder, cell, model)
-    outcome = CalibrationJob(cell, model, data, source=str(folder), solver=solver, loss=loss,
-                             max_configs=max_configs).run()
-    r = outcome.result
-    report = {'source': str(folder), 'poses': poses, 'message': outcome.summary(),
-              'verdict': outcome.verdict.to_dict(), 'converged': r.converged,
-              'dropped_parameters': [d.name for d in outcome.identifiability.dropped],
-              'identified': [{'name': n, 'value': float(v), 'nominal': float(v0),
-                              'std': float(sd)} for n, v, v0, sd in
-                             zip(r.free, outcome.free_values, outcome.nominal_values, r.std)],
-              'validation': {}, 'validation_workspace': {}, 'solve_seconds': r.solve_seconds,
-              'rms_mm': r.rms_m * 1e3, 'calibration_id': '', 'table6': outcome.table}
-    return report, outcome
+def identify_source(path: str | Path, *, cell: str | None = None,
+                    measurement: str | None = None, urdf: str | None = None,
+                    base_link: str | None = None, tip_link: str | None = None,
+                    dh: str | None = None, model: str | None = None,
+                    folds: int | None = None, leave_out: str | None = None,
+                    ball=(0.0, 0.0, 0.04), solver: str = 'lm', loss: str = 'soft_l1',
+                    max_configs: int = 0,
+                    max_deviation: tuple[float, float] = (MAX_DEVIATION_M, MAX_DEVIATION_RAD),
+                    store: bool = False) -> dict:
+    """Identify a source offline (loaders.sources: a measurement file, a MUKCa folder, a bag or
+    a collection folder) through the one engine; the report (JSON-ready, mm), the same shape
+    for every source: ``source``, ``source_kind``, ``robot``, ``measurement``, ``rows``,
+    ``verdict`` {passed, problems}, ``converged``, ``identified`` [{name, value, nominal,
+    delta[, std]}] [m, rad], ``dropped`` [{name, reason}], ``bounds``, and the figures the
+    source has: ``held_out`` (a measurement file, a MUKCa folder: every row predicted by a
+    model identified without it, ``validation`` says how: k-fold or one group out), ``tracker``
+    (a collection with laser-tracker sets beside it: region -> nominal / calibrated).
 
+    A measurement file or MUKCa folder: its arm from ``urdf`` / ``dh`` (``measurement``, when
+    given, must be the file's kind), error ``model``, held out by ``folds`` or ``leave_out``
+    (default: a MUKCa folder one location at a time, else 5-fold). A bag or a collection: the
+    ``cell``'s (a name or path) robot, identified as the kinematic_identifier node does
+    (core CalibrationJob, ``solver``, ``max_configs``); ``store``: a collection's passing
+    result is stored and made active in the data dir, as the node does.
 
-def identify_file(source: str | Path, measurement: str, *, urdf: str | None = None,
-                  base_link: str | None = None, tip_link: str | None = None,
-                  dh: str | None = None, model: str | None = None, folds: int | None = None,
-                  leave_out: str | None = None, ball=(0.0, 0.0, 0.04),
-                  loss: str = 'soft_l1',
-                  max_deviation: tuple[float, float] = (MAX_DEVIATION_M, MAX_DEVIATION_RAD)
-                  ) -> dict:
-    """Identify a measurement file (or MUKCa folder) held out: the report of core
-    measurement_fit.identify_measurements with the source, validation and frames, and the
-    gates' verdict (``report['verdict']``). ValueError (one line) for bad data or arguments;
-    core.errors.Refusal (one line, REFUSED: ...) for data the gates refuse before the fit.
-    ``max_deviation``: (m, rad) bounds of the identified deviations."""
-    from cobot_calib_ros.core.kinematics.identification import measurement_fit as mf
+    ValueError (one line) for a path that is none of the sources, bad data or arguments;
+    IdentificationFailed when a bag or collection holds nothing to identify; core.errors.
+    Refusal (one line, REFUSED: ...) for data the gates refuse before the fit; BagError for an
+    unreadable bag. A result the gates refuse after the fit comes back with its verdict."""
     from cobot_calib_ros.core.kinematics.identification.gates import DeviationBounds
+    from cobot_calib_ros.loaders import sources
+    path = Path(path).expanduser()
+    kind = sources.recognise(path)
     bounds = DeviationBounds(*max_deviation)
-    from cobot_calib_ros.loaders.measurements import open_source, robot_model
-    source = Path(source).expanduser()
-    file = open_source(source, ball)
-    if file.measurements.kind != measurement:
+    if kind in (sources.MEASUREMENT_FILE, sources.MUKCA):
+        _only_for('a bag or a collection folder', kind,
+                  ('--solver nelder-mead', solver != 'lm'), ('--max-configs', max_configs))
+        source = sources.load_source(path, urdf=urdf, base_link=base_link, tip_link=tip_link,
+                                     dh=dh, ball=ball)
+        return _identify_measurements(source, measurement, model, folds, leave_out, loss,
+                                      bounds)
+    _only_for('a measurement file or a MUKCa folder', kind, ('--measurement', measurement),
+              ('--urdf', urdf), ('--dh', dh), ('--base-link', base_link),
+              ('--tip-link', tip_link), ('--model', model), ('--folds', folds),
+              ('--leave-out', leave_out))
+    from cobot_calib_ros.core.kinematics.kinematic_calibration import CalibrationJob
+    from cobot_calib_ros.loaders import load_cell
+    from cobot_calib_ros.paths import cell_file
+    if not cell:
+        raise ValueError(f'{path}: a {kind} is identified on its cell: give --cell or --robot')
+    try:
+        source = sources.load_source(path, cell=load_cell(cell_file(cell)))
+        validation = sources.tracker_sets(path.parent, source.cell.robot) \
+            if kind == sources.COLLECTION else {}
+        outcome = CalibrationJob(source.cell, source.model, source.observations,
+                                 source=source.provenance.get('collection', str(path)),
+                                 solver=solver, loss=loss, max_configs=max_configs,
+                                 validation=validation, bounds=bounds).run()
+    except (KeyError, ValueError) as e:
+        message = str(e).strip("'")
+        raise IdentificationFailed(message if str(path) in message else f'{path}: {message}') \
+            from None
+    report = _job_report(source, outcome, bounds)
+    if store and kind == sources.COLLECTION and outcome.verdict.passed:
+        report.update(_store(source, outcome))
+    return report
+
+
+def _only_for(where: str, kind: str, *given) -> None:
+    """ValueError naming the options given that a ``kind`` source does not take."""
+    named = [flag for flag, value in given if value]
+    if named:
+        raise ValueError(f'{", ".join(named)} apply to {where}, not a {kind}')
+
+
+def _identify_measurements(source, measurement: str | None, model: str | None,
+                           folds: int | None, leave_out: str | None, loss: str,
+                           bounds) -> dict:
+    """A measurement file or MUKCa folder identified held out (core measurement_fit.
+    identify_measurements)."""
+    from cobot_calib_ros.core.kinematics.identification import measurement_fit as mf
+    file, robot = source.file, source.model
+    if measurement and file.measurements.kind != measurement:
         raise ValueError(f'{file.source} holds {file.measurements.kind} measurements, not '
                          f'{measurement}: pass --measurement {file.measurements.kind}')
-    robot = robot_model(source, file.frames, urdf, base_link, tip_link, dh)
     errors = mf.ErrorModel(robot, model or ('mdh' if robot.kind == 'mdh' else 'full'))
     file = file.in_joint_order(robot.joint_names, robot.prismatic)
     leave_out = leave_out or (None if folds else _default_group(file))
@@ -250,9 +305,47 @@ def identify_file(source: str | Path, measurement: str, *, urdf: str | None = No
     report = mf.identify_measurements(errors, file.measurements, held, labels=labels,
                                       sample=file.sample, loss=loss, bounds=bounds,
                                       noise_m=file.noise_m)
-    return {'source': file.source, 'validation': validation, 'frames': file.frames, **report}
+    return {**source.provenance, 'validation': validation, **report}
 
 
 def _default_group(file) -> str | None:
     """A MUKCa folder is held out by location (its tool placements)."""
     return 'location' if 'socket' in file.columns and 'location' in file.columns else None
+
+
+def _job_report(source, outcome, bounds) -> dict:
+    """The report of a bag's or a collection's CalibrationJob outcome."""
+    r = outcome.result
+    return {**source.provenance, 'robot': outcome.model.name,
+            'measurement': 'spheres' if r.extra['objective'] == 'relative' else 'points',
+            'rows': outcome.inputs.rows, 'model': 'mdh' if outcome.model.kind == 'mdh'
+            else 'full', 'solver': outcome.inputs.solver, 'loss': outcome.inputs.loss,
+            'message': outcome.summary(), 'verdict': outcome.verdict.to_dict(),
+            'bounds': {'length_mm': bounds.length_m * 1e3, 'angle_mrad': bounds.angle_rad * 1e3},
+            'converged': r.converged,
+            'identified': [{'name': n, 'value': float(v), 'nominal': float(v0),
+                            'delta': float(v - v0), 'std': float(sd)} for n, v, v0, sd in
+                           zip(r.free, outcome.free_values, outcome.nominal_values, r.std)],
+            'dropped': [{'name': d.name, 'reason': d.reason}
+                        for d in outcome.identifiability.dropped],
+            'tracker': {region: _ratio(t) for region, t in outcome.validation.items()},
+            'rms_mm': r.rms_m * 1e3, 'iterations': r.iterations,
+            'solve_seconds': r.solve_seconds, 'calibration_id': '', 'table6': outcome.table}
+
+
+def _ratio(table: dict) -> dict:
+    """A region's tracker statistics (mm) with the max error calibrated / nominal [%]."""
+    rows = {key: table[key] for key in ('nominal', 'calibrated')}
+    return rows | {'ratio_max_percent': 100.0 * rows['calibrated']['max_mm']
+                   / rows['nominal']['max_mm']}
+
+
+def _store(source, outcome) -> dict:
+    """Store a collection's outcome in the data dir and make it active, as the node does."""
+    from cobot_calib_ros import paths, store
+    from cobot_calib_ros.store.cells import ResultsCell
+    planning = source.provenance.get('planning')
+    saved = store.open(paths.data_dir(''), cell=ResultsCell.of(source.cell)).kinematics \
+        .save_outcome(outcome, extra={'planning': planning} if planning else None)
+    return {'calibration_id': saved.record.id, 'yaml_path': str(saved.paths['yaml']),
+            'urdf_path': str(saved.paths['urdf'])}

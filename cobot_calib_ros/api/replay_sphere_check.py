@@ -6,7 +6,7 @@ position = the joints averaged over the hold). Next to it ``expected.json``: the
 ``cobot-calib identify --json`` report and the ``cell`` it ran on.
 
 The check identifies the bag's poses offline with the node's own core job
-(api.identification.identify_from_bag, as ``identify --source BAG`` does) and compares with
+(api.identification.identify_source, as ``identify --source BAG`` does) and compares with
 ``expected.json``: the same dropped parameters, the same identified ones, every value within
 TOL (measured on bags/iiwa_spheres: 0, bit for bit). The captures are the identification's
 whole input (the node reads them from the bag, not from a stream), so nothing is replayed
@@ -44,11 +44,19 @@ def read_expected(bag_path: str | os.PathLike) -> tuple[Path, dict]:
         data = json.loads(text)
     except json.JSONDecodeError as exc:
         raise CheckError(f'{path}: not JSON: {exc}') from None
-    missing = [k for k in ('cell', 'dropped_parameters', 'identified')
-               if not isinstance(data, dict) or k not in data]
+    missing = [k for k in ('cell', 'dropped', 'identified') if not isinstance(data, dict)
+               or k not in data and not (k == 'dropped' and 'dropped_parameters' in data)]
     if missing:
         raise CheckError(f'{path}: missing {", ".join(missing)}')
     return path, data
+
+
+def dropped_names(report: dict) -> list[str]:
+    """The dropped parameters of an identify report; an expected.json recorded before the
+    one report shape lists them as ``dropped_parameters``."""
+    if 'dropped' in report:
+        return [d['name'] for d in report['dropped']]
+    return list(report['dropped_parameters'])
 
 
 @dataclass
@@ -64,17 +72,17 @@ class SphereCheckResult:
 
 def run_check(bag_path: str, say: Callable[[str], None] = print) -> SphereCheckResult:
     """Identify the bag's captures, compare with expected.json; see the module doc."""
-    from cobot_calib_ros.api.identification import identify_from_bag
+    from cobot_calib_ros.api.identification import identify_source, IdentificationFailed
     started = time.monotonic()
     path, expected = read_expected(bag_path)
     try:
-        got, _ = identify_from_bag(bag_path, str(expected['cell']))
-    except (KeyError, ValueError) as exc:
+        got = identify_source(bag_path, cell=str(expected['cell']))
+    except (KeyError, ValueError, IdentificationFailed) as exc:
         raise CheckError(f'{bag_path}: {exc}') from None
     differences = []
-    if got['dropped_parameters'] != expected['dropped_parameters']:
-        differences.append(f'dropped {got["dropped_parameters"]}, expected '
-                           f'{expected["dropped_parameters"]}')
+    dropped, live_dropped = dropped_names(got), dropped_names(expected)
+    if dropped != live_dropped:
+        differences.append(f'dropped {dropped}, expected {live_dropped}')
     mine = {p['name']: p['value'] for p in got['identified']}
     live = {p['name']: p['value'] for p in expected['identified']}
     if list(mine) != list(live):
@@ -83,10 +91,10 @@ def run_check(bag_path: str, say: Callable[[str], None] = print) -> SphereCheckR
     worst_name = max(gaps, key=gaps.get, default='')
     worst = gaps.get(worst_name, float('inf'))
     ok = not differences and worst <= TOL
-    report = (f'identified {got["poses"]} poses of {bag_path} on cell {expected["cell"]}: '
+    report = (f'identified {got["rows"]} poses of {bag_path} on cell {expected["cell"]}: '
               f'{len(mine)} parameters, largest difference from {path} {worst:.3e}'
               + (f' ({worst_name})' if worst > 0 else '') + f' (tolerance {TOL:g})'
               + ''.join(f'; {d}' for d in differences))
     say(report)
-    return SphereCheckResult(ok, int(got['poses']), worst, worst_name, differences,
+    return SphereCheckResult(ok, int(got['rows']), worst, worst_name, differences,
                              time.monotonic() - started, report)

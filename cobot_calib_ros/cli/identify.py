@@ -4,26 +4,29 @@
 brings the coupling onto each sphere in the pose grid, two laser-tracker sets are measured for
 validation (in the calibrated volume and spread over the workspace, 125 each as the paper's
 Table 4), then identify_kinematics identifies, validates, stores and activates the result.
-``--source FOLDER``: a collection folder written by collect_sphere_data (identified by the
-suite), or a folder of MUKCa sphere-socket data (``<location>/hole_{0,1}.csv``), identified
-offline with one location held out at a time.
-``--measurement KIND``: any arm from its URDF (or a DH table) and a measurement file, offline
-and held out (cli/identify_measured.py).
+``--source PATH``: identified offline by api.identification.identify_source (loaders.sources
+recognises a measurement CSV with its sidecar, a MUKCa folder, a bag or a collection folder);
+``--attach`` with a collection folder identifies it on the running suite instead.
+``--measurement KIND``: any arm from its URDF (or a DH table) and a measurement file, held out.
+This module parses the arguments and prints (cli/identify_report.py).
 """
 from __future__ import annotations
 
 import contextlib
-import json
-from pathlib import Path
+import math
 
-from cobot_calib_ros.api.identification import PAPER_RATIO_PERCENT
-from cobot_calib_ros.cli import identify_measured
+from cobot_calib_ros.api.identification import DEFAULT_FOLDS
 from cobot_calib_ros.cli.common import (cell_problem, EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK,
                                         EXIT_USAGE, fail, say)
+from cobot_calib_ros.cli.identify_report import print_report, verdict_line
+from cobot_calib_ros.core.kinematics.identification.gates import (MAX_DEVIATION_M,
+                                                                   MAX_DEVIATION_RAD)
 from cobot_calib_ros.paths import DEFAULT_CELL
 
 CELLS = {'iiwa7': 'iiwa7_close', 'sawyer': DEFAULT_CELL,   # --robot: its default cell
          'ur10e': 'ur10e_close'}
+MODELS = ('offsets', 'full', 'mdh', 'offsets+compliance', 'full+compliance',
+          'mdh+compliance')
 
 
 def add_parser(subparsers):
@@ -37,7 +40,7 @@ def add_parser(subparsers):
     p.add_argument('--cell', default=None, help='cell file (path or name); overrides --robot')
     p.add_argument('--source', default='mock',
                    help='mock (collect now), a collection folder, a bag with '
-                        '/cobot_calib/captures, or a MUKCa data folder')
+                        '/cobot_calib/captures, a MUKCa data folder or a measurement file')
     p.add_argument('--solver', default='lm', choices=('lm', 'nelder-mead'))
     p.add_argument('--loss', default='soft_l1', choices=('soft_l1', 'linear', 'huber'))
     p.add_argument('--max-configs', type=int, default=0,
@@ -70,8 +73,36 @@ def add_parser(subparsers):
     p.add_argument('--attach', action='store_true',
                    help='use the suite running on ROS_DOMAIN_ID instead of starting one')
     p.add_argument('--json', action='store_true')
-    identify_measured.add_arguments(p)
+    _measurement_arguments(p)
     return p
+
+
+def _measurement_arguments(p) -> None:
+    p.add_argument('--measurement', choices=('spheres', 'points', 'pose', 'plane'),
+                   default=None, help='identify offline from --source, a measurement file '
+                   '(CSV + YAML sidecar, README "Measurement files") or a MUKCa folder')
+    p.add_argument('--base-link', default=None,
+                   help='--urdf: the chain\'s first link (default: the sidecar\'s frames.base)')
+    p.add_argument('--tip-link', default=None,
+                   help='--urdf: the chain\'s last link (default: the sidecar\'s frames.tip)')
+    p.add_argument('--dh', default=None, help='a DH table (YAML) instead of --urdf')
+    p.add_argument('--model', choices=MODELS, default=None,
+                   help='error model: offsets (one per joint, any robot), full (--urdf: '
+                        'every joint origin; its default), mdh (--dh: every DH row; its '
+                        'default); +compliance adds a joint deflection in proportion to its '
+                        'gravity torque')
+    p.add_argument('--max-deviation-mm', type=float, default=MAX_DEVIATION_M * 1e3,
+                   metavar='MM', help='the most a length of the model may move from nominal '
+                   f'[mm] (default {MAX_DEVIATION_M * 1e3:g}); a parameter that ends there is '
+                   'not determined by the data and the result is refused')
+    p.add_argument('--max-deviation-mrad', type=float, default=MAX_DEVIATION_RAD * 1e3,
+                   metavar='MRAD', help='the same for angles and zero offsets [mrad] (default '
+                   f'{MAX_DEVIATION_RAD * 1e3:g})')
+    held = p.add_mutually_exclusive_group()
+    held.add_argument('--folds', type=int, default=None, metavar='K',
+                      help=f'k-fold validation, row i in fold i %% K (default {DEFAULT_FOLDS})')
+    held.add_argument('--leave-out', default=None, metavar='COLUMN',
+                      help='hold out one group (a value of COLUMN) at a time')
 
 
 def run(args) -> int:
@@ -90,20 +121,14 @@ def run(args) -> int:
     if args.planned and args.max_configs:
         return fail('--planned chooses its poses; drop --max-configs (or use --max-poses)',
                     EXIT_USAGE)
-    if args.measurement:
-        return identify_measured.run(args)
-    if args.source != 'mock':
-        folder = Path(args.source).expanduser()
-        if not folder.is_dir():
-            return fail(f'--source {args.source}: not mock and not a folder; give mock, a '
-                        'collection folder or a MUKCa data folder', EXIT_USAGE)
-        if any(folder.glob('*/hole_0.csv')):
-            return _mukca(args, folder)
-        if (folder / 'metadata.yaml').is_file() or any(folder.glob('*.mcap')):
-            return _bag(args, folder)
-        if not (folder / 'collection.yaml').is_file():
-            return fail(f'{folder}: not a collection folder (collection.yaml), a bag '
-                        '(metadata.yaml) or MUKCa data (<location>/hole_0.csv)', EXIT_USAGE)
+    if args.source != 'mock' or args.measurement:
+        from cobot_calib_ros.loaders import sources
+        try:
+            kind = sources.recognise(args.source)
+        except ValueError as e:
+            return fail(f'identify: --source {e}; or mock (collect now)', EXIT_USAGE)
+        if not (args.attach and kind == sources.COLLECTION) or args.measurement:
+            return offline(args)
     cell = args.cell or CELLS[args.robot or 'iiwa7']
     from cobot_calib_ros.api import identification, launcher
     from cobot_calib_ros.ros.calls import CallError, Interrupted
@@ -111,7 +136,7 @@ def run(args) -> int:
     resume, collected = '', False
     if args.resume is not None:
         try:
-            resume, collected = _resumable(args.resume, cell)
+            resume, collected = identification.resumable(args.resume, cell)
         except ValueError as e:
             return fail(f'identify --resume: {e}', EXIT_USAGE)
     suite = contextlib.nullcontext() if args.attach else launcher.private_suite(
@@ -139,7 +164,37 @@ def run(args) -> int:
         hint = f'; then resume with: {_resume_command(args, e.collection_id)}' if getattr(
             e, 'collection_id', '') else ''
         return fail(f'identify failed: {e}{hint}')
-    _print(args, report)
+    print_report(report, args.json)
+    return EXIT_OK
+
+
+def offline(args) -> int:
+    """--source PATH identified offline (api.identification.identify_source), printed; exit 1
+    with one line for what the gates refuse, 2 for input that does not fit."""
+    from cobot_calib_ros.api.identification import identify_source, IdentificationFailed
+    from cobot_calib_ros.bags.errors import BagError
+    from cobot_calib_ros.core.errors import Refusal
+    for flag, value in (('--max-deviation-mm', args.max_deviation_mm),
+                        ('--max-deviation-mrad', args.max_deviation_mrad)):
+        if not (math.isfinite(value) and value > 0.0):
+            return fail(f'identify: {flag} must be a finite number > 0, got {value}', EXIT_USAGE)
+    try:
+        report = identify_source(
+            args.source, cell=args.cell or CELLS[args.robot or 'iiwa7'],
+            measurement=args.measurement, urdf=args.urdf, base_link=args.base_link,
+            tip_link=args.tip_link, dh=args.dh, model=args.model, folds=args.folds,
+            leave_out=args.leave_out, ball=args.ball, solver=args.solver, loss=args.loss,
+            max_configs=args.max_configs, store=not args.dry_run,
+            max_deviation=(args.max_deviation_mm * 1e-3, args.max_deviation_mrad * 1e-3))
+    except Refusal as e:
+        return fail(f'identify {args.source}: {e}', EXIT_FAILED)
+    except (BagError, IdentificationFailed) as e:
+        return fail(f'identify: {e}', EXIT_FAILED)
+    except ValueError as e:
+        return fail(f'identify: {e}', EXIT_USAGE)
+    print_report(report, args.json)
+    if not report['verdict']['passed']:
+        return fail(f'identify {args.source}: {verdict_line(report)}', EXIT_FAILED)
     return EXIT_OK
 
 
@@ -148,105 +203,3 @@ def _resume_command(args, collection_id: str) -> str:
         else ''
     return f'cobot-calib identify{robot}{" --attach" if args.attach else ""} --resume ' \
         f'{collection_id}'
-
-
-def _resumable(given: str, cell: str) -> tuple[str, bool]:
-    """(collection id, complete?) for --resume [ID]: the given id, else the newest unfinished
-    sphere collection of the cell's robot in the data dir ($COBOT_CALIB_DATA, the suite's
-    default). An id not in this data dir is sent as it is (an attached suite may store
-    elsewhere). ValueError when there is nothing to resume."""
-    from cobot_calib_ros import paths, store
-    from cobot_calib_ros.loaders import load_cell
-    from cobot_calib_ros.store.files import check_id
-    collections = store.open(paths.data_dir('')).collections
-    if given:
-        stored = collections.load(check_id(given))
-        return given, stored is not None and stored.meta['status'] == 'done'
-    robot = load_cell(paths.cell_file(cell)).robot
-    for meta in collections.list_collections():
-        if meta['source'] == 'spheres' and meta['robot'] == robot and meta['status'] != 'done':
-            return meta['id'], False
-    raise ValueError(f'no unfinished {robot} sphere collection in {collections.directory}; give '
-                     'its id (--resume ID)')
-
-
-def _print(args, report: dict) -> None:
-    if args.json:
-        print(json.dumps(report, indent=2))
-        return
-    print(f'\n{report["message"]}')
-    verdict = identify_measured.verdict_of(report)     # a suite's report has none: passed
-    print('gate: passed (converged, every deviation within its bound, validation no worse '
-          'than nominal)' if verdict.passed else f'gate: {verdict.line()}')
-    spheres = report.get('collections', {}).get('spheres', {})
-    if 'robot_s' in spheres:
-        print(f'robot time of the sphere collection: {spheres["robot_s"]:.1f} s '
-              f'({spheres["robot_s_at_paper_hold"]:.1f} s at the paper\'s 1 s hold)')
-    if 'stop_reason' in spheres:
-        print(f'planned collection stopped on {spheres["stop_reason"]}')
-    print(f'dropped (not identifiable or tied to the world frame): '
-          f'{", ".join(report["dropped_parameters"])}')
-    _print_parameters(report['identified'])
-    for key, title in (('validation', 'calibrated volume'),
-                       ('validation_workspace', 'workspace spread')):
-        rows = report[key]
-        if not rows:
-            continue
-        print(f'\nabsolute error, laser tracker, {title} ({rows["nominal"]["count"]} '
-              'configurations) [mm]   (the paper\'s Table 5)')
-        print(f'{"":<12}{"mean":>9}{"std":>9}{"min":>9}{"max":>9}')
-        for name in ('calibrated', 'nominal'):
-            r = rows[name]
-            print(f'{name:<12}{r["mean_mm"]:9.3f}{r["std_mm"]:9.3f}{r["min_mm"]:9.3f}'
-                  f'{r["max_mm"]:9.3f}')
-        print(f'max calibrated / nominal: {rows["ratio_max_percent"]:.1f} % (paper, on its '
-              f'spread: {PAPER_RATIO_PERCENT} %)')
-    if report['calibration_id']:
-        print(f'\nstored and active: {report["calibration_id"]}\n  {report["yaml_path"]}\n'
-              f'  {report["urdf_path"]}')
-
-
-def _print_parameters(identified: list[dict]) -> None:
-    """Each parameter as its deviation from nominal (as the paper's tables) and absolute, in
-    mm (lengths) or mrad (angles); the ± is one standard deviation of the identified value."""
-    width = max([14] + [len(p['name']) + 1 for p in identified])    # URDF joint names are long
-    print(f'\n{"parameter":<{width}}{"deviation":>16}{"std":>12}{"nominal":>16}{"identified":>16}')
-    for p in identified:
-        length = not p['name'].startswith(('alpha', 'theta', 'roll', 'pitch', 'yaw'))
-        unit = 'mm' if length else 'mrad'
-        value, nominal, std = (p[k] * 1e3 for k in ('value', 'nominal', 'std'))
-        print(f'{p["name"]:<{width}}{value - nominal:>+11.4f} {unit:<4}{std:>7.4f} {unit:<4}'
-              f'{nominal:>11.4f} {unit:<4}{value:>11.4f} {unit}')
-
-
-def _bag(args, folder: Path) -> int:
-    """A recorded sphere session (api.identification.identify_from_bag)."""
-    from cobot_calib_ros.api.identification import identify_from_bag
-    from cobot_calib_ros.bags.errors import BagError
-    from cobot_calib_ros.core.errors import Refusal
-    try:
-        report, outcome = identify_from_bag(folder, args.cell or CELLS[args.robot or 'iiwa7'],
-                                            solver=args.solver, loss=args.loss,
-                                            max_configs=args.max_configs)
-    except BagError as e:
-        return fail(f'identify: {e}')
-    except Refusal as e:
-        return fail(f'identify {folder}: {e}', EXIT_FAILED)
-    except (KeyError, ValueError) as e:
-        return fail(str(e) if str(folder) in str(e) else f'{folder}: {e}', EXIT_FAILED)
-    if args.json:
-        print(json.dumps(report, indent=2))
-    else:
-        _print(args, report)
-        print(f'\n{outcome.table}')
-    if not outcome.verdict.passed:
-        return fail(f'identify {folder}: {outcome.verdict.line()}', EXIT_FAILED)
-    return EXIT_OK
-
-
-def _mukca(args, folder: Path) -> int:
-    """Real MUKCa sphere-socket data: the measurement path (spheres, one location held out at
-    a time; MUKCa's metric is the held-out mean distance of the ball centre from its socket's
-    centroid), with its gates."""
-    args.measurement = 'spheres'
-    return identify_measured.run(args)

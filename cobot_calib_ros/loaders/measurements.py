@@ -317,16 +317,6 @@ def load_dh_table(path: str | Path):
                           f'limits): {e}') from None
 
 
-def open_source(source: Path, ball=(0.0, 0.0, 0.04)) -> 'MeasurementFile':
-    """A measurement CSV with its sidecar, or a MUKCa folder (read as spheres)."""
-    if source.is_dir() and any(source.glob('*/hole_0.csv')):
-        return load_socket_measurements(source, ball)
-    if not source.is_file():
-        raise ValueError(f'--source {source}: no such file; give a measurement CSV with its '
-                         'YAML sidecar, or a MUKCa folder')
-    return load_measurements(source)
-
-
 def robot_model(source: Path, frames: dict, urdf: str | None, base_link: str | None,
                 tip_link: str | None, dh: str | None):
     """The arm of a measurement source: a DH table, or a URDF's chain from ``base_link`` to

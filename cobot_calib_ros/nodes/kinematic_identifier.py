@@ -16,7 +16,6 @@ answers cancels and feedback):
 from __future__ import annotations
 
 import math
-from pathlib import Path
 import sys
 import threading
 from time import monotonic
@@ -41,65 +40,25 @@ from cobot_calib_ros.core.kinematics.planning import (PlanSettings, Prediction,
                                                       sphere_candidates, SpherePlanner,
                                                       tilt_grid_deg, TILT_STEP_DEG,
                                                       too_few_poses)
-from cobot_calib_ros.core.kinematics.identification.observations import (
-    PositionObservations, SphereObservations)
 from cobot_calib_ros.core.kinematics.identification.measurement_fit import LOSSES, SOLVERS
 from cobot_calib_ros.core.kinematics.identification.gates import (
     DeviationBounds, MAX_DEVIATION_M, MAX_DEVIATION_RAD)
 from cobot_calib_ros.core.kinematics.kinematic_calibration import CalibrationJob, JobCancelled
 from cobot_calib_ros.bags.errors import BagError
-from cobot_calib_ros.bags.sphere_captures import is_bag, sphere_observations
 from cobot_calib_ros.core.ids import record_id
 from cobot_calib_ros.loaders import load_cell
+from cobot_calib_ros.loaders import sources
 from cobot_calib_ros.ros import markers, marks, qos, results, spin
 from cobot_calib_ros.ros.diagnostics import Diagnostics, OK, WARN
 from cobot_calib_ros.ros.params import declare, read_once
 from cobot_calib_ros.ros.robot_calls import RobotCalls
 from cobot_calib_ros.ros.time import now_ns, ns_to_stamp
 from cobot_calib_ros.store.cells import ResultsCell
-from cobot_calib_ros.store.collections import Collection, CollectionStore
 from cobot_calib_ros.store.files import check_id
 
 Collect, Identify = CollectSphereData, IdentifyKinematics
 PLANNED_MAX_POSES = 100
 PLANNING_TASK_SEED = 1      # the task volume's configurations (the validation set is seed 0)
-
-
-def observations(collection: Collection):
-    """The core's observations of a stored collection (relative for spheres, absolute for a
-    laser tracker); ValueError if it holds too little."""
-    meta = collection.meta
-    if meta['source'] == 'spheres':
-        return SphereObservations(collection.q, collection.target,
-                                  tuple(tuple(d) for d in meta['known_distances']))
-    return PositionObservations(collection.q, collection.p)
-
-
-def partial_note(collection: Collection) -> str:
-    """'' for a complete collection, else how many poses it lacks and how to resume it."""
-    planning = collection.meta.get('planning')      # a planned collection: up to max_poses
-    planned = planning['settings']['max_poses'] if planning else len(collection.meta['plan'])
-    visited = len(collection.q) + len(collection.skipped)
-    if collection.meta['status'] == 'done' or visited >= planned:
-        return ''
-    name = collection.meta['id']
-    how = f'cobot-calib identify --resume {name}' if collection.meta['source'] == 'spheres' \
-        else f'collect_sphere_data with collection_id {name}'
-    return (f'collection {name} is partial: {visited} of {planned} poses visited '
-            f'({planned - visited} missing; {len(collection.q)} measured); resume it with {how}')
-
-
-def load_collection_folder(folder: str) -> Collection:
-    """A collection folder given by path (one with collection.yaml and rows.csv)."""
-    path = Path(folder).expanduser().resolve()
-    if not (path / 'collection.yaml').is_file():
-        raise ValueError(f'{path}: not a collection folder (no collection.yaml); give a folder '
-                         'written by collect_sphere_data')
-    folder_store = CollectionStore.of_folder(path.parent)
-    data = folder_store.load(path.name)
-    if data is None:
-        raise ValueError(f'{path}: unreadable collection: {folder_store.meta_problem(path.name)}')
-    return data
 
 
 class KinematicIdentifier(Node):
@@ -502,41 +461,40 @@ class KinematicIdentifier(Node):
                                    ('objective', goal.objective, ('relative', 'absolute'))):
             if value and value not in known:
                 raise ValueError(f'unknown {name} {value!r}; use one of {", ".join(known)}')
-        if goal.file and is_bag(goal.file):     # a recorded session: its capture marks
-            try:
-                data, _ = sphere_observations(goal.file, self._cell, self._model)
-            except BagError as e:
-                raise ValueError(str(e))
-            source, partial = str(goal.file), ''
+        if goal.file:       # a collection folder or a recorded session (its capture marks)
+            source = self._file_source(goal.file)
         else:
-            collection = (load_collection_folder(goal.file) if goal.file else self._collection(
-                goal.collection_id,
-                'spheres' if goal.objective != 'absolute' else 'laser_tracker'))
-            if collection.meta['robot'] != self._cell.robot:
-                raise ValueError(f'collection {collection.meta["id"]} is of a '
-                                 f'{collection.meta["robot"]}, this cell is a {self._cell.robot}')
-            partial, source = partial_note(collection), collection.meta['id']
-            planning = collection.meta.get('planning')
-            if planning is not None:
-                planning = {'collection': source, **{k: v for k, v in planning.items()
-                                                     if k != 'task_q'}}
-            try:
-                data = observations(collection)
-            except ValueError as e:
-                raise ValueError('; '.join(filter(None, (str(e), partial)))) from None
+            source = sources.of_collection(self._collection(
+                goal.collection_id, 'spheres' if goal.objective != 'absolute' else
+                'laser_tracker'), self._cell, self._model)
+        data, partial = source.observations, source.provenance.get('partial', '')
+        planning = source.provenance.get('planning')
         validation = {}
         for key, given in (('volume', goal.validation_volume),
                            ('workspace', goal.validation_workspace)):
             collection = self._collection(given, 'laser_tracker', region=key, required=False)
             if collection is not None:
-                validation[key] = observations(collection)
-        return CalibrationJob(self._cell, self._model, data, source=source,
+                validation[key] = sources.observations(collection)
+        return CalibrationJob(self._cell, self._model, data,
+                              source=source.provenance.get('collection', goal.file),
                               solver=goal.solver or 'lm', loss=goal.loss or 'soft_l1',
                               objective=goal.objective or None, max_configs=goal.max_configs,
                               validation=validation,
                               bounds=DeviationBounds(self._p('max_deviation_length'),
                                                      self._p('max_deviation_angle'))), \
             partial, planning
+
+    def _file_source(self, file: str):
+        """The loaders.sources.Source of a goal's ``file``: a bag or a collection folder
+        (ValueError for anything else, or one that cannot be read)."""
+        kind = sources.recognise(file)
+        if kind not in (sources.BAG, sources.COLLECTION):
+            raise ValueError(f'{file}: a {kind} is identified offline: cobot-calib identify '
+                             f'--source {file}; the goal\'s file is a bag or a collection folder')
+        try:
+            return sources.load_source(file, cell=self._cell)
+        except BagError as e:
+            raise ValueError(str(e)) from None
 
     def _collection(self, collection_id: str, source: str, region: str | None = None,
                     required: bool = True):

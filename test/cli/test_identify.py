@@ -23,11 +23,19 @@ def test_real_mukca_data_held_out_error_falls_on_every_location(capsys):
     assert report['held_out']['calibrated']['mean_mm'] == pytest.approx(0.232, abs=1e-3)
 
 
+LOOKED_FOR = ('looked for a measurement CSV with its sidecar (NAME.csv + NAME.yaml), a MUKCa '
+              'folder (<location>/hole_0.csv), a bag (metadata.yaml or *.mcap) or a collection '
+              'folder (collection.yaml); or mock (collect now)')
+
+
 def test_wrong_sources_say_what_is_accepted(capsys, tmp_path):
+    """One line naming what the path is not and every source kind looked for."""
     assert main(['identify', '--source', str(tmp_path / 'missing')]) == 2
-    assert 'not mock and not a folder' in capsys.readouterr().err
+    assert capsys.readouterr().err == (f'identify: --source {tmp_path / "missing"}: no such '
+                                       f'file or folder; {LOOKED_FOR}\n')
     assert main(['identify', '--source', str(tmp_path)]) == 2
-    assert 'not a collection folder' in capsys.readouterr().err
+    assert capsys.readouterr().err == (f'identify: --source {tmp_path}: a folder that is none '
+                                       f'of the sources; {LOOKED_FOR}\n')
     assert main(['identify', '--source', str(MUKCA), '--urdf', str(tmp_path / 'x.urdf')]) == 2
     assert 'x.urdf: cannot read (No such file or directory)' in capsys.readouterr().err
     assert main(['identify', '--max-configs', '-1']) == 2
@@ -70,9 +78,10 @@ def test_an_empty_or_malformed_socket_file_is_named_without_a_numpy_warning(caps
 
 def test_parameters_print_as_deviation_from_nominal_and_absolute_with_units(capsys):
     """Issue 23.11: the paper's tables give deviations from nominal; both are printed."""
-    from cobot_calib_ros.cli.identify import _print_parameters
-    _print_parameters([{'name': 'a_2', 'value': 0.40012, 'nominal': 0.4, 'std': 2e-6},
-                       {'name': 'alpha_3', 'value': -1.5703, 'nominal': -1.5708, 'std': 1e-5}])
+    from cobot_calib_ros.cli.identify_report import parameters_table
+    print(parameters_table([{'name': 'a_2', 'value': 0.40012, 'nominal': 0.4, 'std': 2e-6},
+                            {'name': 'alpha_3', 'value': -1.5703, 'nominal': -1.5708,
+                             'std': 1e-5}]))
     lines = capsys.readouterr().out.split('\n')[1:]
     assert lines[0].split() == ['parameter', 'deviation', 'std', 'nominal', 'identified']
     assert lines[1].split() == ['a_2', '+0.1200', 'mm', '0.0020', 'mm', '400.0000', 'mm',

@@ -1,7 +1,7 @@
 """One identification engine (issue 28 item 5, must-show 2): live sphere data, as the node's
 CalibrationJob takes them, and the same data written as a measurement file (CSV and sidecar,
 as the README describes the spheres kind) and identified by `identify --measurement`'s
-api.identification.identify_file, go through the same core call
+api.identification.identify_source, go through the same core call
 (measurement_fit.calibrate) with the same measurements and come out with the same parameters
 and the same gate verdict; the gates refuse both the same way."""
 from __future__ import annotations
@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from cobot_calib_ros.api.identification import identify_file
+from cobot_calib_ros.api.identification import identify_source
 from cobot_calib_ros.core.errors import Refusal
 from cobot_calib_ros.core.kinematics import model_for, plans
 from cobot_calib_ros.core.kinematics.identification import measurement_fit as mf
@@ -91,7 +91,7 @@ def test_live_sphere_data_and_their_measurement_file_identify_the_same(live, tmp
     sim, model, data = live
     csv, urdf = write_measurement_file(tmp_path, sim, model, data)
     outcome = CalibrationJob(sim.cell, model, data).run()
-    report = identify_file(csv, 'spheres', urdf=urdf, folds=3)
+    report = identify_source(csv, measurement='spheres', urdf=urdf, folds=3)
     # the same core call with the same measurements, error model and options
     (e_live, m_live, k_live, c_live), (e_file, m_file, k_file, c_file) = spy
     assert (e_live.name, e_file.name) == ('full', 'full')
@@ -130,7 +130,7 @@ def test_the_gates_refuse_live_data_and_their_file_the_same_way(live, tmp_path):
         CalibrationJob(sim.cell, model, mm,
                        tool_xyz0=sim.cell.spheres.coupling_offset[:3, 3] * 1000.0).run()
     with pytest.raises(Refusal) as file_refusal:
-        identify_file(csv, 'spheres', urdf=urdf, folds=3)
+        identify_source(csv, measurement='spheres', urdf=urdf, folds=3)
     assert str(live_refusal.value) == str(file_refusal.value)
     assert str(live_refusal.value).startswith('REFUSED: ')
     assert 'millimetres declared as metres' in str(live_refusal.value)
@@ -143,8 +143,8 @@ def test_a_deviation_on_its_bound_is_refused_the_same_way(live, tmp_path):
     csv, urdf = write_measurement_file(tmp_path, sim, model, data)
     tight = DeviationBounds(2e-5, 2e-5)
     outcome = CalibrationJob(sim.cell, model, data, bounds=tight).run()
-    report = identify_file(csv, 'spheres', urdf=urdf, folds=3,
-                           max_deviation=(tight.length_m, tight.angle_rad))
+    report = identify_source(csv, measurement='spheres', urdf=urdf, folds=3,
+                             max_deviation=(tight.length_m, tight.angle_rad))
     at_bound = [p for p in outcome.verdict.problems if 'ran to its bound' in p]
     assert at_bound and not outcome.verdict.passed
     assert at_bound == [p for p in report['verdict']['problems'] if 'ran to its bound' in p]
@@ -172,13 +172,13 @@ def test_the_solve_reports_progress_and_stops_when_the_callback_says(live, solve
 
 
 def test_a_recorded_session_takes_the_same_call(spy):
-    """`identify --source BAG` (api.identification.identify_from_bag): the bag's captures as
-    spheres measurements through measurement_fit.calibrate, its problems the outcome's."""
+    """`identify --source BAG` (api.identification.identify_source): the bag's captures as
+    spheres measurements through measurement_fit.calibrate, its problems the report's."""
     from pathlib import Path
-    from cobot_calib_ros.api.identification import identify_from_bag
     bag = Path(__file__).resolve().parents[2] / 'bags' / 'iiwa_spheres'
-    report, outcome = identify_from_bag(bag, 'iiwa7_close')
+    report = identify_source(bag, cell='iiwa7_close')
     (_, measurements, _, calibration), = spy
-    assert measurements.kind == 'spheres' and len(measurements) == report['poses'] == 150
-    assert calibration.fit.names + ('tool_x', 'tool_y', 'tool_z') == outcome.result.free
-    assert outcome.verdict.problems == calibration.problems == ()
+    assert measurements.kind == 'spheres' and len(measurements) == report['rows'] == 150
+    assert list(calibration.fit.names + ('tool_x', 'tool_y', 'tool_z')) == \
+        [p['name'] for p in report['identified']]
+    assert report['verdict']['problems'] == list(calibration.problems) == []

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 import yaml
 
-from cobot_calib_ros.api.identification import identify_file
+from cobot_calib_ros.api.identification import identify_source
 from cobot_calib_ros.core.kinematics.identification import measurement_fit as mf
 from cobot_calib_ros.core.kinematics.urdf import model_from_urdf
 
@@ -151,7 +151,8 @@ def test_parameters_kept_is_the_textbook_minimum(scene):
     floor (3 markers x 0.1 mm per axis: 0.173 mm RMS)."""
     from cobot_calib_ros.loaders.measurements import load_measurements
     csv, q = scene
-    r = identify_file(csv, 'points', urdf=str(csv.with_suffix('.urdf')), folds=5)
+    r = identify_source(csv, measurement='points', urdf=str(csv.with_suffix('.urdf')),
+                        folds=5)
     assert r['parameters_minimum'] == MINIMUM == 39
     assert r['parameters_kept'] == MINIMUM
     assert r['verdict']['passed'] and r['converged']

@@ -347,7 +347,7 @@ def test_an_iiwa7_calibration_in_the_data_dir_leaves_the_sawyer_working(ros, tri
 def test_a_partial_collection_says_how_many_poses_it_lacks_and_how_to_resume(tmp_path):
     """Issue 22.4: --source on a partial collection folder (Ctrl-C, a crash): what the node
     adds to its answer, whether the solve works with the poses it has or not."""
-    from cobot_calib_ros.nodes.kinematic_identifier import load_collection_folder, partial_note
+    from cobot_calib_ros.loaders.sources import load_collection_folder, partial_note
     store = CollectionStore(tmp_path)
     plan = [{'q': [0.0] * 7, 'target': k % 3} for k in range(12)]
     store.create('cut', source='spheres', robot='sawyer', joint_names=[f'j{i}' for i in range(7)],
