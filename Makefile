@@ -3,6 +3,8 @@ SHELL := /bin/bash
 PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
+# pytest-xdist workers for `make test`: the node and CLI tests mostly wait on processes
+TEST_WORKERS ?= 3
 STAMP := $(VENV)/.stamps
 
 # Keep DDS traffic on this machine (ros2-from-pypi notes).
@@ -49,7 +51,7 @@ demo: setup
 	$(VENV)/bin/cobot-calib demo
 
 test: setup
-	$(PY) -m pytest -q --durations=20 test
+	$(PY) -m pytest -q --durations=20 -n $(TEST_WORKERS) --dist loadfile test
 
 bench: setup
 	$(PY) bench/run_all.py
