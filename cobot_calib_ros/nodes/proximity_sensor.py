@@ -11,8 +11,8 @@ no probe/voltage came for more than NO_DATA_TIMEOUT.
 Marks on ``cobot_calib/probe_averages`` (ros.marks: PROBE_AVERAGES, its encoding there): one
 per probe/average served, so a recording can tie each reading of a trial to the probe readings
 it averaged (bags/make_trial_bag.py, api.replay_trial_check). A reading the subscription
-dropped (best effort, history 5) is not among them, so a replay can average exactly the
-readings this node did. The window and its average are core.sensors.probe's
+dropped (best effort, ros.qos.PROBE_READINGS) is not among them, so a replay can average
+exactly the readings this node did. The window and its average are core.sensors.probe's
 ``average_window`` and ``average`` (a replay and the in-process robot use the same);
 ros.convert's ``fill_average`` maps the result to the response.
 """
@@ -31,7 +31,7 @@ from sensor_msgs.msg import JointState
 
 from cobot_calib_ros.core.sensors.probe import (average, average_window, curve_from_lists,
                                                 read_distance, ReadingStatus)
-from cobot_calib_ros.ros import marks, spin
+from cobot_calib_ros.ros import marks, qos, spin
 from cobot_calib_ros.ros.batch_reader import BatchReader
 from cobot_calib_ros.ros.convert import fill_average
 from cobot_calib_ros.ros.diagnostics import Diagnostics, OK, RateMeter, status_name, WARN
@@ -65,7 +65,7 @@ class ProximitySensor(Node):
         # in batches on a thread of its own (ros.batch_reader): an executor wake per reading
         # cost 8-11 % of a core at 200 Hz (issue 23)
         self._reader = BatchReader(self, 'voltage', ProbeVoltage, 'probe/voltage',
-                                   qos_profile_sensor_data, self._on_voltages)
+                                   qos.PROBE_READINGS, self._on_voltages)
         self._marks = self.create_publisher(JointState, marks.PROBE_AVERAGES, 100)
         self.create_service(AverageProximity, 'probe/average', self._on_average)
         self.get_logger().info(
