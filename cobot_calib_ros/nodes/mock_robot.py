@@ -47,6 +47,7 @@ from cobot_calib_ros.core.errors import ErrorCode, Failure
 from cobot_calib_ros.core.sensors.joint_buffer import StampGaps, StampMarks
 from cobot_calib_ros.core.sensors.sample_clock import SampleClock
 from cobot_calib_ros.ros import convert, qos, results, spin
+from cobot_calib_ros.ros.joint_state_bytes import JointStateBytes
 from cobot_calib_ros.ros.diagnostics import Diagnostics, ERROR, OK, RateMeter, WARN
 from cobot_calib_ros.ros.params import declare, read_once
 from cobot_calib_ros.ros.time import ns_to_s, ns_to_stamp, NS_PER_S, s_to_ns, stamp_to_ns
@@ -130,7 +131,7 @@ class MockRobot(Node):
         self._gaps = StampGaps(rate)
         self._probe_published = 0
         self._rate_meter = RateMeter()
-        self._joint_msg = JointState(name=list(self._robot.model.joint_names))
+        self._joint_states = JointStateBytes(list(self._robot.model.joint_names))
         self._probe_msg = ProbeVoltage()
         self._probe_msg.header.frame_id = 'probe'
         self._js_pub = self.create_publisher(JointState, 'joint_states', qos.JOINT_STATES)
@@ -201,17 +202,14 @@ class MockRobot(Node):
         return self._marks.count
 
     def _publish_tick(self) -> None:
-        msg = self._joint_msg
-        now = self.get_clock().now()
-        msg.header.stamp = now.to_msg()
+        now_ns = self.get_clock().now().nanoseconds
         q = self._robot.joint_reading()
         if self._ringing:
-            q[0] += RING_AMPLITUDE * math.sin(2 * math.pi * RING_HZ * ns_to_s(now.nanoseconds))
-        msg.position = q.tolist()
-        self._js_pub.publish(msg)
-        self._marks.add(now.nanoseconds // NS_PER_S)
-        self._gaps.add(now.nanoseconds * 1e-9)
-        for stamp_ns in self._probe_clock.due(now.nanoseconds):
+            q[0] += RING_AMPLITUDE * math.sin(2 * math.pi * RING_HZ * ns_to_s(now_ns))
+        self._js_pub.publish(self._joint_states.pack(now_ns, q))
+        self._marks.add(now_ns // NS_PER_S)
+        self._gaps.add(ns_to_s(now_ns))
+        for stamp_ns in self._probe_clock.due(now_ns):
             self._probe_msg.header.stamp = ns_to_stamp(stamp_ns)
             self._probe_msg.voltage = self._robot.probe_voltage()
             self._probe_pub.publish(self._probe_msg)

@@ -90,15 +90,17 @@ class ProximitySensor(Node):
         return self.get_parameter(name).value
 
     def _on_voltages(self, batch: list[ProbeVoltage]) -> None:
+        publish = self._pub.get_subscription_count() > 0     # idle: 200 Hz for nobody
         for msg in batch:
-            self._on_voltage(msg)
+            self._on_voltage(msg, publish)
 
-    def _on_voltage(self, msg: ProbeVoltage) -> None:
+    def _on_voltage(self, msg: ProbeVoltage, publish: bool) -> None:
         reading = read_distance(self._curve, msg.voltage, self._margin)
-        out = ProximityReading(header=msg.header, distance=reading.distance,
-                               voltage=msg.voltage, min_range=self._curve.min_range,
-                               max_range=self._curve.max_range, status=int(reading.status))
-        self._pub.publish(out)
+        if publish:
+            self._pub.publish(ProximityReading(
+                header=msg.header, distance=reading.distance, voltage=msg.voltage,
+                min_range=self._curve.min_range, max_range=self._curve.max_range,
+                status=int(reading.status)))
         self._statuses[reading.status] += 1
         self._last_reading = (reading.distance, msg.voltage)
         self._last_arrival = time.monotonic()
