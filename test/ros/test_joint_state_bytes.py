@@ -34,3 +34,17 @@ def test_each_pack_is_its_own_message():
 def test_a_wrong_number_of_positions_is_refused():
     with pytest.raises(ValueError, match='6 positions for 7 joints'):
         JointStateBytes(SAWYER).pack(0, np.zeros(6))
+
+
+def test_unpack_reads_what_pack_wrote_and_refuses_any_other_layout():
+    wire = JointStateBytes(SAWYER)
+    positions = np.linspace(-1.0, 1.0, 7)
+    stamp_ns, got = wire.unpack(wire.pack(1_795_769_848_000_000_123, positions))
+    assert stamp_ns == 1_795_769_848_000_000_123 and got == tuple(positions.tolist())
+    others = [JointState(name=SAWYER, position=positions.tolist()),
+              JointState(name=SAWYER[::-1], position=positions.tolist()),      # other order
+              JointState(name=SAWYER[:6], position=positions[:6].tolist()),
+              JointState(name=SAWYER, position=positions.tolist(), velocity=[0.0] * 7)]
+    others[0].header.frame_id = 'base'
+    for msg in others:
+        assert wire.unpack(serialize_message(msg)) is None
