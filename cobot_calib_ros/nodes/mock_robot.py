@@ -64,7 +64,7 @@ RING_HZ = 8.0           # [Hz]
 SLOW_RATE_FRACTION = 0.9  # [1] of the nominal joint_states rate: below it, WARN
 # [s] of probe readings the simulated probe buffers while the publisher is starved: they are
 # published late, in a burst, each stamped with the time it was taken (core.sensors.sample_clock)
-PROBE_BACKLOG = 1.0
+PROBE_BACKLOG = 3.0      # proximity_sensor.STALL_TIMEOUT: a window waits that long for them
 
 
 class PacedLoop:
