@@ -104,11 +104,14 @@ class ProximitySensor(Node):
                 header=msg.header, distance=reading.distance, voltage=msg.voltage,
                 min_range=self._curve.min_range, max_range=self._curve.max_range,
                 status=int(reading.status)))
-        self._statuses[reading.status] += 1
         self._last_reading = (reading.distance, msg.voltage)
         self._last_arrival = time.monotonic()
         stamp = stamp_or_now_ns(self, msg.header.stamp)
         with self._lock:
+            # counted with the append, under the lock: a probe/average that read the count
+            # between the two took the append's notify for "nothing new" and answered no
+            # readings while they were arriving (issue 31.5, at load 30+)
+            self._statuses[reading.status] += 1
             self._recent.append((stamp, reading.distance, reading.status))
             self._lock.notify_all()
         if reading.status == ReadingStatus.INVALID:
