@@ -274,7 +274,7 @@ def _check_trial(args) -> int:
     from cobot_calib_ros.api import replay_trial_check as check
     from cobot_calib_ros.bags.errors import BagError
     rate = _check_rate(args, check, 'trial', 'is checked from its probe voltages',
-                       'proximity_sensor takes probe/voltage best effort, history 5')
+                       'proximity_sensor takes probe/voltage best effort')
     if isinstance(rate, int):
         return rate
 

@@ -7,7 +7,9 @@ frame_id the cell's camera frame) and ``wrist_camera/camera_info``
 with mock_robot: it loads the same cell file and builds the same true robot (same seed), and
 follows the arm through joint_states. Those come at 1 kHz and a frame needs only the newest:
 they go to a depth-1 subscription of a hidden helper node that no executor spins, and each
-frame takes the newest one from it (handling all 1 kHz in callbacks cost 30 % of a core). A
+frame takes the newest one from it (handling all 1 kHz in callbacks cost 30 % of a core); that
+subscription exists only while someone subscribes to the images (even unread, 1 kHz reliable
+joint_states cost the camera ~2 % of a core and mock_robot's writer a second reader). A
 cell without a camera (cell: camera:, landmarks:) leaves the node idle, WARN on /diagnostics.
 While nobody subscribes to ``wrist_camera/image_raw`` it renders and publishes nothing (as a
 driver that streams only to subscribers; landmark_detector subscribes only while someone wants
@@ -82,8 +84,7 @@ class MockCamera(Node):
                                                qos_profile_sensor_data)
         self._poll = Node(f'_{self.get_name()}_joints', namespace=self.get_namespace(),
                           context=self.context, start_parameter_services=False)
-        self._joint_sub = self._poll.create_subscription(JointState, 'joint_states',
-                                                         lambda _: None, LATEST_ONLY, raw=True)
+        self._joint_sub = None          # while someone subscribes to the images
         self.create_timer(1.0 / rate, self._tick)
         camera = self._camera.camera
         self.get_logger().info(f'{camera.width}x{camera.height} px on {self._frame_id} at '
@@ -98,6 +99,9 @@ class MockCamera(Node):
         """The arm's joints [rad] from the newest joint_states, in the model's order, and
         that message's stamp."""
         sub = self._joint_sub
+        if sub is None:
+            sub = self._joint_sub = self._poll.create_subscription(
+                JointState, 'joint_states', lambda _: None, LATEST_ONLY, raw=True)
         with sub.handle:                # as an executor takes a message, but only the newest
             taken = sub.handle.take_message(sub.msg_type, sub.raw)
         if taken is not None:
@@ -114,7 +118,8 @@ class MockCamera(Node):
 
     def _tick(self) -> None:
         if not self._image_pub.get_subscription_count():
-            return                                  # nobody needs images: rest
+            self._rest()                            # nobody needs images
+            return
         joints = self._positions()
         if joints is None:
             return
@@ -126,6 +131,12 @@ class MockCamera(Node):
         self._info_pub.publish(self._info)          # first: a detector needs it for the image
         self._image_pub.publish(gray_to_image(image, self._frame_id, stamp))
         self._published += 1
+
+    def _rest(self) -> None:
+        """Stop following the arm; the next image waits for joint_states newer than now."""
+        if self._joint_sub is not None:
+            self._poll.destroy_subscription(self._joint_sub)
+            self._joint_sub, self._joints = None, None
 
     def _diagnose(self) -> None:
         times, self._render_s = self._render_s, []

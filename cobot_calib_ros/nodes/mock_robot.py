@@ -10,7 +10,8 @@ simulated operator hand-guiding the tool onto a cell point, HandGuide.srv).
 stalls, counted as a subscriber counts missing stamps), ``mark_stamp_s`` with
 ``published_before_mark`` (messages stamped before that whole second: a subscriber's count
 before the same second gives the exact loss, see core.sensors.joint_buffer.StampMarks),
-``probe_published``, ``moving``, the cell, robot and layout. WARN when joint_states run below
+``probe_published``, ``probe_dropped`` (readings lost to a stall longer than PROBE_BACKLOG),
+``moving``, the cell, robot and layout. WARN when joint_states run below
 90 % of their rate, ERROR when the publishing thread has stopped.
 
 ``robot_interface``: ``move_to`` (default) serves the suite's own MoveTo action, as above;
@@ -38,17 +39,18 @@ import numpy as np
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.node import Node
-from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import JointState
 
 from cobot_calib_ros import paths
 from cobot_calib_ros.core.driver import move_seconds
 from cobot_calib_ros.core.errors import ErrorCode, Failure
 from cobot_calib_ros.core.sensors.joint_buffer import StampGaps, StampMarks
+from cobot_calib_ros.core.sensors.sample_clock import SampleClock
 from cobot_calib_ros.ros import convert, qos, results, spin
+from cobot_calib_ros.ros.joint_state_bytes import JointStateBytes
 from cobot_calib_ros.ros.diagnostics import Diagnostics, ERROR, OK, RateMeter, WARN
 from cobot_calib_ros.ros.params import declare, read_once
-from cobot_calib_ros.ros.time import ns_to_s, NS_PER_S, stamp_to_ns
+from cobot_calib_ros.ros.time import ns_to_s, ns_to_stamp, NS_PER_S, s_to_ns, stamp_to_ns
 from cobot_calib_ros.sim.robot import SimRobot
 from cobot_calib_ros.sim.scenario import load_simulation
 
@@ -60,6 +62,9 @@ COMPLIANT_ACTION = 'compliant_trajectory_controller/follow_joint_trajectory'
 RING_AMPLITUDE = 2e-3   # [rad] of the first joint's oscillation under driver_fault ring
 RING_HZ = 8.0           # [Hz]
 SLOW_RATE_FRACTION = 0.9  # [1] of the nominal joint_states rate: below it, WARN
+# [s] of probe readings the simulated probe buffers while the publisher is starved: they are
+# published late, in a burst, each stamped with the time it was taken (core.sensors.sample_clock)
+PROBE_BACKLOG = 3.0      # proximity_sensor.STALL_TIMEOUT: a window waits that long for them
 
 
 class PacedLoop:
@@ -120,18 +125,18 @@ class MockRobot(Node):
         self._motion_s = 0.0     # simulated duration of the latest move [s]
         rate = self._param('publish_rate_hz') or self._sim.joint_states_hz
         probe_rate = self._param('probe_rate_hz') or self._sim.probe_hz
-        self._probe_every = max(1, round(rate / probe_rate))
+        self._probe_clock = SampleClock(s_to_ns(1.0 / probe_rate), s_to_ns(PROBE_BACKLOG))
         self._rate = rate
         self._marks = StampMarks()          # joint_states published, by stamp second
         self._gaps = StampGaps(rate)
         self._probe_published = 0
         self._rate_meter = RateMeter()
-        self._joint_msg = JointState(name=list(self._robot.model.joint_names))
+        self._joint_states = JointStateBytes(list(self._robot.model.joint_names))
         self._probe_msg = ProbeVoltage()
         self._probe_msg.header.frame_id = 'probe'
         self._js_pub = self.create_publisher(JointState, 'joint_states', qos.JOINT_STATES)
         self._probe_pub = self.create_publisher(ProbeVoltage, 'probe/voltage',
-                                                qos_profile_sensor_data)
+                                                qos.PROBE_READINGS)
         self._ringing = False      # driver_fault ring, after a move until the next or a reset
         self.add_post_set_parameters_callback(self._fault_changed)
         if self._param('robot_interface') == 'driver':
@@ -160,7 +165,7 @@ class MockRobot(Node):
         self._loop.start()
         self.get_logger().info(
             f'{cell.robot} cell "{cell.name}" layout {cell.layout}: joint_states at '
-            f'{rate:.0f} Hz, probe at {rate / self._probe_every:.0f} Hz, time scale '
+            f'{rate:.0f} Hz, probe at {probe_rate:.0f} Hz, time scale '
             f'{self._time_scale}')
 
     # -- set-up ---------------------------------------------------------------------------
@@ -197,18 +202,15 @@ class MockRobot(Node):
         return self._marks.count
 
     def _publish_tick(self) -> None:
-        msg = self._joint_msg
-        now = self.get_clock().now()
-        msg.header.stamp = now.to_msg()
+        now_ns = self.get_clock().now().nanoseconds
         q = self._robot.joint_reading()
         if self._ringing:
-            q[0] += RING_AMPLITUDE * math.sin(2 * math.pi * RING_HZ * ns_to_s(now.nanoseconds))
-        msg.position = q.tolist()
-        self._js_pub.publish(msg)
-        self._marks.add(now.nanoseconds // NS_PER_S)
-        self._gaps.add(now.nanoseconds * 1e-9)
-        if self._marks.count % self._probe_every == 0:
-            self._probe_msg.header.stamp = msg.header.stamp
+            q[0] += RING_AMPLITUDE * math.sin(2 * math.pi * RING_HZ * ns_to_s(now_ns))
+        self._js_pub.publish(self._joint_states.pack(now_ns, q))
+        self._marks.add(now_ns // NS_PER_S)
+        self._gaps.add(ns_to_s(now_ns))
+        for stamp_ns in self._probe_clock.due(now_ns):
+            self._probe_msg.header.stamp = ns_to_stamp(stamp_ns)
             self._probe_msg.voltage = self._robot.probe_voltage()
             self._probe_pub.publish(self._probe_msg)
             self._probe_published += 1
@@ -230,6 +232,7 @@ class MockRobot(Node):
             publish_gap_max_ms=f'{self._gaps.take_max_gap() * 1e3:.3f}',
             stamp_gaps_missing=self._gaps.missing, mark_stamp_s=mark_s,
             published_before_mark=before_mark, probe_published=self._probe_published,
+            probe_dropped=self._probe_clock.dropped,
             moving=self._moving, cell=cell.name, robot=cell.robot, layout=cell.layout)
 
     # -- motion ---------------------------------------------------------------------------

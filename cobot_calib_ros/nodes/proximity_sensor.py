@@ -11,8 +11,8 @@ no probe/voltage came for more than NO_DATA_TIMEOUT.
 Marks on ``cobot_calib/probe_averages`` (ros.marks: PROBE_AVERAGES, its encoding there): one
 per probe/average served, so a recording can tie each reading of a trial to the probe readings
 it averaged (bags/make_trial_bag.py, api.replay_trial_check). A reading the subscription
-dropped (best effort, history 5) is not among them, so a replay can average exactly the
-readings this node did. The window and its average are core.sensors.probe's
+dropped (best effort, ros.qos.PROBE_READINGS) is not among them, so a replay can average
+exactly the readings this node did. The window and its average are core.sensors.probe's
 ``average_window`` and ``average`` (a replay and the in-process robot use the same);
 ros.convert's ``fill_average`` maps the result to the response.
 """
@@ -31,14 +31,17 @@ from sensor_msgs.msg import JointState
 
 from cobot_calib_ros.core.sensors.probe import (average, average_window, curve_from_lists,
                                                 read_distance, ReadingStatus)
-from cobot_calib_ros.ros import marks, spin
+from cobot_calib_ros.ros import marks, qos, spin
 from cobot_calib_ros.ros.batch_reader import BatchReader
 from cobot_calib_ros.ros.convert import fill_average
 from cobot_calib_ros.ros.diagnostics import Diagnostics, OK, RateMeter, status_name, WARN
 from cobot_calib_ros.ros.params import declare, read_once
 from cobot_calib_ros.ros.time import now_ns, stamp_or_now_ns, wait_past
 
-STALL_TIMEOUT = 1.0     # [s] of wall time without a new reading: the probe stream has stopped
+# [s] of wall time without a new reading: the probe stream has stopped. As joint_state_monitor's:
+# at load ~30 on 2 cores the probe's publisher was starved for more than 1 s at times (3 of
+# 150 probe/average 0.08 s answered "no probe readings" with 1 s, its late readings on the way).
+STALL_TIMEOUT = 3.0
 NO_DATA_TIMEOUT = 1.0   # [s] of wall time without probe/voltage: /diagnostics warns
 
 
@@ -65,7 +68,7 @@ class ProximitySensor(Node):
         # in batches on a thread of its own (ros.batch_reader): an executor wake per reading
         # cost 8-11 % of a core at 200 Hz (issue 23)
         self._reader = BatchReader(self, 'voltage', ProbeVoltage, 'probe/voltage',
-                                   qos_profile_sensor_data, self._on_voltages)
+                                   qos.PROBE_READINGS, self._on_voltages)
         self._marks = self.create_publisher(JointState, marks.PROBE_AVERAGES, 100)
         self.create_service(AverageProximity, 'probe/average', self._on_average)
         self.get_logger().info(
@@ -90,20 +93,25 @@ class ProximitySensor(Node):
         return self.get_parameter(name).value
 
     def _on_voltages(self, batch: list[ProbeVoltage]) -> None:
+        publish = self._pub.get_subscription_count() > 0     # idle: 200 Hz for nobody
         for msg in batch:
-            self._on_voltage(msg)
+            self._on_voltage(msg, publish)
 
-    def _on_voltage(self, msg: ProbeVoltage) -> None:
+    def _on_voltage(self, msg: ProbeVoltage, publish: bool) -> None:
         reading = read_distance(self._curve, msg.voltage, self._margin)
-        out = ProximityReading(header=msg.header, distance=reading.distance,
-                               voltage=msg.voltage, min_range=self._curve.min_range,
-                               max_range=self._curve.max_range, status=int(reading.status))
-        self._pub.publish(out)
-        self._statuses[reading.status] += 1
+        if publish:
+            self._pub.publish(ProximityReading(
+                header=msg.header, distance=reading.distance, voltage=msg.voltage,
+                min_range=self._curve.min_range, max_range=self._curve.max_range,
+                status=int(reading.status)))
         self._last_reading = (reading.distance, msg.voltage)
         self._last_arrival = time.monotonic()
         stamp = stamp_or_now_ns(self, msg.header.stamp)
         with self._lock:
+            # counted with the append, under the lock: a probe/average that read the count
+            # between the two took the append's notify for "nothing new" and answered no
+            # readings while they were arriving (issue 31.5, at load 30+)
+            self._statuses[reading.status] += 1
             self._recent.append((stamp, reading.distance, reading.status))
             self._lock.notify_all()
         if reading.status == ReadingStatus.INVALID:

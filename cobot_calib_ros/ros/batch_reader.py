@@ -28,14 +28,17 @@ BATCH_PERIOD = 0.01     # [s] messages gather this long after the first one wake
 
 class BatchReader:
     """``node``'s namespace and context; the helper node is named ``_<node>_<name>``.
-    ``on_batch(messages)`` runs on the reader's thread."""
+    ``on_batch(messages)`` runs on the reader's thread; ``raw``: the messages as serialized
+    bytes (for a reader that parses them itself, ros.joint_state_bytes)."""
 
     def __init__(self, node: Node, name: str, msg_type, topic: str, qos: QoSProfile,
-                 on_batch: Callable[[list], None], period: float = BATCH_PERIOD) -> None:
+                 on_batch: Callable[[list], None], period: float = BATCH_PERIOD,
+                 raw: bool = False) -> None:
         self._context = node.context
         self.node = Node(f'_{node.get_name()}_{name}', namespace=node.get_namespace(),
                          context=node.context, start_parameter_services=False)
-        self._sub = self.node.create_subscription(msg_type, topic, lambda _: None, qos)
+        self._sub = self.node.create_subscription(msg_type, topic, lambda _: None, qos,
+                                                  raw=raw)
         self._on_batch = on_batch
         self._period = period
         self._stop = threading.Event()

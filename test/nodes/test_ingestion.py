@@ -12,9 +12,11 @@ import pytest
 from rclpy.action import ActionClient
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import JointState
+from std_msgs.msg import Header
 
-from cobot_calib_ros.ros import convert
+from cobot_calib_ros.ros import convert, qos
 from cobot_calib_ros.ros.calls import run_action, spin_until
+from cobot_calib_ros.ros.time import now_ns, ns_to_stamp
 from cobot_calib_ros.core import cell as cellmod
 from cobot_calib_ros.loaders import load_cell
 from cobot_calib_ros.core import frames
@@ -143,6 +145,34 @@ def test_probe_voltage_range_check(ros, voltage, status):
         assert got[0].distance == pytest.approx(0.0012, abs=1e-9)   # -9.45 V in the table
     else:
         assert math.isnan(got[0].distance)
+
+
+def test_probe_average_counts_a_late_burst_stamped_inside_its_window(ros):
+    """issue 31: a starved probe publisher catches up in a burst of readings stamped when they
+    were taken (mock_robot's sample clock); an 80 ms window that passed before they came still
+    averages every one of them (was: "no probe readings in 0.080 s", history 5 kept 5)."""
+    pub = ros.create_publisher(ProbeVoltage, '/iso/probe/voltage', qos.PROBE_READINGS)
+    client = ros.create_client(AverageProximity, '/iso/probe/average')
+    ex = ros.executor_for_tests
+    try:
+        spin_until(ros, lambda: pub.get_subscription_count() > 0 and client.service_is_ready(),
+                   10.0, ex)
+        asked_ns = now_ns(ros)
+        future = client.call_async(AverageProximity.Request(duration=0.08))
+        spin_until(ros, future.done, 0.3, ex)       # the window passes with nothing published
+        period_ns = 2_000_000
+        for k in range(-50, 200):                   # taken from 0.1 s before to 0.4 s after
+            pub.publish(ProbeVoltage(header=Header(stamp=ns_to_stamp(asked_ns + k * period_ns)),
+                                     voltage=-9.45))
+        spin_until(ros, future.done, 10.0, ex)
+    finally:
+        ros.destroy_client(client)
+        ros.destroy_publisher(pub)
+    res = future.result()
+    assert res is not None and res.error_code == AverageProximity.Response.SUCCESS, res
+    assert res.sample_count in (40, 41)             # 80 ms of 2 ms readings, both ends counted
+    assert res.rejected_count == 0
+    assert res.distance == pytest.approx(0.0012, abs=1e-9)     # -9.45 V in the table
 
 
 def test_probe_above_a_marker_reads_the_true_gap(ros):

@@ -18,6 +18,15 @@ def test_ray_box_distance_hits_top_face_and_misses_beside():
     assert ray_box_distance(np.array([-0.026, 0.0, 0.01]), side, lo, hi) == pytest.approx(0.001)
 
 
+def test_ray_box_distance_over_several_boxes_is_the_nearest_hit():
+    lo = np.array([[-0.025, -0.015, 0.0], [-0.025, -0.015, 0.0], [0.1, 0.0, 0.0]])
+    hi = np.array([[0.025, 0.015, 0.02], [0.025, 0.015, 0.01], [0.2, 0.1, 0.05]])
+    down = np.array([0.0, 0.0, -1.0])
+    assert ray_box_distance(np.array([0.01, 0.0, 0.0212]), down, lo, hi) == pytest.approx(0.0012)
+    assert ray_box_distance(np.array([0.01, 0.0, 0.015]), down, lo, hi) == 0.0    # inside one
+    assert ray_box_distance(np.array([0.05, 0.0, 0.0212]), down, lo, hi) == math.inf
+
+
 def test_probe_gap_follows_marker_height_and_user_frame():
     field = HeightField(amplitude=0.0, tilt=(0.001, 0.0))      # 1 mm per metre along x
     marker = TrueMarker(Marker('P1', (0.2, 0.1), (0.05, 0.03, 0.02)), float(field(0.2, 0.1)),

@@ -93,3 +93,21 @@ def test_saddle_points_are_found_also_near_the_edges(radius):
     got, ok = refine_saddle_points(gray, np.vstack([corners + [0.3, -0.4], edges]), radius)
     assert ok[:len(corners)].all()
     assert np.abs(got[:len(corners)] - corners).max() < 0.05
+
+
+def test_the_fast_search_finds_the_markers_the_full_search_finds_with_the_same_corners():
+    """search_parameters (ArUco 3: candidates on a scaled-down image, ~3x faster at 1280x800 in
+    the node) gives the same markers and 'edges' corners; a marker smaller than the fraction
+    asked for is not searched."""
+    images = _images(marker_texture(), FACING_CAMERA, 4, 13)
+    fast = MarkerFinder(MARKER_DICT, refine='edges', params=detect.search_parameters(0.02))
+    for image in images:
+        expected = detect_markers(image, MARKER_DICT, refine='edges', camera=CAMERA)
+        got = fast.finish(fast.find(image), CAMERA)
+        assert [m.id for m in got] == [m.id for m in expected] == [7]
+        assert np.abs(got[0].corners - expected[0].corners).max() < 0.01       # [px]
+    side = np.linalg.norm(np.diff(expected[0].corners, axis=0), axis=1).max()
+    too_small = detect.search_parameters(1.5 * side / max(image.shape))
+    assert MarkerFinder(MARKER_DICT, params=too_small).finish(
+        MarkerFinder(MARKER_DICT, params=too_small).find(image)) == []
+    assert detect.search_parameters(0.0) is None

@@ -1,0 +1,64 @@
+"""sensor_msgs/JointState as serialized bytes, for 1 kHz streams of the same joints.
+
+rclpy converts every message between C and Python, seven name strings each time: for
+mock_robot's 1 kHz joint_states that was about half the cost of a publish, and most of
+joint_state_monitor's per-message cost. The names never change, so the message is serialized
+once by rclpy and only the stamp and positions are written into (``pack``) or read from
+(``unpack``) bytes of that layout; ``Publisher.publish`` takes bytes, a ``raw`` subscription
+gives them. Bytes of any other layout (other names, a frame_id, velocities) are for
+``rclpy.serialization.deserialize_message``.
+"""
+from __future__ import annotations
+
+import struct
+
+import numpy as np
+from rclpy.serialization import serialize_message
+from sensor_msgs.msg import JointState
+
+from cobot_calib_ros.ros.time import NS_PER_S, split_ns
+
+_STAMP = struct.Struct('<iI')           # builtin_interfaces/Time: sec, nanosec
+_STAMP_OFFSET = 4                       # after the CDR encapsulation header
+_MARKER = 0.123456789012345             # a position value found by its bytes in the template
+
+
+class JointStateBytes:
+    """JointState messages of ``names`` (no frame_id, velocity or effort), as CDR bytes."""
+
+    def __init__(self, names: list[str]) -> None:
+        self.names = list(names)
+        template = serialize_message(JointState(name=self.names,
+                                                position=[_MARKER] * len(self.names)))
+        if template[:2] != b'\x00\x01':
+            raise ValueError(f'expected little-endian CDR, got header {template[:4].hex()}')
+        marker = np.full(len(self.names), _MARKER, '<f8').tobytes()
+        self._positions_at = template.find(marker)
+        if self._positions_at < 0 or template.find(marker, self._positions_at + 1) >= 0:
+            raise ValueError('the positions are not where JointState serialization put them')
+        self._template = template
+        self._positions_end = self._positions_at + 8 * len(self.names)
+        self._positions_format = f'<{len(self.names)}d'
+        self._between = template[_STAMP_OFFSET + _STAMP.size:self._positions_at]
+        self._after = template[self._positions_end:]
+
+    def pack(self, stamp_ns: int, positions: np.ndarray) -> bytes:
+        """The serialized JointState stamped ``stamp_ns`` [ns] with ``positions`` [rad]."""
+        if len(positions) != len(self.names):
+            raise ValueError(f'{len(positions)} positions for {len(self.names)} joints')
+        data = bytearray(self._template)
+        _STAMP.pack_into(data, _STAMP_OFFSET, *split_ns(stamp_ns))
+        data[self._positions_at:self._positions_end] = np.asarray(positions, '<f8').tobytes()
+        return bytes(data)
+
+    def unpack(self, data: bytes) -> tuple[int, tuple[float, ...]] | None:
+        """(stamp [ns], positions [rad]) of serialized JointState bytes laid out as ``pack``'s
+        (these names, no frame_id, velocity or effort); None for any other message."""
+        template = self._template
+        if (len(data) != len(template) or data[:_STAMP_OFFSET] != template[:_STAMP_OFFSET]
+                or data[_STAMP_OFFSET + _STAMP.size:self._positions_at] != self._between
+                or data[self._positions_end:] != self._after):
+            return None
+        sec, nanosec = _STAMP.unpack_from(data, _STAMP_OFFSET)
+        return (sec * NS_PER_S + nanosec,
+                struct.unpack_from(self._positions_format, data, self._positions_at))
