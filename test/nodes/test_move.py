@@ -7,6 +7,7 @@ from cobot_calib_msgs.srv import GetGroundTruth
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from cobot_calib_ros.api import move
 from cobot_calib_ros.core import rig
 from cobot_calib_ros.core.frames import from_xyz_rpy
 from cobot_calib_ros.core.kinematics import fk, model_for
@@ -34,23 +35,24 @@ def test_a_compensated_move_lands_on_the_target_where_the_nominal_one_is_off(ros
     record.write_text(json.dumps({
         'id': 'k-true', 'robot': MODEL.name, 'stamp_ns': 1, 'method': 'test', 'inputs': {},
         'result': {'parameter_names': list(truth.parameter_names),
-                   'params': true_params.tolist(),
-                   'tool_xyz': CELL.spheres.coupling_offset[:3, 3].tolist()}}))
-    # the coupling: the Sawyer's nominal TCP is off by 0.15 mm only, its coupling by ~1 mm
-    true_coupling = MODEL.chain(true_params, tool=CELL.spheres.coupling_offset)   # the truth
-    target = fk(rig.chain(CELL, None, 'coupling', model=MODEL), CELL.home + 0.15)
+                   'params': true_params.tolist()}}))
+    # the mock's TCP is the cell's; its arm deviates from the nominal (by ~0.15 mm at the TCP
+    # for this Sawyer), the truth being the true arm at the joints reached
+    true_tcp = MODEL.chain(true_params, tool=CELL.tool_offset)
+    target = fk(rig.chain(CELL, None, 'tcp', model=MODEL), CELL.home + 0.15)
     xyz = target[:3, 3].tolist()
     rpy = Rotation.from_matrix(target[:3, :3]).as_euler('xyz').tolist()
     np.testing.assert_allclose(from_xyz_rpy(xyz, rpy), target, atol=1e-12)
     errors = {}
     for label, choice in (('nominal', 'nominal'), ('compensated', str(record))):
-        moved = _move(xyz, rpy, '--tool', 'coupling', '--kinematics', choice, '--data-dir',
-                      str(trial_data))
+        home = move.move_joints(ros, CELL.home, executor=ros.executor_for_tests)
+        assert home.error_code == home.SUCCESS, home.message     # the same seed for both
+        moved = _move(xyz, rpy, '--kinematics', choice, '--data-dir', str(trial_data))
         assert moved['moved'] and moved['kinematics'] == label.replace('compensated', 'k-true')
         np.testing.assert_allclose(moved['reached'], moved['positions'], atol=1e-12)
-        reached = fk(true_coupling, np.array(moved['reached']))
+        reached = fk(true_tcp, np.array(moved['reached']))
         errors[label] = float(np.linalg.norm(reached[:3, 3] - target[:3, 3]))
-    assert errors['compensated'] < 1e-4 < 3e-4 < errors['nominal'], errors
+    assert errors['compensated'] < 1e-6 and errors['nominal'] > 1e-4, errors
 
 
 def test_an_unreachable_target_is_refused_before_anything_moves(ros, trial_data):
