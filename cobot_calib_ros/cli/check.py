@@ -130,10 +130,9 @@ def _user_frame(args, cell, model, repo):
 
 def _kinematics(args, cell, model, repo):
     """('kinematics', the active calibration's id or 'nominal', the check, its printout)."""
-    import numpy as np
+    from cobot_calib_ros.core import rig
     from cobot_calib_ros.core.health_checks import check_kinematics, KINEMATIC_POSES
     from cobot_calib_ros.core.kinematics import plans
-    from cobot_calib_ros.core import rig
     if cell.spheres is None:
         raise ValueError(f'cell {cell.name!r} has no spheres (config/cells/iiwa7_close.yaml '
                          'has); give --robot-cell')
