@@ -37,6 +37,7 @@ def add_parser(subparsers):
     p.add_argument('--robot-cell', default='',
                    help="cell file (path or name); default: the running suite's "
                         '(its user_frame_solver\'s cell_file)')
+    p.add_argument('--namespace', default='', help="the suite's namespace (up --namespace)")
     p.add_argument('--dry-run', action='store_true',
                    help='solve and print the joints, do not move')
     p.add_argument('--json', action='store_true', help='the outcome as one JSON line')
@@ -62,11 +63,12 @@ def run(args) -> int:
     if not 0.0 <= args.speed_scale <= 1.0:
         return fail(f'move: --speed-scale {args.speed_scale}: give 0..1', EXIT_USAGE)
     T_frame_tool = from_xyz_rpy(args.xyz, args.rpy)
-    with ros_node('cobot_calib_move') as node:
+    with ros_node('cobot_calib_move', args.namespace.strip('/')) as node:
         try:
             cell = load_cell(paths.cell_file(args.robot_cell or move.suite_cell(node)))
             repo = store.open(paths.data_dir(args.data_dir), args.db,
-                              ResultsCell(args.cell) if args.cell else ResultsCell.of(cell))
+                              ResultsCell(args.cell, cell.robot) if args.cell
+                              else ResultsCell.of(cell, args.namespace))
             seed = move.current_joints(node, model_for(cell).joint_names)
             solved = move.solve(cell, repo, T_frame_tool, seed, frame=args.frame,
                                 frame_id=args.user_frame, tool=args.tool,
