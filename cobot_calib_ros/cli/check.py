@@ -59,11 +59,12 @@ def run(args) -> int:
             if absent:      # every call would wait and fail: say so before anything else
                 return fail(f'check {args.what}: {_no_suite(args, absent)}; nothing checked')
             from cobot_calib_ros import paths, store    # seconds of imports: after the refusal
+            from cobot_calib_ros.api.move import suite_cell
             from cobot_calib_ros.core import kinematics
             from cobot_calib_ros.core.cell import CellFileError
             from cobot_calib_ros.loaders import load_cell
             try:
-                cell = load_cell(paths.cell_file(args.robot_cell or _suite_cell(node)))
+                cell = load_cell(paths.cell_file(args.robot_cell or suite_cell(node)))
             except CellFileError as e:
                 return fail(str(e), EXIT_USAGE)
             results_cell = (ResultsCell(args.cell, cell.robot) if args.cell
@@ -100,22 +101,11 @@ def _no_suite(args, absent: list[str]) -> str:
             'cobot-calib up')
 
 
-def _suite_cell(node) -> str:
-    """The cell file the running suite's user_frame_solver was started with (its robot,
-    markers and tool are the ones to check); the default cell when none answers."""
-    from cobot_calib_ros.ros.calls import CallError
-    from cobot_calib_ros.ros.remote_params import read_parameter
-    try:
-        return read_parameter(node, 'user_frame_solver', 'cell_file', 10.0) or DEFAULT_CELL
-    except CallError:
-        return DEFAULT_CELL
-
-
 def _user_frame(args, cell, model, repo):
     """('user_frame', the active frame's id, the check, its printout) or ValueError/OSError."""
     import numpy as np
     from cobot_calib_ros.core.health_checks import check_user_frame, predicted_points
-    from cobot_calib_ros.store.kinematics import chain_of
+    from cobot_calib_ros.core import rig
     unknown = [n for n in args.points if cell.marker(n) is None]
     if unknown:
         raise ValueError(f'unknown point(s) {unknown}; the cell has {cell.point_names}')
@@ -124,7 +114,7 @@ def _user_frame(args, cell, model, repo):
         raise KeyError(f'no active user frame in the results of cell {repo.cell}; calibrate '
                        'first (cobot-calib teach, or call calibrate_user_frame)')
     kinematic = repo.kinematics.resolve(active.get('kinematics') or 'nominal', model.name)
-    chain = chain_of(kinematic, model, cell.tool_offset)
+    chain = rig.chain(cell, kinematic, 'tcp', model=model)
     p_user = np.array([cell.marker(n).nominal_top for n in args.points])
     predicted = predicted_points(active['inputs'], active['result'], args.points, p_user)
     say(args, f'checking {active["id"]} at {", ".join(args.points)} '
@@ -140,20 +130,15 @@ def _user_frame(args, cell, model, repo):
 
 def _kinematics(args, cell, model, repo):
     """('kinematics', the active calibration's id or 'nominal', the check, its printout)."""
-    import numpy as np
+    from cobot_calib_ros.core import rig
     from cobot_calib_ros.core.health_checks import check_kinematics, KINEMATIC_POSES
     from cobot_calib_ros.core.kinematics import plans
-    from cobot_calib_ros.store.kinematics import chain_of
     if cell.spheres is None:
         raise ValueError(f'cell {cell.name!r} has no spheres (config/cells/iiwa7_close.yaml '
                          'has); give --robot-cell')
     poses = KINEMATIC_POSES if args.poses is None else args.poses
     record = repo.kinematics.active(model.name)
-    tool = np.array(cell.spheres.coupling_offset, dtype=float)
-    if record is not None:
-        tool = np.eye(4)
-        tool[:3, 3] = record['result']['tool_xyz']
-    chain = chain_of(record, model, tool)
+    chain = rig.chain(cell, record, 'coupling', model=model)
     plan, _ = plans.sphere_plan(cell, model, poses)
     against = record['id'] if record else 'nominal'
     say(args, f'checking the {model.name} model ({against}) on {len(plan)} sphere poses')

@@ -43,28 +43,11 @@ def add_parser(subparsers):
     return p
 
 
-def _record(args, repo, model):
-    """The kinematic calibration record --kinematics names; ValueError saying what to do."""
-    choice = args.kinematics
-    if choice.endswith('.json'):
-        try:
-            return json.loads(Path(choice).expanduser().read_text(encoding='utf-8'))
-        except (OSError, UnicodeDecodeError, ValueError) as exc:
-            raise ValueError(f'--kinematics {choice}: cannot read a calibration record '
-                             f'({exc})') from None
-    try:
-        record = repo.kinematics.resolve('latest' if choice == 'active' else choice, model.name)
-    except KeyError as exc:
-        raise ValueError(f'--kinematics: {exc.args[0]}') from None
-    if record is None:
-        raise ValueError(f'no active kinematic calibration of the {model.name} in {repo.root}; '
-                         'identify one first, or give --kinematics ID or FILE.json')
-    return record
-
-
 def run(args) -> int:
     import numpy as np
     from cobot_calib_ros import paths, store
+    from cobot_calib_ros.api.move import kinematic_record
+    from cobot_calib_ros.core import rig
     from cobot_calib_ros.core.cell import CellFileError
     from cobot_calib_ros.core.kinematics import model_for
     from cobot_calib_ros.core.kinematics.program_filter import (filter_targets, filtered_csv,
@@ -72,7 +55,6 @@ def run(args) -> int:
     from cobot_calib_ros.loaders import load_cell
     from cobot_calib_ros.store.cells import ResultsCell
     from cobot_calib_ros.store.files import atomic_write_text
-    from cobot_calib_ros.store.kinematics import chain_of
     try:
         cell = load_cell(paths.cell_file(args.robot_cell))
         model = model_for(cell)
@@ -82,12 +64,12 @@ def run(args) -> int:
         return fail(f'filter: {exc}', EXIT_USAGE)
     except (OSError, UnicodeDecodeError) as exc:
         return fail(f'filter: --targets {args.targets}: cannot read ({exc})', EXIT_USAGE)
-    tool = cell.tool_offset if args.tool == 'tcp' else np.eye(4)
     try:
         repo = store.open(paths.data_dir(args.data_dir), args.db,
                           ResultsCell(args.cell) if args.cell else ResultsCell.of(cell))
-        record = _record(args, repo, model)
-        calibrated, nominal = chain_of(record, model, tool), model.chain(tool=tool)
+        record = kinematic_record(repo, model, args.kinematics, allow_nominal=False)
+        calibrated = rig.chain(cell, record, args.tool, model=model)
+        nominal = rig.chain(cell, None, args.tool, model=model)
         T_base_frame = None
         if args.frame == 'user':
             frame = repo.user_frames.active()

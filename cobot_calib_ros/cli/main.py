@@ -26,6 +26,7 @@ VERBS = (
     'detect',
     'export',
     'filter_cmd',                   # program filtering for a controller's nominal kinematics
+    'move',                         # a pose target, solved with the calibrated kinematics
     'db',
     'history',
     'check',

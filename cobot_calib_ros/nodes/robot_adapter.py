@@ -4,8 +4,10 @@ Serves ``move_to`` (cobot_calib_msgs/action/MoveTo), the one motion interface th
 nodes use (ros.robot_calls.RobotCalls), by sending a control_msgs/FollowJointTrajectory goal to
 the arm's joint_trajectory_controller, then waiting on ``joint_states`` until the arm has
 settled (core.driver.SettleWatch) before it answers, so no capture starts on a ringing arm:
-- a joint target goes as is; a pose target is solved on the cell's kinematic model (nominal,
-  with the cell's tool offset), as a robot controller solves it, seeded at the current joints;
+- a joint target goes as is; a pose target (the cell's TCP in the base frame) is solved on the
+  ``kinematics`` model (core.rig): the active kinematic calibration of the cell's robot, read
+  at each pose goal (nominal while it has none), ``nominal``, or a calibration id; seeded at
+  the current joints (a ros2_control arm takes joints: the suite's IK is the controller's);
 - one trajectory point at max |dq| / (max_joint_velocity * velocity_scaling * speed_scale);
 - a compliant move goes to the preset's ``compliant_action`` (refused where there is none);
 - a cancel of move_to is forwarded to the controller;
@@ -33,12 +35,13 @@ from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectoryPoint
 import yaml
 
-from cobot_calib_ros import paths
-from cobot_calib_ros.core import driver, kinematics
+from cobot_calib_ros import paths, store
+from cobot_calib_ros.core import driver, kinematics, rig
 from cobot_calib_ros.core.errors import ErrorCode, Failure
 from cobot_calib_ros.loaders import load_cell
+from cobot_calib_ros.store.cells import ResultsCell
 from cobot_calib_ros.ros import convert, qos, results, spin
-from cobot_calib_ros.ros.params import read_once
+from cobot_calib_ros.ros.params import declare, read_once
 from cobot_calib_ros.ros.time import header_ns, ns_to_s, s_to_ns, split_ns
 
 ACCEPT_TIMEOUT = 10.0   # [s] for the controller to accept or reject a trajectory goal
@@ -55,12 +58,18 @@ class RobotAdapter(Node):
         read_once(self, 'driver', 'mock', 'Driver preset: a name in presets_file')
         read_once(self, 'presets_file', '',
                   'Driver presets YAML; empty = config/driver_presets.yaml')
+        read_once(self, 'data_dir', '', 'Results root (the active kinematic calibration); '
+                  'empty = $COBOT_CALIB_DATA or ~/.ros/cobot_calib')
+        declare(self, 'kinematics', 'latest', 'Model pose targets are solved on: latest (the '
+                'active kinematic calibration of the cell\'s robot, nominal if none), nominal, '
+                'or a kinematic calibration id')
         self._preset = self._load_preset()
         cell = load_cell(paths.cell_file(self.get_parameter('cell_file').value))
-        self._home = cell.home
-        model = kinematics.model_for(cell)
-        self._model_names = tuple(model.joint_names)
-        self._chain = model.chain(tool=cell.tool_offset)
+        self._cell, self._home = cell, cell.home
+        self._model = kinematics.model_for(cell)
+        self._model_names = tuple(self._model.joint_names)
+        self._chain = self._model.chain(tool=cell.tool_offset)     # the joint limits
+        self._results_cell = ResultsCell.of(cell, self.get_namespace())
         self._names = self._preset.joint_names or self._model_names
         self._answers = spin.Companion(self, 'driver')
         self._latest: bytes | None = None        # the last joint_states, raw
@@ -191,13 +200,30 @@ class RobotAdapter(Node):
             T = convert.pose_to_matrix(goal.pose)
             if not np.all(np.isfinite(T)):
                 return Failure(ErrorCode.INVALID_INPUT, 'target pose has NaN or inf')
-            solved = kinematics.solve_ik_with_restarts(chain, T, q_now, self._home)
+            chain = self._pose_chain()
+            if isinstance(chain, Failure):
+                return chain
+            solved = rig.solve_target(chain, T, q_now, self._home)
             if not solved:
                 return Failure(ErrorCode.MOTION_FAILED,
                                f'no inverse kinematics solution: {solved.message}')
             return solved.q
         return Failure(ErrorCode.INVALID_INPUT, f'unknown target_type {goal.target_type}; use '
                        'TARGET_JOINTS or TARGET_POSE')
+
+    def _pose_chain(self) -> kinematics.Chain | Failure:
+        """The TCP chain of the ``kinematics`` parameter's model, from the stored results."""
+        choice = self.get_parameter('kinematics').value
+        try:
+            repo = store.open(paths.data_dir(self.get_parameter('data_dir').value),
+                              cell=self._results_cell)
+            record = repo.kinematics.resolve('latest' if choice == 'active' else choice,
+                                             self._model.name)
+            return rig.chain(self._cell, record, 'tcp', model=self._model)
+        except (KeyError, ValueError, OSError) as e:
+            return Failure(ErrorCode.INVALID_INPUT, f'kinematics {choice!r}: {e}; set the '
+                           'kinematics parameter to latest, nominal or a stored kinematic '
+                           'calibration id')
 
     def _follow(self, goal_handle, action: str, q: np.ndarray, seconds: float):
         """Run one trajectory to its end: None when it succeeded, else 'canceled' or why."""

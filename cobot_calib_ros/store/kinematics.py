@@ -20,11 +20,12 @@ import numpy as np
 import yaml
 
 from cobot_calib_ros.core.ids import utc_text
-from cobot_calib_ros.core.kinematics.model import Chain, KinematicModel
+from cobot_calib_ros.core.kinematics.model import KinematicModel
 from cobot_calib_ros.core.kinematics.robots import UrdfRobot
 from cobot_calib_ros.core.kinematics.ur_description import (is_ur, ur_kinematics,
                                                             ur_kinematics_yaml)
 from cobot_calib_ros.core.kinematics.urdf import calibrated_urdf, rewrite_urdf
+from cobot_calib_ros.core.rig import model_chain as chain_of   # noqa: F401 - its callers' name
 from cobot_calib_ros.store.calibrations import Activation, CalibrationStore
 from cobot_calib_ros.store.files import atomic_write_text, ensure_dir
 from cobot_calib_ros.store.records import KinematicRecord
@@ -90,21 +91,6 @@ class KinematicHistory:
 class KinematicStore(KinematicHistory, CalibrationStore):
     def __init__(self, root: Path, cell=None) -> None:
         super().__init__(root, 'kinematics', scope_key='robot', cell=cell)
-
-
-def chain_of(record: dict[str, Any] | None, model: KinematicModel, tool) -> Chain:
-    """The chain a record describes (the nominal one for None) with T_flange_tool ``tool``.
-
-    ValueError if the record is of another robot or its parameters do not fit the model.
-    """
-    if record is None:
-        return model.chain(tool=tool)
-    result = record['result']
-    if record.get('robot') != model.name or result['parameter_names'] != list(
-            model.parameter_names):
-        raise ValueError(f'kinematic calibration {record["id"]} is for robot '
-                         f'{record.get("robot")!r}, not {model.name!r}')
-    return model.chain(np.array(result['params'], dtype=float), tool=tool)
 
 
 def calibrated_descriptions(record: KinematicRecord, model: KinematicModel,

@@ -10,6 +10,7 @@ import subprocess
 import sys
 
 from cobot_calib_msgs.action import MoveTo
+from cobot_calib_msgs.srv import GetGroundTruth
 import domain_coordinator
 import numpy as np
 import pytest
@@ -23,11 +24,17 @@ from rcl_interfaces.srv import SetParameters
 from sensor_msgs.msg import JointState
 from visualization_msgs.msg import Marker, MarkerArray
 
+from cobot_calib_ros import store
 from cobot_calib_ros.api import launcher
 from cobot_calib_ros.api.client import wait_for_suite
 from cobot_calib_ros.core.user_frame import LIMIT_FACTOR
-from cobot_calib_ros.ros import qos
-from cobot_calib_ros.ros.calls import call_service, spin_until
+from cobot_calib_ros.core import rig
+from cobot_calib_ros.core.kinematics import fk, model_for
+from cobot_calib_ros.loaders import load_cell
+from cobot_calib_ros.paths import cell_file
+from cobot_calib_ros.ros import convert, qos
+from cobot_calib_ros.ros.calls import call_service, run_action, spin_until
+from cobot_calib_ros.store.cells import ResultsCell
 from cobot_calib_ros.store.trials import TrialStore
 from foxglove_ws import FoxgloveClient
 from proc_lines import Lines
@@ -46,7 +53,9 @@ def driver_suite(tmp_path_factory):
         specs = launcher.suite_specs('sawyer_close', NODES, overrides={
             'mock_robot': {'time_scale': '0.2'},
             'user_frame_solver': {'data_dir': str(data)},
-            'repeatability_trial': {'data_dir': str(data)}}, robot_interface='driver')
+            'repeatability_trial': {'data_dir': str(data)},
+            # its own results: the compensation test's calibration is the adapter's alone
+            'robot_adapter': {'data_dir': str(data / 'adapter')}}, robot_interface='driver')
         assert [s.name for s in specs][:2] == ['mock_robot', 'robot_adapter']
         suite = launcher.Suite(tmp_path_factory.mktemp('driver_logs'))
         suite.start(specs, env=env)
@@ -231,3 +240,48 @@ def test_a_canceled_move_to_stops_the_driver_short_of_its_target(driver_suite):
     finally:
         client.destroy()
         node.destroy_subscription(sub)
+
+
+def test_a_pose_goal_is_solved_with_the_active_kinematic_calibration(driver_suite):
+    """Issue 29.1: the adapter (the suite's IK over a ros2_control arm) solves a pose with the
+    active calibration; with an exact one the TCP lands on the target by the mock's truth (the
+    true arm at the joints reached), where the nominal model misses it."""
+    node, _, data = driver_suite
+    truth = call_service_once(node, GetGroundTruth, 'get_ground_truth')
+    cell = load_cell(cell_file('sawyer_close'))
+    model = model_for(cell)
+    true_params = np.array(truth.true_parameters)
+    target = fk(rig.chain(cell, None, 'tcp', model=model), cell.home + 0.15)
+    true_tcp = model.chain(true_params, tool=cell.tool_offset)
+    repo = store.open(data / 'adapter', cell=ResultsCell.of(cell))
+    record = {'id': 'k-true', 'robot': model.name, 'stamp_ns': 1, 'method': 'test',
+              'inputs': {}, 'result': {'parameter_names': list(model.parameter_names),
+                                       'params': true_params.tolist()}}
+    client = ActionClient(node, MoveTo, 'move_to')
+    errors = {}
+    try:
+        for label in ('nominal', 'compensated'):      # none stored yet: nominal
+            if label == 'compensated':
+                repo.kinematics.save_and_activate(record)
+            _, home = run_action(node, client, MoveTo.Goal(
+                target_type=MoveTo.Goal.TARGET_JOINTS, positions=cell.home.tolist()), 60.0,
+                executor=node.executor_for_tests)
+            assert home.error_code == MoveTo.Result.SUCCESS, home.message
+            _, result = run_action(node, client, MoveTo.Goal(
+                target_type=MoveTo.Goal.TARGET_POSE, pose=convert.matrix_to_pose(target)), 60.0,
+                executor=node.executor_for_tests)
+            assert result.error_code == MoveTo.Result.SUCCESS, result.message
+            reached = fk(true_tcp, np.array(result.positions))
+            errors[label] = float(np.linalg.norm(reached[:3, 3] - target[:3, 3]))
+    finally:
+        client.destroy()
+        repo.kinematics.retire('k-true')
+    assert errors['compensated'] < 1e-6 and errors['nominal'] > 1e-4, errors
+
+
+def call_service_once(node, srv_type, name):
+    client = node.create_client(srv_type, name)
+    try:
+        return call_service(node, client, srv_type.Request(), 10.0, node.executor_for_tests)
+    finally:
+        node.destroy_client(client)

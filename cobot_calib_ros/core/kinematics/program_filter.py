@@ -25,8 +25,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from cobot_calib_ros.core.frames import from_pose, invert, to_pose, transform_error
-from cobot_calib_ros.core.kinematics.ik import solve_ik_with_restarts
 from cobot_calib_ros.core.kinematics.model import Chain, fk
+from cobot_calib_ros.core.rig import solve_target
 from cobot_calib_ros.core.vendor_frames import FORMATS, from_values, to_values
 
 Array = NDArray[np.float64]
@@ -153,7 +153,7 @@ def filter_targets(targets: list[Target], calibrated: Chain, nominal: Chain, hom
     home = np.asarray(home, dtype=float)
     filtered, unreachable, seed = [], [], home
     for target in targets:
-        result = solve_ik_with_restarts(calibrated, T_base_frame @ target.pose, seed, home)
+        result = solve_target(calibrated, target.pose, seed, home, T_base_frame)
         if not result:
             unreachable.append(Unreachable(target.name, result.message))
             continue

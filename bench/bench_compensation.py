@@ -1,0 +1,121 @@
+"""Compensated motion (issue 29, must-show 1): how close the tool gets to a pose target when the
+suite solves it with the identified model, against the controller's nominal solve.
+
+In-process, for the mock Sawyer, iiwa 7 and UR10e cells: the sim's sphere data over the
+product's default sphere plan (bench_identification.sphere_data: the coupling self-centres on
+the true spheres, joints averaged over 20 encoder readings), identified by CalibrationJob (as
+`cobot-calib identify`), stored and activated in a scratch repository. Targets: 50 reachable
+coupling poses in the calibrated volume and 50 over the workspace (core plans.tracker_plan,
+seeds apart from the calibration's), each solved through api.move.solve (what `cobot-calib
+move` sends to move_to as joints; robot_adapter solves with the same core.rig chain) with
+``kinematics`` nominal and active, seeded at the configuration the target was drawn from (the
+branch a program takes). Error: the true coupling centre at the solved joints (the
+mock's truth: the sim's true model) against the target, in the robot's base frame, no
+registration; the coupling is the tool the sphere calibration identifies.
+
+- ``compensation_<robot>_{volume,workspace}_{nominal,compensated}_{max,rms}_mm`` [mm];
+- ``..._compensated_registered_{max,rms}_mm``: the same in the calibrated model's own base
+  (registered once to the true base over 200 other configurations: the base placement a sphere
+  calibration cannot see, ``compensation_<robot>_base_offset_mm``, taken out);
+- ``..._tcp_{nominal,compensated}_{max,rms}_mm``: targets for the cell's TCP (the sim's TCP is
+  exactly the cell's; the calibration sees it only through the flange it identifies);
+- ``compensation_<robot>_workspace_ratio`` [1]: nominal max / compensated max over the
+  workspace (goal >= 10; and compensated max <= 0.1 mm in the volume).
+"""
+from __future__ import annotations
+
+import benchlib  # first: cobot_calib_ros before numpy (one BLAS thread), run alone too
+import tempfile
+
+import numpy as np
+
+from benchlib import Figures
+from bench_identification import sphere_data
+from cobot_calib_ros import store
+from cobot_calib_ros.api import move
+from cobot_calib_ros.core import frames, kinematics, rig
+from cobot_calib_ros.core.kinematics import plans
+from cobot_calib_ros.core.kinematics.identification import register_rigid
+from cobot_calib_ros.core.kinematics.kinematic_calibration import CalibrationJob
+from cobot_calib_ros.paths import cell_file
+from cobot_calib_ros.sim.robot import SimRobot
+from cobot_calib_ros.sim.scenario import load_simulation
+from cobot_calib_ros.store.cells import ResultsCell
+from cobot_calib_ros.store.records import KinematicRecord
+
+CELLS = {'sawyer': 'sawyer_close', 'iiwa7': 'iiwa7_close', 'ur10e': 'ur10e_close'}
+TARGETS = 50
+SEEDS = {'volume': 10, 'workspace': 11}     # calibration plans draw from seeds 0..2
+KINEMATICS = {'nominal': 'nominal', 'compensated': 'active'}
+REGISTRATION, REGISTRATION_SEED = 200, 99
+
+
+def calibrated_repository(robot: SimRobot, root) -> object:
+    """A repository whose active kinematic calibration is identified on the sim's spheres."""
+    outcome = CalibrationJob(robot.cell, robot.model, sphere_data(robot, robot.cell)).run()
+    repo = store.open(root, cell=ResultsCell.of(robot.cell))
+    activation = repo.kinematics.save_and_activate(KinematicRecord.from_outcome(outcome))
+    if repo.kinematics.active(robot.model.name) is None:
+        raise benchlib.BenchFailed(f'{robot.cell.name}: the calibration was not activated '
+                                   f'({activation})')
+    return repo
+
+
+def registration(robot: SimRobot, repo) -> np.ndarray:
+    """(4, 4) the calibrated model's base in the true one: the best rigid fit of its coupling
+    centres to the true ones over REGISTRATION other workspace configurations (what a user frame
+    touched with the calibrated arm absorbs; the sphere data cannot see it)."""
+    calibrated = rig.chain(robot.cell, move.kinematic_record(repo, robot.model, 'active'),
+                           'coupling', model=robot.model)
+    q = np.array([s['q'] for s in plans.tracker_plan(robot.cell, robot.model, 'workspace',
+                                                      REGISTRATION, REGISTRATION_SEED)])
+    return register_rigid(kinematics.fk(calibrated, q)[:, :3, 3],
+                          kinematics.fk(robot.coupling, q)[:, :3, 3])
+
+
+def errors_mm(robot: SimRobot, repo, region: str, T_true_model: np.ndarray
+              ) -> dict[str, np.ndarray]:
+    """|true tool - target| [mm] of each target: the coupling's {nominal, compensated,
+    compensated_registered (in the calibrated model's base)}, and the TCP's
+    {tcp_nominal, tcp_compensated}."""
+    steps = plans.tracker_plan(robot.cell, robot.model, region, TARGETS, SEEDS[region])
+    truth = {'coupling': robot.coupling, 'tcp': robot.true}
+    errors: dict[str, list] = {}
+    for step in steps:
+        q0 = np.array(step['q'])
+        for tool, prefix in (('coupling', ''), ('tcp', 'tcp_')):
+            target = kinematics.fk(rig.chain(robot.cell, None, tool, model=robot.model), q0)
+            for label, choice in KINEMATICS.items():
+                solved = move.solve(robot.cell, repo, target, q0, tool=tool, kinematics=choice)
+                reached = kinematics.fk(truth[tool], solved.q)[:3, 3]
+                errors.setdefault(prefix + label, []).append(
+                    np.linalg.norm(reached - target[:3, 3]) * 1e3)
+                if tool == 'coupling' and label == 'compensated':
+                    in_model = frames.apply(frames.invert(T_true_model), reached)
+                    errors.setdefault('compensated_registered', []).append(
+                        np.linalg.norm(in_model - target[:3, 3]) * 1e3)
+    return {label: np.array(e) for label, e in errors.items()}
+
+
+def run() -> Figures:
+    figures: Figures = {}
+    for name, cell in CELLS.items():
+        robot = SimRobot(load_simulation(cell_file(cell)))
+        with tempfile.TemporaryDirectory() as root:
+            repo = calibrated_repository(robot, root)
+            T_true_model = registration(robot, repo)
+            figures[f'compensation_{name}_base_offset_mm'] = (
+                float(np.linalg.norm(T_true_model[:3, 3]) * 1e3), 'mm')
+            for region in SEEDS:
+                for label, e in errors_mm(robot, repo, region, T_true_model).items():
+                    prefix = f'compensation_{name}_{region}_{label}'
+                    figures[f'{prefix}_max_mm'] = (float(e.max()), 'mm')
+                    figures[f'{prefix}_rms_mm'] = (float(np.sqrt(np.mean(e ** 2))), 'mm')
+        figures[f'compensation_{name}_workspace_ratio'] = (
+            figures[f'compensation_{name}_workspace_nominal_max_mm'][0]
+            / figures[f'compensation_{name}_workspace_compensated_max_mm'][0], '')
+    return figures
+
+
+if __name__ == '__main__':
+    raise SystemExit(benchlib.main(run))

@@ -1,0 +1,68 @@
+"""api.move: a target in the base or a user frame, for a tool, solved on the chosen model (no
+ROS: what `cobot-calib move` sends to move_to)."""
+from __future__ import annotations
+
+import numpy as np
+from numpy.testing import assert_allclose
+import pytest
+
+from cobot_calib_ros import store
+from cobot_calib_ros.api import move
+from cobot_calib_ros.core import rig
+from cobot_calib_ros.core.frames import from_xyz_rpy, invert
+from cobot_calib_ros.core.kinematics import fk, model_for
+from cobot_calib_ros.loaders import load_cell
+from cobot_calib_ros.paths import cell_file
+from cobot_calib_ros.store.cells import ResultsCell
+
+CELL = load_cell(cell_file('ur10e_close'))
+MODEL = model_for(CELL)
+PARAMS = MODEL.nominal + np.random.default_rng(5).choice([-1, 1], MODEL.nominal.size) * 4e-4
+KINEMATIC = {'id': 'k-move', 'robot': MODEL.name, 'stamp_ns': 1, 'method': 'test', 'inputs': {},
+             'result': {'parameter_names': list(MODEL.parameter_names),
+                        'params': PARAMS.tolist(), 'tool_xyz': [0.0, 0.0, 0.1]}}
+T_BASE_USER = from_xyz_rpy([0.6, -0.2, 0.05], [0.0, 0.0, 0.4])
+FRAME = {'id': 'uf-move', 'stamp_ns': 1, 'method': 'rigid', 'inputs': {},
+         'result': {'T_base_user': T_BASE_USER.tolist()}}
+Q = CELL.home + 0.1
+
+
+@pytest.fixture
+def repo(tmp_path):
+    return store.open(tmp_path, cell=ResultsCell.of(CELL))
+
+
+def test_the_active_calibration_and_a_user_frame_give_the_joints_that_reach_the_target(repo):
+    calibrated = rig.chain(CELL, KINEMATIC, 'tcp', model=MODEL)
+    T_base_tool = fk(calibrated, Q)
+    T_user_tool = invert(T_BASE_USER) @ T_base_tool
+    nominal = move.solve(CELL, repo, T_base_tool, Q)         # nothing stored: nominal
+    assert nominal.kinematics == 'nominal' and nominal.user_frame == ''
+    assert np.abs(nominal.q - Q).max() > 1e-5                 # the nominal model's answer
+    repo.kinematics.save_and_activate(KINEMATIC)
+    repo.user_frames.save_and_activate(FRAME)
+    for frame_id in ('', 'uf-move'):                         # the active one, or by id
+        solved = move.solve(CELL, repo, T_user_tool, Q, frame='user', frame_id=frame_id)
+        assert solved.kinematics == 'k-move' and solved.user_frame == 'uf-move'
+        assert_allclose(fk(calibrated, solved.q), T_base_tool, atol=1e-9)
+        assert_allclose(solved.T_base_tool, T_base_tool, atol=1e-12)
+    assert move.solve(CELL, repo, T_base_tool, Q, kinematics='nominal').kinematics == 'nominal'
+    flange = move.solve(CELL, repo, fk(rig.chain(CELL, KINEMATIC, 'flange', model=MODEL), Q),
+                        Q, tool='flange')
+    assert_allclose(fk(calibrated, flange.q), T_base_tool, atol=1e-9)
+
+
+@pytest.mark.parametrize('options, words', [
+    ({'frame': 'user'}, 'no active user frame in the results of cell ur10e_close'),
+    ({'frame': 'user', 'frame_id': 'uf-none'}, "no user frame 'uf-none'"),
+    ({'kinematics': 'k-none'}, "no kinematic calibration 'k-none'"),
+    ({'tool': 'gripper'}, "unknown tool 'gripper'; use one of tcp, flange, camera, coupling"),
+])
+def test_a_choice_that_cannot_be_met_says_what_to_do(repo, options, words):
+    with pytest.raises(ValueError, match=words):
+        move.solve(CELL, repo, fk(MODEL.chain(tool=CELL.tool_offset), Q), Q, **options)
+
+
+def test_an_unreachable_target_names_the_model(repo):
+    with pytest.raises(ValueError, match='cannot be reached by the nominal model'):
+        move.solve(CELL, repo, from_xyz_rpy([4.0, 0.0, 0.5], [0, 0, 0]), Q)

@@ -1,0 +1,56 @@
+"""core.rig: the one answer to "which chain, with which tool", and targets in a user frame."""
+from __future__ import annotations
+
+import numpy as np
+from numpy.testing import assert_allclose
+import pytest
+
+from cobot_calib_ros.core import rig
+from cobot_calib_ros.core.frames import from_xyz_rpy
+from cobot_calib_ros.core.kinematics import fk, model_for
+from cobot_calib_ros.loaders import load_cell
+from cobot_calib_ros.paths import cell_file
+
+CELL = load_cell(cell_file('iiwa7_close'))
+MODEL = model_for(CELL)
+PARAMS = MODEL.nominal + np.random.default_rng(4).normal(0.0, 3e-4, MODEL.nominal.size)
+RECORD = {'id': 'k-rig', 'robot': MODEL.name,
+          'result': {'parameter_names': list(MODEL.parameter_names), 'params': PARAMS.tolist(),
+                     'tool_xyz': [0.001, -0.002, 0.103]}}
+Q = CELL.home + 0.1
+
+
+def test_each_tool_ends_the_chain_where_the_cell_or_the_result_puts_it():
+    flange = fk(rig.chain(CELL, RECORD, 'flange', model=MODEL), Q)
+    assert_allclose(flange, fk(MODEL.chain(PARAMS), Q), atol=1e-15)
+    assert_allclose(fk(rig.chain(CELL, RECORD, 'tcp', model=MODEL), Q),
+                    flange @ CELL.tool_offset, atol=1e-12)
+    coupling = fk(rig.chain(CELL, RECORD, 'coupling', model=MODEL), Q)
+    assert_allclose(coupling[:3, 3], flange[:3, :3] @ [0.001, -0.002, 0.103] + flange[:3, 3],
+                    atol=1e-12)      # the identified centre
+    assert_allclose(coupling[:3, :3], flange[:3, :3] @ CELL.spheres.coupling_offset[:3, :3],
+                    atol=1e-12)      # the cell's orientation
+    nominal = fk(rig.chain(CELL, None, 'coupling', model=MODEL), Q)
+    assert_allclose(nominal, fk(MODEL.chain(tool=CELL.spheres.coupling_offset), Q), atol=1e-12)
+    hand_eye = {'result': {'T_flange_optical': from_xyz_rpy([0.05, 0, 0.02], [0, 0, 1]).tolist()}}
+    assert_allclose(fk(rig.chain(CELL, None, 'camera', hand_eye=hand_eye, model=MODEL), Q),
+                    fk(MODEL.chain(), Q) @ from_xyz_rpy([0.05, 0, 0.02], [0, 0, 1]), atol=1e-12)
+
+
+def test_a_tool_the_cell_lacks_or_does_not_know_is_refused_with_the_choices():
+    with pytest.raises(ValueError, match='has no camera: section.*tcp, flange, camera, coupling'):
+        rig.chain(CELL, None, 'camera', model=MODEL)
+    with pytest.raises(ValueError, match="unknown tool 'gripper'"):
+        rig.tool_offset(CELL, 'gripper')
+    with pytest.raises(ValueError, match="is for robot 'sawyer', not 'iiwa7'"):
+        rig.chain(CELL, {**RECORD, 'robot': 'sawyer'}, model=MODEL)
+
+
+def test_a_target_in_a_user_frame_is_solved_in_the_base():
+    chain = rig.chain(CELL, RECORD, 'tcp', model=MODEL)
+    T_base_user = from_xyz_rpy([0.5, -0.1, 0.02], [0.01, -0.02, 0.7])
+    T_base_tool = fk(chain, Q + 0.05)
+    result = rig.solve_target(chain, np.linalg.inv(T_base_user) @ T_base_tool, Q, CELL.home,
+                              T_base_user)
+    assert result
+    assert_allclose(fk(chain, result.q), T_base_tool, atol=1e-9)

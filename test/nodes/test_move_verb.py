@@ -1,0 +1,62 @@
+"""`cobot-calib move` against the suite (mock_robot serves move_to as a controller with its
+nominal kinematics): the suite solves the pose with the calibrated model and sends joints, so
+the tool lands on the target by the mock's truth (issue 29.1)."""
+import json
+
+from cobot_calib_msgs.srv import GetGroundTruth
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from cobot_calib_ros.api import move
+from cobot_calib_ros.core import rig
+from cobot_calib_ros.core.frames import from_xyz_rpy
+from cobot_calib_ros.core.kinematics import fk, model_for
+from cobot_calib_ros.loaders import load_cell
+from cobot_calib_ros.paths import cell_file
+from rosutil import call, cli
+
+CELL = load_cell(cell_file('sawyer_close'))
+MODEL = model_for(CELL)
+
+
+def _move(xyz, rpy, *extra):
+    out = cli('move', '--xyz', *map(repr, xyz), '--rpy', *map(repr, rpy), '--robot-cell',
+              'sawyer_close', '--json', *extra)
+    assert out.returncode == 0, out.stderr
+    return json.loads(out.stdout)
+
+
+def test_a_compensated_move_lands_on_the_target_where_the_nominal_one_is_off(ros, tmp_path,
+                                                                             trial_data):
+    truth = call(ros, GetGroundTruth, 'get_ground_truth')
+    true_params = np.array(truth.true_parameters)
+    # what an exact calibration would store: the mock's true arm
+    record = tmp_path / 'k-true.json'
+    record.write_text(json.dumps({
+        'id': 'k-true', 'robot': MODEL.name, 'stamp_ns': 1, 'method': 'test', 'inputs': {},
+        'result': {'parameter_names': list(truth.parameter_names),
+                   'params': true_params.tolist()}}))
+    # the mock's TCP is the cell's; its arm deviates from the nominal (by ~0.15 mm at the TCP
+    # for this Sawyer), the truth being the true arm at the joints reached
+    true_tcp = MODEL.chain(true_params, tool=CELL.tool_offset)
+    target = fk(rig.chain(CELL, None, 'tcp', model=MODEL), CELL.home + 0.15)
+    xyz = target[:3, 3].tolist()
+    rpy = Rotation.from_matrix(target[:3, :3]).as_euler('xyz').tolist()
+    np.testing.assert_allclose(from_xyz_rpy(xyz, rpy), target, atol=1e-12)
+    errors = {}
+    for label, choice in (('nominal', 'nominal'), ('compensated', str(record))):
+        home = move.move_joints(ros, CELL.home, executor=ros.executor_for_tests)
+        assert home.error_code == home.SUCCESS, home.message     # the same seed for both
+        moved = _move(xyz, rpy, '--kinematics', choice, '--data-dir', str(trial_data))
+        assert moved['moved'] and moved['kinematics'] == label.replace('compensated', 'k-true')
+        np.testing.assert_allclose(moved['reached'], moved['positions'], atol=1e-12)
+        reached = fk(true_tcp, np.array(moved['reached']))
+        errors[label] = float(np.linalg.norm(reached[:3, 3] - target[:3, 3]))
+    assert errors['compensated'] < 1e-6 and errors['nominal'] > 1e-4, errors
+
+
+def test_an_unreachable_target_is_refused_before_anything_moves(ros, trial_data):
+    out = cli('move', '--xyz', '4', '0', '0.5', '--rpy', '0', '0', '0', '--robot-cell',
+              'sawyer_close', '--kinematics', 'nominal', '--data-dir', str(trial_data))
+    assert out.returncode == 2
+    assert 'the target cannot be reached by the nominal model' in out.stderr
