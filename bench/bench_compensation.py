@@ -37,13 +37,13 @@ from cobot_calib_ros.core import frames, kinematics, rig
 from cobot_calib_ros.core.kinematics import plans
 from cobot_calib_ros.core.kinematics.identification import register_rigid
 from cobot_calib_ros.core.kinematics.kinematic_calibration import CalibrationJob
-from cobot_calib_ros.paths import cell_file
+from cobot_calib_ros.paths import cell_file, DEFAULT_CELL
 from cobot_calib_ros.sim.robot import SimRobot
 from cobot_calib_ros.sim.scenario import load_simulation
 from cobot_calib_ros.store.cells import ResultsCell
 from cobot_calib_ros.store.records import KinematicRecord
 
-CELLS = {'sawyer': 'sawyer_close', 'iiwa7': 'iiwa7_close', 'ur10e': 'ur10e_close'}
+CELLS = {'sawyer': DEFAULT_CELL, 'iiwa7': 'iiwa7_close', 'ur10e': 'ur10e_close'}
 TARGETS = 50
 SEEDS = {'volume': 10, 'workspace': 11}     # calibration plans draw from seeds 0..2
 KINEMATICS = {'nominal': 'nominal', 'compensated': 'active'}

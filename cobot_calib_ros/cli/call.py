@@ -22,6 +22,14 @@ MATCH_WAIT = 2.0        # [s] at most, for the capture marks' publishers to matc
 GRAPH_SETTLED = 1.5     # [s] of an unchanged graph (other nodes on it) before a service missing
                         # from it counts as having no server
 SERVER_GONE = 3.0       # [s] a server unseen on the graph while its answer is awaited
+
+# Services whose request only reads (the same request answered twice changes nothing). Their
+# request is sent again after RESEND_AFTER s without an answer: a response written before the
+# server's response writer matched this client's reader is dropped by DDS (seen at load 25:
+# /user_to_robot waited 120 s on a live server), and the first answer of any copy is taken.
+QUERY_TYPES = ('cobot_calib_msgs/srv/ConvertPoints', 'cobot_calib_msgs/srv/ListCalibrations',
+               'cobot_calib_msgs/srv/GetGroundTruth')
+RESEND_AFTER = 10.0     # [s]
 # where to see what a call did when the client stopped waiting for its answer
 RESULT_HINTS = {
     '/calibrate_user_frame': '`cobot-calib echo user_frame --once` (the active calibration) '
@@ -163,7 +171,8 @@ def _call(node, service: str, type_name: str | None, data, args) -> int:
     except (UsageError, FieldError) as e:
         return fail(f'bad request: {e}', EXIT_USAGE)
     try:
-        response = _answer(node, node.create_client(srv, service), request, args)
+        response = _answer(node, node.create_client(srv, service), request, args,
+                           query=(_srv(type_name) if type_name else advertised[0]) in QUERY_TYPES)
     except CallError as e:
         return fail(str(e))
     except KeyboardInterrupt:
@@ -190,7 +199,7 @@ def refusal(response) -> str:
     return ''
 
 
-def _answer(node, client, request, args):
+def _answer(node, client, request, args, query: bool = False):
     """Call once the server is there; wait for the answer (args.answer_timeout [s], None: until
     it comes), printing the suite's capture marks meanwhile. CallError if no server or no
     answer in time (the message says the call may still complete)."""
@@ -202,22 +211,33 @@ def _answer(node, client, request, args):
     # so the first view shows too, and the server's node is named if it dies (a node's name
     # comes from its own publication, after its services: never, once it is killed)
     spin_until(node, lambda: progress.matched() and server.named(), MATCH_WAIT)
-    started = time.monotonic()
-    future = client.call_async(request)
+    started = sent = time.monotonic()
+    futures = [client.call_async(request)]
+    answered = lambda: any(f.done() for f in futures)  # noqa: E731
     try:
-        while not spin_until(node, future.done, 0.5):
+        while not spin_until(node, answered, 0.5):
             if server.gone():
-                client.remove_pending_request(future)
+                _forget(client, futures)
                 raise CallError(server.gone_line())
             waited = time.monotonic() - started
             if args.answer_timeout is not None and waited > args.answer_timeout:
-                client.remove_pending_request(future)
+                _forget(client, futures)
                 raise CallError(f'no answer from {client.srv_name} within '
                                 f'{args.answer_timeout:g} s; ' + _may_complete(client.srv_name))
+            if query and time.monotonic() - sent > RESEND_AFTER:
+                futures.append(client.call_async(request))
+                sent = time.monotonic()
             progress.still_waiting(client.srv_name, waited)
     finally:
         progress.close()
-    return future.result()
+    done = next(f for f in futures if f.done())
+    _forget(client, [f for f in futures if f is not done])
+    return done.result()
+
+
+def _forget(client, futures) -> None:
+    for future in futures:
+        client.remove_pending_request(future)
 
 
 class _ServerWatch:

@@ -100,12 +100,13 @@ BOARD_MARKER_REFINE = 'subpix'
 # at load 11-13 the board held 29-29.4 of 30 fps with 1 thread against 16.6-18.6 with 2 (markers
 # 29-44 against 34-59: not settled at that load).
 DEFAULT_OPENCV_THREADS = 1
-# Single markers are searched with OpenCV's ArUco 3 method: the candidate search runs on the image
-# scaled down so that the smallest marker asked for still has a few pixels a module, and the
-# corners are then found on the full image. At 1280x800 (bench_detector's markers, 1 thread):
-# 2.4 ms against 6.8 for the full search, the same 4 markers, corners after 'edges' refinement
-# within 5e-5 px; 0.02 of 1280 px is a 26 px marker (a 50 mm one at about 2 m).
-DEFAULT_MIN_MARKER_FRACTION = 0.02
+# > 0: single markers are searched with OpenCV's ArUco 3 method (the candidate search on the
+# image scaled down so that the smallest marker asked for still has a few pixels a module, the
+# corners on the full image). At 1280x800 (bench_detector's markers, 1 thread) 0.02 took 2.4 ms
+# against 6.8 for the full search, the same 4 markers; but on the sample bag
+# landmark_multi_close (752x480) it changed the replayed frame by 0.40 mm / 2.9 mrad: the full
+# search stays the default.
+DEFAULT_MIN_MARKER_FRACTION = 0.0
 
 
 class NotConfigured(ValueError):
