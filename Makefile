@@ -4,7 +4,7 @@ PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
 # pytest-xdist workers for `make test`: the node and CLI tests mostly wait on processes
-TEST_WORKERS ?= 3
+TEST_WORKERS ?= 2
 STAMP := $(VENV)/.stamps
 
 # Keep DDS traffic on this machine (ros2-from-pypi notes).
