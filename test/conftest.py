@@ -25,20 +25,3 @@ def domain_id():
     with domain_coordinator.domain_id() as domain:
         os.environ['ROS_DOMAIN_ID'] = str(domain)
         yield domain
-
-
-# `make test` runs the files on parallel workers (pytest-xdist, --dist loadfile): the files
-# that start ROS suites and CLIs run for minutes and mostly wait on processes, so they go out
-# first and the quick pure-core files fill the gaps beside them, instead of one of them
-# starting last and running alone.
-_FIRST = ('cli', 'nodes', 'bags', 'ros')
-
-
-def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    root = Path(__file__).resolve().parent
-
-    def rank(item: pytest.Item) -> int:
-        parts = Path(item.fspath).resolve().relative_to(root).parts
-        return _FIRST.index(parts[0]) if parts[0] in _FIRST else len(_FIRST)
-
-    items.sort(key=rank)

@@ -52,6 +52,17 @@ def test_trial_refuses_a_stall_timeout_that_is_not_positive(capsys, stall):
     assert err.startswith(f'trial rejected: --stall-timeout {stall}: give a time > 0 [s]')
 
 
+@pytest.fixture(scope='module', autouse=True)
+def own_domain():
+    """This module's fake suite nodes (user_frame_solver, repeatability_trial) on a domain of
+    their own: on the session's domain a real suite of test/nodes (the same worker under
+    `make test`'s parallel workers) answered their calls."""
+    import domain_coordinator
+    with domain_coordinator.domain_id() as domain, pytest.MonkeyPatch.context() as patch:
+        patch.setenv('ROS_DOMAIN_ID', str(domain))
+        yield domain
+
+
 @contextlib.contextmanager
 def _spinning_node(name: str):
     """A node of this process with parameter services, spun on a thread of its own."""

@@ -16,9 +16,7 @@ def trial_data(tmp_path_factory):
     return tmp_path_factory.mktemp('results')
 
 
-# package, not session: under `make test`'s parallel workers a session suite idled on every
-# worker to the end of the run (about 0.4 of a core each) after its node tests were done
-@pytest.fixture(scope='package')
+@pytest.fixture(scope='session')
 def suite(domain_id, trial_data, tmp_path_factory):
     """The suite (launcher.SUITE: mock_robot, joint_state_monitor, proximity_sensor,
     user_frame_solver, repeatability_trial, kinematic_identifier; + an isolated /iso probe
@@ -43,7 +41,7 @@ def suite(domain_id, trial_data, tmp_path_factory):
     assert all(c == 0 for c in codes.values()), f'nodes did not exit cleanly: {codes}'
 
 
-@pytest.fixture(scope='package')
+@pytest.fixture(scope='session')
 def ros(suite):
     """A client node in this test process, on the suite's domain."""
     context = Context()
