@@ -31,7 +31,8 @@ from cobot_calib_ros.core.robot_port import PortError
 from cobot_calib_ros.loaders import load_cell
 from cobot_calib_ros.store.cells import ResultsCell
 from cobot_calib_ros.store.files import check_id
-from cobot_calib_ros.store.kinematics import chain_of, NOMINAL
+from cobot_calib_ros.core.rig import model_chain
+from cobot_calib_ros.store.kinematics import NOMINAL
 from cobot_calib_ros.store.records import TrialSetup
 from cobot_calib_ros.ros import qos, results, spin
 from cobot_calib_ros.ros.diagnostics import Diagnostics, OK, WARN
@@ -301,12 +302,12 @@ class RepeatabilityTrial(Node):
         try:
             record = store.open(data_dir, cell=self._results_cell).kinematics.resolve(
                 choice, self._model.name)
-            chain = chain_of(record, self._model, self._cell.tool_offset)
+            chain = model_chain(record, self._model, self._cell.tool_offset)
             rig = None
             if self._camera is not None:
                 X, _ = active_hand_eye(data_dir, self._cell, self._results_cell)
                 rig = trialmod.LandmarkRig(self._camera, self._cell, self._model.chain(tool=X),
-                                           chain_of(record, self._model, X), self._marks)
+                                           model_chain(record, self._model, X), self._marks)
         except (KeyError, ValueError) as e:
             raise trialmod.TrialError(ErrorCode.INVALID_INPUT,
                                       f'kinematics {choice!r}: {e}; use latest, '

@@ -50,7 +50,8 @@ from cobot_calib_ros.ros.time import now_ns, ns_to_stamp
 from cobot_calib_ros.ros.tf_static import StaticBroadcaster
 from cobot_calib_ros.store.cells import ResultsCell
 from cobot_calib_ros.store.history import user_frame_change
-from cobot_calib_ros.store.kinematics import chain_of, NOMINAL
+from cobot_calib_ros.core.rig import model_chain
+from cobot_calib_ros.store.kinematics import NOMINAL
 from cobot_calib_ros.store.records import UserFrameRecord
 
 Res = CalibrateUserFrame.Response
@@ -329,7 +330,7 @@ class UserFrameSolver(Node):
         kinematic_store = store.open(self._data_dir(), cell=self._results_cell).kinematics
         try:
             record = kinematic_store.resolve(choice, self._model.name)
-            chain = chain_of(record, self._model,
+            chain = model_chain(record, self._model,
                              self._cell.tool_offset if tool is None else tool)
         except (KeyError, ValueError) as e:
             raise Refusal(Failure(ErrorCode.INVALID_INPUT, (

@@ -25,7 +25,6 @@ from cobot_calib_ros.core.kinematics.robots import UrdfRobot
 from cobot_calib_ros.core.kinematics.ur_description import (is_ur, ur_kinematics,
                                                             ur_kinematics_yaml)
 from cobot_calib_ros.core.kinematics.urdf import calibrated_urdf, rewrite_urdf
-from cobot_calib_ros.core.rig import model_chain as chain_of   # noqa: F401 - its callers' name
 from cobot_calib_ros.store.calibrations import Activation, CalibrationStore
 from cobot_calib_ros.store.files import atomic_write_text, ensure_dir
 from cobot_calib_ros.store.records import KinematicRecord
@@ -77,7 +76,7 @@ class KinematicHistory:
     def resolve(self, choice: str, robot: str) -> dict[str, Any] | None:
         """The record ``choice`` names for ``robot`` (a model name): 'latest' (that robot's
         active one, None if it has none), 'nominal' (None) or an id (KeyError if not stored;
-        :func:`chain_of` refuses one of another robot)."""
+        :func:`core.rig.model_chain` refuses one of another robot)."""
         if choice in ('', NOMINAL):
             return None
         if choice == LATEST:
