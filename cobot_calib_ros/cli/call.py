@@ -213,7 +213,10 @@ def _answer(node, client, request, args, query: bool = False):
     spin_until(node, lambda: progress.matched() and server.named(), MATCH_WAIT)
     started = sent = time.monotonic()
     futures = [client.call_async(request)]
-    answered = lambda: any(f.done() for f in futures)  # noqa: E731
+
+    def answered() -> bool:
+        return any(f.done() for f in futures)
+
     try:
         while not spin_until(node, answered, 0.5):
             if server.gone():

@@ -6,14 +6,12 @@ from types import SimpleNamespace
 
 import domain_coordinator
 import pytest
-import rclpy
-from rclpy.context import Context
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.task import Future
 
 from cobot_calib_msgs.srv import CalibrateUserFrame, ConvertPoints
 from cobot_calib_ros.cli import call
 from cobot_calib_ros.ros.calls import CallError
+from cobot_calib_ros.ros.session import session
 
 
 class LosesTheFirstAnswer:
@@ -36,19 +34,9 @@ class LosesTheFirstAnswer:
 @pytest.fixture
 def node(monkeypatch):
     monkeypatch.setattr(call, 'RESEND_AFTER', 0.5)
-    with domain_coordinator.domain_id() as domain:
-        monkeypatch.setenv('ROS_DOMAIN_ID', str(domain))
-        context = Context()
-        rclpy.init(context=context, domain_id=domain)
-        node = rclpy.create_node('resend_test', context=context)
-        executor = SingleThreadedExecutor(context=context)
-        executor.add_node(node)
-        try:
-            yield node
-        finally:
-            executor.shutdown()
-            node.destroy_node()
-            rclpy.shutdown(context=context)
+    with domain_coordinator.domain_id() as domain, session('resend_test',
+                                                           domain_id=domain) as (node, _):
+        yield node
 
 
 def _answer(node, srv_type, name: str, args) -> tuple[LosesTheFirstAnswer, object]:
