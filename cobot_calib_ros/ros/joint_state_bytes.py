@@ -36,11 +36,11 @@ class JointStateBytes:
         self._positions_at = template.find(marker)
         if self._positions_at < 0 or template.find(marker, self._positions_at + 1) >= 0:
             raise ValueError('the positions are not where JointState serialization put them')
-        self._template = template
+        self._template = zero_padding(template, self.names)
         self._positions_end = self._positions_at + 8 * len(self.names)
         self._positions_format = f'<{len(self.names)}d'
-        self._between = template[_STAMP_OFFSET + _STAMP.size:self._positions_at]
-        self._after = template[self._positions_end:]
+        self._between = self._template[_STAMP_OFFSET + _STAMP.size:self._positions_at]
+        self._after = self._template[self._positions_end:]
 
     def pack(self, stamp_ns: int, positions: np.ndarray) -> bytes:
         """The serialized JointState stamped ``stamp_ns`` [ns] with ``positions`` [rad]."""
@@ -62,3 +62,34 @@ class JointStateBytes:
         sec, nanosec = _STAMP.unpack_from(data, _STAMP_OFFSET)
         return (sec * NS_PER_S + nanosec,
                 struct.unpack_from(self._positions_format, data, self._positions_at))
+
+
+def padding(names: list[str]) -> list[int]:
+    """Indices of the CDR alignment bytes in a serialized JointState of ``names`` (no frame_id,
+    velocity or effort). rclpy leaves them as the buffer had them (unset memory), so two
+    serializations of one message can differ there."""
+    at, gaps = 0, []                    # offsets in the body, after the encapsulation header
+
+    def align(size: int) -> None:
+        nonlocal at
+        while at % size:
+            gaps.append(at)
+            at += 1
+
+    at = 8 + 4 + 1                      # stamp, frame_id length, frame_id's NUL
+    for text in [None, *names]:         # the name count, then each name
+        align(4)
+        at += 4 + (len(text.encode()) + 1 if text is not None else 0)
+    align(4)
+    at += 4                             # position count
+    align(8)
+    return [_STAMP_OFFSET + gap for gap in gaps]
+
+
+def zero_padding(data: bytes, names: list[str]) -> bytes:
+    """``data`` with the alignment bytes of :func:`padding` set to 0."""
+    out = bytearray(data)
+    for i in padding(names):
+        out[i] = 0
+    return bytes(out)
+
