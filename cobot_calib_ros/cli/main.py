@@ -48,14 +48,42 @@ def main(argv: list[str] | None = None) -> int:
     from cobot_calib_ros.cli.common import EXIT_INTERRUPTED, GuardedStdout
     stdout = sys.stdout
     sys.stdout = GuardedStdout(stdout)     # `cobot-calib ... | head`: the verb's own exit code
+    native_stdout = None
     try:
         args = build_parser().parse_args(argv)
+        if getattr(args, 'json', False):
+            native_stdout = _native_stdout_to_stderr(stdout)
         return args.run(args)
     except KeyboardInterrupt:
         return EXIT_INTERRUPTED
     finally:
         sys.stdout.flush()
+        if native_stdout is not None:
+            sys.stdout.close()
+            os.dup2(native_stdout, 1)
+            os.close(native_stdout)
         sys.stdout = stdout
+
+
+def _native_stdout_to_stderr(stdout) -> int | None:
+    """--json output is parsed by programs, but Fast DDS logs its errors (e.g. RTPS_TRANSPORT_SHM
+    "Failed init_port") with std::cout at any time: file descriptor 1 becomes stderr for the
+    native libraries and the verb prints to a copy of the real stdout. Returns the saved
+    descriptor, or None where stdout is not the process's own (a caller capturing it)."""
+    if stdout is not sys.__stdout__:
+        return None
+    try:
+        if stdout.fileno() != 1:
+            return None
+    except (AttributeError, OSError, ValueError):
+        return None
+    from cobot_calib_ros.cli.common import GuardedStdout
+    stdout.flush()
+    saved = os.dup(1)
+    os.dup2(2, 1)
+    sys.stdout = GuardedStdout(os.fdopen(os.dup(saved), 'w', encoding=stdout.encoding,
+                                         errors=stdout.errors))
+    return saved
 
 
 if __name__ == '__main__':
