@@ -65,11 +65,14 @@ class LiveView(Node):
         self._listener = _Subscriptions()
         self.channels: dict[str, foxglove.Channel] = {}
         self._types: dict[str, tuple[type, object]] = {}    # topic: (message class, QoS)
-        self._latched: dict[str, deque[bytes]] = {}
+        # topic: (sequence number, message, whether a window was routed when it came)
+        self._latched: dict[str, deque[tuple[int, bytes, bool]]] = {}
+        self._sequence = 0
         self._skipped: set[str] = set()
         self.viewers: dict[str, int] = {}       # topic: windows subscribed to its channel
         self.ros_subscriptions: dict[str, object] = {}
-        self._due: list[tuple[float, str]] = []     # (monotonic time, topic) of replays
+        # replays: (monotonic time, topic, sequence number of the last message kept before)
+        self._due: list[tuple[float, str, int]] = []
         self._discover()
         self.server = foxglove.start_server(name='cobot_calib_ros', host='127.0.0.1', port=0,
                                             server_listener=self._listener)
@@ -145,9 +148,11 @@ class LiveView(Node):
         channel, kept = self.channels[topic], self._latched.get(topic)
 
         def on_message(data: bytes) -> None:
+            reached_a_window = channel.has_sinks()
             channel.log(data, log_time=time.time_ns())
             if kept is not None:
-                kept.append(data)
+                self._sequence += 1
+                kept.append((self._sequence, data, reached_a_window))
         return on_message
 
     def _serve(self) -> None:
@@ -161,21 +166,30 @@ class LiveView(Node):
             self.viewers[topic] = self.viewers.get(topic, 0) + change
             if topic in self._latched:
                 if change > 0:
-                    self._due.append((time.monotonic() + REPLAY_AFTER, topic))
+                    self._due.append((time.monotonic() + REPLAY_AFTER, topic, self._sequence))
             elif self.viewers[topic] > 0 and topic not in self.ros_subscriptions:
                 self._subscribe(topic)
             elif self.viewers[topic] <= 0 and topic in self.ros_subscriptions:
                 self.destroy_subscription(self.ros_subscriptions.pop(topic))
         now, sent = time.monotonic(), set()
-        for due, topic in [d for d in self._due if d[0] <= now]:
+        for entry in [d for d in self._due if d[0] <= now]:
+            _, topic, before = entry
             if self.viewers[topic] <= 0:            # the window left before: nobody to send to
-                self._due.remove((due, topic))
+                self._due.remove(entry)
             elif self.channels[topic].has_sinks():
-                self._due.remove((due, topic))
+                self._due.remove(entry)
                 if topic not in sent:               # windows that came together: once
                     sent.add(topic)
-                    for data in self._latched.get(topic, ()):
-                        self.channels[topic].log(data, log_time=time.time_ns())
+                    self._replay(topic, before)
+
+    def _replay(self, topic: str, before: int) -> None:
+        """The latched messages a new window has not had: those kept before it subscribed,
+        and those that came after while no window was routed (their live send reached
+        nobody). One that came after with a window routed went to it live: sending it again
+        showed it twice (a latched message arriving late, on a loaded machine)."""
+        for sequence, data, reached_a_window in self._latched.get(topic, ()):
+            if sequence <= before or not reached_a_window:
+                self.channels[topic].log(data, log_time=time.time_ns())
 
     def destroy_node(self):
         self.bridge.stop()

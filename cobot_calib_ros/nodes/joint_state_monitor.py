@@ -33,6 +33,9 @@ from cobot_calib_ros.ros.joint_state_bytes import JointStateBytes
 from cobot_calib_ros.ros.time import now_ns, NS_PER_S, stamp_to_ns, wait_past
 
 STALL_TIMEOUT = 3.0     # [s] of wall time without a new sample: the stream has stopped
+# [s] a capture waits for the first joint_states of a node that has had none yet: just
+# (re)started, its subscription may not be matched with the publisher (seconds under load)
+FIRST_SAMPLE_TIMEOUT = 10.0
 NO_DATA_TIMEOUT = 1.0   # [s] of wall time without a message: /diagnostics warns
 
 
@@ -135,6 +138,8 @@ class JointStateMonitor(Node):
             response.message = (f'duration {duration} s must be > 0 and within the buffer '
                                 f'({self.get_parameter("buffer_duration").value} s)')
             return response
+        with self._lock:
+            self._new_sample.wait_for(lambda: self._buffer.count > 0, FIRST_SAMPLE_TIMEOUT)
         t0 = now_ns(self) * 1e-9
         t1 = t0 + duration
         with self._lock:
