@@ -20,6 +20,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+import math
 from typing import Protocol
 
 import numpy as np
@@ -73,6 +74,51 @@ class Capture:
     sample_count: int        # joint readings averaged
 
 
+@dataclass(frozen=True)
+class Approach:
+    """How the tool comes onto a touched point (the TCP calibration's approaches).
+
+    ``orientation``: the tool's (3, 3) orientation in the base frame. ``axis`` 'z' or 'x':
+    not the point itself but the elongator point ``distance`` [m] from it along that axis of
+    the tool, the tool turned as in ``orientation`` (ABB's 5- and 6-point methods)."""
+
+    orientation: Array
+    axis: str = ''
+    distance: float = 0.0
+
+    def describe(self, name: str) -> str:
+        """What the operator is asked to do, in words."""
+        if not self.axis:
+            return f'the top-face centre of {name}, the tool tilted as planned'
+        return (f'the elongator point {self.distance * 1e3:.0f} mm from {name} along the '
+                f"tool's {self.axis}, without turning the tool from the first approach")
+
+
+ELONGATOR_SEPARATOR = '+'
+
+
+def elongator_point_name(name: str, axis: str, distance: float) -> str:
+    """The name mock_robot/hand_guide takes for an elongator point: 'P1+z0.05' (HandGuide.srv
+    has no field for it; see parse_elongator_point_name)."""
+    return f'{name}{ELONGATOR_SEPARATOR}{axis}{distance:.6g}'
+
+
+def parse_elongator_point_name(text: str) -> tuple[str, str, float]:
+    """(point, axis, distance [m]) of :func:`elongator_point_name`; (text, '', 0.0) for a
+    plain point name; ValueError for a malformed elongator part."""
+    name, sep, rest = text.rpartition(ELONGATOR_SEPARATOR)
+    if not sep:
+        return text, '', 0.0
+    try:
+        distance = float(rest[1:])
+    except ValueError:
+        distance = math.nan
+    if rest[:1] not in ('z', 'x') or not (0.0 < distance < 1.0):
+        raise ValueError(f'elongator point {text!r}: expected <point>+z<metres> or '
+                         '<point>+x<metres>, e.g. P1+z0.05')
+    return name, rest[0], distance
+
+
 class RobotPort(Protocol):
     """The arm, its encoders, the proximity probe and the laser tracker."""
 
@@ -87,10 +133,12 @@ class RobotPort(Protocol):
         """Move the tool to a (4, 4) pose in the base frame, IK by the robot's own (nominal)
         model; the joints reached [rad]. MoveFailed."""
 
-    def touch(self, name: str) -> None:
+    def touch(self, name: str, approach: Approach | None = None) -> None:
         """Have the tool tip put onto the top of cell point ``name`` and return once it rests
         there: a real cell waits for the operator's confirmation after hand-guiding, the
-        simulation hand-guides itself. Capture the joints afterwards. MoveFailed."""
+        simulation hand-guides itself. ``approach``: with the tool in that orientation, or onto
+        an elongator point (None: the cell's touch orientation). Capture the joints
+        afterwards. MoveFailed."""
 
     def capture(self, duration: float) -> Capture:
         """The joints averaged over a hold of ``duration`` [s]. CaptureFailed."""
