@@ -113,7 +113,7 @@ def parse_elongator_point_name(text: str) -> tuple[str, str, float]:
         distance = float(rest[1:])
     except ValueError:
         distance = math.nan
-    if rest[:1] not in ('z', 'x') or not (0.0 < distance < 1.0):
+    if rest[:1] not in ('z', 'x') or not (0.0 < abs(distance) < 1.0):
         raise ValueError(f'elongator point {text!r}: expected <point>+z<metres> or '
                          '<point>+x<metres>, e.g. P1+z0.05')
     return name, rest[0], distance

@@ -35,6 +35,7 @@ from cobot_calib_msgs.action import MoveTo
 from control_msgs.action import FollowJointTrajectory
 from cobot_calib_msgs.msg import ProbeVoltage
 from cobot_calib_msgs.srv import GetGroundTruth, HandGuide, MeasurePosition
+from geometry_msgs.msg import Pose
 import numpy as np
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
@@ -44,6 +45,7 @@ from sensor_msgs.msg import JointState
 from cobot_calib_ros import paths
 from cobot_calib_ros.core.driver import move_seconds
 from cobot_calib_ros.core.errors import ErrorCode, Failure
+from cobot_calib_ros.core.robot_port import Approach, parse_elongator_point_name
 from cobot_calib_ros.core.sensors.joint_buffer import StampGaps, StampMarks
 from cobot_calib_ros.core.sensors.sample_clock import SampleClock
 from cobot_calib_ros.ros import convert, qos, results, spin
@@ -248,8 +250,10 @@ class MockRobot(Node):
                        'use TARGET_JOINTS or TARGET_POSE (a touch: mock_robot/hand_guide)')
 
     def _on_hand_guide(self, request, response):
-        """The simulated operator guides the tool onto ``point_name`` (at the default speed)."""
-        q_target = self._robot.plan_touch(request.point_name)
+        """The simulated operator guides the tool onto ``point_name`` (at the default speed),
+        in ``orientation`` when ``oriented``; '<point>+z<metres>' (or +x) is the elongator
+        point that far along the true tool's axis (core.robot_port.elongator_point_name)."""
+        q_target = self._touch_target(request)
         if isinstance(q_target, Failure):
             results.fill(response, 'HandGuide', q_target)
             return response
@@ -270,6 +274,24 @@ class MockRobot(Node):
         response.error_code = HandGuide.Response.SUCCESS
         response.message = f'the operator guided the tool onto {request.point_name}'
         return response
+
+    def _touch_target(self, request) -> np.ndarray | Failure:
+        try:
+            name, axis, distance = parse_elongator_point_name(request.point_name)
+        except ValueError as e:
+            return Failure(ErrorCode.INVALID_INPUT, str(e))
+        if not request.oriented:
+            if axis:
+                return Failure(ErrorCode.INVALID_INPUT, f'elongator point {request.point_name!r}'
+                               ' needs the tool orientation (oriented: true)')
+            return self._robot.plan_touch(name)
+        q = request.orientation
+        norm = math.sqrt(q.x ** 2 + q.y ** 2 + q.z ** 2 + q.w ** 2)
+        if not math.isfinite(norm) or abs(norm - 1.0) > 1e-3:
+            return Failure(ErrorCode.INVALID_INPUT, f'orientation is not a unit quaternion '
+                           f'(|q| = {norm:.6g}); give x y z w of the tool in the base frame')
+        R = convert.pose_to_matrix(Pose(orientation=q))[:3, :3]
+        return self._robot.plan_touch(name, approach=Approach(R, axis, distance))
 
     def _execute_move(self, goal_handle):
         goal = goal_handle.request

@@ -22,7 +22,9 @@ import numpy as np
 from rclpy.action import ActionClient
 from std_srvs.srv import Trigger
 
-from cobot_calib_ros.core.robot_port import (Capture, CaptureFailed, MoveFailed, PortError,
+from cobot_calib_ros.core import frames
+from cobot_calib_ros.core.robot_port import (Approach, Capture, CaptureFailed,
+                                             elongator_point_name, MoveFailed, PortError,
                                              RobotStopped)
 from cobot_calib_ros.core.sensors.probe import Reading, ReadingStatus
 from cobot_calib_ros.ros.convert import matrix_to_pose
@@ -105,10 +107,11 @@ class RobotCalls:
         self.robot_seconds += result.duration
         return result
 
-    def touch(self, name: str) -> None:
-        """The tool tip onto cell point ``name``: the mock's simulated operator when
-        mock_robot/hand_guide answers, else the operator, who confirms (TOUCH_TIMEOUT). The
-        robot's move_to must be up either way (what it moves next, and a sign of a driver)."""
+    def touch(self, name: str, approach: Approach | None = None) -> None:
+        """The tool tip onto cell point ``name`` (``approach``: in that tool orientation, or
+        onto an elongator point): the mock's simulated operator when mock_robot/hand_guide
+        answers, else the operator, who confirms (TOUCH_TIMEOUT). The robot's move_to must be
+        up either way (what it moves next, and a sign of a driver)."""
         try:
             if not until(self.move_client.server_is_ready, SERVER_WAIT):   # no robot at all
                 raise MoveFailed(NO_MOVE_TO)
@@ -118,14 +121,17 @@ class RobotCalls:
         except Stopping as e:
             raise MoveFailed(f'touch {name}: {e}')
         if self._simulated_operator:
-            return self._hand_guided(name)
+            return self._hand_guided(name, approach)
         if not self.confirm_service:
             raise MoveFailed(f'touch {name}: no operator to confirm it (the node serves no '
                              'confirm_touch) and no simulated one (mock_robot/hand_guide)')
         self._confirmed.clear()
         full_name = self._answers.node.resolve_service_name(self.confirm_service)
+        where = f'the top-face centre of {name}' if approach is None else \
+            approach.describe(name) + (' (tool z in the base frame: '
+                                       f'{np.round(approach.orientation[:, 2], 3).tolist()})')
         self._answers.node.get_logger().warning(
-            f'touch {name}: guide the tool tip onto the top-face centre of {name}, hold still, '
+            f'touch {name}: guide the tool tip onto {where}, hold still, '
             f'then call {full_name} (std_srvs/Trigger)')
         self.awaiting_operator.set()
         try:
@@ -138,10 +144,17 @@ class RobotCalls:
             raise MoveFailed(f'touch {name}: not confirmed within {TOUCH_TIMEOUT:.0f} s '
                              f'(call {full_name} once the tool rests on the point)')
 
-    def _hand_guided(self, name: str) -> None:
+    def _hand_guided(self, name: str, approach: Approach | None) -> None:
+        request = HandGuide.Request(point_name=name)
+        if approach is not None:
+            request.oriented = True
+            request.orientation = matrix_to_pose(frames.make_transform(
+                approach.orientation, np.zeros(3))).orientation
+            if approach.axis:
+                request.point_name = elongator_point_name(name, approach.axis,
+                                                          approach.distance)
         try:
-            res = wait(self._hand_guide.call_async(HandGuide.Request(point_name=name)),
-                       MOVE_TIMEOUT)
+            res = wait(self._hand_guide.call_async(request), MOVE_TIMEOUT)
         except TimeoutError as e:
             raise MoveFailed(f'{HAND_GUIDE} {name}: {e}; is mock_robot up?')
         if res.error_code != HandGuide.Response.SUCCESS:

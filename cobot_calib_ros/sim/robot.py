@@ -18,7 +18,7 @@ from cobot_calib_ros.core import frames, kinematics
 from cobot_calib_ros.core.cell import tool_down_orientation
 from cobot_calib_ros.core.driver import move_seconds
 from cobot_calib_ros.core.errors import ErrorCode, Failure
-from cobot_calib_ros.core.robot_port import Capture, CaptureFailed, MoveFailed
+from cobot_calib_ros.core.robot_port import Approach, Capture, CaptureFailed, MoveFailed
 from cobot_calib_ros.core.sensors.probe import (average, ProbeCurve, Reading, read_distance,
                                                 ReadingStatus)
 from cobot_calib_ros.sim.scenario import Simulation
@@ -35,7 +35,7 @@ class SimRobot:
         self.model = kinematics.model_for(self.cell)
         self.true_parameters = sim.true_parameters(self.model)
         self.nominal = self.model.chain(tool=self.cell.tool_offset)
-        self.true = self.model.chain(self.true_parameters, tool=self.cell.tool_offset)
+        self.true = self.model.chain(self.true_parameters, tool=sim.true_tool_offset)
         spheres = sim.spheres
         self.coupling = None if spheres is None else self.model.chain(
             self.true_parameters, tool=spheres.coupling_offset)   # true chain to the coupling
@@ -92,18 +92,24 @@ class SimRobot:
         """Joints that put the tool at ``T_base_tool`` by the nominal model (the controller)."""
         return self._solve(self.nominal, T_base_tool)
 
-    def plan_touch(self, name: str, axis: str = 'z') -> Array | Failure:
+    def plan_touch(self, name: str, axis: str = 'z',
+                   approach: Approach | None = None) -> Array | Failure:
         """The operator hand-guides the real tool tip onto marker ``name`` (with centring
-        error): joints that put the TRUE tool there."""
+        error): joints that put the TRUE tool there, pointing along the user ``axis``, or as
+        ``approach`` asks (its orientation; an elongator point along the true tool's axis,
+        as an operator lines one up on the real tool)."""
         marker = self.sim.world.marker(name)
         if marker is None:
             return Failure(ErrorCode.INVALID_INPUT, f'unknown point {name!r}; the cell has '
                            f'{self.sim.world.point_names}')
         T_base_user = self.sim.world.T_base_user
+        R = tool_down_orientation(T_base_user, axis) if approach is None \
+            else np.asarray(approach.orientation, dtype=float)
+        point = frames.apply(T_base_user, marker.true_top)
+        if approach is not None and approach.axis:
+            point = point + approach.distance * R[:, 'xyz'.index(approach.axis)]
         target = frames.make_transform(
-            tool_down_orientation(T_base_user, axis),
-            frames.apply(T_base_user, marker.true_top)
-            + self._motion_rng.normal(0.0, self.sim.noise.touch_sigma, 3))
+            R, point + self._motion_rng.normal(0.0, self.sim.noise.touch_sigma, 3))
         return self._solve(self.true, target)
 
     def plan_compliant(self, q: Array) -> Array | Failure:
@@ -196,8 +202,8 @@ class DirectRobot:
     def move_to_pose(self, T_base_tool: Array) -> Array:
         return self._go(self.sim.plan_pose(T_base_tool))
 
-    def touch(self, name: str) -> None:
-        self._go(self.sim.plan_touch(name))
+    def touch(self, name: str, approach: Approach | None = None) -> None:
+        self._go(self.sim.plan_touch(name, approach=approach))
 
     def capture(self, duration: float) -> Capture:
         count = max(1, round(duration * self.sim.sim.joint_states_hz))

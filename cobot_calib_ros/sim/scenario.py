@@ -61,6 +61,13 @@ class Simulation:
     probe_hz: float
     spheres: SphereTruth | None = None   # the sphere plate, if the cell has one
     camera: CameraTruth | None = None    # the wrist camera, if the cell has one
+    tool_offset_true: Array | None = None   # (4, 4) the real flange -> tool tip; None: the
+    #                                         cell's tool_offset is exact
+
+    @property
+    def true_tool_offset(self) -> Array:
+        """(4, 4) where the tool tip really is on the flange (what a TCP calibration finds)."""
+        return self.cell.tool_offset if self.tool_offset_true is None else self.tool_offset_true
 
     def true_parameters(self, model: KinematicModel) -> Array:
         """Nominal parameters plus the explicit and seeded random kinematic errors."""
@@ -115,7 +122,15 @@ def load_simulation(path: str | Path, layout: str | None = None) -> Simulation:
         world=world, noise=_noise(r), probe=_probe(r),
         joint_states_hz=r.number('rates', 'joint_states_hz', default=1000.0),
         probe_hz=r.number('rates', 'probe_hz', default=200.0),
-        spheres=_spheres(r, cell), camera=_camera(r, cell))
+        spheres=_spheres(r, cell), camera=_camera(r, cell), tool_offset_true=_tool(r))
+
+
+def _tool(r: CellReader) -> Array | None:
+    """The real tool (``tool_offset_true: {xyz, rpy}``), None: the nominal one is exact."""
+    if r.get('tool_offset_true', default=None) is None:
+        return None
+    return frames.from_xyz_rpy(r.vector('tool_offset_true', 'xyz', length=3),
+                               r.vector('tool_offset_true', 'rpy', length=3))
 
 
 def _spheres(r: CellReader, cell: Cell) -> SphereTruth | None:
