@@ -18,8 +18,8 @@ def add_parser(subparsers):
     p.add_argument('--since', help='only results from this time on (ISO 8601, e.g. '
                                    '2026-11-01 or 2026-11-01T08:00; UTC unless it says)')
     p.add_argument('--json', action='store_true',
-                   help='one JSON line per cell (its user frames, kinematic calibrations and '
-                        'checks)')
+                   help='one JSON line per cell (its user frames, kinematic calibrations, '
+                        'TCPs and checks)')
     p.add_argument('--plots', help='folder for the trend PNGs (default <data dir>/reports)')
     p.add_argument('--no-plots', action='store_true', help='print only')
     return p
@@ -64,13 +64,14 @@ def run(args) -> int:
         for report in reports:
             if report['user_frames']:
                 print(f'trend plot: {_plot(report, out)}', flush=True)
-    worst = max((s['level'] for r in reports for s in r['user_frames'] if s['level']),
-                default=0)
+    worst = max((s['level'] for r in reports for s in (*r['user_frames'], *r['tcp'])
+                 if s['level']), default=0)
     return EXIT_FAILED if worst >= 2 else EXIT_OK
 
 
 def _cell_report(repo, cell: str, start: int) -> dict:
-    from cobot_calib_ros.store.history import kinematic_changes, user_frame_steps
+    import numpy as np
+    from cobot_calib_ros.store.history import kinematic_changes, tcp_steps, user_frame_steps
     steps = []
     for step in user_frame_steps(repo.user_frames.history()):
         if step.record['stamp_ns'] < start:
@@ -100,11 +101,28 @@ def _cell_report(repo, cell: str, start: int) -> dict:
                               'largest_change': None if worst is None else {
                                   'name': worst.name, 'change': worst.change,
                                   'sigma': worst.sigma, 'z': worst.z}})
+    tcp = []
+    for tool, step in tcp_steps(repo.tcp.history()):
+        if step.record['stamp_ns'] < start:
+            continue
+        c, result = step.change, step.record['result']
+        tcp.append({'id': step.record['id'], 'tool': tool, 'method': step.record['method'],
+                    'previous': step.previous_id,
+                    'xyz_mm': [v * 1e3 for v in np.array(result['T_flange_tcp'])[:3, 3]],
+                    'mean_residual_mm': result.get('mean_residual_mm'),
+                    'max_residual_mm': result.get('max_residual_mm'),
+                    'moved_mm': None if c is None else c.translation_m * 1e3,
+                    'sigma_mm': None if c is None else c.sigma_translation_m * 1e3,
+                    'turned_mrad': None if c is None else c.rotation_rad * 1e3,
+                    'level': 0 if c is None else c.level,
+                    'verdict': 'first' if c is None else c.level_name,
+                    'message': '' if c is None else c.message})
     checks = [{'id': r['id'], 'method': r['method'], 'verdict': r['result'].get('verdict'),
                'robot_s': r['result'].get('robot_seconds')}
               for r in repo.checks.history() if r['stamp_ns'] >= start] \
         if hasattr(repo, 'checks') else []
-    return {'cell': cell, 'user_frames': steps, 'kinematics': kinematic, 'checks': checks}
+    return {'cell': cell, 'user_frames': steps, 'kinematics': kinematic, 'tcp': tcp,
+            'checks': checks}
 
 
 def _print(report: dict, as_json: bool) -> None:
@@ -128,6 +146,16 @@ def _print(report: dict, as_json: bool) -> None:
         text = '' if big is None else (f'largest change {big["name"]} {big["change"]:+.3g} '
                                        f'({big["z"]:.1f} sigma)')
         print(f'  kinematics {k["robot"]} {k["id"]}: rms {k["rms_mm"]:.3f} mm; {text}')
+    for t in report['tcp']:
+        x, y, z = t['xyz_mm']
+        moved = '' if t['moved_mm'] is None else (
+            f'; moved {t["moved_mm"]:.3f} +-{t["sigma_mm"]:.3f} mm, turned '
+            f'{t["turned_mrad"]:.3f} mrad: {t["verdict"]}')
+        print(f'  tcp {t["tool"]} {t["id"]} ({t["method"]}): {x:.3f} {y:.3f} {z:.3f} mm, '
+              f'residual mean {t["mean_residual_mm"]:.3f} max {t["max_residual_mm"]:.3f} mm'
+              f'{moved}')
+        if t['level']:
+            print(f'  {t["verdict"]}: {t["message"]}')
     for c in report['checks']:
         print(f'  check {c["id"]} ({c["method"]}): {c["verdict"]}, robot {c["robot_s"]} s')
 

@@ -4,6 +4,7 @@ User frames: the frame's translation and rotation change with their standard err
 drift verdict of core.drift (the change's covariance from the two results' shared points when
 they measured the same ones, else the sum of the two fits' covariances). Kinematic
 calibrations (per robot): each identified parameter's change in units of its combined
+standard error. TCPs (per tool): the TCP's move and turn on the flange against its
 standard error. Used by ``cobot-calib history`` and by user_frame_solver's drift status on
 /diagnostics.
 """
@@ -53,6 +54,46 @@ def user_frame_steps(records: Sequence[Mapping[str, Any]],
         steps.append(Step(record, '' if previous is None else previous['id'], change))
         previous = record
     return steps
+
+
+def tcp_steps(records: Sequence[Mapping[str, Any]],
+              limits: DriftLimits = DriftLimits()) -> list[tuple[str, Step]]:
+    """(tool, step) of each TCP record (oldest first, rejected ones skipped) against the
+    previous one of its tool: the TCP's move and turn in the flange frame, with the standard
+    error of the two solves (their position covariances; the z / x direction's from the
+    residuals over the elongation)."""
+    steps, previous = [], {}
+    for record in sorted(records, key=lambda r: (r['stamp_ns'], r['id'])):
+        if record.get('gate_problem'):
+            continue
+        tool = str(record.get('tool', ''))
+        prev = previous.get(tool)
+        change = None
+        if prev is not None:
+            change = frame_change(_tcp(prev), _tcp(record),
+                                  _tcp_covariance(prev) + _tcp_covariance(record), limits,
+                                  what=f'TCP of {tool}', since=str(prev['id']))
+        steps.append((tool, Step(record, '' if prev is None else prev['id'], change)))
+        previous[tool] = record
+    return steps
+
+
+def _tcp(record) -> np.ndarray:
+    return np.array(record['result']['T_flange_tcp'], dtype=float)
+
+
+def _tcp_covariance(record) -> np.ndarray:
+    """(6, 6): the TCP position's covariance; its direction's from the elongator touches (none
+    without: the rotation is identity, not measured)."""
+    result = record['result']
+    cov = np.zeros((6, 6))
+    position = np.array(result.get('covariance') or np.full((3, 3), np.inf), dtype=float)
+    cov[:3, :3] = position if position.shape == (3, 3) else np.full((3, 3), np.inf)
+    elongation = float(record.get('inputs', {}).get('elongation') or 0.0)
+    if result.get('orientation_method', 'none') != 'none' and elongation > 0:
+        rms = math.sqrt(float(np.mean(np.square(result.get('residuals_mm') or [0.0]))) / 3.0)
+        cov[3:, 3:] = np.eye(3) * 2.0 * (rms * 1e-3 / elongation) ** 2
+    return cov
 
 
 @dataclass(frozen=True)

@@ -208,6 +208,75 @@ class HandEyeRecord(Record):
     robot: str = ''              # set by the cell's store (store.cells)
 
 
+# -- tool centre point (tcp_calibrator) --------------------------------------------------------
+
+@dataclass(kw_only=True)
+class TcpInputs(Record):
+    point_name: str            # the fixed point of the cell the tip was brought to
+    labels: list[str]          # each touch: 'approach 1'.., 'z elongator', 'x elongator'
+    joints: Any                # (N, n) captured joints of each touch [rad]
+    T_base_flange: Any         # (N, 4, 4) their flange poses by the kinematics used [m]
+    tilt: float = 0.0          # [rad] of the planned approaches from the first
+    elongation: float = 0.0    # [m] of the elongator points (0: none)
+
+
+@dataclass(kw_only=True)
+class TcpResult(Record):
+    """A core.tcp.TcpSolution as stored."""
+
+    T_flange_tcp: Any          # (4, 4) rotation identity for orientation_method 'none'
+    fixed_point: Any           # (3,) in the base frame [m]
+    orientation_method: str    # 'none' (position only), 'z', 'zx'
+    mean_residual_mm: float
+    max_residual_mm: float
+    residuals_mm: Any          # (approaches,) each tip's distance from the fixed point
+    condition: float
+    covariance: Any            # (3, 3) of the TCP position [m^2]
+    linear_t: Any              # (3,) the algebraic solution before the refinement [m]
+    approaches: int
+
+
+@dataclass(kw_only=True)
+class TcpRecord(Record):
+    """One TCP calibration of ``tool`` (activation is per tool; the cell's own tool is named
+    by its tool_frame)."""
+
+    NESTED = {'inputs': TcpInputs, 'result': TcpResult}
+    id: str
+    stamp_ns: int
+    method: str                # e.g. 'tcp-6-point-z'
+    tool: str
+    kinematics: str = 'nominal'  # the kinematic calibration the flange poses came from
+    inputs: TcpInputs
+    result: TcpResult
+    gate_problem: str = ''
+    cell: str = ''               # set by the cell's store (store.cells)
+    robot: str = ''
+
+    @classmethod
+    def from_solution(cls, solution, tool: str, point_name: str, labels: list[str], joints,
+                      flange, stamp_ns: int, kinematics: str = 'nominal', tilt: float = 0.0,
+                      elongation: float = 0.0, gate_problem: str = '') -> TcpRecord:
+        """The record of a core.tcp.TcpSolution of ``tool`` from the touches' joints and
+        flange poses."""
+        position = solution.position
+        n = len(position.residuals)
+        method = f'tcp-{n}-point' + ('' if solution.method == 'none' else f'-{solution.method}')
+        return cls(
+            id=record_id(f'tcp-{tool}'), stamp_ns=stamp_ns, method=method, tool=tool,
+            kinematics=kinematics, gate_problem=gate_problem,
+            inputs=TcpInputs(point_name=point_name, labels=list(labels), joints=joints,
+                             T_base_flange=flange, tilt=tilt, elongation=elongation),
+            result=TcpResult(T_flange_tcp=solution.T_flange_tcp, fixed_point=position.c,
+                             orientation_method=solution.method,
+                             mean_residual_mm=position.mean_residual_mm,
+                             max_residual_mm=position.max_residual_mm,
+                             residuals_mm=position.distances * 1e3,
+                             condition=position.condition,
+                             covariance=position.covariance[:3, :3],
+                             linear_t=position.linear[:3], approaches=n))
+
+
 # -- kinematic calibration (kinematic_identifier) ----------------------------------------------
 
 @dataclass(kw_only=True)

@@ -1,0 +1,78 @@
+"""TCP records (store.records.TcpRecord) in the folder store, SQLite and PostgreSQL alike:
+keyed by cell, one active per tool, a rejected one kept but never active; the record reads
+back as it was written."""
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+
+from cobot_calib_ros import store
+from cobot_calib_ros.core import frames
+from cobot_calib_ros.core.tcp import solve_tcp
+from cobot_calib_ros.core.tcp.touches import plan_touches
+from cobot_calib_ros.store.cells import ResultsCell
+from cobot_calib_ros.store.repository import FolderRepository
+from cobot_calib_ros.store.records import TcpRecord
+
+T_FLANGE_TCP = frames.from_xyz_rpy([0.0003, -0.0002, 0.1004], [0.0, 0.0, 0.0])
+_plants = itertools.count()
+
+
+def _record(tool: str, stamp_ns: int, gate_problem: str = '', dz: float = 0.0) -> dict:
+    T = T_FLANGE_TCP.copy()
+    T[2, 3] += dz
+    plan = plan_touches('P1', 4)
+    flange = np.array([frames.make_transform(R, [0.5, 0.1, 0.1]) @ frames.invert(T)
+                       for R in plan.orientations])
+    solution = solve_tcp(flange)
+    record = TcpRecord.from_solution(
+        solution, tool, 'P1', [label for label, _ in plan.steps()], np.zeros((4, 7)), flange,
+        stamp_ns, tilt=0.52, gate_problem=gate_problem).to_dict()
+    record['id'] = f'tcp-{tool}-{stamp_ns}'
+    return record
+
+
+@pytest.fixture(params=['folder', 'sqlite', 'postgresql'])
+def repo(request, tmp_path):
+    cell = ResultsCell(f'tcp_cell_{next(_plants)}_{id(request)}', 'sawyer')
+    if request.param == 'folder':
+        (tmp_path / 'calibrations').mkdir()
+        return FolderRepository(tmp_path, cell)
+    url = (f'sqlite:///{tmp_path / "results.sqlite"}' if request.param == 'sqlite'
+           else request.getfixturevalue('postgres_url'))
+    return store.open(tmp_path, url, cell)
+
+
+def test_one_tcp_is_active_per_tool_and_a_rejected_one_never(repo):
+    assert repo.tcp.save_and_activate(_record('tool0', 1))
+    assert repo.tcp.save_and_activate(_record('gripper', 2, dz=0.05))
+    outcome = repo.tcp.save_and_activate(_record('tool0', 3, 'residual 0.4 mm per axis'))
+    assert not outcome and 'residual 0.4 mm' in outcome.reason
+    assert repo.tcp.active('tool0')['id'] == 'tcp-tool0-1'
+    assert repo.tcp.active('gripper')['id'] == 'tcp-gripper-2'
+    assert list(repo.tcp.rejected()) == ['tcp-tool0-3']
+    assert repo.tcp.save_and_activate(_record('tool0', 4, dz=1e-4))
+    again = _reopen(repo)
+    active = again.tcp.active('tool0')
+    assert active['id'] == 'tcp-tool0-4' and active['cell'] == repo.cell.name
+    assert [r['id'] for r in again.tcp.history()][-1] == 'tcp-tool0-1'
+    assert repo.cell.name in again.cells()
+
+
+def _reopen(repo):
+    """The same repository opened again (what another process sees)."""
+    if isinstance(repo, FolderRepository):
+        return FolderRepository(repo.root, repo.cell)
+    return store.open(repo.root, repo.database.url, repo.cell)
+
+
+def test_a_tcp_record_reads_back_as_written():
+    record = _record('tool0', 7)
+    back = TcpRecord.from_dict(record)
+    assert back.tool == 'tool0' and back.method == 'tcp-4-point'
+    assert np.allclose(back.result.T_flange_tcp, T_FLANGE_TCP, atol=1e-12)
+    assert back.result.orientation_method == 'none' and back.result.approaches == 4
+    assert back.inputs.labels == ['approach 1', 'approach 2', 'approach 3', 'approach 4']
+    assert back.to_dict() == record
