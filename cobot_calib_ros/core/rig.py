@@ -3,7 +3,8 @@
 One place answers "which chain, with which tool" (issue 29): the arm's parameters are the
 nominal model's, or a kinematic calibration record's (the dict the repository stores); the tool
 is one of :data:`TOOLS`, each from the cell or from the result that identified it:
-- ``tcp``: the cell's tool centre point (``tool_offset``, the probe tip);
+- ``tcp``: the tool centre point (the probe tip): the TCP record's if given (its position;
+  its orientation when it measured one, else the cell's), else the cell's ``tool_offset``;
 - ``flange``: no tool;
 - ``camera``: the wrist camera's optical frame, the hand-eye record's if given, else the cell's
   nominal hand-eye;
@@ -47,11 +48,18 @@ def model_chain(record: Record | None, model: KinematicModel, tool: ArrayLike) -
 
 
 def tool_offset(cell: Cell, tool: str, kinematics: Record | None = None,
-                hand_eye: Record | None = None) -> Array:
-    """(4, 4) T_flange_tool of ``tool`` (one of :data:`TOOLS`); ValueError naming what the
-    cell lacks or the tools there are."""
+                hand_eye: Record | None = None, tcp: Record | None = None) -> Array:
+    """(4, 4) T_flange_tool of ``tool`` (one of :data:`TOOLS`); ``tcp``: the tool's active TCP
+    calibration record (store.records.TcpRecord). ValueError naming what the cell lacks or the
+    tools there are."""
     if tool == 'tcp':
-        return np.asarray(cell.tool_offset, dtype=float)
+        T = np.array(cell.tool_offset, dtype=float)
+        if tcp is not None:
+            measured = np.array(tcp['result']['T_flange_tcp'], dtype=float)
+            T[:3, 3] = measured[:3, 3]
+            if tcp['result'].get('orientation_method', 'none') != 'none':
+                T[:3, :3] = measured[:3, :3]
+        return T
     if tool == 'flange':
         return np.eye(4)
     if tool == 'camera':

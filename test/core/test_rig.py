@@ -54,3 +54,18 @@ def test_a_target_in_a_user_frame_is_solved_in_the_base():
                               T_base_user)
     assert result
     assert_allclose(fk(chain, result.q), T_base_tool, atol=1e-9)
+
+
+def test_the_tcp_is_the_active_tcp_records_else_the_cells():
+    """Issue 30.3: a TCP record gives the tool's position, and its orientation only when it
+    measured one (elongator points)."""
+    assert_allclose(rig.tool_offset(CELL, 'tcp'), CELL.tool_offset, atol=0)
+    T = from_xyz_rpy([0.0003, -0.0002, 0.1004], [0.003, -0.002, 0.01])
+    position_only = {'result': {'T_flange_tcp': from_xyz_rpy(T[:3, 3], [0, 0, 0]).tolist(),
+                                'orientation_method': 'none'}}
+    expected = CELL.tool_offset.copy()
+    expected[:3, 3] = T[:3, 3]
+    assert_allclose(rig.tool_offset(CELL, 'tcp', tcp=position_only), expected, atol=1e-15)
+    oriented = {'result': {'T_flange_tcp': T.tolist(), 'orientation_method': 'z'}}
+    assert_allclose(rig.tool_offset(CELL, 'tcp', tcp=oriented), T, atol=1e-15)
+    assert_allclose(rig.tool_offset(CELL, 'flange', tcp=oriented), np.eye(4), atol=0)
