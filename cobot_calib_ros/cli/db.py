@@ -86,9 +86,9 @@ def run(args) -> int:
 
 
 def _info(repo) -> int:
+    from cobot_calib_ros.store.database import KINDS
     for cell in repo.database.cells():
-        counts = {kind: len(repo.database.rows(cell, kind)) for kind in (
-            'user_frame', 'hand_eye', 'kinematics', 'check', 'trial', 'collection')}
+        counts = {kind: len(repo.database.rows(cell, kind)) for kind in KINDS}
         print(f'{cell}: ' + ', '.join(f'{n} {kind}' for kind, n in counts.items() if n))
     print(f'database: {repo.database}')
     return EXIT_OK

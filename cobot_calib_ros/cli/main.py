@@ -22,6 +22,7 @@ VERBS = (
     'report',
     'identify',
     'hand_eye',
+    'tcp',                          # the tool centre point (tcp_calibrator)
     'record', 'bag', 'replay',      # bags (rosbag2): record, bag info, replay
     'detect',
     'export',

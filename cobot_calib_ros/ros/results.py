@@ -12,8 +12,8 @@ from dataclasses import dataclass
 from types import MappingProxyType
 from typing import Mapping
 
-from cobot_calib_msgs.action import (CalibrateHandEye, CollectSphereData, IdentifyKinematics,
-                                     MoveTo, RunTrial)
+from cobot_calib_msgs.action import (CalibrateHandEye, CalibrateTcp, CollectSphereData,
+                                     IdentifyKinematics, MoveTo, RunTrial)
 from cobot_calib_msgs.srv import (AverageProximity, CalibrateUserFrame, CaptureJoints,
                                   ConvertPoints, HandGuide, MeasurePosition,
                                   SetActiveCalibration)
@@ -55,6 +55,15 @@ TABLES: Mapping[str, Table] = MappingProxyType({
         CalibrateHandEye.Result, ('SUCCESS', (E.SUCCESS,)), ('INVALID_GOAL', _REQUEST),
         ('TOO_FEW_VIEWS', (E.TOO_FEW_POINTS,)),
         ('SOLVER_FAILED', (E.DEGENERATE_POINTS, E.IMPLAUSIBLE_FIT, E.SOLVER_FAILED)),
+        ('MOTION_FAILED', (E.MOTION_FAILED,)),
+        ('CAPTURE_FAILED', (E.CAPTURE_FAILED, E.PROBE_FAILED, E.NO_DATA, E.MOVING,
+                            E.OUT_OF_RANGE, E.NOT_AVAILABLE)),
+        ('STORAGE_FAILED', (E.STORAGE_FAILED,)), ('CANCELED', (E.CANCELED,))),
+    'CalibrateTcp': _table(
+        CalibrateTcp.Result, ('SUCCESS', (E.SUCCESS,)), ('INVALID_GOAL', _REQUEST),
+        ('TOO_ALIKE', (E.DEGENERATE_POINTS,)),
+        ('SOLVER_FAILED', (E.TOO_FEW_POINTS, E.SOLVER_FAILED)),
+        ('REJECTED', (E.IMPLAUSIBLE_FIT,)),
         ('MOTION_FAILED', (E.MOTION_FAILED,)),
         ('CAPTURE_FAILED', (E.CAPTURE_FAILED, E.PROBE_FAILED, E.NO_DATA, E.MOVING,
                             E.OUT_OF_RANGE, E.NOT_AVAILABLE)),

@@ -165,3 +165,9 @@ def test_plans_refuse_goals_that_cannot_work():
     angles = [math.degrees(frames.rotation_angle(R @ plan.orientations[0].T))
               for R in plan.orientations[1:]]
     assert angles == pytest.approx([math.degrees(0.52)] * 4)
+
+
+def test_a_plan_too_alike_is_refused_before_anything_moves():
+    with pytest.raises(TooAlike, match=r'approaches 1 and 2 differ by 6\.0 deg.*tilt them'):
+        plan_touches('P1', 4, math.radians(6.0))
+    assert len(plan_touches('P1', 4, math.radians(12.0)).orientations) == 4

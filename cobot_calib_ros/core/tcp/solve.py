@@ -121,6 +121,19 @@ def too_alike_message(R: Array, null_vector: Array, condition: float) -> str:
                    f'{np.round(axis, 2).tolist()})' + advice)
 
 
+def check_determined(R: ArrayLike) -> float:
+    """The condition number of the system of rotations ``R`` (N, 3, 3) (flange or tool
+    orientations alike: a constant tool rotation does not change it); TooAlike when it is
+    above MAX_CONDITION. A plan is checked before anything moves."""
+    R = np.asarray(R, dtype=float)
+    A, _ = _system(R, np.zeros((len(R), 3)))
+    _, s, Vt = np.linalg.svd(A, full_matrices=False)
+    condition = float(s[0] / s[-1]) if s[-1] > 0 else math.inf
+    if condition > MAX_CONDITION:
+        raise TooAlike(too_alike_message(R, Vt[-1], condition))
+    return condition
+
+
 def solve_position(T_base_flange: ArrayLike, robust_scale: float = 5e-5) -> TcpPosition:
     """The tip and the fixed point from (N, 4, 4) flange poses in the base frame.
 
@@ -128,11 +141,9 @@ def solve_position(T_base_flange: ArrayLike, robust_scale: float = 5e-5) -> TcpP
     ``robust_scale`` [m]: where the refinement's soft-L1 loss turns linear (the touch noise).
     """
     T = _check_poses(T_base_flange)
+    condition = check_determined(T[:, :3, :3])
     A, b = _system(T[:, :3, :3], T[:, :3, 3])
     U, s, Vt = np.linalg.svd(A, full_matrices=False)
-    condition = float(s[0] / s[-1]) if s[-1] > 0 else math.inf
-    if condition > MAX_CONDITION:
-        raise TooAlike(too_alike_message(T[:, :3, :3], Vt[-1], condition))
     linear = Vt.T @ ((U.T @ b) / s)
     refined = least_squares(lambda x: A @ x - b, linear, loss='soft_l1',
                             f_scale=robust_scale, method='trf', x_scale=1.0).x

@@ -24,7 +24,7 @@ from scipy.spatial.transform import Rotation
 
 from cobot_calib_ros.core import kinematics
 from cobot_calib_ros.core.robot_port import Approach, Cancelled, check_cancel, never, RobotPort
-from cobot_calib_ros.core.tcp.solve import solve_tcp, TcpSolution
+from cobot_calib_ros.core.tcp.solve import check_determined, solve_tcp, TcpSolution
 
 Array = NDArray[np.float64]
 DEFAULT_APPROACHES = 6
@@ -56,7 +56,8 @@ def plan_touches(point: str, count: int = DEFAULT_APPROACHES, tilt: float = DEFA
                  elongation: float = DEFAULT_ELONGATION) -> TcpPlan:
     """``count`` approaches of ``point`` (the first in ``R_reference``, default the tool
     pointing down the base z) and the elongator touches of ``method`` ('none', 'z', 'zx').
-    ValueError naming a goal that cannot work."""
+    ValueError naming a goal that cannot work; TooAlike (a ValueError) for approaches that
+    would not determine the tool (a small tilt), before anything moves."""
     if not 4 <= count <= 32:
         raise ValueError(f'{count} approaches: give 4..32 (KUKA and ABB use 4, more average '
                          'the touch noise)')
@@ -73,6 +74,7 @@ def plan_touches(point: str, count: int = DEFAULT_APPROACHES, tilt: float = DEFA
         azimuth = 2.0 * math.pi * k / (count - 1)
         axis = np.array([math.cos(azimuth), math.sin(azimuth), 0.0])
         orientations.append(Rotation.from_rotvec(tilt * axis).as_matrix() @ R0)
+    check_determined(orientations)
     return TcpPlan(point, tuple(orientations),
                    tuple((axis, SIGNS[axis] * elongation) for axis in ELONGATOR_AXES[method]))
 

@@ -1,0 +1,255 @@
+"""tcp_calibrator: the tool centre point, from touches of one fixed point of the cell.
+
+Action ``calibrate_tcp`` (cobot_calib_msgs/action/CalibrateTcp): plans ``orientations``
+approaches of the fixed point (core.tcp.touches.plan_touches: the first with the tool pointing
+down the active user frame's z, or the base's, the others tilted by ``tilt`` about horizontal
+axes spread round the point) and the elongator touches of the orientation method; takes them
+with core.tcp.touches.take_touches over RobotCalls (on the mock, mock_robot/hand_guide guides
+the real tool in each orientation; on a real cell the operator guides the arm and confirms each
+touch on ``tcp_calibrator/confirm_touch``), capturing the joints over ``hold`` and taking the
+flange pose through the ACTIVE kinematics (the ``kinematics`` parameter: latest, nominal or an
+id). Then core.tcp.solve_tcp: the position by SVD with the rank test (approaches too alike:
+TOO_ALIKE, named), the robust refinement, the orientation from the elongator points.
+
+The result is stored per tool (``<data_dir>`` repository, kind tcp, store.records.TcpRecord)
+and made the tool's active TCP only if it passes core.tcp.gate_problem (its residual explained
+by ``touch_sigma``, a plausible tool length, near the cell's tool_offset for the cell's own
+tool); otherwise it is kept as rejected and the goal ends with REJECTED saying why. A cancel is
+honoured between touches (nothing stored). Feedback after every touch: its index and the RMS
+tip residual of the approaches so far (from the fourth).
+
+Parameters (read at start-up): cell_file, layout, data_dir; hold_duration [s], touch_sigma
+[m], kinematics.
+"""
+from __future__ import annotations
+
+import math
+import threading
+import time
+
+from cobot_calib_msgs.action import CalibrateTcp
+import numpy as np
+from rclpy.action import ActionServer, CancelResponse, GoalResponse
+from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.node import Node
+
+from cobot_calib_ros import paths, store
+from cobot_calib_ros.core import kinematics
+from cobot_calib_ros.core.cell import tool_down_orientation
+from cobot_calib_ros.core.rig import model_chain
+from cobot_calib_ros.core.robot_port import CaptureFailed, MoveFailed, Stopped
+from cobot_calib_ros.core.tcp import GateLimits, gate_problem, solve_position, TooAlike
+from cobot_calib_ros.core.tcp.solve import rpy
+from cobot_calib_ros.core.tcp.touches import (DEFAULT_APPROACHES, DEFAULT_ELONGATION,
+                                              DEFAULT_TILT, plan_touches, solve_touches,
+                                              take_touches, TcpTouches)
+from cobot_calib_ros.loaders import load_cell
+from cobot_calib_ros.ros import convert, spin
+from cobot_calib_ros.ros.diagnostics import Diagnostics, OK, WARN
+from cobot_calib_ros.ros.params import declare, read_once
+from cobot_calib_ros.ros.robot_calls import RobotCalls
+from cobot_calib_ros.ros.time import now_ns
+from cobot_calib_ros.store.cells import ResultsCell
+from cobot_calib_ros.store.records import TcpRecord
+
+Action = CalibrateTcp
+METHODS = {Action.Goal.ORIENTATION_NONE: 'none', Action.Goal.ORIENTATION_Z: 'z',
+           Action.Goal.ORIENTATION_ZX: 'zx'}
+NOMINAL = 'nominal'
+
+
+class TcpCalibrator(Node):
+    def __init__(self, **kwargs) -> None:
+        super().__init__('tcp_calibrator', **kwargs)
+        self._declare_parameters()
+        self._cell = load_cell(paths.cell_file(self._p('cell_file')), self._p('layout') or None)
+        self._model = kinematics.model_for(self._cell)
+        self._root = paths.data_dir(self._p('data_dir'))
+        self._results_cell = ResultsCell.of(self._cell, self.get_namespace())
+        self._answers = spin.Companion(self, 'clients')
+        self._robot = RobotCalls(self._answers, operator=self.get_name())
+        self._busy = threading.Lock()
+        self._health = Diagnostics(self)
+        self._health.watch(capture_retries=lambda: self._robot.capture_retries)
+        self._server = ActionServer(
+            self, Action, 'calibrate_tcp', execute_callback=self._on_goal,
+            goal_callback=self._accept, cancel_callback=lambda _: CancelResponse.ACCEPT,
+            callback_group=ReentrantCallbackGroup())
+        repo = self._repo()
+        active = repo.tcp.active(self._cell.tool_frame)
+        for warning in repo.tcp.warnings:
+            self.get_logger().warning(warning)
+        self._health.set(OK, 'idle', active_id=active['id'] if active else '')
+        self.get_logger().info(f'TCP calibrations in {repo.tcp.directory}')
+
+    def destroy_node(self):
+        self._answers.destroy()
+        return super().destroy_node()
+
+    def _declare_parameters(self) -> None:
+        read_once(self, 'cell_file', paths.DEFAULT_CELL,
+                  'Cell YAML (path or name): robot, tool_offset, the fixed points')
+        read_once(self, 'layout', '', 'Marker layout; empty = the cell default')
+        read_once(self, 'data_dir', '', 'Results repository; empty = $COBOT_CALIB_DATA or '
+                  '~/.ros/cobot_calib')
+        declare(self, 'hold_duration', 0.2, 'Joints are averaged over this hold at every '
+                'touch [s]', 0.005, 10.0)
+        declare(self, 'touch_sigma', 5e-5, 'Tip noise per axis of a touch (the operator\'s '
+                'centring and the arm) the gate allows for [m]', 1e-6, 1e-2)
+        declare(self, 'kinematics', 'latest', 'Kinematics of the flange poses: latest (the '
+                'active calibration, else nominal), nominal, or a calibration id')
+
+    def _p(self, name: str):
+        return self.get_parameter(name).value
+
+    def _repo(self):
+        """The repository, opened again: another node may have stored since."""
+        return store.open(self._root, cell=self._results_cell)
+
+    def _accept(self, goal) -> GoalResponse:
+        if self._busy.locked():
+            self.get_logger().warning('goal rejected: a TCP calibration is running')
+            return GoalResponse.REJECT
+        return GoalResponse.ACCEPT
+
+    def _on_goal(self, goal_handle):
+        if not self._busy.acquire(blocking=False):
+            goal_handle.abort()
+            return Action.Result(error_code=Action.Result.INVALID_GOAL,
+                                 message='another TCP calibration is running')
+        try:
+            return self._run(goal_handle)
+        finally:
+            self._busy.release()
+
+    def _end(self, goal_handle, result, code: int, message: str):
+        result.error_code, result.message = int(code), message
+        if code == Action.Result.SUCCESS:
+            goal_handle.succeed()
+            spin.log_info(self.get_logger(), message)
+        elif goal_handle.is_cancel_requested:
+            goal_handle.canceled()
+        else:
+            goal_handle.abort()
+            self.get_logger().warning(message)
+        self._health.set(OK if code == Action.Result.SUCCESS else WARN, message)
+        return result
+
+    def _chain(self) -> tuple[kinematics.Chain, str]:
+        """The active kinematics ending at the flange, and its label (id or nominal)."""
+        record = self._repo().kinematics.resolve(self._p('kinematics'), self._model.name)
+        return model_chain(record, self._model, np.eye(4)), \
+            NOMINAL if record is None else record['id']
+
+    def _R_reference(self) -> np.ndarray:
+        """The first approach: the tool pointing down the active user frame's z (the cell's
+        touch orientation), the base's without one."""
+        record = self._repo().user_frames.active()
+        T = np.eye(4) if record is None or record['result'].get('T_base_user') is None \
+            else np.array(record['result']['T_base_user'], dtype=float)
+        return tool_down_orientation(T, 'z')
+
+    def _run(self, goal_handle):
+        goal, result = goal_handle.request, Action.Result()
+        tool = goal.tool or self._cell.tool_frame
+        point = goal.point_name or self._cell.point_names[0]
+        count = int(goal.orientations) or DEFAULT_APPROACHES
+        tilt = float(goal.tilt) or DEFAULT_TILT
+        elongation = float(goal.elongation) or DEFAULT_ELONGATION
+        hold = float(goal.hold) or self._p('hold_duration')
+        result.tool = tool
+        try:
+            if point not in self._cell.point_names:
+                raise ValueError(f'unknown point {point!r}; the cell has '
+                                 f'{self._cell.point_names}')
+            if goal.orientation not in METHODS:
+                raise ValueError(f'orientation {goal.orientation}: use ORIENTATION_NONE (0), '
+                                 'ORIENTATION_Z (1) or ORIENTATION_ZX (2)')
+            if not 0.0 < hold <= 10.0:
+                raise ValueError(f'hold {hold} s: give 0..10 s (0 = the parameter)')
+            plan = plan_touches(point, count, tilt, self._R_reference(),
+                                METHODS[goal.orientation], elongation)
+            chain, kinematics_used = self._chain()
+        except TooAlike as e:
+            return self._end(goal_handle, result, Action.Result.TOO_ALIKE, f'planned {e}')
+        except (KeyError, ValueError) as e:
+            return self._end(goal_handle, result, Action.Result.INVALID_GOAL,
+                             str(e).strip("'"))
+        total = len(plan.steps())
+        self._health.set(OK, f'calibrating the TCP of {tool}: {total} touches of {point}')
+        t_start = time.monotonic()
+        feedback = Action.Feedback(total=total)
+
+        def on_touch(i: int, touches: TcpTouches) -> None:
+            feedback.touch_index = i
+            feedback.residual_mm = _rms_so_far(touches)
+            goal_handle.publish_feedback(feedback)
+
+        try:
+            touches = take_touches(plan, self._robot, chain, hold,
+                                   cancelled=lambda: goal_handle.is_cancel_requested,
+                                   on_touch=on_touch)
+        except Stopped as e:
+            return self._end(goal_handle, result, Action.Result.CANCELED,
+                             f'{e}; nothing stored')
+        except MoveFailed as e:
+            return self._end(goal_handle, result, Action.Result.MOTION_FAILED, str(e))
+        except CaptureFailed as e:
+            return self._end(goal_handle, result, Action.Result.CAPTURE_FAILED, str(e))
+        try:
+            solution = solve_touches(plan, touches, self._p('touch_sigma'))
+        except TooAlike as e:
+            return self._end(goal_handle, result, Action.Result.TOO_ALIKE, str(e))
+        except (ValueError, np.linalg.LinAlgError) as e:
+            return self._end(goal_handle, result, Action.Result.SOLVER_FAILED, str(e))
+        nominal = self._cell.tool_offset if tool == self._cell.tool_frame else None
+        gate = gate_problem(solution, GateLimits(touch_sigma=self._p('touch_sigma')), nominal)
+        record = TcpRecord.from_solution(
+            solution, tool, point, touches.labels, touches.joints, touches.flange,
+            now_ns(self), kinematics_used, tilt,
+            elongation if plan.elongators else 0.0, gate)
+        try:
+            activation = self._repo().tcp.save_and_activate(record)
+        except (OSError, ValueError) as e:
+            return self._end(goal_handle, result, Action.Result.STORAGE_FAILED,
+                             f'could not store the TCP calibration: {e}')
+        position = solution.position
+        result.calibration_id, result.active = record.id, bool(activation)
+        result.t_flange_tcp = convert.matrix_to_transform(solution.T_flange_tcp, '',
+                                                          '').transform
+        result.fixed_point.x, result.fixed_point.y, result.fixed_point.z = (
+            float(v) for v in position.c)
+        result.mean_residual_mm = position.mean_residual_mm
+        result.max_residual_mm = position.max_residual_mm
+        result.condition = position.condition
+        result.orientations_used = len(position.residuals)
+        if gate:
+            return self._end(goal_handle, result, Action.Result.REJECTED, (
+                f'{record.id} rejected, stored as rejected and not made active (the active TCP '
+                f'of {tool} is unchanged): {gate}'))
+        x, y, z = position.t * 1e3
+        angles = ', '.join(f'{math.degrees(a):.3f}' for a in rpy(solution.R_flange_tcp))
+        return self._end(goal_handle, result, Action.Result.SUCCESS, (
+            f'{record.id}: TCP of {tool} x {x:.3f} y {y:.3f} z {z:.3f} mm, rpy ({angles}) deg '
+            f'({solution.method}); {len(position.residuals)} approaches, residual mean '
+            f'{position.mean_residual_mm:.3f} mm, max {position.max_residual_mm:.3f} mm; '
+            f'{time.monotonic() - t_start:.1f} s'))
+
+
+def _rms_so_far(touches: TcpTouches) -> float:
+    """RMS tip distance of the approaches so far [mm] (0 before four, or while too alike)."""
+    if touches.approaches < 4:
+        return 0.0
+    try:
+        position = solve_position(np.array(touches.flange[:touches.approaches]))
+    except ValueError:
+        return 0.0
+    return float(np.sqrt(np.mean(position.distances ** 2)) * 1e3)
+
+
+def main(args=None) -> None:
+    spin.run(TcpCalibrator, args, threads=2)
+
+
+if __name__ == '__main__':
+    main()

@@ -1,0 +1,88 @@
+"""tcp_calibrator with mock_robot and joint_state_monitor as processes on a private domain of
+their own (cell sawyer_close, temporary data_dir): `cobot-calib tcp` has the mock's simulated
+operator touch P1 from tilted approaches and a z elongator point; the TCP found is the mock's
+TRUE tool (not the cell's nominal one), stored and active for the cell's tool; approaches too
+alike are refused before anything moves.
+
+Own suite, not the session's (test/nodes/conftest.py): a second mock_robot on the session's
+domain would answer its hand-guiding.
+"""
+import json
+import math
+import os
+import subprocess
+
+import domain_coordinator
+import numpy as np
+import pytest
+
+from cobot_calib_ros import store
+from cobot_calib_ros.api import launcher
+from cobot_calib_ros.paths import cell_file
+from cobot_calib_ros.sim.scenario import load_simulation
+from cobot_calib_ros.store.cells import ResultsCell
+from rosutil import cli_command, STOP_TIMEOUT
+
+NODES = ('mock_robot', 'joint_state_monitor', 'tcp_calibrator')
+CELL = ResultsCell('sawyer_close', 'sawyer')
+SIM = load_simulation(cell_file('sawyer_close'))
+# Through the nominal kinematics (none calibrated here) the arm's own errors add ~0.15 mm to
+# the touch noise (bench/bench_tcp.py): the nominal tool is 0.31 mm / 3.6 mrad off the truth.
+MAX_ERROR_MM = 0.25
+MAX_Z_ERROR_MRAD = 3.0
+
+
+@pytest.fixture(scope='module')
+def tcp_suite(tmp_path_factory):
+    data = tmp_path_factory.mktemp('tcp_data')
+    with domain_coordinator.domain_id() as domain:
+        env = dict(os.environ, ROS_DOMAIN_ID=str(domain),
+                   ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
+        suite = launcher.Suite(tmp_path_factory.mktemp('tcp_logs'))
+        suite.start(launcher.suite_specs('sawyer_close', NODES, overrides={
+            'mock_robot': {'time_scale': '0.05'},
+            'tcp_calibrator': {'data_dir': str(data), 'hold_duration': '0.1'}}), env=env)
+        try:
+            yield suite, data, env
+        finally:
+            codes = suite.stop(STOP_TIMEOUT)
+        assert all(c == 0 for c in codes.values()), f'nodes did not exit cleanly: {codes}'
+
+
+def _tcp(env, *args):
+    return subprocess.run(cli_command('tcp', *args), env=env, capture_output=True, text=True,
+                          timeout=600)
+
+
+def test_the_tcp_found_is_the_mocks_true_tool_and_becomes_active(tcp_suite):
+    suite, data, env = tcp_suite
+    out = _tcp(env, '--json', '--orientations', '6', '--orientation', 'z')
+    logs = '\n'.join(f'--- {n}\n{suite.log_tail(n)}' for n in suite.processes)
+    assert out.returncode == 0, f'{out.stdout}\n{out.stderr}\n{logs}'
+    result = json.loads(out.stdout)
+    assert result['active'] and result['tool'] == 'tool0'
+    assert result['orientations_used'] == 6 and 2.0 < result['condition'] < 20.0
+    assert 0.0 < result['mean_residual_mm'] <= result['max_residual_mm'] < 0.3
+    T = np.array(result['T_flange_tcp'])
+    truth = SIM.true_tool_offset
+    error_mm = np.linalg.norm(T[:3, 3] - truth[:3, 3]) * 1e3
+    z_error = math.acos(min(1.0, T[:3, 2] @ truth[:3, 2])) * 1e3
+    print(f'TCP error {error_mm:.4f} mm, z {z_error:.3f} mrad; {result["message"]}')
+    assert error_mm < MAX_ERROR_MM and z_error < MAX_Z_ERROR_MRAD
+    assert 'touch 7/7' in out.stderr            # progress on stderr with --json
+    active = store.open(data, cell=CELL).tcp.active('tool0')
+    assert active['id'] == result['calibration_id']
+    assert active['method'] == 'tcp-6-point-z' and active['kinematics'] == 'nominal'
+
+
+def test_approaches_too_alike_are_refused_before_anything_moves(tcp_suite):
+    _, data, env = tcp_suite
+    before = store.open(data, cell=CELL).tcp.ids()
+    out = _tcp(env, '--orientations', '4', '--tilt-deg', '6')
+    assert out.returncode == 1
+    assert 'TCP calibration failed: planned the approaches are too alike' in out.stderr
+    assert 'approaches 1 and 2 differ by 6.0 deg' in out.stderr
+    assert 'touch 1/' not in out.stdout
+    out = _tcp(env, '--point', 'P9')
+    assert out.returncode == 1 and "unknown point 'P9'" in out.stderr
+    assert store.open(data, cell=CELL).tcp.ids() == before
