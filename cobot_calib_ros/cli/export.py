@@ -1,5 +1,6 @@
 """`cobot-calib export ID --format kuka|abb|fanuc|ur|yaskawa`: a stored frame in the
-controller's own syntax and units (core.vendor_frames), ready to paste."""
+controller's own syntax and units (core.vendor_frames), ready to paste: a user frame, or a tool
+centre point (a TCP calibration id, or ``active --tool NAME``) as the controller's tool data."""
 from __future__ import annotations
 
 import json
@@ -13,14 +14,20 @@ from cobot_calib_ros.cli.db import add_db_options
 
 def add_parser(subparsers):
     from cobot_calib_ros.core.vendor_frames import FORMATS
-    p = subparsers.add_parser('export', help="a stored frame in a robot controller's syntax")
-    p.add_argument('id', help="a user-frame calibration id, or 'active' (the cell's active "
-                              "user frame)")
+    p = subparsers.add_parser('export', help="a stored frame or TCP in a robot controller's "
+                                             'syntax')
+    p.add_argument('id', help="a user-frame or TCP calibration id, or 'active' (the cell's "
+                              "active user frame; with --tool, that tool's active TCP)")
+    p.add_argument('--tool', help='export the TCP of this tool (its active one for id '
+                                  "'active'), as KUKA TOOL_DATA, ABB tooldata, FANUC UTOOL, "
+                                  'UR set_tcp or the Yaskawa TOOL screen')
     p.add_argument('--format', required=True, choices=list(FORMATS))
     p.add_argument('--index', type=int,
                    help='base / user frame number on the controller (default 1): kuka 1-32, '
-                        'fanuc 1-9, yaskawa 1-63; abb and ur frames have a --name instead')
-    p.add_argument('--name', default='cell_frame', help='variable name (ABB wobjdata, UR)')
+                        'fanuc 1-9, yaskawa 1-63; a tool: kuka 1-16, fanuc 1-10, yaskawa '
+                        '0-63; abb and ur frames have a --name instead')
+    p.add_argument('--name', help='variable name (ABB wobjdata / tooldata, UR; default '
+                                     'cell_frame, a tool cobot_tcp)')
     p.add_argument('--json', action='store_true', help='the values as one JSON line')
     add_db_options(p)
     return p
@@ -35,15 +42,20 @@ def find_frame(repo, record_id: str):
     return record, np.array(record['result']['T_base_user'], dtype=float)
 
 
+def find_tcp(repo, record_id: str, tool: str | None):
+    """(record, T_flange_tcp) of a stored TCP id (or 'active' of ``tool``), or None."""
+    record = repo.tcp.active(tool or '') if record_id == 'active' else repo.tcp.get(record_id)
+    if record is None or (tool and record.get('tool') != tool):
+        return None
+    return record, np.array(record['result']['T_flange_tcp'], dtype=float)
+
+
 def run(args) -> int:
     from cobot_calib_ros import paths, store
-    from cobot_calib_ros.core.vendor_frames import (FORMATS, check_frame_number, paste_text,
-                                                    to_values)
+    from cobot_calib_ros.core.vendor_frames import (check_frame_number, FORMATS,
+                                                    FRAME_NUMBERS, paste_text, to_values,
+                                                    TOOL_NUMBERS)
     from cobot_calib_ros.cli.db import cell_of
-    try:
-        check_frame_number(args.format, args.index)
-    except ValueError as exc:
-        return fail(f'export: --index: {exc}', EXIT_USAGE)
     root = paths.data_dir(args.data_dir)
     try:
         every = store.open(root, args.db)           # an id is found in any cell's results
@@ -52,20 +64,31 @@ def run(args) -> int:
         if problem:
             return fail(f'export: {problem}', EXIT_USAGE)
         repo = store.open(root, args.db, cell) if cell else every
-        found = find_frame(repo, args.id)
+        found = None if args.tool else find_frame(repo, args.id)
+        is_tool = found is None and (args.tool or args.id != 'active')
+        if is_tool:
+            found = find_tcp(repo, args.id, args.tool)
     except ValueError as exc:
         return fail(f'export: {exc}', EXIT_USAGE)
     except OSError as exc:
         return fail(f'export: {exc}')
     if found is None:
-        return fail(f'export: no user-frame calibration {args.id!r} in {repo.root}; '
+        kind = f'TCP calibration of tool {args.tool!r} {args.id!r}' if args.tool else \
+            f'user-frame calibration {args.id!r} (nor a TCP calibration)'
+        return fail(f'export: no {kind} in {repo.root}; '
                     '`cobot-calib history` lists the stored ones (--data-dir, --db, --cell)')
+    try:
+        check_frame_number(args.format, args.index, TOOL_NUMBERS if is_tool else FRAME_NUMBERS)
+    except ValueError as exc:
+        return fail(f'export: --index: {exc}', EXIT_USAGE)
     record, T = found
-    what = 'user frame in the robot base'
+    what = f'TCP of {record.get("tool", "")} in the flange frame' if is_tool else \
+        'user frame in the robot base'
     try:
         values = to_values(T, args.format)
-        text = paste_text(T, args.format, args.name, args.index, comment=(
-            f'{what}: cobot_calib {record["id"]} ({record["method"]})'))
+        name = args.name or ('cobot_tcp' if is_tool else 'cell_frame')
+        text = paste_text(T, args.format, name, args.index, comment=(
+            f'{what}: cobot_calib {record["id"]} ({record["method"]})'), tool=bool(is_tool))
     except ValueError as exc:
         return fail(f'export: {record["id"]}: {exc}')
     if args.json:

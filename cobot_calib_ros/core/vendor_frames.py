@@ -16,7 +16,9 @@ yaskawa    X, Y, Z [mm], Rx, Ry, Rz [deg]               R = Rz(Rz) Ry(Ry) Rx(Rx)
 Euler angles are wrapped to (-180, 180]; at the gimbal lock (B, P or Ry = +-90 deg) only A - C
 (or A + C) is defined and C (W, Rx) is set to 0, as RoboDK's ``Pose_2_KUKA`` does. The UR
 rotation vector has an angle in [0, pi]. :func:`paste_text` writes the values as the
-controller's program or configuration syntax.
+controller's program or configuration syntax: a frame (KUKA BASE_DATA, ABB wobjdata, FANUC
+UFRAME, UR pose, Yaskawa user frame) or a tool (KUKA TOOL_DATA, ABB tooldata, FANUC UTOOL, UR
+set_tcp, Yaskawa TOOL screen values).
 """
 from __future__ import annotations
 
@@ -84,14 +86,18 @@ def quaternion_wxyz(R: ArrayLike) -> Array:
 # The frame numbers each controller has (ABB names a wobjdata, UR a variable: no number):
 # KUKA KRC4 BASE_DATA[1..32], FANUC UFRAME[1..9] (0 is the world frame), Yaskawa UF#1..63
 FRAME_NUMBERS = {'kuka': range(1, 33), 'fanuc': range(1, 10), 'yaskawa': range(1, 64)}
+# and the tool numbers (ABB names a tooldata, UR sets the TCP): KUKA KRC4 TOOL_DATA[1..16],
+# FANUC UTOOL[1..10] (0 is the flange), Yaskawa tool file 0..63
+TOOL_NUMBERS = {'kuka': range(1, 17), 'fanuc': range(1, 11), 'yaskawa': range(0, 64)}
 
 
-def check_frame_number(fmt: str, index: int | None) -> None:
+def check_frame_number(fmt: str, index: int | None, numbers_of=FRAME_NUMBERS) -> None:
     """ValueError unless ``index`` (None: not given) is a frame number ``fmt``'s controller
-    has; ABB and UR frames have a name, not a number."""
+    has (``numbers_of``: TOOL_NUMBERS for a tool); ABB and UR frames have a name, not a
+    number."""
     if fmt not in FORMATS:
         raise ValueError(_unknown(fmt))
-    numbers = FRAME_NUMBERS.get(fmt)
+    numbers = numbers_of.get(fmt)
     if numbers is None:
         if index is not None:
             raise ValueError(f'{fmt} frames have no number: name the variable with --name '
@@ -144,14 +150,15 @@ def from_values(values: ArrayLike, fmt: str) -> Array:
 
 
 def paste_text(T: ArrayLike, fmt: str, name: str = 'cell_frame', index: int | None = None,
-               comment: str = '') -> str:
-    """``T`` (a base or user frame, [m]) as the controller's own syntax, ready to paste, with
-    ``comment`` (e.g. where the frame comes from) as the language's comment; ``index`` the
-    frame number (check_frame_number; default 1 where the controller numbers its frames)."""
-    check_frame_number(fmt, index)
+               comment: str = '', tool: bool = False) -> str:
+    """``T`` (a base or user frame, [m]; ``tool``: a tool centre point in the flange frame)
+    as the controller's own syntax, ready to paste, with ``comment`` (e.g. where the frame
+    comes from) as the language's comment; ``index`` the frame (tool) number
+    (check_frame_number; default 1 where the controller numbers them)."""
+    check_frame_number(fmt, index, TOOL_NUMBERS if tool else FRAME_NUMBERS)
     v = to_values(T, fmt)
     index = 1 if index is None else index
-    body = _PASTE[fmt](v, name, index)
+    body = (_PASTE_TOOL if tool else _PASTE)[fmt](v, name, index)
     mark = {'kuka': ';', 'abb': '!', 'fanuc': '!', 'ur': '#', 'yaskawa': '//'}[fmt]
     head = [f'{mark} {line}' for line in comment.splitlines()] if comment else []
     return '\n'.join(head + body) + '\n'
@@ -200,6 +207,51 @@ def _yaskawa(v, name, index):
 
 
 _PASTE = {'kuka': _kuka, 'abb': _abb, 'fanuc': _fanuc, 'ur': _ur, 'yaskawa': _yaskawa}
+
+
+def _kuka_tool(v, name, index):
+    x, y, z, a, b, c = v
+    return [f'TOOL_DATA[{index}]={{X {x:.4f},Y {y:.4f},Z {z:.4f},'
+            f'A {a:.6f},B {b:.6f},C {c:.6f}}}']
+
+
+def _abb_tool(v, name, index):
+    x, y, z, q1, q2, q3, q4 = v
+    # tooldata needs a load (mass > 0): a placeholder the user must replace
+    return ['! load [1 kg at z 1 mm] is a placeholder: set the real mass and centre of '
+            'gravity (LoadIdentify)',
+            f'PERS tooldata {name}:=[TRUE,[[{x:.4f},{y:.4f},{z:.4f}],'
+            f'[{q1:.9f},{q2:.9f},{q3:.9f},{q4:.9f}]],[1,[0,0,1],[1,0,0,0],0,0,0]];']
+
+
+def _fanuc_tool(v, name, index):
+    labels = FORMATS['fanuc'].labels
+    register = 60 + index         # a free position register is assumed: PR[60 + n]
+    lines = [f'PR[{register},{k + 1}]={value:.4f} ;' if k < 3 else
+             f'PR[{register},{k + 1}]={value:.6f} ;' for k, value in enumerate(v)]
+    return ([f'! UTOOL[{index}] {name}: ' + ' '.join(
+        f'{label} {value:.4f}' if k < 3 else f'{label} {value:.6f}'
+        for k, (label, value) in enumerate(zip(labels, v)))]
+            + lines + [f'UTOOL[{index}]=PR[{register}] ;'])
+
+
+def _ur_tool(v, name, index):
+    x, y, z, rx, ry, rz = v
+    return [f'{name} = p[{x:.7f}, {y:.7f}, {z:.7f}, {rx:.8f}, {ry:.8f}, {rz:.8f}]',
+            f'set_tcp({name})',
+            f'# Installation > General > TCP (mm, rad): X {x / MM:.4f} Y {y / MM:.4f} '
+            f'Z {z / MM:.4f} RX {rx:.8f} RY {ry:.8f} RZ {rz:.8f}']
+
+
+def _yaskawa_tool(v, name, index):
+    labels = FORMATS['yaskawa'].labels
+    values = ' '.join(f'{label} {value:.4f}' if k < 3 else f'{label} {value:.6f}'
+                      for k, (label, value) in enumerate(zip(labels, v)))
+    return [f'// TOOL {index} {name} (the pendant\'s TOOL screen, mm and deg): {values}']
+
+
+_PASTE_TOOL = {'kuka': _kuka_tool, 'abb': _abb_tool, 'fanuc': _fanuc_tool, 'ur': _ur_tool,
+               'yaskawa': _yaskawa_tool}
 
 
 def _unknown(fmt: str) -> str:

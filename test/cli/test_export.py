@@ -65,3 +65,70 @@ def test_export_takes_the_last_frame_number(fmt, index, line, capsys):
     assert main(['export', RIGID, '--format', fmt, '--index', index,
                  '--data-dir', str(STORE)]) == 0
     assert any(x.startswith(line) for x in capsys.readouterr().out.splitlines())
+
+
+def _stored_tcp(tmp_path):
+    """A data dir with one TCP record of tool0 (x 0.12, y -0.19, z 100.21 mm, roll 2.8,
+    pitch -2.2 mrad) and one user frame, as tcp_calibrator stores it."""
+    import shutil
+    from cobot_calib_ros import store
+    from cobot_calib_ros.core import frames
+    root = tmp_path / 'data'
+    shutil.copytree(STORE, root)
+    T = frames.from_xyz_rpy([0.00012, -0.00019, 0.10021], [0.0028, -0.0022, 0.0])
+    store.open(root).tcp.save_and_activate({
+        'id': 'tcp-probe', 'stamp_ns': 1, 'method': 'tcp-6-point-z', 'tool': 'tool0',
+        'inputs': {}, 'result': {'T_flange_tcp': T.tolist(), 'orientation_method': 'z'}})
+    return root, T
+
+
+TCP_TEXT = {
+    'kuka': ['; TCP of tool0 in the flange frame: cobot_calib tcp-probe (tcp-6-point-z)',
+             'TOOL_DATA[3]={X 0.1200,Y -0.1900,Z 100.2100,A 0.000000,B -0.126051,'
+             'C 0.160428}'],
+    'abb': ['! TCP of tool0 in the flange frame: cobot_calib tcp-probe (tcp-6-point-z)',
+            '! load [1 kg at z 1 mm] is a placeholder: set the real mass and centre of gravity '
+            '(LoadIdentify)',
+            'PERS tooldata cobot_tcp:=[TRUE,[[0.1200,-0.1900,100.2100],[0.999998415,'
+            '0.001399999,-0.001099999,0.000001540]],[1,[0,0,1],[1,0,0,0],0,0,0]];'],
+    'fanuc': ['! TCP of tool0 in the flange frame: cobot_calib tcp-probe (tcp-6-point-z)',
+              '! UTOOL[3] cobot_tcp: X 0.1200 Y -0.1900 Z 100.2100 W 0.160428 P -0.126051 '
+              'R 0.000000',
+              'PR[63,1]=0.1200 ;', 'PR[63,2]=-0.1900 ;', 'PR[63,3]=100.2100 ;',
+              'PR[63,4]=0.160428 ;', 'PR[63,5]=-0.126051 ;', 'PR[63,6]=0.000000 ;',
+              'UTOOL[3]=PR[63] ;'],
+    'ur': ['# TCP of tool0 in the flange frame: cobot_calib tcp-probe (tcp-6-point-z)',
+           'cobot_tcp = p[0.0001200, -0.0001900, 0.1002100, 0.00280000, -0.00220000, '
+           '0.00000308]',
+           'set_tcp(cobot_tcp)',
+           '# Installation > General > TCP (mm, rad): X 0.1200 Y -0.1900 Z 100.2100 '
+           'RX 0.00280000 RY -0.00220000 RZ 0.00000308'],
+    'yaskawa': ['// TCP of tool0 in the flange frame: cobot_calib tcp-probe (tcp-6-point-z)',
+                "// TOOL 3 cobot_tcp (the pendant's TOOL screen, mm and deg): X 0.1200 "
+                'Y -0.1900 Z 100.2100 Rx 0.160428 Ry -0.126051 Rz 0.000000'],
+}
+
+
+@pytest.mark.parametrize('fmt', sorted(TCP_TEXT))
+def test_export_writes_a_tcp_as_the_controllers_tool_data(fmt, tmp_path, capsys):
+    """Issue 30.3: the calibrated TCP in each vendor's tool format (numbered tools: #3)."""
+    root, _ = _stored_tcp(tmp_path)
+    index = [] if fmt in ('abb', 'ur') else ['--index', '3']
+    assert main(['export', 'tcp-probe', '--format', fmt, *index, '--data-dir',
+                 str(root)]) == 0
+    assert capsys.readouterr().out.splitlines() == TCP_TEXT[fmt]
+
+
+def test_export_of_the_active_tcp_of_a_tool_gives_back_its_values(tmp_path, capsys):
+    root, T = _stored_tcp(tmp_path)
+    assert main(['export', 'active', '--tool', 'tool0', '--format', 'fanuc', '--index', '10',
+                 '--json', '--data-dir', str(root)]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out['id'] == 'tcp-probe' and out['frame'].startswith('TCP of tool0')
+    assert np.allclose(from_values(list(out['values'].values()), 'fanuc'), T, atol=1e-12)
+    assert main(['export', 'active', '--tool', 'gripper', '--format', 'ur', '--data-dir',
+                 str(root)]) == 1
+    assert "no TCP calibration of tool 'gripper' 'active'" in capsys.readouterr().err
+    assert main(['export', 'tcp-probe', '--format', 'kuka', '--index', '17', '--data-dir',
+                 str(root)]) == 2
+    assert 'give 1..16' in capsys.readouterr().err
