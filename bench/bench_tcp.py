@@ -1,7 +1,7 @@
 """TCP error against the truth on the simulated Sawyer cell (the default cell), in-process (no
 ROS), over SEEDS draws of the operator's touch noise: the plan, touch procedure and solve
 tcp_calibrator runs (core.tcp.touches over the sim's robot port, sim.tcp_run), compared with the
-simulation's true tool (0.31 mm / 3.6 mrad off the cell's nominal tool_offset). The median over
+simulation's true tool (0.25 mm / 3.6 mrad off the cell's nominal tool_offset). The median over
 the draws is the figure; one run is one draw.
 
 Two kinematics for the flange poses:

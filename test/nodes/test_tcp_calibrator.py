@@ -26,10 +26,11 @@ from rosutil import cli_command, STOP_TIMEOUT
 NODES = ('mock_robot', 'joint_state_monitor', 'tcp_calibrator')
 CELL = ResultsCell('sawyer_close', 'sawyer')
 SIM = load_simulation(cell_file('sawyer_close'))
-# Through the nominal kinematics (none calibrated here) the arm's own errors add ~0.15 mm to
-# the touch noise (bench/bench_tcp.py): the nominal tool is 0.31 mm / 3.6 mrad off the truth.
-MAX_ERROR_MM = 0.25
-MAX_Z_ERROR_MRAD = 3.0
+# Through the nominal kinematics (none calibrated here) the arm's own errors add ~0.1 mm to
+# the touch noise (bench/bench_tcp.py): measured 0.114 mm / 0.36 mrad (twice); the nominal
+# tool is 0.25 mm / 3.6 mrad off the truth.
+MAX_ERROR_MM = 0.2
+MAX_Z_ERROR_MRAD = 1.5
 
 
 @pytest.fixture(scope='module')

@@ -62,7 +62,7 @@ def test_an_unreachable_approach_fails_as_a_move():
 def test_the_procedure_finds_the_true_tool_where_the_nominal_one_is_off():
     """8 approaches tilted 30 deg and a z elongator, measured through an exact kinematic
     calibration (the mock's true arm): the TCP lands within a few hundredths of a millimetre
-    of the mock's true one (the nominal is 0.31 mm / 3.6 mrad off). Through the nominal
+    of the mock's true one (the nominal is 0.25 mm / 3.6 mrad off). Through the nominal
     kinematics the arm's own errors add ~0.15 mm (bench/bench_tcp.py)."""
     arm, robot = _robot()
     plan = plan_touches('P1', 8, 0.52, method='z')
