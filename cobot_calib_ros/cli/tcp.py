@@ -45,10 +45,11 @@ def run(args) -> int:
     from cobot_calib_ros.ros import convert
     from cobot_calib_ros.ros.calls import CallError, Interrupted
     if args.orientations and args.orientations < 4:
-        return fail(f'--orientations {args.orientations}: need at least 4 (default 6)',
+        return fail(f'tcp: --orientations {args.orientations}: need at least 4 (default 6)',
                     EXIT_USAGE)
     if args.tilt_deg < 0 or args.elongation_mm < 0 or args.hold < 0:
-        return fail('--tilt-deg, --elongation-mm and --hold must not be negative', EXIT_USAGE)
+        return fail('tcp: --tilt-deg, --elongation-mm and --hold must not be negative',
+                    EXIT_USAGE)
     goal = CalibrateTcp.Goal(
         tool=args.tool, point_name=args.point, orientations=args.orientations,
         tilt=math.radians(args.tilt_deg), orientation=METHODS.index(args.orientation),
