@@ -41,7 +41,7 @@ def run(args) -> int:
     from cobot_calib_msgs.action import CalibrateTcp
     from geometry_msgs.msg import TransformStamped
     from cobot_calib_ros.api.tcp import calibrate_tcp
-    from cobot_calib_ros.core.tcp.solve import rpy
+    from cobot_calib_ros.core.kinematics.urdf import rpy_from_matrix
     from cobot_calib_ros.ros import convert
     from cobot_calib_ros.ros.calls import CallError, Interrupted
     if args.orientations and args.orientations < 4:
@@ -73,7 +73,7 @@ def run(args) -> int:
     p = result.fixed_point
     out = {'calibration_id': result.calibration_id, 'tool': result.tool,
            'active': result.active, 'xyz_mm': [float(v) * 1e3 for v in T[:3, 3]],
-           'rpy_deg': [math.degrees(a) for a in rpy(T[:3, :3])],
+           'rpy_deg': [math.degrees(a) for a in rpy_from_matrix(T[:3, :3])],
            'mean_residual_mm': result.mean_residual_mm,
            'max_residual_mm': result.max_residual_mm, 'condition': result.condition,
            'orientations_used': result.orientations_used,

@@ -36,6 +36,7 @@ from control_msgs.action import FollowJointTrajectory
 from cobot_calib_msgs.msg import ProbeVoltage
 from cobot_calib_msgs.srv import GetGroundTruth, HandGuide, MeasurePosition
 from geometry_msgs.msg import Pose
+from rcl_interfaces.msg import ParameterDescriptor
 import numpy as np
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
@@ -45,6 +46,7 @@ from sensor_msgs.msg import JointState
 from cobot_calib_ros import paths
 from cobot_calib_ros.core.driver import move_seconds
 from cobot_calib_ros.core.errors import ErrorCode, Failure
+from cobot_calib_ros.core.kinematics.urdf import rpy_from_matrix
 from cobot_calib_ros.core.robot_port import Approach, parse_elongator_point_name
 from cobot_calib_ros.core.sensors.joint_buffer import StampGaps, StampMarks
 from cobot_calib_ros.core.sensors.sample_clock import SampleClock
@@ -52,6 +54,7 @@ from cobot_calib_ros.ros import convert, qos, results, spin
 from cobot_calib_ros.ros.joint_state_bytes import JointStateBytes
 from cobot_calib_ros.ros.diagnostics import Diagnostics, ERROR, OK, RateMeter, WARN
 from cobot_calib_ros.ros.params import declare, read_once
+from cobot_calib_ros.ros.robot_calls import TRUE_TOOL_PARAMETER
 from cobot_calib_ros.ros.time import ns_to_s, ns_to_stamp, NS_PER_S, s_to_ns, stamp_to_ns
 from cobot_calib_ros.sim.robot import SimRobot
 from cobot_calib_ros.sim.scenario import load_simulation
@@ -121,6 +124,7 @@ class MockRobot(Node):
         self._sim = load_simulation(paths.cell_file(self._param('cell_file')),
                                     self._param('layout') or None)
         self._robot = SimRobot(self._sim)
+        self._declare_truth()
         scale = self._param('time_scale')
         self._time_scale = self._sim.time_scale if scale < 0 else scale
         self._moving = False
@@ -196,6 +200,17 @@ class MockRobot(Node):
 
     def _param(self, name: str):
         return self.get_parameter(name).value
+
+    def _declare_truth(self) -> None:
+        """The real tool as a parameter a truth-scoring client reads (``cobot-calib demo``):
+        GetGroundTruth has no field for it. Reported, never set (overrides ignored)."""
+        T = self._sim.true_tool_offset
+        self.declare_parameter(TRUE_TOOL_PARAMETER, [*map(float, T[:3, 3]), *rpy_from_matrix(T)],
+                               ParameterDescriptor(
+                                   description='Simulation only: the real flange -> tool tip '
+                                   '[x y z roll pitch yaw] [m, rad] (cell file simulation: '
+                                   'tool_offset_true; reported, not settable)', read_only=True),
+                               ignore_override=True)
 
     # -- sensors (the paced thread) -------------------------------------------------------
     @property

@@ -39,7 +39,7 @@ from cobot_calib_ros.core.cell import tool_down_orientation
 from cobot_calib_ros.core.rig import model_chain
 from cobot_calib_ros.core.robot_port import CaptureFailed, MoveFailed, Stopped
 from cobot_calib_ros.core.tcp import GateLimits, gate_problem, solve_position, TooAlike
-from cobot_calib_ros.core.tcp.solve import rpy
+from cobot_calib_ros.core.kinematics.urdf import rpy_from_matrix
 from cobot_calib_ros.core.tcp.touches import (DEFAULT_APPROACHES, DEFAULT_ELONGATION,
                                               DEFAULT_TILT, plan_touches, solve_touches,
                                               take_touches, TcpTouches)
@@ -228,7 +228,8 @@ class TcpCalibrator(Node):
                 f'{record.id} rejected, stored as rejected and not made active (the active TCP '
                 f'of {tool} is unchanged): {gate}'))
         x, y, z = position.t * 1e3
-        angles = ', '.join(f'{math.degrees(a):.3f}' for a in rpy(solution.R_flange_tcp))
+        angles = ', '.join(f'{math.degrees(a):.3f}'
+                           for a in rpy_from_matrix(solution.R_flange_tcp))
         return self._end(goal_handle, result, Action.Result.SUCCESS, (
             f'{record.id}: TCP of {tool} x {x:.3f} y {y:.3f} z {z:.3f} mm, rpy ({angles}) deg '
             f'({solution.method}); {len(position.residuals)} approaches, residual mean '

@@ -34,6 +34,9 @@ SERVER_WAIT = 5.0       # [s] for move_to / capture_joints to be discovered
 MOVE_TIMEOUT = 120.0    # [s] for one move_to to finish (every caller's bound on a hung move)
 TOUCH_TIMEOUT = 600.0   # [s] for the operator to guide the tool onto a point and confirm
 HAND_GUIDE = 'mock_robot/hand_guide'
+# mock_robot's real tool, [x y z roll pitch yaw] [m, rad]: a parameter, as GetGroundTruth has
+# no field for it (simulation only; cobot-calib demo scores its frames with it)
+TRUE_TOOL_PARAMETER = 'true_tool_offset'
 NO_MOVE_TO = ('move_to action server not available (is mock_robot up, or robot_adapter beside '
               'a driver?)')
 CAPTURE_ATTEMPTS = 4

@@ -9,7 +9,7 @@ import pytest
 from cobot_calib_ros.core import frames
 from cobot_calib_ros.core.tcp import (GateLimits, gate_problem, solve_position, solve_tcp,
                                       TooAlike)
-from cobot_calib_ros.core.tcp.solve import rpy
+from cobot_calib_ros.core.kinematics.urdf import rpy_from_matrix
 from cobot_calib_ros.core.tcp.touches import plan_touches
 
 T_FLANGE_TCP = frames.from_xyz_rpy([0.0123, -0.0041, 0.1532], [0.012, -0.021, 0.3])
@@ -114,7 +114,8 @@ def test_z_and_x_elongator_points_give_the_tool_orientation():
     solution = solve_tcp(approaches, elongators)
     assert solution.method == 'zx' and solution.turn_rad < 1e-9
     assert np.allclose(solution.T_flange_tcp, T_FLANGE_TCP, atol=1e-9)
-    assert rpy(solution.R_flange_tcp) == pytest.approx((0.012, -0.021, 0.3), abs=1e-9)
+    assert rpy_from_matrix(solution.R_flange_tcp) == pytest.approx((0.012, -0.021, 0.3),
+                                                                   abs=1e-9)
 
 
 def test_a_z_elongator_alone_gives_z_and_the_flange_x_made_orthogonal():

@@ -246,10 +246,3 @@ def gate_problem(solution: TcpSolution, limits: GateLimits = GateLimits(),
                 ' deg): move onto the elongator points without turning the tool')
     return ''
 
-
-def rpy(R: ArrayLike) -> tuple[float, float, float]:
-    """(roll, pitch, yaw) [rad] of R = Rz(yaw) Ry(pitch) Rx(roll), as cell files give them."""
-    R = np.asarray(R, dtype=float)
-    return (math.atan2(R[2, 1], R[2, 2]), math.atan2(-R[2, 0], math.hypot(R[0, 0], R[1, 0])),
-            math.atan2(R[1, 0], R[0, 0]))
-
