@@ -2,7 +2,7 @@
 their own (cell sawyer_close, temporary data_dir): `cobot-calib tcp` has the mock's simulated
 operator touch P1 from tilted approaches and a z elongator point; the TCP found is the mock's
 TRUE tool (not the cell's nominal one), stored and active for the cell's tool; approaches too
-alike are refused before anything moves.
+alike are refused before anything moves; Ctrl-C cancels between touches, nothing stored.
 
 Own suite, not the session's (test/nodes/conftest.py): a second mock_robot on the session's
 domain would answer its hand-guiding.
@@ -10,7 +10,9 @@ domain would answer its hand-guiding.
 import json
 import math
 import os
+import signal
 import subprocess
+import time
 
 import domain_coordinator
 import numpy as np
@@ -86,4 +88,23 @@ def test_approaches_too_alike_are_refused_before_anything_moves(tcp_suite):
     assert 'touch 1/' not in out.stdout
     out = _tcp(env, '--point', 'P9')
     assert out.returncode == 1 and "unknown point 'P9'" in out.stderr
+    assert store.open(data, cell=CELL).tcp.ids() == before
+
+
+def test_ctrl_c_cancels_between_touches_and_nothing_is_stored(tcp_suite):
+    _, data, env = tcp_suite
+    before = store.open(data, cell=CELL).tcp.ids()
+    proc = subprocess.Popen(cli_command('tcp', '--orientations', '8', '--hold', '0.5'),
+                            env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline, lines = time.monotonic() + 120.0, []
+    while time.monotonic() < deadline:
+        line = proc.stdout.readline()
+        lines.append(line)
+        if not line or 'touch 1/8' in line:
+            break
+    proc.send_signal(signal.SIGINT)
+    out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, f'{"".join(lines)}{out}\n{err}'
+    assert err.startswith('TCP calibration cancelled (Ctrl-C): cancelled at touch '), err
+    assert err.strip().endswith('; nothing stored'), err
     assert store.open(data, cell=CELL).tcp.ids() == before

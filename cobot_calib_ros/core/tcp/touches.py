@@ -98,7 +98,7 @@ def take_touches(plan: TcpPlan, robot: RobotPort, chain: kinematics.Chain, hold:
     touches = TcpTouches()
     steps = plan.steps()
     for i, (label, approach) in enumerate(steps):
-        check_cancel(cancelled, f'before touch {i + 1} of {len(steps)} ({label})')
+        check_cancel(cancelled, f'touch {i + 1} of {len(steps)} ({label})')
         robot.touch(plan.point, approach)
         q = robot.capture(hold).q
         touches.labels.append(label)
