@@ -21,6 +21,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 import math
+import re
 from typing import Protocol
 
 import numpy as np
@@ -95,6 +96,7 @@ class Approach:
 
 
 ELONGATOR_SEPARATOR = '+'
+_ELONGATOR = re.compile(r'(.+)\+([zx])([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)')
 
 
 def elongator_point_name(name: str, axis: str, distance: float) -> str:
@@ -104,19 +106,17 @@ def elongator_point_name(name: str, axis: str, distance: float) -> str:
 
 
 def parse_elongator_point_name(text: str) -> tuple[str, str, float]:
-    """(point, axis, distance [m]) of :func:`elongator_point_name`; (text, '', 0.0) for a
-    plain point name; ValueError for a malformed elongator part."""
-    name, sep, rest = text.rpartition(ELONGATOR_SEPARATOR)
-    if not sep:
+    """(point, axis, distance [m]) of :func:`elongator_point_name`; (text, '', 0.0) for any
+    other name (a cell point's own, '+' in it or not); ValueError for an elongator distance
+    of 0 or beyond 1 m."""
+    match = _ELONGATOR.fullmatch(text)
+    if match is None:
         return text, '', 0.0
-    try:
-        distance = float(rest[1:])
-    except ValueError:
-        distance = math.nan
-    if rest[:1] not in ('z', 'x') or not (0.0 < abs(distance) < 1.0):
-        raise ValueError(f'elongator point {text!r}: expected <point>+z<metres> or '
-                         '<point>+x<metres>, e.g. P1+z0.05')
-    return name, rest[0], distance
+    distance = float(match[3])
+    if not 0.0 < abs(distance) < 1.0 or not math.isfinite(distance):
+        raise ValueError(f'elongator point {text!r}: the distance must be 0..1 m (non-zero), '
+                         'e.g. P1+z-0.05')
+    return match[1], match[2], distance
 
 
 class RobotPort(Protocol):

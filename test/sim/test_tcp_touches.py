@@ -49,8 +49,10 @@ def test_elongator_point_names_round_trip_and_bad_ones_are_refused():
     assert elongator_point_name('P1', 'z', -0.05) == 'P1+z-0.05'
     assert parse_elongator_point_name('P1+z-0.05') == ('P1', 'z', -0.05)
     assert parse_elongator_point_name('P1') == ('P1', '', 0.0)
-    with pytest.raises(ValueError, match='expected <point>\\+z<metres>'):
-        parse_elongator_point_name('P1+y0.05')
+    assert parse_elongator_point_name('P1+y0.05') == ('P1+y0.05', '', 0.0)   # a plain name
+    assert parse_elongator_point_name('P+1+x5e-2') == ('P+1', 'x', 0.05)
+    with pytest.raises(ValueError, match='the distance must be 0..1 m'):
+        parse_elongator_point_name('P1+z2.5')
 
 
 def test_an_unreachable_approach_fails_as_a_move():
