@@ -27,7 +27,7 @@ from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Header
+from std_msgs.msg import Header, String
 from visualization_msgs.msg import MarkerArray
 
 from cobot_calib_ros import paths, store
@@ -58,6 +58,7 @@ from cobot_calib_ros.store.files import check_id
 
 Collect, Identify = CollectSphereData, IdentifyKinematics
 PLANNED_MAX_POSES = 100
+DESCRIPTION_CHECK_PERIOD = 2.0   # [s] between looks at the active calibration (robot_description)
 PLANNING_TASK_SEED = 1      # the task volume's configurations (the validation set is seed 0)
 
 
@@ -100,6 +101,12 @@ class KinematicIdentifier(Node):
         self.get_logger().info(f'{self._cell.robot} cell "{self._cell.name}": collections in '
                                f'{self._collections.directory}, kinematic calibrations in '
                                f'{self._calibrations.directory}')
+        self._description = None
+        if self._p('publish_robot_description'):
+            self._description = self.create_publisher(String, 'robot_description', qos.LATCHED)
+            self._described = None
+            self._publish_description()
+            self.create_timer(DESCRIPTION_CHECK_PERIOD, self._publish_description)
 
     def destroy_node(self):
         self._answers.destroy()
@@ -111,6 +118,10 @@ class KinematicIdentifier(Node):
         read_once(self, 'layout', '', 'Marker layout; empty = the cell default')
         read_once(self, 'data_dir', '', 'Collections go to <data_dir>/kinematic_data, results '
                   'to <data_dir>/kinematics; empty = $COBOT_CALIB_DATA or ~/.ros/cobot_calib')
+        read_once(self, 'publish_robot_description', False,
+                  'Publish the URDF of the active kinematic calibration (the cell\'s own URDF '
+                  'with the identified joint origins; the nominal one while none is active) '
+                  'on robot_description (latched), for robot_state_publisher, MoveIt, RViz')
         declare(self, 'hold_duration', 1.0,
                 'Joints are averaged over this hold at every pose [s] (paper: 1 s at 1 kHz)',
                 0.005, 10.0)
@@ -449,8 +460,41 @@ class KinematicIdentifier(Node):
             result.calibration_id = saved.record.id
             result.yaml_path, result.urdf_path = (str(saved.paths['yaml']),
                                                   str(saved.paths['urdf']))
+            if self._description is not None:
+                self._publish_description()
         return self._end(goal_handle, result, Identify.Result.SUCCESS,
                          '; '.join(filter(None, (outcome.summary(), partial))))
+
+    def _publish_description(self) -> None:
+        """robot_description from the active calibration, again whenever that changes (a new
+        identification here, or `cobot-calib history --activate` from another process)."""
+        try:
+            active = self._calibrations.active(self._model.name)
+        except OSError as e:
+            self.get_logger().warning(f'robot_description: cannot read the active kinematic '
+                                      f'calibration: {e}', throttle_duration_sec=60.0)
+            return
+        key = active['id'] if active is not None else ''
+        if key == self._described:
+            return
+        self._described = key
+        if active is not None:
+            path = self._calibrations.directory / f'{key}.urdf'
+            try:
+                text, what = path.read_text(), f'kinematic calibration {key} ({path})'
+            except OSError as e:
+                self.get_logger().error(f'robot_description: {e}; not published')
+                return
+        elif self._cell.urdf_robot is not None and self._cell.urdf_robot.urdf:
+            text = self._cell.urdf_robot.urdf
+            what = f'the nominal URDF {self._cell.urdf_robot.urdf_file} (no calibration active)'
+        else:
+            self.get_logger().warning(
+                f'robot_description: no kinematic calibration active and cell '
+                f'"{self._cell.name}" gives no URDF (robot: {{urdf: ...}}); not published')
+            return
+        self._description.publish(String(data=text))
+        self.get_logger().info(f'robot_description: {what}')
 
     def _job(self, goal) -> tuple[CalibrationJob, str, dict | None]:
         """The identification job of a goal (data, validation sets, options), '' or what
