@@ -44,6 +44,7 @@ from cobot_calib_ros.core.landmarks.hand_eye import check_noise, hand_eye_views,
 from cobot_calib_ros.core.landmarks.hand_eye_capture import (HandEyeViews,
                                                              take_hand_eye_views)
 from cobot_calib_ros.core.ids import record_id
+from cobot_calib_ros.core.rig import Rig
 from cobot_calib_ros.core.robot_port import CaptureFailed, Stopped
 from cobot_calib_ros.loaders import load_cell
 from cobot_calib_ros.ros import convert, qos, results, spin
@@ -88,7 +89,7 @@ class HandEyeCalibrator(Node):
         self._declare_parameters()
         self._cell = load_cell(paths.cell_file(self._p('cell_file')), self._p('layout') or None)
         self._model = kinematics.model_for(self._cell)
-        self._chain = self._model.chain()
+        self._chain = Rig(self._cell, model=self._model).nominal_chain('flange')
         self._root = paths.data_dir(self._p('data_dir'))
         self._results_cell = ResultsCell.of(self._cell, self.get_namespace())
         self._store = store.open(self._root, cell=self._results_cell).hand_eye

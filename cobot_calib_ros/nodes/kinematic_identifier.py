@@ -46,6 +46,7 @@ from cobot_calib_ros.core.kinematics.identification.gates import (
 from cobot_calib_ros.core.kinematics.kinematic_calibration import CalibrationJob, JobCancelled
 from cobot_calib_ros.bags.errors import BagError
 from cobot_calib_ros.core.ids import record_id
+from cobot_calib_ros.core.rig import Rig
 from cobot_calib_ros.loaders import load_cell
 from cobot_calib_ros.loaders import sources
 from cobot_calib_ros.ros import markers, marks, qos, results, spin
@@ -87,8 +88,8 @@ class KinematicIdentifier(Node):
                                                qos.LATCHED)
         self._collected: list[np.ndarray] = []
         spheres = self._cell.spheres
-        self._coupling = None if spheres is None else self._model.chain(
-            tool=spheres.coupling_offset)
+        self._coupling = None if spheres is None else Rig(
+            self._cell, model=self._model).nominal_chain('coupling')
         group = ReentrantCallbackGroup()
         self._collect = ActionServer(
             self, Collect, 'collect_sphere_data', execute_callback=self._on_collect,

@@ -31,13 +31,13 @@ from cobot_calib_ros.core.robot_port import PortError
 from cobot_calib_ros.loaders import load_cell
 from cobot_calib_ros.store.cells import ResultsCell
 from cobot_calib_ros.store.files import check_id
-from cobot_calib_ros.core.rig import model_chain
 from cobot_calib_ros.store.kinematics import NOMINAL
 from cobot_calib_ros.store.records import TrialSetup
+from cobot_calib_ros.store.rigs import rig_of
 from cobot_calib_ros.ros import qos, results, spin
 from cobot_calib_ros.ros.diagnostics import Diagnostics, OK, WARN
 from cobot_calib_ros.ros.params import declare, read_once
-from cobot_calib_ros.ros.landmark_views import active_hand_eye, CaptureMarks
+from cobot_calib_ros.ros.landmark_views import CaptureMarks
 from cobot_calib_ros.ros.landmark_watch import LandmarkWatch
 from cobot_calib_ros.ros.robot_calls import RobotCalls
 from cobot_calib_ros.ros.time import now_ns
@@ -300,21 +300,18 @@ class RepeatabilityTrial(Node):
         active hand-eye as the camera's tool); the choice's label (id or nominal)."""
         data_dir = paths.data_dir(self._p('data_dir'))
         try:
-            record = store.open(data_dir, cell=self._results_cell).kinematics.resolve(
-                choice, self._model.name)
-            chain = model_chain(record, self._model, self._cell.tool_offset)
-            rig = None
-            if self._camera is not None:
-                X, _ = active_hand_eye(data_dir, self._cell, self._results_cell)
-                rig = trialmod.LandmarkRig(self._camera, self._cell, self._model.chain(tool=X),
-                                           model_chain(record, self._model, X), self._marks)
+            rig = rig_of(store.open(data_dir, cell=self._results_cell), self._cell, choice,
+                         self._model)
+            views = None if self._camera is None else trialmod.LandmarkRig(
+                self._camera, self._cell, rig.nominal_chain('camera'), rig.chain('camera'),
+                self._marks)
         except (KeyError, ValueError) as e:
             raise trialmod.TrialError(ErrorCode.INVALID_INPUT,
                                       f'kinematics {choice!r}: {e}; use latest, '
                                       'nominal or a stored kinematic calibration id')
-        robot = trialmod.PortRobot(self._calls, chain, self._cell.home,
-                                   self._p('capture_duration'), rig, cancelled)
-        return robot, NOMINAL if record is None else record['id']
+        robot = trialmod.PortRobot(self._calls, rig.chain('tcp'), self._cell.home,
+                                   self._p('capture_duration'), views, cancelled)
+        return robot, rig.active.kinematics_label
 
     def _stored(self, trial: _Goal):
         """The stored trial this goal resumes (None for a new one); fills ``trial.meta``."""

@@ -43,16 +43,16 @@ from cobot_calib_ros.loaders import load_cell
 from cobot_calib_ros.ros import convert, markers, qos, results, spin
 from cobot_calib_ros.ros.diagnostics import Diagnostics, OK, status_name, WARN
 from cobot_calib_ros.ros.params import declare, read_once
-from cobot_calib_ros.ros.landmark_views import active_hand_eye, CaptureMarks
+from cobot_calib_ros.ros.landmark_views import CaptureMarks
 from cobot_calib_ros.ros.landmark_watch import LandmarkWatch
 from cobot_calib_ros.ros.robot_calls import RobotCalls
 from cobot_calib_ros.ros.time import now_ns, ns_to_stamp
 from cobot_calib_ros.ros.tf_static import StaticBroadcaster
 from cobot_calib_ros.store.cells import ResultsCell
 from cobot_calib_ros.store.history import user_frame_change
-from cobot_calib_ros.core.rig import model_chain
-from cobot_calib_ros.store.kinematics import NOMINAL
+from cobot_calib_ros.core.rig import Rig
 from cobot_calib_ros.store.records import UserFrameRecord
+from cobot_calib_ros.store.rigs import rig_of
 
 Res = CalibrateUserFrame.Response
 Choice = SetActiveCalibration
@@ -313,7 +313,8 @@ class UserFrameSolver(Node):
                 'no points: give points_user + points_base, or point_names of the cell to '
                 'visit live')))
         self._check_names(names)
-        chain, model_used = self._kinematic_chain(request.kinematics or self._p('kinematics'))
+        rig = self._rig(request.kinematics or self._p('kinematics'))
+        chain, model_used = rig.chain('tcp'), rig.active.kinematics_label
         if request.joint_captures:
             joints = self._given_joints(names, request.joint_captures)
         else:
@@ -322,21 +323,16 @@ class UserFrameSolver(Node):
         p_base = np.array([kinematics.fk(chain, q)[:3, 3] for q in joints])
         return names, p_user, p_base, model_used
 
-    def _kinematic_chain(self, choice: str, tool: np.ndarray | None = None
-                         ) -> tuple[kinematics.Chain, str]:
-        """The chain for a kinematics choice and its label (a calibration id or nominal),
-        read fresh: kinematic_identifier may have stored a new one since. ``tool``: T_flange_tool
-        of the chain, default the cell's tool offset."""
-        kinematic_store = store.open(self._data_dir(), cell=self._results_cell).kinematics
+    def _rig(self, choice: str) -> Rig:
+        """The cell's rig with the kinematics ``choice`` names and the active hand-eye, read
+        fresh: kinematic_identifier or hand_eye_calibrator may have stored new ones since."""
         try:
-            record = kinematic_store.resolve(choice, self._model.name)
-            chain = model_chain(record, self._model,
-                             self._cell.tool_offset if tool is None else tool)
+            return rig_of(store.open(self._data_dir(), cell=self._results_cell), self._cell,
+                          choice, self._model)
         except (KeyError, ValueError) as e:
             raise Refusal(Failure(ErrorCode.INVALID_INPUT, (
                 f'kinematics {choice!r}: {str(e).strip(chr(39))}; use latest, nominal or a '
                 f'stored kinematic calibration id')))
-        return chain, NOMINAL if record is None else record['id']
 
     def _check_names(self, names: list[str]) -> None:
         unknown = [n for n in names if self._cell.marker(n) is None]
@@ -377,12 +373,11 @@ class UserFrameSolver(Node):
         if problem:
             raise Refusal(Failure(ErrorCode.INVALID_INPUT, f'{request.method}: {problem}'))
         guess = self._user_frame_guess()
-        X, hand_eye = active_hand_eye(self._data_dir(), self._cell, self._results_cell)
-        chain, model_used = self._kinematic_chain(request.kinematics or self._p('kinematics'),
-                                                  tool=X)
+        rig = self._rig(request.kinematics or self._p('kinematics'))
+        model_used, hand_eye = rig.active.kinematics_label, rig.active.hand_eye_label
         result = views.measure_frame(
             request.method, self._cell, self._robot, self._camera, T_base_user_guess=guess,
-            plan_chain=self._model.chain(tool=X), chain=chain,
+            plan_chain=rig.nominal_chain('camera'), chain=rig.chain('camera'),
             capture_duration=self._p('capture_duration'),
             max_rms_error=self._p('max_rms_error'), max_scale_error=self._p('max_scale_error'),
             on_view=self._marks)
