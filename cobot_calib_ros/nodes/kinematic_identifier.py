@@ -17,20 +17,17 @@ from __future__ import annotations
 
 import math
 import sys
-import threading
 from time import monotonic
 
 from cobot_calib_msgs.action import CollectSphereData, IdentifyKinematics
 from cobot_calib_msgs.msg import CollectionProgress, ErrorStats
 import numpy as np
-from rclpy.action import ActionServer, CancelResponse, GoalResponse
+from rclpy.action import ActionServer, CancelResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
-from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Header, String
 from visualization_msgs.msg import MarkerArray
 
-from cobot_calib_ros import paths, store
 from cobot_calib_ros.core import kinematics
 from cobot_calib_ros.core.errors import ErrorCode, Failure, Refusal
 from cobot_calib_ros.core.kinematics import plans
@@ -47,14 +44,13 @@ from cobot_calib_ros.core.kinematics.kinematic_calibration import CalibrationJob
 from cobot_calib_ros.bags.errors import BagError
 from cobot_calib_ros.core.ids import record_id
 from cobot_calib_ros.core.rig import Rig
-from cobot_calib_ros.loaders import load_cell
 from cobot_calib_ros.loaders import sources
 from cobot_calib_ros.ros import markers, marks, qos, results, spin
-from cobot_calib_ros.ros.diagnostics import Diagnostics, OK, WARN
+from cobot_calib_ros.ros.diagnostics import OK, WARN
 from cobot_calib_ros.ros.params import declare, read_once
 from cobot_calib_ros.ros.robot_calls import RobotCalls
 from cobot_calib_ros.ros.time import now_ns, ns_to_stamp
-from cobot_calib_ros.store.cells import ResultsCell
+from cobot_calib_ros.nodes.job_node import JobNode
 from cobot_calib_ros.store.files import check_id
 
 Collect, Identify = CollectSphereData, IdentifyKinematics
@@ -63,20 +59,17 @@ DESCRIPTION_CHECK_PERIOD = 2.0   # [s] between looks at the active calibration (
 PLANNING_TASK_SEED = 1      # the task volume's configurations (the validation set is seed 0)
 
 
-class KinematicIdentifier(Node):
+class KinematicIdentifier(JobNode):
     def __init__(self, **kwargs) -> None:
-        super().__init__('kinematic_identifier', **kwargs)
+        super().__init__('kinematic_identifier', job='a collection or identification',
+                         cell_help='Cell YAML (path or name): robot, home, the sphere plate '
+                         'and coupling', data_help='Collections go to <data_dir>/kinematic_data, '
+                         'results to <data_dir>/kinematics', **kwargs)
         self._declare_parameters()
-        self._cell = load_cell(paths.cell_file(self._p('cell_file')), self._p('layout') or None)
-        self._model = kinematics.model_for(self._cell)
-        repository = store.open(paths.data_dir(self._p('data_dir')),
-                                cell=ResultsCell.of(self._cell, self.get_namespace()))
+        repository = self._repository()
         self._collections = repository.collections
         self._calibrations = repository.kinematics
-        self._answers = spin.Companion(self, 'clients')
         self._robot = RobotCalls(self._answers)
-        self._busy = threading.Lock()
-        self._health = Diagnostics(self)
         self._health.watch(capture_retries=lambda: self._robot.capture_retries)
         self._health.set(OK, 'idle', job='')
         # every recorded pose, for recording a session (cobot-calib record); frame_id = target
@@ -109,16 +102,7 @@ class KinematicIdentifier(Node):
             self._publish_description()
             self.create_timer(DESCRIPTION_CHECK_PERIOD, self._publish_description)
 
-    def destroy_node(self):
-        self._answers.destroy()
-        return super().destroy_node()
-
     def _declare_parameters(self) -> None:
-        read_once(self, 'cell_file', paths.DEFAULT_CELL,
-                  'Cell YAML (path or name): robot, home, the sphere plate and coupling')
-        read_once(self, 'layout', '', 'Marker layout; empty = the cell default')
-        read_once(self, 'data_dir', '', 'Collections go to <data_dir>/kinematic_data, results '
-                  'to <data_dir>/kinematics; empty = $COBOT_CALIB_DATA or ~/.ros/cobot_calib')
         read_once(self, 'publish_robot_description', False,
                   'Publish the URDF of the active kinematic calibration (the cell\'s own URDF '
                   'with the identified joint origins; the nominal one while none is active) '
@@ -139,37 +123,11 @@ class KinematicIdentifier(Node):
                 'Identification gate: the most an angle or zero offset may be off nominal '
                 '[rad]; a result with a parameter beyond is refused, nothing stored', 1e-5, 0.5)
 
-    def _p(self, name: str):
-        return self.get_parameter(name).value
-
-    def _accept(self, goal) -> GoalResponse:
-        if self._busy.locked():
-            self.get_logger().warning('goal rejected: a collection or identification is '
-                                      'running; wait for its end or cancel it')
-            return GoalResponse.REJECT
-        return GoalResponse.ACCEPT
-
     def _exclusive(self, goal_handle, run, Result):
-        if not self._busy.acquire(blocking=False):
-            goal_handle.abort()
-            return Result(error_code=Result.INVALID_GOAL, message='another job is running')
         try:
-            return run(goal_handle)
+            return super()._exclusive(goal_handle, run, Result)
         finally:
             self._health.set(OK, 'idle', job='')
-            self._busy.release()
-
-    def _end(self, goal_handle, result, code: int, message: str):
-        result.error_code, result.message = int(code), message
-        if code == 0:
-            goal_handle.succeed()
-            spin.log_info(self.get_logger(), message)
-        elif goal_handle.is_cancel_requested:
-            goal_handle.canceled()
-        else:
-            goal_handle.abort()
-            self.get_logger().warning(message)
-        return result
 
     # -- collection -----------------------------------------------------------------------
     def _on_collect(self, goal_handle):

@@ -28,10 +28,8 @@ from cobot_calib_msgs.srv import (CalibrateUserFrame, ConvertPoints, ListCalibra
                                   SetActiveCalibration)
 import numpy as np
 from rcl_interfaces.msg import SetParametersResult
-from rclpy.node import Node
 from visualization_msgs.msg import MarkerArray
 
-from cobot_calib_ros import paths, store
 from cobot_calib_ros.core import frames, kinematics, user_frame
 from cobot_calib_ros.core.cell import check_frame_id
 from cobot_calib_ros.core.drift import DriftLimits
@@ -39,7 +37,6 @@ from cobot_calib_ros.core.errors import ErrorCode, Failure, Refusal
 from cobot_calib_ros.core.landmarks import views
 from cobot_calib_ros.core.robot_port import PortError
 from cobot_calib_ros.core.user_frame import landmarks as landmark_frames
-from cobot_calib_ros.loaders import load_cell
 from cobot_calib_ros.ros import convert, markers, qos, results, spin
 from cobot_calib_ros.ros.diagnostics import Diagnostics, OK, status_name, WARN
 from cobot_calib_ros.ros.params import declare, read_once
@@ -48,11 +45,10 @@ from cobot_calib_ros.ros.landmark_watch import LandmarkWatch
 from cobot_calib_ros.ros.robot_calls import RobotCalls
 from cobot_calib_ros.ros.time import now_ns, ns_to_stamp
 from cobot_calib_ros.ros.tf_static import StaticBroadcaster
-from cobot_calib_ros.store.cells import ResultsCell
+from cobot_calib_ros.nodes.job_node import JobNode
 from cobot_calib_ros.store.history import user_frame_change
 from cobot_calib_ros.core.rig import Rig
 from cobot_calib_ros.store.records import UserFrameRecord
-from cobot_calib_ros.store.rigs import rig_of
 
 Res = CalibrateUserFrame.Response
 Choice = SetActiveCalibration
@@ -104,17 +100,17 @@ def record_to_msg(record: dict) -> UserFrameCalibration:
     return msg
 
 
-class UserFrameSolver(Node):
+class UserFrameSolver(JobNode):
     def __init__(self, **kwargs) -> None:
-        super().__init__('user_frame_solver', **kwargs)
+        super().__init__('user_frame_solver', job='a calibration',
+                         cell_help='Cell YAML (path or name): named points and the nominal '
+                         'tool offset', layout_help='Marker layout of the named points (close '
+                         '| wide); empty = the cell file default',
+                         data_help='Where calibrations are stored', **kwargs)
         self._declare_parameters()
-        self._cell = load_cell(paths.cell_file(self._p('cell_file')), self._p('layout') or None)
-        self._model = kinematics.model_for(self._cell)
         # results are this cell's: its user frames, hand-eye and kinematics (store.cells)
-        self._results_cell = ResultsCell.of(self._cell, self.get_namespace())
-        self._store = store.open(self._data_dir(), cell=self._results_cell).user_frames
+        self._store = self._repository().user_frames
         self._store_lock = threading.Lock()     # the calibrator thread writes, this one reads
-        self._health = Diagnostics(self)
         # '<node>: drift': the newest calibration against the one active before it
         self._drift = Diagnostics(self, name=status_name(self, 'drift'))
         self._drift.set(OK, 'no calibration compared yet')
@@ -124,7 +120,6 @@ class UserFrameSolver(Node):
         # a live calibration blocks in its service callback while the robot moves and
         # captures: it runs on the calibrator's thread, the answers it waits for arrive on
         # the clients' thread, and this node's own services stay free
-        self._answers = spin.Companion(self, 'clients')
         self._calibrator = spin.Companion(self, 'calibrator')
         self._robot = RobotCalls(self._answers, operator=self.get_name())
         self._health.watch(capture_retries=lambda: self._robot.capture_retries)
@@ -146,20 +141,13 @@ class UserFrameSolver(Node):
 
     def destroy_node(self):
         self._calibrator.destroy()
-        self._answers.destroy()
         return super().destroy_node()
 
     def _declare_parameters(self) -> None:
-        read_once(self, 'cell_file', paths.DEFAULT_CELL,
-                  'Cell YAML (path or name): named points and the nominal tool offset')
-        read_once(self, 'layout', '', 'Marker layout of the named points (close | wide); '
-                  'empty = the cell file default')
         declare(self, 'base_frame', 'base_link', 'Robot base frame id of new calibrations '
                 'whose request gives none (tf2 frame id: letters, digits, _ and /)')
         declare(self, 'user_frame', 'user_frame', 'User (work surface) frame id of new '
                 'calibrations whose request gives none (tf2 frame id, not base_frame)')
-        read_once(self, 'data_dir', '', 'Where calibrations are stored; empty = '
-                  '$COBOT_CALIB_DATA or ~/.ros/cobot_calib')
         declare(self, 'kinematics', 'latest', 'Kinematic model that maps captured joints to '
                 'points: latest (the active kinematic calibration of kinematic_identifier, '
                 'the nominal model if there is none), nominal, or a kinematic calibration id')
@@ -188,12 +176,6 @@ class UserFrameSolver(Node):
                 'Tolerance of |scale - 1| of the fitted matrix (five_point_lsq): a scale off 1 by '
                 'more than this AND by more than its noise allows (k standard errors, 0.5 % '
                 'false refusals) is refused with IMPLAUSIBLE_FIT [1]', 1e-4, 1.0)
-
-    def _p(self, name: str):
-        return self.get_parameter(name).value
-
-    def _data_dir(self):
-        return paths.data_dir(self._p('data_dir'))
 
     # -- frame ids -------------------------------------------------------------------------
     def _frame_parameters_problem(self) -> str:
@@ -327,8 +309,7 @@ class UserFrameSolver(Node):
         """The cell's rig with the kinematics ``choice`` names and the active hand-eye, read
         fresh: kinematic_identifier or hand_eye_calibrator may have stored new ones since."""
         try:
-            return rig_of(store.open(self._data_dir(), cell=self._results_cell), self._cell,
-                          choice, self._model)
+            return super()._rig(choice)
         except (KeyError, ValueError) as e:
             raise Refusal(Failure(ErrorCode.INVALID_INPUT, (
                 f'kinematics {choice!r}: {str(e).strip(chr(39))}; use latest, nominal or a '
