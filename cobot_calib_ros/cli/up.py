@@ -46,6 +46,10 @@ def add_parser(subparsers):
                    help='publish robot_description (latched) from the active kinematic '
                    'calibration: the cell\'s URDF with the identified joint origins, the '
                    'nominal one while none is active (for robot_state_publisher, MoveIt, RViz)')
+    p.add_argument('--nodes', default='',
+                   help='start only these nodes of the suite, comma separated (e.g. '
+                   'user_frame_solver,hand_eye_calibrator to serve stored results without a '
+                   'robot); default: the whole suite')
     p.add_argument('--force', action='store_true',
                    help='start even if suite nodes already run on this ROS_DOMAIN_ID')
     return p
@@ -66,6 +70,14 @@ def run(args) -> int:
         overrides['kinematic_identifier'] = {'publish_robot_description': 'true'}
     specs = [replace(spec, namespace=namespace) for spec in launcher.suite_specs(
         args.cell, overrides=overrides, robot_interface=args.robot_interface)]
+    if args.nodes:
+        wanted = [n.strip() for n in args.nodes.split(',') if n.strip()]
+        unknown = sorted(set(wanted) - {spec.name for spec in specs})
+        if unknown or not wanted:
+            return fail(f'--nodes {args.nodes!r}: {", ".join(unknown) or "no node"} not in '
+                        f'the suite ({", ".join(spec.name for spec in specs)}); nothing '
+                        'started', EXIT_USAGE)
+        specs = [spec for spec in specs if spec.name in wanted]
     if not args.force:
         running = running_nodes([spec.full_name for spec in specs])
         if running:
@@ -208,8 +220,9 @@ class _Ready:
         if self._pending:
             return
         self._pending = None
+        running = {spec.name for spec in self._suite.specs.values()}
         try:
-            wait_for_suite(self._node, READY_TIMEOUT, stop=stop)
+            wait_for_suite(self._node, READY_TIMEOUT, stop=stop, nodes=running)
         except CallError as e:
             print(f'not ready: {e}', file=sys.stderr, flush=True)
             return
