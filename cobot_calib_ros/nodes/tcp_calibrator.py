@@ -18,80 +18,59 @@ tool); otherwise it is kept as rejected and the goal ends with REJECTED saying w
 honoured between touches (nothing stored). Feedback after every touch: its index and the RMS
 tip residual of the approaches so far (from the fourth).
 
-Parameters (read at start-up): cell_file, layout, data_dir; hold_duration [s], touch_sigma
-[m], kinematics.
+Parameters: cell_file, layout, data_dir (read at start-up: nodes.job_node.JobNode);
+hold_duration [s], touch_sigma [m], kinematics.
 """
 from __future__ import annotations
 
 import math
-import threading
 import time
 
 from cobot_calib_msgs.action import CalibrateTcp
 import numpy as np
-from rclpy.action import ActionServer, CancelResponse, GoalResponse
+from rclpy.action import ActionServer, CancelResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
-from rclpy.node import Node
 
-from cobot_calib_ros import paths, store
-from cobot_calib_ros.core import kinematics
 from cobot_calib_ros.core.cell import tool_down_orientation
-from cobot_calib_ros.core.rig import model_chain
 from cobot_calib_ros.core.robot_port import CaptureFailed, MoveFailed, Stopped
 from cobot_calib_ros.core.tcp import GateLimits, gate_problem, solve_position, TooAlike
 from cobot_calib_ros.core.kinematics.urdf import rpy_from_matrix
 from cobot_calib_ros.core.tcp.touches import (DEFAULT_APPROACHES, DEFAULT_ELONGATION,
                                               DEFAULT_TILT, plan_touches, solve_touches,
                                               take_touches, TcpTouches)
-from cobot_calib_ros.loaders import load_cell
+from cobot_calib_ros.nodes.job_node import JobNode
 from cobot_calib_ros.ros import convert, spin
-from cobot_calib_ros.ros.diagnostics import Diagnostics, OK, WARN
-from cobot_calib_ros.ros.params import declare, read_once
+from cobot_calib_ros.ros.diagnostics import OK
+from cobot_calib_ros.ros.params import declare
 from cobot_calib_ros.ros.robot_calls import RobotCalls
 from cobot_calib_ros.ros.time import now_ns
-from cobot_calib_ros.store.cells import ResultsCell
 from cobot_calib_ros.store.records import TcpRecord
 
 Action = CalibrateTcp
 METHODS = {Action.Goal.ORIENTATION_NONE: 'none', Action.Goal.ORIENTATION_Z: 'z',
            Action.Goal.ORIENTATION_ZX: 'zx'}
-NOMINAL = 'nominal'
 
 
-class TcpCalibrator(Node):
+class TcpCalibrator(JobNode):
     def __init__(self, **kwargs) -> None:
-        super().__init__('tcp_calibrator', **kwargs)
+        super().__init__('tcp_calibrator', job='a TCP calibration',
+                         cell_help='Cell YAML (path or name): robot, tool_offset, the fixed '
+                         'points', data_help='Results repository (kind tcp)', **kwargs)
         self._declare_parameters()
-        self._cell = load_cell(paths.cell_file(self._p('cell_file')), self._p('layout') or None)
-        self._model = kinematics.model_for(self._cell)
-        self._root = paths.data_dir(self._p('data_dir'))
-        self._results_cell = ResultsCell.of(self._cell, self.get_namespace())
-        self._answers = spin.Companion(self, 'clients')
         self._robot = RobotCalls(self._answers, operator=self.get_name())
-        self._busy = threading.Lock()
-        self._health = Diagnostics(self)
         self._health.watch(capture_retries=lambda: self._robot.capture_retries)
         self._server = ActionServer(
             self, Action, 'calibrate_tcp', execute_callback=self._on_goal,
             goal_callback=self._accept, cancel_callback=lambda _: CancelResponse.ACCEPT,
             callback_group=ReentrantCallbackGroup())
-        repo = self._repo()
-        active = repo.tcp.active(self._cell.tool_frame)
-        for warning in repo.tcp.warnings:
+        history = self._repository().tcp
+        active = history.active(self._cell.tool_frame)
+        for warning in history.warnings:
             self.get_logger().warning(warning)
         self._health.set(OK, 'idle', active_id=active['id'] if active else '')
-        self.get_logger().info(f'TCP calibrations in {repo.tcp.directory}')
-
-    def destroy_node(self):
-        self._answers.destroy()
-        return super().destroy_node()
+        self.get_logger().info(f'TCP calibrations in {history.directory}')
 
     def _declare_parameters(self) -> None:
-        read_once(self, 'cell_file', paths.DEFAULT_CELL,
-                  'Cell YAML (path or name): robot, tool_offset, the fixed points')
-        read_once(self, 'layout', '', 'Marker layout; empty = the cell default')
-        read_once(self, 'data_dir', '', 'Results repository; empty = $COBOT_CALIB_DATA or '
-                  '~/.ros/cobot_calib')
         declare(self, 'hold_duration', 0.2, 'Joints are averaged over this hold at every '
                 'touch [s]', 0.005, 10.0)
         declare(self, 'touch_sigma', 5e-5, 'Tip noise per axis of a touch (the operator\'s '
@@ -99,52 +78,18 @@ class TcpCalibrator(Node):
         declare(self, 'kinematics', 'latest', 'Kinematics of the flange poses: latest (the '
                 'active calibration, else nominal), nominal, or a calibration id')
 
-    def _p(self, name: str):
-        return self.get_parameter(name).value
-
-    def _repo(self):
-        """The repository, opened again: another node may have stored since."""
-        return store.open(self._root, cell=self._results_cell)
-
-    def _accept(self, goal) -> GoalResponse:
-        if self._busy.locked():
-            self.get_logger().warning('goal rejected: a TCP calibration is running')
-            return GoalResponse.REJECT
-        return GoalResponse.ACCEPT
-
     def _on_goal(self, goal_handle):
-        if not self._busy.acquire(blocking=False):
-            goal_handle.abort()
-            return Action.Result(error_code=Action.Result.INVALID_GOAL,
-                                 message='another TCP calibration is running')
-        try:
-            return self._run(goal_handle)
-        finally:
-            self._busy.release()
+        return self._exclusive(goal_handle, self._run, Action.Result)
 
-    def _end(self, goal_handle, result, code: int, message: str):
-        result.error_code, result.message = int(code), message
-        if code == Action.Result.SUCCESS:
-            goal_handle.succeed()
-            spin.log_info(self.get_logger(), message)
-        elif goal_handle.is_cancel_requested:
-            goal_handle.canceled()
-        else:
-            goal_handle.abort()
-            self.get_logger().warning(message)
-        self._health.set(OK if code == Action.Result.SUCCESS else WARN, message)
-        return result
-
-    def _chain(self) -> tuple[kinematics.Chain, str]:
+    def _chain(self):
         """The active kinematics ending at the flange, and its label (id or nominal)."""
-        record = self._repo().kinematics.resolve(self._p('kinematics'), self._model.name)
-        return model_chain(record, self._model, np.eye(4)), \
-            NOMINAL if record is None else record['id']
+        rig = self._rig(self._p('kinematics'))
+        return rig.chain('flange'), rig.active.kinematics_label
 
     def _R_reference(self) -> np.ndarray:
         """The first approach: the tool pointing down the active user frame's z (the cell's
         touch orientation), the base's without one."""
-        record = self._repo().user_frames.active()
+        record = self._repository().user_frames.active()
         T = np.eye(4) if record is None or record['result'].get('T_base_user') is None \
             else np.array(record['result']['T_base_user'], dtype=float)
         return tool_down_orientation(T, 'z')
@@ -209,7 +154,7 @@ class TcpCalibrator(Node):
             now_ns(self), kinematics_used, tilt,
             elongation if plan.elongators else 0.0, gate)
         try:
-            activation = self._repo().tcp.save_and_activate(record)
+            activation = self._repository().tcp.save_and_activate(record)
         except (OSError, ValueError) as e:
             return self._end(goal_handle, result, Action.Result.STORAGE_FAILED,
                              f'could not store the TCP calibration: {e}')
