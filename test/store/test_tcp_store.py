@@ -76,3 +76,19 @@ def test_a_tcp_record_reads_back_as_written():
     assert back.result.orientation_method == 'none' and back.result.approaches == 4
     assert back.inputs.labels == ['approach 1', 'approach 2', 'approach 3', 'approach 4']
     assert back.to_dict() == record
+
+
+def test_the_rig_of_a_repository_ends_its_tcp_chain_at_the_active_tcp(repo):
+    """Issue 30.3: every chain to the 'tcp' tool (store.rigs.rig_of: the nodes, checks and
+    verbs) uses the active TCP of the cell's tool, not another tool's."""
+    from cobot_calib_ros.loaders import load_cell
+    from cobot_calib_ros.paths import cell_file
+    from cobot_calib_ros.store.rigs import rig_of
+    cell = load_cell(cell_file('sawyer_close'))
+    assert rig_of(repo, cell).active.tcp_label == 'nominal'
+    assert repo.tcp.save_and_activate(_record('gripper', 1, dz=0.05))
+    assert rig_of(repo, cell).active.tcp is None
+    assert repo.tcp.save_and_activate(_record(cell.tool_frame, 2, dz=2e-4))
+    rig = rig_of(repo, cell)
+    assert rig.active.tcp_label == f'tcp-{cell.tool_frame}-2'
+    assert np.allclose(rig.tool('tcp')[:3, 3], T_FLANGE_TCP[:3, 3] + [0, 0, 2e-4], atol=1e-9)
