@@ -22,6 +22,7 @@ VERBS = (
     'report',
     'identify',
     'hand_eye',
+    'intrinsics',                   # camera intrinsics from board images: camera_info YAML
     'record', 'bag', 'replay',      # bags (rosbag2): record, bag info, replay
     'detect',
     'export',

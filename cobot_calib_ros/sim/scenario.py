@@ -4,12 +4,13 @@ Read only by the mock robot and tests. The nominal part (``cell:``) is core.cell
 """
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 import math
 from pathlib import Path
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from cobot_calib_ros.core import frames
 from cobot_calib_ros.core.cell import Cell, CellReader
@@ -108,6 +109,15 @@ class Simulation:
         """RMS of :meth:`repeatability_sigma_at` over the layout's marker tops [m]."""
         sigmas = [self.repeatability_sigma_at(p) for p in self.world.true_points_base()]
         return float(np.sqrt(np.mean(np.square(sigmas))))
+
+
+def with_true_lens(sim: Simulation, K: ArrayLike, D: ArrayLike,
+                   distortion_model: str = 'plumb_bob') -> Simulation:
+    """``sim`` with the wrist camera's true lens K (3, 3) [px] and D (as ``simulation:
+    camera: intrinsics / distortion`` gives it); the suite keeps the nominal one."""
+    camera = dataclasses.replace(sim.camera, K=np.asarray(K, dtype=float),
+                                 D=np.asarray(D, dtype=float), distortion_model=distortion_model)
+    return dataclasses.replace(sim, camera=camera)
 
 
 def load_simulation(path: str | Path, layout: str | None = None) -> Simulation:

@@ -22,7 +22,8 @@ from cobot_calib_ros.store.cells import LEGACY_CELL
 from cobot_calib_ros.store.repository import DatabaseRepository, FolderRepository
 
 # repository attribute -> database kind
-HISTORIES = {'user_frames': 'user_frame', 'hand_eye': 'hand_eye', 'kinematics': 'kinematics'}
+HISTORIES = {'user_frames': 'user_frame', 'hand_eye': 'hand_eye', 'kinematics': 'kinematics',
+             'intrinsics': 'intrinsics'}
 
 
 @dataclass

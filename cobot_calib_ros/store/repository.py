@@ -15,6 +15,7 @@ attribute              kind (store.records)    activation scope
 ``user_frames``        UserFrameRecord         one active per cell
 ``hand_eye``           HandEyeRecord           one active per cell
 ``kinematics``         KinematicRecord         one active per cell and robot
+``intrinsics``         IntrinsicsRecord        one active per cell and camera
 ``checks``             check_record            (none: quick health checks are never activated)
 ``trials``             trial.yaml + readings   (none: trials are not activated)
 ``collections``        collection + rows       (none)
@@ -93,6 +94,8 @@ class Repository(Protocol):
     @property
     def kinematics(self) -> KinematicStore: ...
     @property
+    def intrinsics(self) -> CalibrationHistory: ...
+    @property
     def trials(self) -> TrialStore: ...
     @property
     def collections(self) -> CollectionStore: ...
@@ -134,6 +137,10 @@ class FolderRepository(_MeasurementLogs):
         return KinematicStore(self.root, self.cell)
 
     @cached_property
+    def intrinsics(self) -> CalibrationStore:
+        return CalibrationStore(self.root, 'intrinsics', scope_key='camera', cell=self.cell)
+
+    @cached_property
     def checks(self) -> CalibrationStore:
         """Quick health checks (cli check): results like calibrations, never activated."""
         return CalibrationStore(self.root, 'checks', cell=self.cell)
@@ -169,9 +176,10 @@ class DatabaseRepository(_MeasurementLogs):
     def cells(self) -> dict[str, list[str]]:
         return self.database.cells()
 
-    def _history(self, kind: str, subdir: str):
+    def _history(self, kind: str, subdir: str, scope_key: str = ''):
         from cobot_calib_ros.store.database import DbCalibrationHistory
-        return DbCalibrationHistory(self.database, self.cell, kind, self.root, subdir)
+        return DbCalibrationHistory(self.database, self.cell, kind, self.root, subdir,
+                                    scope_key=scope_key)
 
     @cached_property
     def user_frames(self):
@@ -187,6 +195,10 @@ class DatabaseRepository(_MeasurementLogs):
         return self._history('check', 'checks')
 
     @cached_property
+    def intrinsics(self):
+        return self._history('intrinsics', 'intrinsics', scope_key='camera')
+
+    @cached_property
     def kinematics(self):
         from cobot_calib_ros.store.database import DbKinematicStore
         return DbKinematicStore(self.database, self.cell, self.root)
@@ -195,7 +207,7 @@ class DatabaseRepository(_MeasurementLogs):
         return f'DatabaseRepository({str(self.root)!r}, {self.database!r}, cell={self.cell!r})'
 
 
-FOLDER_RESULTS = ('calibrations', 'hand_eye', 'kinematics')
+FOLDER_RESULTS = ('calibrations', 'hand_eye', 'kinematics', 'intrinsics')
 
 
 def database_url(data_dir: Path | str, db: str | None = None) -> str:

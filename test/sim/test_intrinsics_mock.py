@@ -1,7 +1,6 @@
 """The mock camera's true lens (simulation: camera: intrinsics / distortion) differs from the
 nominal CameraInfo the suite is given; planned views of the board, detected with the project's
 ChArUco detector, calibrate back to the truth."""
-import dataclasses
 import shutil
 
 import numpy as np
@@ -14,7 +13,7 @@ from cobot_calib_ros.core.landmarks.targets import BoardSpec
 from cobot_calib_ros.paths import cell_file
 from cobot_calib_ros.sim.camera import SimCamera
 from cobot_calib_ros.sim.robot import SimRobot
-from cobot_calib_ros.sim.scenario import load_simulation
+from cobot_calib_ros.sim.scenario import load_simulation, with_true_lens
 
 K_TRUE = np.array([[628.0, 0.0, 380.1], [0.0, 627.2, 236.9], [0.0, 0.0, 1.0]])
 D_TRUE = np.array([-0.15, 0.12, 0.0003, -0.0004, -0.05])
@@ -23,8 +22,7 @@ D_TRUE = np.array([-0.15, 0.12, 0.0003, -0.0004, -0.05])
 def true_lens_simulation():
     """ur10e_close with a true lens 1.3 % longer, off-centre by (2.8, -1.7) px and more
     distorted than the nominal one the cell gives the suite."""
-    sim = load_simulation(cell_file('ur10e_close'))
-    return dataclasses.replace(sim, camera=dataclasses.replace(sim.camera, K=K_TRUE, D=D_TRUE))
+    return with_true_lens(load_simulation(cell_file('ur10e_close')), K_TRUE, D_TRUE)
 
 
 def test_the_scenario_reads_the_true_lens(tmp_path):

@@ -8,6 +8,7 @@ still inside the image.
 """
 from __future__ import annotations
 
+from collections.abc import Iterable
 import math
 
 import numpy as np
@@ -15,7 +16,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from cobot_calib_ros.core import frames
 from cobot_calib_ros.core.kinematics.ik import solve_ik_with_restarts
-from cobot_calib_ros.core.landmarks.detect import BoardDetection
+from cobot_calib_ros.core.landmarks.detect import BoardDetection, BoardFinder
 from cobot_calib_ros.core.landmarks.hand_eye import (_turn, board_in_image, MAX_ATTEMPTS_PER_VIEW,
                                                      view_pose)
 from cobot_calib_ros.core.landmarks.intrinsics import BoardView, MIN_POINTS
@@ -73,6 +74,31 @@ def intrinsics_views(cell, model, count: int = 24, seed: int = 0, *,
             raise ValueError(f'no reachable view of the board found for view {k + 1} of '
                              f'{count}; check the board pose and the camera in the cell file')
     return views
+
+
+def detect_views(images: Iterable[tuple[str, NDArray[np.uint8] | None]], spec: BoardSpec
+                 ) -> tuple[list[BoardView], list[tuple[str, str]], tuple[int, int] | None]:
+    """(views, skipped [(name, why)], image size (width, height)) of ``images`` ((name, mono8
+    or None: unreadable)) through the project's ChArUco detector (detect.BoardFinder). Images of
+    another size than the first are skipped."""
+    finder = BoardFinder(spec)
+    views, skipped, size = [], [], None
+    for name, image in images:
+        if image is None:
+            skipped.append((name, 'not a readable image'))
+            continue
+        shape = (image.shape[1], image.shape[0])
+        size = size or shape
+        if shape != size:
+            skipped.append((name, f'{shape[0]}x{shape[1]} px, the first image is '
+                                  f'{size[0]}x{size[1]}'))
+            continue
+        view = board_view(name, finder.finish(finder.find(image)), spec)
+        if view is None:
+            skipped.append((name, f'fewer than {MIN_POINTS} board corners found'))
+        else:
+            views.append(view)
+    return views, skipped, size
 
 
 def board_view(name: str, detection: BoardDetection, spec: BoardSpec) -> BoardView | None:
