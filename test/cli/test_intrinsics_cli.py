@@ -77,6 +77,17 @@ def test_folder_calibrates_writes_the_yaml_and_stores_the_active_record(shots, t
     assert written.K[0, 0] == result['fx'] and written.name == 'wrist_camera_optical'
     repo = store.open(tmp_path, None, ResultsCell('ur10e_close'))
     assert active_intrinsics(repo, 'wrist_camera_optical').K[0, 0] == result['fx']
+    # `cobot-calib detect --cell` poses with the active intrinsics, as with their YAML
+    image = folder / 'view03.png'
+    board = 'charuco:squares=7x5,square=0.03,marker=0.022,dict=DICT_4X4_50'
+    poses = []
+    for source in (['--cell', 'ur10e_close', '--data-dir', tmp_path],
+                   ['--camera-info', result['yaml_path']]):
+        code = main(['detect', str(image), '--board', board, '--json', *map(str, source)])
+        out, err = capsys.readouterr()
+        assert code == 0, err
+        poses.append(json.loads(out)['board'])
+    assert poses[0] == poses[1] and 'T_optical_board' in json.dumps(poses[0])
 
 
 def test_bag_gives_the_same_calibration_as_the_folder(shots, tmp_path, capsys):
