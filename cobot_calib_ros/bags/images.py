@@ -19,6 +19,7 @@ def bag_images(path: str | Path, topic: str = DEFAULT_TOPIC, every: int = 1
     image is None when its encoding or data cannot be used. BagError when the bag has no such
     topic (it names the bag's topics) or it holds no sensor_msgs/msg/Image."""
     from cobot_calib_ros.ros.images import image_to_gray, ImageMessageError
+    from cobot_calib_ros.ros.time import stamp_to_ns
     with open_bag(path) as bag:
         name = bag.select([topic])[0]
         msgtype = bag.topics[name].type
@@ -29,7 +30,7 @@ def bag_images(path: str | Path, topic: str = DEFAULT_TOPIC, every: int = 1
             if i % every:
                 continue
             msg = bag.deserialize(message.rawdata, message.msgtype)
-            stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+            stamp = stamp_to_ns(msg.header.stamp)
             try:
                 yield str(stamp), np.ascontiguousarray(image_to_gray(msg))
             except ImageMessageError:

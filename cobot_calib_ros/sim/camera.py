@@ -329,3 +329,20 @@ class DirectCamera:
                 seen.append(Sighting('board', self._board.first_id, pose.T_optical_target,
                                      pose.covariance))
         return LandmarkImage(self.now_ns(), tuple(seen))
+
+
+class DirectImages:
+    """core.landmarks.intrinsics_capture.ImagePort on a SimCamera, in-process: the image the
+    camera takes at the arm's joints, rendered when asked for (one nanosecond per call)."""
+
+    def __init__(self, scene: SimCamera, robot: SimRobot) -> None:
+        self.scene, self.robot = scene, robot
+        self._clock = 0
+
+    def now_ns(self) -> int:
+        self._clock += 1
+        return self._clock
+
+    def image_after(self, t_ns: int, timeout: float) -> tuple[int, NDArray[np.uint8]]:
+        self._clock = max(self._clock, t_ns) + 1
+        return self._clock, self.scene.render(self.robot.q)

@@ -67,9 +67,9 @@ def test_folder_calibrates_writes_the_yaml_and_stores_the_active_record(shots, t
                           '--json')
     assert code == 0, err
     result = json.loads(out)
-    assert result['fx'] == pytest.approx(628.0, rel=1e-3)
-    assert result['fy'] == pytest.approx(627.2, rel=1e-3)
-    assert abs(result['cx'] - 380.1) < 0.5 and abs(result['cy'] - 236.9) < 0.5
+    assert result['fx'] == pytest.approx(628.0, rel=2e-3)       # 12 views: see
+    assert result['fy'] == pytest.approx(627.2, rel=2e-3)       # test_intrinsics_mock
+    assert abs(result['cx'] - 380.1) < 1.5 and abs(result['cy'] - 236.9) < 1.5
     assert result['views'] == 12 and result['skipped'] == {'broken.png': 'not a readable image'}
     assert result['camera'] == 'wrist_camera_optical' and result['active'] is True
     assert result['rms_px'] < 0.06 and result['heldout_rms_px'] < 1.5 * result['rms_px']

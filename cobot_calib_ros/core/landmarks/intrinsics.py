@@ -171,7 +171,7 @@ def calibrate_intrinsics(views: Sequence[BoardView], image_size: tuple[int, int]
         camera, poses = _fit(used, size, model, name, guess=camera)
         for v in views:
             if v.name in outliers:
-                poses[v.name] = _solve_pose(camera, v)
+                poses[v.name] = solve_view_pose(camera, v)
         view_rms = _view_rms(camera, views, poses)
     else:
         used = views
@@ -340,7 +340,7 @@ def _fit_fisheye(views, size, guess: CameraModel | None):
     return best[1:]
 
 
-def _solve_pose(camera: CameraModel, view: BoardView) -> tuple[Array, Array]:
+def solve_view_pose(camera: CameraModel, view: BoardView) -> tuple[Array, Array]:
     """The board's pose in ``view`` with these intrinsics (iterative PnP on all corners)."""
     pts, K, D = camera.pnp_inputs(view.image_points)
     ok, rvec, tvec = cv2.solvePnP(view.object_points.reshape(-1, 1, 3), pts, K, D,
@@ -383,5 +383,5 @@ def _heldout_rms(views: Sequence[BoardView], size, model: str, name: str,
         train = [v for i, v in enumerate(views) if i % k != fold]
         camera, _ = _fit(train, size, model, name, guess=fitted)
         for v in held:
-            sq.append(np.sum(_residuals(camera, v, _solve_pose(camera, v)) ** 2, axis=1))
+            sq.append(np.sum(_residuals(camera, v, solve_view_pose(camera, v)) ** 2, axis=1))
     return float(np.sqrt(np.mean(np.concatenate(sq))))
