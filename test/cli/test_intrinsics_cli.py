@@ -96,7 +96,7 @@ def test_bag_gives_the_same_calibration_as_the_folder(shots, tmp_path, capsys):
                           'charuco:squares=7x5,square=0.03,marker=0.022,dict=DICT_4X4_50',
                           '--output', tmp_path / 'cam.yaml')
     assert code == 0, err
-    assert 'fx 628.' in out and 'wrote ' + str(tmp_path / 'cam.yaml') in out
+    assert '  fx 62' in out and 'wrote ' + str(tmp_path / 'cam.yaml') in out
     code, out_folder, _ = _run(capsys, folder, '--board',
                                'charuco:squares=7x5,square=0.03,marker=0.022,dict=DICT_4X4_50',
                                '--output', tmp_path / 'cam2.yaml')

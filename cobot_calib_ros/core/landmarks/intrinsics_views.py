@@ -23,8 +23,8 @@ from cobot_calib_ros.core.landmarks.intrinsics import BoardView, MIN_POINTS
 from cobot_calib_ros.core.landmarks.targets import BoardSpec
 
 Array = NDArray[np.float64]
-DISTANCE_RANGE = (0.45, 0.70)        # camera to board centre [m]
-TILT_RANGE_DEG = (15.0, 40.0)        # view axis against the board normal [deg]
+DISTANCE_RANGE = (0.40, 0.60)        # camera to board centre [m]
+TILT_RANGE_DEG = (25.0, 50.0)        # view axis against the board normal [deg]
 ROLL_RANGE_DEG = (-30.0, 30.0)
 # where the board's centre is aimed, as fractions of the image (x, y): a 3 x 3 grid
 AIM_FRACTIONS = (0.26, 0.5, 0.74)
