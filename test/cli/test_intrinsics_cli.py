@@ -92,18 +92,15 @@ def test_folder_calibrates_writes_the_yaml_and_stores_the_active_record(shots, t
 
 def test_bag_gives_the_same_calibration_as_the_folder(shots, tmp_path, capsys):
     folder, bag = shots
-    code, out, err = _run(capsys, bag, '--board',
-                          'charuco:squares=7x5,square=0.03,marker=0.022,dict=DICT_4X4_50',
-                          '--output', tmp_path / 'cam.yaml')
+    board = 'charuco:squares=7x5,square=0.03,marker=0.022,dict=DICT_4X4_50'
+    code, out, err = _run(capsys, bag, '--board', board, '--output', tmp_path / 'cam.yaml')
     assert code == 0, err
     assert '  fx 62' in out and 'wrote ' + str(tmp_path / 'cam.yaml') in out
-    code, out_folder, _ = _run(capsys, folder, '--board',
-                               'charuco:squares=7x5,square=0.03,marker=0.022,dict=DICT_4X4_50',
-                               '--output', tmp_path / 'cam2.yaml')
-    line = next(l for l in out.splitlines() if l.strip().startswith('fx'))
-    assert line in out_folder
-    np.testing.assert_allclose(load_camera_info_yaml(tmp_path / 'cam.yaml').K,     # same pixels
-                               load_camera_info_yaml(tmp_path / 'cam2.yaml').K, rtol=1e-9)
+    code, _, err = _run(capsys, folder, '--board', board, '--output', tmp_path / 'cam2.yaml')
+    assert code == 0, err
+    # the same pixels; OpenCV's threads leave ~1e-12 (seen once ~1e-9) between two runs
+    np.testing.assert_allclose(load_camera_info_yaml(tmp_path / 'cam.yaml').K,
+                               load_camera_info_yaml(tmp_path / 'cam2.yaml').K, rtol=1e-6)
 
 
 def test_too_few_views_are_refused_with_the_reason(shots, tmp_path, capsys):
