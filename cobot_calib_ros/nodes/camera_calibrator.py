@@ -10,7 +10,10 @@ Action ``calibrate_intrinsics`` (cobot_calib_msgs/action/CalibrateIntrinsics):
   (image regions, tilts, judged with the nominal intrinsics). A cancel is honoured before
   every view; nothing is stored then.
 - ``source``: a folder of images (the same detection). A bag: ``cobot-calib intrinsics BAG``.
-- The live topic without planned views (the user moving the board) is not served yet.
+- ``source: ''`` with ``planned: false``: the live topic while the user moves the board (or
+  the camera): every image is searched and kept as a view when it differs from the views kept
+  (core.landmarks.intrinsics_capture.take_live_views), until ``views`` views or
+  ``live_timeout``; the same feedback after every view kept.
 
 core.landmarks.intrinsics.calibrate_intrinsics fits ``model`` (plumb_bob, rational_polynomial,
 equidistant); the camera_info YAML goes to ``<data_dir>/intrinsics/<id>.yaml`` and the record
@@ -19,11 +22,12 @@ passes (else kept as rejected: REJECTED). landmark_detector uses the active intr
 
 Parameters (read at start-up): cell_file, layout, data_dir, user_frame (as hand_eye_calibrator:
 where the board is; empty = the active user-frame calibration), seed; speed_scale [1],
-image_timeout [s].
+image_timeout [s], live_timeout [s].
 """
 from __future__ import annotations
 
 import threading
+import time
 
 from cobot_calib_msgs.action import CalibrateIntrinsics
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
@@ -36,7 +40,8 @@ from cobot_calib_ros.core.landmarks.camera import camera_info_yaml
 from cobot_calib_ros.core.landmarks.intrinsics import (calibrate_intrinsics, image_coverage,
                                                        IntrinsicsError, MODELS,
                                                        solve_view_pose)
-from cobot_calib_ros.core.landmarks.intrinsics_capture import take_intrinsics_views
+from cobot_calib_ros.core.landmarks.intrinsics_capture import (take_intrinsics_views,
+                                                                take_live_views)
 from cobot_calib_ros.core.landmarks.intrinsics_views import detect_views, intrinsics_views
 from cobot_calib_ros.core.landmarks.targets import BoardSpec
 from cobot_calib_ros.core.robot_port import CaptureFailed, Stopped
@@ -101,6 +106,8 @@ class CameraCalibrator(Node):
                 0.01, 1.0)
         declare(self, 'image_timeout', 5.0, 'A view without an image after this long [s] '
                 'fails the capture', 0.1, 120.0)
+        declare(self, 'live_timeout', 300.0, 'Live views (the user moving the board) are '
+                'collected for at most this long [s]', 1.0, 3600.0)
 
     def _p(self, name: str):
         return self.get_parameter(name).value
@@ -167,10 +174,7 @@ class CameraCalibrator(Node):
             elif goal.planned:
                 views, skipped, size = self._planned(goal_handle, count, spec)
             else:
-                return self._end(goal_handle, result, Action.Result.INVALID_GOAL,
-                                 'the live topic without planned views (the user moving the '
-                                 'board) is not served yet: set planned: true, or record a bag '
-                                 'and run `cobot-calib intrinsics BAG`')
+                views, skipped, size = self._live(goal_handle, count, spec)
         except ValueError as e:
             return self._end(goal_handle, result, Action.Result.INVALID_GOAL, str(e))
         except Stopped as e:
@@ -195,26 +199,44 @@ class CameraCalibrator(Node):
             raise ValueError(f'{source}: no images')
         return views, skipped, size
 
-    def _planned(self, goal_handle, count: int, spec: BoardSpec):
-        plan = intrinsics_views(self._cell, self._model, count, self._p('seed'),
-                                T_base_user=self._T_base_user())
+    def _feedback(self, goal_handle, count: int):
+        """on_view of the captures: views, coverage and what is missing (judged with the
+        nominal intrinsics) as the action's feedback."""
         nominal = self._cell.camera.camera_model()
         feedback = Action.Feedback(total=count)
 
-        def on_view(i: int, views, skipped) -> None:
-            if skipped and skipped[-1][0] == f'view{i}':
-                self.get_logger().warning(f'view {i}: skipped: {skipped[-1][1]}')
+        def on_view(_, views, skipped) -> None:
             poses = {v.name: solve_view_pose(nominal, v) for v in views}
             coverage = image_coverage(views, poses, (nominal.width, nominal.height))
             feedback.views, feedback.coverage = len(views), coverage.fraction
             feedback.missing = coverage.message
             goal_handle.publish_feedback(feedback)
+        return on_view
 
+    def _planned(self, goal_handle, count: int, spec: BoardSpec):
+        plan = intrinsics_views(self._cell, self._model, count, self._p('seed'),
+                                T_base_user=self._T_base_user())
         self._robot.speed_scale = self._p('speed_scale')
         self._health.set(OK, f'calibrating: {count} planned views')
-        return take_intrinsics_views(plan, self._robot, self._images, spec,
-                                     cancelled=lambda: goal_handle.is_cancel_requested,
-                                     on_view=on_view, image_timeout=self._p('image_timeout'))
+        try:
+            return take_intrinsics_views(plan, self._robot, self._images, spec,
+                                         cancelled=lambda: goal_handle.is_cancel_requested,
+                                         on_view=self._feedback(goal_handle, count),
+                                         image_timeout=self._p('image_timeout'))
+        finally:
+            self._images.release()
+
+    def _live(self, goal_handle, count: int, spec: BoardSpec):
+        end = time.monotonic() + self._p('live_timeout')
+        self._health.set(OK, f'calibrating: {count} live views')
+        try:
+            return take_live_views(self._images, spec, count,
+                                   deadline=lambda: time.monotonic() > end,
+                                   cancelled=lambda: goal_handle.is_cancel_requested,
+                                   on_view=self._feedback(goal_handle, count),
+                                   image_timeout=self._p('image_timeout'))
+        finally:
+            self._images.release()
 
     def _store(self, goal_handle, result, fit, spec, views, source: str):
         record = IntrinsicsRecord.from_fit(fit, camera=fit.camera.name, source=source,

@@ -53,7 +53,8 @@ def camera_suite(tmp_path_factory):
                    ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
         suite = launcher.Suite(tmp_path_factory.mktemp('intrinsics_logs'))
         suite.start(launcher.suite_specs('ur10e_close', NODES, overrides={
-            'camera_calibrator': {'data_dir': str(data), 'user_frame': _user_frame()}}),
+            'camera_calibrator': {'data_dir': str(data), 'user_frame': _user_frame(),
+                                  'live_timeout': '3.0'}}),
             env=env)
         context = rclpy.Context()
         rclpy.init(context=context, domain_id=domain)
@@ -89,8 +90,13 @@ def test_planned_views_calibrate_the_mock_camera(camera_suite):
                                CalibrateIntrinsics.Goal(views=12, planned=True), 300.0,
                                feedback=lambda m: feedback.append(m.feedback),
                                executor=client.executor)
+        # live, nobody moving the board: the arm rests, every image is the same view
+        _, live = run_action(client.node, action, CalibrateIntrinsics.Goal(views=6), 60.0,
+                             executor=client.executor)
     finally:
         action.destroy()
+    assert live.error_code == CalibrateIntrinsics.Result.TOO_FEW_VIEWS, live.message
+    assert live.message.startswith('1 views of the board'), live.message
     assert refused.error_code == CalibrateIntrinsics.Result.INVALID_GOAL
     assert 'cobot-calib intrinsics BAG' in refused.message
     assert result.error_code == CalibrateIntrinsics.Result.SUCCESS, \

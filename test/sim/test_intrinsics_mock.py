@@ -97,3 +97,32 @@ def test_planned_views_taken_over_the_ports_skip_the_unreachable_and_cancel():
                               BoardSpec.parse(sim.cell.landmarks.board),
                               cancelled=lambda: len(seen) >= 8,
                               on_view=lambda i, v, s: seen.append(i))
+
+
+def test_live_views_keep_only_new_images_until_enough():
+    """The user moving the board, as a stream of images: the same pose twice in a row gives
+    one view; the stream ends at ``count`` views."""
+    from cobot_calib_ros.core.landmarks.intrinsics_capture import take_live_views
+    sim = true_lens_simulation()
+    arm = SimRobot(sim)
+    scene = SimCamera(sim, arm)
+    plan = intrinsics_views(sim.cell, arm.model, 6, 0, T_base_user=sim.world.T_base_user)
+    poses = [q for q in plan for _ in range(2)]      # each pose held for two images
+
+    class Stream:
+        shown = 0
+
+        def now_ns(self):
+            return 0
+
+        def image_after(self, t_ns, timeout):
+            arm.set_joints(poses[Stream.shown % len(poses)])
+            Stream.shown += 1
+            return t_ns + 1, scene.render(arm.q)
+    kept = []
+    views, skipped, size = take_live_views(
+        Stream(), BoardSpec.parse(sim.cell.landmarks.board), 5, deadline=lambda: False,
+        on_view=lambda seen, v, s: kept.append(seen))
+    assert len(views) == 5 and size == (752, 480)
+    assert kept == [1, 3, 5, 7, 9]              # the second image of each pose is not new
+    assert [v.name for v in views] == ['1', '3', '5', '7', '9']

@@ -8,6 +8,10 @@ few corners is skipped and named; ``cancelled()`` is checked before every view (
 ``on_view(index, views, skipped)`` after each one (coverage feedback). Runs the same over ROS
 (RobotCalls and ros.image_watch.ImageWatch) and in-process on the simulation (DirectRobot,
 sim.camera.DirectImages).
+
+Live (take_live_views): no robot; the user moves the board (or the camera) and every image is
+searched; one becomes a view when it differs from every view kept (MIN_VIEW_SHIFT_PX), until
+``count`` views or the time is up.
 """
 from __future__ import annotations
 
@@ -25,6 +29,10 @@ from cobot_calib_ros.core.robot_port import (CaptureFailed, Cancelled, check_can
                                              never, RobotPort)
 
 IMAGE_TIMEOUT = 5.0          # [s] for an image after the arm came to rest
+# live views (the user moves the board): an image is a new view when its corners moved at
+# least this far [px] (mean over the corners both see) from every view kept, or it shows
+# fewer than half of the corners of each of them in common
+MIN_VIEW_SHIFT_PX = 25.0
 
 
 class ImagePort(Protocol):
@@ -67,4 +75,48 @@ def take_intrinsics_views(plan: Sequence[NDArray], robot: RobotPort, images: Ima
             on_view(i, views, skipped)
     if size == (0, 0):
         raise CaptureFailed('no view was reached: no image taken')
+    return views, skipped, size
+
+
+def is_new_view(view: BoardView, kept: Sequence[BoardView],
+                min_shift_px: float = MIN_VIEW_SHIFT_PX) -> bool:
+    """True when ``view``'s corners moved at least ``min_shift_px`` (mean over the corners in
+    common) from every view of ``kept``, or it has fewer than half its corners in common with
+    it (another part of the board)."""
+    for other in kept:
+        ours = {tuple(p): i for i, p in enumerate(np.round(view.object_points, 9))}
+        pairs = [(ours[tuple(p)], j) for j, p in enumerate(np.round(other.object_points, 9))
+                 if tuple(p) in ours]
+        if len(pairs) < len(view.object_points) / 2:
+            continue
+        a, b = (np.array(idx) for idx in zip(*pairs))
+        shift = np.linalg.norm(view.image_points[a] - other.image_points[b], axis=1).mean()
+        if shift < min_shift_px:
+            return False
+    return True
+
+
+def take_live_views(images: ImagePort, spec: BoardSpec, count: int, *, deadline: Callable[[],
+                    bool], cancelled: Cancelled = never, on_view: ViewDone | None = None,
+                    image_timeout: float = IMAGE_TIMEOUT,
+                    min_shift_px: float = MIN_VIEW_SHIFT_PX
+                    ) -> tuple[list[BoardView], list[tuple[str, str]], tuple[int, int]]:
+    """(views, skipped, image size) from the live images: each image after the previous one
+    is searched; a new view (is_new_view) is kept, named by its stamp, until ``count`` views or
+    ``deadline()`` is True. ``on_view(images seen, views, skipped)`` after each kept view.
+    CaptureFailed when no image comes within ``image_timeout``."""
+    finder = BoardFinder(spec)
+    views: list[BoardView] = []
+    skipped: list[tuple[str, str]] = []
+    size, after, seen = (0, 0), images.now_ns(), 0
+    while len(views) < count and not deadline():
+        check_cancel(cancelled, f'{len(views)} of {count} views')
+        after, gray = images.image_after(after, image_timeout)
+        seen += 1
+        size = (gray.shape[1], gray.shape[0])
+        view = board_view(str(after), finder.finish(finder.find(gray)), spec)
+        if view is not None and is_new_view(view, views, min_shift_px):
+            views.append(view)
+            if on_view is not None:
+                on_view(seen, views, skipped)
     return views, skipped, size
