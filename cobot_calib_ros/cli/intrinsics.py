@@ -12,7 +12,8 @@ from cobot_calib_ros.cli.common import EXIT_FAILED, EXIT_OK, EXIT_USAGE, fail, p
 
 EPILOG = """\
 examples:
-  cobot-calib intrinsics shots/ --board charuco:squares=7x5,square=0.03,marker=0.022,dict=DICT_4X4_50
+  cobot-calib intrinsics shots/ \\
+      --board charuco:squares=7x5,square=0.03,marker=0.022,dict=DICT_4X4_50
   cobot-calib intrinsics run1/ --cell ur10e_close --model rational_polynomial --json
 
 SOURCE: a folder of images (png, jpg, ...) or a rosbag2 bag (its --topic of sensor_msgs/Image).
@@ -73,18 +74,13 @@ def run(args) -> int:
         return fail(f'bad --board: {e}', EXIT_USAGE)
     camera_name = args.camera_name or (cell.camera.frame_id if cell and cell.camera
                                        else 'camera')
-    try:
-        images = _images(args)
-        from cobot_calib_ros.core.landmarks.intrinsics_views import detect_views
-        views, skipped, size = detect_views(images, spec)
-    except (ValueError, OSError) as e:
-        return fail(f'intrinsics: {e}', EXIT_USAGE)
-    except Exception as e:                # BagError
-        from cobot_calib_ros.bags.errors import BagError
-        if isinstance(e, BagError):
-            return fail(f'intrinsics: {e}', EXIT_USAGE)
-        raise
+    from cobot_calib_ros.bags.errors import BagError
     from cobot_calib_ros.core.landmarks.intrinsics import calibrate_intrinsics, IntrinsicsError
+    from cobot_calib_ros.core.landmarks.intrinsics_views import detect_views
+    try:
+        views, skipped, size = detect_views(_images(args), spec)
+    except (ValueError, OSError, BagError) as e:
+        return fail(f'intrinsics: {e}', EXIT_USAGE)
     if size is None:
         return fail(f'intrinsics: {args.source}: no images', EXIT_FAILED)
     try:

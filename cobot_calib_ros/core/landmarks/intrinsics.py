@@ -21,6 +21,7 @@ with fewer than MIN_POINTS corners or non-finite values, and views all nearly fr
 from __future__ import annotations
 
 from collections.abc import Sequence
+import dataclasses
 from dataclasses import dataclass, field
 
 import cv2
@@ -137,11 +138,6 @@ class IntrinsicsFit:
         return self.camera.distortion_model
 
 
-def board_views(names: Sequence[str], object_points: Sequence[ArrayLike],
-                image_points: Sequence[ArrayLike]) -> list[BoardView]:
-    return [BoardView(n, o, i) for n, o, i in zip(names, object_points, image_points)]
-
-
 def calibrate_intrinsics(views: Sequence[BoardView], image_size: tuple[int, int],
                          model: str = 'plumb_bob', *, name: str = '',
                          outlier_factor: float = OUTLIER_FACTOR, folds: int = FOLDS,
@@ -163,24 +159,19 @@ def calibrate_intrinsics(views: Sequence[BoardView], image_size: tuple[int, int]
     camera, poses = _fit(views, size, model, name)
     _check_tilts(views, poses)
     view_rms = _view_rms(camera, views, poses)
-    median = float(np.median(list(view_rms.values())))
-    limit = max(outlier_factor * median, OUTLIER_MIN_PX)
+    limit = max(outlier_factor * float(np.median(list(view_rms.values()))), OUTLIER_MIN_PX)
     outliers = tuple(n for n, r in view_rms.items() if r > limit)
     used = [v for v in views if v.name not in outliers]
-    if outliers and len(used) >= MIN_VIEWS:
-        camera, poses = _fit(used, size, model, name, guess=camera)
-        for v in views:
-            if v.name in outliers:
-                poses[v.name] = solve_view_pose(camera, v)
-        view_rms = _view_rms(camera, views, poses)
+    if not outliers or len(used) < MIN_VIEWS:      # nothing to drop, or too few would be left
+        outliers, used = (), views
     else:
-        used = views
-    rms = _rms(camera, used, poses)
-    heldout = _heldout_rms(used, size, model, name, camera, folds)
-    coverage = image_coverage(views, poses, size)
-    fit = IntrinsicsFit(camera, rms, view_rms, outliers if used is not views else (), heldout,
-                        coverage, len(used), poses)
-    return IntrinsicsFit(**{**fit.__dict__, 'gate_problem': gate_problem(fit, max_rms_px)})
+        camera, poses = _fit(used, size, model, name, guess=camera)
+        poses.update({v.name: solve_view_pose(camera, v) for v in views if v.name in outliers})
+        view_rms = _view_rms(camera, views, poses)
+    fit = IntrinsicsFit(camera, _rms(camera, used, poses), view_rms, outliers,
+                        _heldout_rms(used, size, model, name, camera, folds),
+                        image_coverage(views, poses, size), len(used), poses)
+    return dataclasses.replace(fit, gate_problem=gate_problem(fit, max_rms_px))
 
 
 def gate_problem(fit: IntrinsicsFit, max_rms_px: float = MAX_RMS_PX) -> str:
