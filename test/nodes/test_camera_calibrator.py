@@ -114,3 +114,43 @@ def test_planned_views_calibrate_the_mock_camera(camera_suite):
     assert load_camera_info_yaml(result.yaml_path).K[0, 0] == k[0]
     active = active_intrinsics(store.open(client.data_dir, cell=CELL), 'wrist_camera_optical')
     np.testing.assert_array_equal(active.K.ravel(), k)
+
+
+def test_landmark_detector_poses_with_the_active_intrinsics(tmp_path):
+    """landmark_detector takes the cell camera's active intrinsics record instead of the
+    camera_info it receives (parameter intrinsics: active, the default), for images of its
+    size; with intrinsics: camera_info, or another size, camera_info's K and D hold."""
+    from rclpy.parameter import Parameter
+    from cobot_calib_ros.core.landmarks.camera import CameraModel
+    from cobot_calib_ros.core.landmarks.intrinsics import Coverage, IntrinsicsFit
+    from cobot_calib_ros.nodes.landmark_detector import LandmarkDetector
+    from cobot_calib_ros.ros.images import model_to_camera_info
+    from cobot_calib_ros.store.records import IntrinsicsRecord
+    calibrated = CameraModel(752, 480, [[628.0, 0, 380.1], [0, 627.2, 236.9], [0, 0, 1]],
+                             [-0.15, 0.12, 0.0003, -0.0004, -0.05], 'plumb_bob',
+                             'wrist_camera_optical')
+    fit = IntrinsicsFit(calibrated, 0.03, {}, (), 0.031,
+                        Coverage(np.ones((4, 4), bool), 1.0, (), (), 40.0), 20, {})
+    repo = store.open(tmp_path, cell=CELL)
+    assert repo.intrinsics.save_and_activate(IntrinsicsRecord.from_fit(
+        fit, camera='wrist_camera_optical', source='test', board='', views=[]))
+    nominal = load_simulation(cell_file('ur10e_close')).cell.camera.camera_model()
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    try:
+        for source, size, expected in (('active', (752, 480), 628.0),
+                                       ('camera_info', (752, 480), 620.0),
+                                       ('active', (640, 480), 620.0)):
+            node = LandmarkDetector(context=context, parameter_overrides=[
+                Parameter('cell_file', value=str(cell_file('ur10e_close'))),
+                Parameter('data_dir', value=str(tmp_path)),
+                Parameter('intrinsics', value=source)])
+            try:
+                info = model_to_camera_info(CameraModel(*size, nominal.K, nominal.D),
+                                            'wrist_camera_optical')
+                node._on_info(info)
+                assert node._camera.K[0, 0] == expected, (source, size)
+            finally:
+                node.destroy_node()
+    finally:
+        context.try_shutdown()
