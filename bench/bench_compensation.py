@@ -65,8 +65,8 @@ def registration(robot: SimRobot, repo) -> np.ndarray:
     """(4, 4) the calibrated model's base in the true one: the best rigid fit of its coupling
     centres to the true ones over REGISTRATION other workspace configurations (what a user frame
     touched with the calibrated arm absorbs; the sphere data cannot see it)."""
-    calibrated = rig.chain(robot.cell, move.kinematic_record(repo, robot.model, 'active'),
-                           'coupling', model=robot.model)
+    calibrated = rig.Rig(robot.cell, rig.ActiveSet(move.kinematic_record(
+        repo, robot.model, 'active')), robot.model).chain('coupling')
     q = np.array([s['q'] for s in plans.tracker_plan(robot.cell, robot.model, 'workspace',
                                                       REGISTRATION, REGISTRATION_SEED)])
     return register_rigid(kinematics.fk(calibrated, q)[:, :3, 3],
@@ -84,7 +84,7 @@ def errors_mm(robot: SimRobot, repo, region: str, T_true_model: np.ndarray
     for step in steps:
         q0 = np.array(step['q'])
         for tool, prefix in (('coupling', ''), ('tcp', 'tcp_')):
-            target = kinematics.fk(rig.chain(robot.cell, None, tool, model=robot.model), q0)
+            target = kinematics.fk(rig.Rig(robot.cell, model=robot.model).chain(tool), q0)
             for label, choice in KINEMATICS.items():
                 solved = move.solve(robot.cell, repo, target, q0, tool=tool, kinematics=choice)
                 reached = kinematics.fk(truth[tool], solved.q)[:3, 3]

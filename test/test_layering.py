@@ -97,8 +97,6 @@ ALLOWED = {
 EXCEPTIONS = {
     # type-only (TYPE_CHECKING) TrialData / TrialStore: a TrialSink port in core replaces it
     ('cobot_calib_ros.core.repeatability.trial', 'store'),
-    # active_hand_eye opens the hand-eye store: the hand-eye is to be injected instead
-    ('cobot_calib_ros.ros.landmark_views', 'store'),
     # nodes.NODES, the registry of the node modules the launcher starts (setup.py reads it too)
     ('cobot_calib_ros.api.launcher', 'nodes'),
     # a bag of sphere captures as the identification's input (review 5252a67 section 4.1:

@@ -15,12 +15,16 @@ from cobot_calib_ros.ros.calls import call_service, CallError
 
 
 def wait_for_suite(node: Node, timeout: float = 60.0, executor=None,
-                   stop=lambda: False) -> None:
+                   stop=lambda: False, nodes=None) -> None:
     """Until joint_states and probe readings flow (a short capture and a probe average work),
-    or stop()."""
+    or stop(). ``nodes``: the suite's node names when only part of it runs (a flow is waited
+    for only where its node runs)."""
     from cobot_calib_msgs.srv import AverageProximity, CaptureJoints
-    checks = [(CaptureJoints, 'capture_joints', CaptureJoints.Response.NO_DATA),
-              (AverageProximity, 'probe/average', AverageProximity.Response.NO_DATA)]
+    checks = [(CaptureJoints, 'capture_joints', CaptureJoints.Response.NO_DATA,
+               'joint_state_monitor'),
+              (AverageProximity, 'probe/average', AverageProximity.Response.NO_DATA,
+               'proximity_sensor')]
+    checks = [check[:3] for check in checks if nodes is None or check[3] in nodes]
     deadline = time.monotonic() + timeout
     for srv_type, name, no_data in checks:
         client = node.create_client(srv_type, name)

@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from cobot_calib_ros.core import rig
+from cobot_calib_ros.store.rigs import active_hand_eye
 
 ACTIVE = ('active', 'latest')
 NOMINAL = 'nominal'
@@ -76,8 +77,7 @@ def solve(cell, repo, T_frame_tool: np.ndarray, seed: np.ndarray, *, frame: str 
     from cobot_calib_ros.core.kinematics import model_for
     model = model_for(cell)
     record = kinematic_record(repo, model, kinematics)
-    hand_eye = repo.hand_eye.active() if tool == 'camera' else None
-    chain = rig.chain(cell, record, tool, hand_eye=hand_eye, model=model)
+    chain = rig.Rig(cell, rig.ActiveSet(record, active_hand_eye(repo)), model).chain(tool)
     T_base_frame, frame_label = (user_frame(repo, frame_id) if frame == 'user'
                                  else (np.eye(4), ''))
     result = rig.solve_target(chain, T_frame_tool, seed, cell.home, T_base_frame)

@@ -108,13 +108,14 @@ def fit_frame(marks: list, landmarks: list, *, cell_name: str, kinematics: str =
     from cobot_calib_ros.core import kinematics as kin
     from cobot_calib_ros.loaders import load_cell
     from cobot_calib_ros.core.landmarks import views
+    from cobot_calib_ros.core.rig import Rig
     from cobot_calib_ros.ros import convert
     if kinematics != 'nominal':
         raise CheckError(f'kinematics {kinematics!r}: a landmark bag is checked on the nominal '
                          'model only')
     cell = load_cell(paths.cell_file(cell_name))
     model = kin.model_for(cell)
-    chain = model.chain(tool=np.asarray(cell.camera.T_flange_optical, dtype=float))
+    chain = Rig(cell, model=model).chain('camera')      # the cell's nominal hand-eye
     order = list(model.joint_names)
     observations = []
     for k, (mark, msg) in enumerate(zip(marks, landmarks)):

@@ -19,8 +19,10 @@ from cobot_calib_ros.cli.common import (
 TYPE_NAME = re.compile(r'[A-Za-z]\w*/(srv/)?[A-Za-z]\w*')
 QUIET_PROGRESS = 5.0    # [s] without a capture mark before a line saying the call still runs
 MATCH_WAIT = 2.0        # [s] at most, for the capture marks' publishers to match before the call
-GRAPH_SETTLED = 1.5     # [s] of an unchanged graph (other nodes on it) before a service missing
-                        # from it counts as having no server
+# [s] of an unchanged graph (other nodes on it) before a service missing from it counts as
+# having no server: 1.5 s said "none offers it" for a running suite at load ~25 (a new
+# participant learns the nodes' services seconds after the nodes themselves)
+GRAPH_SETTLED = 5.0
 SERVER_GONE = 3.0       # [s] a server unseen on the graph while its answer is awaited
 
 # Services whose request only reads (the same request answered twice changes nothing). Their

@@ -105,7 +105,7 @@ def _user_frame(args, cell, model, repo):
     """('user_frame', the active frame's id, the check, its printout) or ValueError/OSError."""
     import numpy as np
     from cobot_calib_ros.core.health_checks import check_user_frame, predicted_points
-    from cobot_calib_ros.core import rig
+    from cobot_calib_ros.store.rigs import rig_of
     unknown = [n for n in args.points if cell.marker(n) is None]
     if unknown:
         raise ValueError(f'unknown point(s) {unknown}; the cell has {cell.point_names}')
@@ -113,8 +113,7 @@ def _user_frame(args, cell, model, repo):
     if active is None:
         raise KeyError(f'no active user frame in the results of cell {repo.cell}; calibrate '
                        'first (cobot-calib teach, or call calibrate_user_frame)')
-    kinematic = repo.kinematics.resolve(active.get('kinematics') or 'nominal', model.name)
-    chain = rig.chain(cell, kinematic, 'tcp', model=model)
+    chain = rig_of(repo, cell, active.get('kinematics') or 'nominal', model).chain('tcp')
     p_user = np.array([cell.marker(n).nominal_top for n in args.points])
     predicted = predicted_points(active['inputs'], active['result'], args.points, p_user)
     say(args, f'checking {active["id"]} at {", ".join(args.points)} '
@@ -138,7 +137,7 @@ def _kinematics(args, cell, model, repo):
                          'has); give --robot-cell')
     poses = KINEMATIC_POSES if args.poses is None else args.poses
     record = repo.kinematics.active(model.name)
-    chain = rig.chain(cell, record, 'coupling', model=model)
+    chain = rig.Rig(cell, rig.ActiveSet(record), model).chain('coupling')
     plan, _ = plans.sphere_plan(cell, model, poses)
     against = record['id'] if record else 'nominal'
     say(args, f'checking the {model.name} model ({against}) on {len(plan)} sphere poses')

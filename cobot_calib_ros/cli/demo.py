@@ -29,7 +29,7 @@ from cobot_calib_ros.paths import cell_file, data_dir, DEFAULT_CELL
 from cobot_calib_ros import store
 from cobot_calib_ros.store.cells import ResultsCell
 from cobot_calib_ros.store.database import DB_ENV
-from cobot_calib_ros.core.rig import model_chain
+from cobot_calib_ros.core.rig import ActiveSet, Rig
 from cobot_calib_ros.store.kinematics import NOMINAL
 
 POINTS = ('P1', 'P2', 'P3', 'P4', 'P5')
@@ -293,8 +293,7 @@ def _kinematics(args, client: DemoClient, cell, root: Path) -> dict:
 
 def _model_entry(record, cell, truth, true_chain, p_true, p_user) -> dict:
     """A kinematic model the demo maps captures through: label, chain, apparent points."""
-    model = kinematics.model_for(cell)
-    chain = model_chain(record, model, cell.tool_offset)
+    chain = Rig(cell, ActiveSet(record)).chain('tcp')
     return {'label': NOMINAL if record is None else record['id'], 'chain': chain,
             'home': cell.home, 'p_user': p_user,
             'p_apparent': _apparent_points(truth, cell, true_chain, p_true, chain)}

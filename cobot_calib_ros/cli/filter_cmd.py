@@ -68,8 +68,9 @@ def run(args) -> int:
         repo = store.open(paths.data_dir(args.data_dir), args.db,
                           ResultsCell(args.cell) if args.cell else ResultsCell.of(cell))
         record = kinematic_record(repo, model, args.kinematics, allow_nominal=False)
-        calibrated = rig.chain(cell, record, args.tool, model=model)
-        nominal = rig.chain(cell, None, args.tool, model=model)
+        calibrated_rig = rig.Rig(cell, rig.ActiveSet(record), model)
+        calibrated = calibrated_rig.chain(args.tool)
+        nominal = calibrated_rig.nominal_chain(args.tool)
         T_base_frame = None
         if args.frame == 'user':
             frame = repo.user_frames.active()

@@ -42,6 +42,14 @@ def add_parser(subparsers):
                    help='move_to: mock_robot serves the suite\'s move_to; driver: mock_robot '
                    'offers only joint_states and FollowJointTrajectory, as a ros2_control arm, '
                    'and robot_adapter serves move_to over them')
+    p.add_argument('--robot-description', action='store_true',
+                   help='publish robot_description (latched) from the active kinematic '
+                   'calibration: the cell\'s URDF with the identified joint origins, the '
+                   'nominal one while none is active (for robot_state_publisher, MoveIt, RViz)')
+    p.add_argument('--nodes', default='',
+                   help='start only these nodes of the suite, comma separated (e.g. '
+                   'user_frame_solver,hand_eye_calibrator to serve stored results without a '
+                   'robot); default: the whole suite')
     p.add_argument('--force', action='store_true',
                    help='start even if suite nodes already run on this ROS_DOMAIN_ID')
     return p
@@ -57,10 +65,19 @@ def run(args) -> int:
     if problem:
         return fail(f'--namespace {args.namespace!r}: {problem}; nothing started', EXIT_USAGE)
     layout = {'layout': args.layout} if args.layout else {}
+    overrides = {n: layout for n in ('mock_robot', 'user_frame_solver', 'repeatability_trial')}
+    if args.robot_description:
+        overrides['kinematic_identifier'] = {'publish_robot_description': 'true'}
     specs = [replace(spec, namespace=namespace) for spec in launcher.suite_specs(
-        args.cell, overrides={
-            n: layout for n in ('mock_robot', 'user_frame_solver', 'repeatability_trial')},
-        robot_interface=args.robot_interface)]
+        args.cell, overrides=overrides, robot_interface=args.robot_interface)]
+    if args.nodes:
+        wanted = [n.strip() for n in args.nodes.split(',') if n.strip()]
+        unknown = sorted(set(wanted) - {spec.name for spec in specs})
+        if unknown or not wanted:
+            return fail(f'--nodes {args.nodes!r}: {", ".join(unknown) or "no node"} not in '
+                        f'the suite ({", ".join(spec.name for spec in specs)}); nothing '
+                        'started', EXIT_USAGE)
+        specs = [spec for spec in specs if spec.name in wanted]
     if not args.force:
         running = running_nodes([spec.full_name for spec in specs])
         if running:
@@ -203,8 +220,9 @@ class _Ready:
         if self._pending:
             return
         self._pending = None
+        running = {spec.name for spec in self._suite.specs.values()}
         try:
-            wait_for_suite(self._node, READY_TIMEOUT, stop=stop)
+            wait_for_suite(self._node, READY_TIMEOUT, stop=stop, nodes=running)
         except CallError as e:
             print(f'not ready: {e}', file=sys.stderr, flush=True)
             return

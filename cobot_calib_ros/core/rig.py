@@ -17,6 +17,7 @@ A target pose given in a user frame is solved by :func:`solve_target`.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -30,6 +31,7 @@ from cobot_calib_ros.core.kinematics.robots import model_for
 Array = NDArray[np.float64]
 Record = dict[str, Any]
 TOOLS = ('tcp', 'flange', 'camera', 'coupling')
+NOMINAL = 'nominal'     # the label of the cell's own value where no result is active
 
 
 def model_chain(record: Record | None, model: KinematicModel, tool: ArrayLike) -> Chain:
@@ -72,12 +74,50 @@ def tool_offset(cell: Cell, tool: str, kinematics: Record | None = None,
     raise ValueError(f'unknown tool {tool!r}; use one of {", ".join(TOOLS)}')
 
 
-def chain(cell: Cell, kinematics: Record | None = None, tool: str = 'tcp', *,
-          hand_eye: Record | None = None, model: KinematicModel | None = None) -> Chain:
-    """The chain of the cell's robot with ``kinematics`` (a kinematic calibration record, None
-    for the nominal model) ending at ``tool``. ``model``: the cell's model if already built."""
-    model = model_for(cell) if model is None else model
-    return model_chain(kinematics, model, tool_offset(cell, tool, kinematics, hand_eye))
+@dataclass(frozen=True)
+class ActiveSet:
+    """The results a rig is built from, as the repository's records (None: the cell's own
+    nominal value): the kinematic calibration in use and the active hand-eye. A new kind of
+    result is one more field here and one more rule in :func:`tool_offset`."""
+
+    kinematics: Record | None = None
+    hand_eye: Record | None = None
+
+    @property
+    def kinematics_label(self) -> str:
+        return NOMINAL if self.kinematics is None else self.kinematics['id']
+
+    @property
+    def hand_eye_label(self) -> str:
+        return NOMINAL if self.hand_eye is None else self.hand_eye['id']
+
+
+class Rig:
+    """A cell's robot with its active results: every "which chain, with which tool" of the
+    suite is :meth:`chain` of a rig (nodes, checks, the verbs, robot_adapter)."""
+
+    def __init__(self, cell: Cell, active: ActiveSet = ActiveSet(),
+                 model: KinematicModel | None = None) -> None:
+        self.cell, self.active = cell, active
+        self.model = model_for(cell) if model is None else model
+        # refused here, not at the first motion: a record of another robot
+        model_chain(active.kinematics, self.model, np.eye(4))
+
+    def tool(self, tool: str = 'tcp') -> Array:
+        """(4, 4) T_flange_tool of ``tool`` (one of :data:`TOOLS`)."""
+        return tool_offset(self.cell, tool, self.active.kinematics, self.active.hand_eye)
+
+    def chain(self, tool: str = 'tcp') -> Chain:
+        """The arm with the kinematics in use, ending at ``tool``."""
+        return model_chain(self.active.kinematics, self.model, self.tool(tool))
+
+    def nominal_chain(self, tool: str = 'tcp') -> Chain:
+        """The nominal arm ending at ``tool`` (the same tool as :meth:`chain`): what a
+        controller with its nominal kinematics does, and what motions are planned on."""
+        return self.model.chain(tool=self.tool(tool))
+
+    def with_kinematics(self, record: Record | None) -> Rig:
+        return Rig(self.cell, replace(self.active, kinematics=record), self.model)
 
 
 def solve_target(chain_: Chain, T_frame_tool: ArrayLike, seed: ArrayLike, home: ArrayLike,

@@ -28,32 +28,29 @@ hold_duration [s], speed_scale [1], landmark_timeout [s].
 """
 from __future__ import annotations
 
-import threading
 import time
 
 from cobot_calib_msgs.action import CalibrateHandEye
 from geometry_msgs.msg import TransformStamped
 import numpy as np
-from rclpy.action import ActionServer, CancelResponse, GoalResponse
+from rclpy.action import ActionServer, CancelResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
-from rclpy.node import Node
 
-from cobot_calib_ros import paths, store
-from cobot_calib_ros.core import frames, kinematics
+from cobot_calib_ros.core import frames
 from cobot_calib_ros.core.landmarks.hand_eye import check_noise, hand_eye_views, solve_hand_eye
 from cobot_calib_ros.core.landmarks.hand_eye_capture import (HandEyeViews,
                                                              take_hand_eye_views)
 from cobot_calib_ros.core.ids import record_id
+from cobot_calib_ros.core.rig import Rig
 from cobot_calib_ros.core.robot_port import CaptureFailed, Stopped
-from cobot_calib_ros.loaders import load_cell
 from cobot_calib_ros.ros import convert, qos, results, spin
-from cobot_calib_ros.ros.diagnostics import Diagnostics, OK, WARN
+from cobot_calib_ros.ros.diagnostics import OK, WARN
 from cobot_calib_ros.ros.params import declare, read_once
 from cobot_calib_ros.ros.landmark_watch import LandmarkWatch
 from cobot_calib_ros.ros.robot_calls import RobotCalls
 from cobot_calib_ros.ros.tf_static import StaticBroadcaster
 from cobot_calib_ros.ros.time import now_ns
-from cobot_calib_ros.store.cells import ResultsCell
+from cobot_calib_ros.nodes.job_node import JobNode
 from cobot_calib_ros.store.records import HandEyeInputs, HandEyeRecord, HandEyeResult
 
 Action = CalibrateHandEye
@@ -82,24 +79,20 @@ def parse_user_frame(text: str) -> np.ndarray | None:
     return frames.from_xyz_rpy(values[:3], values[3:])
 
 
-class HandEyeCalibrator(Node):
+class HandEyeCalibrator(JobNode):
     def __init__(self, **kwargs) -> None:
-        super().__init__('hand_eye_calibrator', **kwargs)
+        super().__init__('hand_eye_calibrator', job='a hand-eye calibration',
+                         cell_help='Cell YAML (path or name): robot, camera (nominal '
+                         'hand-eye), board', data_help='Results go to <data_dir>/hand_eye',
+                         **kwargs)
         self._declare_parameters()
-        self._cell = load_cell(paths.cell_file(self._p('cell_file')), self._p('layout') or None)
-        self._model = kinematics.model_for(self._cell)
-        self._chain = self._model.chain()
-        self._root = paths.data_dir(self._p('data_dir'))
-        self._results_cell = ResultsCell.of(self._cell, self.get_namespace())
-        self._store = store.open(self._root, cell=self._results_cell).hand_eye
+        self._chain = Rig(self._cell, model=self._model).nominal_chain('flange')
+        self._store = self._repository().hand_eye
         self._user_frame = parse_user_frame(self._p('user_frame'))
-        self._answers = spin.Companion(self, 'clients')
         self._robot = RobotCalls(self._answers)
         self._watch = LandmarkWatch(lambda: now_ns(self), self._answers.node)
         self._pub = self.create_publisher(TransformStamped, 'hand_eye', qos.LATCHED)
         self._tf = StaticBroadcaster(self)
-        self._busy = threading.Lock()
-        self._health = Diagnostics(self)
         self._health.watch(capture_retries=lambda: self._robot.capture_retries)
         self._server = ActionServer(
             self, Action, 'calibrate_hand_eye', execute_callback=self._on_goal,
@@ -117,16 +110,7 @@ class HandEyeCalibrator(Node):
         self.get_logger().info(f'hand-eye calibrations in {self._store.directory}'
                                + (f'; {problem}' if problem else ''))
 
-    def destroy_node(self):
-        self._answers.destroy()
-        return super().destroy_node()
-
     def _declare_parameters(self) -> None:
-        read_once(self, 'cell_file', paths.DEFAULT_CELL,
-                  'Cell YAML (path or name): robot, camera (nominal hand-eye), board')
-        read_once(self, 'layout', '', 'Marker layout; empty = the cell default')
-        read_once(self, 'data_dir', '', 'Results go to <data_dir>/hand_eye; empty = '
-                  '$COBOT_CALIB_DATA or ~/.ros/cobot_calib')
         read_once(self, 'flange_frame', 'flange', 'tf frame of the flange (parent of the '
                   'camera frame on hand_eye and /tf_static)')
         read_once(self, 'user_frame', '', 'T_base_user as "x y z roll pitch yaw" [m, rad] to '
@@ -139,37 +123,8 @@ class HandEyeCalibrator(Node):
         declare(self, 'landmark_timeout', 5.0, 'A view without a board in an image after '
                 'this long [s] is skipped', 0.1, 120.0)
 
-    def _p(self, name: str):
-        return self.get_parameter(name).value
-
-    def _accept(self, goal) -> GoalResponse:
-        if self._busy.locked():
-            self.get_logger().warning('goal rejected: a hand-eye calibration is running')
-            return GoalResponse.REJECT
-        return GoalResponse.ACCEPT
-
     def _on_goal(self, goal_handle):
-        if not self._busy.acquire(blocking=False):
-            goal_handle.abort()
-            return Action.Result(error_code=Action.Result.INVALID_GOAL,
-                                 message='another hand-eye calibration is running')
-        try:
-            return self._run(goal_handle)
-        finally:
-            self._busy.release()
-
-    def _end(self, goal_handle, result, code: int, message: str):
-        result.error_code, result.message = int(code), message
-        if code == Action.Result.SUCCESS:
-            goal_handle.succeed()
-            spin.log_info(self.get_logger(), message)
-        elif goal_handle.is_cancel_requested:
-            goal_handle.canceled()
-        else:
-            goal_handle.abort()
-            self.get_logger().warning(message)
-        self._health.set(OK if code == Action.Result.SUCCESS else WARN, message)
-        return result
+        return self._exclusive(goal_handle, self._run, Action.Result)
 
     def _cancelled(self, goal_handle, result, where: str):
         return self._end(goal_handle, result, Action.Result.CANCELED,
@@ -178,7 +133,7 @@ class HandEyeCalibrator(Node):
     def _T_base_user(self) -> np.ndarray:
         if self._user_frame is not None:
             return self._user_frame
-        record = store.open(self._root, cell=self._results_cell).user_frames.active()
+        record = self._repository().user_frames.active()
         if record is None or record['result'].get('T_base_user') is None:
             raise ValueError('no user frame to find the board by: set the user_frame parameter '
                              'or calibrate the user frame first (calibrate_user_frame)')

@@ -17,20 +17,17 @@ from __future__ import annotations
 
 import math
 import sys
-import threading
 from time import monotonic
 
 from cobot_calib_msgs.action import CollectSphereData, IdentifyKinematics
 from cobot_calib_msgs.msg import CollectionProgress, ErrorStats
 import numpy as np
-from rclpy.action import ActionServer, CancelResponse, GoalResponse
+from rclpy.action import ActionServer, CancelResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
-from rclpy.node import Node
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Header
+from std_msgs.msg import Header, String
 from visualization_msgs.msg import MarkerArray
 
-from cobot_calib_ros import paths, store
 from cobot_calib_ros.core import kinematics
 from cobot_calib_ros.core.errors import ErrorCode, Failure, Refusal
 from cobot_calib_ros.core.kinematics import plans
@@ -46,35 +43,33 @@ from cobot_calib_ros.core.kinematics.identification.gates import (
 from cobot_calib_ros.core.kinematics.kinematic_calibration import CalibrationJob, JobCancelled
 from cobot_calib_ros.bags.errors import BagError
 from cobot_calib_ros.core.ids import record_id
-from cobot_calib_ros.loaders import load_cell
+from cobot_calib_ros.core.rig import Rig
 from cobot_calib_ros.loaders import sources
 from cobot_calib_ros.ros import markers, marks, qos, results, spin
-from cobot_calib_ros.ros.diagnostics import Diagnostics, OK, WARN
+from cobot_calib_ros.ros.diagnostics import OK, WARN
 from cobot_calib_ros.ros.params import declare, read_once
 from cobot_calib_ros.ros.robot_calls import RobotCalls
 from cobot_calib_ros.ros.time import now_ns, ns_to_stamp
-from cobot_calib_ros.store.cells import ResultsCell
+from cobot_calib_ros.nodes.job_node import JobNode
 from cobot_calib_ros.store.files import check_id
 
 Collect, Identify = CollectSphereData, IdentifyKinematics
 PLANNED_MAX_POSES = 100
+DESCRIPTION_CHECK_PERIOD = 2.0   # [s] between looks at the active calibration (robot_description)
 PLANNING_TASK_SEED = 1      # the task volume's configurations (the validation set is seed 0)
 
 
-class KinematicIdentifier(Node):
+class KinematicIdentifier(JobNode):
     def __init__(self, **kwargs) -> None:
-        super().__init__('kinematic_identifier', **kwargs)
+        super().__init__('kinematic_identifier', job='a collection or identification',
+                         cell_help='Cell YAML (path or name): robot, home, the sphere plate '
+                         'and coupling', data_help='Collections go to <data_dir>/kinematic_data, '
+                         'results to <data_dir>/kinematics', **kwargs)
         self._declare_parameters()
-        self._cell = load_cell(paths.cell_file(self._p('cell_file')), self._p('layout') or None)
-        self._model = kinematics.model_for(self._cell)
-        repository = store.open(paths.data_dir(self._p('data_dir')),
-                                cell=ResultsCell.of(self._cell, self.get_namespace()))
+        repository = self._repository()
         self._collections = repository.collections
         self._calibrations = repository.kinematics
-        self._answers = spin.Companion(self, 'clients')
         self._robot = RobotCalls(self._answers)
-        self._busy = threading.Lock()
-        self._health = Diagnostics(self)
         self._health.watch(capture_retries=lambda: self._robot.capture_retries)
         self._health.set(OK, 'idle', job='')
         # every recorded pose, for recording a session (cobot-calib record); frame_id = target
@@ -86,8 +81,8 @@ class KinematicIdentifier(Node):
                                                qos.LATCHED)
         self._collected: list[np.ndarray] = []
         spheres = self._cell.spheres
-        self._coupling = None if spheres is None else self._model.chain(
-            tool=spheres.coupling_offset)
+        self._coupling = None if spheres is None else Rig(
+            self._cell, model=self._model).nominal_chain('coupling')
         group = ReentrantCallbackGroup()
         self._collect = ActionServer(
             self, Collect, 'collect_sphere_data', execute_callback=self._on_collect,
@@ -100,17 +95,18 @@ class KinematicIdentifier(Node):
         self.get_logger().info(f'{self._cell.robot} cell "{self._cell.name}": collections in '
                                f'{self._collections.directory}, kinematic calibrations in '
                                f'{self._calibrations.directory}')
-
-    def destroy_node(self):
-        self._answers.destroy()
-        return super().destroy_node()
+        self._description = None
+        if self._p('publish_robot_description'):
+            self._description = self.create_publisher(String, 'robot_description', qos.LATCHED)
+            self._described = None
+            self._publish_description()
+            self.create_timer(DESCRIPTION_CHECK_PERIOD, self._publish_description)
 
     def _declare_parameters(self) -> None:
-        read_once(self, 'cell_file', paths.DEFAULT_CELL,
-                  'Cell YAML (path or name): robot, home, the sphere plate and coupling')
-        read_once(self, 'layout', '', 'Marker layout; empty = the cell default')
-        read_once(self, 'data_dir', '', 'Collections go to <data_dir>/kinematic_data, results '
-                  'to <data_dir>/kinematics; empty = $COBOT_CALIB_DATA or ~/.ros/cobot_calib')
+        read_once(self, 'publish_robot_description', False,
+                  'Publish the URDF of the active kinematic calibration (the cell\'s own URDF '
+                  'with the identified joint origins; the nominal one while none is active) '
+                  'on robot_description (latched), for robot_state_publisher, MoveIt, RViz')
         declare(self, 'hold_duration', 1.0,
                 'Joints are averaged over this hold at every pose [s] (paper: 1 s at 1 kHz)',
                 0.005, 10.0)
@@ -127,37 +123,11 @@ class KinematicIdentifier(Node):
                 'Identification gate: the most an angle or zero offset may be off nominal '
                 '[rad]; a result with a parameter beyond is refused, nothing stored', 1e-5, 0.5)
 
-    def _p(self, name: str):
-        return self.get_parameter(name).value
-
-    def _accept(self, goal) -> GoalResponse:
-        if self._busy.locked():
-            self.get_logger().warning('goal rejected: a collection or identification is '
-                                      'running; wait for its end or cancel it')
-            return GoalResponse.REJECT
-        return GoalResponse.ACCEPT
-
     def _exclusive(self, goal_handle, run, Result):
-        if not self._busy.acquire(blocking=False):
-            goal_handle.abort()
-            return Result(error_code=Result.INVALID_GOAL, message='another job is running')
         try:
-            return run(goal_handle)
+            return super()._exclusive(goal_handle, run, Result)
         finally:
             self._health.set(OK, 'idle', job='')
-            self._busy.release()
-
-    def _end(self, goal_handle, result, code: int, message: str):
-        result.error_code, result.message = int(code), message
-        if code == 0:
-            goal_handle.succeed()
-            spin.log_info(self.get_logger(), message)
-        elif goal_handle.is_cancel_requested:
-            goal_handle.canceled()
-        else:
-            goal_handle.abort()
-            self.get_logger().warning(message)
-        return result
 
     # -- collection -----------------------------------------------------------------------
     def _on_collect(self, goal_handle):
@@ -449,8 +419,41 @@ class KinematicIdentifier(Node):
             result.calibration_id = saved.record.id
             result.yaml_path, result.urdf_path = (str(saved.paths['yaml']),
                                                   str(saved.paths['urdf']))
+            if self._description is not None:
+                self._publish_description()
         return self._end(goal_handle, result, Identify.Result.SUCCESS,
                          '; '.join(filter(None, (outcome.summary(), partial))))
+
+    def _publish_description(self) -> None:
+        """robot_description from the active calibration, again whenever that changes (a new
+        identification here, or `cobot-calib history --activate` from another process)."""
+        try:
+            active = self._calibrations.active(self._model.name)
+        except OSError as e:
+            self.get_logger().warning(f'robot_description: cannot read the active kinematic '
+                                      f'calibration: {e}', throttle_duration_sec=60.0)
+            return
+        key = active['id'] if active is not None else ''
+        if key == self._described:
+            return
+        self._described = key
+        if active is not None:
+            path = self._calibrations.directory / f'{key}.urdf'
+            try:
+                text, what = path.read_text(), f'kinematic calibration {key} ({path})'
+            except OSError as e:
+                self.get_logger().error(f'robot_description: {e}; not published')
+                return
+        elif self._cell.urdf_robot is not None and self._cell.urdf_robot.urdf:
+            text = self._cell.urdf_robot.urdf
+            what = f'the nominal URDF {self._cell.urdf_robot.urdf_file} (no calibration active)'
+        else:
+            self.get_logger().warning(
+                f'robot_description: no kinematic calibration active and cell '
+                f'"{self._cell.name}" gives no URDF (robot: {{urdf: ...}}); not published')
+            return
+        self._description.publish(String(data=text))
+        self.get_logger().info(f'robot_description: {what}')
 
     def _job(self, goal) -> tuple[CalibrationJob, str, dict | None]:
         """The identification job of a goal (data, validation sets, options), '' or what

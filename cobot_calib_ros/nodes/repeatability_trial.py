@@ -19,25 +19,19 @@ from cobot_calib_msgs.action import RunTrial
 from cobot_calib_msgs.msg import Repeatability
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
-from rclpy.node import Node
 
-from cobot_calib_ros import paths, store
-from cobot_calib_ros.core import kinematics
 from cobot_calib_ros.core.errors import ErrorCode
 from cobot_calib_ros.core.repeatability import trial as trialmod
 from cobot_calib_ros.core.repeatability import PointStats
 from cobot_calib_ros.core.landmarks.views import setup_problem
 from cobot_calib_ros.core.robot_port import PortError
-from cobot_calib_ros.loaders import load_cell
-from cobot_calib_ros.store.cells import ResultsCell
+from cobot_calib_ros.nodes.job_node import JobNode
 from cobot_calib_ros.store.files import check_id
-from cobot_calib_ros.core.rig import model_chain
-from cobot_calib_ros.store.kinematics import NOMINAL
 from cobot_calib_ros.store.records import TrialSetup
 from cobot_calib_ros.ros import qos, results, spin
-from cobot_calib_ros.ros.diagnostics import Diagnostics, OK, WARN
+from cobot_calib_ros.ros.diagnostics import OK, WARN
 from cobot_calib_ros.ros.params import declare, read_once
-from cobot_calib_ros.ros.landmark_views import active_hand_eye, CaptureMarks
+from cobot_calib_ros.ros.landmark_views import CaptureMarks
 from cobot_calib_ros.ros.landmark_watch import LandmarkWatch
 from cobot_calib_ros.ros.robot_calls import RobotCalls
 from cobot_calib_ros.ros.time import now_ns
@@ -70,28 +64,24 @@ def trial_line(trial_id: str, meta: dict) -> str:
     return f'trial {trial_id} ({trialmod.describe(meta)})'
 
 
-class RepeatabilityTrial(Node):
+class RepeatabilityTrial(JobNode):
     def __init__(self, **kwargs) -> None:
-        super().__init__('repeatability_trial', **kwargs)
+        super().__init__('repeatability_trial', job='a trial',
+                         cell_help='Cell YAML (path or name): markers, layouts, nominal tool',
+                         layout_help='Marker layout (close | wide); empty = the cell default',
+                         data_help='Trials go to <data_dir>/trials', **kwargs)
         self._declare_parameters()
-        self._cell = load_cell(paths.cell_file(self._p('cell_file')), self._p('layout') or None)
-        self._model = kinematics.model_for(self._cell)
-        self._results_cell = ResultsCell.of(self._cell, self.get_namespace())
-        self._store = store.open(paths.data_dir(self._p('data_dir')),
-                                 cell=self._results_cell).trials
-        self._answers = spin.Companion(self, 'clients')
+        self._store = self._repository().trials
         self._calls = RobotCalls(self._answers, self._p('speed_scale'),
                                  probe_window=self._p('probe_window'), operator=self.get_name())
         self._camera = None if setup_problem(self._cell) else LandmarkWatch(
             lambda: now_ns(self), self._answers.node)
         self._marks = CaptureMarks(self._answers.node, self._model.joint_names)
         self._pub = self.create_publisher(Repeatability, 'repeatability', qos.LATCHED)
-        self._health = Diagnostics(self)
         self._health.watch(capture_retries=lambda: self._calls.capture_retries,
                            probe_retries=lambda: self._calls.probe_retries)
         self._health.set(OK, 'idle', trial_id='', method='', axis='', cycles_done=0,
                          cycles_total=0, rp_all_mm='nan')      # the keys while running
-        self._busy = threading.Lock()
         self._feedback_lock = threading.Lock()
         self._live = None           # (goal handle, its latest feedback) while a trial runs
         self.create_timer(HEARTBEAT, self._heartbeat)
@@ -103,16 +93,7 @@ class RepeatabilityTrial(Node):
         # once spinning: a stop right after start then takes the executor's clean way out
         self._republish = self.create_timer(0.0, self._republish_latest)
 
-    def destroy_node(self):
-        self._answers.destroy()
-        return super().destroy_node()
-
     def _declare_parameters(self) -> None:
-        read_once(self, 'cell_file', paths.DEFAULT_CELL,
-                  'Cell YAML (path or name): markers, layouts, nominal tool')
-        read_once(self, 'layout', '', 'Marker layout (close | wide); empty = the cell default')
-        read_once(self, 'data_dir', '', 'Trials go to <data_dir>/trials; empty = '
-                  '$COBOT_CALIB_DATA or ~/.ros/cobot_calib')
         read_once(self, 'probe_window', 0.02, 'Probe averaging window per reading [s]',
                   0.005, 10.0)
         read_once(self, 'capture_duration', 0.3, 'Hold window when teaching a point [s]',
@@ -125,9 +106,6 @@ class RepeatabilityTrial(Node):
         declare(self, 'approach_distance', 0.005,
                 'Retreat along the probe axis before every arrival (unidirectional) [m]',
                 0.0, 0.1)
-
-    def _p(self, name: str):
-        return self.get_parameter(name).value
 
     def _republish_latest(self) -> None:
         """The latched statistics of the trial whose status changed last (done or not), as
@@ -298,23 +276,18 @@ class RepeatabilityTrial(Node):
     def _robot(self, choice: str, cancelled) -> tuple[trialmod.PortRobot, str]:
         """The trial's robot on the chain of a kinematics choice (landmark views: with the
         active hand-eye as the camera's tool); the choice's label (id or nominal)."""
-        data_dir = paths.data_dir(self._p('data_dir'))
         try:
-            record = store.open(data_dir, cell=self._results_cell).kinematics.resolve(
-                choice, self._model.name)
-            chain = model_chain(record, self._model, self._cell.tool_offset)
-            rig = None
-            if self._camera is not None:
-                X, _ = active_hand_eye(data_dir, self._cell, self._results_cell)
-                rig = trialmod.LandmarkRig(self._camera, self._cell, self._model.chain(tool=X),
-                                           model_chain(record, self._model, X), self._marks)
+            rig = self._rig(choice)
+            views = None if self._camera is None else trialmod.LandmarkRig(
+                self._camera, self._cell, rig.nominal_chain('camera'), rig.chain('camera'),
+                self._marks)
         except (KeyError, ValueError) as e:
             raise trialmod.TrialError(ErrorCode.INVALID_INPUT,
                                       f'kinematics {choice!r}: {e}; use latest, '
                                       'nominal or a stored kinematic calibration id')
-        robot = trialmod.PortRobot(self._calls, chain, self._cell.home,
-                                   self._p('capture_duration'), rig, cancelled)
-        return robot, NOMINAL if record is None else record['id']
+        robot = trialmod.PortRobot(self._calls, rig.chain('tcp'), self._cell.home,
+                                   self._p('capture_duration'), views, cancelled)
+        return robot, rig.active.kinematics_label
 
     def _stored(self, trial: _Goal):
         """The stored trial this goal resumes (None for a new one); fills ``trial.meta``."""

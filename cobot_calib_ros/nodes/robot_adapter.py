@@ -39,7 +39,9 @@ from cobot_calib_ros import paths, store
 from cobot_calib_ros.core import driver, kinematics, rig
 from cobot_calib_ros.core.errors import ErrorCode, Failure
 from cobot_calib_ros.loaders import load_cell
+from cobot_calib_ros.core.rig import Rig
 from cobot_calib_ros.store.cells import ResultsCell
+from cobot_calib_ros.store.rigs import rig_of
 from cobot_calib_ros.ros import convert, qos, results, spin
 from cobot_calib_ros.ros.params import declare, read_once
 from cobot_calib_ros.ros.time import header_ns, ns_to_s, s_to_ns, split_ns
@@ -68,7 +70,7 @@ class RobotAdapter(Node):
         self._cell, self._home = cell, cell.home
         self._model = kinematics.model_for(cell)
         self._model_names = tuple(self._model.joint_names)
-        self._chain = self._model.chain(tool=cell.tool_offset)     # the joint limits
+        self._chain = Rig(cell, model=self._model).nominal_chain()     # the joint limits
         self._results_cell = ResultsCell.of(cell, self.get_namespace())
         self._names = self._preset.joint_names or self._model_names
         self._answers = spin.Companion(self, 'driver')
@@ -217,9 +219,7 @@ class RobotAdapter(Node):
         try:
             repo = store.open(paths.data_dir(self.get_parameter('data_dir').value),
                               cell=self._results_cell)
-            record = repo.kinematics.resolve('latest' if choice == 'active' else choice,
-                                             self._model.name)
-            return rig.chain(self._cell, record, 'tcp', model=self._model)
+            return rig_of(repo, self._cell, choice, self._model).chain('tcp')
         except (KeyError, ValueError, OSError) as e:
             return Failure(ErrorCode.INVALID_INPUT, f'kinematics {choice!r}: {e}; set the '
                            'kinematics parameter to latest, nominal or a stored kinematic '

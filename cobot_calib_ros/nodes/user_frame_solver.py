@@ -28,10 +28,8 @@ from cobot_calib_msgs.srv import (CalibrateUserFrame, ConvertPoints, ListCalibra
                                   SetActiveCalibration)
 import numpy as np
 from rcl_interfaces.msg import SetParametersResult
-from rclpy.node import Node
 from visualization_msgs.msg import MarkerArray
 
-from cobot_calib_ros import paths, store
 from cobot_calib_ros.core import frames, kinematics, user_frame
 from cobot_calib_ros.core.cell import check_frame_id
 from cobot_calib_ros.core.drift import DriftLimits
@@ -39,19 +37,17 @@ from cobot_calib_ros.core.errors import ErrorCode, Failure, Refusal
 from cobot_calib_ros.core.landmarks import views
 from cobot_calib_ros.core.robot_port import PortError
 from cobot_calib_ros.core.user_frame import landmarks as landmark_frames
-from cobot_calib_ros.loaders import load_cell
 from cobot_calib_ros.ros import convert, markers, qos, results, spin
 from cobot_calib_ros.ros.diagnostics import Diagnostics, OK, status_name, WARN
 from cobot_calib_ros.ros.params import declare, read_once
-from cobot_calib_ros.ros.landmark_views import active_hand_eye, CaptureMarks
+from cobot_calib_ros.ros.landmark_views import CaptureMarks
 from cobot_calib_ros.ros.landmark_watch import LandmarkWatch
 from cobot_calib_ros.ros.robot_calls import RobotCalls
 from cobot_calib_ros.ros.time import now_ns, ns_to_stamp
 from cobot_calib_ros.ros.tf_static import StaticBroadcaster
-from cobot_calib_ros.store.cells import ResultsCell
+from cobot_calib_ros.nodes.job_node import JobNode
 from cobot_calib_ros.store.history import user_frame_change
-from cobot_calib_ros.core.rig import model_chain
-from cobot_calib_ros.store.kinematics import NOMINAL
+from cobot_calib_ros.core.rig import Rig
 from cobot_calib_ros.store.records import UserFrameRecord
 
 Res = CalibrateUserFrame.Response
@@ -104,17 +100,17 @@ def record_to_msg(record: dict) -> UserFrameCalibration:
     return msg
 
 
-class UserFrameSolver(Node):
+class UserFrameSolver(JobNode):
     def __init__(self, **kwargs) -> None:
-        super().__init__('user_frame_solver', **kwargs)
+        super().__init__('user_frame_solver', job='a calibration',
+                         cell_help='Cell YAML (path or name): named points and the nominal '
+                         'tool offset', layout_help='Marker layout of the named points (close '
+                         '| wide); empty = the cell file default',
+                         data_help='Where calibrations are stored', **kwargs)
         self._declare_parameters()
-        self._cell = load_cell(paths.cell_file(self._p('cell_file')), self._p('layout') or None)
-        self._model = kinematics.model_for(self._cell)
         # results are this cell's: its user frames, hand-eye and kinematics (store.cells)
-        self._results_cell = ResultsCell.of(self._cell, self.get_namespace())
-        self._store = store.open(self._data_dir(), cell=self._results_cell).user_frames
+        self._store = self._repository().user_frames
         self._store_lock = threading.Lock()     # the calibrator thread writes, this one reads
-        self._health = Diagnostics(self)
         # '<node>: drift': the newest calibration against the one active before it
         self._drift = Diagnostics(self, name=status_name(self, 'drift'))
         self._drift.set(OK, 'no calibration compared yet')
@@ -124,7 +120,6 @@ class UserFrameSolver(Node):
         # a live calibration blocks in its service callback while the robot moves and
         # captures: it runs on the calibrator's thread, the answers it waits for arrive on
         # the clients' thread, and this node's own services stay free
-        self._answers = spin.Companion(self, 'clients')
         self._calibrator = spin.Companion(self, 'calibrator')
         self._robot = RobotCalls(self._answers, operator=self.get_name())
         self._health.watch(capture_retries=lambda: self._robot.capture_retries)
@@ -146,20 +141,13 @@ class UserFrameSolver(Node):
 
     def destroy_node(self):
         self._calibrator.destroy()
-        self._answers.destroy()
         return super().destroy_node()
 
     def _declare_parameters(self) -> None:
-        read_once(self, 'cell_file', paths.DEFAULT_CELL,
-                  'Cell YAML (path or name): named points and the nominal tool offset')
-        read_once(self, 'layout', '', 'Marker layout of the named points (close | wide); '
-                  'empty = the cell file default')
         declare(self, 'base_frame', 'base_link', 'Robot base frame id of new calibrations '
                 'whose request gives none (tf2 frame id: letters, digits, _ and /)')
         declare(self, 'user_frame', 'user_frame', 'User (work surface) frame id of new '
                 'calibrations whose request gives none (tf2 frame id, not base_frame)')
-        read_once(self, 'data_dir', '', 'Where calibrations are stored; empty = '
-                  '$COBOT_CALIB_DATA or ~/.ros/cobot_calib')
         declare(self, 'kinematics', 'latest', 'Kinematic model that maps captured joints to '
                 'points: latest (the active kinematic calibration of kinematic_identifier, '
                 'the nominal model if there is none), nominal, or a kinematic calibration id')
@@ -188,12 +176,6 @@ class UserFrameSolver(Node):
                 'Tolerance of |scale - 1| of the fitted matrix (five_point_lsq): a scale off 1 by '
                 'more than this AND by more than its noise allows (k standard errors, 0.5 % '
                 'false refusals) is refused with IMPLAUSIBLE_FIT [1]', 1e-4, 1.0)
-
-    def _p(self, name: str):
-        return self.get_parameter(name).value
-
-    def _data_dir(self):
-        return paths.data_dir(self._p('data_dir'))
 
     # -- frame ids -------------------------------------------------------------------------
     def _frame_parameters_problem(self) -> str:
@@ -313,7 +295,8 @@ class UserFrameSolver(Node):
                 'no points: give points_user + points_base, or point_names of the cell to '
                 'visit live')))
         self._check_names(names)
-        chain, model_used = self._kinematic_chain(request.kinematics or self._p('kinematics'))
+        rig = self._rig(request.kinematics or self._p('kinematics'))
+        chain, model_used = rig.chain('tcp'), rig.active.kinematics_label
         if request.joint_captures:
             joints = self._given_joints(names, request.joint_captures)
         else:
@@ -322,21 +305,15 @@ class UserFrameSolver(Node):
         p_base = np.array([kinematics.fk(chain, q)[:3, 3] for q in joints])
         return names, p_user, p_base, model_used
 
-    def _kinematic_chain(self, choice: str, tool: np.ndarray | None = None
-                         ) -> tuple[kinematics.Chain, str]:
-        """The chain for a kinematics choice and its label (a calibration id or nominal),
-        read fresh: kinematic_identifier may have stored a new one since. ``tool``: T_flange_tool
-        of the chain, default the cell's tool offset."""
-        kinematic_store = store.open(self._data_dir(), cell=self._results_cell).kinematics
+    def _rig(self, choice: str) -> Rig:
+        """The cell's rig with the kinematics ``choice`` names and the active hand-eye, read
+        fresh: kinematic_identifier or hand_eye_calibrator may have stored new ones since."""
         try:
-            record = kinematic_store.resolve(choice, self._model.name)
-            chain = model_chain(record, self._model,
-                             self._cell.tool_offset if tool is None else tool)
+            return super()._rig(choice)
         except (KeyError, ValueError) as e:
             raise Refusal(Failure(ErrorCode.INVALID_INPUT, (
                 f'kinematics {choice!r}: {str(e).strip(chr(39))}; use latest, nominal or a '
                 f'stored kinematic calibration id')))
-        return chain, NOMINAL if record is None else record['id']
 
     def _check_names(self, names: list[str]) -> None:
         unknown = [n for n in names if self._cell.marker(n) is None]
@@ -377,12 +354,11 @@ class UserFrameSolver(Node):
         if problem:
             raise Refusal(Failure(ErrorCode.INVALID_INPUT, f'{request.method}: {problem}'))
         guess = self._user_frame_guess()
-        X, hand_eye = active_hand_eye(self._data_dir(), self._cell, self._results_cell)
-        chain, model_used = self._kinematic_chain(request.kinematics or self._p('kinematics'),
-                                                  tool=X)
+        rig = self._rig(request.kinematics or self._p('kinematics'))
+        model_used, hand_eye = rig.active.kinematics_label, rig.active.hand_eye_label
         result = views.measure_frame(
             request.method, self._cell, self._robot, self._camera, T_base_user_guess=guess,
-            plan_chain=self._model.chain(tool=X), chain=chain,
+            plan_chain=rig.nominal_chain('camera'), chain=rig.chain('camera'),
             capture_duration=self._p('capture_duration'),
             max_rms_error=self._p('max_rms_error'), max_scale_error=self._p('max_scale_error'),
             on_view=self._marks)

@@ -8,33 +8,15 @@ of an image stamped after the capture (ROS time) gives T_optical_marker;
 T_base_marker = FK(captured joints; model chain with the hand-eye as tool) @ T_optical_marker.
 :class:`CaptureMarks` publishes each view's capture.
 
-The hand-eye used is the active one of hand_eye_calibrator (``<data_dir>/hand_eye``) when there
-is one, else the cell's nominal ``camera: hand_eye``: :func:`active_hand_eye`.
+The hand-eye used is the rig's (store.rigs.rig_of: the active one of hand_eye_calibrator when
+there is one, else the cell's nominal ``camera: hand_eye``).
 """
 from __future__ import annotations
 
-from pathlib import Path
-
-import numpy as np
 from sensor_msgs.msg import JointState
 
-from cobot_calib_ros import store
 from cobot_calib_ros.core.robot_port import Capture
 from cobot_calib_ros.ros import marks
-
-
-def active_hand_eye(data_dir: Path, cell, results_cell) -> tuple[np.ndarray, str]:
-    """(T_flange_optical, its label): the active hand-eye calibration of ``results_cell``
-    (store.cells.ResultsCell), else ``cell``'s nominal one ('nominal')."""
-    try:
-        record = store.open(data_dir, cell=results_cell).hand_eye.active()
-    except (OSError, ValueError):
-        record = None
-    if record is not None:
-        X = np.array(record['result']['T_flange_optical'], dtype=float)
-        if X.shape == (4, 4) and np.all(np.isfinite(X)):
-            return X, record['id']
-    return np.asarray(cell.camera.T_flange_optical, dtype=float), 'nominal'
 
 
 class CaptureMarks:

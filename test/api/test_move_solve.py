@@ -33,7 +33,7 @@ def repo(tmp_path):
 
 
 def test_the_active_calibration_and_a_user_frame_give_the_joints_that_reach_the_target(repo):
-    calibrated = rig.chain(CELL, KINEMATIC, 'tcp', model=MODEL)
+    calibrated = rig.Rig(CELL, rig.ActiveSet(KINEMATIC), MODEL).chain('tcp')
     T_base_tool = fk(calibrated, Q)
     T_user_tool = invert(T_BASE_USER) @ T_base_tool
     nominal = move.solve(CELL, repo, T_base_tool, Q)         # nothing stored: nominal
@@ -47,7 +47,7 @@ def test_the_active_calibration_and_a_user_frame_give_the_joints_that_reach_the_
         assert_allclose(fk(calibrated, solved.q), T_base_tool, atol=1e-9)
         assert_allclose(solved.T_base_tool, T_base_tool, atol=1e-12)
     assert move.solve(CELL, repo, T_base_tool, Q, kinematics='nominal').kinematics == 'nominal'
-    flange = move.solve(CELL, repo, fk(rig.chain(CELL, KINEMATIC, 'flange', model=MODEL), Q),
+    flange = move.solve(CELL, repo, fk(rig.Rig(CELL, rig.ActiveSet(KINEMATIC), MODEL).chain('flange'), Q),
                         Q, tool='flange')
     assert_allclose(fk(calibrated, flange.q), T_base_tool, atol=1e-9)
 

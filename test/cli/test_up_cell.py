@@ -51,11 +51,26 @@ def _cli(*args) -> list[str]:
     return [sys.executable, '-m', 'cobot_calib_ros.cli.main', *args]
 
 
+def test_up_refuses_nodes_that_are_not_in_the_suite():
+    out = subprocess.run(_cli('up', '--nodes', 'user_frame_solver,no_such_node'),
+                         capture_output=True, text=True, timeout=60,
+                         env=dict(os.environ, ROS_DOMAIN_ID='101'))
+    assert out.returncode == 2 and 'node suite' not in out.stdout
+    assert "--nodes 'user_frame_solver,no_such_node': no_such_node not in the suite" in out.stderr
+    assert 'nothing started' in out.stderr
+
+
+# what each suite of the two-cell test needs: the Sawyer's serves a calibration and its
+# stored hand-eye; the iiwa's also the robot calls `check` makes (no camera nodes, no trials)
+SERVING = 'user_frame_solver,hand_eye_calibrator'
+CHECKING = 'mock_robot,joint_state_monitor,proximity_sensor,' + SERVING
+
+
 @contextlib.contextmanager
-def _up(env: dict[str, str], cell: str):
-    """`cobot-calib up --cell CELL` as a user runs it, until 'ready'; Ctrl-C (SIGINT to its
-    process group) at the end, and it has stopped."""
-    proc = subprocess.Popen(_cli('up', '--cell', cell), stdout=subprocess.PIPE,
+def _up(env: dict[str, str], cell: str, nodes: str):
+    """`cobot-calib up --cell CELL --nodes NODES` as a user runs it, until 'ready'; Ctrl-C
+    (SIGINT to its process group) at the end, and it has stopped."""
+    proc = subprocess.Popen(_cli('up', '--cell', cell, '--nodes', nodes), stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True, env=env,
                             start_new_session=True)
     lines = Lines(proc.stdout)
@@ -94,7 +109,7 @@ def test_a_second_cell_on_the_same_data_dir_activates_none_of_the_first_s_result
                                                                  'COBOT_CALIB_CELL')}
         env.update(ROS_DOMAIN_ID=str(domain), COBOT_CALIB_DATA=str(data),
                    ROS_LOG_DIR=str(tmp_path / 'logs'))
-        with _up(env, 'sawyer_close') as run:
+        with _up(env, 'sawyer_close', SERVING) as run:
             out = run('call', 'calibrate_user_frame',
                       f'{{method: rigid, points_user: {SQUARE}, points_base: {SHIFTED}}}',
                       '--json')
@@ -106,7 +121,7 @@ def test_a_second_cell_on_the_same_data_dir_activates_none_of_the_first_s_result
             assert he.returncode == 0, he.stderr
             x = json.loads(he.stdout)['transform']['translation']['x']
             assert x == pytest.approx(hand_eye['result']['T_flange_optical'][0][3], abs=1e-12)
-        with _up(env, 'iiwa7_close') as run:
+        with _up(env, 'iiwa7_close', CHECKING) as run:
             listed = json.loads(run('call', 'list_calibrations', '{}', '--json').stdout)
             assert listed['active_id'] == '' and listed['calibrations'] == []
             assert run('echo', 'user_frame', '--once', '--timeout', '5').returncode == 1

@@ -21,36 +21,69 @@ Q = CELL.home + 0.1
 
 
 def test_each_tool_ends_the_chain_where_the_cell_or_the_result_puts_it():
-    flange = fk(rig.chain(CELL, RECORD, 'flange', model=MODEL), Q)
+    flange = fk(rig.Rig(CELL, rig.ActiveSet(RECORD), MODEL).chain('flange'), Q)
     assert_allclose(flange, fk(MODEL.chain(PARAMS), Q), atol=1e-15)
-    assert_allclose(fk(rig.chain(CELL, RECORD, 'tcp', model=MODEL), Q),
+    assert_allclose(fk(rig.Rig(CELL, rig.ActiveSet(RECORD), MODEL).chain('tcp'), Q),
                     flange @ CELL.tool_offset, atol=1e-12)
-    coupling = fk(rig.chain(CELL, RECORD, 'coupling', model=MODEL), Q)
+    coupling = fk(rig.Rig(CELL, rig.ActiveSet(RECORD), MODEL).chain('coupling'), Q)
     assert_allclose(coupling[:3, 3], flange[:3, :3] @ [0.001, -0.002, 0.103] + flange[:3, 3],
                     atol=1e-12)      # the identified centre
     assert_allclose(coupling[:3, :3], flange[:3, :3] @ CELL.spheres.coupling_offset[:3, :3],
                     atol=1e-12)      # the cell's orientation
-    nominal = fk(rig.chain(CELL, None, 'coupling', model=MODEL), Q)
+    nominal = fk(rig.Rig(CELL, model=MODEL).chain('coupling'), Q)
     assert_allclose(nominal, fk(MODEL.chain(tool=CELL.spheres.coupling_offset), Q), atol=1e-12)
     hand_eye = {'result': {'T_flange_optical': from_xyz_rpy([0.05, 0, 0.02], [0, 0, 1]).tolist()}}
-    assert_allclose(fk(rig.chain(CELL, None, 'camera', hand_eye=hand_eye, model=MODEL), Q),
+    assert_allclose(fk(rig.Rig(CELL, rig.ActiveSet(None, hand_eye), MODEL).chain('camera'), Q),
                     fk(MODEL.chain(), Q) @ from_xyz_rpy([0.05, 0, 0.02], [0, 0, 1]), atol=1e-12)
 
 
 def test_a_tool_the_cell_lacks_or_does_not_know_is_refused_with_the_choices():
     with pytest.raises(ValueError, match='has no camera: section.*tcp, flange, camera, coupling'):
-        rig.chain(CELL, None, 'camera', model=MODEL)
+        rig.Rig(CELL, model=MODEL).chain('camera')
     with pytest.raises(ValueError, match="unknown tool 'gripper'"):
         rig.tool_offset(CELL, 'gripper')
     with pytest.raises(ValueError, match="is for robot 'sawyer', not 'iiwa7'"):
-        rig.chain(CELL, {**RECORD, 'robot': 'sawyer'}, model=MODEL)
+        rig.Rig(CELL, rig.ActiveSet({**RECORD, 'robot': 'sawyer'}), MODEL)
 
 
 def test_a_target_in_a_user_frame_is_solved_in_the_base():
-    chain = rig.chain(CELL, RECORD, 'tcp', model=MODEL)
+    chain = rig.Rig(CELL, rig.ActiveSet(RECORD), MODEL).chain('tcp')
     T_base_user = from_xyz_rpy([0.5, -0.1, 0.02], [0.01, -0.02, 0.7])
     T_base_tool = fk(chain, Q + 0.05)
     result = rig.solve_target(chain, np.linalg.inv(T_base_user) @ T_base_tool, Q, CELL.home,
                               T_base_user)
     assert result
     assert_allclose(fk(chain, result.q), T_base_tool, atol=1e-9)
+
+
+def test_the_nominal_chain_keeps_the_tool_and_the_labels_name_the_results():
+    hand_eye = {'id': 'h-1',
+                'result': {'T_flange_optical': from_xyz_rpy([0.05, 0, 0.02], [0, 0, 1]).tolist()}}
+    calibrated = rig.Rig(CELL, rig.ActiveSet(RECORD, hand_eye), MODEL)
+    assert_allclose(fk(calibrated.nominal_chain('camera'), Q),
+                    fk(MODEL.chain(), Q) @ from_xyz_rpy([0.05, 0, 0.02], [0, 0, 1]), atol=1e-12)
+    assert (calibrated.active.kinematics_label, calibrated.active.hand_eye_label) == (
+        'k-rig', 'h-1')
+    nominal = calibrated.with_kinematics(None)
+    assert nominal.active.kinematics_label == 'nominal' and nominal.active.hand_eye is hand_eye
+    assert_allclose(fk(nominal.chain('tcp'), Q), fk(calibrated.nominal_chain('tcp'), Q),
+                    atol=1e-15)
+
+
+def test_no_node_verb_or_api_builds_a_chain_of_its_own():
+    """Issue 29 item 4: "which chain, with which tool" is answered by the rig alone outside
+    core (the sim's true robot and core's own math build theirs)."""
+    import re
+    from pathlib import Path
+    import cobot_calib_ros
+    root = Path(cobot_calib_ros.__file__).parent
+    builders = re.compile(r'model\.chain\(|model_chain\(')
+    found = [f'{path.relative_to(root)}:{number}: {line.strip()}'
+             for package in ('nodes', 'cli', 'api', 'ros', 'store', 'bags', 'loaders')
+             for path in sorted((root / package).rglob('*.py'))
+             for number, line in enumerate(path.read_text().splitlines(), 1)
+             if builders.search(line)]
+    assert found == [
+        # the demo scores against the mock's true robot (its ground truth service)
+        'cli/demo.py:102: return model.chain(np.array(truth.true_parameters), '
+        'tool=cell.tool_offset)']

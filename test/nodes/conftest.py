@@ -34,7 +34,8 @@ def suite(domain_id, trial_data, tmp_path_factory):
         'user_frame_solver': {'data_dir': str(data)},
         'repeatability_trial': {'data_dir': str(data)},
         # planned collections from the 30 deg candidate grid (1/6 of the IK of the default)
-        'kinematic_identifier': {'data_dir': str(data), 'candidate_tilt_step': '0.5236'}})
+        'kinematic_identifier': {'data_dir': str(data), 'candidate_tilt_step': '0.5236',
+                                 'publish_robot_description': 'true'}})
     specs.append(launcher.NodeSpec('proximity_sensor', namespace='iso'))
     running = launcher.Suite(tmp_path_factory.mktemp('logs'))
     running.start(specs)

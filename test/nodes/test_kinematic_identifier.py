@@ -127,6 +127,10 @@ def test_a_canceled_collection_resumes_where_it_stopped(ros, actions, trial_data
 def test_identification_is_validated_stored_and_exported_as_urdf(ros, actions, collected,
                                                                   trial_data):
     spheres, tracker, _ = collected
+    before = store.open(trial_data, cell=CELL).kinematics.active('sawyer')
+    if before is None:      # the nominal URDF while no calibration is active
+        assert _robot_description(ros) == cell_file('sawyer_close').with_name(
+            'sawyer.urdf').read_text()
     got = []
     result = _run(ros, actions[1], Identify(collection_id=spheres.collection_id,
                                             validation_volume=tracker.collection_id),
@@ -156,6 +160,8 @@ def test_identification_is_validated_stored_and_exported_as_urdf(ros, actions, c
         q = np.random.default_rng(1).uniform(model.lower, model.upper, (20, 7))
         np.testing.assert_allclose(fk(urdf.chain(), q), fk(model.chain(params), q),
                                    atol=1e-9)
+        # robot_description (the suite's publish_robot_description) follows the new one
+        assert _robot_description(ros, f'calibration {result.calibration_id}') == text
         # the solver maps joint captures through the named model
         named = call(ros, CalibrateUserFrame, 'calibrate_user_frame', 30.0, method='rigid',
                      point_names=['P1', 'P2', 'P3'], kinematics='no_such_id')
@@ -164,6 +170,17 @@ def test_identification_is_validated_stored_and_exported_as_urdf(ros, actions, c
     finally:
         if result.calibration_id:   # later tests calibrate with 'latest': back to nominal
             store.open(trial_data, cell=CELL).kinematics.retire(result.calibration_id)
+
+
+def _robot_description(ros, containing: str = '') -> str:
+    """The latest robot_description a late subscriber gets (containing ``containing``)."""
+    from std_msgs.msg import String
+    profile = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    got = listen_late(ros, String, 'robot_description', profile,
+                      lambda m: bool(m) and containing in m[-1].data, timeout=20.0)
+    assert got, 'no robot_description'
+    return got[-1].data
 
 
 def _set_identifier_parameter(ros, name: str, value: float) -> None:

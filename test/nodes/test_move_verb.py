@@ -39,7 +39,7 @@ def test_a_compensated_move_lands_on_the_target_where_the_nominal_one_is_off(ros
     # the mock's TCP is the cell's; its arm deviates from the nominal (by ~0.15 mm at the TCP
     # for this Sawyer), the truth being the true arm at the joints reached
     true_tcp = MODEL.chain(true_params, tool=CELL.tool_offset)
-    target = fk(rig.chain(CELL, None, 'tcp', model=MODEL), CELL.home + 0.15)
+    target = fk(rig.Rig(CELL, model=MODEL).chain('tcp'), CELL.home + 0.15)
     xyz = target[:3, 3].tolist()
     rpy = Rotation.from_matrix(target[:3, :3]).as_euler('xyz').tolist()
     np.testing.assert_allclose(from_xyz_rpy(xyz, rpy), target, atol=1e-12)

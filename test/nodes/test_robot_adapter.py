@@ -251,7 +251,7 @@ def test_a_pose_goal_is_solved_with_the_active_kinematic_calibration(driver_suit
     cell = load_cell(cell_file('sawyer_close'))
     model = model_for(cell)
     true_params = np.array(truth.true_parameters)
-    target = fk(rig.chain(cell, None, 'tcp', model=model), cell.home + 0.15)
+    target = fk(rig.Rig(cell, model=model).chain('tcp'), cell.home + 0.15)
     true_tcp = model.chain(true_params, tool=cell.tool_offset)
     repo = store.open(data / 'adapter', cell=ResultsCell.of(cell))
     record = {'id': 'k-true', 'robot': model.name, 'stamp_ns': 1, 'method': 'test',

@@ -1,0 +1,96 @@
+"""The base of the nodes that run calibration jobs as actions (issue 30 item 5).
+
+What hand_eye_calibrator, kinematic_identifier, repeatability_trial and user_frame_solver each
+wrote out: the bootstrap (``cell_file``, ``layout``, ``data_dir`` read once; the cell, its
+kinematic model, the cell its results are stored under, its repository), the companion node the
+job's calls to other nodes spin on, diagnostics, one job at a time (a goal is rejected while one
+runs, and refused again if two raced past the check), and one way a goal ends (succeed, cancel
+or abort, logged, the diagnostics told). A node keeps its own parameters and its job's ``run``.
+"""
+from __future__ import annotations
+
+import threading
+
+from rclpy.action import GoalResponse
+from rclpy.node import Node
+
+from cobot_calib_ros import paths, store
+from cobot_calib_ros.core.kinematics import model_for
+from cobot_calib_ros.loaders import load_cell
+from cobot_calib_ros.ros import spin
+from cobot_calib_ros.ros.diagnostics import Diagnostics, OK, WARN
+from cobot_calib_ros.ros.params import read_once
+from cobot_calib_ros.store.cells import ResultsCell
+from cobot_calib_ros.store.rigs import rig_of
+
+SUCCESS = 0      # every action's result code for success (cobot_calib_msgs/action/*)
+
+
+class JobNode(Node):
+    """``job``: what a goal is called in messages ('a hand-eye calibration');
+    ``cell_help`` / ``data_help``: the descriptions of the cell_file / data_dir parameters."""
+
+    def __init__(self, name: str, *, job: str, cell_help: str, data_help: str,
+                 layout_help: str = 'Marker layout; empty = the cell default',
+                 **kwargs) -> None:
+        super().__init__(name, **kwargs)
+        self._job_name = job
+        read_once(self, 'cell_file', paths.DEFAULT_CELL, cell_help)
+        read_once(self, 'layout', '', layout_help)
+        read_once(self, 'data_dir', '', f'{data_help}; empty = $COBOT_CALIB_DATA or '
+                  '~/.ros/cobot_calib')
+        self._cell = load_cell(paths.cell_file(self._p('cell_file')), self._p('layout') or None)
+        self._model = model_for(self._cell)
+        self._root = paths.data_dir(self._p('data_dir'))
+        self._results_cell = ResultsCell.of(self._cell, self.get_namespace())
+        self._answers = spin.Companion(self, 'clients')
+        self._busy = threading.Lock()
+        self._health = Diagnostics(self)
+
+    def destroy_node(self):
+        self._answers.destroy()
+        return super().destroy_node()
+
+    def _p(self, name: str):
+        return self.get_parameter(name).value
+
+    def _repository(self):
+        """The results of this node's cell, opened afresh (another node may have stored since)."""
+        return store.open(self._root, cell=self._results_cell)
+
+    def _rig(self, kinematics: str = 'latest'):
+        """The cell's rig with the active results (store.rigs.rig_of; KeyError / ValueError)."""
+        return rig_of(self._repository(), self._cell, kinematics, self._model)
+
+    def _accept(self, goal) -> GoalResponse:
+        if self._busy.locked():
+            self.get_logger().warning(f'goal rejected: {self._job_name} is running; wait '
+                                      'for its end or cancel it')
+            return GoalResponse.REJECT
+        return GoalResponse.ACCEPT
+
+    def _exclusive(self, goal_handle, run, Result):
+        """``run(goal_handle)`` holding the job lock: a goal that raced past _accept while
+        another runs ends at once with Result.INVALID_GOAL."""
+        if not self._busy.acquire(blocking=False):
+            goal_handle.abort()
+            return Result(error_code=Result.INVALID_GOAL, message=f'{self._job_name} is running')
+        try:
+            return run(goal_handle)
+        finally:
+            self._busy.release()
+
+    def _end(self, goal_handle, result, code: int, message: str):
+        """The goal's end: SUCCESS succeeds, a cancelled goal is canceled, anything else is
+        aborted; logged and told to the diagnostics."""
+        result.error_code, result.message = int(code), message
+        if code == SUCCESS:
+            goal_handle.succeed()
+            spin.log_info(self.get_logger(), message)
+        elif goal_handle.is_cancel_requested:
+            goal_handle.canceled()
+        else:
+            goal_handle.abort()
+            self.get_logger().warning(message)
+        self._health.set(OK if code == SUCCESS else WARN, message)
+        return result
