@@ -36,8 +36,7 @@ POINTS = ('P1', 'P2', 'P3', 'P4', 'P5')
 
 
 STORING_NODES = ('user_frame_solver', 'repeatability_trial', 'hand_eye_calibrator',
-                 'camera_calibrator', 'kinematic_identifier',
-                 'landmark_detector')      # the nodes with a data_dir
+                 'camera_calibrator', 'kinematic_identifier', 'landmark_detector')  # data_dir users
 
 
 @contextlib.contextmanager

@@ -26,16 +26,13 @@ image_timeout [s], live_timeout [s].
 """
 from __future__ import annotations
 
-import threading
 import time
 
 from cobot_calib_msgs.action import CalibrateIntrinsics
-from rclpy.action import ActionServer, CancelResponse, GoalResponse
+import numpy as np
+from rclpy.action import ActionServer, CancelResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
-from rclpy.node import Node
 
-from cobot_calib_ros import paths, store
-from cobot_calib_ros.core import kinematics
 from cobot_calib_ros.core.landmarks.camera import camera_info_yaml
 from cobot_calib_ros.core.landmarks.intrinsics import (calibrate_intrinsics, image_coverage,
                                                        IntrinsicsError, MODELS,
@@ -45,17 +42,16 @@ from cobot_calib_ros.core.landmarks.intrinsics_capture import (take_intrinsics_v
 from cobot_calib_ros.core.landmarks.intrinsics_views import detect_views, intrinsics_views
 from cobot_calib_ros.core.landmarks.targets import BoardSpec
 from cobot_calib_ros.core.robot_port import CaptureFailed, Stopped
-from cobot_calib_ros.loaders import load_cell
 from cobot_calib_ros.loaders.images import folder_images
 from cobot_calib_ros.nodes.hand_eye_calibrator import parse_user_frame
+from cobot_calib_ros.nodes.job_node import JobNode
 from cobot_calib_ros.ros import spin
-from cobot_calib_ros.ros.diagnostics import Diagnostics, OK, WARN
+from cobot_calib_ros.ros.diagnostics import OK, WARN
 from cobot_calib_ros.ros.image_watch import ImageWatch
 from cobot_calib_ros.ros.images import model_to_camera_info
 from cobot_calib_ros.ros.params import declare, read_once
 from cobot_calib_ros.ros.robot_calls import RobotCalls
 from cobot_calib_ros.ros.time import now_ns
-from cobot_calib_ros.store.cells import ResultsCell
 from cobot_calib_ros.store.files import atomic_write_text, ensure_dir
 from cobot_calib_ros.store.records import IntrinsicsRecord
 
@@ -65,20 +61,16 @@ ERRORS = {'too_few_views': Action.Result.TOO_FEW_VIEWS, 'bad_input': Action.Resu
           'degenerate_views': Action.Result.SOLVER_FAILED}
 
 
-class CameraCalibrator(Node):
+class CameraCalibrator(JobNode):
     def __init__(self, **kwargs) -> None:
-        super().__init__('camera_calibrator', **kwargs)
+        super().__init__('camera_calibrator', job='an intrinsics calibration',
+                         cell_help='Cell YAML (path or name): robot, camera (nominal '
+                         'intrinsics), board', data_help='Results go to <data_dir>/intrinsics',
+                         **kwargs)
         self._declare_parameters()
-        self._cell = load_cell(paths.cell_file(self._p('cell_file')), self._p('layout') or None)
-        self._model = kinematics.model_for(self._cell)
-        self._root = paths.data_dir(self._p('data_dir'))
-        self._results_cell = ResultsCell.of(self._cell, self.get_namespace())
         self._user_frame = parse_user_frame(self._p('user_frame'))
-        self._answers = spin.Companion(self, 'clients')
         self._robot = RobotCalls(self._answers)
         self._images = ImageWatch(lambda: now_ns(self), self._answers.node)
-        self._busy = threading.Lock()
-        self._health = Diagnostics(self)
         self._server = ActionServer(
             self, Action, 'calibrate_intrinsics', execute_callback=self._on_goal,
             goal_callback=self._accept, cancel_callback=lambda _: CancelResponse.ACCEPT,
@@ -89,16 +81,7 @@ class CameraCalibrator(Node):
         self.get_logger().info(f'intrinsics of {self._camera_name()} in {self._root}'
                                + (f'; {problem}' if problem else ''))
 
-    def destroy_node(self):
-        self._answers.destroy()
-        return super().destroy_node()
-
     def _declare_parameters(self) -> None:
-        read_once(self, 'cell_file', paths.DEFAULT_CELL,
-                  'Cell YAML (path or name): robot, camera (nominal intrinsics), board')
-        read_once(self, 'layout', '', 'Marker layout; empty = the cell default')
-        read_once(self, 'data_dir', '', 'Results go to <data_dir>/intrinsics; empty = '
-                  '$COBOT_CALIB_DATA or ~/.ros/cobot_calib')
         read_once(self, 'user_frame', '', 'T_base_user as "x y z roll pitch yaw" [m, rad] to '
                   'plan the views; empty = the active user-frame calibration in data_dir')
         read_once(self, 'seed', 0, 'Seed of the view plan [1]', 0, 2 ** 31 - 1)
@@ -109,46 +92,16 @@ class CameraCalibrator(Node):
         declare(self, 'live_timeout', 300.0, 'Live views (the user moving the board) are '
                 'collected for at most this long [s]', 1.0, 3600.0)
 
-    def _p(self, name: str):
-        return self.get_parameter(name).value
-
     def _camera_name(self) -> str:
         return self._cell.camera.frame_id if self._cell.camera else 'camera'
 
-    def _accept(self, goal) -> GoalResponse:
-        if self._busy.locked():
-            self.get_logger().warning('goal rejected: an intrinsics calibration is running')
-            return GoalResponse.REJECT
-        return GoalResponse.ACCEPT
-
     def _on_goal(self, goal_handle):
-        if not self._busy.acquire(blocking=False):
-            goal_handle.abort()
-            return Action.Result(error_code=Action.Result.INVALID_GOAL,
-                                 message='another intrinsics calibration is running')
-        try:
-            return self._run(goal_handle)
-        finally:
-            self._busy.release()
-
-    def _end(self, goal_handle, result, code: int, message: str):
-        result.error_code, result.message = int(code), message
-        if code == Action.Result.SUCCESS:
-            goal_handle.succeed()
-            spin.log_info(self.get_logger(), message)
-        elif goal_handle.is_cancel_requested:
-            goal_handle.canceled()
-        else:
-            goal_handle.abort()
-            self.get_logger().warning(message)
-        self._health.set(OK if code == Action.Result.SUCCESS else WARN, message)
-        return result
+        return self._exclusive(goal_handle, self._run, Action.Result)
 
     def _T_base_user(self):
         if self._user_frame is not None:
             return self._user_frame
-        import numpy as np
-        record = store.open(self._root, cell=self._results_cell).user_frames.active()
+        record = self._repository().user_frames.active()
         if record is None or record['result'].get('T_base_user') is None:
             raise ValueError('no user frame to find the board by: set the user_frame parameter '
                              'or calibrate the user frame first (calibrate_user_frame)')
@@ -248,8 +201,7 @@ class CameraCalibrator(Node):
             path = folder / f'{record.id}.yaml'
             atomic_write_text(path, camera_info_yaml(fit.camera))
             record.result.yaml_path = str(path)
-            outcome = store.open(self._root, cell=self._results_cell).intrinsics \
-                .save_and_activate(record)
+            outcome = self._repository().intrinsics.save_and_activate(record)
         except (OSError, ValueError) as e:
             return self._end(goal_handle, result, Action.Result.STORAGE_FAILED,
                              f'could not store the intrinsics: {e}')
