@@ -1,7 +1,9 @@
 """`cobot-calib intrinsics`: a camera's intrinsics from images of a ChArUco board (a folder of
 images or a bag), written as the ROS camera_info YAML and, for a cell, stored as its camera's
 intrinsics record (active when its gate passes: the detector, hand-eye and landmark paths then
-use it instead of the nominal CameraInfo). No ROS graph is needed.
+use it instead of the nominal CameraInfo). No ROS graph is needed. With --planned or --live
+instead of SOURCE: camera_calibrator's calibrate_intrinsics on the running suite (the arm moves
+the camera through planned views, or the user moves the board in front of it).
 """
 from __future__ import annotations
 
@@ -10,11 +12,14 @@ from pathlib import Path
 
 from cobot_calib_ros.cli.common import EXIT_FAILED, EXIT_OK, EXIT_USAGE, fail, print_message
 
+SUITE_TIMEOUT = 1800.0     # [s] for calibrate_intrinsics on the suite (live: up to live_timeout)
+
 EPILOG = """\
 examples:
   cobot-calib intrinsics shots/ \\
       --board charuco:squares=7x5,square=0.03,marker=0.022,dict=DICT_4X4_50
   cobot-calib intrinsics run1/ --cell ur10e_close --model rational_polynomial --json
+  cobot-calib intrinsics --planned --views 54          # on the running suite
 
 SOURCE: a folder of images (png, jpg, ...) or a rosbag2 bag (its --topic of sensor_msgs/Image).
 --model: plumb_bob (k1 k2 p1 p2 k3), rational_polynomial (k1..k6, p1 p2) or equidistant
@@ -30,7 +35,14 @@ def add_parser(subparsers):
         'intrinsics', help='camera intrinsics from board images (folder or bag); camera_info '
                            'YAML and record', description=__doc__.strip(), epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument('source', metavar='SOURCE', help='a folder of images or a bag')
+    p.add_argument('source', metavar='SOURCE', nargs='?', help='a folder of images or a bag')
+    live = p.add_mutually_exclusive_group()
+    live.add_argument('--planned', action='store_true', help='on the running suite: the arm '
+                      'moves the camera through --views planned views (camera_calibrator)')
+    live.add_argument('--live', action='store_true', help='on the running suite: --views '
+                      'views of the live topic while you move the board (camera_calibrator)')
+    p.add_argument('--views', type=int, default=0, help='--planned / --live: views to take '
+                   '(default 20; >= 4)')
     p.add_argument('--model', choices=MODELS, default='plumb_bob',
                    help='distortion model (default plumb_bob)')
     p.add_argument('--board', metavar='SPEC', help="the ChArUco board (default: the cell's)")
@@ -56,6 +68,13 @@ def run(args) -> int:
     from cobot_calib_ros.core.cell import CellFileError
     from cobot_calib_ros.core.landmarks.targets import BoardSpec
     from cobot_calib_ros.loaders import load_cell
+    if args.planned or args.live:
+        if args.source:
+            return fail('give SOURCE or --planned / --live, not both', EXIT_USAGE)
+        return _on_the_suite(args)
+    if not args.source:
+        return fail('give SOURCE (a folder of images or a bag), or --planned / --live',
+                    EXIT_USAGE)
     if args.every < 1:
         return fail(f'bad --every {args.every}: 1 or more', EXIT_USAGE)
     cell = None
@@ -156,4 +175,46 @@ def _report(args, cell, fit, spec, views, skipped) -> int:
         if stored:
             state = 'active' if stored['active'] else f'not active: {outcome.reason}'
             print(f'  stored {record.id} for cell {cell.name}, {state}')
+    return EXIT_OK
+
+
+def _on_the_suite(args) -> int:
+    """calibrate_intrinsics on the running suite; prints its result."""
+    from cobot_calib_msgs.action import CalibrateIntrinsics
+    from rclpy.action import ActionClient
+    from cobot_calib_ros.cli.common import EXIT_INTERRUPTED, ros_node, say
+    from cobot_calib_ros.ros.calls import CallError, Interrupted, run_action
+    if args.views and args.views < 4:
+        return fail(f'--views {args.views}: need at least 4 (default 20)', EXIT_USAGE)
+
+    def feedback(msg) -> None:
+        fb = msg.feedback
+        say(args, f'  {fb.views}/{fb.total} views, {100 * fb.coverage:.0f} % of the image'
+            + (f'; {fb.missing}' if fb.missing else ''))
+
+    goal = CalibrateIntrinsics.Goal(model=args.model, views=args.views, planned=args.planned)
+    with ros_node('cobot_calib_intrinsics') as node:
+        client = ActionClient(node, CalibrateIntrinsics, 'calibrate_intrinsics')
+        try:
+            _, result = run_action(node, client, goal, SUITE_TIMEOUT, feedback)
+        except CallError as e:
+            return fail(f'intrinsics calibration failed: {e}', EXIT_FAILED)
+        except Interrupted as e:        # Ctrl-C: the goal is cancelled, nothing stored
+            return fail(f'intrinsics calibration cancelled (Ctrl-C): {e.message}',
+                        EXIT_INTERRUPTED)
+        finally:
+            client.destroy()
+    k = list(result.camera_info.k)
+    out = {'error_code': result.error_code, 'message': result.message,
+           'calibration_id': result.calibration_id, 'fx': k[0], 'fy': k[4], 'cx': k[2],
+           'cy': k[5], 'distortion': list(result.camera_info.d), 'rms_px': result.rms_px,
+           'heldout_rms_px': result.heldout_rms_px, 'views_used': result.views_used,
+           'outlier_views': list(result.outlier_views), 'yaml_path': result.yaml_path,
+           'active': result.active}
+    if args.json:
+        print_message(out, True)
+    if result.error_code != 0:          # REJECTED: stored, not active; the rest: nothing
+        return fail(f'intrinsics calibration failed: {result.message}', EXIT_FAILED)
+    if not args.json:
+        print(result.message)
     return EXIT_OK

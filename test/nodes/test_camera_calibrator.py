@@ -5,7 +5,9 @@ nominal), with coverage feedback, writes the camera_info YAML and activates the 
 source is refused with what to do.
 """
 from dataclasses import dataclass
+import json
 import os
+import subprocess
 
 from cobot_calib_msgs.action import CalibrateIntrinsics
 import domain_coordinator
@@ -25,7 +27,7 @@ from cobot_calib_ros.ros.calls import run_action, spin_until
 from cobot_calib_ros.sim.scenario import load_simulation
 from cobot_calib_ros.store.cells import ResultsCell
 from cobot_calib_ros.store.records import active_intrinsics
-from rosutil import STARTUP_TIMEOUT, STOP_TIMEOUT
+from rosutil import cli_command, STARTUP_TIMEOUT, STOP_TIMEOUT
 
 NODES = ('mock_robot', 'joint_state_monitor', 'mock_camera', 'camera_calibrator')
 CELL = ResultsCell('ur10e_close', 'ur10e')
@@ -37,6 +39,7 @@ class Client:
     executor: SingleThreadedExecutor
     suite: launcher.Suite
     data_dir: str
+    env: dict
 
 
 def _user_frame() -> str:
@@ -62,7 +65,7 @@ def camera_suite(tmp_path_factory):
         executor = SingleThreadedExecutor(context=context)
         executor.add_node(node)
         try:
-            yield Client(node, executor, suite, str(data))
+            yield Client(node, executor, suite, str(data), env)
         finally:
             executor.shutdown(timeout_sec=1.0)
             node.destroy_node()
@@ -114,6 +117,20 @@ def test_planned_views_calibrate_the_mock_camera(camera_suite):
     assert load_camera_info_yaml(result.yaml_path).K[0, 0] == k[0]
     active = active_intrinsics(store.open(client.data_dir, cell=CELL), 'wrist_camera_optical')
     np.testing.assert_array_equal(active.K.ravel(), k)
+
+
+def test_the_verb_runs_planned_views_on_the_suite(camera_suite):
+    """`cobot-calib intrinsics --planned --views 8 --json` on the suite: progress on stderr,
+    the result as JSON, the record active."""
+    client = camera_suite
+    proc = subprocess.run(cli_command('intrinsics', '--planned', '--views', '8', '--json'),
+                          env=client.env, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, f'{proc.stdout}\n{proc.stderr}\n{_logs(client.suite)}'
+    out = json.loads(proc.stdout)
+    assert out['views_used'] == 8 and out['active'] and abs(out['fx'] / 620.0 - 1) < 5e-3
+    assert '8/8 views' in proc.stderr
+    active = active_intrinsics(store.open(client.data_dir, cell=CELL), 'wrist_camera_optical')
+    assert active.K[0, 0] == out['fx']
 
 
 def test_landmark_detector_poses_with_the_active_intrinsics(tmp_path):
