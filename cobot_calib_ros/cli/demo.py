@@ -36,7 +36,8 @@ POINTS = ('P1', 'P2', 'P3', 'P4', 'P5')
 
 
 STORING_NODES = ('user_frame_solver', 'repeatability_trial', 'hand_eye_calibrator',
-                 'kinematic_identifier', 'tcp_calibrator')      # the nodes with a data_dir
+                 'kinematic_identifier', 'tcp_calibrator', 'camera_calibrator',
+                 'landmark_detector')      # the nodes with a data_dir
 
 
 @contextlib.contextmanager

@@ -46,6 +46,10 @@ def add_parser(subparsers):
     p.add_argument('images', nargs='+', metavar='IMAGE', help='image files (any format OpenCV '
                    'reads; EXIF orientation is ignored: pixels as stored)')
     p.add_argument('--camera-info', metavar='YAML', help='intrinsics of the raw image (for poses)')
+    p.add_argument('--cell', metavar='NAME', help="without --camera-info: the cell camera's "
+                   'active intrinsics record (cobot-calib intrinsics) in --data-dir')
+    p.add_argument('--data-dir', help='results root of --cell (default $COBOT_CALIB_DATA or '
+                   '~/.ros/cobot_calib)')
     p.add_argument('--dictionary', metavar='NAME',
                    help='marker dictionary, e.g. DICT_4X4_50, DICT_APRILTAG_36h11 '
                         f'(case-insensitive; default: the board\'s, else {DEFAULT_DICTIONARY})')
@@ -91,6 +95,8 @@ class _Setup:
                 self.camera = load_camera_info_yaml(args.camera_info)
             except CameraInfoError as e:
                 raise UsageError(f'bad --camera-info: {e}') from None
+        elif args.cell is not None:
+            self.camera = _active_intrinsics(args.cell, args.data_dir)
         elif length is not None:
             raise UsageError('--marker-length gives marker poses, which need --camera-info YAML')
         if args.annotate is not None:
@@ -117,6 +123,28 @@ class _Setup:
 
 class UsageError(Exception):
     pass
+
+
+def _active_intrinsics(cell_name: str, data_dir: str | None):
+    """The CameraModel of the cell camera's active intrinsics record; UsageError if none."""
+    from cobot_calib_ros import paths, store
+    from cobot_calib_ros.core.cell import CellFileError
+    from cobot_calib_ros.loaders import load_cell
+    from cobot_calib_ros.store.cells import ResultsCell
+    from cobot_calib_ros.store.records import active_intrinsics
+    try:
+        cell = load_cell(paths.cell_file(cell_name))
+    except CellFileError as e:
+        raise UsageError(f'bad --cell: {e}') from None
+    if cell.camera is None:
+        raise UsageError(f'bad --cell: cell {cell.name!r} has no camera')
+    camera = active_intrinsics(store.open(paths.data_dir(data_dir), cell=ResultsCell.of(cell)),
+                               cell.camera.frame_id)
+    if camera is None:
+        raise UsageError(f'cell {cell.name!r} has no active intrinsics for '
+                         f'{cell.camera.frame_id}; run cobot-calib intrinsics or give '
+                         '--camera-info')
+    return camera
 
 
 def run(args) -> int:

@@ -23,6 +23,7 @@ VERBS = (
     'identify',
     'hand_eye',
     'tcp',                          # the tool centre point (tcp_calibrator)
+    'intrinsics',                   # camera intrinsics from board images: camera_info YAML
     'record', 'bag', 'replay',      # bags (rosbag2): record, bag info, replay
     'detect',
     'export',

@@ -20,6 +20,10 @@ Images are checked on arrival: an empty or corrupt one (data length against step
 unsupported encoding, or one before any camera_info is counted under ``failed_<reason>``, logged
 (throttled) and skipped; the node never stops for an image.
 
+K and D: the cell camera's active intrinsics record in data_dir (``cobot-calib intrinsics``)
+when there is one for images of its size (parameter intrinsics: 'active', the default), else
+camera_info's ('camera_info': always).
+
 Parameters (read at start-up): cell_file (its ``landmarks:`` give the defaults), dictionary,
 marker_length [m], board (ChArUco spec; ``none`` for no board), refine (single markers' corner
 refinement; not ``apriltag``: ~2 fps; the board's markers take ``subpix``, see
@@ -309,6 +313,7 @@ class LandmarkDetector(Node):
                     f'landmark_detector cannot detect: {e}', ERROR
         self._camera: CameraModel | None = None
         self._camera_key = None
+        self._active_intrinsics = self._read_active_intrinsics()
         self._lock = threading.Lock()
         self._counts = Counter()            # frames_in, frames_out, failed_<reason>
         self._last_failure = ''
@@ -349,6 +354,34 @@ class LandmarkDetector(Node):
             worker.join(timeout=5.0)
         self._info_node.destroy_node()
         return super().destroy_node()
+
+    def _read_active_intrinsics(self) -> CameraModel | None:
+        """The cell camera's active intrinsics record in data_dir (cobot-calib intrinsics,
+        camera_calibrator), which replaces camera_info's K and D; None: camera_info's hold."""
+        source = read_once(self, 'intrinsics', 'active',
+                           "K and D of the images: 'active' (the camera's active intrinsics "
+                           "record in data_dir, else camera_info's) or 'camera_info'")
+        data_dir = read_once(self, 'data_dir', '', 'Results root whose active intrinsics '
+                             'are used; empty = $COBOT_CALIB_DATA or ~/.ros/cobot_calib')
+        if source != 'active':
+            return None
+        from cobot_calib_ros import store
+        from cobot_calib_ros.store.cells import ResultsCell
+        from cobot_calib_ros.store.records import active_intrinsics
+        try:
+            cell = load_cell(paths.cell_file(self.get_parameter('cell_file').value))
+            if cell.camera is None:
+                return None
+            repo = store.open(paths.data_dir(data_dir),
+                              cell=ResultsCell.of(cell, self.get_namespace()))
+            camera = active_intrinsics(repo, cell.camera.frame_id)
+        except Exception as e:          # noqa: BLE001 - a store that cannot be read: the topic's
+            self.get_logger().warning(f'active intrinsics not read ({e}); camera_info holds')
+            return None
+        if camera is not None:
+            self.get_logger().info(f'using the active intrinsics of {camera.name} '
+                                   f'(fx {camera.K[0, 0]:.2f} px) instead of camera_info\'s')
+        return camera
 
     def _configure(self) -> tuple[Config | None, str, int]:
         values = (
@@ -394,6 +427,10 @@ class LandmarkDetector(Node):
         except ValueError as e:
             self._fail('bad_camera_info', f'camera_info refused: {e}')
             return
+        active = self._active_intrinsics
+        if active is not None and (active.width, active.height) == (camera.width,
+                                                                     camera.height):
+            camera = active
         with self._lock:
             self._camera, self._camera_key = camera, key
 

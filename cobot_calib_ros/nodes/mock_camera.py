@@ -3,7 +3,7 @@
 Renders (sim.camera.SimCamera) what the camera on the TRUE robot sees of the cell's fiducials at
 the joints of the latest ``joint_states`` and publishes ``wrist_camera/image_raw`` (mono8,
 frame_id the cell's camera frame) and ``wrist_camera/camera_info``
-(the cell's nominal intrinsics, plumb_bob) at ``rate_hz``, sensor-data QoS. It shares no memory
+(the cell's nominal intrinsics; the images are drawn through the simulation's true lens, ``simulation: camera: intrinsics/distortion``, when it gives one) at ``rate_hz``, sensor-data QoS. It shares no memory
 with mock_robot: it loads the same cell file and builds the same true robot (same seed), and
 follows the arm through joint_states. Those come at 1 kHz and a frame needs only the newest:
 they go to a depth-1 subscription of a hidden helper node that no executor spins, and each

@@ -12,8 +12,8 @@ from dataclasses import dataclass
 from types import MappingProxyType
 from typing import Mapping
 
-from cobot_calib_msgs.action import (CalibrateHandEye, CalibrateTcp, CollectSphereData,
-                                     IdentifyKinematics, MoveTo, RunTrial)
+from cobot_calib_msgs.action import (CalibrateHandEye, CalibrateIntrinsics, CalibrateTcp,
+                                     CollectSphereData, IdentifyKinematics, MoveTo, RunTrial)
 from cobot_calib_msgs.srv import (AverageProximity, CalibrateUserFrame, CaptureJoints,
                                   ConvertPoints, HandGuide, MeasurePosition,
                                   SetActiveCalibration)
@@ -58,6 +58,13 @@ TABLES: Mapping[str, Table] = MappingProxyType({
         ('MOTION_FAILED', (E.MOTION_FAILED,)),
         ('CAPTURE_FAILED', (E.CAPTURE_FAILED, E.PROBE_FAILED, E.NO_DATA, E.MOVING,
                             E.OUT_OF_RANGE, E.NOT_AVAILABLE)),
+        ('STORAGE_FAILED', (E.STORAGE_FAILED,)), ('CANCELED', (E.CANCELED,))),
+    'CalibrateIntrinsics': _table(
+        CalibrateIntrinsics.Result, ('SUCCESS', (E.SUCCESS,)), ('INVALID_GOAL', _REQUEST),
+        ('TOO_FEW_VIEWS', (E.TOO_FEW_POINTS,)),
+        ('SOLVER_FAILED', (E.DEGENERATE_POINTS, E.SOLVER_FAILED)),
+        ('REJECTED', (E.IMPLAUSIBLE_FIT,)),
+        ('CAPTURE_FAILED', _ROBOT),
         ('STORAGE_FAILED', (E.STORAGE_FAILED,)), ('CANCELED', (E.CANCELED,))),
     'CalibrateTcp': _table(
         CalibrateTcp.Result, ('SUCCESS', (E.SUCCESS,)), ('INVALID_GOAL', _REQUEST),

@@ -1,8 +1,8 @@
 """The wrist camera as it really is: what it sees of the fiducials lying on the uneven table.
 
 ``Renderer`` draws mono8 images of flat textured targets (markers on paper, ChArUco boards) at
-given poses T_optical_target through the camera's K and plumb_bob D, then light, blur and
-noise. ``SimCamera`` poses the cell's fiducials for it: the true chain (true kinematic
+given poses T_optical_target through the camera's K and D (any CameraModel distortion model),
+then light, blur and noise. ``SimCamera`` poses the cell's fiducials for it: the true chain (true kinematic
 parameters at the joints, times the true hand-eye) looks at each target where it really lies,
 the table's height field giving its centre's z and the local tilt.
 
@@ -194,7 +194,11 @@ class Renderer:
 
 class SimCamera:
     """The simulated wrist camera: the true chain to the optical frame and the cell's
-    fiducials where they really lie (cell ``landmarks:``, ``simulation: camera:``)."""
+    fiducials where they really lie (cell ``landmarks:``, ``simulation: camera:``).
+
+    ``camera`` is the nominal camera the suite is given (default the cell's; another
+    resolution scales the lens); ``true_camera`` the lens that draws the images (the
+    simulation's true intrinsics on the same sensor, scaled alike; the nominal without)."""
 
     def __init__(self, sim: Simulation, robot: SimRobot,
                  camera: CameraModel | None = None) -> None:
@@ -203,10 +207,15 @@ class SimCamera:
             raise ValueError(f'cell {cell.name!r} has no camera (cell: camera:, simulation: '
                              'camera:) or no landmarks (cell: landmarks:)')
         self.sim = sim
-        self.camera = camera or cell.camera.camera_model()
+        nominal = cell.camera.camera_model()
+        self.camera = camera or nominal
+        true = sim.camera.true_camera(nominal)
+        if (self.camera.width, self.camera.height) != (true.width, true.height):
+            true = scaled_camera(true, self.camera.width, self.camera.height)
+        self.true_camera = true if sim.camera.K is not None else self.camera
         self.chain = robot.model.chain(robot.true_parameters, tool=sim.camera.T_flange_optical)
         self.targets = true_targets(sim)
-        self.renderer = Renderer(self.camera, sim.camera)
+        self.renderer = Renderer(self.true_camera, sim.camera)
 
     def T_base_optical(self, q: Array) -> Array:
         """The true optical frame in base at joints ``q`` [rad]."""
@@ -269,12 +278,15 @@ class DirectCamera:
     """core.robot_port.CameraPort on a SimCamera, in-process (no ROS): for tests.
 
     An image is rendered at the arm's joints when asked for, and its markers (``boards``: and
-    the cell's ChArUco board) detected and posed by core.landmarks, as landmark_detector does.
+    the cell's ChArUco board) detected and posed by core.landmarks, as landmark_detector does,
+    with ``camera`` (default the scene's nominal camera; e.g. calibrated intrinsics).
     The clock counts: every ``now_ns`` and every image is one nanosecond later.
     """
 
-    def __init__(self, scene: SimCamera, robot: SimRobot, boards: bool = False) -> None:
+    def __init__(self, scene: SimCamera, robot: SimRobot, boards: bool = False,
+                 camera: CameraModel | None = None) -> None:
         self.scene, self.robot = scene, robot
+        self.camera = camera or scene.camera     # the intrinsics detections are posed with
         marks = scene.sim.cell.landmarks
         self._board = BoardSpec.parse(marks.board) if boards and marks.board else None
         self._clock = 0
@@ -299,7 +311,7 @@ class DirectCamera:
         from cobot_calib_ros.core.landmarks.pose import estimate_board_pose, estimate_marker_pose
         gray = self.scene.render(self.robot.q)
         self.images += 1
-        camera, marks = self.scene.camera, self.scene.sim.cell.landmarks
+        camera, marks = self.camera, self.scene.sim.cell.landmarks
         b = self._board        # the board's own markers are not landmarks (landmark_detector)
         board_ids = range(b.first_id, b.first_id + b.n_markers) if b is not None \
             and b.dictionary == marks.dictionary else range(0)
@@ -317,3 +329,20 @@ class DirectCamera:
                 seen.append(Sighting('board', self._board.first_id, pose.T_optical_target,
                                      pose.covariance))
         return LandmarkImage(self.now_ns(), tuple(seen))
+
+
+class DirectImages:
+    """core.landmarks.intrinsics_capture.ImagePort on a SimCamera, in-process: the image the
+    camera takes at the arm's joints, rendered when asked for (one nanosecond per call)."""
+
+    def __init__(self, scene: SimCamera, robot: SimRobot) -> None:
+        self.scene, self.robot = scene, robot
+        self._clock = 0
+
+    def now_ns(self) -> int:
+        self._clock += 1
+        return self._clock
+
+    def image_after(self, t_ns: int, timeout: float) -> tuple[int, NDArray[np.uint8]]:
+        self._clock = max(self._clock, t_ns) + 1
+        return self._clock, self.scene.render(self.robot.q)

@@ -4,12 +4,13 @@ Read only by the mock robot and tests. The nominal part (``cell:``) is core.cell
 """
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 import math
 from pathlib import Path
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from cobot_calib_ros.core import frames
 from cobot_calib_ros.core.cell import Cell, CellReader
@@ -35,14 +36,29 @@ class Noise:
 
 @dataclass(frozen=True)
 class CameraTruth:
-    """The real wrist camera (``simulation: camera:``): true hand-eye and image quality;
-    sim.camera renders with it."""
+    """The real wrist camera (``simulation: camera:``): true hand-eye, true intrinsics and
+    image quality; sim.camera renders with it. ``K`` (3, 3) [px] / ``D`` / ``distortion_model``
+    are the true lens (``intrinsics: [fx, fy, cx, cy]``, ``distortion_model``, ``distortion``,
+    as in ``cell: camera:``); None: the lens is the nominal one the cell gives the suite."""
 
     T_flange_optical: Array              # (4, 4) true flange -> optical frame
     noise_sigma: float = 1.5             # [grey levels]
     blur_sigma: float = 0.6              # [px]
     light_gradient: tuple[float, float] = (0.0, 0.0)  # gain change left->right, top->bottom [1]
     vignetting: float = 0.0              # gain lost at the image corners [1]
+    K: Array | None = None               # (3, 3) true camera matrix at the cell's resolution
+    D: Array | None = None               # true distortion coefficients
+    distortion_model: str = 'plumb_bob'
+
+    def true_camera(self, nominal):
+        """The true lens (a CameraModel) on the nominal one's sensor (size, name): the nominal
+        itself when the truth gives none."""
+        if self.K is None:
+            return nominal
+        from cobot_calib_ros.core.landmarks.camera import CameraModel
+        return CameraModel(nominal.width, nominal.height, self.K,
+                           np.zeros(0) if self.D is None else self.D, self.distortion_model,
+                           nominal.name)
 
 
 @dataclass(frozen=True)
@@ -100,6 +116,15 @@ class Simulation:
         """RMS of :meth:`repeatability_sigma_at` over the layout's marker tops [m]."""
         sigmas = [self.repeatability_sigma_at(p) for p in self.world.true_points_base()]
         return float(np.sqrt(np.mean(np.square(sigmas))))
+
+
+def with_true_lens(sim: Simulation, K: ArrayLike, D: ArrayLike,
+                   distortion_model: str = 'plumb_bob') -> Simulation:
+    """``sim`` with the wrist camera's true lens K (3, 3) [px] and D (as ``simulation:
+    camera: intrinsics / distortion`` gives it); the suite keeps the nominal one."""
+    camera = dataclasses.replace(sim.camera, K=np.asarray(K, dtype=float),
+                                 D=np.asarray(D, dtype=float), distortion_model=distortion_model)
+    return dataclasses.replace(sim, camera=camera)
 
 
 def load_simulation(path: str | Path, layout: str | None = None) -> Simulation:
@@ -167,12 +192,20 @@ def _camera(r: CellReader, cell: Cell) -> CameraTruth | None:
         T = frames.from_xyz_rpy(r.vector(*keys, 'hand_eye_true', 'xyz', length=3),
                                 r.vector(*keys, 'hand_eye_true', 'rpy', length=3))
     defaults = CameraTruth(T)
+    K = D = None
+    model = 'plumb_bob'
+    if r.get(*keys, 'intrinsics', default=None) is not None:
+        fx, fy, cx, cy = r.vector(*keys, 'intrinsics', length=4)
+        K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+        D = r.vector(*keys, 'distortion', default=[])
+        model = str(r.get(*keys, 'distortion_model', default='plumb_bob'))
     return CameraTruth(
         T, noise_sigma=r.number(*keys, 'noise_sigma', default=defaults.noise_sigma),
         blur_sigma=r.number(*keys, 'blur_sigma', default=defaults.blur_sigma),
         light_gradient=tuple(float(v) for v in r.vector(
             *keys, 'light_gradient', length=2, default=list(defaults.light_gradient))),
-        vignetting=r.number(*keys, 'vignetting', default=defaults.vignetting))
+        vignetting=r.number(*keys, 'vignetting', default=defaults.vignetting),
+        K=K, D=D, distortion_model=model)
 
 
 def _height_field(r: CellReader, rng: np.random.Generator) -> HeightField:

@@ -14,7 +14,8 @@ alembic (``store/migrations``, applied on first use of a URL in a process). Tabl
 ``retired``     (cell, kind, id) of retired records
 ==============  ==============================================================================
 
-Kinds: ``user_frame``, ``hand_eye``, ``kinematics``, ``tcp`` (scope: the tool), ``check`` (quick health checks), and
+Kinds: ``user_frame``, ``hand_eye``, ``kinematics``, ``tcp`` (scope: the tool), ``intrinsics``
+(scope: the camera), ``check`` (quick health checks), and
 ``trial`` / ``collection`` (a trial's or a kinematic-data collection's metadata and rows, as
 imported by ``cobot-calib db import``; live measurement logs stay append-only files).
 
@@ -50,7 +51,8 @@ SQLITE_FILE = 'cobot_calib.sqlite'
 DB_ENV = 'COBOT_CALIB_DB'            # a database URL for every node and command
 BUSY_TIMEOUT_S = 60.0
 HEAD_REVISION = '0001'        # the newest of store/migrations/versions (test_database)
-KINDS = ('user_frame', 'hand_eye', 'kinematics', 'tcp', 'check', 'trial', 'collection')
+KINDS = ('user_frame', 'hand_eye', 'kinematics', 'tcp', 'intrinsics', 'check', 'trial',
+         'collection')
 PROVENANCE_ENV = {'robot_model': 'COBOT_CALIB_ROBOT', 'robot_serial': 'COBOT_CALIB_ROBOT_SERIAL',
                   'bag_sha256': 'COBOT_CALIB_BAG_SHA256',
                   'temperature_c': 'COBOT_CALIB_TEMPERATURE_C'}

@@ -23,7 +23,7 @@ from cobot_calib_ros.store.repository import DatabaseRepository, FolderRepositor
 
 # repository attribute -> database kind
 HISTORIES = {'user_frames': 'user_frame', 'hand_eye': 'hand_eye', 'kinematics': 'kinematics',
-             'tcp': 'tcp'}
+             'tcp': 'tcp', 'intrinsics': 'intrinsics'}
 
 
 @dataclass

@@ -275,6 +275,88 @@ class TcpRecord(Record):
                              condition=position.condition,
                              covariance=position.covariance[:3, :3],
                              linear_t=position.linear[:3], approaches=n))
+# -- camera intrinsics (cobot-calib intrinsics, camera_calibrator) ----------------------------
+
+@dataclass(kw_only=True)
+class IntrinsicsInputs(Record):
+    source: str                # a folder, a bag, a topic
+    board: str                 # the board spec the corners belong to
+    image_width: int
+    image_height: int
+    views: list[str]           # the views given (image files, stamps)
+
+
+@dataclass(kw_only=True)
+class IntrinsicsResult(Record):
+    """A core.landmarks.intrinsics.IntrinsicsFit as stored (errors [px]; held out None when
+    the views were too few to hold any out)."""
+
+    camera_matrix: Any         # (3, 3) [px]
+    distortion_model: str
+    distortion_coefficients: Any
+    rms_px: float
+    heldout_rms_px: float | None
+    view_rms_px: dict[str, float]
+    outlier_views: list[str]
+    views_used: int
+    coverage: float            # fraction of the image's grid cells holding corners
+    missing: str = ''          # what the views still lack ('' : nothing)
+    yaml_path: str = ''        # the camera_info YAML written
+
+
+@dataclass(kw_only=True)
+class IntrinsicsRecord(Record):
+    """One intrinsics calibration of ``camera`` (its name: the optical frame); activation is
+    per camera."""
+
+    NESTED = {'inputs': IntrinsicsInputs, 'result': IntrinsicsResult}
+    id: str
+    stamp_ns: int
+    method: str                # the distortion model
+    camera: str
+    inputs: IntrinsicsInputs
+    result: IntrinsicsResult
+    gate_problem: str = ''
+    cell: str = ''              # set by the cell's store (store.cells)
+    robot: str = ''
+
+    @classmethod
+    def from_fit(cls, fit, *, camera: str, source: str, board: str, views: list[str],
+                 yaml_path: str = '', wall_ns: int | None = None) -> IntrinsicsRecord:
+        """The record of a core IntrinsicsFit, stamped with the wall clock (``wall_ns``,
+        default now)."""
+        wall_ns = time.time_ns() if wall_ns is None else wall_ns
+        cam = fit.camera
+        heldout = float(fit.heldout_rms_px)
+        return cls(
+            id=record_id(f'intrinsics-{cam.distortion_model}', wall_ns), stamp_ns=wall_ns,
+            method=cam.distortion_model, camera=camera,
+            inputs=IntrinsicsInputs(source=source, board=board, image_width=cam.width,
+                                    image_height=cam.height, views=list(views)),
+            result=IntrinsicsResult(
+                camera_matrix=cam.K, distortion_model=cam.distortion_model,
+                distortion_coefficients=cam.D, rms_px=fit.rms_px,
+                heldout_rms_px=heldout if np.isfinite(heldout) else None,
+                view_rms_px=dict(fit.view_rms_px), outlier_views=list(fit.outlier_views),
+                views_used=fit.views_used, coverage=fit.coverage.fraction,
+                missing=fit.coverage.message, yaml_path=yaml_path),
+            gate_problem=fit.gate_problem)
+
+    def camera_model(self):
+        """The core.landmarks.camera.CameraModel of these intrinsics."""
+        from cobot_calib_ros.core.landmarks.camera import CameraModel
+        r = self.result
+        return CameraModel(self.inputs.image_width, self.inputs.image_height,
+                           np.asarray(r.camera_matrix, dtype=float),
+                           np.asarray(r.distortion_coefficients, dtype=float),
+                           r.distortion_model, self.camera)
+
+
+def active_intrinsics(repo, camera: str):
+    """The CameraModel of ``camera``'s active intrinsics in ``repo`` (a store.Repository),
+    None when it has none (the nominal CameraInfo then holds)."""
+    plain = repo.intrinsics.active(camera)
+    return None if plain is None else IntrinsicsRecord.from_dict(plain).camera_model()
 
 
 # -- kinematic calibration (kinematic_identifier) ----------------------------------------------

@@ -16,6 +16,7 @@ attribute              kind (store.records)    activation scope
 ``hand_eye``           HandEyeRecord           one active per cell
 ``kinematics``         KinematicRecord         one active per cell and robot
 ``tcp``                TcpRecord               one active per cell and tool
+``intrinsics``         IntrinsicsRecord        one active per cell and camera
 ``checks``             check_record            (none: quick health checks are never activated)
 ``trials``             trial.yaml + readings   (none: trials are not activated)
 ``collections``        collection + rows       (none)
@@ -96,6 +97,8 @@ class Repository(Protocol):
     @property
     def tcp(self) -> CalibrationHistory: ...
     @property
+    def intrinsics(self) -> CalibrationHistory: ...
+    @property
     def trials(self) -> TrialStore: ...
     @property
     def collections(self) -> CollectionStore: ...
@@ -139,6 +142,10 @@ class FolderRepository(_MeasurementLogs):
     @cached_property
     def tcp(self) -> CalibrationStore:
         return CalibrationStore(self.root, 'tcp', scope_key=TCP_SCOPE, cell=self.cell)
+
+    @cached_property
+    def intrinsics(self) -> CalibrationStore:
+        return CalibrationStore(self.root, 'intrinsics', scope_key='camera', cell=self.cell)
 
     @cached_property
     def checks(self) -> CalibrationStore:
@@ -199,6 +206,10 @@ class DatabaseRepository(_MeasurementLogs):
         return self._history('tcp', 'tcp', TCP_SCOPE)
 
     @cached_property
+    def intrinsics(self):
+        return self._history('intrinsics', 'intrinsics', scope_key='camera')
+
+    @cached_property
     def kinematics(self):
         from cobot_calib_ros.store.database import DbKinematicStore
         return DbKinematicStore(self.database, self.cell, self.root)
@@ -207,7 +218,7 @@ class DatabaseRepository(_MeasurementLogs):
         return f'DatabaseRepository({str(self.root)!r}, {self.database!r}, cell={self.cell!r})'
 
 
-FOLDER_RESULTS = ('calibrations', 'hand_eye', 'kinematics', 'tcp')
+FOLDER_RESULTS = ('calibrations', 'hand_eye', 'kinematics', 'tcp', 'intrinsics')
 TCP_SCOPE = 'tool'         # a TCP is active per tool
 
 

@@ -22,10 +22,10 @@ def suite(domain_id, trial_data, tmp_path_factory):
     user_frame_solver, repeatability_trial, kinematic_identifier; + an isolated /iso probe
     node), each its own process, all storing under ``trial_data``."""
     data = trial_data
-    # hand_eye_calibrator, tcp_calibrator: their tests start their own (fewer processes on
-    # the 2 cores)
+    # hand_eye_calibrator, tcp_calibrator, camera_calibrator: their tests start their own
+    # (fewer processes on the 2 cores)
     nodes = tuple(n for n in launcher.SUITE if n not in ('hand_eye_calibrator',
-                                                         'tcp_calibrator'))
+                                                         'tcp_calibrator', 'camera_calibrator'))
     specs = launcher.suite_specs('sawyer_close', nodes, overrides={
         'mock_robot': {'time_scale': '0.2'},
         # images at 5 Hz, not 10: rendering, 0.4 MB messages and detection load the 2 cores

@@ -140,6 +140,7 @@ def test_import_of_a_5252a67_file_store_keeps_every_record(db_url, cell, tmp_pat
     report = import_folder(source, target)
     import_folder(source, target)
     assert report.counts == {'user_frame': 2, 'hand_eye': 1, 'kinematics': 1, 'tcp': 0,
+                             'intrinsics': 0,
                              'trial': 1, 'collection': 0} and report.skipped == []
     folder = FolderRepository(source)
     imported = store.open(tmp_path / 'new', db_url, cell)

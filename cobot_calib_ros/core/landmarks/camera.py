@@ -147,6 +147,37 @@ def parse_camera_info(text: str, source: str | Path) -> CameraModel:
     return _from_ros_yaml(source, text)
 
 
+def camera_info_yaml(camera: CameraModel) -> str:
+    """The ROS camera_info YAML of ``camera`` as camera_calibration writes it and
+    camera_info_manager reads it (parse_camera_info reads it back): image size, camera_name,
+    camera_matrix K, distortion_model and distortion_coefficients D, rectification_matrix
+    R = I and projection_matrix P = [K | 0] (a raw, unrectified camera)."""
+    if camera.width is None or camera.height is None:
+        raise ValueError('a camera_info file needs the image size')
+
+    def matrix(key: str, values: NDArray[np.float64], rows: int, cols: int) -> str:
+        data = ', '.join(repr(float(v)) for v in np.asarray(values, dtype=float).ravel())
+        return f'{key}:\n  rows: {rows}\n  cols: {cols}\n  data: [{data}]\n'
+
+    D = camera.D
+    return (f'image_width: {camera.width}\n'
+            f'image_height: {camera.height}\n'
+            f'camera_name: {_yaml_scalar(camera.name or "camera")}\n'
+            + matrix('camera_matrix', camera.K, 3, 3)
+            + f'distortion_model: {camera.distortion_model}\n'
+            + matrix('distortion_coefficients', D, 1, len(D))
+            + matrix('rectification_matrix', np.eye(3), 3, 3)
+            + matrix('projection_matrix', np.column_stack([camera.K, np.zeros(3)]), 3, 4))
+
+
+def _yaml_scalar(text: str) -> str:
+    """``text`` bare when YAML reads it back as that string, else double-quoted."""
+    import json
+    import re
+    return text if re.fullmatch(r'[A-Za-z_][A-Za-z0-9_./-]*', text) and text.lower() not in (
+        'true', 'false', 'yes', 'no', 'on', 'off', 'null') else json.dumps(text)
+
+
 def _from_ros_yaml(path: str | Path, text: str) -> CameraModel:
     import yaml
     try:

@@ -1,0 +1,72 @@
+"""core.landmarks.intrinsics_capture.ImagePort over ROS: the camera's ``wrist_camera/image_raw``.
+
+Subscribed from the first image asked for until :meth:`ImageWatch.release` (the end of a
+capture: a camera driver that streams only to subscribers, mock_camera, rests otherwise); the
+newest KEEP messages are kept, converted to mono8 when taken. The clock is the node's (ROS time), as the images' stamps are.
+"""
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Callable
+import threading
+import time
+
+import numpy as np
+from numpy.typing import NDArray
+from rclpy.qos import qos_profile_sensor_data
+from sensor_msgs.msg import Image
+
+from cobot_calib_ros.core.robot_port import CaptureFailed
+from cobot_calib_ros.ros.images import image_to_gray, ImageMessageError
+from cobot_calib_ros.ros.time import stamp_to_ns
+
+KEEP = 4
+TOPIC = 'wrist_camera/image_raw'
+
+
+class ImageWatch:
+    """The image port on ``node`` (a spin.Companion's node: its executor delivers the images
+    while a caller blocks in :meth:`image_after` on another thread)."""
+
+    def __init__(self, now_ns: Callable[[], int], node) -> None:
+        self._now_ns, self._node = now_ns, node
+        self._cond = threading.Condition()
+        self._images: deque[Image] = deque(maxlen=KEEP)
+        self._sub = None
+
+    def release(self) -> None:
+        """Unsubscribe (until the next image asked for)."""
+        with self._cond:
+            sub, self._sub = self._sub, None
+            self._images.clear()
+        if sub is not None:
+            self._node.destroy_subscription(sub)
+
+    def now_ns(self) -> int:
+        return self._now_ns()
+
+    def _on_image(self, msg: Image) -> None:
+        with self._cond:
+            self._images.append(msg)
+            self._cond.notify_all()
+
+    def image_after(self, t_ns: int, timeout: float) -> tuple[int, NDArray[np.uint8]]:
+        if self._sub is None:
+            self._sub = self._node.create_subscription(Image, TOPIC, self._on_image,
+                                                       qos_profile_sensor_data)
+        deadline = time.monotonic() + timeout
+        with self._cond:
+            while True:
+                msg = next((m for m in self._images if stamp_to_ns(m.header.stamp) > t_ns),
+                           None)
+                remaining = deadline - time.monotonic()
+                if msg is not None or remaining <= 0:
+                    break
+                self._cond.wait(remaining)
+        if msg is None:
+            raise CaptureFailed(f'no image on {TOPIC} stamped after {t_ns * 1e-9:.3f} s within '
+                                f'{timeout:.0f} s; is the camera driver (mock_camera) up?')
+        try:
+            return stamp_to_ns(msg.header.stamp), np.ascontiguousarray(image_to_gray(msg))
+        except ImageMessageError as e:
+            raise CaptureFailed(f'image refused: {e}') from None
