@@ -97,19 +97,10 @@ def _attached(args, node) -> tuple[str, Path]:
     return cell, data_dir(read_parameter(node, 'user_frame_solver', 'data_dir', 15.0))
 
 
-def _truth_model(truth, cell, node):
+def _truth_model(truth, cell):
     """The true robot (simulation only): nominal model with the mock's true parameters and
-    its real tool (mock_robot's TRUE_TOOL_PARAMETER; the cell's tool_offset from a mock that
-    has none)."""
-    from cobot_calib_ros.core.frames import from_xyz_rpy
-    from cobot_calib_ros.ros.calls import CallError
-    from cobot_calib_ros.ros.remote_params import read_parameter
-    from cobot_calib_ros.ros.robot_calls import TRUE_TOOL_PARAMETER
-    try:
-        values = read_parameter(node, 'mock_robot', TRUE_TOOL_PARAMETER, 15.0)
-        tool = from_xyz_rpy(values[:3], values[3:])
-    except CallError:
-        tool = cell.tool_offset
+    its real tool."""
+    tool = convert.transform_to_matrix(truth.tool_offset_true)
     model = kinematics.model_for(cell)
     return model.chain(np.array(truth.true_parameters), tool=tool)
 
@@ -241,7 +232,7 @@ def _run(args, client: DemoClient, root: Path | None) -> dict:
     T_true = convert.transform_to_matrix(truth.user_frame)
     true_by_name = dict(zip(truth.point_names, convert.points_to_array(truth.points_base)))
     p_true = np.array([true_by_name[n] for n in POINTS])
-    true_chain = _truth_model(truth, cell, client.node)
+    true_chain = _truth_model(truth, cell)
     records = [None] + ([] if args.kinematics == NOMINAL else
                         [_kinematics(args, client, cell, root)])
     say(args, f'touching {", ".join(POINTS)} and capturing joints ...')

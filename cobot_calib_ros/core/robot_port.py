@@ -95,28 +95,16 @@ class Approach:
                 f"tool's {self.axis}, without turning the tool from the first approach")
 
 
-ELONGATOR_SEPARATOR = '+'
-_ELONGATOR = re.compile(r'(.+)\+([zx])([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)')
-
-
-def elongator_point_name(name: str, axis: str, distance: float) -> str:
-    """The name mock_robot/hand_guide takes for an elongator point: 'P1+z0.05' (HandGuide.srv
-    has no field for it; see parse_elongator_point_name)."""
-    return f'{name}{ELONGATOR_SEPARATOR}{axis}{distance:.6g}'
-
-
-def parse_elongator_point_name(text: str) -> tuple[str, str, float]:
-    """(point, axis, distance [m]) of :func:`elongator_point_name`; (text, '', 0.0) for any
-    other name (a cell point's own, '+' in it or not); ValueError for an elongator distance
-    of 0 or beyond 1 m."""
-    match = _ELONGATOR.fullmatch(text)
-    if match is None:
-        return text, '', 0.0
-    distance = float(match[3])
-    if not 0.0 < abs(distance) < 1.0 or not math.isfinite(distance):
-        raise ValueError(f'elongator point {text!r}: the distance must be 0..1 m (non-zero), '
-                         'e.g. P1+z-0.05')
-    return match[1], match[2], distance
+def elongator_problem(axis: str, distance: float) -> str:
+    """'' if (``axis``, ``distance`` [m]) names an elongator point ('' and 0: the point
+    itself), else what is wrong with it."""
+    if not axis:
+        return '' if distance == 0.0 else f'elongation {distance} m without an elongator axis'
+    if axis not in ('z', 'x'):
+        return f"elongator axis {axis!r}: use 'z' or 'x'"
+    if not math.isfinite(distance) or not 0.0 < abs(distance) < 1.0:
+        return f'elongation {distance} m: must be non-zero and within 1 m, e.g. -0.05'
+    return ''
 
 
 class RobotPort(Protocol):

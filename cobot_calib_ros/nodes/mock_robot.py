@@ -36,7 +36,6 @@ from control_msgs.action import FollowJointTrajectory
 from cobot_calib_msgs.msg import ProbeVoltage
 from cobot_calib_msgs.srv import GetGroundTruth, HandGuide, MeasurePosition
 from geometry_msgs.msg import Pose
-from rcl_interfaces.msg import ParameterDescriptor
 import numpy as np
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
@@ -46,15 +45,13 @@ from sensor_msgs.msg import JointState
 from cobot_calib_ros import paths
 from cobot_calib_ros.core.driver import move_seconds
 from cobot_calib_ros.core.errors import ErrorCode, Failure
-from cobot_calib_ros.core.kinematics.urdf import rpy_from_matrix
-from cobot_calib_ros.core.robot_port import Approach, parse_elongator_point_name
+from cobot_calib_ros.core.robot_port import Approach, elongator_problem
 from cobot_calib_ros.core.sensors.joint_buffer import StampGaps, StampMarks
 from cobot_calib_ros.core.sensors.sample_clock import SampleClock
 from cobot_calib_ros.ros import convert, qos, results, spin
 from cobot_calib_ros.ros.joint_state_bytes import JointStateBytes
 from cobot_calib_ros.ros.diagnostics import Diagnostics, ERROR, OK, RateMeter, WARN
 from cobot_calib_ros.ros.params import declare, read_once
-from cobot_calib_ros.ros.robot_calls import TRUE_TOOL_PARAMETER
 from cobot_calib_ros.ros.time import ns_to_s, ns_to_stamp, NS_PER_S, s_to_ns, stamp_to_ns
 from cobot_calib_ros.sim.robot import SimRobot
 from cobot_calib_ros.sim.scenario import load_simulation
@@ -124,7 +121,6 @@ class MockRobot(Node):
         self._sim = load_simulation(paths.cell_file(self._param('cell_file')),
                                     self._param('layout') or None)
         self._robot = SimRobot(self._sim)
-        self._declare_truth()
         scale = self._param('time_scale')
         self._time_scale = self._sim.time_scale if scale < 0 else scale
         self._moving = False
@@ -201,17 +197,6 @@ class MockRobot(Node):
     def _param(self, name: str):
         return self.get_parameter(name).value
 
-    def _declare_truth(self) -> None:
-        """The real tool as a parameter a truth-scoring client reads (``cobot-calib demo``):
-        GetGroundTruth has no field for it. Reported, never set (overrides ignored)."""
-        T = self._sim.true_tool_offset
-        self.declare_parameter(TRUE_TOOL_PARAMETER, [*map(float, T[:3, 3]), *rpy_from_matrix(T)],
-                               ParameterDescriptor(
-                                   description='Simulation only: the real flange -> tool tip '
-                                   '[x y z roll pitch yaw] [m, rad] (cell file simulation: '
-                                   'tool_offset_true; reported, not settable)', read_only=True),
-                               ignore_override=True)
-
     # -- sensors (the paced thread) -------------------------------------------------------
     @property
     def published(self) -> int:
@@ -266,8 +251,8 @@ class MockRobot(Node):
 
     def _on_hand_guide(self, request, response):
         """The simulated operator guides the tool onto ``point_name`` (at the default speed),
-        in ``orientation`` when ``oriented``; '<point>+z<metres>' (or +x) is the elongator
-        point that far along the true tool's axis (core.robot_port.elongator_point_name)."""
+        in ``orientation`` when ``oriented``; with ``elongator_axis`` 'z' (or 'x') onto the
+        elongator point ``elongation`` [m] along that axis of the true tool."""
         q_target = self._touch_target(request)
         if isinstance(q_target, Failure):
             results.fill(response, 'HandGuide', q_target)
@@ -291,14 +276,14 @@ class MockRobot(Node):
         return response
 
     def _touch_target(self, request) -> np.ndarray | Failure:
-        try:
-            name, axis, distance = parse_elongator_point_name(request.point_name)
-        except ValueError as e:
-            return Failure(ErrorCode.INVALID_INPUT, str(e))
+        name, axis, distance = request.point_name, request.elongator_axis, request.elongation
+        problem = elongator_problem(axis, distance)
+        if problem:
+            return Failure(ErrorCode.INVALID_INPUT, problem)
         if not request.oriented:
             if axis:
-                return Failure(ErrorCode.INVALID_INPUT, f'elongator point {request.point_name!r}'
-                               ' needs the tool orientation (oriented: true)')
+                return Failure(ErrorCode.INVALID_INPUT, f'the elongator point of {name} needs '
+                               'the tool orientation (oriented: true)')
             return self._robot.plan_touch(name)
         q = request.orientation
         norm = math.sqrt(q.x ** 2 + q.y ** 2 + q.z ** 2 + q.w ** 2)
@@ -525,6 +510,8 @@ class MockRobot(Node):
         response.true_parameters = self._robot.true_parameters.tolist()
         response.repeatability_sigma = self._sim.layout_repeatability_sigma()
         response.touch_sigma = self._sim.noise.touch_sigma
+        response.tool_offset_true = convert.matrix_to_transform(
+            self._sim.true_tool_offset, 'flange', cell.tool_frame)
         if self._sim.camera is not None:
             response.hand_eye_true = convert.matrix_to_transform(
                 self._sim.camera.T_flange_optical, 'flange', cell.camera.frame_id)

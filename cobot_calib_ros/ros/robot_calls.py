@@ -23,9 +23,8 @@ from rclpy.action import ActionClient
 from std_srvs.srv import Trigger
 
 from cobot_calib_ros.core import frames
-from cobot_calib_ros.core.robot_port import (Approach, Capture, CaptureFailed,
-                                             elongator_point_name, MoveFailed, PortError,
-                                             RobotStopped)
+from cobot_calib_ros.core.robot_port import (Approach, Capture, CaptureFailed, MoveFailed,
+                                             PortError, RobotStopped)
 from cobot_calib_ros.core.sensors.probe import Reading, ReadingStatus
 from cobot_calib_ros.ros.convert import matrix_to_pose
 from cobot_calib_ros.ros.spin import Companion, pause, Stopping, until, wait
@@ -36,7 +35,6 @@ TOUCH_TIMEOUT = 600.0   # [s] for the operator to guide the tool onto a point an
 HAND_GUIDE = 'mock_robot/hand_guide'
 # mock_robot's real tool, [x y z roll pitch yaw] [m, rad]: a parameter, as GetGroundTruth has
 # no field for it (simulation only; cobot-calib demo scores its frames with it)
-TRUE_TOOL_PARAMETER = 'true_tool_offset'
 NO_MOVE_TO = ('move_to action server not available (is mock_robot up, or robot_adapter beside '
               'a driver?)')
 CAPTURE_ATTEMPTS = 4
@@ -153,9 +151,7 @@ class RobotCalls:
             request.oriented = True
             request.orientation = matrix_to_pose(frames.make_transform(
                 approach.orientation, np.zeros(3))).orientation
-            if approach.axis:
-                request.point_name = elongator_point_name(name, approach.axis,
-                                                          approach.distance)
+            request.elongator_axis, request.elongation = approach.axis, approach.distance
         try:
             res = wait(self._hand_guide.call_async(request), MOVE_TIMEOUT)
         except TimeoutError as e:

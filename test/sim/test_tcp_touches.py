@@ -9,8 +9,7 @@ import numpy as np
 import pytest
 
 from cobot_calib_ros.core import frames, kinematics
-from cobot_calib_ros.core.robot_port import (Approach, elongator_point_name, MoveFailed,
-                                             parse_elongator_point_name)
+from cobot_calib_ros.core.robot_port import Approach, elongator_problem, MoveFailed
 from cobot_calib_ros.core.tcp import gate_problem, GateLimits
 from cobot_calib_ros.core.tcp.touches import plan_touches, solve_touches, take_touches
 from cobot_calib_ros.paths import cell_file
@@ -45,15 +44,14 @@ def test_an_oriented_touch_puts_the_true_tip_on_the_point_in_that_orientation():
     assert np.linalg.norm(np.cross(lifted, R[:, 2])) < 2e-4
 
 
-def test_elongator_point_names_round_trip_and_bad_ones_are_refused():
-    assert elongator_point_name('P1', 'z', -0.05) == 'P1+z-0.05'
-    assert parse_elongator_point_name('P1+z-0.05') == ('P1', 'z', -0.05)
-    assert parse_elongator_point_name('P1') == ('P1', '', 0.0)
-    assert parse_elongator_point_name('P1+y0.05') == ('P1+y0.05', '', 0.0)   # a plain name
-    assert parse_elongator_point_name('P+1+x5e-2') == ('P+1', 'x', 0.05)
-    with pytest.raises(ValueError, match='the distance must be 0..1 m'):
-        parse_elongator_point_name('P1+z2.5')
-
+def test_an_elongator_point_is_an_axis_and_a_distance_or_refused_saying_why():
+    assert elongator_problem('', 0.0) == '' and elongator_problem('z', -0.05) == ''
+    assert elongator_problem('x', 0.05) == ''
+    assert "use 'z' or 'x'" in elongator_problem('y', 0.05)
+    assert 'within 1 m' in elongator_problem('z', 2.5)
+    assert 'within 1 m' in elongator_problem('z', 0.0)
+    assert 'within 1 m' in elongator_problem('z', float('nan'))
+    assert 'without an elongator axis' in elongator_problem('', 0.05)
 
 def test_an_unreachable_approach_fails_as_a_move():
     _, robot = _robot()
