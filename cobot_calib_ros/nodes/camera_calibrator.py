@@ -29,7 +29,6 @@ from __future__ import annotations
 import time
 
 from cobot_calib_msgs.action import CalibrateIntrinsics
-import numpy as np
 from rclpy.action import ActionServer, CancelResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
 
@@ -43,7 +42,6 @@ from cobot_calib_ros.core.landmarks.intrinsics_views import detect_views, intrin
 from cobot_calib_ros.core.landmarks.targets import BoardSpec
 from cobot_calib_ros.core.robot_port import CaptureFailed, Stopped
 from cobot_calib_ros.loaders.images import folder_images
-from cobot_calib_ros.nodes.hand_eye_calibrator import parse_user_frame
 from cobot_calib_ros.nodes.job_node import JobNode
 from cobot_calib_ros.ros import spin
 from cobot_calib_ros.ros.diagnostics import OK, WARN
@@ -68,7 +66,7 @@ class CameraCalibrator(JobNode):
                          'intrinsics), board', data_help='Results go to <data_dir>/intrinsics',
                          **kwargs)
         self._declare_parameters()
-        self._user_frame = parse_user_frame(self._p('user_frame'))
+        self._read_board_frame()
         self._robot = RobotCalls(self._answers)
         self._images = ImageWatch(lambda: now_ns(self), self._answers.node)
         self._server = ActionServer(
@@ -82,8 +80,6 @@ class CameraCalibrator(JobNode):
                                + (f'; {problem}' if problem else ''))
 
     def _declare_parameters(self) -> None:
-        read_once(self, 'user_frame', '', 'T_base_user as "x y z roll pitch yaw" [m, rad] to '
-                  'plan the views; empty = the active user-frame calibration in data_dir')
         read_once(self, 'seed', 0, 'Seed of the view plan [1]', 0, 2 ** 31 - 1)
         declare(self, 'speed_scale', 1.0, 'Fraction of the joint velocity limits [1]',
                 0.01, 1.0)
@@ -97,15 +93,6 @@ class CameraCalibrator(JobNode):
 
     def _on_goal(self, goal_handle):
         return self._exclusive(goal_handle, self._run, Action.Result)
-
-    def _T_base_user(self):
-        if self._user_frame is not None:
-            return self._user_frame
-        record = self._repository().user_frames.active()
-        if record is None or record['result'].get('T_base_user') is None:
-            raise ValueError('no user frame to find the board by: set the user_frame parameter '
-                             'or calibrate the user frame first (calibrate_user_frame)')
-        return np.array(record['result']['T_base_user'], dtype=float)
 
     def _run(self, goal_handle):
         goal, result = goal_handle.request, Action.Result()

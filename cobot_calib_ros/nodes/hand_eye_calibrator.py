@@ -66,19 +66,6 @@ def _gate_problem(solved, covariances) -> str:
         return f'cannot check the residual against the views\' noise: {e}'
 
 
-def parse_user_frame(text: str) -> np.ndarray | None:
-    """``"x y z roll pitch yaw"`` [m, rad] -> T_base_user; None for ''; ValueError else."""
-    if not text.strip():
-        return None
-    try:
-        values = [float(v) for v in text.replace(',', ' ').split()]
-    except ValueError:
-        values = []
-    if len(values) != 6 or not np.all(np.isfinite(values)):
-        raise ValueError(f'user_frame must be "x y z roll pitch yaw" [m, rad], got {text!r}')
-    return frames.from_xyz_rpy(values[:3], values[3:])
-
-
 class HandEyeCalibrator(JobNode):
     def __init__(self, **kwargs) -> None:
         super().__init__('hand_eye_calibrator', job='a hand-eye calibration',
@@ -88,7 +75,7 @@ class HandEyeCalibrator(JobNode):
         self._declare_parameters()
         self._chain = Rig(self._cell, model=self._model).nominal_chain('flange')
         self._store = self._repository().hand_eye
-        self._user_frame = parse_user_frame(self._p('user_frame'))
+        self._read_board_frame()
         self._robot = RobotCalls(self._answers)
         self._watch = LandmarkWatch(lambda: now_ns(self), self._answers.node)
         self._pub = self.create_publisher(TransformStamped, 'hand_eye', qos.LATCHED)
@@ -113,8 +100,6 @@ class HandEyeCalibrator(JobNode):
     def _declare_parameters(self) -> None:
         read_once(self, 'flange_frame', 'flange', 'tf frame of the flange (parent of the '
                   'camera frame on hand_eye and /tf_static)')
-        read_once(self, 'user_frame', '', 'T_base_user as "x y z roll pitch yaw" [m, rad] to '
-                  'plan the views; empty = the active user-frame calibration in data_dir')
         read_once(self, 'seed', 0, 'Seed of the view plan [1]', 0, 2 ** 31 - 1)
         declare(self, 'hold_duration', 0.2, 'Joints are averaged over this hold at every '
                 'view [s]', 0.005, 10.0)
@@ -129,15 +114,6 @@ class HandEyeCalibrator(JobNode):
     def _cancelled(self, goal_handle, result, where: str):
         return self._end(goal_handle, result, Action.Result.CANCELED,
                          f'cancelled {where}; nothing stored or published')
-
-    def _T_base_user(self) -> np.ndarray:
-        if self._user_frame is not None:
-            return self._user_frame
-        record = self._repository().user_frames.active()
-        if record is None or record['result'].get('T_base_user') is None:
-            raise ValueError('no user frame to find the board by: set the user_frame parameter '
-                             'or calibrate the user frame first (calibrate_user_frame)')
-        return np.array(record['result']['T_base_user'], dtype=float)
 
     def _run(self, goal_handle):
         goal, result = goal_handle.request, Action.Result()

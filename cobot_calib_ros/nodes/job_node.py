@@ -11,10 +11,12 @@ from __future__ import annotations
 
 import threading
 
+import numpy as np
 from rclpy.action import GoalResponse
 from rclpy.node import Node
 
 from cobot_calib_ros import paths, store
+from cobot_calib_ros.core import frames
 from cobot_calib_ros.core.kinematics import model_for
 from cobot_calib_ros.loaders import load_cell
 from cobot_calib_ros.ros import spin
@@ -24,6 +26,19 @@ from cobot_calib_ros.store.cells import ResultsCell
 from cobot_calib_ros.store.rigs import rig_of
 
 SUCCESS = 0      # every action's result code for success (cobot_calib_msgs/action/*)
+
+
+def parse_user_frame(text: str) -> np.ndarray | None:
+    """``"x y z roll pitch yaw"`` [m, rad] -> T_base_user; None for ''; ValueError else."""
+    if not text.strip():
+        return None
+    try:
+        values = [float(v) for v in text.replace(',', ' ').split()]
+    except ValueError:
+        values = []
+    if len(values) != 6 or not np.all(np.isfinite(values)):
+        raise ValueError(f'user_frame must be "x y z roll pitch yaw" [m, rad], got {text!r}')
+    return frames.from_xyz_rpy(values[:3], values[3:])
 
 
 class JobNode(Node):
@@ -61,6 +76,24 @@ class JobNode(Node):
     def _rig(self, kinematics: str = 'latest'):
         """The cell's rig with the active results (store.rigs.rig_of; KeyError / ValueError)."""
         return rig_of(self._repository(), self._cell, kinematics, self._model)
+
+    def _read_board_frame(self) -> None:
+        """The ``user_frame`` parameter of a node that plans views of the cell's board (the
+        board is given in the user frame): T_base_user, or the active user frame's."""
+        read_once(self, 'user_frame', '', 'T_base_user as "x y z roll pitch yaw" [m, rad] to '
+                  'plan the views; empty = the active user-frame calibration in data_dir')
+        self._user_frame = parse_user_frame(self._p('user_frame'))
+
+    def _T_base_user(self) -> np.ndarray:
+        """Where the board's user frame is: the parameter's, else the active calibration's;
+        ValueError saying what to do when there is neither."""
+        if self._user_frame is not None:
+            return self._user_frame
+        record = self._repository().user_frames.active()
+        if record is None or record['result'].get('T_base_user') is None:
+            raise ValueError('no user frame to find the board by: set the user_frame parameter '
+                             'or calibrate the user frame first (calibrate_user_frame)')
+        return np.array(record['result']['T_base_user'], dtype=float)
 
     def _accept(self, goal) -> GoalResponse:
         if self._busy.locked():

@@ -194,7 +194,7 @@ def test_calibrate_hand_eye_recovers_the_true_hand_eye(hand_eye_suite):
 
 
 def test_user_frame_parameter():
-    from cobot_calib_ros.nodes.hand_eye_calibrator import parse_user_frame
+    from cobot_calib_ros.nodes.job_node import parse_user_frame
     assert parse_user_frame('  ') is None
     np.testing.assert_allclose(parse_user_frame('0.35, -0.05 0 0 0 0.03'),
                                frames.from_xyz_rpy([0.35, -0.05, 0], [0, 0, 0.03]))
