@@ -125,23 +125,23 @@ def _point_errors(client, M, p_user, p_true, true_chain, chain, home) -> np.ndar
     return np.array(errors)
 
 
-def _apparent_points(truth, cell, true_chain, p_true, chain) -> np.ndarray:
-    """Where ``chain`` (the kinematic model in use) sees perfectly touched markers [m]: the
-    captures without noise.
+def _apparent_points(truth, cell, true_chain, p_true, *chains) -> list[np.ndarray]:
+    """Where each of ``chains`` (the kinematic model in use; the true arm with the model's
+    tool) sees perfectly touched markers [m]: the captures without noise.
 
-    The robot's kinematic errors (what the model does not know of them) and the table's
-    unevenness shift every captured point, and no user-frame fit can remove that; fitting
-    these noise-free points tells that systematic part apart from what the noise does.
+    The robot's kinematic errors (what the model does not know of them), its tool's and the
+    table's unevenness shift every captured point, and no user-frame fit can remove that;
+    fitting these noise-free points tells that systematic part apart from what the noise does.
     """
     R = cellmod.tool_down_orientation(convert.transform_to_matrix(truth.user_frame))
-    points = []
+    q = []
     for name, p in zip(POINTS, p_true):
         ik = kinematics.solve_ik_with_restarts(true_chain, frames.make_transform(R, p),
                                                cell.home, cell.home)
         if not ik:
             raise RuntimeError(f'the true robot cannot reach marker {name}: {ik.message}')
-        points.append(kinematics.fk(chain, ik.q)[:3, 3])
-    return np.array(points)
+        q.append(ik.q)
+    return [kinematics.fk(chain, np.array(q))[:, :3, 3] for chain in chains]
 
 
 def _method_row(client, method, captures, model, T_true, p_true, true_chain) -> dict:
@@ -156,9 +156,12 @@ def _method_row(client, method, captures, model, T_true, p_true, true_chain) -> 
     T_apparent = user_frame.calibrate(method, p_user, p_apparent).T_base_user
     nt, nr = frames.transform_error(T, T_apparent)
     st, sr = frames.transform_error(T_apparent, T_true)
-    # the same fit of perfect touches measured by the true robot: what the table alone does
+    # the same fit of perfect touches measured by the true robot: what the table alone does;
+    # by the true arm with the model's tool: the arm's part apart from the tool's
     T_table = user_frame.calibrate(method, p_user, p_true).T_base_user
-    kt, kr = frames.transform_error(T_apparent, T_table)
+    T_arm = user_frame.calibrate(method, p_user, model['p_arm']).T_base_user
+    kt, kr = frames.transform_error(T_apparent, T_arm)
+    ot, orr = frames.transform_error(T_arm, T_table)
     tt, tr = frames.transform_error(T_table, T_true)
     errors = _point_errors(client, M, p_user, p_true, true_chain, model['chain'],
                            model['home'])
@@ -166,6 +169,7 @@ def _method_row(client, method, captures, model, T_true, p_true, true_chain) -> 
             'frame_error_noise_mm': nt * 1e3, 'frame_error_noise_mrad': nr * 1e3,
             'frame_error_systematic_mm': st * 1e3, 'frame_error_systematic_mrad': sr * 1e3,
             'systematic_kinematic_mm': kt * 1e3, 'systematic_kinematic_mrad': kr * 1e3,
+            'systematic_tool_mm': ot * 1e3, 'systematic_tool_mrad': orr * 1e3,
             'systematic_table_mm': tt * 1e3, 'systematic_table_mrad': tr * 1e3,
             'residual_rms_mm': cal.rms_residual * 1e3,
             'point_error_max_mm': float(np.nanmax(errors)) * 1e3,
@@ -188,12 +192,15 @@ def _report(args, result: dict) -> None:
     reduction = result.get('systematic_reduction', {})
     if reduction:
         print('\nsystematic frame error before -> after kinematic identification [mm]: total, '
-              'its kinematic part (fit through the model vs through the true robot), the table '
-              'part (uneven table, marker heights: no kinematic model removes it)')
+              'its kinematic part (fit through the model vs through the true arm with the '
+              'model\'s tool), the tool part (the model\'s tool vs the real one: a TCP '
+              'calibration removes it) and the table part (uneven table, marker heights: no '
+              'model removes it)')
     for name, r in reduction.items():
         print(f"{name:<16}{r['before_mm']:.4f} -> {r['after_mm']:.4f}   kinematic "
               f"{r['kinematic_before_mm']:.4f} -> {r['kinematic_after_mm']:.4f} "
-              f"({r['kinematic_factor']:.1f}x smaller)   table {r['table_mm']:.4f}")
+              f"({r['kinematic_factor']:.1f}x smaller)   tool {r['tool_mm']:.4f}   table "
+              f"{r['table_mm']:.4f}")
 
 
 def _report_run(run: dict, title: str) -> None:
@@ -295,10 +302,12 @@ def _kinematics(args, client: DemoClient, cell, root: Path) -> dict:
 
 def _model_entry(record, cell, truth, true_chain, p_true, p_user) -> dict:
     """A kinematic model the demo maps captures through: label, chain, apparent points."""
-    chain = Rig(cell, ActiveSet(record)).chain('tcp')
+    rig = Rig(cell, ActiveSet(record))
+    chain = rig.chain('tcp')
+    true_arm = rig.model.chain(np.array(truth.true_parameters), tool=rig.tool('tcp'))
+    p_apparent, p_arm = _apparent_points(truth, cell, true_chain, p_true, chain, true_arm)
     return {'label': NOMINAL if record is None else record['id'], 'chain': chain,
-            'home': cell.home, 'p_user': p_user,
-            'p_apparent': _apparent_points(truth, cell, true_chain, p_true, chain)}
+            'home': cell.home, 'p_user': p_user, 'p_apparent': p_apparent, 'p_arm': p_arm}
 
 
 def _reduction(before: list[dict], after: list[dict]) -> dict:
@@ -312,6 +321,7 @@ def _reduction(before: list[dict], after: list[dict]) -> dict:
                           'after_mm': a['frame_error_systematic_mm'],
                           'kinematic_before_mm': b['systematic_kinematic_mm'],
                           'kinematic_after_mm': a['systematic_kinematic_mm'],
+                          'tool_mm': b['systematic_tool_mm'],
                           'table_mm': b['systematic_table_mm'],
                           'kinematic_factor': b['systematic_kinematic_mm']
                           / max(a['systematic_kinematic_mm'], 1e-12)}

@@ -34,8 +34,9 @@ from cobot_calib_ros.ros.time import now_ns, NS_PER_S, stamp_to_ns, wait_past
 
 STALL_TIMEOUT = 3.0     # [s] of wall time without a new sample: the stream has stopped
 # [s] a capture waits for the first joint_states of a node that has had none yet: just
-# (re)started, its subscription may not be matched with the publisher (seconds under load)
-FIRST_SAMPLE_TIMEOUT = 10.0
+# (re)started, its subscription may not be matched with the publisher (seconds under load);
+# with none by then the capture ends at once (NO_DATA), inside a client's 10 s
+FIRST_SAMPLE_TIMEOUT = 5.0
 NO_DATA_TIMEOUT = 1.0   # [s] of wall time without a message: /diagnostics warns
 
 
@@ -139,13 +140,15 @@ class JointStateMonitor(Node):
                                 f'({self.get_parameter("buffer_duration").value} s)')
             return response
         with self._lock:
-            self._new_sample.wait_for(lambda: self._buffer.count > 0, FIRST_SAMPLE_TIMEOUT)
+            streaming = self._new_sample.wait_for(lambda: self._buffer.count > 0,
+                                                  FIRST_SAMPLE_TIMEOUT)
         t0 = now_ns(self) * 1e-9
         t1 = t0 + duration
         with self._lock:
-            wait_past(self._new_sample,
-                      lambda: (self._buffer.latest_time, self._buffer.count), t1,
-                      STALL_TIMEOUT)
+            if streaming:
+                wait_past(self._new_sample,
+                          lambda: (self._buffer.latest_time, self._buffer.count), t1,
+                          STALL_TIMEOUT)
             times, positions = self._buffer.window(t0, t1)
             names = list(self._buffer.joint_names or [])
         capture = hold_statistics(

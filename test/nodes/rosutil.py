@@ -17,6 +17,20 @@ def call(node, srv_type, name, timeout=10.0, **fields):
         node.destroy_client(client)
 
 
+def true_gap(truth, positions, point: str) -> float:
+    """[m] of the real tool tip above ``point``'s true top face, along the user frame's z, at
+    the joints ``positions``: the mock's ground truth (GetGroundTruth: its true arm and true
+    tool), up to its repeatability (18 um per axis on the Sawyer cell)."""
+    import numpy as np
+    from cobot_calib_ros.core.kinematics import fk, model_by_name
+    from cobot_calib_ros.ros import convert
+    chain = model_by_name(truth.robot).chain(
+        np.array(truth.true_parameters), tool=convert.transform_to_matrix(truth.tool_offset_true))
+    tip = fk(chain, np.array(positions, dtype=float))[:3, 3]
+    top = convert.points_to_array(truth.points_base)[truth.point_names.index(point)]
+    return float((tip - top) @ convert.transform_to_matrix(truth.user_frame)[:3, 2])
+
+
 def listen_late(node, msg_type, topic, profile, done, timeout=10.0) -> list:
     """The messages a new (late-joining) subscriber got until done(messages) or the timeout."""
     got = []

@@ -19,7 +19,7 @@ from cobot_calib_ros.core.cell import tool_down_orientation
 from cobot_calib_ros.ros import convert, marks
 from cobot_calib_ros.ros.sim_clock import SimClock
 from cobot_calib_ros.ros.time import ns_to_s, stamp_to_ns
-from rosutil import call, STARTUP_TIMEOUT, STOP_TIMEOUT
+from rosutil import call, STARTUP_TIMEOUT, STOP_TIMEOUT, true_gap
 
 NS = 'simtime'
 
@@ -100,7 +100,7 @@ def test_a_probe_average_is_in_ros_time(ros, sim_clock, rate):
     finally:
         ros.destroy_subscription(sub)
     assert res.error_code == AverageProximity.Response.SUCCESS, res.message
-    assert res.distance == pytest.approx(0.0012, abs=2e-4)
+    assert res.distance == pytest.approx(true_gap(truth, moved.positions, 'P5'), abs=1e-4)
     mark = marks.read_average_mark(served[-1])
     after_t0 = [ns_to_s(stamp - mark.t0_ns) for stamp in mark.stamps_ns]
     assert len(after_t0) == res.sample_count + res.rejected_count >= 2
