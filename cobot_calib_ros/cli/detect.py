@@ -107,11 +107,10 @@ class _Setup:
             if not cv2.haveImageWriter(str(out)):
                 kind = out.suffix or 'files without an extension'
                 raise UsageError(f'bad --annotate: OpenCV cannot write {kind}; use .png or .jpg')
+        from cobot_calib_ros.core.landmarks.pipeline import Pipeline
         # markers of the board (same dictionary, its id range) get the board's pose only
-        self.board_ids = set()
-        if self.board is not None and self.board.dictionary == self.dictionary:
-            self.board_ids = set(range(self.board.first_id,
-                                       self.board.first_id + self.board.n_markers))
+        self.pipeline = Pipeline(self.dictionary, self.board, marker_length=args.marker_length,
+                                 refine=args.refine)
 
     def annotate_path(self, index: int) -> Path:
         out = Path(self.args.annotate)
@@ -213,8 +212,6 @@ def _pose_dict(pose, frame: str) -> dict:
 
 
 def _process(setup: _Setup, index: int, path: str) -> dict:
-    from cobot_calib_ros.core.landmarks.detect import detect_board, detect_markers
-    from cobot_calib_ros.core.landmarks.pose import estimate_board_pose, estimate_marker_pose
     args, camera = setup.args, setup.camera
     image = read_image(path)
     h, w = image.shape[:2]
@@ -222,23 +219,18 @@ def _process(setup: _Setup, index: int, path: str) -> dict:
         raise ImageFailure(camera.size_problem(image.shape) + ' (--camera-info)')
     result = {'image': path, 'width': w, 'height': h, 'dictionary': setup.dictionary,
               'refine': args.refine, 'markers': []}
-    board = None
-    if setup.board is not None:
-        board = detect_board(image, setup.board, refine=args.refine, camera=camera)
-    markers = detect_markers(image, setup.dictionary, refine=args.refine, camera=camera)
-    poses = []
-    for m in markers:
+    found = setup.pipeline.detect(image, camera)
+    markers, board, poses = [m for m, _ in found.markers], found.board, []
+    for m, pose in found.markers:
         entry = {'id': m.id, 'corners': [[round(float(x), 3), round(float(y), 3)]
                                          for x, y in m.corners], 'refinement': m.refinement}
-        if m.id in setup.board_ids:
+        if m.id in setup.pipeline.board_ids:
             entry['board'] = True
-        elif camera is not None and args.marker_length is not None:
-            pose = estimate_marker_pose(m.corners, args.marker_length, camera)
-            if pose:
-                entry['pose'] = _pose_dict(pose, 'T_optical_marker')
-                poses.append((pose, args.marker_length / 2))
-            else:
-                entry['pose_error'] = pose.message
+        elif pose is not None:
+            entry['pose'] = _pose_dict(pose, 'T_optical_marker')
+            poses.append((pose, args.marker_length / 2))
+        elif m.id in found.pose_errors:
+            entry['pose_error'] = found.pose_errors[m.id]
         result['markers'].append(entry)
     if board is not None:
         spec = setup.board
@@ -246,13 +238,11 @@ def _process(setup: _Setup, index: int, path: str) -> dict:
                'charuco_ids': [int(i) for i in board.charuco_ids],
                'charuco_corners': [[round(float(x), 3), round(float(y), 3)]
                                    for x, y in board.charuco_corners]}
-        if camera is not None:
-            pose = estimate_board_pose(board, spec, camera)
-            if pose:
-                out['pose'] = _pose_dict(pose, 'T_optical_board')
-                poses.append((pose, 2 * spec.square_length))
-            else:
-                out['pose_error'] = pose.message
+        if found.board_pose is not None:
+            out['pose'] = _pose_dict(found.board_pose, 'T_optical_board')
+            poses.append((found.board_pose, 2 * spec.square_length))
+        elif 'board' in found.pose_errors:
+            out['pose_error'] = found.pose_errors['board']
         result['board'] = out
     if args.annotate is not None:
         target = setup.annotate_path(index)

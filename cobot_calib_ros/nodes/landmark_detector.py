@@ -64,10 +64,10 @@ from cobot_calib_ros import paths
 from cobot_calib_ros.core.cell import CellFileError
 from cobot_calib_ros.loaders import load_cell
 from cobot_calib_ros.core.landmarks.camera import CameraModel
-from cobot_calib_ros.core.landmarks.detect import (BoardFinder, DEFAULT_REFINE, MarkerFinder,
-                                                   REFINE_METHODS, search_parameters)
-from cobot_calib_ros.core.landmarks.pose import (estimate_board_pose, estimate_marker_pose,
-                                                 PoseEstimate)
+from cobot_calib_ros.core.landmarks.detect import (DEFAULT_REFINE, REFINE_METHODS,
+                                                   search_parameters)
+from cobot_calib_ros.core.landmarks.pipeline import Pipeline
+from cobot_calib_ros.core.landmarks.pose import PoseEstimate
 from cobot_calib_ros.core.landmarks.targets import BoardSpec, canonical_dictionary_name
 from cobot_calib_ros.ros import spin
 from cobot_calib_ros.ros.diagnostics import Diagnostics, ERROR, OK, WARN
@@ -123,13 +123,6 @@ class Config:
     marker_length: float           # [m]
     board: BoardSpec | None
     refine: str
-
-    def skip_ids(self) -> frozenset[int]:
-        """Marker ids of the board when it shares the single markers' dictionary."""
-        b = self.board
-        if b is None or b.dictionary != self.dictionary:
-            return frozenset()
-        return frozenset(range(b.first_id, b.first_id + b.n_markers))
 
     def describe(self) -> str:
         markers = (f'{self.dictionary} markers of {self.marker_length * 1e3:g} mm (refine '
@@ -239,43 +232,29 @@ def landmark_message(kind: str, target_id: int, pose: PoseEstimate, corners: np.
 
 
 class Detector:
-    """The configured search (core.landmarks) in two halves for the node's pipeline: ``find``
-    (OpenCV's searches, the GIL released) and ``finish`` (refinement, poses, messages); the
-    OpenCV detectors are built once. ``find`` on one thread at a time. ``min_marker_fraction``:
-    see core.landmarks.detect.search_parameters."""
+    """The configured search (core.landmarks.pipeline) for the node's pipeline: ``find``
+    (OpenCV's searches, the GIL released) and ``finish`` (refinement, poses, messages).
+    ``min_marker_fraction``: see core.landmarks.detect.search_parameters."""
 
     def __init__(self, config: Config, min_marker_fraction: float = 0.0) -> None:
         self.config = config
-        self._skip = config.skip_ids()
-        self._markers = None if config.dictionary is None else \
-            MarkerFinder(config.dictionary, refine=config.refine,
-                         params=search_parameters(min_marker_fraction))
-        self._board = None if config.board is None else BoardFinder(
-            config.board, refine=NONE if config.refine == NONE else BOARD_MARKER_REFINE)
+        self._pipeline = Pipeline(
+            config.dictionary, config.board, marker_length=config.marker_length,
+            refine=config.refine,
+            board_refine=NONE if config.refine == NONE else BOARD_MARKER_REFINE,
+            params=search_parameters(min_marker_fraction))
 
     def find(self, gray: np.ndarray) -> tuple:
-        return (None if self._markers is None else self._markers.find(gray),
-                None if self._board is None else self._board.find(gray))
+        return self._pipeline.find(gray)
 
     def finish(self, found: tuple, camera: CameraModel) -> list[Landmark]:
         """Every marker and the board of ``find``'s result, posed."""
-        markers_found, board_found = found
-        config = self.config
-        posed = []                      # (kind, id, pose, corners, corner_ids)
-        if markers_found is not None:
-            for marker in self._markers.finish(markers_found, camera):
-                if marker.id in self._skip:
-                    continue
-                pose = estimate_marker_pose(marker.corners, config.marker_length, camera)
-                if pose:
-                    posed.append((Landmark.KIND_MARKER, marker.id, pose, marker.corners, None))
-        if board_found is not None:
-            board = self._board.finish(board_found, camera)
-            if len(board):
-                pose = estimate_board_pose(board, config.board, camera)
-                if pose:
-                    posed.append((Landmark.KIND_BOARD, config.board.first_id, pose,
-                                  board.charuco_corners, board.charuco_ids))
+        found = self._pipeline.finish(found, camera)
+        posed = [(Landmark.KIND_MARKER, marker.id, pose, marker.corners, None)
+                 for marker, pose in found.markers if pose is not None]
+        if found.board_pose is not None:
+            posed.append((Landmark.KIND_BOARD, self.config.board.first_id, found.board_pose,
+                          found.board.charuco_corners, found.board.charuco_ids))
         if not posed:
             return []
         quaternions = Rotation.from_matrix(
