@@ -44,7 +44,6 @@ def add_parser(subparsers):
 
 
 def run(args) -> int:
-    import numpy as np
     from cobot_calib_ros import paths, store
     from cobot_calib_ros.api.move import kinematic_record
     from cobot_calib_ros.core import rig
@@ -68,16 +67,12 @@ def run(args) -> int:
         repo = store.open(paths.data_dir(args.data_dir), args.db,
                           ResultsCell(args.cell) if args.cell else ResultsCell.of(cell))
         record = kinematic_record(repo, model, args.kinematics, allow_nominal=False)
-        calibrated_rig = rig.Rig(cell, rig.ActiveSet(record), model)
+        calibrated_rig = rig.Rig(cell, rig.ActiveSet(record,
+                                                     user_frame=repo.user_frames.active()),
+                                 model)
         calibrated = calibrated_rig.chain(args.tool)
         nominal = calibrated_rig.nominal_chain(args.tool)
-        T_base_frame = None
-        if args.frame == 'user':
-            frame = repo.user_frames.active()
-            if frame is None:
-                raise ValueError(f'no active user frame in the results of cell {repo.cell}; '
-                                 'calibrate one first, or give --frame base')
-            T_base_frame = np.array(frame['result']['T_base_user'], dtype=float)
+        T_base_frame = calibrated_rig.T_base_user() if args.frame == 'user' else None
     except ValueError as exc:
         return fail(f'filter: {exc}', EXIT_USAGE)
     except OSError as exc:

@@ -85,12 +85,14 @@ def tool_offset(cell: Cell, tool: str, kinematics: Record | None = None,
 @dataclass(frozen=True)
 class ActiveSet:
     """The results a rig is built from, as the repository's records (None: the cell's own
-    nominal value): the kinematic calibration in use and the active hand-eye. A new kind of
-    result is one more field here and one more rule in :func:`tool_offset`."""
+    nominal value): the kinematic calibration in use, the active hand-eye, TCP and user
+    frame. A new kind of result is one more field here and one more rule in
+    :func:`tool_offset`."""
 
     kinematics: Record | None = None
     hand_eye: Record | None = None
     tcp: Record | None = None       # the active TCP calibration of the cell's tool
+    user_frame: Record | None = None    # the active user-frame calibration
 
     @property
     def kinematics_label(self) -> str:
@@ -129,6 +131,14 @@ class Rig:
         """The nominal arm ending at ``tool`` (the same tool as :meth:`chain`): what a
         controller with its nominal kinematics does, and what motions are planned on."""
         return self.model.chain(tool=self.tool(tool))
+
+    def T_base_user(self) -> Array:
+        """(4, 4) the active user frame in the base; ValueError when there is none."""
+        frame = self.active.user_frame
+        if frame is None or frame['result'].get('T_base_user') is None:
+            raise ValueError(f'no active user frame in the results of cell {self.cell.name}; '
+                             'calibrate one first (cobot-calib teach, calibrate_user_frame)')
+        return np.array(frame['result']['T_base_user'], dtype=float)
 
     def with_kinematics(self, record: Record | None) -> Rig:
         return Rig(self.cell, replace(self.active, kinematics=record), self.model)

@@ -89,11 +89,11 @@ class JobNode(Node):
         ValueError saying what to do when there is neither."""
         if self._user_frame is not None:
             return self._user_frame
-        record = self._repository().user_frames.active()
-        if record is None or record['result'].get('T_base_user') is None:
-            raise ValueError('no user frame to find the board by: set the user_frame parameter '
-                             'or calibrate the user frame first (calibrate_user_frame)')
-        return np.array(record['result']['T_base_user'], dtype=float)
+        try:
+            return self._rig().T_base_user()
+        except (KeyError, ValueError) as e:
+            raise ValueError(f'no user frame to find the board by ({e}); set the user_frame '
+                             'parameter or calibrate the user frame first') from None
 
     def _accept(self, goal) -> GoalResponse:
         if self._busy.locked():

@@ -89,9 +89,10 @@ class TcpCalibrator(JobNode):
     def _R_reference(self) -> np.ndarray:
         """The first approach: the tool pointing down the active user frame's z (the cell's
         touch orientation), the base's without one."""
-        record = self._repository().user_frames.active()
-        T = np.eye(4) if record is None or record['result'].get('T_base_user') is None \
-            else np.array(record['result']['T_base_user'], dtype=float)
+        try:
+            T = self._rig(self._p('kinematics')).T_base_user()
+        except (KeyError, ValueError):
+            T = np.eye(4)
         return tool_down_orientation(T, 'z')
 
     def _run(self, goal_handle):

@@ -15,13 +15,13 @@ ACTIVE = ('active', 'latest')
 def rig_of(repository, cell, kinematics: str = 'latest', model=None) -> Rig:
     """``cell``'s rig with the kinematic calibration ``kinematics`` names ('latest' or
     'active': the robot's active one, nominal when it has none; 'nominal'; an id), the
-    active hand-eye and the active TCP of the cell's tool. KeyError: no such calibration
+    active hand-eye, TCP of the cell's tool and user frame. KeyError: no such calibration
     stored; ValueError: it is of another robot (both name it)."""
     model = model_for(cell) if model is None else model
     choice = 'latest' if kinematics in ACTIVE else kinematics
     record = repository.kinematics.resolve(choice, model.name)
-    return Rig(cell, ActiveSet(record, active_hand_eye(repository), active_tcp(repository, cell)),
-               model)
+    return Rig(cell, ActiveSet(record, active_hand_eye(repository), active_tcp(repository, cell),
+                               repository.user_frames.active()), model)
 
 
 def active_tcp(repository, cell) -> dict[str, Any] | None:

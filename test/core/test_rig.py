@@ -103,5 +103,8 @@ def test_no_node_verb_or_api_builds_a_chain_of_its_own():
              for line in path.read_text().splitlines()
              if builders.search(line)]
     assert found == [
-        # the demo scores against the mock's true robot (its ground truth service)
-        'cli/demo.py: return model.chain(np.array(truth.true_parameters), tool=tool)']
+        # the demo scores against the mock's true robot (its ground truth service), and
+        # against its true arm with the model's tool (the arm's part of the error)
+        'cli/demo.py: return model.chain(np.array(truth.true_parameters), tool=tool)',
+        "cli/demo.py: true_arm = rig.model.chain(np.array(truth.true_parameters), "
+        "tool=rig.tool('tcp'))"]
