@@ -108,3 +108,14 @@ def test_no_node_verb_or_api_builds_a_chain_of_its_own():
         'cli/demo.py: return model.chain(np.array(truth.true_parameters), tool=tool)',
         "cli/demo.py: true_arm = rig.model.chain(np.array(truth.true_parameters), "
         "tool=rig.tool('tcp'))"]
+
+
+def test_the_user_frame_is_the_active_sets_or_refused_naming_the_cell():
+    T = from_xyz_rpy([0.5, -0.1, 0.02], [0.01, -0.02, 0.7])
+    framed = rig.Rig(CELL, rig.ActiveSet(user_frame={'id': 'u-1',
+                                                     'result': {'T_base_user': T.tolist()}}),
+                     MODEL)
+    assert_allclose(framed.T_base_user(), T, atol=0)
+    with pytest.raises(ValueError, match='no active user frame in the results of cell '
+                                         'iiwa7_close; calibrate one first'):
+        rig.Rig(CELL, model=MODEL).T_base_user()
