@@ -211,8 +211,8 @@ def _report_run(run: dict, title: str) -> None:
         print(f"  {c['name']}: captured ({cap[0]:9.3f} {cap[1]:9.3f} {cap[2]:8.3f})  true "
               f"({tru[0]:9.3f} {tru[1]:9.3f} {tru[2]:8.3f})  |diff| {c['error_mm']:.3f}")
     print('\nframe error against the true user frame, split into the systematic part (kinematic '
-          'errors + table, the\nframe perfect touches would give) and the part due to noise; '
-          'point err: robot sent to each marker')
+          'errors, the tool\'s, the\ntable: the frame perfect touches would give) and the part '
+          'due to noise; point err: robot sent to each marker')
     print(f"{'method':<16}{'frame err':>18}{'systematic':>18}{'noise part':>18}"
           f"{'resid RMS':>11}{'point err max':>15}")
     print(f"{'':<16}{'mm / mrad':>18}{'mm / mrad':>18}{'mm / mrad':>18}{'mm':>11}{'mm':>15}")
