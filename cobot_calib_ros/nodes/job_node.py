@@ -91,9 +91,10 @@ class JobNode(Node):
             return self._user_frame
         try:
             return self._rig().T_base_user()
-        except (KeyError, ValueError) as e:
-            raise ValueError(f'no user frame to find the board by ({e}); set the user_frame '
-                             'parameter or calibrate the user frame first') from None
+        except (KeyError, ValueError):
+            raise ValueError(f'no user frame to find the board by: cell {self._cell.name} has '
+                             'no active one; calibrate it first (cobot-calib teach, or call '
+                             'calibrate_user_frame) or set the user_frame parameter') from None
 
     def _accept(self, goal) -> GoalResponse:
         if self._busy.locked():
