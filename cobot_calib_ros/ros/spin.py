@@ -48,6 +48,10 @@ DEFAULT_EXECUTOR = 'single'
 WAKE_PERIOD = 0.1     # [s] longest wait of one spin_once of a loop that checks for a stop
 STOP_GRACE = 3.0      # [s] for callbacks in flight to end after a stop, before the teardown
 TEARDOWN_DUMP = 4.0   # [s] a teardown still running this long prints every thread's stack
+# [s] a teardown still running this long ends the process (exit 0, said in its log): rclpy's
+# Node.destroy_node hung in it (seen once more at load ~4, a camera suite's
+# joint_state_monitor: SIGKILLed 32 s after its SIGINT), after the node's work had ended
+TEARDOWN_EXIT = 10.0
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 _stopping = threading.Event()     # set once this process is shutting down
 
@@ -180,9 +184,19 @@ def _teardown(node: Node | None) -> None:
     # its log; if it happens again, the log shows where each thread stood (not cancelled: it
     # fires only while the process is still alive, in the teardown or at interpreter exit)
     faulthandler.dump_traceback_later(TEARDOWN_DUMP)
+    watchdog = threading.Timer(TEARDOWN_EXIT, _teardown_hung)
+    watchdog.daemon = True
+    watchdog.start()
     if node is not None:
         node.destroy_node()
     rclpy.try_shutdown()
+    watchdog.cancel()
+
+
+def _teardown_hung() -> None:
+    print(f'teardown still running after {TEARDOWN_EXIT:g} s (rclpy destroy_node; stacks '
+          'above): exiting', file=sys.stderr, flush=True)
+    os._exit(0)
 
 
 class Companion:
