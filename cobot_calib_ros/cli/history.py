@@ -80,13 +80,8 @@ def _cell_report(repo, cell: str, start: int) -> dict:
         steps.append({'id': step.record['id'], 'method': step.record['method'],
                       'stamp_ns': step.record['stamp_ns'], 'previous': step.previous_id,
                       'rms_mm': step.record['result'].get('rms', 0.0) * 1e3,
-                      'moved_mm': None if c is None else c.translation_m * 1e3,
-                      'sigma_mm': None if c is None else c.sigma_translation_m * 1e3,
-                      'turned_mrad': None if c is None else c.rotation_rad * 1e3,
-                      'sigma_mrad': None if c is None else c.sigma_rotation_rad * 1e3,
-                      'level': 0 if c is None else c.level,
-                      'verdict': 'first' if c is None else c.level_name,
-                      'message': '' if c is None else c.message})
+                      **_change_fields(c),
+                      'sigma_mrad': None if c is None else c.sigma_rotation_rad * 1e3})
     kinematic = []
     records = sorted(repo.kinematics.history(), key=lambda r: (r['stamp_ns'], r['id']))
     for robot in sorted({r.get('robot', '') for r in records}):
@@ -111,12 +106,7 @@ def _cell_report(repo, cell: str, start: int) -> dict:
                     'xyz_mm': [v * 1e3 for v in np.array(result['T_flange_tcp'])[:3, 3]],
                     'mean_residual_mm': result.get('mean_residual_mm'),
                     'max_residual_mm': result.get('max_residual_mm'),
-                    'moved_mm': None if c is None else c.translation_m * 1e3,
-                    'sigma_mm': None if c is None else c.sigma_translation_m * 1e3,
-                    'turned_mrad': None if c is None else c.rotation_rad * 1e3,
-                    'level': 0 if c is None else c.level,
-                    'verdict': 'first' if c is None else c.level_name,
-                    'message': '' if c is None else c.message})
+                    **_change_fields(c)})
     checks = [{'id': r['id'], 'method': r['method'], 'verdict': r['result'].get('verdict'),
                'robot_s': r['result'].get('robot_seconds')}
               for r in repo.checks.history() if r['stamp_ns'] >= start] \
@@ -124,6 +114,16 @@ def _cell_report(repo, cell: str, start: int) -> dict:
     return {'cell': cell, 'user_frames': steps, 'kinematics': kinematic, 'tcp': tcp,
             'checks': checks}
 
+
+
+def _change_fields(c) -> dict:
+    """A frame change (core.drift; None: the first of its history) as the report shows it."""
+    return {'moved_mm': None if c is None else c.translation_m * 1e3,
+            'sigma_mm': None if c is None else c.sigma_translation_m * 1e3,
+            'turned_mrad': None if c is None else c.rotation_rad * 1e3,
+            'level': 0 if c is None else c.level,
+            'verdict': 'first' if c is None else c.level_name,
+            'message': '' if c is None else c.message}
 
 def _print(report: dict, as_json: bool) -> None:
     if as_json:

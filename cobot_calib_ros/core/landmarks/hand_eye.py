@@ -128,6 +128,22 @@ def board_in_image(T_optical_board: Array, board_size: tuple[float, float], came
                 and np.all(px[:, 1] >= margin) and np.all(px[:, 1] <= camera.height - 1 - margin))
 
 
+def board_view_setup(cell, model, T_base_user: ArrayLike,
+                     T_flange_optical: ArrayLike | None = None) -> tuple:
+    """What planning views of the cell's board starts from: (the board's size, T_base_board,
+    the nominal chain ending at the camera (``T_flange_optical``, default the cell's nominal
+    hand-eye), the camera model). ValueError if the cell has no camera or board."""
+    if cell.camera is None or cell.landmarks is None or not cell.landmarks.board:
+        raise ValueError(f'cell {cell.name!r} has no wrist camera or no board; add camera: '
+                         'and landmarks: board: to the cell file')
+    from cobot_calib_ros.core.landmarks.targets import BoardSpec
+    size = BoardSpec.parse(cell.landmarks.board).size
+    T_base_board = np.asarray(T_base_user, dtype=float) @ cell.landmarks.T_user_board()
+    X = np.asarray(cell.camera.T_flange_optical if T_flange_optical is None
+                   else T_flange_optical, dtype=float)
+    return size, T_base_board, model.chain(tool=X), cell.camera.camera_model()
+
+
 def hand_eye_views(cell, model, count: int = 12, seed: int = 0, *,
                    T_base_user: ArrayLike | None = None,
                    T_flange_optical: ArrayLike | None = None) -> list[Array]:
@@ -147,13 +163,8 @@ def hand_eye_views(cell, model, count: int = 12, seed: int = 0, *,
                          'in the base frame')
     if count < MIN_VIEWS:
         raise ValueError(f'count must be at least {MIN_VIEWS}, got {count}')
-    from cobot_calib_ros.core.landmarks.targets import BoardSpec
-    size = BoardSpec.parse(cell.landmarks.board).size
-    T_base_board = np.asarray(T_base_user, dtype=float) @ cell.landmarks.T_user_board()
-    X = np.asarray(cell.camera.T_flange_optical if T_flange_optical is None
-                   else T_flange_optical, dtype=float)
-    chain = model.chain(tool=X)
-    camera = cell.camera.camera_model()
+    size, T_base_board, chain, camera = board_view_setup(cell, model, T_base_user,
+                                                         T_flange_optical)
     rng = np.random.default_rng(seed)
     home = np.asarray(cell.home, dtype=float)
     views: list[Array] = []

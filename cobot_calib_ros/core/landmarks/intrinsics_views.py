@@ -17,8 +17,8 @@ from numpy.typing import ArrayLike, NDArray
 from cobot_calib_ros.core import frames
 from cobot_calib_ros.core.kinematics.ik import solve_ik_with_restarts
 from cobot_calib_ros.core.landmarks.detect import BoardDetection, BoardFinder
-from cobot_calib_ros.core.landmarks.hand_eye import (_turn, board_in_image, MAX_ATTEMPTS_PER_VIEW,
-                                                     view_pose)
+from cobot_calib_ros.core.landmarks.hand_eye import (_turn, board_in_image, board_view_setup,
+                                                     MAX_ATTEMPTS_PER_VIEW, view_pose)
 from cobot_calib_ros.core.landmarks.intrinsics import BoardView, MIN_POINTS
 from cobot_calib_ros.core.landmarks.targets import BoardSpec
 
@@ -38,15 +38,8 @@ def intrinsics_views(cell, model, count: int = 24, seed: int = 0, *,
     its centre aimed in turn at each cell of a 3 x 3 grid over the image, tilted towards
     azimuths spread around the board (so that every image region and tilt direction comes up).
     ValueError if the cell has no camera or board, or a view cannot be found."""
-    if cell.camera is None or cell.landmarks is None or not cell.landmarks.board:
-        raise ValueError(f'cell {cell.name!r} has no wrist camera or no board; add camera: '
-                         'and landmarks: board: to the cell file')
-    size = BoardSpec.parse(cell.landmarks.board).size
-    T_base_board = np.asarray(T_base_user, dtype=float) @ cell.landmarks.T_user_board()
-    X = np.asarray(cell.camera.T_flange_optical if T_flange_optical is None
-                   else T_flange_optical, dtype=float)
-    chain = model.chain(tool=X)
-    camera = cell.camera.camera_model()
+    size, T_base_board, chain, camera = board_view_setup(cell, model, T_base_user,
+                                                         T_flange_optical)
     rng = np.random.default_rng(seed)
     home = np.asarray(cell.home, dtype=float)
     aims = [(fx, fy) for fy in AIM_FRACTIONS for fx in AIM_FRACTIONS]
