@@ -176,15 +176,21 @@ def _abb(v, name, index):
             f'[{q1:.9f},{q2:.9f},{q3:.9f},{q4:.9f}]],[[0,0,0],[1,0,0,0]]];']
 
 
-def _fanuc(v, name, index):
+def _fanuc_register(v, name, index, target: str, first_register: int):
+    """``target`` (UFRAME or UTOOL) number ``index`` set from position register
+    ``first_register + index`` (a free one is assumed), with a comment giving the values."""
     labels = FORMATS['fanuc'].labels
-    register = 50 + index         # a free position register is assumed: PR[50 + n]
+    register = first_register + index
     lines = [f'PR[{register},{k + 1}]={value:.4f} ;' if k < 3 else
              f'PR[{register},{k + 1}]={value:.6f} ;' for k, value in enumerate(v)]
-    return ([f'! UFRAME[{index}] {name}: ' + ' '.join(
+    return ([f'! {target}[{index}] {name}: ' + ' '.join(
         f'{label} {value:.4f}' if k < 3 else f'{label} {value:.6f}'
         for k, (label, value) in enumerate(zip(labels, v)))]
-            + lines + [f'UFRAME[{index}]=PR[{register}] ;'])
+            + lines + [f'{target}[{index}]=PR[{register}] ;'])
+
+
+def _fanuc(v, name, index):
+    return _fanuc_register(v, name, index, 'UFRAME', 50)
 
 
 def _ur(v, name, index):
@@ -225,14 +231,7 @@ def _abb_tool(v, name, index):
 
 
 def _fanuc_tool(v, name, index):
-    labels = FORMATS['fanuc'].labels
-    register = 60 + index         # a free position register is assumed: PR[60 + n]
-    lines = [f'PR[{register},{k + 1}]={value:.4f} ;' if k < 3 else
-             f'PR[{register},{k + 1}]={value:.6f} ;' for k, value in enumerate(v)]
-    return ([f'! UTOOL[{index}] {name}: ' + ' '.join(
-        f'{label} {value:.4f}' if k < 3 else f'{label} {value:.6f}'
-        for k, (label, value) in enumerate(zip(labels, v)))]
-            + lines + [f'UTOOL[{index}]=PR[{register}] ;'])
+    return _fanuc_register(v, name, index, 'UTOOL', 60)
 
 
 def _ur_tool(v, name, index):
