@@ -36,7 +36,8 @@ class JointStateBytes:
         self._positions_at = template.find(marker)
         if self._positions_at < 0 or template.find(marker, self._positions_at + 1) >= 0:
             raise ValueError('the positions are not where JointState serialization put them')
-        self._template = zero_padding(template, self.names)
+        self._padding = padding(self.names, len(template))
+        self._template = _zeroed(template, self._padding)
         self._positions_end = self._positions_at + 8 * len(self.names)
         self._positions_format = f'<{len(self.names)}d'
         self._between = self._template[_STAMP_OFFSET + _STAMP.size:self._positions_at]
@@ -53,21 +54,25 @@ class JointStateBytes:
 
     def unpack(self, data: bytes) -> tuple[int, tuple[float, ...]] | None:
         """(stamp [ns], positions [rad]) of serialized JointState bytes laid out as ``pack``'s
-        (these names, no frame_id, velocity or effort); None for any other message."""
-        template = self._template
-        if (len(data) != len(template) or data[:_STAMP_OFFSET] != template[:_STAMP_OFFSET]
-                or data[_STAMP_OFFSET + _STAMP.size:self._positions_at] != self._between
-                or data[self._positions_end:] != self._after):
+        (these names, no frame_id, velocity or effort); None for any other message. Padding
+        bytes are not compared: another publisher's rclpy leaves them unset."""
+        if len(data) != len(self._template):
+            return None
+        clean = _zeroed(data, self._padding)
+        if (clean[:_STAMP_OFFSET] != self._template[:_STAMP_OFFSET]
+                or clean[_STAMP_OFFSET + _STAMP.size:self._positions_at] != self._between
+                or clean[self._positions_end:] != self._after):
             return None
         sec, nanosec = _STAMP.unpack_from(data, _STAMP_OFFSET)
         return (sec * NS_PER_S + nanosec,
                 struct.unpack_from(self._positions_format, data, self._positions_at))
 
 
-def padding(names: list[str]) -> list[int]:
-    """Indices of the CDR alignment bytes in a serialized JointState of ``names`` (no frame_id,
-    velocity or effort). rclpy leaves them as the buffer had them (unset memory), so two
-    serializations of one message can differ there."""
+def padding(names: list[str], length: int) -> list[int]:
+    """Indices of the bytes rclpy leaves as its buffer had them (unset memory) in a serialized
+    JointState of ``names`` (no frame_id, velocity or effort) ``length`` bytes long: the CDR
+    alignment gaps, and the bytes after the body (the serialized length rclpy returns is up to
+    8 bytes longer). Two serializations of one message can differ there."""
     at, gaps = 0, []                    # offsets in the body, after the encapsulation header
 
     def align(size: int) -> None:
@@ -83,13 +88,20 @@ def padding(names: list[str]) -> list[int]:
     align(4)
     at += 4                             # position count
     align(8)
-    return [_STAMP_OFFSET + gap for gap in gaps]
+    at += 8 * len(names) + 4 + 4        # positions, velocity and effort counts
+    body_end = _STAMP_OFFSET + at
+    if length < body_end:
+        raise ValueError(f'{length} bytes cannot hold a JointState of {len(names)} names')
+    return [_STAMP_OFFSET + gap for gap in gaps] + list(range(body_end, length))
 
 
 def zero_padding(data: bytes, names: list[str]) -> bytes:
-    """``data`` with the alignment bytes of :func:`padding` set to 0."""
+    """``data`` with the bytes of :func:`padding` set to 0."""
+    return _zeroed(data, padding(names, len(data)))
+
+
+def _zeroed(data: bytes, indices: list[int]) -> bytes:
     out = bytearray(data)
-    for i in padding(names):
+    for i in indices:
         out[i] = 0
     return bytes(out)
-
