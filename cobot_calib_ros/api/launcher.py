@@ -9,7 +9,6 @@ goes on in the same file), and `AnswerCheck` tells whether a node answers yet.
 from __future__ import annotations
 
 import contextlib
-import ctypes
 from dataclasses import dataclass, field
 import os
 from pathlib import Path
@@ -20,18 +19,10 @@ import time
 
 from cobot_calib_ros import paths
 from cobot_calib_ros.nodes import DRIVER_NODES, NODES
+from cobot_calib_ros.ros.spin import LAUNCHER_PID_ENV
 
 SUITE = tuple(n for n in NODES if n not in DRIVER_NODES)   # the suite, in launch order
 ROBOT_INTERFACES = ('move_to', 'driver')    # mock_robot's own move_to, or through robot_adapter
-PR_SET_PDEATHSIG = 1
-
-
-def _die_with_parent() -> None:
-    """Child-side: get SIGTERM if the launcher dies, so no orphan outlives it (Linux)."""
-    try:
-        ctypes.CDLL('libc.so.6').prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
-    except OSError:
-        pass
 
 
 @dataclass
@@ -92,11 +83,15 @@ class Suite:
         self._launch(self.specs[key], 'ab')
 
     def _launch(self, spec: NodeSpec, mode: str) -> None:
+        # the node asks for a SIGTERM when this process dies (spin.die_with_launcher): no
+        # preexec_fn, which can deadlock the child of a process with DDS threads before its
+        # exec, and Popen waits for that exec (a restart in `up` once hung so)
+        env = {**(self._env if self._env is not None else os.environ),
+               LAUNCHER_PID_ENV: str(os.getpid())}
         with open(self.log_path(spec.key), mode) as log:
             self.processes[spec.key] = subprocess.Popen(
                 spec.command(), stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-                env=self._env, preexec_fn=_die_with_parent,
-                process_group=0 if self.own_group else None)
+                env=env, process_group=0 if self.own_group else None)
 
     def log_path(self, key: str) -> Path:
         return self.log_dir / f'{key.replace("/", ".")}.log'

@@ -154,6 +154,7 @@ def _serve(suite, specs, env: dict[str, str] | None = None, namespace: str = '')
     exits is started again (launch's respawn), the others keep running. The nodes run in
     process groups of their own: a Ctrl-C at the terminal reaches `up` alone, which then sends
     each node one SIGINT."""
+    from cobot_calib_ros.ros import spin
     from cobot_calib_ros.ros.calls import spin_until
     stop = []
     signal.signal(signal.SIGTERM, lambda *_: stop.append(True))
@@ -162,6 +163,7 @@ def _serve(suite, specs, env: dict[str, str] | None = None, namespace: str = '')
     print(f'node suite starting on ROS_DOMAIN_ID={domain_id()}{where}: '
           f'{", ".join(suite.processes)}')
     print(f'logs: {suite.log_dir}   (Ctrl-C stops every node)', flush=True)
+    codes = None
     try:
         with ros_node('_cobot_calib_up', namespace) as node:     # Ctrl-C: a KeyboardInterrupt in a wait
             respawn, ready = _Respawn(suite, node), _Ready(suite, node)
@@ -170,16 +172,28 @@ def _serve(suite, specs, env: dict[str, str] | None = None, namespace: str = '')
                     ready.forget(respawn.check())
                     ready.check(lambda: bool(stop))
                     spin_until(node, lambda: bool(stop), WATCH_PERIOD)
+            except KeyboardInterrupt:
+                pass
             finally:
                 ready.close()
                 respawn.forget_all()
+                # the nodes first: they stop even if this process's own rclpy teardown
+                # hangs (as rclpy's destroy_node has in nodes), which the watchdog then ends
+                codes = _stop(suite)
+                spin.teardown_watchdog()
     except KeyboardInterrupt:
         pass
+    if codes is None:
+        _stop(suite)
+    return 0
+
+
+def _stop(suite) -> dict[str, int]:
     started = time.monotonic()
     codes = suite.stop(timeout=STOP_TIMEOUT)
     print(f'stopped in {time.monotonic() - started:.1f} s: '
           + ', '.join(f'{n} ({c})' for n, c in codes.items()), flush=True)
-    return 0
+    return codes
 
 
 class _Ready:

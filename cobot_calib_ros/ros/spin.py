@@ -53,6 +53,8 @@ TEARDOWN_DUMP = 4.0   # [s] a teardown still running this long prints every thre
 # joint_state_monitor: SIGKILLed 32 s after its SIGINT), after the node's work had ended
 TEARDOWN_EXIT = 10.0
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+LAUNCHER_PID_ENV = 'COBOT_CALIB_LAUNCHER_PID'   # set by api.launcher for the nodes it starts
+PR_SET_PDEATHSIG = 1
 _stopping = threading.Event()     # set once this process is shutting down
 
 
@@ -82,6 +84,7 @@ def run(make_node: Callable[[], Node], args=None, threads: int = 1) -> None:
     the executor of executor_kind(). Ctrl-C and SIGTERM stop it in two steps: the work in
     flight ends first (see _finish_work_in_flight), with the executor still spinning, then the
     node is destroyed."""
+    die_with_launcher()
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     stop = threading.Event()
     previous = {sig: signal.signal(sig, _stop_handler(stop)) for sig in STOP_SIGNALS}
@@ -113,6 +116,18 @@ def run(make_node: Callable[[], Node], args=None, threads: int = 1) -> None:
                 signal.signal(sig, handler)
     if stop.is_set():
         _exit_now()
+
+
+def die_with_launcher() -> None:
+    """A node started by api.launcher gets SIGTERM when the launcher dies (Linux), so no
+    orphan outlives it; if the launcher is gone already, the node exits now."""
+    launcher = os.environ.get(LAUNCHER_PID_ENV, '')
+    if not launcher.isdigit():
+        return
+    with contextlib.suppress(OSError, AttributeError):
+        ctypes.CDLL(None).prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
+    if os.getppid() != int(launcher):
+        sys.exit(f'the launcher (pid {launcher}) that started this node is gone')
 
 
 def _exit_now() -> None:
@@ -184,13 +199,21 @@ def _teardown(node: Node | None) -> None:
     # its log; if it happens again, the log shows where each thread stood (not cancelled: it
     # fires only while the process is still alive, in the teardown or at interpreter exit)
     faulthandler.dump_traceback_later(TEARDOWN_DUMP)
-    watchdog = threading.Timer(TEARDOWN_EXIT, _teardown_hung)
-    watchdog.daemon = True
-    watchdog.start()
+    watchdog = teardown_watchdog()
     if node is not None:
         node.destroy_node()
     rclpy.try_shutdown()
     watchdog.cancel()
+
+
+def teardown_watchdog() -> threading.Timer:
+    """A started timer that ends the process (exit 0, said on stderr) if it is still running
+    TEARDOWN_EXIT s from now; cancel it when the teardown is done. For a process whose work
+    has ended and whose rclpy teardown is all that is left."""
+    watchdog = threading.Timer(TEARDOWN_EXIT, _teardown_hung)
+    watchdog.daemon = True
+    watchdog.start()
+    return watchdog
 
 
 def _teardown_hung() -> None:

@@ -68,10 +68,15 @@ def test_a_capture_window_is_in_ros_time(ros, sim_clock, rate):
     _capture(ros, 0.1)       # the monitor's first samples on this clock
     res = _capture(ros, 0.5)
     assert res.error_code == CaptureJoints.Response.SUCCESS, res.message
-    # 0.5 s of stamps (ROS time); a window in wall time would hold 1.0 s (2x) or 0.25 s (0.5x).
-    # A loaded machine can starve the monitor for the window's first tens of ms.
-    assert res.window == pytest.approx(0.5, abs=0.12)
+    # 0.5 s of stamps (ROS time); a window in wall time would hold 1.0 s (2x) or 0.25 s
+    # (0.5x). A loaded machine can starve the monitor of part of the window (one run: 0.09 s
+    # of 2x stamps), which only shortens the span: each rate checks the side a wall-time
+    # window would fail on
     assert res.sample_count >= 2
+    if rate > 1.0:
+        assert 0.0 < res.window <= 0.5 + 2e-3
+    else:
+        assert 0.3 < res.window <= 0.5 + 2e-3
 
 
 @pytest.mark.parametrize('rate', [2.0, 0.5])
@@ -104,7 +109,8 @@ def test_a_probe_average_is_in_ros_time(ros, sim_clock, rate):
     mark = marks.read_average_mark(served[-1])
     after_t0 = [ns_to_s(stamp - mark.t0_ns) for stamp in mark.stamps_ns]
     assert len(after_t0) == res.sample_count + res.rejected_count >= 2
-    # readings over 0.4 s of ROS time (a wait of 0.4 s of wall time would end at 0.2 s of it
-    # at 0.5x)
+    # readings over 0.4 s of ROS time: a wait of 0.4 s of wall time would go on to 0.8 s of it
+    # at 2x, and end at 0.2 s at 0.5x (a starved sensor only ends it early)
     assert min(after_t0) >= 0.0 and max(after_t0) <= 0.4 + 1e-6
-    assert max(after_t0) == pytest.approx(0.4, abs=0.12)
+    if rate < 1.0:
+        assert max(after_t0) > 0.28
