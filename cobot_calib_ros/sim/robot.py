@@ -46,6 +46,7 @@ class SimRobot:
         self._q = self.cell.home.copy()
         self._tool_noise = np.zeros(3)
         self._T_true = kinematics.fk(self.true, self._q)
+        self._gap: float | None = None      # the probe's true gap [m] at _T_true, once asked
 
     # -- state ----------------------------------------------------------------------------
     @property
@@ -73,7 +74,7 @@ class SimRobot:
         with self._lock:
             self._q = np.asarray(q, dtype=float).copy()
             self._tool_noise = tool_noise
-            self._T_true = T
+            self._T_true, self._gap = T, None
 
     # -- planning (motion thread) ---------------------------------------------------------
     def plan_joints(self, q: Array) -> Array | Failure:
@@ -154,12 +155,22 @@ class SimRobot:
     # -- sensors (sensor thread) ----------------------------------------------------------
     def joint_reading(self) -> Array:
         """Encoder positions [rad]: commanded joints plus encoder noise."""
+        return self.joint_readings(1)[0]
+
+    def joint_readings(self, count: int) -> Array:
+        """``count`` encoder readings [rad] (rows) of the joints where they are now."""
         q = self.q
-        return q + self._sensor_rng.normal(0.0, self.sim.noise.encoder_sigma, q.shape)
+        return q + self._sensor_rng.normal(0.0, self.sim.noise.encoder_sigma, (count, q.size))
 
     def probe_voltage(self) -> float:
         """Probe output [V] for the true gap under the true tool pose, with sensor noise."""
-        gap = self.sim.world.probe_gap(self.true_tool())
+        with self._lock:
+            T_true, gap = self._T_true, self._gap
+        if gap is None:         # the arm moved: a ray cast (200 Hz at rest is the same gap)
+            gap = self.sim.world.probe_gap(T_true)
+            with self._lock:
+                if self._T_true is T_true:
+                    self._gap = gap
         return self.sim.probe.to_voltage(gap) + self._sensor_rng.normal(
             0.0, self.sim.noise.probe_voltage_sigma)
 

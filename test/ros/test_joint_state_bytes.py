@@ -37,6 +37,17 @@ def test_each_pack_is_its_own_message():
     assert list(deserialize_message(first, JointState).position) == [0.0] * 7
 
 
+def test_pack_many_packs_each_row_with_its_stamp():
+    wire = JointStateBytes(SAWYER)
+    rows = np.arange(21.0).reshape(3, 7) / 10.0
+    stamps = [5, 1_000_000_007, 2_000_000_009]
+    assert wire.pack_many(stamps, rows) == [wire.pack(t, q) for t, q in zip(stamps, rows)]
+    assert [wire.unpack(data) for data in wire.pack_many(stamps, rows)] == [
+        (t, tuple(q.tolist())) for t, q in zip(stamps, rows)]
+    with pytest.raises(ValueError, match=r'\(3, 7\) positions for 2 stamps of 7 joints'):
+        wire.pack_many(stamps[:2], rows)
+
+
 def test_a_wrong_number_of_positions_is_refused():
     with pytest.raises(ValueError, match='6 positions for 7 joints'):
         JointStateBytes(SAWYER).pack(0, np.zeros(6))
