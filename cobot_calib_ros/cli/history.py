@@ -115,7 +115,6 @@ def _cell_report(repo, cell: str, start: int) -> dict:
             'checks': checks}
 
 
-
 def _change_fields(c) -> dict:
     """A frame change (core.drift; None: the first of its history) as the report shows it."""
     return {'moved_mm': None if c is None else c.translation_m * 1e3,
@@ -124,6 +123,7 @@ def _change_fields(c) -> dict:
             'level': 0 if c is None else c.level,
             'verdict': 'first' if c is None else c.level_name,
             'message': '' if c is None else c.message}
+
 
 def _print(report: dict, as_json: bool) -> None:
     if as_json:

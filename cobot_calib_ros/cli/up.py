@@ -163,7 +163,7 @@ def _serve(suite, specs, env: dict[str, str] | None = None, namespace: str = '')
     print(f'node suite starting on ROS_DOMAIN_ID={domain_id()}{where}: '
           f'{", ".join(suite.processes)}')
     print(f'logs: {suite.log_dir}   (Ctrl-C stops every node)', flush=True)
-    codes = None
+    stopped = False
     try:
         with ros_node('_cobot_calib_up', namespace) as node:     # Ctrl-C: a KeyboardInterrupt in a wait
             respawn, ready = _Respawn(suite, node), _Ready(suite, node)
@@ -179,21 +179,21 @@ def _serve(suite, specs, env: dict[str, str] | None = None, namespace: str = '')
                 respawn.forget_all()
                 # the nodes first: they stop even if this process's own rclpy teardown
                 # hangs (as rclpy's destroy_node has in nodes), which the watchdog then ends
-                codes = _stop(suite)
+                _stop(suite)
+                stopped = True
                 spin.teardown_watchdog()
     except KeyboardInterrupt:
         pass
-    if codes is None:
+    if not stopped:
         _stop(suite)
     return 0
 
 
-def _stop(suite) -> dict[str, int]:
+def _stop(suite) -> None:
     started = time.monotonic()
     codes = suite.stop(timeout=STOP_TIMEOUT)
     print(f'stopped in {time.monotonic() - started:.1f} s: '
           + ', '.join(f'{n} ({c})' for n, c in codes.items()), flush=True)
-    return codes
 
 
 class _Ready:
