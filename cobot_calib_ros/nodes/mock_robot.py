@@ -1,7 +1,8 @@
 """mock_robot: stands in for the Sawyer / iiwa arm driver, its proximity probe and the cell.
 
 A thin shell over sim.robot.SimRobot (the one simulated robot): publishes joint_states and
-probe/voltage stamped with the node clock (use_sim_time works), serves move_to like a driver
+probe/voltage stamped with the node clock (use_sim_time works; joint_states go out a few at a
+time, PUBLISH_WAKES_HZ, their stamps evenly spaced up to now), serves move_to like a driver
 would, and what only a simulation can answer: get_ground_truth, and mock_robot/hand_guide (the
 simulated operator hand-guiding the tool onto a cell point, HandGuide.srv).
 
