@@ -8,6 +8,7 @@ recognises which): the CLI, bench and tests call it. Both give the same report s
 """
 from __future__ import annotations
 
+import os
 from pathlib import Path
 import time
 from typing import Callable
@@ -51,6 +52,24 @@ class IdentifyClient:
             self._session.__exit__(None, None, None)
 
 
+SUITE_WAIT = 5.0    # [s] for kinematic_identifier's actions to be discovered (a running suite: < 2 s)
+
+
+def _refuse_without_identifier(client: IdentifyClient) -> None:
+    """CallError within SUITE_WAIT when kinematic_identifier's actions are not on the graph
+    (no suite: the flows' own wait would take a minute to say less)."""
+    from cobot_calib_ros.ros.calls import CallError
+    from cobot_calib_ros.ros.spin import until
+    actions = {'collect_sphere_data': client.collect, 'identify_kinematics': client.identify}
+    until(lambda: all(action.server_is_ready() for action in actions.values()), SUITE_WAIT)
+    absent = [name for name, action in actions.items() if not action.server_is_ready()]
+    if absent:
+        raise CallError(f'{" and ".join(absent)} not on the graph after {SUITE_WAIT:.0f} s: no '
+                        f'kinematic_identifier on ROS_DOMAIN_ID='
+                        f'{os.environ.get("ROS_DOMAIN_ID", "0")}; start the suite with '
+                        f'cobot-calib up (same ROS_DOMAIN_ID)')
+
+
 class CollectionStopped(KeyboardInterrupt):
     """Ctrl-C during a collection: its goal was cancelled. The sphere collection
     ``collection_id`` is stored up to its last pose and resumes with that id."""
@@ -80,6 +99,7 @@ def identify_on_suite(client: IdentifyClient, *, say: Callable[[str], None],
     from cobot_calib_ros.ros.calls import CallError, run_action
     from cobot_calib_ros.ros.types import to_dict
     from cobot_calib_ros.core.ids import record_id
+    _refuse_without_identifier(client)
     wait_for_suite(client.node)
     collections, collect_seconds = {}, {}
     if source == 'mock':

@@ -99,3 +99,23 @@ def test_planned_flags_say_what_they_need(capsys):
     assert '--planned chooses its poses; drop --max-configs' in capsys.readouterr().err
     assert main(['identify', '--planned', '--min-gain', '1.5']) == 2
     assert '--min-gain in [0, 1)' in capsys.readouterr().err
+
+
+def test_attach_without_a_suite_is_refused_naming_what_is_missing(tmp_path):
+    """Issue 31 (left from item 4): with no suite, `identify --attach` waited a minute for
+    joint_states and then named capture_joints; it names kinematic_identifier's actions and
+    how to start the suite after the discovery wait."""
+    import os
+    import subprocess
+    import sys
+    import domain_coordinator
+    with domain_coordinator.domain_id() as domain:       # a domain nothing runs on
+        done = subprocess.run(
+            [sys.executable, '-m', 'cobot_calib_ros.cli.main', 'identify', '--robot', 'sawyer',
+             '--attach', '--dry-run'], capture_output=True, text=True, timeout=120,
+            env=dict(os.environ, ROS_DOMAIN_ID=str(domain), COBOT_CALIB_DATA=str(tmp_path)))
+    assert done.returncode == 1, done.stderr
+    assert done.stderr.strip() == (
+        'identify failed: collect_sphere_data and identify_kinematics not on the graph after '
+        f'5 s: no kinematic_identifier on ROS_DOMAIN_ID={domain}; start the suite with '
+        'cobot-calib up (same ROS_DOMAIN_ID)'), done.stderr
