@@ -22,9 +22,8 @@ $(STAMP)/postgres: tools/ensure_postgres.sh
 	tools/ensure_postgres.sh
 	mkdir -p $(STAMP) && touch $@
 
-$(STAMP)/deps: requirements.lock
-	test -x $(PY) || $(PYTHON) -m venv $(VENV)
-	$(PY) -m pip install --quiet --disable-pip-version-check -r requirements.lock
+$(STAMP)/deps: requirements.lock tools/install_deps.sh
+	tools/install_deps.sh $(PYTHON) $(VENV) requirements.lock
 	mkdir -p $(STAMP) && touch $@
 
 $(STAMP)/msgs: $(STAMP)/deps tools/build_interfaces.sh $(shell find msg_defs -type f)
