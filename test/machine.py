@@ -19,3 +19,12 @@ def machine_unloaded() -> bool:
     outlast the launcher's SIGINT wait (it then gets SIGTERM after its teardown).
     Only test/cli/test_up.py still asks; bench/ prints what depends on the load."""
     return os.getloadavg()[0] < (os.cpu_count() or 1)
+
+
+def short_lease(env: dict) -> dict:
+    """``env`` for a process a test kills: its DDS participant announces a 6 s lease, so its
+    peers drop it from the graph ~6 s after a kill -9, not after Fast DDS's default 20 s
+    (what the product waits for is the node leaving the graph, not the lease's length)."""
+    from pathlib import Path
+    return dict(env, FASTRTPS_DEFAULT_PROFILES_FILE=str(
+        Path(__file__).with_name('fastdds_lease_6s.xml')))

@@ -9,6 +9,8 @@ import time
 
 import pytest
 
+from machine import short_lease
+
 SERVICE = '/doomed_capture'
 # A node serving SERVICE; its callback prints 'asked', then answers at once (argv[1] 'answer')
 # or never (argv[1] 'hang', a hung server). SIGINT: it shuts down and leaves the graph.
@@ -42,9 +44,9 @@ except KeyboardInterrupt:
 '''
 
 
-def _python(code: str, *args: str) -> subprocess.Popen:
+def _python(code: str, *args: str, env: dict | None = None) -> subprocess.Popen:
     return subprocess.Popen([sys.executable, '-c', code, *args], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, env=dict(os.environ))
+                            stderr=subprocess.PIPE, text=True, env=env or dict(os.environ))
 
 
 def _call(*args) -> subprocess.Popen:
@@ -62,7 +64,8 @@ def bystander(domain_id):
 
 
 def _server(mode: str):
-    proc = _python(SERVER, mode)
+    # the hung server is killed: off the graph 6 s later (not after the default 20 s lease)
+    proc = _python(SERVER, mode, env=short_lease(dict(os.environ)) if mode == 'hang' else None)
     assert proc.stdout.readline().strip() == 'serving', proc.stderr.read()
     yield proc
     proc.kill()

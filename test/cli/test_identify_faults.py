@@ -12,6 +12,7 @@ import pytest
 
 from cobot_calib_ros.api import launcher
 from cobot_calib_ros.store.collections import CollectionStore
+from machine import short_lease
 
 NODES = ('mock_robot', 'joint_state_monitor', 'proximity_sensor', 'kinematic_identifier')
 
@@ -20,6 +21,17 @@ NODES = ('mock_robot', 'joint_state_monitor', 'proximity_sensor', 'kinematic_ide
 def cell(tmp_path):
     """The four nodes a sphere collection needs, on a domain of their own, storing in
     tmp_path; the environment for a CLI that attaches to them (same data dir)."""
+    yield from _cell(tmp_path, lease=lambda env: env)
+
+
+@pytest.fixture
+def short_lease_cell(tmp_path):
+    """The same, with nodes that leave the graph 6 s after a kill -9 (machine.short_lease),
+    not after the 20 s default lease."""
+    yield from _cell(tmp_path, lease=short_lease)
+
+
+def _cell(tmp_path, lease):
     import domain_coordinator
     with domain_coordinator.domain_id() as domain:
         env = dict(os.environ, ROS_DOMAIN_ID=str(domain), COBOT_CALIB_DATA=str(tmp_path),
@@ -27,7 +39,7 @@ def cell(tmp_path):
         suite = launcher.Suite(tmp_path / 'logs')
         suite.start(launcher.suite_specs('sawyer_close', NODES, overrides={
             'mock_robot': {'time_scale': '0.2'},
-            'kinematic_identifier': {'data_dir': str(tmp_path)}}), env=env)
+            'kinematic_identifier': {'data_dir': str(tmp_path)}}), env=lease(env))
         try:
             yield suite, env, CollectionStore(tmp_path)
         finally:
@@ -57,7 +69,7 @@ def _until_poses_come(proc: subprocess.Popen) -> list[str]:
 
 def test_ctrl_c_cancels_the_collection_keeps_its_poses_and_resume_finishes_it(cell):
     suite, env, store = cell
-    proc = _identify(env, '--max-configs', '120')
+    proc = _identify(env, '--max-configs', '40')
     started = _until_poses_come(proc)
     proc.send_signal(signal.SIGINT)
     interrupted = time.monotonic()
@@ -74,28 +86,28 @@ def test_ctrl_c_cancels_the_collection_keeps_its_poses_and_resume_finishes_it(ce
     # the node ended the goal before the client exited: status written after the last pose
     assert stopped.meta['status'] == 'aborted'
     kept = len(stopped.q) + len(stopped.skipped)
-    assert 1 <= kept < 120
+    assert 1 <= kept < 40
     # the next goal is accepted: --resume (no id: the newest unfinished) carries it on
     resumed = _identify(env, '--resume', '--json')
     out, err = resumed.communicate(timeout=600)
     assert resumed.returncode == 0, err
     assert f'resuming spheres (spheres) {collection_id}' in err
     done = store.load(collection_id)
-    assert done.meta['status'] == 'done' and len(done.q) + len(done.skipped) == 120
+    assert done.meta['status'] == 'done' and len(done.q) + len(done.skipped) == 40
     # the poses of the first run are kept, not measured again
     first_poses = {int(i): tuple(q) for i, q in zip(stopped.index, stopped.q)}
     assert all(tuple(done.q[list(done.index).index(i)]) == q for i, q in first_poses.items())
     assert [m['id'] for m in store.list_collections()] == [collection_id]
 
 
-def test_a_killed_kinematic_identifier_is_named_not_waited_on(cell):
-    suite, env, store = cell
+def test_a_killed_kinematic_identifier_is_named_not_waited_on(short_lease_cell):
+    suite, env, store = short_lease_cell
     proc = _identify(env)                               # 3 x 625 poses: minutes of work
     _until_poses_come(proc)
     suite.processes['kinematic_identifier'].kill()
     killed = time.monotonic()
     _, err = proc.communicate(timeout=120)
-    # DDS drops a killed node from the graph after its 20 s lease; + 3 s unseen
+    # DDS drops a killed node from the graph after its lease (6 s here); + 3 s unseen
     assert time.monotonic() - killed < 40.0, err
     assert proc.returncode == 1, err
     assert 'the kinematic_identifier node is gone' in err and 'restart it' in err, err
@@ -113,10 +125,10 @@ def _kill_and_restart(suite, key: str = 'kinematic_identifier') -> float:
     return killed
 
 
-def test_a_restarted_kinematic_identifier_lost_the_goal_and_the_wait_ends(cell):
+def test_a_restarted_kinematic_identifier_lost_the_goal_and_the_wait_ends(short_lease_cell):
     """issue 31 item 2: the restarted node was back on the graph, so the client waited on a
     goal the new instance never knew (667 s, then Ctrl-C)."""
-    suite, env, store = cell
+    suite, env, store = short_lease_cell
     proc = _identify(env)                               # 3 x 625 poses: minutes of work
     try:
         _until_poses_come(proc)
@@ -124,7 +136,7 @@ def test_a_restarted_kinematic_identifier_lost_the_goal_and_the_wait_ends(cell):
         _, err = proc.communicate(timeout=240)
     finally:
         proc.kill()
-    # the killed instance leaves the graph after its 20 s lease; + 3 s unseen
+    # the killed instance leaves the graph after its lease (6 s here); + 3 s unseen
     assert time.monotonic() - killed < 90.0, err
     assert proc.returncode == 1, err
     assert 'the kinematic_identifier node restarted: goal lost' in err, err

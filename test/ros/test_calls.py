@@ -18,6 +18,7 @@ from sensor_msgs.msg import JointState
 from cobot_calib_msgs.action import MoveTo
 from cobot_calib_ros.api import launcher
 from cobot_calib_ros.ros.calls import CallError, run_action, spin_until
+from machine import short_lease
 
 START_TIMEOUT = 60.0     # [s] for a node to start (cold imports on a loaded machine)
 GOAL_TIMEOUT = 150.0     # [s] run_action's own bound: beyond the move (50 s) and the lease
@@ -29,6 +30,7 @@ def server(tmp_path):
     with domain_coordinator.domain_id() as domain:
         env = dict(os.environ, ROS_DOMAIN_ID=str(domain),
                    ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', PYTHONUNBUFFERED='1')
+        env = short_lease(env)      # the killed instance leaves the graph after 6 s, not 20
         cmd = launcher.NodeSpec('mock_robot', {'time_scale': '1.0'}).command()
         procs = []
 
@@ -81,6 +83,6 @@ def test_a_goal_lost_to_a_restarted_server_ends_the_wait_naming_the_node(server)
     message = str(error.value)
     assert message.startswith('the mock_robot node restarted: goal lost'), message
     assert 'move_to goal' in message, message
-    # the goal's own deadline was not what ended it: the lease (20 s) and GONE_AFTER (3 s)
+    # the goal's own deadline was not what ended it: the lease (6 s) and GONE_AFTER (3 s)
     waited = time.monotonic() - killed[0]
     assert waited < GOAL_TIMEOUT - 50.0, waited
