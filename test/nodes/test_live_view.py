@@ -82,8 +82,8 @@ def test_a_latched_message_arrives_once_per_connection(view):
     for _connection in range(2):
         client = FoxgloveClient('127.0.0.1', live.port)
         try:
-            # 3 s: ten times the replay's delay
-            _, payloads = client.messages(LATCHED, 3.0)
+            # 5 s: five times the replay's delay
+            _, payloads = client.messages(LATCHED, 5.0)
         finally:
             client.close()
         assert [deserialize_message(p, String).data for p in payloads] == ['the frame']
