@@ -107,4 +107,27 @@ class FoxgloveClient:
         return wanted, payloads
 
     def close(self) -> None:
-        self.sock.close()
+        """The closing handshake, as a browser closing its window does (RFC 6455 5.5.1): a
+        close frame, the server's close frame back (at most 1 s), then the socket. A bare
+        socket close is a reset to the server ('Connection reset without closing handshake'),
+        and a second window connecting while the server handled one got no latched message
+        in 2 of ~12 runs."""
+        try:
+            mask, status = os.urandom(4), struct.pack('>H', 1000)     # 1000: normal closure
+            self.sock.sendall(bytes([0x88, 0x80 | len(status)]) + mask
+                              + bytes(b ^ mask[i % 4] for i, b in enumerate(status)))
+            self.sock.settimeout(1.0)
+            while True:
+                b0, b1 = self._exact(2)
+                n = b1 & 0x7F
+                if n == 126:
+                    n = struct.unpack('>H', self._exact(2))[0]
+                elif n == 127:
+                    n = struct.unpack('>Q', self._exact(8))[0]
+                self._exact(n)
+                if b0 & 0x0F == 0x8:
+                    break
+        except (OSError, ConnectionError):
+            pass
+        finally:
+            self.sock.close()
