@@ -40,7 +40,8 @@ fresh=0     # only a venv made here holds nothing but the lock (no project, no i
 [ -x "$venv/bin/python" ] || { "$python" -m venv "$venv"; fresh=1; }
 "$venv/bin/python" -m pip install --quiet --disable-pip-version-check -r "$lock"
 
-if [ "$fresh" = 1 ] && [ -n "$cache_dir" ] && mkdir -p "$cache_dir" 2>/dev/null && [ ! -e "$cached" ]; then
+if [ "$fresh" = 1 ] && [ -n "$cache_dir" ] && [ ! -e "$cached" ] \
+    && mkdir -p "$cache_dir" 2>/dev/null; then
   stage=$(mktemp -d "$cache_dir/.stage.XXXXXX")
   echo "$venv" >"$stage/made_in"
   if { cp -al "$venv" "$stage/venv" 2>/dev/null \

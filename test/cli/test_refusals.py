@@ -12,6 +12,7 @@ import pytest
 
 from cobot_calib_ros.cli.common import cell_names
 from cobot_calib_ros.cli.main import main
+from side_by_side import cli_side_by_side
 
 
 def _cli(*args, env=None, timeout=60.0) -> subprocess.CompletedProcess:
@@ -223,28 +224,32 @@ def parameter_node():
 
 def test_param_lists_gets_and_sets_as_ros2_param(parameter_node):
     """Issue 23.15: `param list|get|set NODE [NAME] [VALUE]`, the output of ros2 param."""
-    listed = _cli('param', 'list', 'param_target_23')
+    # the reads side by side (each CLI's start is most of its time), then the sets
+    listed, got, points, missing, gone, no_name = cli_side_by_side(
+        ('param', 'list', 'param_target_23'),
+        ('param', 'get', '/param_target_23', 'max_rms_error'),
+        ('param', 'get', 'param_target_23', 'points'),
+        ('param', 'get', 'param_target_23', 'nope'),
+        ('param', 'list', 'no_such_node_23', '--timeout', '1'),
+        ('param', 'get', 'param_target_23'))
     assert listed.returncode == 0, listed.stderr
     assert listed.stdout.splitlines() == ['  cell_file', '  max_rms_error', '  points',
                                           '  start_type_description_service', '  use_sim_time']
-    got = _cli('param', 'get', '/param_target_23', 'max_rms_error')
     assert (got.returncode, got.stdout) == (0, 'Double value is: 0.001\n')
-    assert _cli('param', 'get', 'param_target_23', 'points').stdout == \
-        "String values are: ['P1', 'P2']\n"
+    assert points.stdout == "String values are: ['P1', 'P2']\n"
+    assert missing.returncode == 1 and "has no parameter 'nope'" in missing.stderr
+    assert gone.returncode == 1 and gone.stderr.startswith(
+        'node no_such_node_23 offers no parameter services within 1 s')
+    assert no_name.returncode == 2     # NAME missing
     done = _cli('param', 'set', 'param_target_23', 'max_rms_error', '0.002')
     assert (done.returncode, done.stdout) == (0, 'Set parameter successful\n'), done.stderr
     assert parameter_node.get_parameter('max_rms_error').value == 0.002
-    refused = [_cli('param', 'set', 'param_target_23', 'max_rms_error', '1'),   # a double 1.0
-               _cli('param', 'set', 'param_target_23', 'cell_file', 'iiwa7_close')]
+    refused = cli_side_by_side(('param', 'set', 'param_target_23', 'max_rms_error', '1'),  # 1.0
+                            ('param', 'set', 'param_target_23', 'cell_file', 'iiwa7_close'))
     for done in refused:
         assert done.returncode == 1 and done.stderr.startswith('Setting parameter failed: ')
     assert parameter_node.get_parameter('max_rms_error').value == 0.002
-    missing = _cli('param', 'get', 'param_target_23', 'nope')
-    assert missing.returncode == 1 and "has no parameter 'nope'" in missing.stderr
-    gone = _cli('param', 'list', 'no_such_node_23', '--timeout', '1')
-    assert gone.returncode == 1 and gone.stderr.startswith(
-        'node no_such_node_23 offers no parameter services within 1 s')
-    assert _cli('param', 'get', 'param_target_23').returncode == 2     # NAME missing
+
 
 
 def test_demo_attach_takes_the_cell_and_data_dir_of_the_running_suite(tmp_path):

@@ -15,6 +15,7 @@ from cobot_calib_ros import store
 from cobot_calib_ros.paths import cell_file
 from cobot_calib_ros.store.cells import ResultsCell
 from proc_lines import Lines
+from side_by_side import cli_side_by_side
 
 
 @pytest.mark.parametrize('old, new, words', [
@@ -77,7 +78,7 @@ def _up(env: dict[str, str], cell: str, nodes: str):
     try:
         ready = lines.match(r'^ready: all \d+ nodes answer$', READY_TIMEOUT)
         assert ready, f'up --cell {cell} not ready:\n{"".join(lines.seen)}'
-        yield lambda *args, timeout=120.0: _spawn(env, *args)(timeout)
+        yield lambda *args: cli_side_by_side(args, env=env)[0]
     finally:
         os.killpg(proc.pid, signal.SIGINT)
         try:
@@ -86,22 +87,6 @@ def _up(env: dict[str, str], cell: str, nodes: str):
             os.killpg(proc.pid, signal.SIGKILL)
             proc.wait()
     assert proc.returncode == 0, ''.join(lines.seen)
-
-
-def _spawn(env: dict[str, str], *args):
-    """`cobot-calib ARGS` started now; a function that waits for it (its timeout [s]) and
-    gives its completed process (so calls that only wait can run side by side)."""
-    proc = subprocess.Popen(_cli(*args), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True, env=env)
-
-    def completed(timeout: float = 120.0) -> subprocess.CompletedProcess:
-        try:
-            out, err = proc.communicate(timeout=timeout)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            raise
-        return subprocess.CompletedProcess(proc.args, proc.returncode, out, err)
-    return completed
 
 
 def _sawyer_hand_eye() -> dict:
@@ -130,26 +115,26 @@ def test_a_second_cell_on_the_same_data_dir_activates_none_of_the_first_s_result
                       '--json')
             frame = json.loads(out.stdout)['calibration']
             assert out.returncode == 0 and frame['id'], out.stderr
-            latched, he = (_spawn(env, 'echo', 'user_frame', '--once', '--json'),
-                           _spawn(env, 'echo', 'hand_eye', '--once', '--json'))
-            latched, he = latched(), he()
+            latched, he = cli_side_by_side(('echo', 'user_frame', '--once', '--json'),
+                                           ('echo', 'hand_eye', '--once', '--json'), env=env)
             assert json.loads(latched.stdout)['id'] == frame['id'], latched.stderr
             assert he.returncode == 0, he.stderr
             x = json.loads(he.stdout)['transform']['translation']['x']
             assert x == pytest.approx(hand_eye['result']['T_flange_optical'][0][3], abs=1e-12)
         with _up(env, 'iiwa7_close', CHECKING):
             # side by side: the echoes wait out their 5 s whatever the others do
-            listed, user_frame, hand_eye_topic, refused = (
-                _spawn(env, 'call', 'list_calibrations', '{}', '--json'),
-                _spawn(env, 'echo', 'user_frame', '--once', '--timeout', '5'),
-                _spawn(env, 'echo', 'hand_eye', '--once', '--timeout', '5'),
-                _spawn(env, 'call', 'set_active_calibration',
-                       f'{{calibration_id: {frame["id"]}, action: 0}}', '--json'))
-            check = _spawn(env, 'check', 'user-frame')(180.0)
-            listed = json.loads(listed().stdout)
+            # side by side: the echoes wait out their 5 s whatever the others do
+            listed, user_frame, hand_eye_topic, refused, check = cli_side_by_side(
+                ('call', 'list_calibrations', '{}', '--json'),
+                ('echo', 'user_frame', '--once', '--timeout', '5'),
+                ('echo', 'hand_eye', '--once', '--timeout', '5'),
+                ('call', 'set_active_calibration',
+                 f'{{calibration_id: {frame["id"]}, action: 0}}', '--json'),
+                ('check', 'user-frame'), env=env, timeout=180.0)
+            listed = json.loads(listed.stdout)
             assert listed['active_id'] == '' and listed['calibrations'] == []
-            assert user_frame().returncode == 1 and hand_eye_topic().returncode == 1
-            answer = json.loads(refused().stdout)
+            assert user_frame.returncode == 1 and hand_eye_topic.returncode == 1
+            answer = json.loads(refused.stdout)
             assert answer['error_code'] == 2 and answer['active']['id'] == ''
             assert ("made in cell 'sawyer_close' on the sawyer; this is cell 'iiwa7_close' on "
                     "the iiwa7") in answer['message']
