@@ -46,17 +46,21 @@ class FoxgloveClient:
             data += chunk
         return data
 
+    def _raw_frame(self) -> tuple[int, bytes]:
+        """(first header byte, payload) of the next frame on the wire."""
+        b0, b1 = self._exact(2)
+        n = b1 & 0x7F
+        if n == 126:
+            n = struct.unpack('>H', self._exact(2))[0]
+        elif n == 127:
+            n = struct.unpack('>Q', self._exact(8))[0]
+        return b0, self._exact(n)
+
     def frame(self) -> tuple[int, bytes]:
         """(opcode, payload) of the next data frame (continuations joined)."""
         opcode, payload = None, b''
         while True:
-            b0, b1 = self._exact(2)
-            n = b1 & 0x7F
-            if n == 126:
-                n = struct.unpack('>H', self._exact(2))[0]
-            elif n == 127:
-                n = struct.unpack('>Q', self._exact(8))[0]
-            data = self._exact(n)
+            b0, data = self._raw_frame()
             op = b0 & 0x0F
             if op in (0x9, 0xA):            # ping / pong
                 continue
@@ -117,16 +121,8 @@ class FoxgloveClient:
             self.sock.sendall(bytes([0x88, 0x80 | len(status)]) + mask
                               + bytes(b ^ mask[i % 4] for i, b in enumerate(status)))
             self.sock.settimeout(1.0)
-            while True:
-                b0, b1 = self._exact(2)
-                n = b1 & 0x7F
-                if n == 126:
-                    n = struct.unpack('>H', self._exact(2))[0]
-                elif n == 127:
-                    n = struct.unpack('>Q', self._exact(8))[0]
-                self._exact(n)
-                if b0 & 0x0F == 0x8:
-                    break
+            while self._raw_frame()[0] & 0x0F != 0x8:
+                pass
         except (OSError, ConnectionError):
             pass
         finally:
