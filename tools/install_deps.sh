@@ -32,8 +32,8 @@ if [ -n "$cache_dir" ] && [ -f "$cached/made_in" ] && [ ! -e "$venv/bin/python" 
     echo "requirements installed into $venv from the venv cache ($cached)"
     exit 0
   fi
-  echo "the cached venv $cached does not import its packages; installing with pip" >&2
-  rm -rf "$venv"
+  echo "the cached venv $cached does not import its packages; dropped, installing with pip" >&2
+  rm -rf "$venv" "$cached"
 fi
 
 fresh=0     # only a venv made here holds nothing but the lock (no project, no interfaces)

@@ -52,7 +52,8 @@ class IdentifyClient:
             self._session.__exit__(None, None, None)
 
 
-SUITE_WAIT = 5.0    # [s] for kinematic_identifier's actions to be discovered (a running suite: < 2 s)
+# [s] for kinematic_identifier's actions to be discovered (a running suite's: < 2 s)
+SUITE_WAIT = 5.0
 
 
 def _refuse_without_identifier(client: IdentifyClient) -> None:
