@@ -12,7 +12,8 @@ set -euo pipefail
 python=$1 venv=$2 lock=$3
 mkdir -p "$venv"
 venv=$(cd "$venv" && pwd)
-check='import numpy, scipy, cv2, rclpy, pinocchio, pytest'
+# what a restored venv must import (COBOT_CALIB_VENV_CHECK: another check, for this script's test)
+check=${COBOT_CALIB_VENV_CHECK:-import numpy, scipy, cv2, rclpy, pinocchio, pytest}
 
 cache_dir=${COBOT_CALIB_VENV_CACHE-${XDG_CACHE_HOME:-$HOME/.cache}/cobot_calib_ros/venv}
 key=$({ "$python" -c 'import sys, platform; print(sys.executable, sys.version, platform.machine())'
