@@ -60,10 +60,9 @@ def _refuse_without_identifier(client: IdentifyClient) -> None:
     """CallError within SUITE_WAIT when kinematic_identifier's actions are not on the graph
     (no suite: the flows' own wait would take a minute to say less)."""
     from cobot_calib_ros.ros.calls import CallError
-    from cobot_calib_ros.ros.spin import until
-    actions = {'collect_sphere_data': client.collect, 'identify_kinematics': client.identify}
-    until(lambda: all(action.server_is_ready() for action in actions.values()), SUITE_WAIT)
-    absent = [name for name, action in actions.items() if not action.server_is_ready()]
+    from cobot_calib_ros.ros.spin import absent_after
+    absent = absent_after({'collect_sphere_data': client.collect.server_is_ready,
+                           'identify_kinematics': client.identify.server_is_ready}, SUITE_WAIT)
     if absent:
         raise CallError(f'{" and ".join(absent)} not on the graph after {SUITE_WAIT:.0f} s: no '
                         f'kinematic_identifier on ROS_DOMAIN_ID='

@@ -27,7 +27,7 @@ from cobot_calib_ros.core.robot_port import (Approach, Capture, CaptureFailed, M
                                              PortError, RobotStopped)
 from cobot_calib_ros.core.sensors.probe import Reading, ReadingStatus
 from cobot_calib_ros.ros.convert import matrix_to_pose
-from cobot_calib_ros.ros.spin import Companion, pause, Stopping, until, wait
+from cobot_calib_ros.ros.spin import absent_after, Companion, pause, Stopping, until, wait
 
 SERVER_WAIT = 5.0       # [s] for move_to / capture_joints to be discovered
 MOVE_TIMEOUT = 120.0    # [s] for one move_to to finish (every caller's bound on a hung move)
@@ -82,11 +82,10 @@ class RobotCalls:
     def absent(self, timeout: float = SERVER_WAIT) -> list[str]:
         """Which of move_to, capture_joints and probe/average are not on the graph after up to
         ``timeout`` s (one wait for all: as soon as all are there); Stopping."""
-        ready = dict(zip(self.CALLS, (self.move_client.server_is_ready,
-                                      self.capture_client.service_is_ready,
-                                      self.probe_client.service_is_ready)))
-        until(lambda: all(is_ready() for is_ready in ready.values()), timeout)
-        return [name for name, is_ready in ready.items() if not is_ready()]
+        return absent_after(dict(zip(self.CALLS, (self.move_client.server_is_ready,
+                                                  self.capture_client.service_is_ready,
+                                                  self.probe_client.service_is_ready))),
+                            timeout)
 
     def move(self, goal: MoveTo.Goal) -> MoveTo.Result:
         """Run a move_to goal to its end (MOVE_TIMEOUT); MoveFailed unless it succeeded (the

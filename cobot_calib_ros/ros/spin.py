@@ -320,6 +320,14 @@ def until(ready: Callable[[], bool], timeout: float) -> bool:
     return True
 
 
+def absent_after(ready: dict[str, Callable[[], bool]], timeout: float) -> list[str]:
+    """The names in ``ready`` whose check is still False after up to ``timeout`` s (one wait
+    for all, ended as soon as all are True): the servers a call needs that are not on the
+    graph. Raises Stopping as until does."""
+    until(lambda: all(is_ready() for is_ready in ready.values()), timeout)
+    return [name for name, is_ready in ready.items() if not is_ready()]
+
+
 def pause(seconds: float) -> None:
     """Sleep ``seconds``, or raise Stopping as soon as the process shuts down."""
     if _stopping.wait(seconds):
