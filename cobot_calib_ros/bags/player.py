@@ -77,8 +77,11 @@ from cobot_calib_ros.ros.time import ns_to_stamp, NS_PER_S
 NODE_NAME = 'bag_player'
 DEPTH = 1000                 # keep-last depth of every replay publisher
 CLOCK_HZ = 40.0              # rosbag2's default /clock rate
-FINAL_ACK_TIMEOUT = 5.0      # [s] after the last message (Fast DDS acknowledges once per
-                             # 3 s heartbeat period)
+# [s] after the last message. Fast DDS acknowledges once per 3 s heartbeat period, and a
+# sample the reader missed is sent again only after it said so at one heartbeat: its ack comes
+# a period later. 5 s (one period) ran out once in a loaded test run (a 2x replay of 500
+# joint_states: "subscribers did not acknowledge"); three periods cover one repair.
+FINAL_ACK_TIMEOUT = 10.0
 LATCHED_TOPICS = ('/tf_static',)
 SPIN_PERIOD = 0.05           # [s]
 RESEND_S = 0.5               # [s] of wall time without a first consumed message: send again
