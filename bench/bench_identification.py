@@ -33,11 +33,11 @@ import time
 
 import numpy as np
 from cobot_calib_msgs.action import CollectSphereData
-from rclpy.action import ActionClient
 
 from benchlib import BenchFailed, Figures
 from cobot_calib_ros.api import launcher
 from cobot_calib_ros.api.identification import identify_source
+from cobot_calib_ros.ros.action_client import ActionClient
 from cobot_calib_ros.ros.calls import CallError, run_action
 from cobot_calib_ros.api.client import wait_for_suite
 from cobot_calib_ros.core import kinematics

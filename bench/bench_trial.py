@@ -15,12 +15,12 @@ from __future__ import annotations
 import time
 
 from cobot_calib_msgs.action import RunTrial
-from rclpy.action import ActionClient
 
 import benchlib
 from benchlib import BenchFailed, Figures
 from cobot_calib_ros import paths
 from cobot_calib_ros.api import launcher
+from cobot_calib_ros.ros.action_client import ActionClient
 from cobot_calib_ros.ros.calls import CallError, run_action
 from cobot_calib_ros.api.client import wait_for_suite
 

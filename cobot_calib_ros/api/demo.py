@@ -10,7 +10,7 @@ class DemoClient:
     """Service and action calls of the demo (one rclpy node, ros.session; close() ends it)."""
 
     def __init__(self) -> None:
-        from rclpy.action import ActionClient
+        from cobot_calib_ros.ros.action_client import ActionClient
         from cobot_calib_msgs.action import MoveTo
         from cobot_calib_msgs.srv import (CalibrateUserFrame, CaptureJoints, GetGroundTruth,
                                           HandGuide)

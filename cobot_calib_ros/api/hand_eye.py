@@ -31,7 +31,7 @@ def calibrate_hand_eye(node, views: int = 0, timeout: float = HAND_EYE_TIMEOUT,
     """Run calibrate_hand_eye to its end; the result (CallError if the action is missing or
     does not finish in time; a failed calibration comes back with its error_code)."""
     from cobot_calib_msgs.action import CalibrateHandEye
-    from rclpy.action import ActionClient
+    from cobot_calib_ros.ros.action_client import ActionClient
     client = ActionClient(node, CalibrateHandEye, 'calibrate_hand_eye')
     try:
         _, result = run_action(node, client, CalibrateHandEye.Goal(views=views), timeout,

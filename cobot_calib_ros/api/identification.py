@@ -34,7 +34,7 @@ class IdentifyClient:
     own (a ros.session, ended by close())."""
 
     def __init__(self, node=None) -> None:
-        from rclpy.action import ActionClient
+        from cobot_calib_ros.ros.action_client import ActionClient
         from cobot_calib_msgs.action import CollectSphereData, IdentifyKinematics
         from cobot_calib_ros.ros.session import session
         self._session = session('cobot_calib_identify') if node is None else None

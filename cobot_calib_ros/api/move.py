@@ -128,7 +128,7 @@ def move_joints(node, q: np.ndarray, speed_scale: float = 0.0, executor=None,
     """Send q [rad] to move_to (TARGET_JOINTS) and wait: its MoveTo result; CallError when
     the action is not there or does not finish."""
     from cobot_calib_msgs.action import MoveTo
-    from rclpy.action import ActionClient
+    from cobot_calib_ros.ros.action_client import ActionClient
     from cobot_calib_ros.ros.calls import run_action
     client = ActionClient(node, MoveTo, 'move_to')
     try:

@@ -26,7 +26,7 @@ class TrialClient:
 
     def __init__(self, say, stall_timeout: float = STALL_TIMEOUT,
                  each_reading: bool = True) -> None:
-        from rclpy.action import ActionClient
+        from cobot_calib_ros.ros.action_client import ActionClient
         from cobot_calib_msgs.action import RunTrial
         from cobot_calib_ros.ros.session import session
         self._session = session('cobot_calib_trial_client')   # Ctrl-C: ours, to cancel

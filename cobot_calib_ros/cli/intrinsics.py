@@ -181,7 +181,7 @@ def _report(args, cell, fit, spec, views, skipped) -> int:
 def _on_the_suite(args) -> int:
     """calibrate_intrinsics on the running suite; prints its result."""
     from cobot_calib_msgs.action import CalibrateIntrinsics
-    from rclpy.action import ActionClient
+    from cobot_calib_ros.ros.action_client import ActionClient
     from cobot_calib_ros.cli.common import EXIT_INTERRUPTED, ros_node, say
     from cobot_calib_ros.ros.calls import CallError, Interrupted, run_action
     if args.views and args.views < 4:

@@ -27,7 +27,7 @@ from control_msgs.action import FollowJointTrajectory
 from action_msgs.msg import GoalStatus
 from builtin_interfaces.msg import Duration
 import numpy as np
-from rclpy.action import ActionClient, ActionServer, CancelResponse, GoalResponse
+from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.node import Node
 from rclpy.serialization import deserialize_message
@@ -40,6 +40,7 @@ from cobot_calib_ros.core import driver, kinematics, rig
 from cobot_calib_ros.core.errors import ErrorCode, Failure
 from cobot_calib_ros.loaders import load_cell
 from cobot_calib_ros.core.rig import Rig
+from cobot_calib_ros.ros.action_client import ActionClient
 from cobot_calib_ros.store.cells import ResultsCell
 from cobot_calib_ros.store.rigs import rig_of
 from cobot_calib_ros.ros import convert, qos, results, spin

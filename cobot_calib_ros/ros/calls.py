@@ -10,10 +10,10 @@ import contextlib
 import time
 
 import rclpy
-from rclpy.action import ActionClient
 from rclpy.node import Node
 
 from cobot_calib_ros.ros import interrupts
+from cobot_calib_ros.ros.action_client import ActionClient
 
 
 class CallError(RuntimeError):

@@ -19,13 +19,13 @@ from cobot_calib_msgs.action import MoveTo
 from cobot_calib_msgs.msg import ProximityReading
 from cobot_calib_msgs.srv import AverageProximity, CaptureJoints, HandGuide, MeasurePosition
 import numpy as np
-from rclpy.action import ActionClient
 from std_srvs.srv import Trigger
 
 from cobot_calib_ros.core import frames
 from cobot_calib_ros.core.robot_port import (Approach, Capture, CaptureFailed, MoveFailed,
                                              PortError, RobotStopped)
 from cobot_calib_ros.core.sensors.probe import Reading, ReadingStatus
+from cobot_calib_ros.ros.action_client import ActionClient
 from cobot_calib_ros.ros.convert import matrix_to_pose
 from cobot_calib_ros.ros.spin import absent_after, Companion, pause, Stopping, until, wait
 

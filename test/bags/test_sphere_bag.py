@@ -42,7 +42,7 @@ def test_the_identify_kinematics_goal_takes_the_bag_too(bag_domain, tmp_path):
     """The node's `file` may name a bag: kinematic_identifier (iiwa7 cell, its own process)
     identifies from the recorded captures and gives the live parameters again."""
     import rclpy
-    from rclpy.action import ActionClient
+    from cobot_calib_ros.ros.action_client import ActionClient
     from rclpy.context import Context
     from rclpy.executors import SingleThreadedExecutor
     from cobot_calib_msgs.action import IdentifyKinematics

@@ -14,7 +14,6 @@ import domain_coordinator
 import numpy as np
 import pytest
 import rclpy
-from rclpy.action import ActionClient
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from scipy.spatial.transform import Rotation
@@ -23,6 +22,7 @@ from cobot_calib_ros import store
 from cobot_calib_ros.api import launcher
 from cobot_calib_ros.loaders import load_camera_info_yaml
 from cobot_calib_ros.paths import cell_file
+from cobot_calib_ros.ros.action_client import ActionClient
 from cobot_calib_ros.ros.calls import run_action, spin_until
 from cobot_calib_ros.sim.scenario import load_simulation
 from cobot_calib_ros.store.cells import ResultsCell

@@ -19,11 +19,11 @@ import domain_coordinator
 import numpy as np
 import pytest
 import rclpy
-from rclpy.action import ActionClient
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
 from cobot_calib_ros.api import launcher
+from cobot_calib_ros.ros.action_client import ActionClient
 from cobot_calib_ros.ros.calls import run_action, spin_until
 from cobot_calib_ros.core import frames
 from cobot_calib_ros.paths import cell_file

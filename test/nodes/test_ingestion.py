@@ -9,12 +9,12 @@ from cobot_calib_msgs.srv import AverageProximity, CaptureJoints, GetGroundTruth
 from diagnostic_msgs.msg import DiagnosticArray
 import numpy as np
 import pytest
-from rclpy.action import ActionClient
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Header
 
 from cobot_calib_ros.ros import convert, qos
+from cobot_calib_ros.ros.action_client import ActionClient
 from cobot_calib_ros.ros.calls import run_action, spin_until
 from cobot_calib_ros.ros.time import now_ns, ns_to_stamp
 from cobot_calib_ros.core import cell as cellmod

@@ -9,13 +9,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from rclpy.action import ActionClient
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from visualization_msgs.msg import MarkerArray
 
 from cobot_calib_msgs.action import CollectSphereData, IdentifyKinematics
 from cobot_calib_msgs.msg import CollectionProgress
 from cobot_calib_msgs.srv import CalibrateUserFrame, SetActiveCalibration
+from cobot_calib_ros.ros.action_client import ActionClient
 from cobot_calib_ros.ros.calls import run_action, spin_until
 from cobot_calib_ros.core.kinematics import fk, model_by_name, plans
 from cobot_calib_ros.core.kinematics.identification import SphereObservations

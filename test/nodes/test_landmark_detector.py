@@ -17,7 +17,6 @@ import domain_coordinator
 import numpy as np
 import pytest
 import rclpy
-from rclpy.action import ActionClient
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -26,6 +25,7 @@ from sensor_msgs.msg import Image
 
 from cobot_calib_ros.api import launcher
 from cobot_calib_ros.core.landmarks.pipeline import Pipeline
+from cobot_calib_ros.ros.action_client import ActionClient
 from cobot_calib_ros.ros.calls import run_action, spin_until
 from cobot_calib_ros.core import frames
 from cobot_calib_ros.nodes.landmark_detector import (configure, FrameSlot, Handoff,

@@ -13,7 +13,6 @@ import time
 import domain_coordinator
 import pytest
 import rclpy
-from rclpy.action import ActionClient
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import qos_profile_sensor_data
@@ -22,6 +21,7 @@ from sensor_msgs.msg import JointState
 from cobot_calib_msgs.action import MoveTo
 from cobot_calib_ros.api import launcher
 from cobot_calib_ros.ros import spin
+from cobot_calib_ros.ros.action_client import ActionClient
 from cobot_calib_ros.ros.calls import spin_until
 
 TIMEOUT = 60.0      # [s] for the node to start (cold imports on a loaded machine)

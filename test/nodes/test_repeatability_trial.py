@@ -16,10 +16,10 @@ from cobot_calib_msgs.msg import Repeatability
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 import numpy as np
 import pytest
-from rclpy.action import ActionClient
 
 from cobot_calib_ros import paths
 from cobot_calib_ros.api import launcher
+from cobot_calib_ros.ros.action_client import ActionClient
 from cobot_calib_ros.ros.calls import CallError, run_action, spin_until
 from cobot_calib_ros.loaders import load_cell
 from cobot_calib_ros.core.repeatability import point_statistics

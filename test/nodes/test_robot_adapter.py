@@ -15,7 +15,6 @@ import domain_coordinator
 import numpy as np
 import pytest
 import rclpy
-from rclpy.action import ActionClient
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
@@ -33,6 +32,7 @@ from cobot_calib_ros.core.kinematics import fk, model_for
 from cobot_calib_ros.loaders import load_cell
 from cobot_calib_ros.paths import cell_file
 from cobot_calib_ros.ros import convert, qos
+from cobot_calib_ros.ros.action_client import ActionClient
 from cobot_calib_ros.ros.calls import call_service, run_action, spin_until
 from cobot_calib_ros.store.cells import ResultsCell
 from cobot_calib_ros.store.trials import TrialStore

@@ -9,10 +9,10 @@ holds depend on the machine's load: bench/bench_sim_time.py prints them.
 from cobot_calib_msgs.action import MoveTo
 from cobot_calib_msgs.srv import AverageProximity, CaptureJoints, GetGroundTruth
 import pytest
-from rclpy.action import ActionClient
 from sensor_msgs.msg import JointState
 
 from cobot_calib_ros.api import launcher
+from cobot_calib_ros.ros.action_client import ActionClient
 from cobot_calib_ros.ros.calls import run_action, spin_until
 from cobot_calib_ros.core import frames
 from cobot_calib_ros.core.cell import tool_down_orientation

@@ -9,7 +9,6 @@ import time
 import domain_coordinator
 import pytest
 import rclpy
-from rclpy.action import ActionClient
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import qos_profile_sensor_data
@@ -17,6 +16,7 @@ from sensor_msgs.msg import JointState
 
 from cobot_calib_msgs.action import MoveTo
 from cobot_calib_ros.api import launcher
+from cobot_calib_ros.ros.action_client import ActionClient
 from cobot_calib_ros.ros.calls import CallError, run_action, spin_until
 from machine import short_lease
 
