@@ -11,7 +11,8 @@ data_dir; ``cobot-calib record --compress zstd`` records:
 - ``/repeatability`` (cobot_calib_msgs/Repeatability, latched): the live statistics after each
   cycle;
 
-while ``cobot-calib trial --method five_point_lsq --cycles CYCLES --trial-id TRIAL_ID`` runs.
+while ``cobot-calib trial --method five_point_lsq --cycles CYCLES`` runs (a new trial: its id is
+the one the node stored).
 Then, from the recording and the trial the node stored (``trials/<id>/distances.csv``):
 
 1. every stored reading (cycle, point) is tied to the probe/average it came from: the first
@@ -57,7 +58,6 @@ CELL = DEFAULT_CELL
 METHOD = 'five_point_lsq'
 AXIS = 'z'
 CYCLES = 4
-TRIAL_ID = 'sample-five_point_lsq-z'
 MARGIN = 0.05               # [s] of /probe/voltage kept on each side of a probe window
 CLI = [sys.executable, '-m', 'cobot_calib_ros.cli.main']
 VOLTAGE_TOPIC = '/probe/voltage'
@@ -110,7 +110,7 @@ def record(raw: Path, env: dict) -> None:
             started = time.monotonic()
             result = subprocess.run(
                 CLI + ['trial', '--method', METHOD, '--axis', AXIS, '--cycles', str(CYCLES),
-                       '--trial-id', TRIAL_ID, '--json'],
+                       '--json'],
                 env=env, capture_output=True, text=True)
             if result.returncode != 0:
                 raise SystemExit(f'trial failed ({result.returncode}): {result.stderr}')
@@ -140,7 +140,7 @@ def build(out: Path, raw: Path, data: Path) -> None:
     table = {'calibration_distance': [float(v) for v in params['calibration_distance']],
              'calibration_voltage': [float(v) for v in params['calibration_voltage']],
              'saturation_margin': float(params['saturation_margin'])}
-    trial_dir = data / 'trials' / TRIAL_ID
+    trial_dir, = (data / 'trials').iterdir()          # the one trial the node stored
     meta = yaml.safe_load((trial_dir / 'trial.yaml').read_text())
     rows = {}
     with open(trial_dir / 'distances.csv', newline='') as f:
