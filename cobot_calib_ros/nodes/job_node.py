@@ -73,6 +73,12 @@ class JobNode(Node):
         """The results of this node's cell, opened afresh (another node may have stored since)."""
         return store.open(self._root, cell=self._results_cell)
 
+    def _foreign(self, meta: dict) -> str:
+        """'' if a stored trial or collection (its metadata) is this cell's, or legacy
+        (stored before they named their cell: on this robot or an unrecorded one), else why
+        not (store.cells)."""
+        return self._results_cell.problem(meta.get('cell', ''), meta.get('robot', ''))
+
     def _rig(self, kinematics: str = 'latest'):
         """The cell's rig with the active results (store.rigs.rig_of; KeyError / ValueError)."""
         return rig_of(self._repository(), self._cell, kinematics, self._model)

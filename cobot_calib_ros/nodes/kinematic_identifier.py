@@ -169,6 +169,11 @@ class KinematicIdentifier(JobNode):
             stored = self._collections.load(goal.collection_id)
             if stored is not None:
                 meta = stored.meta
+                foreign = self._foreign(meta)
+                if foreign:
+                    raise ValueError(f'collection {goal.collection_id} is not this cell\'s: '
+                                     f'{foreign}; resume it on its own cell\'s suite, or '
+                                     'give a new id (or none)')
                 if meta['status'] == 'done':
                     raise ValueError(f'collection {goal.collection_id} is complete; give a '
                                      'new id (or none) to collect again')
@@ -215,7 +220,7 @@ class KinematicIdentifier(JobNode):
         meta = self._collections.create(
             collection_id, source=source, robot=self._cell.robot,
             joint_names=self._model.joint_names, targets=targets, plan=plan,
-            extra={**extra, 'cell': self._cell.name})
+            extra={**extra, 'cell': self._results_cell.name})
         return collection_id, meta
 
     def _planning(self, goal) -> dict:
@@ -510,10 +515,15 @@ class KinematicIdentifier(JobNode):
             if data is None:
                 raise Refusal(Failure(ErrorCode.NO_DATA, f'no readable collection '
                                       f'{collection_id!r} in {self._collections.directory}'))
+            foreign = self._foreign(data.meta)
+            if foreign:
+                raise Refusal(Failure(ErrorCode.INVALID_INPUT, (
+                    f'collection {collection_id} is not this cell\'s: {foreign}; identify it '
+                    'on its own cell\'s suite (or offline: cobot-calib identify --source)')))
             return data
         for meta in self._collections.list_collections():
-            if meta['source'] == source and meta['status'] == 'done' and meta['robot'] == \
-                    self._cell.robot and (region is None or meta.get('region') == region):
+            if meta['source'] == source and meta['status'] == 'done' and \
+                    not self._foreign(meta) and (region is None or meta.get('region') == region):
                 return self._collections.load(meta['id'])
         if required:
             raise Refusal(Failure(ErrorCode.NO_DATA, (

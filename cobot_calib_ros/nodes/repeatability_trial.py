@@ -113,6 +113,8 @@ class RepeatabilityTrial(JobNode):
         self._republish.cancel()
         for meta in sorted(self._store.list_trials(), key=lambda m: m['updated_ns'],
                            reverse=True):
+            if self._foreign(meta):
+                continue
             data = self._store.load(meta['id'])
             if data is None:
                 continue
@@ -266,7 +268,8 @@ class RepeatabilityTrial(JobNode):
             trial.trial_id, trial.meta['method'], trial.meta['axis'], self._cell.layout,
             [self._cell.marker(n) for n in trial.meta['point_names']],
             trial.meta['cycles_total'], probe, approach_distance=self._p('approach_distance'),
-            extra={'kinematics': model_used})
+            extra={'kinematics': model_used, 'cell': self._results_cell.name,
+                   'robot': self._results_cell.robot})
         run = trialmod.TrialRun(plan, robot, self._store,
                                 *self._callbacks(trial, goal_handle, feedback),
                                 lambda: goal_handle.is_cancel_requested)
@@ -304,6 +307,11 @@ class RepeatabilityTrial(JobNode):
                                     cycles_total=goal.cycles or trialmod.DEFAULT_CYCLES,
                                     point_names=self._cell.point_names).to_dict()
             return None
+        foreign = self._foreign(stored.meta)
+        if foreign:
+            raise trialmod.TrialError(ErrorCode.INVALID_INPUT, (
+                f'trial {trial.trial_id} is not this cell\'s: {foreign}; resume it on its own '
+                'cell\'s suite, or leave the trial id out to start a new trial'))
         trial.meta = stored.meta
         problem = (trialmod.resume_problem(stored.meta, goal.method, goal.axis, goal.cycles)
                    or self._layout_problem(stored.meta))

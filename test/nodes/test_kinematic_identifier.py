@@ -4,6 +4,7 @@ the result (issue 10)."""
 import json
 import os
 import re
+import shutil
 import time
 from pathlib import Path
 
@@ -289,6 +290,38 @@ def test_bad_goals_get_a_reason(ros, actions):
     solver = _run(ros, actions[1], Identify(solver='gradient'))
     assert solver.error_code == IdentifyKinematics.Result.INVALID_GOAL
     assert 'nelder-mead' in solver.message
+
+
+def test_another_cell_s_collections_are_neither_resumed_nor_identified(ros, actions,
+                                                                       trial_data):
+    """A data dir shared with the iiwa7 cell: its collections (a finished one, and one to
+    resume) are refused by name on this Sawyer suite, and nothing is written to them."""
+    iiwa = model_by_name('iiwa7')
+    collections = CollectionStore(trial_data)
+    plan = [{'q': [0.0] * 7, 'target': k % 3} for k in range(6)]
+    for collection_id, status in (('iiwa7-done', 'done'), ('iiwa7-cut', 'aborted')):
+        collections.create(collection_id, source='spheres', robot='iiwa7',
+                           joint_names=iiwa.joint_names, targets=['S1', 'S2', 'S3'], plan=plan,
+                           extra={'known_distances': [], 'cell': 'iiwa7_close'})
+        for index in range(6 if status == 'done' else 2):
+            collections.append(collection_id, index, index % 3, np.full(7, 0.1 * index))
+        collections.set_status(collection_id, status)
+    why = ("it was made in cell 'iiwa7_close' on the iiwa7; this is cell 'sawyer_close' on "
+           "the sawyer")
+    try:
+        identified = _run(ros, actions[1], Identify(collection_id='iiwa7-done'))
+        resumed = _run(ros, actions[0], Collect(collection_id='iiwa7-cut'))
+        assert identified.error_code == IdentifyKinematics.Result.INVALID_GOAL
+        assert identified.message.startswith(
+            f"collection iiwa7-done is not this cell's: {why}"), identified.message
+        assert resumed.error_code == CollectSphereData.Result.INVALID_GOAL
+        assert resumed.message.startswith(
+            f"collection iiwa7-cut is not this cell's: {why}"), resumed.message
+        assert collections.meta('iiwa7-cut')['status'] == 'aborted'
+        assert len(collections.load('iiwa7-cut').index) == 2
+    finally:        # later tests count this data dir's collections
+        for collection_id in ('iiwa7-done', 'iiwa7-cut'):
+            shutil.rmtree(collections.directory / collection_id)
 
 
 def _identified_in_process(trial_data) -> str:

@@ -342,12 +342,46 @@ def test_repeatability_is_republished_when_the_node_restarts(ros, tmp_path):
     assert list(second.rp) == pytest.approx(point_statistics(newer).rp.tolist())
 
 
+def test_a_suite_republishes_and_resumes_only_its_own_cell_s_trials(ros, tmp_path):
+    """A data dir shared with another robot's cell: its newer trial is neither republished as
+    this cell's latest nor resumed here (refused by name); a trial this cell made is."""
+    store, names = TrialStore(tmp_path), load_cell(paths.cell_file('sawyer_close')).point_names
+    _stored_trial(store, 'mine', names, cycles_total=4, measured=2,
+                  made_by={'cell': 'replay', 'robot': 'sawyer'})
+    _stored_trial(store, 'theirs', names, cycles_total=4, measured=1,
+                  made_by={'cell': 'iiwa7_close', 'robot': 'iiwa7'})
+    replay = launcher.NodeSpec('repeatability_trial',
+                               {'cell_file': str(paths.cell_file('sawyer_close')),
+                                'data_dir': str(tmp_path)}, namespace='replay')
+    nodes, got = launcher.Suite(tmp_path / 'logs'), []
+    nodes.start([replay])
+    sub = ros.create_subscription(Repeatability, '/replay/repeatability', got.append,
+                                  qos.LATCHED)
+    client = ActionClient(ros, RunTrial, '/replay/run_trial')
+    try:
+        assert spin_until(ros, lambda: got, STARTUP_TIMEOUT, ros.executor_for_tests), \
+            nodes.log_tail('replay.repeatability_trial')
+        _, refused = run_action(ros, client, RunTrial.Goal(trial_id='theirs'), 60.0,
+                                executor=ros.executor_for_tests)
+    finally:
+        client.destroy()
+        ros.destroy_subscription(sub)
+        assert nodes.stop(STOP_TIMEOUT) == {'replay.repeatability_trial': 0}
+    assert [m.trial_id for m in got] == ['mine']
+    assert refused.error_code == RunTrial.Result.INVALID_GOAL
+    assert refused.message.startswith(
+        "trial theirs is not this cell's: it was made in cell 'iiwa7_close' on the iiwa7; "
+        "this is cell 'replay' on the sawyer"), refused.message
+    assert store.load('theirs').meta['status'] == 'aborted'      # untouched
+
+
 def _stored_trial(store: TrialStore, trial_id: str, names, cycles_total: int,
-                  measured: int) -> np.ndarray:
-    """A rigid trial with ``measured`` cycles of readings; its distances [m]."""
+                  measured: int, made_by: dict | None = None) -> np.ndarray:
+    """A rigid trial with ``measured`` cycles of readings; its distances [m]. ``made_by``:
+    its cell and robot (none: a trial stored before trials named them)."""
     rng = np.random.default_rng(len(trial_id))
     store.create(trial_id, method='rigid', axis='z', layout='close', point_names=names,
-                 cycles_total=cycles_total)
+                 cycles_total=cycles_total, extra=made_by)
     d = 1.2e-3 + rng.normal(0.0, 2e-5, (len(names), measured))
     for cycle in range(measured):
         for i in range(len(names)):
