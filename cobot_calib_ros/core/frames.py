@@ -11,9 +11,20 @@ import math
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.spatial.transform import Rotation
 
 Array = NDArray[np.float64]
+
+
+class _Rotation:
+    """scipy.spatial.transform.Rotation, imported on first use: importing scipy.spatial takes
+    0.2 s, paid by every node and command process that imports a module using Rotation."""
+
+    def __getattr__(self, name: str):
+        from scipy.spatial.transform import Rotation
+        return getattr(Rotation, name)
+
+
+Rotation = _Rotation()
 
 
 def make_transform(rotation: ArrayLike, translation: ArrayLike) -> Array:

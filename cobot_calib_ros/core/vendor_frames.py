@@ -27,8 +27,8 @@ import math
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.spatial.transform import Rotation
 
+from cobot_calib_ros.core.frames import Rotation
 from cobot_calib_ros.core.frames import make_transform, rot_x, rot_y, rot_z
 
 Array = NDArray[np.float64]

@@ -57,11 +57,11 @@ import numpy as np
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data, QoSProfile
-from scipy.spatial.transform import Rotation
 from sensor_msgs.msg import CameraInfo, Image
 
 from cobot_calib_ros import paths
 from cobot_calib_ros.core.cell import CellFileError
+from cobot_calib_ros.core.frames import Rotation
 from cobot_calib_ros.loaders import load_cell
 from cobot_calib_ros.core.landmarks.camera import CameraModel
 from cobot_calib_ros.core.landmarks.detect import (DEFAULT_REFINE, REFINE_METHODS,

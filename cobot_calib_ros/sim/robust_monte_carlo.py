@@ -17,9 +17,9 @@ import math
 from typing import Callable
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from cobot_calib_ros.core import user_frame as uf
+from cobot_calib_ros.core.frames import Rotation
 from cobot_calib_ros.core.frames import apply, make_transform
 
 Array = np.ndarray

@@ -23,11 +23,10 @@ import math
 import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.optimize import least_squares
-from scipy.spatial.transform import Rotation
 
 from cobot_calib_ros.core import frames
 from cobot_calib_ros.core.errors import ErrorCode, Failure
+from cobot_calib_ros.core.frames import Rotation
 from cobot_calib_ros.core.kinematics.ik import solve_ik_with_restarts
 
 Array = NDArray[np.float64]
@@ -303,6 +302,7 @@ def solve_hand_eye(T_base_flange: Sequence[ArrayLike], T_optical_board: Sequence
         dp, dr = _errors(_perturb(Xs, d[:6]), _perturb(Bs, d[6:]), F, M)
         return np.einsum('nij,nj->ni', W, np.hstack([dp, dr])).ravel()
 
+    from scipy.optimize import least_squares    # here: importing it takes 0.3 s
     nfev = 0
     X, B = X0, B0
     for _ in range(2):           # the second pass re-bases at the solution: jac at d = 0

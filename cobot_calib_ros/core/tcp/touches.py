@@ -20,9 +20,9 @@ import math
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.spatial.transform import Rotation
 
 from cobot_calib_ros.core import kinematics
+from cobot_calib_ros.core.frames import Rotation
 from cobot_calib_ros.core.robot_port import Approach, Cancelled, check_cancel, never, RobotPort
 from cobot_calib_ros.core.tcp.solve import check_determined, solve_tcp, TcpSolution
 

@@ -11,8 +11,8 @@ import math
 
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy.spatial.transform import Rotation
 
+from cobot_calib_ros.core.frames import Rotation
 from cobot_calib_ros.core.frames import skew
 from cobot_calib_ros.core.user_frame.checks import _check_points, point_names
 from cobot_calib_ros.core.user_frame.estimators import (

@@ -21,9 +21,9 @@ from typing import Mapping, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy.spatial.transform import Rotation
 
 from cobot_calib_ros.core.errors import ErrorCode, Failure
+from cobot_calib_ros.core.frames import Rotation
 from cobot_calib_ros.core.frames import apply, invert
 from cobot_calib_ros.core.user_frame.estimators import METHODS
 from cobot_calib_ros.core.user_frame.fit import calibrate

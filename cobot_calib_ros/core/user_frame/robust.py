@@ -32,7 +32,6 @@ from typing import Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy.stats import chi2, f
 
 from cobot_calib_ros.core.errors import ErrorCode, Failure
 from cobot_calib_ros.core.frames import skew
@@ -111,6 +110,7 @@ class _Test:
 @lru_cache(maxsize=256)
 def _critical(level: float, dof: float) -> float:
     """Upper ``level`` quantile of t^2: chi-square(3), or 3 F(3, dof) with estimated noise."""
+    from scipy.stats import chi2, f     # here: importing scipy.stats takes 0.35 s
     if math.isinf(dof):
         return float(chi2.isf(level, 3))
     return float(3.0 * f.isf(level, 3, dof))

@@ -47,7 +47,6 @@ from typing import Callable
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.optimize import least_squares, minimize
 
 from cobot_calib_ros.core.errors import ErrorCode
 from cobot_calib_ros.core.kinematics.identification import compliance, gates
@@ -287,6 +286,7 @@ class _Problem:
             return self.columns(x)
 
         def run(x0: Array, stage_loss: str, budget: int | None, box):
+            from scipy.optimize import least_squares    # here: importing it takes 0.3 s
             return least_squares(monitor.residuals, x0, jac=jacobian, bounds=box,
                                  method='trf', x_scale='jac', xtol=TOLERANCE, ftol=TOLERANCE,
                                  gtol=TOLERANCE, max_nfev=budget, loss=stage_loss,
@@ -383,6 +383,7 @@ def _nelder_mead(monitor: _Monitor, x0: Array, lower: Array, upper: Array,
         return monitor.cost(monitor.residuals(x0 + NM_STEP * z))
 
     simplex = np.vstack([np.zeros(U), np.eye(U)])
+    from scipy.optimize import minimize     # here: importing it takes 0.3 s
     res = minimize(cost, np.zeros(U), method='Nelder-Mead',
                    bounds=list(zip((lower - x0) / NM_STEP, (upper - x0) / NM_STEP)),
                    callback=lambda z: monitor.step(x0 + NM_STEP * z),

@@ -30,8 +30,8 @@ import math
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.spatial.transform import Rotation
 
+from cobot_calib_ros.core.frames import Rotation
 from cobot_calib_ros.core.frames import from_vector, invert, kabsch, skew
 
 Array = NDArray[np.float64]
