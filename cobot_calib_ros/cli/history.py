@@ -78,6 +78,7 @@ def _cell_report(repo, cell: str, start: int) -> dict:
             continue
         c = step.change
         steps.append({'id': step.record['id'], 'method': step.record['method'],
+                      'tcp': step.record.get('tcp', ''),
                       'stamp_ns': step.record['stamp_ns'], 'previous': step.previous_id,
                       'rms_mm': step.record['result'].get('rms', 0.0) * 1e3,
                       **_change_fields(c),

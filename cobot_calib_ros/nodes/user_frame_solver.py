@@ -217,8 +217,9 @@ class UserFrameSolver(JobNode):
             frames_ = self._request_frames(request)
             if request.method in landmark_frames.LANDMARK_METHODS:
                 names, p_user, p_base, model_used, hand_eye, fit = self._landmark_fit(request)
+                tcp = ''
             else:
-                names, p_user, p_base, model_used = self._points(request)
+                names, p_user, p_base, model_used, tcp = self._points(request)
                 hand_eye = ''
         except Refusal as e:
             return self._refuse(response, e.failure.code, e.failure.message)
@@ -232,7 +233,7 @@ class UserFrameSolver(JobNode):
                    if request.fit_surface and request.method !=
                    landmark_frames.LANDMARK_SINGLE else None)
         record = UserFrameRecord.from_fit(fit, surface, names, p_user, p_base, frames_,
-                                          now_ns(self), model_used, hand_eye).to_dict()
+                                          now_ns(self), model_used, hand_eye, tcp).to_dict()
         try:
             with self._store_lock:
                 previous = self._store.active()
@@ -278,9 +279,9 @@ class UserFrameSolver(JobNode):
         self._update_health()
         return response
 
-    def _points(self, request) -> tuple[list[str], np.ndarray, np.ndarray, str]:
-        """Names, nominal user points, measured base points [m], and the kinematic model
-        that measured them ('' for points given in the request)."""
+    def _points(self, request) -> tuple[list[str], np.ndarray, np.ndarray, str, str]:
+        """Names, nominal user points, measured base points [m], and the kinematic model and
+        the TCP that measured them ('' for points given in the request)."""
         p_user = convert.points_to_array(request.points_user)
         p_base = convert.points_to_array(request.points_base)
         names = list(request.point_names)
@@ -289,21 +290,22 @@ class UserFrameSolver(JobNode):
                 raise Refusal(Failure(ErrorCode.INVALID_INPUT, (
                     f'{len(names)} point names for {len(p_user)} points; give one name per '
                     'point or none')))
-            return names or [f'P{i + 1}' for i in range(len(p_user))], p_user, p_base, ''
+            return names or [f'P{i + 1}' for i in range(len(p_user))], p_user, p_base, '', ''
         if not names:
             raise Refusal(Failure(ErrorCode.TOO_FEW_POINTS, (
                 'no points: give points_user + points_base, or point_names of the cell to '
                 'visit live')))
         self._check_names(names)
         rig = self._rig(request.kinematics or self._p('kinematics'))
-        chain, model_used = rig.chain('tcp'), rig.active.kinematics_label
+        chain, model_used, tcp = rig.chain('tcp'), rig.active.kinematics_label, \
+            rig.active.tcp_label
         if request.joint_captures:
             joints = self._given_joints(names, request.joint_captures)
         else:
             joints = [self._capture_live(name) for name in names]
         p_user = np.array([self._cell.marker(n).nominal_top for n in names])
         p_base = np.array([kinematics.fk(chain, q)[:3, 3] for q in joints])
-        return names, p_user, p_base, model_used
+        return names, p_user, p_base, model_used, tcp
 
     def _rig(self, choice: str) -> Rig:
         """The cell's rig with the kinematics ``choice`` names and the active hand-eye, read

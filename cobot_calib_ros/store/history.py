@@ -11,7 +11,7 @@ standard error. Used by ``cobot-calib history`` and by user_frame_solver's drift
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 import math
 from typing import Any
 
@@ -32,7 +32,9 @@ class Step:
 
 def user_frame_change(previous: Mapping[str, Any], new: Mapping[str, Any],
                       limits: DriftLimits = DriftLimits()) -> FrameChange:
-    """The change of the user frame from record ``previous`` to ``new`` and its verdict."""
+    """The change of the user frame from record ``previous`` to ``new`` and its verdict; its
+    message says so when the two were touched with different TCP calibrations (the change
+    then holds the tool's)."""
     T_prev = np.array(previous['result']['T_base_user'], dtype=float)
     T_new = np.array(new['result']['T_base_user'], dtype=float)
     shared = _shared_points(previous, new)
@@ -40,7 +42,13 @@ def user_frame_change(previous: Mapping[str, Any], new: Mapping[str, Any],
         cov = change_covariance(T_prev, *shared)
     else:
         cov = _covariance(previous) + _covariance(new)
-    return frame_change(T_prev, T_new, cov, limits, since=str(previous['id']))
+    change = frame_change(T_prev, T_new, cov, limits, since=str(previous['id']))
+    tcp_before, tcp_now = previous.get('tcp', ''), new.get('tcp', '')
+    if tcp_before and tcp_now and tcp_before != tcp_now:
+        change = replace(change, message=(
+            f'{change.message}; touched with TCP {tcp_now}, {previous["id"]} with TCP '
+            f'{tcp_before}: the change holds the tool\'s'))
+    return change
 
 
 def user_frame_steps(records: Sequence[Mapping[str, Any]],

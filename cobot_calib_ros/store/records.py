@@ -132,6 +132,9 @@ class UserFrameRecord(Record):
     method: str
     kinematics: str = ''       # the kinematic model that measured the points ('' : unknown)
     hand_eye: str = ''         # landmark methods: the hand-eye calibration used
+    tcp: str = ''              # touched points: the TCP calibration of the tool that touched
+    #                            them ('nominal': the cell's tool_offset; '' : not touched, or
+    #                            stored before records named it)
     base_frame: str
     user_frame: str
     inputs: UserFrameInputs
@@ -143,7 +146,7 @@ class UserFrameRecord(Record):
     @classmethod
     def from_fit(cls, fit: user_frame.FrameFit, surface: user_frame.SurfaceModel | None,
                  names: list[str], p_user, p_base, frames_: tuple[str, str], stamp_ns: int,
-                 kinematics: str = '', hand_eye: str = '') -> UserFrameRecord:
+                 kinematics: str = '', hand_eye: str = '', tcp: str = '') -> UserFrameRecord:
         """The record of a fit (and its optional surface) of ``names``' points."""
         stored_surface = None if surface is None else SurfaceRecord(
             valid=bool(surface), powers_x=surface.powers_x, powers_y=surface.powers_y,
@@ -151,7 +154,7 @@ class UserFrameRecord(Record):
             rms_after=surface.rms_after)
         return cls(
             id=record_id(fit.method), stamp_ns=stamp_ns, method=fit.method,
-            kinematics=kinematics, hand_eye=hand_eye, base_frame=frames_[0],
+            kinematics=kinematics, hand_eye=hand_eye, tcp=tcp, base_frame=frames_[0],
             user_frame=frames_[1],
             inputs=UserFrameInputs(point_names=list(names), points_user=p_user,
                                    points_base=p_base),

@@ -1,8 +1,9 @@
-"""tcp_calibrator with mock_robot and joint_state_monitor as processes on a private domain of
-their own (cell sawyer_close, temporary data_dir): `cobot-calib tcp` has the mock's simulated
-operator touch P1 from tilted approaches and a z elongator point; the TCP found is the mock's
-TRUE tool (not the cell's nominal one), stored and active for the cell's tool; approaches too
-alike are refused before anything moves; Ctrl-C cancels between touches, nothing stored.
+"""tcp_calibrator with mock_robot, joint_state_monitor and user_frame_solver as processes on a
+private domain of their own (cell sawyer_close, temporary data_dir): `cobot-calib tcp` has the
+mock's simulated operator touch P1 from tilted approaches and a z elongator point; the TCP found
+is the mock's TRUE tool (not the cell's nominal one), stored and active for the cell's tool; a
+user frame touched next names that TCP; approaches too alike are refused before anything
+moves; Ctrl-C cancels between touches, nothing stored.
 
 Own suite, not the session's (test/nodes/conftest.py): a second mock_robot on the session's
 domain would answer its hand-guiding.
@@ -25,7 +26,7 @@ from cobot_calib_ros.sim.scenario import load_simulation
 from cobot_calib_ros.store.cells import ResultsCell
 from rosutil import cli_command, STOP_TIMEOUT
 
-NODES = ('mock_robot', 'joint_state_monitor', 'tcp_calibrator')
+NODES = ('mock_robot', 'joint_state_monitor', 'tcp_calibrator', 'user_frame_solver')
 CELL = ResultsCell('sawyer_close', 'sawyer')
 SIM = load_simulation(cell_file('sawyer_close'))
 # Through the nominal kinematics (none calibrated here) the arm's own errors add ~0.1 mm to
@@ -44,7 +45,8 @@ def tcp_suite(tmp_path_factory):
         suite = launcher.Suite(tmp_path_factory.mktemp('tcp_logs'))
         suite.start(launcher.suite_specs('sawyer_close', NODES, overrides={
             'mock_robot': {'time_scale': '0.05'},
-            'tcp_calibrator': {'data_dir': str(data), 'hold_duration': '0.1'}}), env=env)
+            'tcp_calibrator': {'data_dir': str(data), 'hold_duration': '0.1'},
+            'user_frame_solver': {'data_dir': str(data)}}), env=env)
         try:
             yield suite, data, env
         finally:
@@ -76,6 +78,20 @@ def test_the_tcp_found_is_the_mocks_true_tool_and_becomes_active(tcp_suite):
     active = store.open(data, cell=CELL).tcp.active('tool0')
     assert active['id'] == result['calibration_id']
     assert active['method'] == 'tcp-6-point-z' and active['kinematics'] == 'nominal'
+
+
+def test_a_user_frame_touched_after_names_the_tcp_it_was_touched_with(tcp_suite):
+    """The frame's points are touched with the active TCP (the one the test above found), and
+    its record names it: a later TCP change is told apart from the table's (store.history)."""
+    _, data, env = tcp_suite
+    tcp = store.open(data, cell=CELL).tcp.active('tool0')
+    assert tcp is not None, 'run with the test above: it makes the TCP active'
+    out = subprocess.run(cli_command('call', 'calibrate_user_frame',
+                                     '{method: rigid, point_names: [P1, P2, P3, P4]}'),
+                         env=env, capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0 and 'error_code: 0' in out.stdout, out.stdout + out.stderr
+    frame = store.open(data, cell=CELL).user_frames.active()
+    assert frame['tcp'] == tcp['id'] and frame['kinematics'] == 'nominal'
 
 
 def test_approaches_too_alike_are_refused_before_anything_moves(tcp_suite):

@@ -93,6 +93,23 @@ def test_repeats_raise_nothing_and_a_moved_table_warns_within_one_calibration(tm
     assert 'user frame moved 0.' in steps[0].change.message
 
 
+def test_a_change_touched_with_another_tcp_says_so():
+    """Two calibrations of the same table touched with two TCP calibrations: the change's
+    message names both (the frame's change then holds the tool's); the same TCP, or one not
+    recorded (given points, records before the field), adds nothing."""
+    records = []
+    for seed, tcp in ((7, 'nominal'), (8, 'tcp-tool0-2'), (9, 'tcp-tool0-2'), (10, '')):
+        run = calibrate_user_frame(SIM, seed)
+        records.append(UserFrameRecord.from_fit(run.fit, None, run.names, run.p_user,
+                                                run.p_base, ('base', 'user'), seed,
+                                                tcp=tcp).to_dict())
+        records[-1]['id'] = f'uf-{seed}'
+    messages = [s.change.message for s in user_frame_steps(records)[1:]]
+    assert messages[0].endswith('; touched with TCP tcp-tool0-2, uf-7 with TCP nominal: the '
+                                "change holds the tool's"), messages[0]
+    assert ['TCP' in m for m in messages] == [True, False, False]
+
+
 def test_kinematic_changes_in_standard_errors():
     prev = {'result': {'free': ['a', 'b'], 'values': [1.0, 2.0], 'std': [0.3, 0.4]}}
     new = {'result': {'free': ['b', 'c'], 'values': [3.0, 0.0], 'std': [0.3, 0.1]}}
