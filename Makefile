@@ -42,9 +42,12 @@ $(STAMP)/control_msgs: $(STAMP)/deps tools/build_interfaces.sh tools/interface_p
 	tools/build_interfaces.sh --if-missing $(VENV) interfaces/control_msgs
 	touch $@
 
+# compileall: the package's bytecode written once (with PYTHONDONTWRITEBYTECODE set, every node
+# and command process would compile its modules again)
 $(STAMP)/package: $(STAMP)/msgs $(STAMP)/tf2_msgs $(STAMP)/control_msgs setup.py setup.cfg package.xml $(wildcard config/*.yaml config/cells/*.yaml)
 	$(PY) -m pip install --quiet --disable-pip-version-check --no-deps --no-build-isolation -e .
 	$(PY) tools/install_ros_prefix.py $(VENV)
+	$(PY) -m compileall -q cobot_calib_ros > /dev/null
 	touch $@
 
 demo: setup

@@ -12,6 +12,11 @@ settings.register_profile('no_deadline', deadline=None)
 settings.load_profile('no_deadline')
 
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+# every process of the session (this one, nodes, commands) announces an infinite DDS lease:
+# no lease checks, which can deadlock Fast DDS 2.14.5 (see the file); a test that kills a
+# process on purpose gives it a short lease of its own
+os.environ.setdefault('FASTRTPS_DEFAULT_PROFILES_FILE',
+                      str(Path(__file__).with_name('fastdds_no_lease_check.xml')))
 # tools/pg_cluster.py: the throwaway PostgreSQL of test/store (and bench_database)
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'tools'))
 
