@@ -29,7 +29,7 @@ from cobot_calib_ros.core.errors import ErrorCode
 from cobot_calib_ros.core.ids import record_id
 from cobot_calib_ros.store.files import to_plain
 
-OMITTED_WHEN_EMPTY = ('gate_problem', 'hand_eye', 'cell', 'robot')   # keys older files lack
+OMITTED_WHEN_EMPTY = ('gate_problem', 'hand_eye', 'tcp', 'cell', 'robot')  # keys older files lack
 OMITTED_WHEN_NONE = frozenset({'converged'})   # keys older records lack
 
 

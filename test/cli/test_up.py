@@ -227,5 +227,7 @@ def _wait_line(proc: subprocess.Popen, text: str, timeout: float) -> list[str]:
     """The lines up to the first containing ``text``."""
     lines = Lines(proc.stdout)
     if lines.wait_for(text, timeout) is None:
-        pytest.fail(f'no {text!r} within {timeout} s:\n{"".join(lines.seen)}')
+        ended = '' if proc.poll() is None else (f'(exited {proc.returncode}; stderr: '
+                                                f'{proc.stderr.read() if proc.stderr else ""})')
+        pytest.fail(f'no {text!r} within {timeout} s {ended}:\n{"".join(lines.seen)}')
     return lines.seen
