@@ -57,21 +57,24 @@ SUITE_WAIT = 5.0
 
 
 def _refuse_without_identifier(client: IdentifyClient) -> None:
-    """CallError within SUITE_WAIT when kinematic_identifier's actions are not on the graph
-    (no suite: the flows' own wait would take a minute to say less)."""
+    """CallError when kinematic_identifier's actions are not on the graph: within SUITE_WAIT
+    on an empty domain (no suite: the flows' own wait would take a minute to say less), within
+    DISCOVERY_WAIT when other nodes are there (spin.absent_after)."""
     from cobot_calib_ros.ros.calls import CallError
-    from cobot_calib_ros.ros.spin import absent_after, DISCOVERY_WAIT
+    from cobot_calib_ros.ros.spin import absent_after, DISCOVERY_WAIT, others_on_graph
     absent = absent_after({'collect_sphere_data': client.collect.server_is_ready,
                            'identify_kinematics': client.identify.server_is_ready}, SUITE_WAIT,
-                          client.node, ('kinematic_identifier',))
-    if absent and 'kinematic_identifier' in client.node.get_node_names():
+                          client.node)
+    if not absent:
+        return
+    domain = os.environ.get('ROS_DOMAIN_ID', '0')
+    if 'kinematic_identifier' in client.node.get_node_names():
         raise CallError(f'{" and ".join(absent)} not on the graph after {DISCOVERY_WAIT:.0f} s, '
                         'though kinematic_identifier is: is it still starting? See its log')
-    if absent:
-        raise CallError(f'{" and ".join(absent)} not on the graph after {SUITE_WAIT:.0f} s: no '
-                        f'kinematic_identifier on ROS_DOMAIN_ID='
-                        f'{os.environ.get("ROS_DOMAIN_ID", "0")}; start the suite with '
-                        f'cobot-calib up (same ROS_DOMAIN_ID)')
+    waited = DISCOVERY_WAIT if others_on_graph(client.node) else SUITE_WAIT
+    raise CallError(f'{" and ".join(absent)} not on the graph after {waited:.0f} s: no '
+                    f'kinematic_identifier on ROS_DOMAIN_ID={domain}; start the suite with '
+                    f'cobot-calib up (same ROS_DOMAIN_ID)')
 
 
 class CollectionStopped(KeyboardInterrupt):

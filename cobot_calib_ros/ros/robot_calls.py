@@ -30,7 +30,6 @@ from cobot_calib_ros.ros.convert import matrix_to_pose
 from cobot_calib_ros.ros.spin import absent_after, Companion, pause, Stopping, until, wait
 
 SERVER_WAIT = 5.0       # [s] for move_to / capture_joints to be discovered
-SERVER_NODES = ('mock_robot', 'robot_adapter', 'joint_state_monitor', 'proximity_sensor')
 MOVE_TIMEOUT = 120.0    # [s] for one move_to to finish (every caller's bound on a hung move)
 TOUCH_TIMEOUT = 600.0   # [s] for the operator to guide the tool onto a point and confirm
 HAND_GUIDE = 'mock_robot/hand_guide'
@@ -86,7 +85,7 @@ class RobotCalls:
         return absent_after(dict(zip(self.CALLS, (self.move_client.server_is_ready,
                                                   self.capture_client.service_is_ready,
                                                   self.probe_client.service_is_ready))),
-                            timeout, self._answers.node, SERVER_NODES)
+                            timeout, self._answers.node)
 
     def move(self, goal: MoveTo.Goal) -> MoveTo.Result:
         """Run a move_to goal to its end (MOVE_TIMEOUT); MoveFailed unless it succeeded (the

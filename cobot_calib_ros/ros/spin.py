@@ -237,6 +237,7 @@ class Companion:
     def __init__(self, owner: Node, role: str) -> None:
         self.node = Node(f'_{owner.get_name()}_{role}', namespace=owner.get_namespace(),
                          context=owner.context, start_parameter_services=False)
+        self.node.owner_name = owner.get_name()      # its process's own node (others_on_graph)
         self._executor = make_executor(owner.context)
         self._executor.add_node(self.node)
         self._running = True
@@ -320,33 +321,36 @@ def until(ready: Callable[[], bool], timeout: float) -> bool:
     return True
 
 
-DISCOVERY_WAIT = 30.0     # [s] for the servers of nodes that are on the graph
+DISCOVERY_WAIT = 30.0     # [s] for servers on a domain where other nodes are seen
 
 
-def absent_after(ready: dict[str, Callable[[], bool]], timeout: float, graph=None,
-                 servers_of: tuple[str, ...] = ()) -> list[str]:
+def absent_after(ready: dict[str, Callable[[], bool]], timeout: float,
+                 graph=None) -> list[str]:
     """The names in ``ready`` whose check is still False after up to ``timeout`` s (one wait
     for all, ended as soon as all are True): the servers a call needs that are not on the
     graph. Raises Stopping as until does.
 
-    ``graph`` (the caller's rclpy node) and ``servers_of`` (the names of the nodes that serve
-    them): when one of those nodes is on the graph by then, its servers are still being
-    discovered, so they are waited for up to DISCOVERY_WAIT s in all (on a loaded CI run
-    `identify --attach` was refused after 5 s while the suite was up). No such node: said
+    ``graph``: the caller's rclpy node. When it sees other nodes by then (others_on_graph), a
+    suite is there and is still being discovered, so the servers are waited for up to
+    DISCOVERY_WAIT s in all: on loaded CI runs a new process had not yet seen
+    kinematic_identifier 5 s after `up` said every node answered. An empty domain is said
     after ``timeout``.
     """
     def all_ready() -> bool:
         return all(is_ready() for is_ready in ready.values())
 
-    if not until(all_ready, timeout) and graph is not None and _on_graph(graph, servers_of):
+    if not until(all_ready, timeout) and graph is not None and others_on_graph(graph):
         until(all_ready, max(0.0, DISCOVERY_WAIT - timeout))
     return [name for name, is_ready in ready.items() if not is_ready()]
 
 
-def _on_graph(node, names: tuple[str, ...]) -> bool:
-    """Whether ``node`` sees a node of one of ``names`` (in any namespace) on the graph."""
+def others_on_graph(node) -> bool:
+    """Whether ``node`` sees a node on the graph other than itself, the node it is a companion
+    of, and companions (named with a leading underscore)."""
+    own = {node.get_name(), getattr(node, 'owner_name', '')}
     with contextlib.suppress(Exception):        # a graph query during shutdown
-        return any(name in names for name in node.get_node_names())
+        return any(name not in own and not name.startswith('_')
+                   for name in node.get_node_names())
     return False
 
 
