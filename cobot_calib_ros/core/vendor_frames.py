@@ -28,8 +28,7 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from cobot_calib_ros.core.frames import Rotation
-from cobot_calib_ros.core.frames import make_transform, rot_x, rot_y, rot_z
+from cobot_calib_ros.core.frames import make_transform, rot_x, rot_y, rot_z, Rotation
 
 Array = NDArray[np.float64]
 MM = 1e-3                  # [m]

@@ -13,7 +13,7 @@ from rclpy.executors import SingleThreadedExecutor
 
 from cobot_calib_msgs.action import CalibrateIntrinsics
 from cobot_calib_ros.ros.action_client import ActionClient
-from cobot_calib_ros.ros.spin import absent_after
+from cobot_calib_ros.ros.spin import absent_after, until
 
 ACTION = 'absent_after_test'
 LATE = 1.0          # [s] after the wait starts, the server appears
@@ -58,7 +58,7 @@ def test_a_server_of_a_node_on_the_graph_is_waited_for(contexts, starts, absent)
                 executor.spin_once(timeout_sec=0.05)
         threads.append(threading.Thread(target=serve_late, daemon=True))
         threads[-1].start()
-        assert _until(lambda: server_node in client_node.get_node_names(), 30.0)
+        assert until(lambda: server_node in client_node.get_node_names(), 30.0)
     try:
         go.set()
         assert absent_after({'server': client.server_is_ready}, TIMEOUT, client_node) == absent
@@ -68,9 +68,3 @@ def test_a_server_of_a_node_on_the_graph_is_waited_for(contexts, starts, absent)
             thread.join(10.0)
         client.destroy()
 
-
-def _until(done, timeout: float) -> bool:
-    deadline = time.monotonic() + timeout
-    while not done() and time.monotonic() < deadline:
-        time.sleep(0.05)
-    return done()

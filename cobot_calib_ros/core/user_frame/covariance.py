@@ -12,8 +12,7 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike
 
-from cobot_calib_ros.core.frames import Rotation
-from cobot_calib_ros.core.frames import skew
+from cobot_calib_ros.core.frames import Rotation, skew
 from cobot_calib_ros.core.user_frame.checks import _check_points, point_names
 from cobot_calib_ros.core.user_frame.estimators import (
     _affine_pose, _estimator, _three_point_pose, DEFAULT_METHOD)

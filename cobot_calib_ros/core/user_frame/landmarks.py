@@ -23,8 +23,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from cobot_calib_ros.core.errors import ErrorCode, Failure
-from cobot_calib_ros.core.frames import Rotation
-from cobot_calib_ros.core.frames import apply, invert
+from cobot_calib_ros.core.frames import apply, invert, Rotation
 from cobot_calib_ros.core.user_frame.estimators import METHODS
 from cobot_calib_ros.core.user_frame.fit import calibrate
 from cobot_calib_ros.core.frames import skew

@@ -31,8 +31,7 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from cobot_calib_ros.core.frames import Rotation
-from cobot_calib_ros.core.frames import from_vector, invert, kabsch, skew
+from cobot_calib_ros.core.frames import from_vector, invert, kabsch, Rotation, skew
 
 Array = NDArray[np.float64]
 KINDS = ('spheres', 'points', 'pose', 'plane')
