@@ -144,7 +144,8 @@ def test_a_new_active_tcp_makes_the_frame_touched_with_the_old_one_stale_and_mov
         xyz, rpy = T_user_tool[:3, 3], [math.pi, 0.0, 0.0]
         code, moved, text = _cli_json(env, 'move', '--frame', 'user', '--dry-run',
                                       '--data-dir', str(data), '--robot-cell', 'sawyer_close',
-                                      '--xyz', *map(repr, xyz), '--rpy', *map(repr, rpy))
+                                      '--xyz', *[repr(float(v)) for v in xyz],
+                                      '--rpy', *[repr(float(v)) for v in rpy])
         assert code == 0, text
         assert moved['tool_record'] == new['id'] and moved['kinematics'] == 'nominal', text
         check_stale(moved['stale'], text)
