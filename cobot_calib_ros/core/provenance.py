@@ -54,7 +54,7 @@ class Stale:
         else:
             size = ''
         away = f'is {size} away {self.where}'.rstrip() if size else \
-            f'differs by an unknown amount ({self.was} is not stored)'
+            'differs by an amount not known here'
         return (f'{NAMES[self.kind]} {self.id} was {verb} with {name} {self.was}; the active '
                 f'{name} {self.now} {away}: {REMEDIES[self.kind]}, or keep it')
 

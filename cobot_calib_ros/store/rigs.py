@@ -227,9 +227,12 @@ def _stale(repository, cell, model, active: ActiveSet, kind: str, result, throug
             m, r = provenance.pose_change(was_T, now_T)
             sizes = {'change_mm': m * 1e3, 'change_mrad': r * 1e3,
                      'where': 'at the camera' if through == 'hand_eye' else 'at its origin'}
-    elif through == 'intrinsics' and before is not None and now is not None:
-        sizes = {'change_px': provenance.lens_change(before.model.K, now.model.K),
-                 'where': 'in the focal lengths and principal point'}
+    elif through == 'intrinsics' and cell.camera is not None:
+        nominal = cell.camera.camera_model().K
+        sizes = {'change_px': provenance.lens_change(
+            nominal if before is None else before.model.K,
+            nominal if now is None else now.model.K),
+            'where': 'in the focal lengths and principal point'}
     return provenance.Stale(kind, result.id, through, was, active.label(through), **sizes)
 
 
