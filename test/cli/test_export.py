@@ -132,3 +132,33 @@ def test_export_of_the_active_tcp_of_a_tool_gives_back_its_values(tmp_path, caps
     assert main(['export', 'tcp-probe', '--format', 'kuka', '--index', '17', '--data-dir',
                  str(root)]) == 2
     assert 'give 1..16' in capsys.readouterr().err
+
+
+def test_export_of_a_frame_touched_with_another_tcp_says_it_is_stale(tmp_path, capsys):
+    """Issue 36.2: the frame goes to the controller with the active TCP; when it was touched
+    with another, export says so in one line on stderr and in its JSON (`stale`)."""
+    from cobot_calib_ros import store
+    from cobot_calib_ros.loaders import load_cell
+    from cobot_calib_ros.paths import cell_file
+    from cobot_calib_ros.store.cells import ResultsCell
+    cell = load_cell(cell_file('sawyer_close'))
+    repo = store.open(tmp_path, cell=ResultsCell.of(cell))
+    for tcp_id, dy in (('t1', 0.0), ('t2', 2e-4)):
+        T = np.array(cell.tool_offset)
+        T[1, 3] += dy
+        repo.tcp.save_and_activate({
+            'id': tcp_id, 'stamp_ns': 1 + int(dy > 0), 'method': 'tcp-4-point',
+            'tool': cell.tool_frame, 'inputs': {}, 'measured_through': {'kinematics': 'nominal'},
+            'result': {'T_flange_tcp': T.tolist(), 'orientation_method': 'none'}})
+        if tcp_id == 't1':
+            repo.user_frames.save_and_activate({
+                'id': 'F', 'stamp_ns': 1, 'method': 'rigid', 'inputs': {},
+                'measured_through': {'kinematics': 'nominal', 'tcp': 't1'},
+                'result': {'T_base_user': np.eye(4).tolist()}})
+    assert main(['export', 'active', '--format', 'ur', '--json', '--data-dir',
+                 str(tmp_path)]) == 0
+    captured = capsys.readouterr()
+    (stale,) = json.loads(captured.out)['stale']
+    assert (stale['id'], stale['was'], stale['now']) == ('F', 't1', 't2')
+    assert stale['change_mm'] == pytest.approx(0.2, abs=1e-9)
+    assert f'export: stale: {stale["message"]}' in captured.err
