@@ -97,6 +97,7 @@ def missing_prerequisites(what: str, through: dict[str, str]) -> str:
     missing = [NAMES[kind] for kind, used in through.items() if used == 'nominal']
     if not missing:
         return ''
-    return (f'{what} measured through the nominal {" and ".join(missing)} (none calibrated '
-            f'is active): calibrate {"them" if len(missing) > 1 else "it"} first for a '
-            f'result consistent with the calibrated cell')
+    names = ' and '.join(filter(None, (', '.join(missing[:-1]), missing[-1])))
+    return (f'{what} measured through the nominal {names} (none calibrated is active): '
+            f'calibrate {"them" if len(missing) > 1 else "it"} first for a result consistent '
+            'with the calibrated cell')
