@@ -336,8 +336,9 @@ class LandmarkDetector(Node):
         return super().destroy_node()
 
     def _read_active_intrinsics(self) -> CameraModel | None:
-        """The cell camera's active intrinsics (store.rigs.active_set: cobot-calib intrinsics,
-        camera_calibrator), which replace camera_info's K and D; None: camera_info's hold.
+        """The cell camera's active intrinsics (store.rigs.active_result, the active set's
+        intrinsics: cobot-calib intrinsics, camera_calibrator), which replace camera_info's K
+        and D; None: camera_info's hold.
         Read at start and again every INTRINSICS_CHECK_PERIOD (:meth:`_follow_intrinsics`):
         a new calibration is used without a restart."""
         source = read_once(self, 'intrinsics', 'active',
@@ -364,11 +365,11 @@ class LandmarkDetector(Node):
     def _active_intrinsics_now(self) -> CameraModel | None:
         from cobot_calib_ros import store
         from cobot_calib_ros.store.cells import ResultsCell
-        from cobot_calib_ros.store.rigs import active_set
+        from cobot_calib_ros.store.rigs import active_result
         cell, data_dir = self._intrinsics_from
-        try:
+        try:        # opened afresh: another process may have stored one since
             repo = store.open(data_dir, cell=ResultsCell.of(cell, self.get_namespace()))
-            active = active_set(repo, cell).intrinsics
+            active = active_result(repo, cell, 'intrinsics')
         except Exception as e:          # noqa: BLE001 - a store that cannot be read: the topic's
             self.get_logger().warning(f'active intrinsics not read ({e}); camera_info holds',
                                       throttle_duration_sec=60.0)

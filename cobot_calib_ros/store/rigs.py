@@ -131,7 +131,10 @@ def kinematic_record(repository, model, choice: str = 'active') -> dict[str, Any
         raise ValueError(f'kinematics: {exc.args[0]}') from None
 
 
-def _active(repository, cell, kind: str):
+def active_result(repository, cell, kind: str):
+    """The typed active result of ``kind`` (one of :data:`KINDS`) of ``cell``, None when
+    there is none or it does not read (the cell's nominal value holds): one kind of
+    :func:`active_set`, for a consumer that follows that kind alone."""
     spec = KINDS[kind]
     try:
         history = history_of(repository, kind)
@@ -149,15 +152,16 @@ def active_set(repository, cell, kinematics: str = 'active', user_frame: str = '
     them are stale (:func:`stale_results`). ValueError: no such calibration, or a user frame
     id not stored (both say what to do)."""
     model = model_for(cell) if model is None else model
-    frame = _active(repository, cell, 'user_frame')
+    frame = active_result(repository, cell, 'user_frame')
     if user_frame:
         frame = user_frame_of(repository.user_frames.get(user_frame))
         if frame is None:
             raise ValueError(f'no user frame {user_frame!r} in the results of cell '
                              f'{repository.cell}; list them with `cobot-calib history`')
     active = ActiveSet(kinematics_of(kinematic_record(repository, model, kinematics)),
-                       _active(repository, cell, 'hand_eye'), _active(repository, cell, 'tcp'),
-                       frame, _active(repository, cell, 'intrinsics'))
+                       active_result(repository, cell, 'hand_eye'),
+                       active_result(repository, cell, 'tcp'), frame,
+                       active_result(repository, cell, 'intrinsics'))
     return ActiveSet(active.kinematics, active.hand_eye, active.tcp, active.user_frame,
                      active.intrinsics, stale_results(repository, cell, active, model))
 
