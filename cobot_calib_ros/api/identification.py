@@ -13,6 +13,8 @@ from pathlib import Path
 import time
 from typing import Callable
 
+import numpy as np
+
 from cobot_calib_ros.core.kinematics.identification.gates import (MAX_DEVIATION_M,
                                                                    MAX_DEVIATION_RAD)
 
@@ -153,8 +155,9 @@ def identify_on_suite(client: IdentifyClient, *, say: Callable[[str], None],
     data = to_dict(result)
     tracker = {region: _stats_pair(data[f'{prefix}_nominal'], data[f'{prefix}_calibrated'])
                for region, prefix in (('volume', 'validation'), ('workspace', 'workspace'))}
-    return {
+    return validation_figures({
         'source': source, 'source_kind': 'suite', 'calibration_id': result.calibration_id,
+        'stored': bool(result.calibration_id),
         'message': result.message, 'verdict': {'passed': True, 'problems': []},
         'converged': True,          # the node answers an error for anything its gates refuse
         'identified': [{'name': n, 'value': v, 'nominal': n0, 'delta': v - n0, 'std': s}
@@ -166,7 +169,7 @@ def identify_on_suite(client: IdentifyClient, *, say: Callable[[str], None],
         'rms_mm': result.rms * 1e3, 'iterations': result.iterations,
         'solve_seconds': result.solve_seconds, 'collections': collections,
         'collect_seconds': collect_seconds, 'yaml_path': result.yaml_path,
-        'urdf_path': result.urdf_path, 'paper_ratio_percent': PAPER_RATIO_PERCENT}
+        'urdf_path': result.urdf_path, 'paper_ratio_percent': PAPER_RATIO_PERCENT})
 
 
 def resumable(given: str, cell: str) -> tuple[str, bool]:
@@ -242,7 +245,8 @@ def identify_source(path: str | Path, *, cell: str | None = None,
                     ball=(0.0, 0.0, 0.04), solver: str = 'lm', loss: str = 'soft_l1',
                     max_configs: int = 0,
                     max_deviation: tuple[float, float] = (MAX_DEVIATION_M, MAX_DEVIATION_RAD),
-                    store: bool = False) -> dict:
+                    store: bool = False, data_dir: str | None = None,
+                    db: str | None = None) -> dict:
     """Identify a source offline (loaders.sources: a measurement file, a MUKCa folder, a bag or
     a collection folder) through the one engine; the report (JSON-ready, mm), the same shape
     for every source: ``source``, ``source_kind``, ``robot``, ``measurement``, ``rows``,
@@ -254,10 +258,19 @@ def identify_source(path: str | Path, *, cell: str | None = None,
 
     A measurement file or MUKCa folder: its arm from ``urdf`` / ``dh`` (``measurement``, when
     given, must be the file's kind), error ``model``, held out by ``folds`` or ``leave_out``
-    (default: a MUKCa folder one location at a time, else 5-fold). A bag or a collection: the
+    (default: a MUKCa folder one location at a time, else 5-fold); ``unseen`` names the
+    parameters its measurement kind cannot see (core writeback). A bag or a collection: the
     ``cell``'s (a name or path) robot, identified as the kinematic_identifier node does
-    (core CalibrationJob, ``solver``, ``max_configs``); ``store``: a collection's passing
-    result is stored and made active in the data dir, as the node does.
+    (core CalibrationJob, ``solver``, ``max_configs``).
+
+    ``store``: a result that passes its gate is stored and made active in ``data_dir`` /
+    ``db`` (paths.data_dir, store.open), whatever the source, as the node does: the record,
+    the given URDF rewritten (a measurement file's ``urdf``, else the cell's) and a UR arm's
+    kinematics YAML; ``calibration_id``, ``record_path``, ``yaml_path``, ``urdf_path`` (and
+    ``ur_kinematics_path``) in the report, ``stored`` True; else ``stored`` False and
+    ``not_stored`` says why. Scoped by ``cell`` when given (its robot must be the file's arm),
+    else by the arm's model name (the URDF's file name). Every report has
+    ``validation_max_mm`` (:func:`validation_figures`).
 
     ValueError (one line) for a path that is none of the sources, bad data or arguments;
     IdentificationFailed when a bag or collection holds nothing to identify; core.errors.
@@ -273,8 +286,14 @@ def identify_source(path: str | Path, *, cell: str | None = None,
                   ('--solver nelder-mead', solver != 'lm'), ('--max-configs', max_configs))
         source = sources.load_source(path, urdf=urdf, base_link=base_link, tip_link=tip_link,
                                      dh=dh, ball=ball)
-        return _identify_measurements(source, measurement, model, folds, leave_out, loss,
-                                      bounds)
+        scope = _measurement_scope(cell, source.model) if store else None
+        report = _identify_measurements(source, measurement, model, folds, leave_out, loss,
+                                        bounds)
+        if store:
+            report.update(_store_measurements(source, report, scope, data_dir, db))
+        else:
+            report.update(stored=False, not_stored='--no-store: a dry run')
+        return validation_figures(report)
     _only_for('a measurement file or a MUKCa folder', kind, ('--measurement', measurement),
               ('--urdf', urdf), ('--dh', dh), ('--base-link', base_link),
               ('--tip-link', tip_link), ('--model', model), ('--folds', folds),
@@ -297,9 +316,13 @@ def identify_source(path: str | Path, *, cell: str | None = None,
         raise IdentificationFailed(message if str(path) in message else f'{path}: {message}') \
             from None
     report = _job_report(source, outcome, bounds)
-    if store and kind == sources.COLLECTION and outcome.verdict.passed:
-        report.update(_store(source, outcome))
-    return report
+    if not store:
+        report.update(stored=False, not_stored='--no-store: a dry run')
+    elif not outcome.verdict.passed:
+        report.update(stored=False, not_stored='refused by its gate: nothing stored')
+    else:
+        report.update(_store(source, outcome, data_dir, db))
+    return validation_figures(report)
 
 
 def _only_for(where: str, kind: str, *given) -> None:
@@ -315,7 +338,13 @@ def _identify_measurements(source, measurement: str | None, model: str | None,
     """A measurement file or MUKCa folder identified held out (core measurement_fit.
     identify_measurements)."""
     from cobot_calib_ros.core.kinematics.identification import measurement_fit as mf
+    from cobot_calib_ros.core.kinematics.identification.writeback import unseen
     file, robot = source.file, source.model
+    extra = [j for j in file.joints if j not in robot.joint_names]
+    if extra:
+        raise ValueError(f'{file.source}: joint columns {extra} are not joints of the chain '
+                         f'{robot.name} ({", ".join(robot.joint_names)}); give the --tip-link '
+                         'whose chain has them, or leave them out of the sidecar\'s "joints"')
     if measurement and file.measurements.kind != measurement:
         raise ValueError(f'{file.source} holds {file.measurements.kind} measurements, not '
                          f'{measurement}: pass --measurement {file.measurements.kind}')
@@ -332,7 +361,71 @@ def _identify_measurements(source, measurement: str | None, model: str | None,
     report = mf.identify_measurements(errors, file.measurements, held, labels=labels,
                                       sample=file.sample, loss=loss, bounds=bounds,
                                       noise_m=file.noise_m)
-    return {**source.provenance, 'validation': validation, **report}
+    data = file.measurements
+    on_tool = len(np.unique(data.target)) if data.kind == 'points' else \
+        0 if data.kind == 'pose' else 1
+    return {**source.provenance, 'validation': validation, **report,
+            'unseen': unseen(robot, data.kind, on_tool, report['dropped'])}
+
+
+def _measurement_scope(cell: str | None, model):
+    """The results cell a measurement file's result is stored under: ``cell``'s (a name or
+    path; its robot must be the file's arm), else the arm's own (its model name)."""
+    from cobot_calib_ros.store.cells import ResultsCell
+    if not cell:
+        return ResultsCell(model.name, model.name)
+    from cobot_calib_ros.loaders import load_cell
+    from cobot_calib_ros.paths import cell_file
+    loaded = load_cell(cell_file(cell))
+    if loaded.robot != model.name:
+        raise ValueError(f'--cell {cell}: its robot is {loaded.robot!r}, the measurement\'s '
+                         f'arm is {model.name!r} (--urdf); give the cell of this arm, or no '
+                         f'--cell (stored under the arm, {model.name!r})')
+    return ResultsCell.of(loaded)
+
+
+def _store_measurements(source, report: dict, scope, data_dir, db) -> dict:
+    """Store a measurement file's passing result and make it active (module doc); the
+    report's storage keys."""
+    from cobot_calib_ros import paths, store
+    from cobot_calib_ros.core.kinematics.identification import measurement_fit as mf
+    from cobot_calib_ros.core.kinematics.identification.writeback import model_parameters
+    from cobot_calib_ros.store.records import KinematicRecord
+    if not report['verdict']['passed']:
+        return {'stored': False, 'not_stored': 'refused by its gate: nothing stored'}
+    errors = mf.ErrorModel(source.model, report['model'])
+    try:
+        params = model_parameters(errors, [p['name'] for p in report['identified']],
+                                  [p['value'] for p in report['identified']])
+    except ValueError as e:
+        return {'stored': False, 'not_stored': f'not stored: {e}'}
+    typed = KinematicRecord.from_report(report, source.model, params, unseen=report['unseen'])
+    repo = store.open(paths.data_dir(data_dir), db, scope)
+    saved = repo.kinematics.save_record(typed, source.model, description=source.description)
+    return _saved_keys(saved)
+
+
+def _saved_keys(saved) -> dict:
+    """The report keys of a store.kinematics.SavedKinematics."""
+    out = {'stored': True, 'calibration_id': saved.record.id,
+           'record_path': str(saved.paths['json']), 'yaml_path': str(saved.paths['yaml']),
+           'urdf_path': str(saved.paths['urdf']),
+           'active': bool(saved.activation) if saved.activation is not None else False}
+    if 'ur_kinematics' in saved.paths:
+        out['ur_kinematics_path'] = str(saved.paths['ur_kinematics'])
+    return out
+
+
+def validation_figures(report: dict) -> dict:
+    """``report`` with ``validation_max_mm``: region ('held_out', 'volume', 'workspace') ->
+    {'nominal', 'calibrated'} max error [mm], the figures a gate compares, as numbers."""
+    figures = {region: {k: rows[k]['max_mm'] for k in ('nominal', 'calibrated')}
+               for region, rows in report.get('tracker', {}).items()}
+    if report.get('held_out'):
+        figures['held_out'] = {k: report['held_out'][k]['max_mm']
+                               for k in ('nominal', 'calibrated')}
+    report['validation_max_mm'] = figures
+    return report
 
 
 def _default_group(file) -> str | None:
@@ -367,12 +460,13 @@ def _ratio(table: dict) -> dict:
                    / rows['nominal']['max_mm']}
 
 
-def _store(source, outcome) -> dict:
-    """Store a collection's outcome in the data dir and make it active, as the node does."""
+def _store(source, outcome, data_dir: str | None = None, db: str | None = None) -> dict:
+    """Store a bag's or a collection's outcome and make it active, as the node does (the
+    cell's URDF written back, a UR arm's kinematics YAML)."""
     from cobot_calib_ros import paths, store
     from cobot_calib_ros.store.cells import ResultsCell
     planning = source.provenance.get('planning')
-    saved = store.open(paths.data_dir(''), cell=ResultsCell.of(source.cell)).kinematics \
-        .save_outcome(outcome, extra={'planning': planning} if planning else None)
-    return {'calibration_id': saved.record.id, 'yaml_path': str(saved.paths['yaml']),
-            'urdf_path': str(saved.paths['urdf'])}
+    saved = store.open(paths.data_dir(data_dir), db, ResultsCell.of(source.cell)).kinematics \
+        .save_outcome(outcome, extra={'planning': planning} if planning else None,
+                      description=source.cell.urdf_robot)
+    return _saved_keys(saved)

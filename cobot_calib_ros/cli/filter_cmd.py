@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+import sys
 
 from cobot_calib_ros.cli.common import EXIT_FAILED, EXIT_OK, EXIT_USAGE, fail, say
 from cobot_calib_ros.cli.db import add_db_options
@@ -77,6 +78,9 @@ def run(args) -> int:
         return fail(f'filter: {exc}', EXIT_USAGE)
     except OSError as exc:
         return fail(f'filter: {exc}')
+    note = unseen_tool_note(record)
+    if note:
+        print(f'filter: note: {note}', file=sys.stderr)
     result = filter_targets(targets, calibrated, nominal, cell.home, T_base_frame)
     if result.unreachable:
         for unreachable in result.unreachable:
@@ -100,3 +104,11 @@ def run(args) -> int:
                   f'tool {args.tool}): largest correction {largest_mm:.3f} mm, '
                   f'{largest_mrad:.3f} mrad -> {args.out}')
     return EXIT_OK
+
+
+def unseen_tool_note(record) -> str:
+    """'' or the line naming what a kinematic calibration ``record`` could not see that every
+    tool carries (store.kinematics.unseen_note): filter and move say it when they use it."""
+    from cobot_calib_ros.store.kinematics import unseen_note
+    unseen = [u for u in (record or {}).get('unseen', ()) if u.get('affects') == 'tool']
+    return f'{record["id"]}: {unseen_note(unseen)}' if unseen else ''

@@ -60,9 +60,20 @@ class KinematicHistory:
         the URDF is written back into (:func:`calibrated_descriptions`)."""
         typed = KinematicRecord.from_outcome(outcome, wall_ns)
         typed.extra.update(extra or {})
+        # a sphere coupling or a tracker's reflector is fitted with the arm: measured through
+        # no other result (the contract's provenance)
+        typed.extra.setdefault('measured_through', {})
+        return self.save_record(typed, outcome.model, activate, description)
+
+    def save_record(self, typed: KinematicRecord, model: KinematicModel, activate: bool = True,
+                    description: UrdfRobot | None = None) -> SavedKinematics:
+        """Write a kinematic record (JSON), its YAML and URDF (and a UR arm's kinematics
+        YAML), whatever made it (a CalibrationJob outcome, a measurement file's
+        identification); make it its robot's active one if ``activate`` (and it passes its
+        gate). ``description``: the robot's URDF (with its text), written back into."""
         record = typed.to_dict()
         paths = {'yaml': self.directory / f'{typed.id}.yaml'}
-        texts = calibrated_descriptions(typed, outcome.model, description)  # before any write
+        texts = calibrated_descriptions(typed, model, description)  # before any write
         stored = self.save(record)       # a path, or where in a database
         ensure_dir(self.directory)
         atomic_write_text(paths['yaml'], yaml.safe_dump(_readable(record), sort_keys=False,
@@ -104,16 +115,27 @@ def calibrated_descriptions(record: KinematicRecord, model: KinematicModel,
             f'{record.robot}, {utc_text(record.stamp_ns)}, {record.method} from '
             f'{record.inputs.source}; only the origins of {", ".join(model.joint_names)} '
             'differ from the nominal description')
+    unseen = record.extra.get('unseen') or ()
+    if unseen:
+        note += '\n' + unseen_note(unseen)
     if description is None or not description.urdf:
-        return {'urdf': calibrated_urdf(model, params, np.array(record.result.tool_xyz),
+        tool = record.result.tool_xyz
+        return {'urdf': calibrated_urdf(model, params, None if tool is None else np.array(tool),
                                         robot_name=f'{model.name}_calibrated')}
     urdf = rewrite_urdf(description.urdf, model, params, base_link=description.base_link,
                         tip_link=description.tip_link, note=note)
     texts = {'urdf': urdf}
     if is_ur(model.joint_names):
-        texts['ur_kinematics'] = ur_kinematics_yaml(ur_kinematics(urdf),
+        texts['ur_kinematics'] = ur_kinematics_yaml(ur_kinematics(urdf, model.joint_names),
                                                     f'cobot_calib_{record.id}', note)
     return texts
+
+
+def unseen_note(unseen) -> str:
+    """One line naming the parameters a record's measurement could not see (kept at nominal)
+    and what they affect: the written URDF's comment, filter's and move's notes."""
+    return 'not seen by the measurement, kept nominal: ' + '; '.join(
+        f'{u["name"]} ({u["reason"]})' for u in unseen)
 
 
 def _readable(record: dict[str, Any]) -> dict[str, Any]:

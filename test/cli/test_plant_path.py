@@ -1,0 +1,119 @@
+"""A plant's path with no suite and no simulation section (issue 37, must-show 1): a UR5e-like
+arm with planted errors (plant_scene), its tracker CSV -> identify (stored, URDF + UR YAML
+written, their paths in the JSON) -> a user frame from touched points -> filter a program in
+that frame -> the controller's nominal inverse kinematics of the filtered targets, run on the
+TRUE arm, lands within 2x the noise floor of each target (where the unfiltered program is
+millimetres off)."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+from numpy.testing import assert_allclose
+import pytest
+
+from cobot_calib_ros import store
+from cobot_calib_ros.cli.main import main
+from cobot_calib_ros.core.frames import from_pose
+from cobot_calib_ros.core.kinematics import fk, solve_ik
+from cobot_calib_ros.core.kinematics.ur_description import parse_ur_kinematics, ur_kinematics
+from cobot_calib_ros.core.kinematics.urdf import model_from_urdf
+from cobot_calib_ros.core.user_frame import fit_rigid
+from cobot_calib_ros.store.cells import ResultsCell
+
+import plant_scene as scene
+
+
+@pytest.fixture(scope='module')
+def plant(tmp_path_factory):
+    folder = tmp_path_factory.mktemp('plant')
+    return folder, scene.write(folder)
+
+
+def run_json(capsys, argv) -> dict:
+    code = main(argv + ['--json'])
+    out = capsys.readouterr()
+    assert code == 0, out.err
+    return json.loads(out.out)
+
+
+def test_tracker_file_to_controller_on_the_true_arm(plant, capsys):
+    folder, files = plant
+    data = str(folder / 'results')
+    report = run_json(capsys, ['identify', '--source', str(files['tracker']), '--urdf',
+                               str(files['urdf']), '--cell', str(files['cell']),
+                               '--data-dir', data])
+    assert report['stored'] and report['active'] and report['verdict']['passed']
+    figures = report['validation_max_mm']['held_out']
+    assert figures['calibrated'] < 3 * scene.NOISE_RMS * 1e3 < figures['nominal']
+    # the written URDF is the arm identified (every link and visual kept) ...
+    urdf = Path(report['urdf_path']).read_text()
+    assert report['calibration_id'] in urdf and 'not seen by the measurement' in urdf
+    assert urdf.count('<visual>') == files['urdf'].read_text().count('<visual>') == 7
+    written = model_from_urdf(urdf, 'base_link', 'tool0', 'ur5e')
+    record = store.open(Path(data), None, ResultsCell('plant_ur5e', 'ur5e')).kinematics.get(
+        report['calibration_id'])
+    assert record['measured_through'] == {}
+    q = scene.HOME + np.random.default_rng(5).uniform(-0.5, 0.5, (50, 6))
+    identified = scene.MODEL.chain(np.array(record['result']['params']), tool=scene.TOOL)
+    assert_allclose(fk(written.chain(tool=scene.TOOL), q), fk(identified, q), rtol=0,
+                    atol=1e-12)
+    # ... and the probe's tip of the truth within 4x the noise over the workspace, up to the
+    # base's placement, which the tracker's registration takes (a touched frame cancels it);
+    # one reflector sees the wrist's turn poorly (the correlated pairs in the report)
+    registered = fit_rigid(fk(identified, q)[:, :3, 3], fk(scene.true_chain(), q)[:, :3, 3])
+    assert registered.max_residual < 4 * scene.NOISE_RMS
+    origins, hash_ = parse_ur_kinematics(Path(report['ur_kinematics_path']).read_text())
+    assert origins == ur_kinematics(urdf) and report['calibration_id'] in hash_
+    assert [u['name'] for u in report['unseen']] == [
+        'y_wrist_3_joint', 'z_wrist_3_joint', 'pitch_wrist_3_joint', 'yaw_wrist_3_joint']
+
+    frame = run_json(capsys, ['user-frame', '--points', str(files['points']), '--robot-cell',
+                              str(files['cell']), '--data-dir', data])
+    assert frame['active'] and frame['measured_through'] == {
+        'kinematics': report['calibration_id'], 'tcp': 'nominal'}
+
+    out = folder / 'filtered.csv'
+    assert main(['filter', '--targets', str(files['program']), '--out', str(out), '--frame',
+                 'user', '--robot-cell', str(files['cell']), '--data-dir', data]) == 0
+    printed = capsys.readouterr()
+    assert 'pitch_wrist_3_joint' in printed.err        # the tool it uses is affected
+    rows = [line.split(',') for line in out.read_text().splitlines()[1:]]
+    nominal = scene.MODEL.chain(tool=scene.TOOL)
+    T_base_user = np.array(frame['T_base_user'])
+    errors, unfiltered = [], []
+    for row, (name, T_user_tool) in zip(rows, scene.program_targets().items()):
+        assert row[0] == name
+        values, joints = np.array(row[1:8], dtype=float), np.array(row[8:], dtype=float)
+        wanted = (scene.T_BASE_USER @ T_user_tool)[:3, 3]
+        # the controller holds the user frame as exported (the stored one) and solves the
+        # filtered pose in it with its nominal model
+        controller = solve_ik(nominal, T_base_user @ from_pose(values[:3], values[3:]), joints)
+        assert controller, controller.message
+        errors.append(np.linalg.norm(fk(scene.true_chain(), controller.q)[:3, 3] - wanted))
+        naive = solve_ik(nominal, T_base_user @ T_user_tool, joints)
+        unfiltered.append(np.linalg.norm(fk(scene.true_chain(), naive.q)[:3, 3] - wanted))
+    assert max(errors) < 2 * scene.NOISE_RMS, np.array(errors) * 1e3
+    assert min(unfiltered) > 20 * scene.NOISE_RMS      # the errors planted are seen without it
+
+
+def test_a_dry_run_stores_nothing_and_says_so(plant, capsys):
+    folder, files = plant
+    data = folder / 'dry'
+    report = run_json(capsys, ['identify', '--source', str(files['tracker']), '--urdf',
+                               str(files['urdf']), '--no-store', '--data-dir', str(data)])
+    assert report['stored'] is False and report['not_stored'] == '--no-store: a dry run'
+    assert 'calibration_id' not in report and not data.exists()
+
+
+def test_without_a_cell_the_result_is_stored_under_the_arm(plant, capsys):
+    folder, files = plant
+    data = str(folder / 'by-arm')
+    report = run_json(capsys, ['identify', '--source', str(files['tracker']), '--urdf',
+                               str(files['urdf']), '--data-dir', data])
+    active = store.open(Path(data), None, ResultsCell('ur5e', 'ur5e')).kinematics.active('ur5e')
+    assert active['id'] == report['calibration_id']
+    assert active['measured_through'] == {}
+    assert_allclose(report['validation_max_mm']['held_out']['calibrated'],
+                    report['held_out']['calibrated']['max_mm'])
