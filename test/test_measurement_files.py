@@ -82,7 +82,8 @@ def args(**given) -> argparse.Namespace:
                     source=str(UR10E / 'calibration.csv'), measurement='pose', model=None,
                     folds=None, leave_out=None, json=True, ball=(0.0, 0.0, 0.04),
                     loss='soft_l1', max_deviation_mm=5.0, max_deviation_mrad=50.0,
-                    cell=None, robot=None, solver='lm', max_configs=0, dry_run=False)
+                    cell=None, robot=None, solver='lm', max_configs=0, dry_run=False,
+                    data_dir=None, db=None)
     defaults.update(given)
     return argparse.Namespace(**defaults)
 

@@ -340,16 +340,16 @@ def _identify_measurements(source, measurement: str | None, model: str | None,
     from cobot_calib_ros.core.kinematics.identification import measurement_fit as mf
     from cobot_calib_ros.core.kinematics.identification.writeback import unseen
     file, robot = source.file, source.model
-    extra = [j for j in file.joints if j not in robot.joint_names]
-    if extra:
-        raise ValueError(f'{file.source}: joint columns {extra} are not joints of the chain '
-                         f'{robot.name} ({", ".join(robot.joint_names)}); give the --tip-link '
-                         'whose chain has them, or leave them out of the sidecar\'s "joints"')
     if measurement and file.measurements.kind != measurement:
         raise ValueError(f'{file.source} holds {file.measurements.kind} measurements, not '
                          f'{measurement}: pass --measurement {file.measurements.kind}')
     errors = mf.ErrorModel(robot, model or ('mdh' if robot.kind == 'mdh' else 'full'))
+    extra = [j for j in file.joints if j not in robot.joint_names]
     file = file.in_joint_order(robot.joint_names, robot.prismatic)
+    if extra:
+        raise ValueError(f'{file.source}: joint columns {extra} are not joints of the chain '
+                         f'{robot.name} ({", ".join(robot.joint_names)}); give the --tip-link '
+                         'whose chain has them, or leave them out of the sidecar\'s "joints"')
     leave_out = leave_out or (None if folds else _default_group(file))
     if leave_out:
         labels, held = mf.by_group(file.groups(leave_out))

@@ -16,6 +16,8 @@ from typing import Any
 import numpy as np
 
 from cobot_calib_ros.core import rig
+from cobot_calib_ros.core.kinematics.program_filter import out_of_reach
+from cobot_calib_ros.store.kinematics import unseen_tool_note
 from cobot_calib_ros.store.rigs import active_hand_eye
 
 ACTIVE = ('active', 'latest')
@@ -66,6 +68,7 @@ class Solved:
     T_base_tool: np.ndarray   # (4, 4) the target in the base frame
     kinematics: str           # the calibration's id, or 'nominal'
     user_frame: str           # the user frame's id, '' for the base
+    note: str = ''            # what the calibration could not see that the tool carries
 
 
 def solve(cell, repo, T_frame_tool: np.ndarray, seed: np.ndarray, *, frame: str = 'base',
@@ -82,11 +85,11 @@ def solve(cell, repo, T_frame_tool: np.ndarray, seed: np.ndarray, *, frame: str 
                                  else (np.eye(4), ''))
     result = rig.solve_target(chain, T_frame_tool, seed, cell.home, T_base_frame)
     label = NOMINAL if record is None else record['id']
+    T_base_tool = T_base_frame @ np.asarray(T_frame_tool, float)
     if not result:
         raise ValueError(f'the target cannot be reached by the {label} model: '
-                         f'{result.message}')
-    return Solved(result.q, T_base_frame @ np.asarray(T_frame_tool, float), label,
-                  frame_label)
+                         f'{out_of_reach(chain, T_base_tool[:3, 3]) or result.message}')
+    return Solved(result.q, T_base_tool, label, frame_label, unseen_tool_note(record))
 
 
 def suite_cell(node) -> str:

@@ -78,6 +78,7 @@ def run(args) -> int:
         return fail(f'filter: {exc}', EXIT_USAGE)
     except OSError as exc:
         return fail(f'filter: {exc}')
+    from cobot_calib_ros.store.kinematics import unseen_tool_note
     note = unseen_tool_note(record)
     if note:
         print(f'filter: note: {note}', file=sys.stderr)
@@ -105,10 +106,3 @@ def run(args) -> int:
                   f'{largest_mrad:.3f} mrad -> {args.out}')
     return EXIT_OK
 
-
-def unseen_tool_note(record) -> str:
-    """'' or the line naming what a kinematic calibration ``record`` could not see that every
-    tool carries (store.kinematics.unseen_note): filter and move say it when they use it."""
-    from cobot_calib_ros.store.kinematics import unseen_note
-    unseen = [u for u in (record or {}).get('unseen', ()) if u.get('affects') == 'tool']
-    return f'{record["id"]}: {unseen_note(unseen)}' if unseen else ''

@@ -3,6 +3,7 @@ model (api.move: the suite solves, move_to gets joints)."""
 from __future__ import annotations
 
 import json
+import sys
 
 from cobot_calib_ros.cli.common import (EXIT_FAILED, EXIT_OK, EXIT_USAGE, fail, ros_node, say)
 from cobot_calib_ros.cli.db import add_db_options
@@ -78,6 +79,8 @@ def run(args) -> int:
         except (OSError, CallError) as exc:
             return fail(f'move: {exc}')
         where = f'user frame {solved.user_frame}' if solved.user_frame else 'base'
+        if solved.note:
+            print(f'move: note: {solved.note}', file=sys.stderr, flush=True)
         summary = {'kinematics': solved.kinematics, 'frame': where, 'tool': args.tool,
                    'positions': solved.q.tolist(), 'moved': False}
         say(args, f'{args.tool} to {where} xyz {list(args.xyz)} rpy {list(args.rpy)} with the '

@@ -138,6 +138,13 @@ def unseen_note(unseen) -> str:
         f'{u["name"]} ({u["reason"]})' for u in unseen)
 
 
+def unseen_tool_note(record: dict[str, Any] | None) -> str:
+    """'' or the line naming what a kinematic calibration ``record`` could not see that
+    every tool carries: filter and move say it when they use the record."""
+    unseen = [u for u in (record or {}).get('unseen', ()) if u.get('affects') == 'tool']
+    return f'{record["id"]}: {unseen_note(unseen)}' if unseen else ''
+
+
 def _readable(record: dict[str, Any]) -> dict[str, Any]:
     """The record for people: no full parameter vector, the table as lines."""
     result = dict(record['result'])
