@@ -59,7 +59,9 @@ def text(report: dict) -> str:
                      f'its spread: {PAPER_RATIO_PERCENT} %)')
     if report.get('table6'):
         lines.append(f'\n{report["table6"]}')
-    lines += [f'not seen: {u["name"]}: {u["reason"]}' for u in report.get('unseen', ())]
+    if report.get('unseen'):
+        from cobot_calib_ros.store.kinematics import unseen_note
+        lines.append(unseen_note(report['unseen']))
     if report.get('calibration_id'):
         paths = [report[k] for k in ('record_path', 'yaml_path', 'urdf_path',
                                      'ur_kinematics_path') if report.get(k)]

@@ -132,10 +132,14 @@ def calibrated_descriptions(record: KinematicRecord, model: KinematicModel,
 
 
 def unseen_note(unseen) -> str:
-    """One line naming the parameters a record's measurement could not see (kept at nominal)
-    and what they affect: the written URDF's comment, filter's and move's notes."""
+    """One line naming the parameters a record's measurement could not see (kept at nominal),
+    grouped by why, and what they affect: the written URDF's comment, the report, filter's and
+    move's notes."""
+    by_reason: dict[str, list[str]] = {}
+    for u in unseen:
+        by_reason.setdefault(u['reason'], []).append(u['name'])
     return 'not seen by the measurement, kept nominal: ' + '; '.join(
-        f'{u["name"]} ({u["reason"]})' for u in unseen)
+        f'{", ".join(names)} ({reason})' for reason, names in by_reason.items())
 
 
 def unseen_tool_note(record: dict[str, Any] | None) -> str:

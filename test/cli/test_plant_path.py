@@ -117,3 +117,58 @@ def test_without_a_cell_the_result_is_stored_under_the_arm(plant, capsys):
     assert active['measured_through'] == {}
     assert_allclose(report['validation_max_mm']['held_out']['calibrated'],
                     report['held_out']['calibrated']['max_mm'])
+
+
+def test_the_refusals_of_a_plant_path(plant, tmp_path, capsys):
+    """A sidecar with more joints than the chain, a program in millimetres or out of reach, a
+    touched point that does not fit: refused by name, nothing written or stored."""
+    folder, files = plant
+    data = str(tmp_path / 'results')
+    sidecar = tmp_path / 'tracker.yaml'
+    sidecar.write_text(files['sidecar'].read_text().replace('wrist_3_joint]',
+                                                            'wrist_3_joint, x]'))
+    (tmp_path / 'tracker.csv').write_text(files['tracker'].read_text())
+    assert main(['identify', '--source', str(tmp_path / 'tracker.csv'), '--urdf',
+                 str(files['urdf']), '--data-dir', data]) == 2
+    assert "joint columns ['x'] are not joints of the chain ur5e" in capsys.readouterr().err
+    assert not (tmp_path / 'results').exists()
+
+    assert main(['identify', '--source', str(files['tracker']), '--urdf', str(files['urdf']),
+                 '--cell', str(files['cell']), '--data-dir', data]) == 0
+    capsys.readouterr()
+    program = tmp_path / 'program.csv'
+    program.write_text('name,x,y,z,qx,qy,qz,qw\nin_mm,350.0,130.0,470.0,1,0,0,0\n'
+                       'far,3.0,0.0,0.4,1,0,0,0\n')
+    out = tmp_path / 'out.csv'
+    assert main(['filter', '--targets', str(program), '--out', str(out), '--robot-cell',
+                 str(files['cell']), '--data-dir', data]) == 1
+    err = capsys.readouterr().err
+    assert 'target in_mm: cannot be reached by the calibrated model (' in err
+    assert 'it looks like millimetres: give the position in metres' in err
+    far = next(line for line in err.splitlines() if 'target far' in line)
+    assert 'beyond the arm\'s reach of' in far and 'millimetres' not in far
+    assert not out.exists()
+
+    points = tmp_path / 'points.csv'
+    header, *rows = files['points'].read_text().splitlines()
+    rows[2] = rows[2].replace('F3,0.25,0.18,', 'F3,0.25,0.175,', 1)      # 5 mm off its drawing
+    points.write_text('\n'.join([header, *rows]) + '\n')
+    assert main(['user-frame', '--points', str(points), '--robot-cell', str(files['cell']),
+                 '--data-dir', data]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith(f'user-frame {points}: REFUSED: ') and err.endswith(
+        '; nothing stored\n')
+    points.write_text('name,user_x,user_y\nF1,0,0\n')
+    assert main(['user-frame', '--points', str(points), '--robot-cell', str(files['cell']),
+                 '--data-dir', data]) == 2
+    assert "missing columns ['user_z']" in capsys.readouterr().err
+
+
+def test_a_cell_without_layouts_is_refused_by_name_where_they_are_needed(plant):
+    from cobot_calib_ros.core.cell import CellFileError
+    from cobot_calib_ros.loaders import load_cell
+    cell = load_cell(plant[1]['cell'])
+    assert cell.markers == () and cell.spheres is None
+    with pytest.raises(CellFileError, match=r"^a repeatability trial needs the cell's layouts: "
+                                            r"section, which cell 'plant_ur5e' has not"):
+        cell.require('a repeatability trial', 'layouts')

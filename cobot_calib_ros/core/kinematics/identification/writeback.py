@@ -20,8 +20,8 @@ from cobot_calib_ros.core.kinematics.model import placement
 Array = NDArray[np.float64]
 TOOL_NOTE = ('one point on the tool cannot see it: every other tool centre and the tool\'s '
              'orientation carry its error')
-BASE_NOTE = ('spheres and planes see no base frame: the base placement in the world is nominal '
-             '(a user frame touched with the arm is not affected)')
+BASE_NOTE = ('spheres and planes see no base frame: the base placement in the world stays '
+             'nominal; a user frame touched with the arm is not affected')
 
 
 def model_parameters(errors, names, values) -> Array:
