@@ -393,6 +393,14 @@ def _store_measurements(source, report: dict, scope, data_dir, db) -> dict:
     from cobot_calib_ros.store.records import KinematicRecord
     if not report['verdict']['passed']:
         return {'stored': False, 'not_stored': 'refused by its gate: nothing stored'}
+    if source.description is not None:
+        from cobot_calib_ros.core.kinematics import model_for
+        used = model_for(source.description)       # the model filter, move, the nodes build
+        if not np.allclose(used.nominal, source.model.nominal, rtol=0.0, atol=1e-12):
+            return {'stored': False, 'not_stored': (
+                f'not stored: {source.description.urdf_file} has a joint frame pitched near '
+                '90 deg, which identification turns (free pitch) and the cell\'s model does '
+                'not: their parameters differ; use the result printed here')}
     errors = mf.ErrorModel(source.model, report['model'])
     try:
         params = model_parameters(errors, [p['name'] for p in report['identified']],

@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import json
 
-from cobot_calib_ros.cli.common import EXIT_FAILED, EXIT_OK, EXIT_USAGE, fail, say
+from cobot_calib_ros.cli.common import (add_robot_options, EXIT_FAILED, EXIT_OK, EXIT_USAGE,
+                                        fail, robot_cell, say)
 from cobot_calib_ros.cli.db import add_db_options
 from cobot_calib_ros.paths import DEFAULT_CELL
 
@@ -30,9 +31,8 @@ def add_parser(subparsers):
     p.add_argument('--max-rms-mm', type=float, default=1.0,
                    help='the gate: the largest RMS residual accepted [mm] (default 1, as '
                         'user_frame_solver\'s max_rms_error)')
-    p.add_argument('--robot-cell', default=DEFAULT_CELL,
-                   help='cell file (path or name): the robot, its tool, base and user frame '
-                        'names (no layouts or simulation needed)')
+    add_robot_options(p, f'cell file (path or name): the robot, its tool, base and user frame '
+                         f'names (default {DEFAULT_CELL}; no layouts or simulation needed)')
     p.add_argument('--no-store', action='store_true', help='fit and gate, store nothing')
     p.add_argument('--json', action='store_true', help='the result as JSON')
     add_db_options(p)
@@ -45,16 +45,13 @@ def run(args) -> int:
     from cobot_calib_ros.core.cell import CellFileError
     from cobot_calib_ros.core.errors import Refusal
     from cobot_calib_ros.core.frames import from_xyz_rpy
-    from cobot_calib_ros.loaders import load_cell
     from cobot_calib_ros.store.cells import ResultsCell
     if not args.max_rms_mm > 0:
         return fail(f'user-frame: --max-rms-mm must be > 0, got {args.max_rms_mm}', EXIT_USAGE)
     try:
-        cell = load_cell(paths.cell_file(args.robot_cell))
-    except CellFileError as e:
+        cell = robot_cell(args, DEFAULT_CELL)
+    except (CellFileError, ValueError) as e:
         return fail(f'user-frame: {e}', EXIT_USAGE)
-    except OSError as e:
-        return fail(f'user-frame: --robot-cell {args.robot_cell}: {e}', EXIT_USAGE)
     T = None if args.base_from_tracker is None else from_xyz_rpy(args.base_from_tracker[:3],
                                                                   args.base_from_tracker[3:])
     try:

@@ -38,6 +38,26 @@ def run_json(capsys, argv) -> dict:
     return json.loads(out.out)
 
 
+def on_the_true_arm(out: Path, T_base_user) -> tuple[list[float], list[float]]:
+    """[m] per target of a filtered program ``out``: the true arm's probe tip from the
+    controller's nominal inverse kinematics of the filtered pose, and of the unfiltered one,
+    against the target on the true fixture. The controller holds the user frame as exported
+    (``T_base_user``, the stored one) and solves the pose in it with its nominal model."""
+    rows = [line.split(',') for line in out.read_text().splitlines()[1:]]
+    nominal = scene.MODEL.chain(tool=scene.TOOL)
+    errors, unfiltered = [], []
+    for row, (name, T_user_tool) in zip(rows, scene.program_targets().items()):
+        assert row[0] == name
+        values, joints = np.array(row[1:8], dtype=float), np.array(row[8:], dtype=float)
+        wanted = (scene.T_BASE_USER @ T_user_tool)[:3, 3]
+        controller = solve_ik(nominal, T_base_user @ from_pose(values[:3], values[3:]), joints)
+        assert controller, controller.message
+        errors.append(np.linalg.norm(fk(scene.true_chain(), controller.q)[:3, 3] - wanted))
+        naive = solve_ik(nominal, T_base_user @ T_user_tool, joints)
+        unfiltered.append(np.linalg.norm(fk(scene.true_chain(), naive.q)[:3, 3] - wanted))
+    return errors, unfiltered
+
+
 def test_tracker_file_to_controller_on_the_true_arm(plant, capsys):
     folder, files = plant
     data = str(folder / 'results')
@@ -79,21 +99,7 @@ def test_tracker_file_to_controller_on_the_true_arm(plant, capsys):
                  'user', '--robot-cell', str(files['cell']), '--data-dir', data]) == 0
     printed = capsys.readouterr()
     assert 'pitch_wrist_3_joint' in printed.err        # the tool it uses is affected
-    rows = [line.split(',') for line in out.read_text().splitlines()[1:]]
-    nominal = scene.MODEL.chain(tool=scene.TOOL)
-    T_base_user = np.array(frame['T_base_user'])
-    errors, unfiltered = [], []
-    for row, (name, T_user_tool) in zip(rows, scene.program_targets().items()):
-        assert row[0] == name
-        values, joints = np.array(row[1:8], dtype=float), np.array(row[8:], dtype=float)
-        wanted = (scene.T_BASE_USER @ T_user_tool)[:3, 3]
-        # the controller holds the user frame as exported (the stored one) and solves the
-        # filtered pose in it with its nominal model
-        controller = solve_ik(nominal, T_base_user @ from_pose(values[:3], values[3:]), joints)
-        assert controller, controller.message
-        errors.append(np.linalg.norm(fk(scene.true_chain(), controller.q)[:3, 3] - wanted))
-        naive = solve_ik(nominal, T_base_user @ T_user_tool, joints)
-        unfiltered.append(np.linalg.norm(fk(scene.true_chain(), naive.q)[:3, 3] - wanted))
+    errors, unfiltered = on_the_true_arm(out, np.array(frame['T_base_user']))
     assert max(errors) < 2 * scene.NOISE_RMS, np.array(errors) * 1e3
     assert min(unfiltered) > 20 * scene.NOISE_RMS      # the errors planted are seen without it
 
@@ -117,6 +123,19 @@ def test_without_a_cell_the_result_is_stored_under_the_arm(plant, capsys):
     assert active['measured_through'] == {}
     assert_allclose(report['validation_max_mm']['held_out']['calibrated'],
                     report['held_out']['calibrated']['max_mm'])
+    # no cell file at all: the URDF, its links, the probe and home on the command line
+    robot = ['--urdf', str(files['urdf']), '--tip-link', 'tool0', '--tool-offset', '0', '0',
+             '0.12', '0', '0', '0', '--data-dir', data]
+    frame = run_json(capsys, ['user-frame', '--points', str(files['points']), *robot])
+    assert frame['measured_through']['kinematics'] == report['calibration_id']
+    out = folder / 'by-arm.csv'
+    assert main(['filter', '--targets', str(files['program']), '--out', str(out), '--frame',
+                 'user', '--home', *(str(v) for v in scene.HOME), *robot]) == 0
+    assert max(on_the_true_arm(out, np.array(frame['T_base_user']))[0]) < 2 * scene.NOISE_RMS
+    capsys.readouterr()
+    assert main(['filter', '--targets', str(files['program']), '--out', str(out),
+                 '--home', '0', *robot]) == 2
+    assert capsys.readouterr().err.startswith('filter: --home: give 6 joint values [rad]')
 
 
 def test_the_refusals_of_a_plant_path(plant, tmp_path, capsys):
