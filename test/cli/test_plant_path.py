@@ -191,3 +191,19 @@ def test_a_cell_without_layouts_is_refused_by_name_where_they_are_needed(plant):
     with pytest.raises(CellFileError, match=r"^a repeatability trial needs the cell's layouts: "
                                             r"section, which cell 'plant_ur5e' has not"):
         cell.require('a repeatability trial', 'layouts')
+
+
+def test_the_walk_through_files_are_the_scene(plant):
+    """test/data/plant-ur5e (the README's walk-through) is what plant_scene writes."""
+    shipped = scene.URDF.parent
+    for name, path in plant[1].items():
+        mine = (shipped / path.name).read_text().splitlines()
+        theirs = path.read_text().splitlines()
+        assert len(mine) == len(theirs), name
+        for a, b in zip(mine, theirs):
+            cells = list(zip(a.split(','), b.split(',')))
+            for x, y in cells:
+                try:
+                    assert float(x) == pytest.approx(float(y), rel=0, abs=1e-12), name
+                except ValueError:
+                    assert x == y, name
