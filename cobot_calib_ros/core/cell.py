@@ -93,7 +93,7 @@ class Cell:
             if not present[section]:
                 raise CellFileError(
                     f'{verb} needs the cell\'s {section}: section, which cell {self.name!r} '
-                    f'has not; add it to the cell file (README "Cell files")')
+                    f'has not; add it to the cell file (README "Configuration")')
 
     def marker(self, name: str) -> Marker | None:
         return next((m for m in self.markers if m.name == name), None)
