@@ -256,7 +256,8 @@ def identify_source(path: str | Path, *, cell: str | None = None,
     model identified without it, ``validation`` says how: k-fold or one group out), ``tracker``
     (a collection with laser-tracker sets beside it: region -> nominal / calibrated).
 
-    A measurement file or MUKCa folder: its arm from ``urdf`` / ``dh`` (``measurement``, when
+    A measurement file or MUKCa folder: its arm from ``urdf`` / ``dh`` (else the ``cell``'s
+    URDF chain) (``measurement``, when
     given, must be the file's kind), error ``model``, held out by ``folds`` or ``leave_out``
     (default: a MUKCa folder one location at a time, else 5-fold); ``unseen`` names the
     parameters its measurement kind cannot see (core writeback). A bag or a collection: the
@@ -284,6 +285,8 @@ def identify_source(path: str | Path, *, cell: str | None = None,
     if kind in (sources.MEASUREMENT_FILE, sources.MUKCA):
         _only_for('a bag or a collection folder', kind,
                   ('--solver nelder-mead', solver != 'lm'), ('--max-configs', max_configs))
+        if cell and not (urdf or dh):
+            urdf, base_link, tip_link = _cell_urdf(cell, base_link, tip_link)
         source = sources.load_source(path, urdf=urdf, base_link=base_link, tip_link=tip_link,
                                      dh=dh, ball=ball)
         scope = _measurement_scope(cell, source.model) if store else None
@@ -366,6 +369,21 @@ def _identify_measurements(source, measurement: str | None, model: str | None,
         0 if data.kind == 'pose' else 1
     return {**source.provenance, 'validation': validation, **report,
             'unseen': unseen(robot, data.kind, on_tool, report['dropped'])}
+
+
+def _cell_urdf(cell: str, base_link: str | None, tip_link: str | None
+               ) -> tuple[str | None, str | None, str | None]:
+    """(urdf, base_link, tip_link) of a cell whose robot is a URDF chain (the measurement
+    file's arm when no --urdf is given); (None, ...) for a built-in robot."""
+    from cobot_calib_ros.loaders import load_cell
+    from cobot_calib_ros.paths import cell_file
+    path = cell_file(cell)
+    robot = load_cell(path).urdf_robot
+    if robot is None or robot.model:
+        return None, base_link, tip_link
+    urdf = Path(robot.urdf_file).expanduser()
+    return (str(urdf if urdf.is_absolute() else path.parent / urdf),
+            base_link or robot.base_link, tip_link or robot.tip_link)
 
 
 def _measurement_scope(cell: str | None, model):

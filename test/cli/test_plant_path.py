@@ -111,6 +111,10 @@ def test_a_dry_run_stores_nothing_and_says_so(plant, capsys):
                                str(files['urdf']), '--no-store', '--data-dir', str(data)])
     assert report['stored'] is False and report['not_stored'] == '--no-store: a dry run'
     assert 'calibration_id' not in report and not data.exists()
+    # the cell's URDF chain is the arm when no --urdf is given
+    by_cell = run_json(capsys, ['identify', '--source', str(files['tracker']), '--cell',
+                                str(files['cell']), '--no-store', '--data-dir', str(data)])
+    assert by_cell['identified'] == report['identified'] and by_cell['robot'] == 'ur5e'
 
 
 def test_without_a_cell_the_result_is_stored_under_the_arm(plant, capsys):
