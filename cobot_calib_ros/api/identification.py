@@ -169,7 +169,17 @@ def identify_on_suite(client: IdentifyClient, *, say: Callable[[str], None],
         'rms_mm': result.rms * 1e3, 'iterations': result.iterations,
         'solve_seconds': result.solve_seconds, 'collections': collections,
         'collect_seconds': collect_seconds, 'yaml_path': result.yaml_path,
-        'urdf_path': result.urdf_path, 'paper_ratio_percent': PAPER_RATIO_PERCENT})
+        'urdf_path': result.urdf_path, **_ur_path(result.urdf_path),
+        'paper_ratio_percent': PAPER_RATIO_PERCENT})
+
+
+def _ur_path(urdf_path: str) -> dict:
+    """{'ur_kinematics_path': ...} when the suite wrote a UR kinematics YAML beside the
+    calibrated URDF (store.kinematics.SUFFIXES), else {}."""
+    if not urdf_path.endswith('.urdf'):
+        return {}
+    ur = Path(urdf_path[:-len('.urdf')] + '.ur_kinematics.yaml')
+    return {'ur_kinematics_path': str(ur)} if ur.is_file() else {}
 
 
 def resumable(given: str, cell: str) -> tuple[str, bool]:
@@ -461,6 +471,7 @@ def _default_group(file) -> str | None:
 
 def _job_report(source, outcome, bounds) -> dict:
     """The report of a bag's or a collection's CalibrationJob outcome."""
+    from cobot_calib_ros.store.kinematics import outcome_unseen
     r = outcome.result
     return {**source.provenance, 'robot': outcome.model.name,
             'measurement': 'spheres' if r.extra['objective'] == 'relative' else 'points',
@@ -474,6 +485,7 @@ def _job_report(source, outcome, bounds) -> dict:
                            zip(r.free, outcome.free_values, outcome.nominal_values, r.std)],
             'dropped': [{'name': d.name, 'reason': d.reason}
                         for d in outcome.identifiability.dropped],
+            'unseen': outcome_unseen(outcome),
             'tracker': {region: _ratio(t) for region, t in outcome.validation.items()},
             'rms_mm': r.rms_m * 1e3, 'iterations': r.iterations,
             'solve_seconds': r.solve_seconds, 'calibration_id': '', 'table6': outcome.table}

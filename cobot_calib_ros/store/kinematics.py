@@ -63,6 +63,7 @@ class KinematicHistory:
         # a sphere coupling or a tracker's reflector is fitted with the arm: measured through
         # no other result (the contract's provenance)
         typed.extra.setdefault('measured_through', {})
+        typed.extra.setdefault('unseen', outcome_unseen(outcome))
         return self.save_record(typed, outcome.model, activate, description)
 
     def save_record(self, typed: KinematicRecord, model: KinematicModel, activate: bool = True,
@@ -101,6 +102,15 @@ class KinematicHistory:
 class KinematicStore(KinematicHistory, CalibrationStore):
     def __init__(self, root: Path, cell=None) -> None:
         super().__init__(root, 'kinematics', scope_key='robot', cell=cell)
+
+
+def outcome_unseen(outcome) -> list[dict]:
+    """What a CalibrationJob's measurement (a sphere coupling or a tracker's reflector: one
+    point on the tool) cannot see (core writeback.unseen)."""
+    from cobot_calib_ros.core.kinematics.identification.writeback import unseen
+    kind = 'spheres' if outcome.inputs.objective == 'relative' else 'points'
+    return unseen(outcome.model, kind, 1, [{'name': d.name, 'reason': d.reason}
+                                           for d in outcome.identifiability.dropped])
 
 
 def calibrated_descriptions(record: KinematicRecord, model: KinematicModel,
