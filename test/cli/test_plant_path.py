@@ -187,9 +187,12 @@ def test_the_refusals_of_a_plant_path(plant, tmp_path, capsys):
     assert "missing columns ['user_z']" in capsys.readouterr().err
 
 
-def test_a_cell_without_layouts_is_refused_by_name_where_they_are_needed(plant):
+def test_a_cell_without_layouts_is_refused_by_name_where_they_are_needed(plant, capsys):
     from cobot_calib_ros.core.cell import CellFileError
     from cobot_calib_ros.loaders import load_cell
+    assert main(['up', '--cell', str(plant[1]['cell'])]) == 2
+    assert capsys.readouterr().err.startswith(
+        "up starts the mock robot, which needs the cell's simulation: section; ")
     cell = load_cell(plant[1]['cell'])
     assert cell.markers == () and cell.spheres is None
     with pytest.raises(CellFileError, match=r"^a repeatability trial needs the cell's layouts: "
