@@ -165,7 +165,8 @@ def _readable(record: dict[str, Any]) -> dict[str, Any]:
     table = result.pop('table6', '')
     result.pop('params', None)
     result.pop('parameter_names', None)
+    free = result.pop('free')
     result['identified'] = {name: {'value': value, 'std': std} for name, value, std in zip(
-        result.pop('free'), result.pop('values'), result.pop('std'))}
+        free, result.pop('values'), result.pop('std') or [None] * len(free))}
     return {**{k: v for k, v in record.items() if k != 'result'}, 'result': result,
             'table6': table.splitlines()}

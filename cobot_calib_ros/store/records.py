@@ -459,7 +459,8 @@ class KinematicRecord(Record):
                 parameter_names=list(model.parameter_names), params=params,
                 free=[p['name'] for p in identified],
                 values=[p['value'] for p in identified],
-                std=[p.get('std') for p in identified], dropped=list(report['dropped']),
+                std=[p['std'] for p in identified] if all('std' in p for p in identified)
+                else None, dropped=list(report['dropped']),
                 rank=len(identified), condition_number=report['condition_number'],
                 rms_m=report['training']['rmse_mm'] * 1e-3, converged=report['converged'],
                 validation={'held_out': report['held_out'], 'noise_mm': report['noise_mm'],

@@ -122,8 +122,12 @@ def test_without_a_cell_the_result_is_stored_under_the_arm(plant, capsys):
     data = str(folder / 'by-arm')
     report = run_json(capsys, ['identify', '--source', str(files['tracker']), '--urdf',
                                str(files['urdf']), '--data-dir', data])
+    again = run_json(capsys, ['identify', '--source', str(files['tracker']), '--urdf',
+                              str(files['urdf']), '--data-dir', data])
+    assert main(['history', '--data-dir', data, '--no-plots']) == 0     # two of one arm
+    assert f'kinematics ur5e {again["calibration_id"]}' in capsys.readouterr().out
     active = store.open(Path(data), None, ResultsCell('ur5e', 'ur5e')).kinematics.active('ur5e')
-    assert active['id'] == report['calibration_id']
+    assert active['id'] == again['calibration_id']
     assert active['measured_through'] == {}
     assert_allclose(report['validation_max_mm']['held_out']['calibrated'],
                     report['held_out']['calibrated']['max_mm'])
@@ -131,7 +135,7 @@ def test_without_a_cell_the_result_is_stored_under_the_arm(plant, capsys):
     robot = ['--urdf', str(files['urdf']), '--tip-link', 'tool0', '--tool-offset', '0', '0',
              '0.12', '0', '0', '0', '--data-dir', data]
     frame = run_json(capsys, ['user-frame', '--points', str(files['points']), *robot])
-    assert frame['measured_through']['kinematics'] == report['calibration_id']
+    assert frame['measured_through']['kinematics'] == again['calibration_id']
     out = folder / 'by-arm.csv'
     assert main(['filter', '--targets', str(files['program']), '--out', str(out), '--frame',
                  'user', '--home', *(str(v) for v in scene.HOME), *robot]) == 0
@@ -214,3 +218,31 @@ def test_the_walk_through_files_are_the_scene(plant):
                     assert float(x) == pytest.approx(float(y), rel=0, abs=1e-12), name
                 except ValueError:
                     assert x == y, name
+
+
+def test_a_user_frame_from_a_trackers_points_in_its_own_frame(plant, tmp_path, capsys):
+    """Reference points measured by the tracker (in its frame, with the base's registration)
+    give the true fixture within the noise, measured through no other result."""
+    from cobot_calib_ros.core.frames import invert
+    from cobot_calib_ros.core.kinematics.urdf import rpy_from_matrix
+    files = plant[1]
+    T_base_tracker = invert(scene.T_TRACKER_BASE)
+    rng = np.random.default_rng(11)
+    lines = ['name,user_x,user_y,user_z,x,y,z']
+    for name, p_user in scene.FIXTURE.items():
+        p_base = scene.T_BASE_USER[:3, :3] @ np.array(p_user) + scene.T_BASE_USER[:3, 3]
+        p = scene.T_TRACKER_BASE[:3, :3] @ p_base + scene.T_TRACKER_BASE[:3, 3] \
+            + rng.normal(0.0, scene.NOISE_SD, 3)
+        lines.append(','.join([name, *map(str, p_user), *(repr(float(v)) for v in p)]))
+    points = tmp_path / 'tracker_points.csv'
+    points.write_text('\n'.join(lines) + '\n')
+    registration = [*T_base_tracker[:3, 3], *rpy_from_matrix(T_base_tracker[:3, :3])]
+    frame = run_json(capsys, ['user-frame', '--points', str(points), '--robot-cell',
+                              str(files['cell']), '--data-dir', str(tmp_path / 'results'),
+                              '--base-from-tracker', *(repr(float(v)) for v in registration)])
+    assert frame['active'] and frame['measured_through'] == {}
+    assert_allclose(np.array(frame['T_base_user'])[:3, 3], scene.T_BASE_USER[:3, 3], rtol=0,
+                    atol=2 * scene.NOISE_RMS)
+    assert main(['user-frame', '--points', str(files['points']), '--robot-cell',
+                 str(files['cell']), '--base-from-tracker', '0', '0', '0', '0', '0', '0']) == 2
+    assert 'applies to measured x,y,z, not to joints' in capsys.readouterr().err
