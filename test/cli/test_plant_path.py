@@ -197,6 +197,9 @@ def test_a_cell_without_layouts_is_refused_by_name_where_they_are_needed(plant, 
     assert main(['up', '--cell', str(plant[1]['cell'])]) == 2
     assert capsys.readouterr().err.startswith(
         "up starts the mock robot, which needs the cell's simulation: section; ")
+    assert main(['teach', '--cell', str(plant[1]['cell'])]) == 2
+    assert "needs the cell's layouts: section, which cell 'plant_ur5e' has not" in \
+        capsys.readouterr().err
     cell = load_cell(plant[1]['cell'])
     assert cell.markers == () and cell.spheres is None
     with pytest.raises(CellFileError, match=r"^a repeatability trial needs the cell's layouts: "
