@@ -321,7 +321,7 @@ def parse_cell(text: str, path: str | Path, layout: str | None = None) -> Cell:
             raise r.fail((key,), check_frame_id(value))
     layouts = r.get('layouts', default=None)
     if layouts is None and layout is None and r.get('layout', default=None) is None:
-        layouts, chosen = {}, ''      # a real cell: no marker layouts (Cell.require says who needs them)
+        chosen = ''           # a real cell: no marker layouts (Cell.require: who needs them)
     else:
         if not isinstance(layouts, dict) or not layouts:
             raise r.fail(('layouts',), 'expected a mapping of layout name -> {point: [x, y]}')
@@ -334,7 +334,7 @@ def parse_cell(text: str, path: str | Path, layout: str | None = None) -> Cell:
         **frames_,
         tool_offset=frames.from_xyz_rpy(r.lengths('tool_offset', 'xyz', length=3),
                                         r.vector('tool_offset', 'rpy', length=3)),
-        home=r.vector('home'), layout=chosen, layouts=tuple(layouts),
+        home=r.vector('home'), layout=chosen, layouts=tuple(layouts or ()),
         markers=_markers(r, chosen) if chosen else (), spheres=_spheres(r), camera=_camera(r),
         landmarks=_landmarks(r))
 
