@@ -173,8 +173,23 @@ def run(args) -> int:
         hint = f'; then resume with: {_resume_command(args, e.collection_id)}' if getattr(
             e, 'collection_id', '') else ''
         return fail(f'identify failed: {e}{hint}')
+    report['unseen'] = _suite_unseen(cell, report['dropped'])
     print_report(report, args.json)
     return EXIT_OK
+
+
+def _suite_unseen(cell: str, dropped: list[dict]) -> list[dict]:
+    """What the suite's sphere coupling (one point on the tool) cannot see, on the cell's
+    model (core writeback.unseen; the stored record names the same)."""
+    from cobot_calib_ros.core.kinematics import model_for
+    from cobot_calib_ros.core.kinematics.identification.writeback import unseen
+    from cobot_calib_ros.loaders import load_cell
+    from cobot_calib_ros.paths import cell_file
+    try:
+        model = model_for(load_cell(cell_file(cell)))
+    except ValueError:           # checked before the suite ran; an attached suite's own cell
+        return []
+    return unseen(model, 'spheres', 1, dropped)
 
 
 def offline(args) -> int:
