@@ -2,6 +2,7 @@
 import os
 from pathlib import Path
 import sys
+import tempfile
 
 import pytest
 from hypothesis import settings
@@ -12,6 +13,9 @@ settings.register_profile('no_deadline', deadline=None)
 settings.load_profile('no_deadline')
 
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+# commands store their results (identify stores every source): never in the user's
+# ~/.ros/cobot_calib; a test that looks at its results gives its own data dir
+os.environ.setdefault('COBOT_CALIB_DATA', tempfile.mkdtemp(prefix='cobot_calib_test_data_'))
 # every process of the session (this one, nodes, commands) announces an infinite DDS lease:
 # no lease checks, which can deadlock Fast DDS 2.14.5 (see the file); a test that kills a
 # process on purpose gives it a short lease of its own

@@ -82,7 +82,8 @@ def args(**given) -> argparse.Namespace:
                     source=str(UR10E / 'calibration.csv'), measurement='pose', model=None,
                     folds=None, leave_out=None, json=True, ball=(0.0, 0.0, 0.04),
                     loss='soft_l1', max_deviation_mm=5.0, max_deviation_mrad=50.0,
-                    cell=None, robot=None, solver='lm', max_configs=0, dry_run=False)
+                    cell=None, robot=None, solver='lm', max_configs=0, dry_run=False,
+                    data_dir=None, db=None)
     defaults.update(given)
     return argparse.Namespace(**defaults)
 
@@ -173,6 +174,8 @@ def test_the_command_line_reaches_the_measurement_path(capsys):
     report = json.loads(out)
     # 16 unknowns on 15 training rows per fold over-fit: held out worse than nominal
     assert not report['verdict']['passed'] and 'worse than nominal' in err
+    assert report['stored'] is False and report['not_stored'] == ('refused by its gate: '
+                                                                   'nothing stored')
     assert report['held_out']['calibrated']['rmse_mm'] > report['held_out']['nominal']['rmse_mm']
     assert report['validation'] == {'folds': 3} and report['model'] == 'offsets'
     assert set(report['held_out']['calibrated']) >= {'rmse_mm', 'mean_mm', 'max_mm',

@@ -13,6 +13,11 @@ from pathlib import Path
 import time
 from typing import Callable
 
+import numpy as np
+
+from cobot_calib_ros.api.identification_store import (cell_urdf, measurement_scope,
+                                                      store_measurements, store_outcome,
+                                                      ur_path, validation_figures)
 from cobot_calib_ros.core.kinematics.identification.gates import (MAX_DEVIATION_M,
                                                                    MAX_DEVIATION_RAD)
 
@@ -153,8 +158,9 @@ def identify_on_suite(client: IdentifyClient, *, say: Callable[[str], None],
     data = to_dict(result)
     tracker = {region: _stats_pair(data[f'{prefix}_nominal'], data[f'{prefix}_calibrated'])
                for region, prefix in (('volume', 'validation'), ('workspace', 'workspace'))}
-    return {
+    return validation_figures({
         'source': source, 'source_kind': 'suite', 'calibration_id': result.calibration_id,
+        'stored': bool(result.calibration_id),
         'message': result.message, 'verdict': {'passed': True, 'problems': []},
         'converged': True,          # the node answers an error for anything its gates refuse
         'identified': [{'name': n, 'value': v, 'nominal': n0, 'delta': v - n0, 'std': s}
@@ -166,7 +172,10 @@ def identify_on_suite(client: IdentifyClient, *, say: Callable[[str], None],
         'rms_mm': result.rms * 1e3, 'iterations': result.iterations,
         'solve_seconds': result.solve_seconds, 'collections': collections,
         'collect_seconds': collect_seconds, 'yaml_path': result.yaml_path,
-        'urdf_path': result.urdf_path, 'paper_ratio_percent': PAPER_RATIO_PERCENT}
+        'urdf_path': result.urdf_path, **ur_path(result.urdf_path),
+        'paper_ratio_percent': PAPER_RATIO_PERCENT})
+
+
 
 
 def resumable(given: str, cell: str) -> tuple[str, bool]:
@@ -242,7 +251,8 @@ def identify_source(path: str | Path, *, cell: str | None = None,
                     ball=(0.0, 0.0, 0.04), solver: str = 'lm', loss: str = 'soft_l1',
                     max_configs: int = 0,
                     max_deviation: tuple[float, float] = (MAX_DEVIATION_M, MAX_DEVIATION_RAD),
-                    store: bool = False) -> dict:
+                    store: bool = False, data_dir: str | None = None,
+                    db: str | None = None) -> dict:
     """Identify a source offline (loaders.sources: a measurement file, a MUKCa folder, a bag or
     a collection folder) through the one engine; the report (JSON-ready, mm), the same shape
     for every source: ``source``, ``source_kind``, ``robot``, ``measurement``, ``rows``,
@@ -252,12 +262,22 @@ def identify_source(path: str | Path, *, cell: str | None = None,
     model identified without it, ``validation`` says how: k-fold or one group out), ``tracker``
     (a collection with laser-tracker sets beside it: region -> nominal / calibrated).
 
-    A measurement file or MUKCa folder: its arm from ``urdf`` / ``dh`` (``measurement``, when
+    A measurement file or MUKCa folder: its arm from ``urdf`` / ``dh`` (else the ``cell``'s
+    URDF chain) (``measurement``, when
     given, must be the file's kind), error ``model``, held out by ``folds`` or ``leave_out``
-    (default: a MUKCa folder one location at a time, else 5-fold). A bag or a collection: the
+    (default: a MUKCa folder one location at a time, else 5-fold); ``unseen`` names the
+    parameters its measurement kind cannot see (core writeback). A bag or a collection: the
     ``cell``'s (a name or path) robot, identified as the kinematic_identifier node does
-    (core CalibrationJob, ``solver``, ``max_configs``); ``store``: a collection's passing
-    result is stored and made active in the data dir, as the node does.
+    (core CalibrationJob, ``solver``, ``max_configs``).
+
+    ``store``: a result that passes its gate is stored and made active in ``data_dir`` /
+    ``db`` (paths.data_dir, store.open), whatever the source, as the node does: the record,
+    the given URDF rewritten (a measurement file's ``urdf``, else the cell's) and a UR arm's
+    kinematics YAML; ``calibration_id``, ``record_path``, ``yaml_path``, ``urdf_path`` (and
+    ``ur_kinematics_path``) in the report, ``stored`` True; else ``stored`` False and
+    ``not_stored`` says why. Scoped by ``cell`` when given (its robot must be the file's arm),
+    else by the arm's model name (the URDF's file name). Every report has
+    ``validation_max_mm`` (:func:`validation_figures`).
 
     ValueError (one line) for a path that is none of the sources, bad data or arguments;
     IdentificationFailed when a bag or collection holds nothing to identify; core.errors.
@@ -271,10 +291,18 @@ def identify_source(path: str | Path, *, cell: str | None = None,
     if kind in (sources.MEASUREMENT_FILE, sources.MUKCA):
         _only_for('a bag or a collection folder', kind,
                   ('--solver nelder-mead', solver != 'lm'), ('--max-configs', max_configs))
+        if cell and not (urdf or dh):
+            urdf, base_link, tip_link = cell_urdf(cell, base_link, tip_link)
         source = sources.load_source(path, urdf=urdf, base_link=base_link, tip_link=tip_link,
                                      dh=dh, ball=ball)
-        return _identify_measurements(source, measurement, model, folds, leave_out, loss,
-                                      bounds)
+        scope = measurement_scope(cell, source.model) if store else None
+        report = _identify_measurements(source, measurement, model, folds, leave_out, loss,
+                                        bounds)
+        if store:
+            report.update(store_measurements(source, report, scope, data_dir, db))
+        else:
+            report.update(stored=False, not_stored='--no-store: a dry run')
+        return validation_figures(report)
     _only_for('a measurement file or a MUKCa folder', kind, ('--measurement', measurement),
               ('--urdf', urdf), ('--dh', dh), ('--base-link', base_link),
               ('--tip-link', tip_link), ('--model', model), ('--folds', folds),
@@ -297,9 +325,13 @@ def identify_source(path: str | Path, *, cell: str | None = None,
         raise IdentificationFailed(message if str(path) in message else f'{path}: {message}') \
             from None
     report = _job_report(source, outcome, bounds)
-    if store and kind == sources.COLLECTION and outcome.verdict.passed:
-        report.update(_store(source, outcome))
-    return report
+    if not store:
+        report.update(stored=False, not_stored='--no-store: a dry run')
+    elif not outcome.verdict.passed:
+        report.update(stored=False, not_stored='refused by its gate: nothing stored')
+    else:
+        report.update(store_outcome(source, outcome, data_dir, db))
+    return validation_figures(report)
 
 
 def _only_for(where: str, kind: str, *given) -> None:
@@ -315,12 +347,18 @@ def _identify_measurements(source, measurement: str | None, model: str | None,
     """A measurement file or MUKCa folder identified held out (core measurement_fit.
     identify_measurements)."""
     from cobot_calib_ros.core.kinematics.identification import measurement_fit as mf
+    from cobot_calib_ros.core.kinematics.identification.writeback import unseen
     file, robot = source.file, source.model
     if measurement and file.measurements.kind != measurement:
         raise ValueError(f'{file.source} holds {file.measurements.kind} measurements, not '
                          f'{measurement}: pass --measurement {file.measurements.kind}')
     errors = mf.ErrorModel(robot, model or ('mdh' if robot.kind == 'mdh' else 'full'))
+    extra = [j for j in file.joints if j not in robot.joint_names]
     file = file.in_joint_order(robot.joint_names, robot.prismatic)
+    if extra:
+        raise ValueError(f'{file.source}: joint columns {extra} are not joints of the chain '
+                         f'{robot.name} ({", ".join(robot.joint_names)}); give the --tip-link '
+                         'whose chain has them, or leave them out of the sidecar\'s "joints"')
     leave_out = leave_out or (None if folds else _default_group(file))
     if leave_out:
         labels, held = mf.by_group(file.groups(leave_out))
@@ -332,7 +370,21 @@ def _identify_measurements(source, measurement: str | None, model: str | None,
     report = mf.identify_measurements(errors, file.measurements, held, labels=labels,
                                       sample=file.sample, loss=loss, bounds=bounds,
                                       noise_m=file.noise_m)
-    return {**source.provenance, 'validation': validation, **report}
+    data = file.measurements
+    on_tool = len(np.unique(data.target)) if data.kind == 'points' else \
+        0 if data.kind == 'pose' else 1
+    return {**source.provenance, 'validation': validation, **report,
+            'unseen': unseen(robot, data.kind, on_tool, report['dropped'])}
+
+
+
+
+
+
+
+
+
+
 
 
 def _default_group(file) -> str | None:
@@ -342,6 +394,7 @@ def _default_group(file) -> str | None:
 
 def _job_report(source, outcome, bounds) -> dict:
     """The report of a bag's or a collection's CalibrationJob outcome."""
+    from cobot_calib_ros.store.kinematics import outcome_unseen
     r = outcome.result
     return {**source.provenance, 'robot': outcome.model.name,
             'measurement': 'spheres' if r.extra['objective'] == 'relative' else 'points',
@@ -355,6 +408,7 @@ def _job_report(source, outcome, bounds) -> dict:
                            zip(r.free, outcome.free_values, outcome.nominal_values, r.std)],
             'dropped': [{'name': d.name, 'reason': d.reason}
                         for d in outcome.identifiability.dropped],
+            'unseen': outcome_unseen(outcome),
             'tracker': {region: _ratio(t) for region, t in outcome.validation.items()},
             'rms_mm': r.rms_m * 1e3, 'iterations': r.iterations,
             'solve_seconds': r.solve_seconds, 'calibration_id': '', 'table6': outcome.table}
@@ -366,13 +420,3 @@ def _ratio(table: dict) -> dict:
     return rows | {'ratio_max_percent': 100.0 * rows['calibrated']['max_mm']
                    / rows['nominal']['max_mm']}
 
-
-def _store(source, outcome) -> dict:
-    """Store a collection's outcome in the data dir and make it active, as the node does."""
-    from cobot_calib_ros import paths, store
-    from cobot_calib_ros.store.cells import ResultsCell
-    planning = source.provenance.get('planning')
-    saved = store.open(paths.data_dir(''), cell=ResultsCell.of(source.cell)).kinematics \
-        .save_outcome(outcome, extra={'planning': planning} if planning else None)
-    return {'calibration_id': saved.record.id, 'yaml_path': str(saved.paths['yaml']),
-            'urdf_path': str(saved.paths['urdf'])}

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from cobot_calib_ros.core import rig
+from cobot_calib_ros.core.kinematics.program_filter import out_of_reach
 from cobot_calib_ros.store.rigs import active_set
 
 JOINTS_TIMEOUT = 10.0    # [s] for a joint_states message (the IK seed)
@@ -28,6 +29,7 @@ class Solved:
     user_frame: str           # the user frame's id, '' for the base
     tool_record: str = ''     # the result the tool came from: a TCP or hand-eye id, 'nominal'
     stale: tuple = ()         # core.provenance.Stale of the results used
+    note: str = ''            # what the calibration could not see that the tool carries
 
     def summary(self) -> dict:
         """What the JSON of move says about the results used."""
@@ -56,11 +58,13 @@ def solve(cell, repo, T_frame_tool: np.ndarray, seed: np.ndarray, *, frame: str 
         T_base_frame, frame_label = np.eye(4), ''
     result = rig.solve_target(chain, T_frame_tool, seed, cell.home, T_base_frame)
     label = active.kinematics_label
+    T_base_tool = T_base_frame @ np.asarray(T_frame_tool, float)
     if not result:
         raise ValueError(f'the target cannot be reached by the {label} model: '
-                         f'{result.message}')
-    return Solved(result.q, T_base_frame @ np.asarray(T_frame_tool, float), label,
-                  frame_label, active.tool_label(tool), active.stale_used(tool, frame == 'user'))
+                         f'{out_of_reach(chain, T_base_tool[:3, 3]) or result.message}')
+    note = active.kinematics.unseen_tool_note if active.kinematics is not None else ''
+    return Solved(result.q, T_base_tool, label, frame_label, active.tool_label(tool),
+                  active.stale_used(tool, frame == 'user'), note)
 
 
 def suite_cell(node) -> str:

@@ -137,3 +137,43 @@ def cell_problem(name_or_path: str, layout: str = '') -> str:
     except CellFileError as e:
         return str(e)
     return ''
+
+
+def add_robot_options(p, cell_help: str) -> None:
+    """--robot-cell, or --urdf with --base-link, --tip-link, --home, --tool-offset: the robot
+    of a verb that needs no suite (filter, user-frame, move)."""
+    p.add_argument('--robot-cell', default=None, help=cell_help)
+    p.add_argument('--urdf', default=None,
+                   help='instead of a cell file: the robot\'s URDF (with --base-link and '
+                        '--tip-link); its results are those identify stored with no --cell')
+    p.add_argument('--base-link', default='base_link', help='--urdf: the chain\'s first link '
+                                                            '(default base_link)')
+    p.add_argument('--tip-link', default=None, help='--urdf: the chain\'s last link (the '
+                                                    'flange or tool0)')
+    p.add_argument('--home', type=float, nargs='+', default=None, metavar='RAD',
+                   help='--urdf: the joints the inverse kinematics starts from (default 0)')
+    p.add_argument('--tool-offset', type=float, nargs=6, default=None,
+                   metavar=('X', 'Y', 'Z', 'ROLL', 'PITCH', 'YAW'),
+                   help='--urdf: the tool centre point on the tip link [m, rad] (default the '
+                        'tip link itself)')
+
+
+def robot_cell(args, default: str | None = None):
+    """The core Cell of :func:`add_robot_options`: the --urdf chain, else the --robot-cell
+    file (else ``default``, a cell name). CellFileError / ValueError saying what to do."""
+    from cobot_calib_ros import paths
+    from cobot_calib_ros.loaders import cell_of_urdf, load_cell
+    if args.urdf:
+        if args.robot_cell:
+            raise ValueError('give --robot-cell or --urdf, not both')
+        if not args.tip_link:
+            raise ValueError('--urdf needs --tip-link (the flange or tool0)')
+        from cobot_calib_ros.core.frames import from_xyz_rpy
+        tool = None if args.tool_offset is None else from_xyz_rpy(args.tool_offset[:3],
+                                                                  args.tool_offset[3:])
+        return cell_of_urdf(args.urdf, args.base_link, args.tip_link, args.home, tool)
+    given = [f for f, v in (('--home', args.home), ('--tool-offset', args.tool_offset),
+                            ('--tip-link', args.tip_link)) if v is not None]
+    if given:
+        raise ValueError(f'{", ".join(given)} go with --urdf; a cell file has its own')
+    return load_cell(paths.cell_file(args.robot_cell or default))

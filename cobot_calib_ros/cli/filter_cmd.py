@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+import sys
 
-from cobot_calib_ros.cli.common import EXIT_FAILED, EXIT_OK, EXIT_USAGE, fail, say
+from cobot_calib_ros.cli.common import (add_robot_options, EXIT_FAILED, EXIT_OK, EXIT_USAGE,
+                                        fail, robot_cell, say)
 from cobot_calib_ros.cli.db import add_db_options
 from cobot_calib_ros.paths import DEFAULT_CELL
 
@@ -36,8 +38,8 @@ def add_parser(subparsers):
                         "calibration, default), a calibration id, or its <id>.json file")
     p.add_argument('--tool', choices=('tcp', 'flange'), default='tcp',
                    help="the targets' tool: the cell's tool centre point (default) or the flange")
-    p.add_argument('--robot-cell', default=DEFAULT_CELL,
-                   help='cell file (path or name): the robot, its tool and home pose')
+    add_robot_options(p, f'cell file (path or name): the robot, its tool and home pose '
+                         f'(default {DEFAULT_CELL}; robot, tool, frames and home are enough)')
     p.add_argument('--json', action='store_true', help='the summary as one JSON line')
     add_db_options(p)
     return p
@@ -50,12 +52,11 @@ def run(args) -> int:
     from cobot_calib_ros.core.kinematics import model_for
     from cobot_calib_ros.core.kinematics.program_filter import (filter_targets, filtered_csv,
                                                                 parse_targets)
-    from cobot_calib_ros.loaders import load_cell
     from cobot_calib_ros.store.cells import ResultsCell
     from cobot_calib_ros.store.files import atomic_write_text
     from cobot_calib_ros.store.rigs import active_set
     try:
-        cell = load_cell(paths.cell_file(args.robot_cell))
+        cell = robot_cell(args, DEFAULT_CELL)
         model = model_for(cell)
         targets = parse_targets(Path(args.targets).read_text(encoding='utf-8'), args.targets,
                                 args.format)
@@ -83,6 +84,8 @@ def run(args) -> int:
     stale = calibrated_rig.active.stale_used(args.tool, args.frame == 'user')
     for line in stale:
         say(args, f'filter: stale: {line.line()}')
+    if record.unseen_tool_note:
+        print(f'filter: note: {record.unseen_tool_note}', file=sys.stderr)
     result = filter_targets(targets, calibrated, nominal, cell.home, T_base_frame)
     if result.unreachable:
         for unreachable in result.unreachable:
@@ -108,3 +111,4 @@ def run(args) -> int:
                   f'tool {args.tool}): largest correction {largest_mm:.3f} mm, '
                   f'{largest_mrad:.3f} mrad -> {args.out}')
     return EXIT_OK
+

@@ -37,7 +37,9 @@ def add_parser(subparsers):
     p.add_argument('--robot', choices=sorted(CELLS), default=None,
                    help='robot of the default cell (iiwa7 -> iiwa7_close, sawyer -> '
                         'sawyer_close, ur10e -> ur10e_close); default iiwa7')
-    p.add_argument('--cell', default=None, help='cell file (path or name); overrides --robot')
+    p.add_argument('--cell', default=None, help='cell file (path or name); overrides --robot. '
+                   'A measurement file\'s result is stored under this cell (its robot must '
+                   'be the --urdf arm), else under the arm\'s name')
     p.add_argument('--source', default='mock',
                    help='mock (collect now), a collection folder, a bag with '
                         '/cobot_calib/captures, a MUKCa data folder or a measurement file')
@@ -62,7 +64,14 @@ def add_parser(subparsers):
                         'fraction per pose over 10 poses, e.g. 0.01 (default: off)')
     p.add_argument('--validation-configs', type=int, default=125,
                    help='laser-tracker configurations per validation set (0: none)')
-    p.add_argument('--dry-run', action='store_true', help='identify and validate, store nothing')
+    p.add_argument('--dry-run', '--no-store', dest='dry_run', action='store_true',
+                   help='identify and validate, store nothing (every source; without it a '
+                        'result that passes its gate is stored, written back as URDF (and a '
+                        'UR arm\'s kinematics YAML) and made active)')
+    from cobot_calib_ros.cli.db import DATA_DIR_HELP
+    p.add_argument('--data-dir', default=None, help=DATA_DIR_HELP + '; offline sources')
+    p.add_argument('--db', default=None, help='database URL (default $COBOT_CALIB_DB, else the '
+                                              'folder store of the data dir); offline sources')
     p.add_argument('--urdf', default=None,
                    help='the robot\'s URDF (MUKCa data: default iiwa14.urdf beside the folder)')
     p.add_argument('--ball', type=float, nargs=3, default=(0.0, 0.0, 0.04), metavar=('X', 'Y', 'Z'),
@@ -164,8 +173,23 @@ def run(args) -> int:
         hint = f'; then resume with: {_resume_command(args, e.collection_id)}' if getattr(
             e, 'collection_id', '') else ''
         return fail(f'identify failed: {e}{hint}')
+    report['unseen'] = _suite_unseen(cell, report['dropped'])
     print_report(report, args.json)
     return EXIT_OK
+
+
+def _suite_unseen(cell: str, dropped: list[dict]) -> list[dict]:
+    """What the suite's sphere coupling (one point on the tool) cannot see, on the cell's
+    model (core writeback.unseen; the stored record names the same)."""
+    from cobot_calib_ros.core.kinematics import model_for
+    from cobot_calib_ros.core.kinematics.identification.writeback import unseen
+    from cobot_calib_ros.loaders import load_cell
+    from cobot_calib_ros.paths import cell_file
+    try:
+        model = model_for(load_cell(cell_file(cell)))
+    except ValueError:           # checked before the suite ran; an attached suite's own cell
+        return []
+    return unseen(model, 'spheres', 1, dropped)
 
 
 def offline(args) -> int:
@@ -178,9 +202,13 @@ def offline(args) -> int:
                         ('--max-deviation-mrad', args.max_deviation_mrad)):
         if not (math.isfinite(value) and value > 0.0):
             return fail(f'identify: {flag} must be a finite number > 0, got {value}', EXIT_USAGE)
+    from cobot_calib_ros.loaders import sources
+    measured = args.measurement or sources.recognise(args.source) in (
+        sources.MEASUREMENT_FILE, sources.MUKCA)
     try:
         report = identify_source(
-            args.source, cell=args.cell or CELLS[args.robot or 'iiwa7'],
+            args.source, cell=args.cell if measured else args.cell or CELLS[args.robot or 'iiwa7'],
+            data_dir=args.data_dir, db=args.db,
             measurement=args.measurement, urdf=args.urdf, base_link=args.base_link,
             tip_link=args.tip_link, dh=args.dh, model=args.model, folds=args.folds,
             leave_out=args.leave_out, ball=args.ball, solver=args.solver, loss=args.loss,
@@ -192,6 +220,8 @@ def offline(args) -> int:
         return fail(f'identify: {e}', EXIT_FAILED)
     except ValueError as e:
         return fail(f'identify: {e}', EXIT_USAGE)
+    except OSError as e:
+        return fail(f'identify: could not store the result: {e}; check --data-dir / --db')
     print_report(report, args.json)
     if not report['verdict']['passed']:
         return fail(f'identify {args.source}: {verdict_line(report)}', EXIT_FAILED)

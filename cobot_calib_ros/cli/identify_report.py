@@ -59,9 +59,17 @@ def text(report: dict) -> str:
                      f'its spread: {PAPER_RATIO_PERCENT} %)')
     if report.get('table6'):
         lines.append(f'\n{report["table6"]}')
+    if report.get('unseen'):
+        from cobot_calib_ros.store.kinematics import unseen_note
+        lines.append(unseen_note(report['unseen']))
     if report.get('calibration_id'):
-        lines.append(f'\nstored and active: {report["calibration_id"]}\n  '
-                     f'{report["yaml_path"]}\n  {report["urdf_path"]}')
+        paths = [report[k] for k in ('record_path', 'yaml_path', 'urdf_path',
+                                     'ur_kinematics_path') if report.get(k)]
+        active = 'stored and active' if report.get('active', True) else 'stored, NOT active'
+        lines.append(f'\n{active}: {report["calibration_id"]}' + ''.join(
+            f'\n  {path}' for path in paths))
+    elif report.get('not_stored'):
+        lines.append(f'\nnothing stored: {report["not_stored"]}')
     return '\n'.join(lines)
 
 

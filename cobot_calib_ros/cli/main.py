@@ -28,6 +28,7 @@ VERBS = (
     'detect',
     'export',
     'filter_cmd',                   # program filtering for a controller's nominal kinematics
+    'user_frame_cmd',               # a user frame from a points file, no suite
     'move',                         # a pose target, solved with the calibrated kinematics
     'db',
     'history',

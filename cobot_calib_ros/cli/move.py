@@ -3,8 +3,10 @@ model (api.move: the suite solves, move_to gets joints)."""
 from __future__ import annotations
 
 import json
+import sys
 
-from cobot_calib_ros.cli.common import (EXIT_FAILED, EXIT_OK, EXIT_USAGE, fail, ros_node, say)
+from cobot_calib_ros.cli.common import (add_robot_options, EXIT_FAILED, EXIT_OK, EXIT_USAGE,
+                                        fail, robot_cell, ros_node, say)
 from cobot_calib_ros.cli.db import add_db_options
 
 
@@ -34,9 +36,8 @@ def add_parser(subparsers):
                         "default), 'nominal', a calibration id, or its <id>.json file")
     p.add_argument('--speed-scale', type=float, default=0.0,
                    help='0..1 of the joint velocity limits (0: the robot\'s default)')
-    p.add_argument('--robot-cell', default='',
-                   help="cell file (path or name); default: the running suite's "
-                        '(its user_frame_solver\'s cell_file)')
+    add_robot_options(p, "cell file (path or name): the robot, its tool and home; default the "
+                         "running suite's (its user_frame_solver's cell_file)")
     p.add_argument('--namespace', default='', help="the suite's namespace (up --namespace)")
     p.add_argument('--dry-run', action='store_true',
                    help='solve and print the joints, do not move')
@@ -53,7 +54,6 @@ def run(args) -> int:
     from cobot_calib_ros.core.cell import CellFileError
     from cobot_calib_ros.core.frames import from_xyz_rpy
     from cobot_calib_ros.core.kinematics import model_for
-    from cobot_calib_ros.loaders import load_cell
     from cobot_calib_ros.ros.calls import CallError
     from cobot_calib_ros.store.cells import ResultsCell
     if not all(math.isfinite(v) for v in (*args.xyz, *args.rpy)):
@@ -65,7 +65,8 @@ def run(args) -> int:
     T_frame_tool = from_xyz_rpy(args.xyz, args.rpy)
     with ros_node('cobot_calib_move', args.namespace.strip('/')) as node:
         try:
-            cell = load_cell(paths.cell_file(args.robot_cell or move.suite_cell(node)))
+            cell = robot_cell(args, None if args.robot_cell or args.urdf
+                              else move.suite_cell(node))
             repo = store.open(paths.data_dir(args.data_dir), args.db,
                               ResultsCell(args.cell, cell.robot) if args.cell
                               else ResultsCell.of(cell, args.namespace))
@@ -78,6 +79,8 @@ def run(args) -> int:
         except (OSError, CallError) as exc:
             return fail(f'move: {exc}')
         where = f'user frame {solved.user_frame}' if solved.user_frame else 'base'
+        if solved.note:
+            print(f'move: note: {solved.note}', file=sys.stderr, flush=True)
         summary = {**solved.summary(), 'frame': where, 'tool': args.tool,
                    'positions': solved.q.tolist(), 'moved': False}
         for stale in solved.stale:

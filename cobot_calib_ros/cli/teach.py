@@ -49,6 +49,8 @@ def run(args) -> int:
         return fail(f'{problem}; nothing was touched', EXIT_USAGE)
     try:
         cell = load_cell(cell_file(args.cell), args.layout or None)
+        cell.require('teach (its points are the layout\'s markers; a points file: '
+                     'cobot-calib user-frame --points)', 'layouts')
     except CellFileError as e:
         return fail(str(e), EXIT_USAGE)
     names = args.points or cell.point_names

@@ -130,11 +130,25 @@ def simulation_problem(cell: str, layout: str) -> str:
     from cobot_calib_ros import paths
     from cobot_calib_ros.core.cell import CellFileError
     from cobot_calib_ros.sim.scenario import load_simulation
+    path = paths.cell_file(cell)
     try:
-        load_simulation(paths.cell_file(cell), layout or None)
+        load_simulation(path, layout or None)
     except CellFileError as e:
+        if 'simulation' not in _top_keys(path):
+            return (f'up starts the mock robot, which needs the cell\'s simulation: section; '
+                    f'{path} has none (a real cell): identify, user-frame, filter and export '
+                    'run from it with no suite (README "A plant\'s path")')
         return str(e)
     return ''
+
+
+def _top_keys(path) -> tuple[str, ...]:
+    import yaml
+    try:
+        doc = yaml.safe_load(path.read_text(encoding='utf-8'))
+    except (OSError, UnicodeDecodeError, yaml.YAMLError):
+        return ()
+    return tuple(doc) if isinstance(doc, dict) else ()
 
 
 def running_nodes(names: list[str]) -> list[str]:

@@ -82,6 +82,19 @@ class Cell:
     landmarks: Landmarks | None = None   # fiducials on the table, if the cell has them
     urdf_robot: UrdfRobot | None = None  # the robot's URDF chain, when not a built-in model
 
+    def require(self, verb: str, *sections: str) -> None:
+        """CellFileError naming ``verb`` and the first of ``sections`` ('layouts', 'spheres',
+        'camera', 'landmarks') this cell lacks: a real cell may have none of them (robot,
+        tool, frames and home are enough for identify, filter, move, export, tcp and
+        user-frame from files)."""
+        present = {'layouts': bool(self.markers), 'spheres': self.spheres is not None,
+                   'camera': self.camera is not None, 'landmarks': self.landmarks is not None}
+        for section in sections:
+            if not present[section]:
+                raise CellFileError(
+                    f'{verb} needs the cell\'s {section}: section, which cell {self.name!r} '
+                    f'has not; add it to the cell file (README "Configuration")')
+
     def marker(self, name: str) -> Marker | None:
         return next((m for m in self.markers if m.name == name), None)
 
@@ -306,20 +319,23 @@ def parse_cell(text: str, path: str | Path, layout: str | None = None) -> Cell:
     for key, value in frames_.items():
         if check_frame_id(value):
             raise r.fail((key,), check_frame_id(value))
-    layouts = r.get('layouts')
-    if not isinstance(layouts, dict) or not layouts:
-        raise r.fail(('layouts',), 'expected a mapping of layout name -> {point: [x, y]}')
-    chosen = layout or r.get('layout', default=next(iter(layouts)))
-    if chosen not in layouts:
-        raise r.fail(('layout',), f'layout {chosen!r} is not in the cell; choose one of '
-                     f'{", ".join(layouts)}')
+    layouts = r.get('layouts', default=None)
+    if layouts is None and layout is None and r.get('layout', default=None) is None:
+        chosen = ''           # a real cell: no marker layouts (Cell.require: who needs them)
+    else:
+        if not isinstance(layouts, dict) or not layouts:
+            raise r.fail(('layouts',), 'expected a mapping of layout name -> {point: [x, y]}')
+        chosen = layout or r.get('layout', default=next(iter(layouts)))
+        if chosen not in layouts:
+            raise r.fail(('layout',), f'layout {chosen!r} is not in the cell; choose one of '
+                         f'{", ".join(layouts)}')
     return Cell(
         name=r.name('name', default=Path(path).stem), robot=robot, urdf_robot=urdf_robot,
         **frames_,
         tool_offset=frames.from_xyz_rpy(r.lengths('tool_offset', 'xyz', length=3),
                                         r.vector('tool_offset', 'rpy', length=3)),
-        home=r.vector('home'), layout=chosen, layouts=tuple(layouts),
-        markers=_markers(r, chosen), spheres=_spheres(r), camera=_camera(r),
+        home=r.vector('home'), layout=chosen, layouts=tuple(layouts or ()),
+        markers=_markers(r, chosen) if chosen else (), spheres=_spheres(r), camera=_camera(r),
         landmarks=_landmarks(r))
 
 

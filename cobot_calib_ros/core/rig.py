@@ -50,6 +50,7 @@ class Kinematics:
     params: Array                          # (P,) [m, rad]
     tool_xyz: Array | None = None          # (3,) [m] on the flange
     measured_through: Mapping[str, str] = field(default_factory=dict)
+    unseen_tool_note: str = ''   # what the measurement could not see that every tool carries
 
 
 @dataclass(frozen=True, eq=False)

@@ -86,3 +86,32 @@ def _numeric_table(path: Path):
         raise ValueError(f'{path}: empty; {expected}') from None
     except ValueError as exc:
         raise ValueError(f'{path}: not a numeric table ({exc}); {expected}') from None
+
+
+def cell_of_urdf(urdf: str | Path, base_link: str, tip_link: str, home=None,
+                 tool_offset=None) -> Cell:
+    """A real cell given by its robot's URDF alone (no cell file): the chain from ``base_link``
+    to ``tip_link``, named by the URDF's file name (as identify stores a result with no
+    --cell), the tool centre ``tool_offset`` (4, 4) on the tip (default the tip), ``home``
+    [rad] the inverse kinematics' seed (default every joint at 0), no layouts, spheres or
+    camera. ValueError naming the URDF when it cannot be read or has no such chain."""
+    import numpy as np
+    from cobot_calib_ros.core.kinematics.robots import model_for, UrdfRobot
+    path = Path(urdf).expanduser()
+    try:
+        text = path.read_text(encoding='utf-8')
+    except (OSError, UnicodeDecodeError) as e:
+        raise ValueError(f'--urdf {path}: cannot read ({e})') from None
+    robot = UrdfRobot(path.stem, str(path), base_link, tip_link, urdf=text)
+    try:
+        joints = len(model_for(robot).joint_names)
+    except ValueError as e:
+        raise ValueError(f'--urdf {path}: {e}') from None
+    home = np.zeros(joints) if home is None else np.asarray(home, dtype=float)
+    if home.shape != (joints,):
+        raise ValueError(f'--home: give {joints} joint values [rad] (the chain {base_link} -> '
+                         f'{tip_link} has {joints} joints), got {home.size}')
+    return Cell(name=path.stem, robot=path.stem, base_frame=base_link, tool_frame=tip_link,
+                user_frame='user_frame',
+                tool_offset=np.eye(4) if tool_offset is None else np.asarray(tool_offset),
+                home=home, layout='', layouts=(), markers=(), urdf_robot=robot)

@@ -324,6 +324,19 @@ def robot_model(source: Path, frames: dict, urdf: str | None, base_link: str | N
     from cobot_calib_ros.core.kinematics.urdf import model_from_urdf
     if dh:
         return load_dh_table(dh)
+    robot = robot_description(source, frames, urdf, base_link, tip_link)
+    try:
+        return model_from_urdf(robot.urdf, robot.base_link, robot.tip_link, robot.name,
+                               free_pitch=True)
+    except ValueError as e:
+        raise ValueError(f'--urdf {robot.urdf_file}: {e}') from None
+
+
+def robot_description(source: Path, frames: dict, urdf: str | None, base_link: str | None,
+                      tip_link: str | None):
+    """The URDF of a measurement source's arm (core UrdfRobot with its text: what the
+    calibrated URDF is written back into), as :func:`robot_model` chooses it."""
+    from cobot_calib_ros.core.kinematics.robots import UrdfRobot
     if urdf:
         path = Path(urdf).expanduser()
     elif source.is_dir() and (source.parent / 'iiwa14.urdf').is_file():
@@ -338,7 +351,4 @@ def robot_model(source: Path, frames: dict, urdf: str | None, base_link: str | N
         text = path.read_text(encoding='utf-8')
     except OSError as e:
         raise ValueError(f'--urdf {path}: cannot read ({e.strerror})') from None
-    try:
-        return model_from_urdf(text, base, tip, path.stem, free_pitch=True)
-    except ValueError as e:
-        raise ValueError(f'--urdf {path}: {e}') from None
+    return UrdfRobot(path.stem, str(path), base, tip, urdf=text)

@@ -52,6 +52,7 @@ class Source:
     file: Any = None                  # loaders.measurements.MeasurementFile
     observations: Any = None          # SphereObservations | PositionObservations
     cell: Any = None                  # core.cell.Cell
+    description: Any = None           # core UrdfRobot of a measurement file's URDF (None: DH)
     provenance: dict = field(default_factory=dict)
 
     @property
@@ -75,7 +76,9 @@ def load_source(path: str | Path, *, cell=None, urdf: str | None = None,
         file = measurements.load_socket_measurements(path, ball) if kind == MUKCA else \
             measurements.load_measurements(path)
         model = measurements.robot_model(path, file.frames, urdf, base_link, tip_link, dh)
-        return Source(kind, path, model, file=file,
+        description = None if dh else measurements.robot_description(
+            path, file.frames, urdf, base_link, tip_link)
+        return Source(kind, path, model, file=file, description=description,
                       provenance={'source': file.source, 'source_kind': kind,
                                   'frames': file.frames})
     from cobot_calib_ros.core.kinematics import model_for

@@ -248,6 +248,10 @@ class RepeatabilityTrial(JobNode):
 
     def _prepare(self, trial: _Goal, goal_handle) -> tuple[trialmod.TrialRun, object]:
         goal = trial.goal
+        try:
+            self._cell.require('a repeatability trial', 'layouts')
+        except ValueError as e:
+            raise trialmod.TrialError(ErrorCode.INVALID_INPUT, str(e)) from None
         if goal.layout and goal.layout != self._cell.layout:
             raise trialmod.TrialError(ErrorCode.INVALID_INPUT, (
                 f'layout {goal.layout!r} requested but this node (and the markers) use '

@@ -99,13 +99,15 @@ class TcpCalibrator(JobNode):
     def _run(self, goal_handle):
         goal, result = goal_handle.request, Action.Result()
         tool = goal.tool or self._cell.tool_frame
-        point = goal.point_name or self._cell.point_names[0]
+        point = goal.point_name or next(iter(self._cell.point_names), '')
         count = int(goal.orientations) or DEFAULT_APPROACHES
         tilt = float(goal.tilt) or DEFAULT_TILT
         elongation = float(goal.elongation) or DEFAULT_ELONGATION
         hold = float(goal.hold) or self._p('hold_duration')
         result.tool = tool
         try:
+            if not point:
+                self._cell.require('the TCP calibration (no point_name)', 'layouts')
             if point not in self._cell.point_names:
                 raise ValueError(f'unknown point {point!r}; the cell has '
                                  f'{self._cell.point_names}')

@@ -324,6 +324,11 @@ class UserFrameSolver(JobNode):
 
     def _check_names(self, names: list[str]) -> None:
         unknown = [n for n in names if self._cell.marker(n) is None]
+        if unknown and not self._cell.point_names:
+            raise Refusal(Failure(ErrorCode.UNKNOWN_POINT, (
+                f'named points {unknown}: a calibration of named points needs the cell\'s '
+                'layouts: section, which this cell has not; give points_user + points_base, '
+                'or measure offline (cobot-calib user-frame --points)')))
         if unknown:
             raise Refusal(Failure(ErrorCode.UNKNOWN_POINT, (
                 f'unknown point(s) {unknown}; the cell defines {self._cell.point_names}')))

@@ -60,9 +60,21 @@ class KinematicHistory:
         the URDF is written back into (:func:`calibrated_descriptions`)."""
         typed = KinematicRecord.from_outcome(outcome, wall_ns)
         typed.extra.update(extra or {})
+        # a sphere coupling or a tracker's reflector is fitted with the arm: measured through
+        # no other result (the contract's provenance)
+        typed.extra.setdefault('measured_through', {})
+        typed.extra.setdefault('unseen', outcome_unseen(outcome))
+        return self.save_record(typed, outcome.model, activate, description)
+
+    def save_record(self, typed: KinematicRecord, model: KinematicModel, activate: bool = True,
+                    description: UrdfRobot | None = None) -> SavedKinematics:
+        """Write a kinematic record (JSON), its YAML and URDF (and a UR arm's kinematics
+        YAML), whatever made it (a CalibrationJob outcome, a measurement file's
+        identification); make it its robot's active one if ``activate`` (and it passes its
+        gate). ``description``: the robot's URDF (with its text), written back into."""
         record = typed.to_dict()
         paths = {'yaml': self.directory / f'{typed.id}.yaml'}
-        texts = calibrated_descriptions(typed, outcome.model, description)  # before any write
+        texts = calibrated_descriptions(typed, model, description)  # before any write
         stored = self.save(record)       # a path, or where in a database
         ensure_dir(self.directory)
         atomic_write_text(paths['yaml'], yaml.safe_dump(_readable(record), sort_keys=False,
@@ -92,6 +104,15 @@ class KinematicStore(KinematicHistory, CalibrationStore):
         super().__init__(root, 'kinematics', scope_key='robot', cell=cell)
 
 
+def outcome_unseen(outcome) -> list[dict]:
+    """What a CalibrationJob's measurement (a sphere coupling or a tracker's reflector: one
+    point on the tool) cannot see (core writeback.unseen)."""
+    from cobot_calib_ros.core.kinematics.identification.writeback import unseen
+    kind = 'spheres' if outcome.inputs.objective == 'relative' else 'points'
+    return unseen(outcome.model, kind, 1, [{'name': d.name, 'reason': d.reason}
+                                           for d in outcome.identifiability.dropped])
+
+
 def calibrated_descriptions(record: KinematicRecord, model: KinematicModel,
                             description: UrdfRobot | None) -> dict[str, str]:
     """The texts a kinematic calibration is written back as: 'urdf', the robot's own URDF
@@ -104,16 +125,38 @@ def calibrated_descriptions(record: KinematicRecord, model: KinematicModel,
             f'{record.robot}, {utc_text(record.stamp_ns)}, {record.method} from '
             f'{record.inputs.source}; only the origins of {", ".join(model.joint_names)} '
             'differ from the nominal description')
+    unseen = record.extra.get('unseen') or ()
+    if unseen:
+        note += '\n' + unseen_note(unseen)
     if description is None or not description.urdf:
-        return {'urdf': calibrated_urdf(model, params, np.array(record.result.tool_xyz),
+        tool = record.result.tool_xyz
+        return {'urdf': calibrated_urdf(model, params, None if tool is None else np.array(tool),
                                         robot_name=f'{model.name}_calibrated')}
     urdf = rewrite_urdf(description.urdf, model, params, base_link=description.base_link,
                         tip_link=description.tip_link, note=note)
     texts = {'urdf': urdf}
     if is_ur(model.joint_names):
-        texts['ur_kinematics'] = ur_kinematics_yaml(ur_kinematics(urdf),
+        texts['ur_kinematics'] = ur_kinematics_yaml(ur_kinematics(urdf, model.joint_names),
                                                     f'cobot_calib_{record.id}', note)
     return texts
+
+
+def unseen_note(unseen) -> str:
+    """One line naming the parameters a record's measurement could not see (kept at nominal),
+    grouped by why, and what they affect: the written URDF's comment, the report, filter's and
+    move's notes."""
+    by_reason: dict[str, list[str]] = {}
+    for u in unseen:
+        by_reason.setdefault(u['reason'], []).append(u['name'])
+    return 'not seen by the measurement, kept nominal: ' + '; '.join(
+        f'{", ".join(names)} ({reason})' for reason, names in by_reason.items())
+
+
+def unseen_tool_note(record: dict[str, Any] | None) -> str:
+    """'' or the line naming what a kinematic calibration ``record`` could not see that
+    every tool carries: filter and move say it when they use the record."""
+    unseen = [u for u in (record or {}).get('unseen', ()) if u.get('affects') == 'tool']
+    return f'{record["id"]}: {unseen_note(unseen)}' if unseen else ''
 
 
 def _readable(record: dict[str, Any]) -> dict[str, Any]:
@@ -122,7 +165,8 @@ def _readable(record: dict[str, Any]) -> dict[str, Any]:
     table = result.pop('table6', '')
     result.pop('params', None)
     result.pop('parameter_names', None)
+    free = result.pop('free')
     result['identified'] = {name: {'value': value, 'std': std} for name, value, std in zip(
-        result.pop('free'), result.pop('values'), result.pop('std'))}
+        free, result.pop('values'), result.pop('std') or [None] * len(free))}
     return {**{k: v for k, v in record.items() if k != 'result'}, 'result': result,
             'table6': table.splitlines()}

@@ -454,6 +454,39 @@ class KinematicRecord(Record):
                 table6=outcome.table))
 
 
+    @classmethod
+    def from_report(cls, report: dict, model, params, wall_ns: int | None = None,
+                    unseen: list[dict] | None = None) -> KinematicRecord:
+        """The record of a measurement file's (or MUKCa folder's) identification report
+        (core measurement_fit.identify_measurements, api.identification) whose model
+        parameters are ``params`` (P,) of ``model``: held-out figures as its validation, the
+        verdict's problems as its gate problem, ``unseen``: the parameters the measurement
+        cannot see (kept nominal), and what they affect. Its measurement carries its own
+        markers or balls, so it was measured through nothing (``measured_through`` {})."""
+        wall_ns = time.time_ns() if wall_ns is None else wall_ns
+        identified = report['identified']
+        kind = report['measurement']
+        record = cls(
+            id=record_id(f'{kind}-{report["model"]}', wall_ns), stamp_ns=wall_ns,
+            method=f'{kind}-{report["model"]}', robot=model.name,
+            inputs=KinematicInputs(source=str(report.get('source', '')), rows=report['rows'],
+                                   solver='lm', loss=report['loss'],
+                                   objective='relative' if kind in ('spheres', 'plane')
+                                   else 'absolute'),
+            result=KinematicResult(
+                parameter_names=list(model.parameter_names), params=params,
+                free=[p['name'] for p in identified],
+                values=[p['value'] for p in identified],
+                std=[p['std'] for p in identified] if all('std' in p for p in identified)
+                else None, dropped=list(report['dropped']),
+                rank=len(identified), condition_number=report['condition_number'],
+                rms_m=report['training']['rmse_mm'] * 1e-3, converged=report['converged'],
+                validation={'held_out': report['held_out'], 'noise_mm': report['noise_mm'],
+                            **{k: report[k] for k in ('validation',) if k in report}}),
+            gate_problem='; '.join(report['verdict']['problems']))
+        record.extra.update(measured_through={}, unseen=list(unseen or ()))
+        return record
+
 # -- repeatability trial (repeatability_trial) -------------------------------------------------
 
 @dataclass(kw_only=True)

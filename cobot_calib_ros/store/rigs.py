@@ -19,6 +19,7 @@ import numpy as np
 from cobot_calib_ros.core import provenance, rig
 from cobot_calib_ros.core.kinematics.robots import model_for
 from cobot_calib_ros.core.rig import ActiveSet, NOMINAL, Rig
+from cobot_calib_ros.store.kinematics import unseen_tool_note
 
 ACTIVE = ('active', 'latest')
 Stored = Mapping[str, Any]
@@ -48,7 +49,7 @@ def kinematics_of(record: Stored | None) -> rig.Kinematics | None:
                           tuple(result['parameter_names']),
                           np.array(result['params'], dtype=float),
                           None if tool is None else np.array(tool, dtype=float),
-                          measured_through(record))
+                          measured_through(record), unseen_tool_note(record))
 
 
 def tcp_of(record: Stored | None) -> rig.Tcp | None:

@@ -105,3 +105,17 @@ def test_move_uses_the_active_tcp_names_it_and_says_a_frame_touched_with_another
     assert move.solve(CELL, repo, T_user_tool, Q, frame='user', tool='flange').stale == (
         stale,)                              # the frame is used whatever the tool
     assert move.solve(CELL, repo, np.eye(4) @ fk(MODEL.chain(tool=new_tool), Q), Q).stale == ()
+
+
+def test_move_names_what_the_calibration_could_not_see_and_how_far_a_target_is(repo):
+    """issue 37: the unseen parameters of the calibration the tool goes through, and a target
+    beyond reach by its distance."""
+    unseen = {'name': 'yaw_wrist_3_joint', 'affects': 'tool',
+              'reason': 'one point on the tool cannot see it'}
+    repo.kinematics.save_and_activate({**KINEMATIC, 'unseen': [unseen]})
+    solved = move.solve(CELL, repo, fk(MODEL.chain(PARAMS, tool=CELL.tool_offset), Q), Q)
+    assert solved.note == ('k-move: not seen by the measurement, kept nominal: '
+                           'yaw_wrist_3_joint (one point on the tool cannot see it)')
+    with pytest.raises(ValueError, match=r"cannot be reached by the k-move model: 5.003 m from "
+                                         r"the first joint, 3.455 m beyond the arm.s reach"):
+        move.solve(CELL, repo, from_xyz_rpy([0.0, 5.0, 0.0], [0.0, 0.0, 0.0]), Q)

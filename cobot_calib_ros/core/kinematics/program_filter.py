@@ -11,8 +11,10 @@ frame), by default ``x,y,z,qx,qy,qz,qw`` (position [m], unit quaternion x y z w,
 or in a controller's own values and units (``fmt`` one of core.vendor_frames.FORMATS, e.g. kuka
 ``X,Y,Z,A,B,C`` [mm, deg], as a pendant shows a position). The filtered program has the same
 columns for the corrected pose, then the calibrated model's joints [rad, m for prismatic] by
-joint name. A target the calibrated model cannot reach (out of the workspace or the joint
-limits) is named with the solver's reason.
+joint name. A target the calibrated model cannot reach is named with why: beyond the arm's
+reach (its distance to the reachable sphere, the link lengths and the tool added up around the
+first joint; a position a thousand times too far looks like millimetres and is said so), else
+the solver's reason (the joint limits, an orientation it cannot take).
 """
 from __future__ import annotations
 
@@ -155,13 +157,35 @@ def filter_targets(targets: list[Target], calibrated: Chain, nominal: Chain, hom
     for target in targets:
         result = solve_target(calibrated, target.pose, seed, home, T_base_frame)
         if not result:
-            unreachable.append(Unreachable(target.name, result.message))
+            unreachable.append(Unreachable(target.name, out_of_reach(
+                calibrated, (T_base_frame @ target.pose)[:3, 3]) or result.message))
             continue
         seed = result.q
         pose = T_frame_base @ fk(nominal, result.q)
         filtered.append(Filtered(target.name, pose, result.q.copy(),
                                  *transform_error(pose, target.pose)))
     return FilterResult(tuple(filtered), tuple(unreachable))
+
+
+def reach(chain: Chain) -> float:
+    """[m] the farthest the tool centre can be from the first joint's origin: the chain's
+    link lengths and the tool's added up."""
+    links = np.linalg.norm(np.asarray(chain.placements)[1:, :3, 3], axis=1).sum()
+    return float(links + np.linalg.norm((chain.flange @ chain.tool)[:3, 3]))
+
+
+def out_of_reach(chain: Chain, p_base: ArrayLike) -> str:
+    """'' when the position ``p_base`` [m] is within :func:`reach` of the first joint, else
+    how far beyond it is, and a hint when it looks like millimetres."""
+    p = np.asarray(p_base, dtype=float)
+    distance = float(np.linalg.norm(p - np.asarray(chain.placements)[0, :3, 3]))
+    limit = reach(chain)
+    if distance <= limit:
+        return ''
+    hint = ('; it looks like millimetres: give the position in metres (or a --format in mm)'
+            if distance > 20.0 * limit and distance * 1e-3 <= limit else '')
+    return (f'{distance:.4g} m from the first joint, {distance - limit:.4g} m beyond the arm\'s '
+            f'reach of {limit:.4g} m with this tool{hint}')
 
 
 def filtered_csv(filtered: tuple[Filtered, ...], joint_names: tuple[str, ...],

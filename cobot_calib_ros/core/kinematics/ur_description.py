@@ -24,9 +24,19 @@ _FIELDS = ('x', 'y', 'z', 'roll', 'pitch', 'yaw')
 Origins = dict[str, tuple[float, ...]]   # YAML key -> (x, y, z, roll, pitch, yaw)
 
 
+def ur_prefix(joint_names) -> str | None:
+    """The tf_prefix of the six joints of a UR arm (in order; '' for none), None if they are
+    not a UR arm's."""
+    names = tuple(joint_names)
+    if len(names) != len(UR_JOINTS) or not names[0].endswith(UR_JOINTS[0][1]):
+        return None
+    prefix = names[0][:-len(UR_JOINTS[0][1])]
+    return prefix if names == tuple(prefix + joint for _, joint in UR_JOINTS) else None
+
+
 def is_ur(joint_names) -> bool:
-    """Are these the six joints of a UR arm (in order)?"""
-    return tuple(joint_names) == tuple(joint for _, joint in UR_JOINTS)
+    """Are these the six joints of a UR arm (in order, with one tf_prefix or none)?"""
+    return ur_prefix(joint_names) is not None
 
 
 def _origin(root: ET.Element, joint: str) -> tuple[float, ...]:
@@ -41,10 +51,12 @@ def _origin(root: ET.Element, joint: str) -> tuple[float, ...]:
     return tuple(values)
 
 
-def ur_kinematics(urdf_text: str) -> Origins:
-    """The six arm joint origins of a UR URDF, by YAML key; ValueError if one is missing."""
+def ur_kinematics(urdf_text: str, joint_names=None) -> Origins:
+    """The six arm joint origins of a UR URDF, by YAML key (``joint_names``: the chain's, to
+    take their tf_prefix); ValueError if one is missing."""
     root = ET.fromstring(urdf_text)
-    return {key: _origin(root, joint) for key, joint in UR_JOINTS}
+    prefix = (ur_prefix(joint_names) or '') if joint_names is not None else ''
+    return {key: _origin(root, prefix + joint) for key, joint in UR_JOINTS}
 
 
 def ur_kinematics_yaml(origins: Origins, hash_: str, note: str = '') -> str:
