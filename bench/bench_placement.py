@@ -21,7 +21,7 @@ cells, with the same core calls the nodes make:
    against the truth (``placement_<robot>_hand_eye_error_mm``).
 
 Then TARGETS tool poses in the user frame (seeded: over the markers' area and 20 mm around it,
-0-50 mm above the table, the tool pointing down tilted up to 15 deg, turned up to 45 deg about
+0-50 mm above the table, the tool pointing down tilted up to 30 deg, turned up to 90 deg about
 its axis) are solved from home
 - through ``move``: api.move.solve(frame='user', kinematics='active'), the code
   `cobot-calib move --frame user` runs;
@@ -37,11 +37,17 @@ sees). Figures [mm]:
   result nominal (a repository with only a user frame touched through the nominal kinematics
   and tool), calibrated: the first day's results;
 - ``placement_<robot>_calibrated_adapter_{max,rms}_mm``: through robot_adapter's calls;
-- ``placement_<robot>_true_<result>_{max,rms}_mm``: the calibrated chain with one result swapped
-  for the mock's truth (kinematics, tcp, user_frame), to show which result's error
-  dominates; ``..._all_true_...``: every result true (what is left: the landing noise);
+- ``placement_<robot>_true_<result>_{max,rms}_mm``: one result swapped for the mock's truth and
+  the results measured through it measured again from the same joints (kinematics: the TCP and
+  the user frame through the true arm; tcp: the user frame through the true tool;
+  user_frame: perfect touches, no touch noise), through robot_adapter's calls, to show which
+  result's error dominates; ``..._all_true_...``: every result true;
+- ``..._landed_...``: the same where the arm lands (its repeatability on top; all_true_landed
+  is the repeatability alone);
 - ``placement_<robot>_{kinematics,tcp}_error_mm`` and ``..._user_frame_error_{mm,mrad}``: each
-  calibrated result against its truth (kinematics: the max tip error over the targets' joints).
+  calibrated result against its truth (kinematics: the max tip error over the targets' joints
+  after the best rigid registration: the base a sphere calibration cannot see, which the user
+  frame absorbs; the user frame: at the markers' centre, against the true points' frame).
 """
 from __future__ import annotations
 
@@ -59,7 +65,7 @@ from cobot_calib_ros.core import frames, kinematics, rig, user_frame
 from cobot_calib_ros.core.cell import tool_down_orientation
 from cobot_calib_ros.core.frames import Rotation
 from cobot_calib_ros.core.kinematics import plans
-from cobot_calib_ros.core.kinematics.identification import SphereObservations
+from cobot_calib_ros.core.kinematics.identification import register_rigid, SphereObservations
 from cobot_calib_ros.core.kinematics.kinematic_calibration import CalibrationJob
 from cobot_calib_ros.core.kinematics.planned_collection import collect_planned
 from cobot_calib_ros.core.kinematics.planning import (PlanSettings, sphere_candidates,
@@ -83,8 +89,8 @@ TOUCH_HOLD = 0.5            # [s] capture_joints' default
 PLANNING_TASK_SEED = 1      # kinematic_identifier's task volume draw
 TOUCH_SIGMA = 5e-5          # [m] tcp_calibrator's touch_sigma
 MARGIN = 0.02               # [m] around the markers' area
-MAX_TILT = np.radians(15.0)
-MAX_TURN = np.radians(45.0)
+MAX_TILT = np.radians(30.0)     # as the TCP calibration's approaches
+MAX_TURN = np.radians(90.0)
 
 
 class FirstDay:
@@ -138,6 +144,7 @@ class FirstDay:
         plan, locate = checked_plan(plan, active.chain('tcp'), self.cell.home)
         touches = take_touches(plan, self.port, active.chain('flange'), TCP_HOLD,
                                locate=locate)
+        self.tcp_plan, self.tcp_touches = plan, touches
         solution = solve_touches(plan, touches, TOUCH_SIGMA)
         gate = gate_problem(solution, GateLimits(touch_sigma=TOUCH_SIGMA), self.cell.tool_offset)
         record = TcpRecord.from_solution(solution, self.cell.tool_frame, point, touches.labels,
@@ -155,6 +162,7 @@ class FirstDay:
         for name in names:
             self.port.touch(name)
             joints.append(self.port.capture(TOUCH_HOLD).q)
+        self.frame_joints = np.array(joints)
         p_user = self.cell.nominal_points_user()
         for repo, active in ((self.calibrated, rig_of(self.calibrated, self.cell, 'latest',
                                                       self.model)),
@@ -223,16 +231,54 @@ def placed_mm(day: FirstDay, q: np.ndarray, target_base: np.ndarray) -> tuple[fl
 
 
 def swapped_chain(day: FirstDay, swap: str):
-    """(tcp chain, T_base_user) of the calibrated results with ``swap`` replaced by the
-    mock's truth ('' none; 'all' every one)."""
+    """(tcp chain, T_base_user): the first day's results with ``swap`` made the mock's truth
+    and the results measured through it measured again from the same joints ('' none;
+    'kinematics': the TCP and the user frame through the true arm; 'tcp': the user frame
+    through the true tool; 'user_frame': perfect touches, the true tool put exactly on the
+    true marker tops, through the calibrated chain; 'all': the truth)."""
     active = rig_of(day.calibrated, day.cell, 'latest', day.model)
-    true_k = swap in ('kinematics', 'all')
-    tool = day.sim.true_tool_offset if swap in ('tcp', 'all') else active.tool('tcp')
-    chain = (day.model.chain(day.arm.true_parameters, tool=tool) if true_k
-             else rig.model_chain(active.active.kinematics, day.model, tool))
-    T_base_user = (reference_frame(day.sim) if swap in ('user_frame', 'all')
-                   else active.T_base_user())
-    return chain, T_base_user
+    if swap == 'all':
+        return day.arm.true, reference_frame(day.sim)
+    params = (day.arm.true_parameters if swap == 'kinematics'
+              else np.array(active.active.kinematics['result']['params'], dtype=float))
+    if swap == 'tcp':
+        tool = day.sim.true_tool_offset
+    elif swap == 'kinematics':
+        tool = tcp_through(day, params)
+    else:
+        tool = active.tool('tcp')
+    chain = day.model.chain(params, tool=tool)
+    joints = day.frame_joints if swap != 'user_frame' else perfect_touches(day)
+    p_base = kinematics.fk(chain, joints)[:, :3, 3]
+    fit = user_frame.calibrate('rigid', day.cell.nominal_points_user(), p_base,
+                               max_rms_error=None)
+    return chain, fit.T_base_user
+
+
+def tcp_through(day: FirstDay, params: np.ndarray) -> np.ndarray:
+    """T_flange_tcp solved from the TCP calibration's joints through the arm ``params``, as
+    the rig uses it (the cell tool's orientation, the position measured)."""
+    from cobot_calib_ros.core.tcp.touches import TcpTouches
+    touches = day.tcp_touches
+    flange = kinematics.fk(day.model.chain(params), np.array(touches.joints))
+    again = TcpTouches(list(touches.labels), list(touches.joints), list(flange),
+                       touches.approaches)
+    T = np.array(day.cell.tool_offset, dtype=float)
+    T[:3, 3] = solve_touches(day.tcp_plan, again, TOUCH_SIGMA).position.t
+    return T
+
+
+def perfect_touches(day: FirstDay) -> np.ndarray:
+    """(N, n) joints that put the TRUE tool tip exactly on each TRUE marker top, pointing
+    down the true user frame (mock_robot's hand-guiding without its touch noise)."""
+    T_base_user = day.sim.world.T_base_user
+    R = tool_down_orientation(T_base_user, 'z')
+    out = []
+    for q, p in zip(day.frame_joints, day.sim.world.true_points_base()):
+        result = kinematics.solve_ik_with_restarts(day.arm.true, frames.make_transform(R, p),
+                                                   q, day.cell.home)
+        out.append(result.q)
+    return np.array(out)
 
 
 def errors(day: FirstDay, goals: np.ndarray) -> dict[str, np.ndarray]:
@@ -275,8 +321,10 @@ def result_errors(day: FirstDay, goals: np.ndarray) -> Figures:
                   for T in goals])
     tool = day.sim.true_tool_offset
     calibrated_k = rig.model_chain(active.active.kinematics, day.model, tool)
-    k_err = np.linalg.norm(kinematics.fk(calibrated_k, q)[:, :3, 3]
-                           - kinematics.fk(day.arm.true, q)[:, :3, 3], axis=1)
+    p_model = kinematics.fk(calibrated_k, q)[:, :3, 3]
+    p_true = kinematics.fk(day.arm.true, q)[:, :3, 3]
+    registered = frames.apply(register_rigid(p_model, p_true), p_model)
+    k_err = np.linalg.norm(registered - p_true, axis=1)
     tcp_err = np.linalg.norm(active.tool('tcp')[:3, 3] - tool[:3, 3])
     D = frames.invert(T_ref) @ active.T_base_user()
     centre = day.cell.nominal_points_user().mean(axis=0)
