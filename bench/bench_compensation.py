@@ -42,6 +42,7 @@ from cobot_calib_ros.sim.robot import SimRobot
 from cobot_calib_ros.sim.scenario import load_simulation
 from cobot_calib_ros.store.cells import ResultsCell
 from cobot_calib_ros.store.records import KinematicRecord
+from cobot_calib_ros.store.rigs import rig_of
 
 CELLS = {'sawyer': DEFAULT_CELL, 'iiwa7': 'iiwa7_close', 'ur10e': 'ur10e_close'}
 TARGETS = 50
@@ -65,8 +66,7 @@ def registration(robot: SimRobot, repo) -> np.ndarray:
     """(4, 4) the calibrated model's base in the true one: the best rigid fit of its coupling
     centres to the true ones over REGISTRATION other workspace configurations (what a user frame
     touched with the calibrated arm absorbs; the sphere data cannot see it)."""
-    calibrated = rig.Rig(robot.cell, rig.ActiveSet(move.kinematic_record(
-        repo, robot.model, 'active')), robot.model).chain('coupling')
+    calibrated = rig_of(repo, robot.cell, 'active', robot.model).chain('coupling')
     q = np.array([s['q'] for s in plans.tracker_plan(robot.cell, robot.model, 'workspace',
                                                       REGISTRATION, REGISTRATION_SEED)])
     return register_rigid(kinematics.fk(calibrated, q)[:, :3, 3],

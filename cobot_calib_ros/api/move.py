@@ -9,53 +9,13 @@ serves move_to. ``kinematics: nominal`` solves with the nominal model the same w
 from __future__ import annotations
 
 from dataclasses import dataclass
-import json
-from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from cobot_calib_ros.core import rig
-from cobot_calib_ros.store.rigs import active_hand_eye
+from cobot_calib_ros.store.rigs import active_set
 
-ACTIVE = ('active', 'latest')
-NOMINAL = 'nominal'
 JOINTS_TIMEOUT = 10.0    # [s] for a joint_states message (the IK seed)
-
-
-def kinematic_record(repo, model, choice: str, allow_nominal: bool = True
-                     ) -> dict[str, Any] | None:
-    """The kinematic calibration record ``choice`` names: 'active' (the robot's active one;
-    None: nominal when it has none and ``allow_nominal``), 'nominal' (None), an id, or an
-    <id>.json file. ValueError saying what to do."""
-    if choice.endswith('.json'):
-        try:
-            return json.loads(Path(choice).expanduser().read_text(encoding='utf-8'))
-        except (OSError, UnicodeDecodeError, ValueError) as exc:
-            raise ValueError(f'--kinematics {choice}: cannot read a calibration record '
-                             f'({exc})') from None
-    if choice == NOMINAL and allow_nominal:
-        return None
-    try:
-        record = repo.kinematics.resolve('latest' if choice in ACTIVE else choice, model.name)
-    except KeyError as exc:
-        raise ValueError(f'--kinematics: {exc.args[0]}') from None
-    if record is None and not allow_nominal:
-        raise ValueError(f'no active kinematic calibration of the {model.name} in {repo.root}; '
-                         'identify one first, or give --kinematics ID or FILE.json')
-    return record
-
-
-def user_frame(repo, frame_id: str = '') -> tuple[np.ndarray, str]:
-    """(T_base_user, its id): the user frame ``frame_id`` of the repository's cell, else its
-    active one. ValueError saying what to do."""
-    record = repo.user_frames.get(frame_id) if frame_id else repo.user_frames.active()
-    if record is None:
-        raise ValueError(f'no user frame {frame_id!r} in the results of cell {repo.cell}; list '
-                         'them with `cobot-calib history`' if frame_id else
-                         f'no active user frame in the results of cell {repo.cell}; calibrate '
-                         'one first (cobot-calib teach), or give --frame base')
-    return np.array(record['result']['T_base_user'], dtype=float), record['id']
 
 
 @dataclass(frozen=True)
@@ -66,27 +26,41 @@ class Solved:
     T_base_tool: np.ndarray   # (4, 4) the target in the base frame
     kinematics: str           # the calibration's id, or 'nominal'
     user_frame: str           # the user frame's id, '' for the base
+    tool_record: str = ''     # the result the tool came from: a TCP or hand-eye id, 'nominal'
+    stale: tuple = ()         # core.provenance.Stale of the results used
+
+    def summary(self) -> dict:
+        """What the JSON of move says about the results used."""
+        return {'kinematics': self.kinematics, 'tool_record': self.tool_record,
+                'stale': [s.to_dict() for s in self.stale]}
 
 
 def solve(cell, repo, T_frame_tool: np.ndarray, seed: np.ndarray, *, frame: str = 'base',
           frame_id: str = '', tool: str = 'tcp', kinematics: str = 'active') -> Solved:
     """The joints that put ``tool`` at ``T_frame_tool`` (in the base, or in the user frame
-    ``frame_id`` / the active one for ``frame`` 'user') on the ``kinematics`` model, from
-    ``seed``. ValueError saying what to do when a choice cannot be met or the target cannot
-    be reached."""
+    ``frame_id`` / the active one for ``frame`` 'user') on the ``kinematics`` model with the
+    cell's active set (store.rigs.active_set: the active TCP, hand-eye), from ``seed``.
+    ValueError saying what to do when a choice cannot be met or the target cannot be
+    reached."""
     from cobot_calib_ros.core.kinematics import model_for
     model = model_for(cell)
-    record = kinematic_record(repo, model, kinematics)
-    chain = rig.Rig(cell, rig.ActiveSet(record, active_hand_eye(repo)), model).chain(tool)
-    T_base_frame, frame_label = (user_frame(repo, frame_id) if frame == 'user'
-                                 else (np.eye(4), ''))
+    active = active_set(repo, cell, kinematics, frame_id if frame == 'user' else '', model)
+    the_rig = rig.Rig(cell, active, model)
+    chain = the_rig.chain(tool)
+    if frame == 'user':
+        if active.user_frame is None:
+            raise ValueError(f'no active user frame in the results of cell {repo.cell}; '
+                             'calibrate one first (cobot-calib teach), or give --frame base')
+        T_base_frame, frame_label = the_rig.T_base_user(), active.user_frame.id
+    else:
+        T_base_frame, frame_label = np.eye(4), ''
     result = rig.solve_target(chain, T_frame_tool, seed, cell.home, T_base_frame)
-    label = NOMINAL if record is None else record['id']
+    label = active.kinematics_label
     if not result:
         raise ValueError(f'the target cannot be reached by the {label} model: '
                          f'{result.message}')
     return Solved(result.q, T_base_frame @ np.asarray(T_frame_tool, float), label,
-                  frame_label)
+                  frame_label, active.tool_label(tool), active.stale_used(tool, frame == 'user'))
 
 
 def suite_cell(node) -> str:

@@ -77,7 +77,7 @@ def run(args) -> int:
             except (OSError, KeyError, ValueError) as exc:
                 return fail(f'check {args.what}: {exc.args[0] if exc.args else exc}',
                             EXIT_USAGE if isinstance(exc, ValueError) else EXIT_FAILED)
-            method, against, run_check, print_details = prepared
+            method, against, run_check, print_details, stale = prepared
             check = run_check(robot)
         except (PortError, ValueError) as exc:
             return fail(f'check stopped: {exc}; nothing stored')
@@ -85,7 +85,7 @@ def run(args) -> int:
             return fail('check interrupted; nothing stored', EXIT_INTERRUPTED)
         finally:
             companion.destroy()          # its thread stops before the session shuts down
-    return _report(args, repo, check, method, against, print_details)
+    return _report(args, repo, check, method, against, print_details, stale)
 
 
 def _no_suite(args, absent: list[str]) -> str:
@@ -102,7 +102,8 @@ def _no_suite(args, absent: list[str]) -> str:
 
 
 def _user_frame(args, cell, model, repo):
-    """('user_frame', the active frame's id, the check, its printout) or ValueError/OSError."""
+    """('user_frame', the active frame's id, the check, its printout, the stale results it
+    uses) or ValueError/OSError."""
     import numpy as np
     from cobot_calib_ros.core.health_checks import check_user_frame, predicted_points
     from cobot_calib_ros.store.rigs import rig_of
@@ -113,36 +114,44 @@ def _user_frame(args, cell, model, repo):
     if active is None:
         raise KeyError(f'no active user frame in the results of cell {repo.cell}; calibrate '
                        'first (cobot-calib teach, or call calibrate_user_frame)')
-    chain = rig_of(repo, cell, active.get('kinematics') or 'nominal', model).chain('tcp')
+    the_rig = rig_of(repo, cell, 'active', model)      # what programs move with
+    chain = the_rig.chain('tcp')
     p_user = np.array([cell.marker(n).nominal_top for n in args.points])
     predicted = predicted_points(active['inputs'], active['result'], args.points, p_user)
     say(args, f'checking {active["id"]} at {", ".join(args.points)} '
-              f'(kinematics {active.get("kinematics") or "nominal"})')
+              f'(kinematics {the_rig.active.kinematics_label}, TCP {the_rig.active.tcp_label})')
+    stale = the_rig.active.stale_used('tcp', True)
+    for line in stale:
+        say(args, f'stale: {line.line()}')
 
     def details(check):
         for name, error in zip(check.names, check.errors):
             print(f'  {name}: {np.linalg.norm(error) * 1e3:.3f} mm  '
                   f'({", ".join(f"{e * 1e3:+.3f}" for e in error)})')
     return ('user_frame', active['id'], lambda robot: check_user_frame(
-        robot, chain, predicted, args.points, **_tolerance(args)), details)
+        robot, chain, predicted, args.points, **_tolerance(args)), details, stale)
 
 
 def _kinematics(args, cell, model, repo):
-    """('kinematics', the active calibration's id or 'nominal', the check, its printout)."""
-    from cobot_calib_ros.core import rig
+    """('kinematics', the active calibration's id or 'nominal', the check, its printout, the
+    stale results it uses)."""
     from cobot_calib_ros.core.health_checks import check_kinematics, KINEMATIC_POSES
     from cobot_calib_ros.core.kinematics import plans
+    from cobot_calib_ros.store.rigs import rig_of
     if cell.spheres is None:
         raise ValueError(f'cell {cell.name!r} has no spheres (config/cells/iiwa7_close.yaml '
                          'has); give --robot-cell')
     poses = KINEMATIC_POSES if args.poses is None else args.poses
-    record = repo.kinematics.active(model.name)
-    chain = rig.Rig(cell, rig.ActiveSet(record), model).chain('coupling')
+    the_rig = rig_of(repo, cell, 'active', model)
+    chain = the_rig.chain('coupling')
     plan, _ = plans.sphere_plan(cell, model, poses)
-    against = record['id'] if record else 'nominal'
+    against = the_rig.active.kinematics_label
+    stale = the_rig.active.stale_of(('kinematics',))
+    for line in stale:
+        say(args, f'stale: {line.line()}')
     say(args, f'checking the {model.name} model ({against}) on {len(plan)} sphere poses')
     return ('kinematics', against, lambda robot: check_kinematics(
-        robot, chain, plan, **_tolerance(args)), lambda check: None)
+        robot, chain, plan, **_tolerance(args)), lambda check: None, stale)
 
 
 def _tolerance(args) -> dict[str, float]:
@@ -150,11 +159,12 @@ def _tolerance(args) -> dict[str, float]:
     return {} if args.tolerance_mm is None else {'tolerance_m': args.tolerance_mm * 1e-3}
 
 
-def _report(args, repo, check, method: str, against: str, details) -> int:
+def _report(args, repo, check, method: str, against: str, details, stale=()) -> int:
     import json
     from cobot_calib_ros.core.health_checks import PASS
     from cobot_calib_ros.store.records import check_record
     record = check_record(check, method, against)
+    record['stale'] = [s.to_dict() for s in stale]      # core.provenance: one line each
     try:
         repo.checks.save(record)
     except OSError as exc:
@@ -165,5 +175,7 @@ def _report(args, repo, check, method: str, against: str, details) -> int:
         details(check)
         print(f'robot time: {check.robot_seconds:.1f} s')
         print(check.message())
+        for stale in record['stale']:
+            print(f'stale: {stale["message"]}')
         print(f'stored as {record["id"]}')
     return EXIT_OK if check.verdict == PASS else EXIT_FAILED

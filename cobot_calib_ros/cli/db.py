@@ -107,3 +107,20 @@ def _import(args, repo) -> int:
     where = f'cell {repo.cell_name}' if repo.cell else 'the cells the records name'
     print(f'{report.summary()} into {repo.database} ({where})')
     return EXIT_FAILED if report.skipped else EXIT_OK
+
+
+def cell_active_set(repo, cell_name: str | None):
+    """(core Cell, store.rigs.active_set) of results cell ``cell_name`` when it is named
+    after a cell file (a suite without a namespace), else (None, None): then which results
+    are stale is not known here."""
+    from cobot_calib_ros import paths
+    from cobot_calib_ros.core.cell import CellFileError
+    from cobot_calib_ros.loaders import load_cell
+    from cobot_calib_ros.store.rigs import active_set
+    if not cell_name:
+        return None, None
+    try:
+        cell = load_cell(paths.cell_file(cell_name))
+        return cell, active_set(repo, cell)
+    except (CellFileError, OSError, ValueError, KeyError):
+        return None, None

@@ -30,6 +30,7 @@ from cobot_calib_ros import store
 from cobot_calib_ros.store.cells import ResultsCell
 from cobot_calib_ros.store.database import DB_ENV
 from cobot_calib_ros.core.rig import ActiveSet, Rig
+from cobot_calib_ros.store.rigs import kinematics_of
 from cobot_calib_ros.store.kinematics import NOMINAL
 
 POINTS = ('P1', 'P2', 'P3', 'P4', 'P5')
@@ -302,7 +303,7 @@ def _kinematics(args, client: DemoClient, cell, root: Path) -> dict:
 
 def _model_entry(record, cell, truth, true_chain, p_true, p_user) -> dict:
     """A kinematic model the demo maps captures through: label, chain, apparent points."""
-    rig = Rig(cell, ActiveSet(record))
+    rig = Rig(cell, ActiveSet(kinematics_of(record)))   # the kinematics alone: the demo's
     chain = rig.chain('tcp')
     true_arm = rig.model.chain(np.array(truth.true_parameters), tool=rig.tool('tcp'))
     p_apparent, p_arm = _apparent_points(truth, cell, true_chain, p_true, chain, true_arm)

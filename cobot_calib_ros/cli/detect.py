@@ -130,20 +130,20 @@ def _active_intrinsics(cell_name: str, data_dir: str | None):
     from cobot_calib_ros.core.cell import CellFileError
     from cobot_calib_ros.loaders import load_cell
     from cobot_calib_ros.store.cells import ResultsCell
-    from cobot_calib_ros.store.records import active_intrinsics
+    from cobot_calib_ros.store.rigs import active_set
     try:
         cell = load_cell(paths.cell_file(cell_name))
     except CellFileError as e:
         raise UsageError(f'bad --cell: {e}') from None
     if cell.camera is None:
         raise UsageError(f'bad --cell: cell {cell.name!r} has no camera')
-    camera = active_intrinsics(store.open(paths.data_dir(data_dir), cell=ResultsCell.of(cell)),
-                               cell.camera.frame_id)
-    if camera is None:
+    active = active_set(store.open(paths.data_dir(data_dir), cell=ResultsCell.of(cell)),
+                        cell).intrinsics
+    if active is None:
         raise UsageError(f'cell {cell.name!r} has no active intrinsics for '
                          f'{cell.camera.frame_id}; run cobot-calib intrinsics or give '
                          '--camera-info')
-    return camera
+    return active.model
 
 
 def run(args) -> int:

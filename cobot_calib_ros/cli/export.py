@@ -4,6 +4,7 @@ centre point (a TCP calibration id, or ``active --tool NAME``) as the controller
 from __future__ import annotations
 
 import json
+import sys
 
 import numpy as np
 
@@ -50,6 +51,18 @@ def find_tcp(repo, record_id: str, tool: str | None):
     return record, np.array(record['result']['T_flange_tcp'], dtype=float)
 
 
+def _stale(repo, cell_name: str | None, kind: str, record) -> tuple:
+    """core.provenance.Stale of the exported ``record`` against its cell's active set (none
+    when the cell is not known here: cli.db.cell_active_set)."""
+    from cobot_calib_ros.cli.db import cell_active_set
+    from cobot_calib_ros.store.rigs import KINDS, staleness
+    cell, active = cell_active_set(repo, cell_name)
+    result = KINDS[kind].typed(record)
+    if active is None or result is None:
+        return ()
+    return staleness(repo, cell, active, kind, result)
+
+
 def run(args) -> int:
     from cobot_calib_ros import paths, store
     from cobot_calib_ros.core.vendor_frames import (check_frame_number, FORMATS,
@@ -91,11 +104,15 @@ def run(args) -> int:
             f'{what}: cobot_calib {record["id"]} ({record["method"]})'), tool=bool(is_tool))
     except ValueError as exc:
         return fail(f'export: {record["id"]}: {exc}')
+    stale = _stale(repo, cell or record.get('cell'), 'tcp' if is_tool else 'user_frame', record)
     if args.json:
         fmt = FORMATS[args.format]
         print(json.dumps({'id': record['id'], 'format': args.format, 'frame': what,
                           'values': dict(zip(fmt.labels, values)),
-                          'units': dict(zip(fmt.labels, fmt.units))}))
+                          'units': dict(zip(fmt.labels, fmt.units)),
+                          'stale': [s.to_dict() for s in stale]}))
     else:
         print(text, end='')
+    for line in stale:
+        print(f'export: stale: {line.line()}', file=sys.stderr)
     return EXIT_OK

@@ -45,7 +45,6 @@ def add_parser(subparsers):
 
 def run(args) -> int:
     from cobot_calib_ros import paths, store
-    from cobot_calib_ros.api.move import kinematic_record
     from cobot_calib_ros.core import rig
     from cobot_calib_ros.core.cell import CellFileError
     from cobot_calib_ros.core.kinematics import model_for
@@ -54,6 +53,7 @@ def run(args) -> int:
     from cobot_calib_ros.loaders import load_cell
     from cobot_calib_ros.store.cells import ResultsCell
     from cobot_calib_ros.store.files import atomic_write_text
+    from cobot_calib_ros.store.rigs import active_set
     try:
         cell = load_cell(paths.cell_file(args.robot_cell))
         model = model_for(cell)
@@ -66,10 +66,13 @@ def run(args) -> int:
     try:
         repo = store.open(paths.data_dir(args.data_dir), args.db,
                           ResultsCell(args.cell) if args.cell else ResultsCell.of(cell))
-        record = kinematic_record(repo, model, args.kinematics, allow_nominal=False)
-        calibrated_rig = rig.Rig(cell, rig.ActiveSet(record,
-                                                     user_frame=repo.user_frames.active()),
+        calibrated_rig = rig.Rig(cell, active_set(repo, cell, args.kinematics, model=model),
                                  model)
+        record = calibrated_rig.active.kinematics
+        if record is None:
+            raise ValueError(f'no active kinematic calibration of the {model.name} in '
+                             f'{repo.root}; identify one first, or give --kinematics ID or '
+                             'FILE.json')
         calibrated = calibrated_rig.chain(args.tool)
         nominal = calibrated_rig.nominal_chain(args.tool)
         T_base_frame = calibrated_rig.T_base_user() if args.frame == 'user' else None
@@ -77,6 +80,9 @@ def run(args) -> int:
         return fail(f'filter: {exc}', EXIT_USAGE)
     except OSError as exc:
         return fail(f'filter: {exc}')
+    stale = calibrated_rig.active.stale_used(args.tool, args.frame == 'user')
+    for line in stale:
+        say(args, f'filter: stale: {line.line()}')
     result = filter_targets(targets, calibrated, nominal, cell.home, T_base_frame)
     if result.unreachable:
         for unreachable in result.unreachable:
@@ -91,12 +97,14 @@ def run(args) -> int:
     largest_mm = max(f.correction_m for f in result.filtered) * 1e3
     largest_mrad = max(f.correction_rad for f in result.filtered) * 1e3
     if args.json:
-        print(json.dumps({'targets': len(targets), 'calibration': record['id'],
+        print(json.dumps({'targets': len(targets), 'calibration': record.id,
+                          'tool_record': calibrated_rig.active.tool_label(args.tool),
+                          'stale': [s.to_dict() for s in stale],
                           'frame': args.frame, 'out': args.out,
                           'largest_correction_mm': largest_mm,
                           'largest_correction_mrad': largest_mrad}))
     else:
-        say(args, f'filtered {len(targets)} targets with {record["id"]} ({args.frame} frame, '
+        say(args, f'filtered {len(targets)} targets with {record.id} ({args.frame} frame, '
                   f'tool {args.tool}): largest correction {largest_mm:.3f} mm, '
                   f'{largest_mrad:.3f} mrad -> {args.out}')
     return EXIT_OK

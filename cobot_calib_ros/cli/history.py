@@ -1,5 +1,8 @@
 """`cobot-calib history`: each stored result against the previous one (store.history), per
-cell, with its own uncertainty and the drift verdict; trend plots with those bands (PNG)."""
+cell, with its own uncertainty and the drift verdict; trend plots with those bands (PNG).
+Every kind is listed (user frames, kinematic calibrations, TCPs, hand-eyes, intrinsics), each
+with what it was measured through and whether it is active, and the cell's stale results
+(core.provenance: a result measured through one that is no longer active), one line each."""
 from __future__ import annotations
 
 from datetime import datetime, timezone
@@ -19,7 +22,7 @@ def add_parser(subparsers):
                                    '2026-11-01 or 2026-11-01T08:00; UTC unless it says)')
     p.add_argument('--json', action='store_true',
                    help='one JSON line per cell (its user frames, kinematic calibrations, '
-                        'TCPs and checks)')
+                        'TCPs, hand-eyes, intrinsics, checks, and its stale results)')
     p.add_argument('--plots', help='folder for the trend PNGs (default <data dir>/reports)')
     p.add_argument('--no-plots', action='store_true', help='print only')
     return p
@@ -71,6 +74,8 @@ def run(args) -> int:
 
 def _cell_report(repo, cell: str, start: int) -> dict:
     import numpy as np
+    from cobot_calib_ros.cli.db import cell_active_set
+    from cobot_calib_ros.core.rig import KINDS
     from cobot_calib_ros.store.history import kinematic_changes, tcp_steps, user_frame_steps
     steps = []
     for step in user_frame_steps(repo.user_frames.history()):
@@ -78,22 +83,26 @@ def _cell_report(repo, cell: str, start: int) -> dict:
             continue
         c = step.change
         steps.append({'id': step.record['id'], 'method': step.record['method'],
-                      'tcp': step.record.get('tcp', ''),
+                      'tcp': step.record.get('tcp', ''), **_provenance(step.record, None),
                       'stamp_ns': step.record['stamp_ns'], 'previous': step.previous_id,
                       'rms_mm': step.record['result'].get('rms', 0.0) * 1e3,
                       **_change_fields(c),
                       'sigma_mrad': None if c is None else c.sigma_rotation_rad * 1e3})
+    cell_model, active = cell_active_set(repo, cell)
+    active_ids = set() if active is None else {active.label(k) for k in KINDS}
     kinematic = []
     records = sorted(repo.kinematics.history(), key=lambda r: (r['stamp_ns'], r['id']))
     for robot in sorted({r.get('robot', '') for r in records}):
         mine = [r for r in records if r.get('robot', '') == robot and not r.get('gate_problem')]
-        for prev, new in zip(mine, mine[1:]):
+        for prev, new in zip([None, *mine], mine):
             if new['stamp_ns'] < start:
                 continue
-            changes = kinematic_changes(prev, new)
+            changes = [] if prev is None else kinematic_changes(prev, new)
             worst = max(changes, key=lambda c: c.z, default=None)
-            kinematic.append({'id': new['id'], 'robot': robot, 'previous': prev['id'],
+            kinematic.append({'id': new['id'], 'robot': robot,
+                              'previous': '' if prev is None else prev['id'],
                               'rms_mm': new['result'].get('rms_m', 0.0) * 1e3,
+                              **_provenance(new, active_ids),
                               'largest_change': None if worst is None else {
                                   'name': worst.name, 'change': worst.change,
                                   'sigma': worst.sigma, 'z': worst.z}})
@@ -107,13 +116,41 @@ def _cell_report(repo, cell: str, start: int) -> dict:
                     'xyz_mm': [v * 1e3 for v in np.array(result['T_flange_tcp'])[:3, 3]],
                     'mean_residual_mm': result.get('mean_residual_mm'),
                     'max_residual_mm': result.get('max_residual_mm'),
-                    **_change_fields(c)})
+                    **_provenance(step.record, active_ids), **_change_fields(c)})
+    hand_eye = [{'id': r['id'], 'method': r.get('method', ''),
+                 'residual_mm': r['result'].get('residual_mm'),
+                 'residual_mrad': r['result'].get('residual_mrad'),
+                 'gate_problem': r.get('gate_problem', ''), **_provenance(r, active_ids)}
+                for r in _oldest_first(repo.hand_eye.history()) if r['stamp_ns'] >= start]
+    intrinsics = [{'id': r['id'], 'camera': r.get('camera', ''), 'method': r.get('method', ''),
+                   'rms_px': r['result'].get('rms_px'),
+                   'heldout_rms_px': r['result'].get('heldout_rms_px'),
+                   'gate_problem': r.get('gate_problem', ''), **_provenance(r, active_ids)}
+                  for r in _oldest_first(repo.intrinsics.history()) if r['stamp_ns'] >= start]
+    for step in steps if active is not None else ():
+        step['active'] = step['id'] == active.label('user_frame')
     checks = [{'id': r['id'], 'method': r['method'], 'verdict': r['result'].get('verdict'),
                'robot_s': r['result'].get('robot_seconds')}
               for r in repo.checks.history() if r['stamp_ns'] >= start] \
         if hasattr(repo, 'checks') else []
     return {'cell': cell, 'user_frames': steps, 'kinematics': kinematic, 'tcp': tcp,
-            'checks': checks}
+            'hand_eye': hand_eye, 'intrinsics': intrinsics, 'checks': checks,
+            'stale': [] if active is None else [st.to_dict() for st in active.stale],
+            'stale_known': active is not None}
+
+
+def _oldest_first(records) -> list:
+    return sorted(records, key=lambda r: (r['stamp_ns'], r['id']))
+
+
+def _provenance(record, active_ids: set[str] | None) -> dict:
+    """What a result was measured through and whether it is its kind's active one (None: not
+    known here, or given by the caller)."""
+    from cobot_calib_ros.store.rigs import measured_through
+    out = {'measured_through': measured_through(record)}
+    if active_ids is not None:
+        out['active'] = record['id'] in active_ids
+    return out
 
 
 def _change_fields(c) -> dict:
@@ -144,21 +181,37 @@ def _print(report: dict, as_json: bool) -> None:
             print(f'  {s["verdict"]}: {s["message"]}')
     for k in report['kinematics']:
         big = k['largest_change']
-        text = '' if big is None else (f'largest change {big["name"]} {big["change"]:+.3g} '
-                                       f'({big["z"]:.1f} sigma)')
-        print(f'  kinematics {k["robot"]} {k["id"]}: rms {k["rms_mm"]:.3f} mm; {text}')
+        text = 'the first' if big is None else (
+            f'largest change {big["name"]} {big["change"]:+.3g} ({big["z"]:.1f} sigma)')
+        print(f'  kinematics {k["robot"]} {k["id"]}{_active_mark(k)}: rms {k["rms_mm"]:.3f} '
+              f'mm; {text}')
     for t in report['tcp']:
         x, y, z = t['xyz_mm']
         moved = '' if t['moved_mm'] is None else (
             f'; moved {t["moved_mm"]:.3f} +-{t["sigma_mm"]:.3f} mm, turned '
             f'{t["turned_mrad"]:.3f} mrad: {t["verdict"]}')
-        print(f'  tcp {t["tool"]} {t["id"]} ({t["method"]}): {x:.3f} {y:.3f} {z:.3f} mm, '
-              f'residual mean {t["mean_residual_mm"]:.3f} max {t["max_residual_mm"]:.3f} mm'
+        print(f'  tcp {t["tool"]} {t["id"]}{_active_mark(t)} ({t["method"]}): {x:.3f} '
+              f'{y:.3f} {z:.3f} mm, residual mean {t["mean_residual_mm"]:.3f} max {t["max_residual_mm"]:.3f} mm'
               f'{moved}')
         if t['level']:
             print(f'  {t["verdict"]}: {t["message"]}')
+    for h in report['hand_eye']:
+        print(f'  hand-eye {h["id"]}{_active_mark(h)}: residual {h["residual_mm"]} mm / '
+              f'{h["residual_mrad"]} mrad, through kinematics '
+              f'{h["measured_through"].get("kinematics", "unknown")}'
+              + (f'; rejected: {h["gate_problem"]}' if h['gate_problem'] else ''))
+    for i in report['intrinsics']:
+        print(f'  intrinsics {i["camera"]} {i["id"]}{_active_mark(i)} ({i["method"]}): rms '
+              f'{i["rms_px"]} px' + (f'; rejected: {i["gate_problem"]}' if i['gate_problem']
+                                     else ''))
     for c in report['checks']:
         print(f'  check {c["id"]} ({c["method"]}): {c["verdict"]}, robot {c["robot_s"]} s')
+    for stale in report['stale']:
+        print(f'  stale: {stale["message"]}')
+
+
+def _active_mark(entry: dict) -> str:
+    return ' (active)' if entry.get('active') else ''
 
 
 def _plot(report: dict, out: Path) -> Path:

@@ -78,10 +78,13 @@ def run(args) -> int:
         except (OSError, CallError) as exc:
             return fail(f'move: {exc}')
         where = f'user frame {solved.user_frame}' if solved.user_frame else 'base'
-        summary = {'kinematics': solved.kinematics, 'frame': where, 'tool': args.tool,
+        summary = {**solved.summary(), 'frame': where, 'tool': args.tool,
                    'positions': solved.q.tolist(), 'moved': False}
-        say(args, f'{args.tool} to {where} xyz {list(args.xyz)} rpy {list(args.rpy)} with the '
-                  f'{solved.kinematics} model: joints '
+        for stale in solved.stale:
+            say(args, f'stale: {stale.line()}')
+        tool = f' ({solved.tool_record})' if solved.tool_record else ''
+        say(args, f'{args.tool}{tool} to {where} xyz {list(args.xyz)} rpy {list(args.rpy)} '
+                  f'with the {solved.kinematics} model: joints '
                   f'[{", ".join(f"{v:.6f}" for v in solved.q)}] rad')
         if not args.dry_run:
             try:

@@ -1,24 +1,28 @@
 """The rig: which kinematic chain, ending at which tool, for a cell and its active results.
 
 One place answers "which chain, with which tool" (issue 29): the arm's parameters are the
-nominal model's, or a kinematic calibration record's (the dict the repository stores); the tool
-is one of :data:`TOOLS`, each from the cell or from the result that identified it:
-- ``tcp``: the tool centre point (the probe tip): the TCP record's if given (its position;
+nominal model's, or a kinematic calibration's (:class:`Kinematics`); the tool is one of
+:data:`TOOLS`, each from the cell or from the result that identified it:
+- ``tcp``: the tool centre point (the probe tip): the active :class:`Tcp`'s (its position;
   its orientation when it measured one, else the cell's), else the cell's ``tool_offset``;
 - ``flange``: no tool;
-- ``camera``: the wrist camera's optical frame, the hand-eye record's if given, else the cell's
-  nominal hand-eye;
-- ``coupling``: the sphere coupling's centre, the kinematic record's identified tool position
-  if given (the calibration measured it, with the arm), else the cell's nominal one; its
-  orientation is the cell's (a sphere fit sees the centre only).
+- ``camera``: the wrist camera's optical frame, the :class:`HandEye`'s if given, else the
+  cell's nominal hand-eye;
+- ``coupling``: the sphere coupling's centre, the kinematic calibration's identified tool
+  position if given (the calibration measured it, with the arm), else the cell's nominal one;
+  its orientation is the cell's (a sphere fit sees the centre only).
 
-Records come in as the repository's dicts (core reads no storage); a new kind of result
-(e.g. an identified TCP) is one more argument here and one more rule in :func:`tool_offset`.
-A target pose given in a user frame is solved by :func:`solve_target`.
+Results come in as small typed records (one per kind, below: what core needs, in SI, with the
+result's id and ``measured_through``: kind -> the id of the result it was measured through,
+'nominal' for the cell's own value); store.rigs builds them from the stored records and
+:func:`store.rigs.active_set` gathers a cell's :class:`ActiveSet`. A new kind of result is one
+more record type here, one more :class:`ActiveSet` field and, if it is a tool, one more rule
+in :func:`tool_offset`. A target pose given in a user frame is solved by :func:`solve_target`.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from collections.abc import Mapping
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -30,43 +34,96 @@ from cobot_calib_ros.core.kinematics.model import Chain, KinematicModel
 from cobot_calib_ros.core.kinematics.robots import model_for
 
 Array = NDArray[np.float64]
-Record = dict[str, Any]
 TOOLS = ('tcp', 'flange', 'camera', 'coupling')
 NOMINAL = 'nominal'     # the label of the cell's own value where no result is active
+KINDS = ('kinematics', 'tcp', 'hand_eye', 'intrinsics', 'user_frame')   # the result kinds
 
 
-def model_chain(record: Record | None, model: KinematicModel, tool: ArrayLike) -> Chain:
-    """The chain a kinematic calibration record describes (the nominal one for None) with
-    T_flange_tool ``tool``. ValueError if the record is of another robot or its parameters do
-    not fit the model."""
-    if record is None:
+@dataclass(frozen=True, eq=False)
+class Kinematics:
+    """A kinematic calibration of ``robot`` (a model name): the model's full parameter vector
+    and, when it identified one, the tool position (the sphere coupling's centre) [m]."""
+
+    id: str
+    robot: str
+    parameter_names: tuple[str, ...]
+    params: Array                          # (P,) [m, rad]
+    tool_xyz: Array | None = None          # (3,) [m] on the flange
+    measured_through: Mapping[str, str] = field(default_factory=dict)
+
+
+@dataclass(frozen=True, eq=False)
+class Tcp:
+    """A TCP calibration of ``tool``: T_flange_tcp [m], its rotation a measured one only when
+    ``orientation_measured``."""
+
+    id: str
+    tool: str
+    T_flange_tcp: Array                    # (4, 4)
+    orientation_measured: bool = False
+    measured_through: Mapping[str, str] = field(default_factory=dict)
+
+
+@dataclass(frozen=True, eq=False)
+class HandEye:
+    """A hand-eye calibration: T_flange_optical [m] of the wrist camera."""
+
+    id: str
+    T_flange_optical: Array                # (4, 4)
+    measured_through: Mapping[str, str] = field(default_factory=dict)
+
+
+@dataclass(frozen=True, eq=False)
+class Intrinsics:
+    """An intrinsics calibration of ``camera`` (its optical frame): the lens as a
+    core.landmarks.camera.CameraModel."""
+
+    id: str
+    camera: str
+    model: Any                             # core.landmarks.camera.CameraModel
+    measured_through: Mapping[str, str] = field(default_factory=dict)
+
+
+@dataclass(frozen=True, eq=False)
+class UserFrame:
+    """A user-frame calibration: T_base_user [m]."""
+
+    id: str
+    T_base_user: Array                     # (4, 4)
+    measured_through: Mapping[str, str] = field(default_factory=dict)
+
+
+def model_chain(kinematics: Kinematics | None, model: KinematicModel,
+                tool: ArrayLike) -> Chain:
+    """The chain a kinematic calibration describes (the nominal one for None) with
+    T_flange_tool ``tool``. ValueError if it is of another robot or its parameters do not fit
+    the model."""
+    if kinematics is None:
         return model.chain(tool=tool)
-    result = record['result']
-    if record.get('robot') != model.name or result['parameter_names'] != list(
+    if kinematics.robot != model.name or tuple(kinematics.parameter_names) != tuple(
             model.parameter_names):
-        raise ValueError(f'kinematic calibration {record["id"]} is for robot '
-                         f'{record.get("robot")!r}, not {model.name!r}')
-    return model.chain(np.array(result['params'], dtype=float), tool=tool)
+        raise ValueError(f'kinematic calibration {kinematics.id} is for robot '
+                         f'{kinematics.robot!r}, not {model.name!r}')
+    return model.chain(np.array(kinematics.params, dtype=float), tool=tool)
 
 
-def tool_offset(cell: Cell, tool: str, kinematics: Record | None = None,
-                hand_eye: Record | None = None, tcp: Record | None = None) -> Array:
+def tool_offset(cell: Cell, tool: str, kinematics: Kinematics | None = None,
+                hand_eye: HandEye | None = None, tcp: Tcp | None = None) -> Array:
     """(4, 4) T_flange_tool of ``tool`` (one of :data:`TOOLS`); ``tcp``: the tool's active TCP
-    calibration record (store.records.TcpRecord). ValueError naming what the cell lacks or the
-    tools there are."""
+    calibration. ValueError naming what the cell lacks or the tools there are."""
     if tool == 'tcp':
         T = np.array(cell.tool_offset, dtype=float)
         if tcp is not None:
-            measured = np.array(tcp['result']['T_flange_tcp'], dtype=float)
+            measured = np.asarray(tcp.T_flange_tcp, dtype=float)
             T[:3, 3] = measured[:3, 3]
-            if tcp['result'].get('orientation_method', 'none') != 'none':
+            if tcp.orientation_measured:
                 T[:3, :3] = measured[:3, :3]
         return T
     if tool == 'flange':
         return np.eye(4)
     if tool == 'camera':
         if hand_eye is not None:
-            return np.array(hand_eye['result']['T_flange_optical'], dtype=float)
+            return np.array(hand_eye.T_flange_optical, dtype=float)
         if cell.camera is None:
             raise ValueError(f'cell {cell.name!r} has no camera: section; use another tool '
                              f'({", ".join(TOOLS)})')
@@ -76,35 +133,63 @@ def tool_offset(cell: Cell, tool: str, kinematics: Record | None = None,
             raise ValueError(f'cell {cell.name!r} has no spheres: section (its coupling); use '
                              f'another tool ({", ".join(TOOLS)})')
         T = np.array(cell.spheres.coupling_offset, dtype=float)
-        if kinematics is not None and kinematics['result'].get('tool_xyz') is not None:
-            T[:3, 3] = kinematics['result']['tool_xyz']   # the centre only is identified
+        if kinematics is not None and kinematics.tool_xyz is not None:
+            T[:3, 3] = kinematics.tool_xyz      # the centre only is identified
         return T
     raise ValueError(f'unknown tool {tool!r}; use one of {", ".join(TOOLS)}')
 
 
 @dataclass(frozen=True)
 class ActiveSet:
-    """The results a rig is built from, as the repository's records (None: the cell's own
-    nominal value): the kinematic calibration in use, the active hand-eye, TCP and user
-    frame. A new kind of result is one more field here and one more rule in
-    :func:`tool_offset`."""
+    """The results a rig is built from (None: the cell's own nominal value): the kinematic
+    calibration in use, the active TCP of the cell's tool, hand-eye, intrinsics of the wrist
+    camera and user frame; ``stale``: the results among them measured through a result that is
+    no longer the one in use (core.provenance.Stale, one line each). store.rigs.active_set
+    gathers it; a new kind of result is one more field here."""
 
-    kinematics: Record | None = None
-    hand_eye: Record | None = None
-    tcp: Record | None = None       # the active TCP calibration of the cell's tool
-    user_frame: Record | None = None    # the active user-frame calibration
+    kinematics: Kinematics | None = None
+    hand_eye: HandEye | None = None
+    tcp: Tcp | None = None
+    user_frame: UserFrame | None = None
+    intrinsics: Intrinsics | None = None
+    stale: tuple = ()
+
+    def label(self, kind: str) -> str:
+        """The id of the ``kind`` (one of :data:`KINDS`) in use, 'nominal' for none."""
+        result = getattr(self, kind)
+        return NOMINAL if result is None else result.id
 
     @property
     def kinematics_label(self) -> str:
-        return NOMINAL if self.kinematics is None else self.kinematics['id']
+        return self.label('kinematics')
 
     @property
     def hand_eye_label(self) -> str:
-        return NOMINAL if self.hand_eye is None else self.hand_eye['id']
+        return self.label('hand_eye')
 
     @property
     def tcp_label(self) -> str:
-        return NOMINAL if self.tcp is None else self.tcp['id']
+        return self.label('tcp')
+
+    def stale_of(self, kinds) -> tuple:
+        """The staleness of the results of ``kinds`` (those a consumer uses)."""
+        return tuple(s for s in self.stale if s.kind in kinds)
+
+    def tool_label(self, tool: str) -> str:
+        """The id of the result ``tool``'s offset comes from ('nominal': the cell's; '' for
+        the flange)."""
+        kind = TOOL_RESULTS.get(tool, '')
+        return self.label(kind) if kind else ''
+
+    def stale_used(self, tool: str, in_user_frame: bool) -> tuple:
+        """The staleness of the results a pose of ``tool`` (in the active user frame when
+        ``in_user_frame``) is solved with."""
+        kinds = {'kinematics', TOOL_RESULTS.get(tool, '')} | (
+            {'user_frame'} if in_user_frame else set())
+        return self.stale_of(kinds)
+
+
+TOOL_RESULTS = {'tcp': 'tcp', 'camera': 'hand_eye', 'coupling': 'kinematics', 'flange': ''}
 
 
 class Rig:
@@ -135,13 +220,13 @@ class Rig:
     def T_base_user(self) -> Array:
         """(4, 4) the active user frame in the base; ValueError when there is none."""
         frame = self.active.user_frame
-        if frame is None or frame['result'].get('T_base_user') is None:
+        if frame is None:
             raise ValueError(f'no active user frame in the results of cell {self.cell.name}; '
                              'calibrate one first (cobot-calib teach, calibrate_user_frame)')
-        return np.array(frame['result']['T_base_user'], dtype=float)
+        return np.array(frame.T_base_user, dtype=float)
 
-    def with_kinematics(self, record: Record | None) -> Rig:
-        return Rig(self.cell, replace(self.active, kinematics=record), self.model)
+    def with_kinematics(self, kinematics: Kinematics | None) -> Rig:
+        return Rig(self.cell, replace(self.active, kinematics=kinematics), self.model)
 
 
 def solve_target(chain_: Chain, T_frame_tool: ArrayLike, seed: ArrayLike, home: ArrayLike,

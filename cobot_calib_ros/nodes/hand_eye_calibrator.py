@@ -6,9 +6,11 @@ through the nominal hand-eye) and takes them with core.landmarks.hand_eye_captur
 take_hand_eye_views over the ROS ports (RobotCalls: ``move_to``, ``capture_joints``;
 LandmarkWatch: ``landmarks``): for each one it moves there, takes the first board in an image
 stamped after the arrival, captures the joints (``hold`` seconds) and takes the flange pose by
-nominal FK. A view that cannot be reached, shows no board within ``landmark_timeout``, or whose
-captured joints are not where the move ended (unpaired: the image may show another pose) is
-skipped and counted. A cancel is honoured before every view.
+FK of the active kinematic calibration (nominal when none is active; the record's
+``measured_through`` names it and the active intrinsics). A view that cannot be reached, shows
+no board within ``landmark_timeout``, or whose captured joints are not where the move ended
+(unpaired: the image may show another pose) is skipped and counted. A cancel is honoured
+before every view.
 With at least three views, core.landmarks.hand_eye.solve_hand_eye (closed form, then the joint
 least-squares refinement of T_flange_optical and T_base_board, weighted by the landmarks'
 covariances) gives the result; it is stored under ``<data_dir>/hand_eye`` (CalibrationStore:
@@ -41,7 +43,7 @@ from cobot_calib_ros.core.landmarks.hand_eye import check_noise, hand_eye_views,
 from cobot_calib_ros.core.landmarks.hand_eye_capture import (HandEyeViews,
                                                              take_hand_eye_views)
 from cobot_calib_ros.core.ids import record_id
-from cobot_calib_ros.core.rig import Rig
+from cobot_calib_ros.core.provenance import missing_prerequisites
 from cobot_calib_ros.core.robot_port import CaptureFailed, Stopped
 from cobot_calib_ros.ros import convert, qos, results, spin
 from cobot_calib_ros.ros.diagnostics import OK, WARN
@@ -73,7 +75,6 @@ class HandEyeCalibrator(JobNode):
                          'hand-eye), board', data_help='Results go to <data_dir>/hand_eye',
                          **kwargs)
         self._declare_parameters()
-        self._chain = Rig(self._cell, model=self._model).nominal_chain('flange')
         self._store = self._repository().hand_eye
         self._read_board_frame()
         self._robot = RobotCalls(self._answers)
@@ -126,8 +127,15 @@ class HandEyeCalibrator(JobNode):
         try:
             plan = hand_eye_views(self._cell, self._model, count, self._p('seed'),
                                   T_base_user=self._T_base_user())
-        except ValueError as e:
+            rig = self._rig('active')       # the flange poses by the active kinematics
+            active, chain = rig.active, rig.chain('flange')
+        except (KeyError, ValueError) as e:
             return self._end(goal_handle, result, Action.Result.INVALID_GOAL, str(e))
+        through = {'kinematics': active.kinematics_label,
+                   'intrinsics': active.label('intrinsics')}
+        prerequisites = missing_prerequisites('the hand-eye is', through)
+        if prerequisites:
+            self.get_logger().warning(prerequisites)
         self._health.set(OK, f'calibrating: {count} views')
         t_start = time.monotonic()
         feedback = Action.Feedback(total=count)
@@ -142,7 +150,7 @@ class HandEyeCalibrator(JobNode):
         self._robot.speed_scale = self._p('speed_scale')
         try:
             views = take_hand_eye_views(
-                plan, self._robot, self._watch, self._chain, hold=hold,
+                plan, self._robot, self._watch, chain, hold=hold,
                 landmark_timeout=self._p('landmark_timeout'),
                 cancelled=lambda: goal_handle.is_cancel_requested, on_view=on_view)
         except Stopped as e:
@@ -166,7 +174,8 @@ class HandEyeCalibrator(JobNode):
                              solved.message)
         if goal_handle.is_cancel_requested:
             return self._cancelled(goal_handle, result, f'after all {count} views')
-        record = self._record(solved, joints, flange, boards, covariances, skipped, count)
+        record = self._record(solved, joints, flange, boards, covariances, skipped, count,
+                              through)
         gate = _gate_problem(solved, covariances)
         if gate:
             record['gate_problem'] = gate
@@ -192,12 +201,15 @@ class HandEyeCalibrator(JobNode):
             f'({views.unpaired} unpaired); residual RMS '
             f'{solved.residual_mm:.4f} mm / {solved.residual_mrad:.4f} mrad; '
             f'{nominal[0] * 1e3:.3f} mm / {nominal[1] * 1e3:.3f} mrad from the nominal '
-            f'hand-eye; {time.monotonic() - t_start:.1f} s'))
+            f'hand-eye; {time.monotonic() - t_start:.1f} s'
+            + (f'; {prerequisites}' if prerequisites else '')))
 
-    def _record(self, solved, joints, flange, boards, covariances, skipped, planned) -> dict:
+    def _record(self, solved, joints, flange, boards, covariances, skipped, planned,
+                through: dict[str, str]) -> dict:
         return HandEyeRecord(
             id=record_id('hand_eye'), stamp_ns=now_ns(self), method='park+least_squares',
-            kinematics='nominal', flange_frame=self._p('flange_frame'),
+            kinematics=through['kinematics'], measured_through=through,
+            flange_frame=self._p('flange_frame'),
             camera_frame=self._cell.camera.frame_id, cell=self._results_cell.name,
             inputs=HandEyeInputs(joints=joints, T_base_flange=flange, T_optical_board=boards,
                                  board_covariances=covariances, skipped=skipped,

@@ -76,6 +76,7 @@ from cobot_calib_ros.ros.params import read_once
 
 NO_IMAGE_TIMEOUT = 2.0      # [s] of wall time without an image: /diagnostics warns
 DEMAND_PERIOD = 0.1         # [s] between looks at whether anyone subscribes to landmarks
+INTRINSICS_CHECK_PERIOD = 2.0   # [s] between looks at which intrinsics are active
 LIVE_REFINE = tuple(r for r in REFINE_METHODS if r != 'apriltag')   # apriltag: ~2 fps
 # Best effort, as cameras publish; a queue of IMAGE_QUEUE_DEPTH images so that a late executor
 # round (the GIL held by the poses thread, another process on the core) does not lose frames in
@@ -335,32 +336,61 @@ class LandmarkDetector(Node):
         return super().destroy_node()
 
     def _read_active_intrinsics(self) -> CameraModel | None:
-        """The cell camera's active intrinsics record in data_dir (cobot-calib intrinsics,
-        camera_calibrator), which replaces camera_info's K and D; None: camera_info's hold."""
+        """The cell camera's active intrinsics (store.rigs.active_set: cobot-calib intrinsics,
+        camera_calibrator), which replace camera_info's K and D; None: camera_info's hold.
+        Read at start and again every INTRINSICS_CHECK_PERIOD (:meth:`_follow_intrinsics`):
+        a new calibration is used without a restart."""
         source = read_once(self, 'intrinsics', 'active',
                            "K and D of the images: 'active' (the camera's active intrinsics "
                            "record in data_dir, else camera_info's) or 'camera_info'")
         data_dir = read_once(self, 'data_dir', '', 'Results root whose active intrinsics '
                              'are used; empty = $COBOT_CALIB_DATA or ~/.ros/cobot_calib')
+        self._intrinsics_id = ''
+        self._intrinsics_from = None
         if source != 'active':
             return None
-        from cobot_calib_ros import store
-        from cobot_calib_ros.store.cells import ResultsCell
-        from cobot_calib_ros.store.records import active_intrinsics
         try:
             cell = load_cell(paths.cell_file(self.get_parameter('cell_file').value))
-            if cell.camera is None:
-                return None
-            repo = store.open(paths.data_dir(data_dir),
-                              cell=ResultsCell.of(cell, self.get_namespace()))
-            camera = active_intrinsics(repo, cell.camera.frame_id)
-        except Exception as e:          # noqa: BLE001 - a store that cannot be read: the topic's
+        except (CellFileError, OSError, ValueError) as e:
             self.get_logger().warning(f'active intrinsics not read ({e}); camera_info holds')
             return None
-        if camera is not None:
-            self.get_logger().info(f'using the active intrinsics of {camera.name} '
-                                   f'(fx {camera.K[0, 0]:.2f} px) instead of camera_info\'s')
-        return camera
+        if cell.camera is None:
+            return None
+        self._intrinsics_from = (cell, paths.data_dir(data_dir))
+        self.create_timer(INTRINSICS_CHECK_PERIOD, self._follow_intrinsics,
+                          clock=Clock(clock_type=ClockType.STEADY_TIME))
+        return self._active_intrinsics_now()
+
+    def _active_intrinsics_now(self) -> CameraModel | None:
+        from cobot_calib_ros import store
+        from cobot_calib_ros.store.cells import ResultsCell
+        from cobot_calib_ros.store.rigs import active_set
+        cell, data_dir = self._intrinsics_from
+        try:
+            repo = store.open(data_dir, cell=ResultsCell.of(cell, self.get_namespace()))
+            active = active_set(repo, cell).intrinsics
+        except Exception as e:          # noqa: BLE001 - a store that cannot be read: the topic's
+            self.get_logger().warning(f'active intrinsics not read ({e}); camera_info holds',
+                                      throttle_duration_sec=60.0)
+            return self._active_intrinsics if self._intrinsics_id else None
+        if (active.id if active else '') != self._intrinsics_id:
+            self._intrinsics_id = active.id if active else ''
+            if active is not None:
+                self.get_logger().info(
+                    f'using the active intrinsics {active.id} of {active.camera} (fx '
+                    f'{active.model.K[0, 0]:.2f} px) instead of camera_info\'s')
+            else:
+                self.get_logger().info('no active intrinsics: camera_info\'s hold')
+        return None if active is None else active.model
+
+    def _follow_intrinsics(self) -> None:
+        """A new active intrinsics calibration replaces the one in use (the next camera_info
+        takes it)."""
+        before = self._intrinsics_id
+        model = self._active_intrinsics_now()
+        if self._intrinsics_id != before:
+            with self._lock:
+                self._active_intrinsics, self._camera_key = model, None
 
     def _configure(self) -> tuple[Config | None, str, int]:
         values = (

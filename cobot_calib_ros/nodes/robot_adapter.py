@@ -220,11 +220,15 @@ class RobotAdapter(Node):
         try:
             repo = store.open(paths.data_dir(self.get_parameter('data_dir').value),
                               cell=self._results_cell)
-            return rig_of(repo, self._cell, choice, self._model).chain('tcp')
+            the_rig = rig_of(repo, self._cell, choice, self._model)
+            chain = the_rig.chain('tcp')
         except (KeyError, ValueError, OSError) as e:
             return Failure(ErrorCode.INVALID_INPUT, f'kinematics {choice!r}: {e}; set the '
                            'kinematics parameter to latest, nominal or a stored kinematic '
                            'calibration id')
+        for stale in the_rig.active.stale_used('tcp', False):
+            self.get_logger().warning(f'stale: {stale.line()}')
+        return chain
 
     def _follow(self, goal_handle, action: str, q: np.ndarray, seconds: float):
         """Run one trajectory to its end: None when it succeeded, else 'canceled' or why."""

@@ -32,6 +32,7 @@ from rclpy.action import ActionServer, CancelResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
 
 from cobot_calib_ros.core.cell import tool_down_orientation
+from cobot_calib_ros.core.provenance import missing_prerequisites
 from cobot_calib_ros.core.robot_port import CaptureFailed, MoveFailed, Stopped
 from cobot_calib_ros.core.tcp import GateLimits, gate_problem, solve_position, TooAlike
 from cobot_calib_ros.core.kinematics.urdf import rpy_from_matrix
@@ -137,6 +138,10 @@ class TcpCalibrator(JobNode):
             return self._end(goal_handle, result, Action.Result.INVALID_GOAL,
                              str(e).strip("'"))
         total = len(plan.steps())
+        prerequisites = missing_prerequisites(f'the TCP of {tool} is',
+                                              {'kinematics': kinematics_used})
+        if prerequisites:
+            self.get_logger().warning(prerequisites)
         self._health.set(OK, f'calibrating the TCP of {tool}: {total} touches of {point}')
         t_start = time.monotonic()
         feedback = Action.Feedback(total=total)
@@ -202,7 +207,8 @@ class TcpCalibrator(JobNode):
             f'{record.id}: TCP of {tool} x {x:.3f} y {y:.3f} z {z:.3f} mm, rpy ({angles}) deg '
             f'({solution.method}); {len(position.residuals)} approaches, residual mean '
             f'{position.mean_residual_mm:.3f} mm, max {position.max_residual_mm:.3f} mm; '
-            f'{time.monotonic() - t_start:.1f} s'))
+            f'{time.monotonic() - t_start:.1f} s' + (f'; {prerequisites}' if prerequisites
+                                                    else '')))
 
 
 def _rms_so_far(touches: TcpTouches) -> float:

@@ -35,6 +35,7 @@ from cobot_calib_ros.core.cell import check_frame_id
 from cobot_calib_ros.core.drift import DriftLimits
 from cobot_calib_ros.core.errors import ErrorCode, Failure, Refusal
 from cobot_calib_ros.core.landmarks import views
+from cobot_calib_ros.core.provenance import missing_prerequisites
 from cobot_calib_ros.core.robot_port import PortError
 from cobot_calib_ros.core.user_frame import landmarks as landmark_frames
 from cobot_calib_ros.ros import convert, markers, qos, results, spin
@@ -216,11 +217,9 @@ class UserFrameSolver(JobNode):
         try:
             frames_ = self._request_frames(request)
             if request.method in landmark_frames.LANDMARK_METHODS:
-                names, p_user, p_base, model_used, hand_eye, fit = self._landmark_fit(request)
-                tcp = ''
+                names, p_user, p_base, through, fit = self._landmark_fit(request)
             else:
-                names, p_user, p_base, model_used, tcp = self._points(request)
-                hand_eye = ''
+                names, p_user, p_base, through = self._points(request)
         except Refusal as e:
             return self._refuse(response, e.failure.code, e.failure.message)
         if fit is None:
@@ -232,8 +231,13 @@ class UserFrameSolver(JobNode):
         surface = (user_frame.fit_surface(p_user, p_base, fit.M, names=names)
                    if request.fit_surface and request.method !=
                    landmark_frames.LANDMARK_SINGLE else None)
-        record = UserFrameRecord.from_fit(fit, surface, names, p_user, p_base, frames_,
-                                          now_ns(self), model_used, hand_eye, tcp).to_dict()
+        record = UserFrameRecord.from_fit(
+            fit, surface, names, p_user, p_base, frames_, now_ns(self),
+            through.get('kinematics', ''), through.get('hand_eye', ''), through.get('tcp', ''),
+            measured_through=through).to_dict()
+        prerequisites = missing_prerequisites('the user frame is', through)
+        if prerequisites:
+            self.get_logger().warning(prerequisites)
         try:
             with self._store_lock:
                 previous = self._store.active()
@@ -243,7 +247,8 @@ class UserFrameSolver(JobNode):
                                 f'could not store the calibration: {e}; check data_dir')
         self._report_drift(previous, record)
         response.calibration = record_to_msg(record)
-        response.error_code, response.message = Res.SUCCESS, fit.message or 'calibrated'
+        response.error_code, response.message = Res.SUCCESS, '; '.join(
+            m for m in (fit.message or 'calibrated', prerequisites) if m)
         self._publish_from_another_thread(response.calibration)
         spin.log_info(self.get_logger(), f'{record["id"]}: {len(names)} points, rms '
                       f'{fit.rms * 1e3:.4f} mm, max {fit.max_residual * 1e3:.4f} mm')
@@ -279,9 +284,9 @@ class UserFrameSolver(JobNode):
         self._update_health()
         return response
 
-    def _points(self, request) -> tuple[list[str], np.ndarray, np.ndarray, str, str]:
-        """Names, nominal user points, measured base points [m], and the kinematic model and
-        the TCP that measured them ('' for points given in the request)."""
+    def _points(self, request) -> tuple[list[str], np.ndarray, np.ndarray, dict[str, str]]:
+        """Names, nominal user points, measured base points [m], and the results they were
+        measured through (the kinematics and the TCP; {} for points given in the request)."""
         p_user = convert.points_to_array(request.points_user)
         p_base = convert.points_to_array(request.points_base)
         names = list(request.point_names)
@@ -290,22 +295,22 @@ class UserFrameSolver(JobNode):
                 raise Refusal(Failure(ErrorCode.INVALID_INPUT, (
                     f'{len(names)} point names for {len(p_user)} points; give one name per '
                     'point or none')))
-            return names or [f'P{i + 1}' for i in range(len(p_user))], p_user, p_base, '', ''
+            return names or [f'P{i + 1}' for i in range(len(p_user))], p_user, p_base, {}
         if not names:
             raise Refusal(Failure(ErrorCode.TOO_FEW_POINTS, (
                 'no points: give points_user + points_base, or point_names of the cell to '
                 'visit live')))
         self._check_names(names)
         rig = self._rig(request.kinematics or self._p('kinematics'))
-        chain, model_used, tcp = rig.chain('tcp'), rig.active.kinematics_label, \
-            rig.active.tcp_label
+        chain = rig.chain('tcp')
+        through = {'kinematics': rig.active.kinematics_label, 'tcp': rig.active.tcp_label}
         if request.joint_captures:
             joints = self._given_joints(names, request.joint_captures)
         else:
             joints = [self._capture_live(name) for name in names]
         p_user = np.array([self._cell.marker(n).nominal_top for n in names])
         p_base = np.array([kinematics.fk(chain, q)[:3, 3] for q in joints])
-        return names, p_user, p_base, model_used, tcp
+        return names, p_user, p_base, through
 
     def _rig(self, choice: str) -> Rig:
         """The cell's rig with the kinematics ``choice`` names and the active hand-eye, read
@@ -351,13 +356,15 @@ class UserFrameSolver(JobNode):
     # -- landmark methods (wrist camera) ---------------------------------------------------
     def _landmark_fit(self, request):
         """landmark_single / landmark_multi (ros.landmark_views): names, p_user, p_base,
-        model label and the FrameFit."""
+        the results measured through (kinematics, hand-eye, intrinsics) and the FrameFit."""
         problem = views.setup_problem(self._cell)
         if problem:
             raise Refusal(Failure(ErrorCode.INVALID_INPUT, f'{request.method}: {problem}'))
         guess = self._user_frame_guess()
         rig = self._rig(request.kinematics or self._p('kinematics'))
-        model_used, hand_eye = rig.active.kinematics_label, rig.active.hand_eye_label
+        through = {'kinematics': rig.active.kinematics_label,
+                   'hand_eye': rig.active.hand_eye_label,
+                   'intrinsics': rig.active.label('intrinsics')}
         result = views.measure_frame(
             request.method, self._cell, self._robot, self._camera, T_base_user_guess=guess,
             plan_chain=rig.nominal_chain('camera'), chain=rig.chain('camera'),
@@ -366,7 +373,7 @@ class UserFrameSolver(JobNode):
             on_view=self._marks)
         if result.code in (ErrorCode.INVALID_INPUT, ErrorCode.CAPTURE_FAILED):
             raise Refusal(Failure(result.code, result.message))     # no fit to store
-        return result.names, result.p_user, result.p_base, model_used, hand_eye, result.fit
+        return result.names, result.p_user, result.p_base, through, result.fit
 
     def _user_frame_guess(self) -> np.ndarray:
         """Where the table is, to plan views by: the active user-frame calibration."""

@@ -11,6 +11,11 @@ else why not). The builder of a record sets it with its kind's criterion (e.g. a
 whose residual is beyond what its views' noise allows); the store never activates a record
 with a gate problem (see store.repository). The key is written only when it is not empty.
 
+Provenance: every calibration record carries ``measured_through`` (kind -> the id of the result
+it was measured through, 'nominal' for the cell's own value; store.rigs reads it, core.provenance
+says when it is stale); the key is left out where it was not recorded, and a record without it
+reads as {} (unknown provenance).
+
 Cell: every calibration record names the cell it was made on (``cell``) and its robot
 (``robot``); the store of a cell sets both when it saves (store.cells). Records written before
 that lack them (hand-eye records always named their cell file).
@@ -30,7 +35,7 @@ from cobot_calib_ros.core.ids import record_id
 from cobot_calib_ros.store.files import to_plain
 
 OMITTED_WHEN_EMPTY = ('gate_problem', 'hand_eye', 'tcp', 'cell', 'robot')  # keys older files lack
-OMITTED_WHEN_NONE = frozenset({'converged'})   # keys older records lack
+OMITTED_WHEN_NONE = frozenset({'converged', 'measured_through'})   # keys older records lack
 
 
 @dataclass(kw_only=True)
@@ -142,12 +147,15 @@ class UserFrameRecord(Record):
     gate_problem: str = ''
     cell: str = ''              # set by the cell's store (store.cells)
     robot: str = ''
+    measured_through: dict[str, str] | None = None   # kind -> id; None: not recorded
 
     @classmethod
     def from_fit(cls, fit: user_frame.FrameFit, surface: user_frame.SurfaceModel | None,
                  names: list[str], p_user, p_base, frames_: tuple[str, str], stamp_ns: int,
-                 kinematics: str = '', hand_eye: str = '', tcp: str = '') -> UserFrameRecord:
-        """The record of a fit (and its optional surface) of ``names``' points."""
+                 kinematics: str = '', hand_eye: str = '', tcp: str = '',
+                 measured_through: dict[str, str] | None = None) -> UserFrameRecord:
+        """The record of a fit (and its optional surface) of ``names``' points, measured
+        through ``measured_through`` (kind -> id)."""
         stored_surface = None if surface is None else SurfaceRecord(
             valid=bool(surface), powers_x=surface.powers_x, powers_y=surface.powers_y,
             coefficients=surface.coefficients, rms_before=surface.rms_before,
@@ -155,7 +163,7 @@ class UserFrameRecord(Record):
         return cls(
             id=record_id(fit.method), stamp_ns=stamp_ns, method=fit.method,
             kinematics=kinematics, hand_eye=hand_eye, tcp=tcp, base_frame=frames_[0],
-            user_frame=frames_[1],
+            user_frame=frames_[1], measured_through=measured_through,
             inputs=UserFrameInputs(point_names=list(names), points_user=p_user,
                                    points_base=p_base),
             result=UserFrameResult(
@@ -209,6 +217,7 @@ class HandEyeRecord(Record):
     result: HandEyeResult
     gate_problem: str = ''
     robot: str = ''              # set by the cell's store (store.cells)
+    measured_through: dict[str, str] | None = None   # kind -> id; None: not recorded
 
 
 # -- tool centre point (tcp_calibrator) --------------------------------------------------------
@@ -255,19 +264,22 @@ class TcpRecord(Record):
     gate_problem: str = ''
     cell: str = ''               # set by the cell's store (store.cells)
     robot: str = ''
+    measured_through: dict[str, str] | None = None   # kind -> id; None: not recorded
 
     @classmethod
     def from_solution(cls, solution, tool: str, point_name: str, labels: list[str], joints,
                       flange, stamp_ns: int, kinematics: str = 'nominal', tilt: float = 0.0,
-                      elongation: float = 0.0, gate_problem: str = '') -> TcpRecord:
+                      elongation: float = 0.0, gate_problem: str = '',
+                      measured_through: dict[str, str] | None = None) -> TcpRecord:
         """The record of a core.tcp.TcpSolution of ``tool`` from the touches' joints and
-        flange poses."""
+        flange poses (by the kinematics ``measured_through`` names)."""
         position = solution.position
         n = len(position.residuals)
         method = f'tcp-{n}-point' + ('' if solution.method == 'none' else f'-{solution.method}')
         return cls(
             id=record_id(f'tcp-{tool}'), stamp_ns=stamp_ns, method=method, tool=tool,
             kinematics=kinematics, gate_problem=gate_problem,
+            measured_through=dict(measured_through or {'kinematics': kinematics}),
             inputs=TcpInputs(point_name=point_name, labels=list(labels), joints=joints,
                              T_base_flange=flange, tilt=tilt, elongation=elongation),
             result=TcpResult(T_flange_tcp=solution.T_flange_tcp, fixed_point=position.c,
@@ -322,6 +334,7 @@ class IntrinsicsRecord(Record):
     gate_problem: str = ''
     cell: str = ''              # set by the cell's store (store.cells)
     robot: str = ''
+    measured_through: dict[str, str] | None = None   # kind -> id; None: not recorded
 
     @classmethod
     def from_fit(cls, fit, *, camera: str, source: str, board: str, views: list[str],
@@ -343,7 +356,7 @@ class IntrinsicsRecord(Record):
                 view_rms_px=dict(fit.view_rms_px), outlier_views=list(fit.outlier_views),
                 views_used=fit.views_used, coverage=fit.coverage.fraction,
                 missing=fit.coverage.message, yaml_path=yaml_path),
-            gate_problem=fit.gate_problem)
+            gate_problem=fit.gate_problem, measured_through={})   # the board only
 
     def camera_model(self):
         """The core.landmarks.camera.CameraModel of these intrinsics."""
@@ -410,16 +423,21 @@ class KinematicRecord(Record):
     result: KinematicResult
     gate_problem: str = ''
     cell: str = ''               # set by the cell's store (store.cells)
+    measured_through: dict[str, str] | None = None   # kind -> id; None: not recorded
 
     @classmethod
-    def from_outcome(cls, outcome, wall_ns: int | None = None) -> KinematicRecord:
+    def from_outcome(cls, outcome, wall_ns: int | None = None,
+                     measured_through: dict[str, str] | None = None) -> KinematicRecord:
         """The record of a core CalibrationJob outcome. Stamped with the wall clock (``wall_ns``,
-        default now): identification runs offline, with no ROS clock."""
+        default now): identification runs offline, with no ROS clock. ``measured_through``:
+        the TCP its measurements were taken at, {} (the default) when they carry their own
+        marker (the sphere coupling, a tracker's target)."""
         wall_ns = time.time_ns() if wall_ns is None else wall_ns
         job, result = outcome.inputs, outcome.result
         return cls(
             id=record_id(job.solver, wall_ns), stamp_ns=wall_ns,
             method=f'{job.objective}-{job.solver}', robot=outcome.model.name,
+            measured_through=dict(measured_through or {}),
             inputs=KinematicInputs(source=job.source, rows=job.rows, solver=job.solver,
                                    loss=job.loss, objective=job.objective),
             result=KinematicResult(

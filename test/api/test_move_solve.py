@@ -14,6 +14,7 @@ from cobot_calib_ros.core.kinematics import fk, model_for
 from cobot_calib_ros.loaders import load_cell
 from cobot_calib_ros.paths import cell_file
 from cobot_calib_ros.store.cells import ResultsCell
+from cobot_calib_ros.store.rigs import kinematics_of
 
 CELL = load_cell(cell_file('ur10e_close'))
 MODEL = model_for(CELL)
@@ -33,7 +34,7 @@ def repo(tmp_path):
 
 
 def test_the_active_calibration_and_a_user_frame_give_the_joints_that_reach_the_target(repo):
-    calibrated = rig.Rig(CELL, rig.ActiveSet(KINEMATIC), MODEL).chain('tcp')
+    calibrated = rig.Rig(CELL, rig.ActiveSet(kinematics_of(KINEMATIC)), MODEL).chain('tcp')
     T_base_tool = fk(calibrated, Q)
     T_user_tool = invert(T_BASE_USER) @ T_base_tool
     nominal = move.solve(CELL, repo, T_base_tool, Q)         # nothing stored: nominal
@@ -47,7 +48,7 @@ def test_the_active_calibration_and_a_user_frame_give_the_joints_that_reach_the_
         assert_allclose(fk(calibrated, solved.q), T_base_tool, atol=1e-9)
         assert_allclose(solved.T_base_tool, T_base_tool, atol=1e-12)
     assert move.solve(CELL, repo, T_base_tool, Q, kinematics='nominal').kinematics == 'nominal'
-    flange = move.solve(CELL, repo, fk(rig.Rig(CELL, rig.ActiveSet(KINEMATIC), MODEL).chain('flange'), Q),
+    flange = move.solve(CELL, repo, fk(rig.Rig(CELL, rig.ActiveSet(kinematics_of(KINEMATIC)), MODEL).chain('flange'), Q),
                         Q, tool='flange')
     assert_allclose(fk(calibrated, flange.q), T_base_tool, atol=1e-9)
 
@@ -66,3 +67,41 @@ def test_a_choice_that_cannot_be_met_says_what_to_do(repo, options, words):
 def test_an_unreachable_target_names_the_model(repo):
     with pytest.raises(ValueError, match='cannot be reached by the nominal model'):
         move.solve(CELL, repo, from_xyz_rpy([4.0, 0.0, 0.5], [0, 0, 0]), Q)
+
+
+def _tcp(record_id: str, xyz, through: dict) -> dict:
+    T = np.array(CELL.tool_offset, dtype=float)
+    T[:3, 3] = xyz
+    return {'id': record_id, 'stamp_ns': 1, 'method': 'tcp-4-point', 'tool': CELL.tool_frame,
+            'inputs': {}, 'measured_through': through,
+            'result': {'T_flange_tcp': T.tolist(), 'orientation_method': 'none'}}
+
+
+def test_move_uses_the_active_tcp_names_it_and_says_a_frame_touched_with_another_is_stale(repo):
+    """Issue 36 items 1 and 2: the TCP of the active set is the tool move solves for (the JSON
+    names its record); a user frame touched with an older TCP is reported stale, with both
+    ids and the TCPs' distance at the tool."""
+    tip = np.array(CELL.tool_offset)[:3, 3]
+    repo.tcp.save_and_activate(_tcp('tcp-old', tip + [2e-4, 0, 0], {'kinematics': 'nominal'}))
+    repo.user_frames.save_and_activate({**FRAME, 'measured_through': {'kinematics': 'nominal',
+                                                                      'tcp': 'tcp-old'}})
+    T_user_tool = from_xyz_rpy([0.1, 0.05, 0.2], [np.pi, 0.0, 0.3])
+    solved = move.solve(CELL, repo, T_user_tool, Q, frame='user')
+    assert solved.tool_record == 'tcp-old' and solved.stale == ()
+    repo.tcp.save_and_activate(_tcp('tcp-new', tip + [2e-4, 0, 1e-4], {'kinematics': 'nominal'}))
+    solved = move.solve(CELL, repo, T_user_tool, Q, frame='user')
+    assert solved.summary()['tool_record'] == 'tcp-new'
+    new_tool = np.array(CELL.tool_offset)
+    new_tool[:3, 3] = tip + [2e-4, 0, 1e-4]
+    assert_allclose(fk(MODEL.chain(tool=new_tool), solved.q), T_BASE_USER @ T_user_tool,
+                    atol=1e-9)
+    (stale,) = solved.stale
+    assert (stale.kind, stale.id, stale.through, stale.was, stale.now) == (
+        'user_frame', 'uf-move', 'tcp', 'tcp-old', 'tcp-new')
+    assert stale.change_mm == pytest.approx(0.1, abs=1e-9)
+    assert stale.line() == ('user frame uf-move was touched with TCP tcp-old; the active TCP '
+                            'tcp-new is 0.100 mm away at the tool: touch the frame again, or '
+                            'keep it')
+    assert move.solve(CELL, repo, T_user_tool, Q, frame='user', tool='flange').stale == (
+        stale,)                              # the frame is used whatever the tool
+    assert move.solve(CELL, repo, np.eye(4) @ fk(MODEL.chain(tool=new_tool), Q), Q).stale == ()

@@ -161,3 +161,49 @@ def test_a_failing_history_keeps_its_exit_code_when_its_reader_leaves(tmp_path):
     _, err = cut.communicate(timeout=60)
     assert cut.returncode == 1, err.decode()
     assert b'Traceback' not in err and b'BrokenPipe' not in err
+
+
+def test_history_lists_every_kind_and_says_which_active_result_is_stale(tmp_path, capsys):
+    """Issue 36.2: a user frame touched with TCP t1 is stale once t2 is active (one line with
+    both ids and the TCPs' distance at the tool); every kind is listed, the active ones
+    marked (on 12237a8 `--json` had "kinematics": [] with one active)."""
+    from cobot_calib_ros.core.kinematics import model_for
+    from cobot_calib_ros.store.cells import ResultsCell
+    cell = SIM.cell
+    model = model_for(cell)
+    repo = store.open(tmp_path, cell=ResultsCell.of(cell))
+    repo.kinematics.save_and_activate({
+        'id': 'k1', 'stamp_ns': NOV_1, 'method': 'test', 'robot': model.name, 'inputs': {},
+        'measured_through': {}, 'result': {'parameter_names': list(model.parameter_names),
+                                           'params': list(model.nominal), 'rms_m': 1e-5}})
+    for day, (tcp_id, dz) in enumerate((('t1', 0.0), ('t2', 1e-4))):
+        T = np.array(cell.tool_offset)
+        T[2, 3] += dz
+        repo.tcp.save_and_activate({
+            'id': tcp_id, 'stamp_ns': NOV_1 + (2 * day + 1) * DAY_NS, 'method': 'tcp-4-point',
+            'tool': cell.tool_frame, 'inputs': {}, 'measured_through': {'kinematics': 'k1'},
+            'result': {'T_flange_tcp': T.tolist(), 'orientation_method': 'none',
+                       'mean_residual_mm': 0.02, 'max_residual_mm': 0.03}})
+        if tcp_id == 't1':
+            run = calibrate_user_frame(SIM, 10)
+            record = UserFrameRecord.from_fit(
+                run.fit, None, run.names, run.p_user, run.p_base, ('base', 'user'),
+                NOV_1 + 2 * DAY_NS, 'k1', tcp='t1',
+                measured_through={'kinematics': 'k1', 'tcp': 't1'})
+            record.id = 'F'
+            repo.user_frames.save_and_activate(record)
+    assert main(['history', '--json', '--no-plots', '--data-dir', str(tmp_path)]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert [(k['id'], k['active'], k['previous']) for k in report['kinematics']] == [
+        ('k1', True, '')]
+    assert [(t['id'], t['active']) for t in report['tcp']] == [('t1', False), ('t2', True)]
+    assert report['user_frames'][0]['measured_through'] == {'kinematics': 'k1', 'tcp': 't1'}
+    assert report['hand_eye'] == [] and report['intrinsics'] == []
+    (stale,) = report['stale']
+    assert (stale['kind'], stale['id'], stale['was'], stale['now']) == ('user_frame', 'F',
+                                                                         't1', 't2')
+    assert stale['change_mm'] == pytest.approx(0.1, abs=1e-9)
+    assert stale['message'] == ('user frame F was touched with TCP t1; the active TCP t2 is '
+                                '0.100 mm away at the tool: touch the frame again, or keep it')
+    assert main(['history', '--no-plots', '--data-dir', str(tmp_path)]) == 0
+    assert f'  stale: {stale["message"]}' in capsys.readouterr().out.splitlines()

@@ -1,6 +1,8 @@
 """core.rig: the one answer to "which chain, with which tool", and targets in a user frame."""
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 from numpy.testing import assert_allclose
 import pytest
@@ -14,9 +16,8 @@ from cobot_calib_ros.paths import cell_file
 CELL = load_cell(cell_file('iiwa7_close'))
 MODEL = model_for(CELL)
 PARAMS = MODEL.nominal + np.random.default_rng(4).normal(0.0, 3e-4, MODEL.nominal.size)
-RECORD = {'id': 'k-rig', 'robot': MODEL.name,
-          'result': {'parameter_names': list(MODEL.parameter_names), 'params': PARAMS.tolist(),
-                     'tool_xyz': [0.001, -0.002, 0.103]}}
+RECORD = rig.Kinematics('k-rig', MODEL.name, tuple(MODEL.parameter_names), PARAMS,
+                        np.array([0.001, -0.002, 0.103]))
 Q = CELL.home + 0.1
 
 
@@ -32,7 +33,7 @@ def test_each_tool_ends_the_chain_where_the_cell_or_the_result_puts_it():
                     atol=1e-12)      # the cell's orientation
     nominal = fk(rig.Rig(CELL, model=MODEL).chain('coupling'), Q)
     assert_allclose(nominal, fk(MODEL.chain(tool=CELL.spheres.coupling_offset), Q), atol=1e-12)
-    hand_eye = {'result': {'T_flange_optical': from_xyz_rpy([0.05, 0, 0.02], [0, 0, 1]).tolist()}}
+    hand_eye = rig.HandEye('h-0', from_xyz_rpy([0.05, 0, 0.02], [0, 0, 1]))
     assert_allclose(fk(rig.Rig(CELL, rig.ActiveSet(None, hand_eye), MODEL).chain('camera'), Q),
                     fk(MODEL.chain(), Q) @ from_xyz_rpy([0.05, 0, 0.02], [0, 0, 1]), atol=1e-12)
 
@@ -43,7 +44,7 @@ def test_a_tool_the_cell_lacks_or_does_not_know_is_refused_with_the_choices():
     with pytest.raises(ValueError, match="unknown tool 'gripper'"):
         rig.tool_offset(CELL, 'gripper')
     with pytest.raises(ValueError, match="is for robot 'sawyer', not 'iiwa7'"):
-        rig.Rig(CELL, rig.ActiveSet({**RECORD, 'robot': 'sawyer'}), MODEL)
+        rig.Rig(CELL, rig.ActiveSet(replace(RECORD, robot='sawyer')), MODEL)
 
 
 def test_a_target_in_a_user_frame_is_solved_in_the_base():
@@ -61,12 +62,11 @@ def test_the_tcp_is_the_active_tcp_records_else_the_cells():
     measured one (elongator points)."""
     assert_allclose(rig.tool_offset(CELL, 'tcp'), CELL.tool_offset, atol=0)
     T = from_xyz_rpy([0.0003, -0.0002, 0.1004], [0.003, -0.002, 0.01])
-    position_only = {'result': {'T_flange_tcp': from_xyz_rpy(T[:3, 3], [0, 0, 0]).tolist(),
-                                'orientation_method': 'none'}}
+    position_only = rig.Tcp('tcp-0', 'tool0', from_xyz_rpy(T[:3, 3], [0, 0, 0]))
     expected = CELL.tool_offset.copy()
     expected[:3, 3] = T[:3, 3]
     assert_allclose(rig.tool_offset(CELL, 'tcp', tcp=position_only), expected, atol=1e-15)
-    oriented = {'id': 'tcp-1', 'result': {'T_flange_tcp': T.tolist(), 'orientation_method': 'z'}}
+    oriented = rig.Tcp('tcp-1', 'tool0', T, orientation_measured=True)
     assert_allclose(rig.tool_offset(CELL, 'tcp', tcp=oriented), T, atol=1e-15)
     assert_allclose(rig.tool_offset(CELL, 'flange', tcp=oriented), np.eye(4), atol=0)
     calibrated = rig.Rig(CELL, rig.ActiveSet(RECORD, tcp=oriented), MODEL)
@@ -76,8 +76,7 @@ def test_the_tcp_is_the_active_tcp_records_else_the_cells():
 
 
 def test_the_nominal_chain_keeps_the_tool_and_the_labels_name_the_results():
-    hand_eye = {'id': 'h-1',
-                'result': {'T_flange_optical': from_xyz_rpy([0.05, 0, 0.02], [0, 0, 1]).tolist()}}
+    hand_eye = rig.HandEye('h-1', from_xyz_rpy([0.05, 0, 0.02], [0, 0, 1]))
     calibrated = rig.Rig(CELL, rig.ActiveSet(RECORD, hand_eye), MODEL)
     assert_allclose(fk(calibrated.nominal_chain('camera'), Q),
                     fk(MODEL.chain(), Q) @ from_xyz_rpy([0.05, 0, 0.02], [0, 0, 1]), atol=1e-12)
@@ -112,9 +111,7 @@ def test_no_node_verb_or_api_builds_a_chain_of_its_own():
 
 def test_the_user_frame_is_the_active_sets_or_refused_naming_the_cell():
     T = from_xyz_rpy([0.5, -0.1, 0.02], [0.01, -0.02, 0.7])
-    framed = rig.Rig(CELL, rig.ActiveSet(user_frame={'id': 'u-1',
-                                                     'result': {'T_base_user': T.tolist()}}),
-                     MODEL)
+    framed = rig.Rig(CELL, rig.ActiveSet(user_frame=rig.UserFrame('u-1', T)), MODEL)
     assert_allclose(framed.T_base_user(), T, atol=0)
     with pytest.raises(ValueError, match='no active user frame in the results of cell '
                                          'iiwa7_close; calibrate one first'):

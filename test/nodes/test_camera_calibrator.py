@@ -171,3 +171,50 @@ def test_landmark_detector_poses_with_the_active_intrinsics(tmp_path):
                 node.destroy_node()
     finally:
         context.try_shutdown()
+
+
+def test_landmark_detector_follows_a_new_active_intrinsics_without_a_restart(tmp_path):
+    """Issue 36.1: a new intrinsics calibration made active while landmark_detector runs is
+    used from the next camera_info on (its timer looks at the active set: the callback is
+    called here as the timer calls it), as kinematic_identifier follows kinematics."""
+    from rclpy.parameter import Parameter
+    from cobot_calib_ros.core.landmarks.camera import CameraModel
+    from cobot_calib_ros.core.landmarks.intrinsics import Coverage, IntrinsicsFit
+    from cobot_calib_ros.nodes.landmark_detector import LandmarkDetector
+    from cobot_calib_ros.ros.images import model_to_camera_info
+    from cobot_calib_ros.store.records import IntrinsicsRecord
+    repo = store.open(tmp_path, cell=CELL)
+
+    def activate(fx: float, wall_ns: int) -> None:
+        lens = CameraModel(752, 480, [[fx, 0, 380.1], [0, fx, 236.9], [0, 0, 1]],
+                           [-0.15, 0.12, 0.0003, -0.0004, -0.05], 'plumb_bob',
+                           'wrist_camera_optical')
+        fit = IntrinsicsFit(lens, 0.03, {}, (), 0.031,
+                            Coverage(np.ones((4, 4), bool), 1.0, (), (), 40.0), 20, {})
+        assert repo.intrinsics.save_and_activate(IntrinsicsRecord.from_fit(
+            fit, camera='wrist_camera_optical', source='test', board='', views=[],
+            wall_ns=wall_ns))
+    nominal = load_simulation(cell_file('ur10e_close')).cell.camera.camera_model()
+    info = model_to_camera_info(CameraModel(752, 480, nominal.K, nominal.D),
+                                'wrist_camera_optical')
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    try:
+        node = LandmarkDetector(context=context, parameter_overrides=[
+            Parameter('cell_file', value=str(cell_file('ur10e_close'))),
+            Parameter('data_dir', value=str(tmp_path))])
+        try:
+            node._on_info(info)
+            assert node._camera.K[0, 0] == 620.0          # none active: camera_info's
+            activate(628.0, 1)
+            node._follow_intrinsics()
+            node._on_info(info)                             # the same camera_info again
+            assert node._camera.K[0, 0] == 628.0
+            activate(633.0, 2)
+            node._follow_intrinsics()
+            node._on_info(info)
+            assert node._camera.K[0, 0] == 633.0
+        finally:
+            node.destroy_node()
+    finally:
+        context.try_shutdown()

@@ -7,12 +7,15 @@ from cobot_calib_msgs.srv import GetGroundTruth
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from cobot_calib_ros import store
 from cobot_calib_ros.api import move
 from cobot_calib_ros.core import rig
 from cobot_calib_ros.core.frames import from_xyz_rpy
 from cobot_calib_ros.core.kinematics import fk, model_for
 from cobot_calib_ros.loaders import load_cell
 from cobot_calib_ros.paths import cell_file
+from cobot_calib_ros.ros import convert
+from cobot_calib_ros.store.cells import ResultsCell
 from rosutil import call, cli
 
 CELL = load_cell(cell_file('sawyer_close'))
@@ -26,19 +29,33 @@ def _move(xyz, rpy, *extra):
     return json.loads(out.stdout)
 
 
-def test_a_compensated_move_lands_on_the_target_where_the_nominal_one_is_off(ros, tmp_path,
-                                                                             trial_data):
+def _exact_tcp(data, T_flange_tcp) -> str:
+    """Store and activate, in the results ``data``, what an exact TCP calibration of the
+    cell's tool would: the mock's true tool (position and orientation)."""
+    record = {'id': 'tcp-true', 'stamp_ns': 1, 'method': 'tcp-test', 'tool': CELL.tool_frame,
+              'inputs': {}, 'measured_through': {'kinematics': 'k-true'},
+              'result': {'T_flange_tcp': T_flange_tcp.tolist(), 'orientation_method': 'zx'}}
+    assert store.open(data, cell=ResultsCell.of(CELL)).tcp.save_and_activate(record)
+    return record['id']
+
+
+def test_a_compensated_move_lands_on_the_target_where_the_nominal_one_is_off(ros, tmp_path):
+    """The true tool tip (the mock's true arm AND its true tool, 0.25 mm / 3.6 mrad off the
+    cell's nominal tool_offset) lands on the target when move uses an exact kinematic
+    calibration and the active TCP (an exact one); the JSON names that TCP."""
     truth = call(ros, GetGroundTruth, 'get_ground_truth')
     true_params = np.array(truth.true_parameters)
+    true_tool = convert.transform_to_matrix(truth.tool_offset_true)
+    assert np.linalg.norm(true_tool[:3, 3] - CELL.tool_offset[:3, 3]) > 1e-4  # not the cell's
     # what an exact calibration would store: the mock's true arm
     record = tmp_path / 'k-true.json'
     record.write_text(json.dumps({
         'id': 'k-true', 'robot': MODEL.name, 'stamp_ns': 1, 'method': 'test', 'inputs': {},
         'result': {'parameter_names': list(truth.parameter_names),
                    'params': true_params.tolist()}}))
-    # the mock's TCP is the cell's; its arm deviates from the nominal (by ~0.15 mm at the TCP
-    # for this Sawyer), the truth being the true arm at the joints reached
-    true_tcp = MODEL.chain(true_params, tool=CELL.tool_offset)
+    data = tmp_path / 'results'
+    tcp_id = _exact_tcp(data, true_tool)
+    true_tcp = MODEL.chain(true_params, tool=true_tool)      # the mock's truth
     target = fk(rig.Rig(CELL, model=MODEL).chain('tcp'), CELL.home + 0.15)
     xyz = target[:3, 3].tolist()
     rpy = Rotation.from_matrix(target[:3, :3]).as_euler('xyz').tolist()
@@ -47,8 +64,9 @@ def test_a_compensated_move_lands_on_the_target_where_the_nominal_one_is_off(ros
     for label, choice in (('nominal', 'nominal'), ('compensated', str(record))):
         home = move.move_joints(ros, CELL.home, executor=ros.executor_for_tests)
         assert home.error_code == home.SUCCESS, home.message     # the same seed for both
-        moved = _move(xyz, rpy, '--kinematics', choice, '--data-dir', str(trial_data))
+        moved = _move(xyz, rpy, '--kinematics', choice, '--data-dir', str(data))
         assert moved['moved'] and moved['kinematics'] == label.replace('compensated', 'k-true')
+        assert moved['tool_record'] == tcp_id
         np.testing.assert_allclose(moved['reached'], moved['positions'], atol=1e-12)
         reached = fk(true_tcp, np.array(moved['reached']))
         errors[label] = float(np.linalg.norm(reached[:3, 3] - target[:3, 3]))

@@ -252,11 +252,18 @@ def test_a_pose_goal_is_solved_with_the_active_kinematic_calibration(driver_suit
     model = model_for(cell)
     true_params = np.array(truth.true_parameters)
     target = fk(rig.Rig(cell, model=model).chain('tcp'), cell.home + 0.15)
-    true_tcp = model.chain(true_params, tool=cell.tool_offset)
+    # the mock's truth: its true arm and its TRUE tool (0.25 mm / 3.6 mrad off the cell's),
+    # which the active TCP (an exact one) gives the adapter
+    true_tool = convert.transform_to_matrix(truth.tool_offset_true)
+    true_tcp = model.chain(true_params, tool=true_tool)
     repo = store.open(data / 'adapter', cell=ResultsCell.of(cell))
     record = {'id': 'k-true', 'robot': model.name, 'stamp_ns': 1, 'method': 'test',
               'inputs': {}, 'result': {'parameter_names': list(model.parameter_names),
                                        'params': true_params.tolist()}}
+    assert repo.tcp.save_and_activate({
+        'id': 'tcp-true', 'stamp_ns': 1, 'method': 'tcp-test', 'tool': cell.tool_frame,
+        'inputs': {}, 'result': {'T_flange_tcp': true_tool.tolist(),
+                                 'orientation_method': 'zx'}})
     client = ActionClient(node, MoveTo, 'move_to')
     errors = {}
     try:
@@ -276,6 +283,7 @@ def test_a_pose_goal_is_solved_with_the_active_kinematic_calibration(driver_suit
     finally:
         client.destroy()
         repo.kinematics.retire('k-true')
+        repo.tcp.retire('tcp-true')
     assert errors['compensated'] < 1e-6 and errors['nominal'] > 1e-4, errors
 
 

@@ -1,9 +1,10 @@
-"""tcp_calibrator with mock_robot, joint_state_monitor and user_frame_solver as processes on a
-private domain of their own (cell sawyer_close, temporary data_dir): `cobot-calib tcp` has the
-mock's simulated operator touch P1 from tilted approaches and a z elongator point; the TCP found
-is the mock's TRUE tool (not the cell's nominal one), stored and active for the cell's tool; a
-user frame touched next names that TCP; approaches too alike are refused before anything
-moves; Ctrl-C cancels between touches, nothing stored.
+"""tcp_calibrator with mock_robot, joint_state_monitor, user_frame_solver and proximity_sensor
+as processes on a private domain of their own (cell sawyer_close, temporary data_dir):
+`cobot-calib tcp` has the mock's simulated operator touch P1 from tilted approaches and a z
+elongator point; the TCP found is the mock's TRUE tool (not the cell's nominal one), stored and
+active for the cell's tool; a user frame touched next names that TCP, and is reported stale
+once another TCP is active (history, check, move; move solves for the new one); approaches too
+alike are refused before anything moves; Ctrl-C cancels between touches, nothing stored.
 
 Own suite, not the session's (test/nodes/conftest.py): a second mock_robot on the session's
 domain would answer its hand-guiding.
@@ -21,12 +22,15 @@ import pytest
 
 from cobot_calib_ros import store
 from cobot_calib_ros.api import launcher
+from cobot_calib_ros.core.frames import from_xyz_rpy
+from cobot_calib_ros.core.kinematics import fk, model_for
 from cobot_calib_ros.paths import cell_file
 from cobot_calib_ros.sim.scenario import load_simulation
 from cobot_calib_ros.store.cells import ResultsCell
 from rosutil import cli_command, STOP_TIMEOUT
 
-NODES = ('mock_robot', 'joint_state_monitor', 'tcp_calibrator', 'user_frame_solver')
+NODES = ('mock_robot', 'joint_state_monitor', 'tcp_calibrator', 'user_frame_solver',
+         'proximity_sensor')      # the probe: `check user-frame` touches with it
 CELL = ResultsCell('sawyer_close', 'sawyer')
 SIM = load_simulation(cell_file('sawyer_close'))
 # Through the nominal kinematics (none calibrated here) the arm's own errors add ~0.1 mm to
@@ -92,6 +96,68 @@ def test_a_user_frame_touched_after_names_the_tcp_it_was_touched_with(tcp_suite)
     assert out.returncode == 0 and 'error_code: 0' in out.stdout, out.stdout + out.stderr
     frame = store.open(data, cell=CELL).user_frames.active()
     assert frame['tcp'] == tcp['id'] and frame['kinematics'] == 'nominal'
+
+
+def _cli_json(env, *args) -> tuple[int, dict, str]:
+    out = subprocess.run(cli_command(*args, '--json'), env=env, capture_output=True, text=True,
+                         timeout=300)
+    lines = out.stdout.strip().splitlines()
+    return out.returncode, json.loads(lines[-1]) if lines else {}, out.stdout + out.stderr
+
+
+def test_a_new_active_tcp_makes_the_frame_touched_with_the_old_one_stale_and_move_uses_it(
+        tcp_suite):
+    """Issue 36 must-show 2: the active TCP changes (a recalibrated tool, 0.1 mm along the
+    flange's x); the user frame touched with the old one is reported stale, naming both TCPs
+    and their distance at the tool, by history (JSON), check and move (JSON); move solves for
+    the new TCP and its JSON names it."""
+    _, data, env = tcp_suite
+    repo = store.open(data, cell=CELL)
+    old, frame = repo.tcp.active('tool0'), repo.user_frames.active()
+    assert old is not None and frame is not None, 'run with the two tests above'
+    assert frame['measured_through'] == {'kinematics': 'nominal', 'tcp': old['id']}
+    T_new = np.array(old['result']['T_flange_tcp'])
+    T_new[0, 3] += 1e-4
+    new = {**old, 'id': 'tcp-tool0-recalibrated', 'stamp_ns': old['stamp_ns'] + 1,
+           'result': {**old['result'], 'T_flange_tcp': T_new.tolist()}}
+    assert repo.tcp.save_and_activate(new)
+    try:
+        words = (f'user frame {frame["id"]} was touched with TCP {old["id"]}; the active TCP '
+                 f'{new["id"]} is 0.100 mm away at the tool: touch the frame again, or keep it')
+
+        def check_stale(entries, where):
+            assert [(s['kind'], s['id'], s['was'], s['now'], s['message']) for s in entries
+                    if s['kind'] == 'user_frame'] == [
+                ('user_frame', frame['id'], old['id'], new['id'], words)], where
+            assert entries[0]['change_mm'] == pytest.approx(0.1, abs=1e-6), where
+
+        code, history, text = _cli_json(env, 'history', '--no-plots', '--data-dir', str(data))
+        assert code == 0, text
+        check_stale(history['stale'], text)
+        code, check, text = _cli_json(env, 'check', 'user-frame', '--data-dir', str(data),
+                                      '--robot-cell', 'sawyer_close')
+        assert code in (0, 1) and 'stale' in check, text     # pass or not: it says why
+        check_stale(check['stale'], text)
+        assert f'stale: {words}' in text
+        T_user_tool = from_xyz_rpy(np.array(SIM.cell.marker('P1').nominal_top) + [0, 0, 0.03],
+                                   [math.pi, 0.0, 0.0])
+        xyz, rpy = T_user_tool[:3, 3], [math.pi, 0.0, 0.0]
+        code, moved, text = _cli_json(env, 'move', '--frame', 'user', '--dry-run',
+                                      '--data-dir', str(data), '--robot-cell', 'sawyer_close',
+                                      '--xyz', *[repr(float(v)) for v in xyz],
+                                      '--rpy', *[repr(float(v)) for v in rpy])
+        assert code == 0, text
+        assert moved['tool_record'] == new['id'] and moved['kinematics'] == 'nominal', text
+        check_stale(moved['stale'], text)
+        tool = np.array(SIM.cell.tool_offset)
+        tool[:3, 3] = T_new[:3, 3]
+        if new['result']['orientation_method'] != 'none':   # z measured (the test above)
+            tool = T_new
+        reached = fk(model_for(SIM.cell).chain(tool=tool), np.array(moved['positions']))
+        np.testing.assert_allclose(reached, np.array(frame['result']['T_base_user'])
+                                   @ T_user_tool, atol=1e-9)
+    finally:
+        repo.tcp.activate(old['id'], 'tool0')
 
 
 def test_approaches_too_alike_are_refused_before_anything_moves(tcp_suite):

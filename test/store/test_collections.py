@@ -8,6 +8,7 @@ import pytest
 from cobot_calib_ros.core.kinematics import model_by_name
 from cobot_calib_ros.store.collections import CollectionStore
 from cobot_calib_ros.core.rig import model_chain
+from cobot_calib_ros.store.rigs import kinematics_of
 from cobot_calib_ros.store.kinematics import KinematicStore
 
 PLAN = [{'q': [0.1 * i] * 7, 'target': i % 3} for i in range(6)]
@@ -86,10 +87,10 @@ def test_kinematic_records_resolve_and_build_their_chain(tmp_path):
     assert fresh.resolve('latest', 'iiwa7')['id'] == 'k1' == fresh.resolve('k1', 'iiwa7')['id']
     with pytest.raises(KeyError, match='no kinematic calibration'):
         fresh.resolve('k2', 'iiwa7')
-    chain = model_chain(fresh.resolve('latest', 'iiwa7'), model, np.eye(4))
+    chain = model_chain(kinematics_of(fresh.resolve('latest', 'iiwa7')), model, np.eye(4))
     np.testing.assert_allclose(chain.placements, model.chain(params).placements, atol=0)
     with pytest.raises(ValueError, match="not 'sawyer'"):
-        model_chain(fresh.get('k1'), model_by_name('sawyer'), np.eye(4))
+        model_chain(kinematics_of(fresh.get('k1')), model_by_name('sawyer'), np.eye(4))
     assert KinematicStore(tmp_path / 'empty').resolve('latest', 'iiwa7') is None
 
 

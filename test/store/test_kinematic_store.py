@@ -8,6 +8,7 @@ import pytest
 
 from cobot_calib_ros.core.kinematics import fk, model_by_name
 from cobot_calib_ros.core.rig import model_chain
+from cobot_calib_ros.store.rigs import kinematics_of
 from cobot_calib_ros.store.kinematics import KinematicStore, LATEST, NOMINAL
 
 
@@ -29,11 +30,11 @@ def test_an_iiwa7_calibration_leaves_the_sawyer_on_nominal(tmp_path):
     assert store.resolve(LATEST, 'sawyer') is None      # nominal: the Sawyer has none
     sawyer = model_by_name('sawyer')
     q = np.zeros(len(sawyer.lower))
-    np.testing.assert_array_equal(fk(model_chain(store.resolve(LATEST, 'sawyer'), sawyer, None), q),
+    np.testing.assert_array_equal(fk(model_chain(kinematics_of(store.resolve(LATEST, 'sawyer')), sawyer, None), q),
                                   fk(sawyer.chain(), q))
     assert store.resolve(LATEST, 'iiwa7')['id'] == 'iiwa-1'
     with pytest.raises(ValueError, match="for robot 'iiwa7', not 'sawyer'"):
-        model_chain(store.resolve('iiwa-1', 'sawyer'), sawyer, np.eye(4))   # named: refused
+        model_chain(kinematics_of(store.resolve('iiwa-1', 'sawyer')), sawyer, np.eye(4))   # named: refused
 
 
 def test_the_sawyer_uses_its_own_latest_and_activation_is_per_robot(tmp_path):
@@ -46,7 +47,7 @@ def test_the_sawyer_uses_its_own_latest_and_activation_is_per_robot(tmp_path):
     assert fresh.resolve(NOMINAL, 'sawyer') is None
     sawyer = model_by_name('sawyer')
     q = np.zeros(len(sawyer.lower))
-    np.testing.assert_array_equal(fk(model_chain(fresh.resolve(LATEST, 'sawyer'), sawyer, None), q),
+    np.testing.assert_array_equal(fk(model_chain(kinematics_of(fresh.resolve(LATEST, 'sawyer')), sawyer, None), q),
                                   fk(sawyer.chain(np.asarray(sawyer.nominal) + 2e-4), q))
     fresh.activate('sawyer-1')                                  # the Sawyer's choice ...
     fresh.activate('iiwa-1')                                    # ... survives the iiwa's
