@@ -132,7 +132,7 @@ class FirstDay:
                                   spheres.known_distances())
         outcome = CalibrationJob(self.cell, self.model, data).run()
         activation = self.calibrated.kinematics.save_and_activate(
-            KinematicRecord.from_outcome(outcome))
+            KinematicRecord.from_outcome(outcome, measured_through={}))
         if not activation:
             raise benchlib.BenchFailed(f'{self.cell.name}: identification not activated: '
                                        f'{activation.reason}')
@@ -149,7 +149,8 @@ class FirstDay:
         gate = gate_problem(solution, GateLimits(touch_sigma=TOUCH_SIGMA), self.cell.tool_offset)
         record = TcpRecord.from_solution(solution, self.cell.tool_frame, point, touches.labels,
                                          touches.joints, touches.flange, 0,
-                                         active.active.kinematics_label, 0.52, 0.0, gate)
+                                         active.active.kinematics_label, 0.52, 0.0, gate,
+                                         {'kinematics': active.active.kinematics_label})
         activation = self.calibrated.tcp.save_and_activate(record)
         if not activation:
             raise benchlib.BenchFailed(f'{self.cell.name}: TCP not activated: {gate}')
@@ -171,7 +172,9 @@ class FirstDay:
             fit = user_frame.calibrate('rigid', p_user, p_base, names=names)
             record = UserFrameRecord.from_fit(
                 fit, None, names, p_user, p_base, (self.cell.base_frame, self.cell.user_frame),
-                0, active.active.kinematics_label, tcp=active.active.tcp_label)
+                0, active.active.kinematics_label, tcp=active.active.tcp_label,
+                measured_through={'kinematics': active.active.kinematics_label,
+                                  'tcp': active.active.tcp_label})
             activation = repo.user_frames.save_and_activate(record)
             if not activation:
                 raise benchlib.BenchFailed(f'{self.cell.name}: user frame not activated: '
@@ -240,7 +243,7 @@ def swapped_chain(day: FirstDay, swap: str):
     if swap == 'all':
         return day.arm.true, reference_frame(day.sim)
     params = (day.arm.true_parameters if swap == 'kinematics'
-              else np.array(active.active.kinematics['result']['params'], dtype=float))
+              else active.active.kinematics.params)
     if swap == 'tcp':
         tool = day.sim.true_tool_offset
     elif swap == 'kinematics':
@@ -294,8 +297,8 @@ def errors(day: FirstDay, goals: np.ndarray) -> dict[str, np.ndarray]:
 
     swaps = {f'true_{s}': swapped_chain(day, s) for s in ('kinematics', 'tcp', 'user_frame')}
     swaps['all_true'] = swapped_chain(day, 'all')
-    adapter = rig_of(day.calibrated, day.cell, 'latest', day.model).chain('tcp')
-    T_base_user = move.user_frame(day.calibrated)[0]
+    active = rig_of(day.calibrated, day.cell, 'latest', day.model)
+    adapter, T_base_user = active.chain('tcp'), active.T_base_user()
     for T in goals:
         for label, repo in (('nominal', day.nominal), ('calibrated', day.calibrated)):
             add(label, move.solve(day.cell, repo, T, home, frame='user').q, T)
@@ -320,7 +323,7 @@ def result_errors(day: FirstDay, goals: np.ndarray) -> Figures:
     q = np.array([_solved(active.chain('tcp'), active.T_base_user() @ T, day.cell.home)
                   for T in goals])
     tool = day.sim.true_tool_offset
-    calibrated_k = rig.model_chain(active.active.kinematics, day.model, tool)
+    calibrated_k = day.model.chain(active.active.kinematics.params, tool=tool)
     p_model = kinematics.fk(calibrated_k, q)[:, :3, 3]
     p_true = kinematics.fk(day.arm.true, q)[:, :3, 3]
     registered = frames.apply(register_rigid(p_model, p_true), p_model)
