@@ -19,6 +19,13 @@ registration; the coupling is the tool the sphere calibration identifies.
   calibration cannot see, ``compensation_<robot>_base_offset_mm``, taken out);
 - ``..._tcp_{nominal,compensated}_{max,rms}_mm``: targets for the cell's TCP (the sim's TCP is
   exactly the cell's; the calibration sees it only through the flange it identifies);
+- ``..._compensated_region_registered_{max,rms}_mm``: the coupling registered over the region's
+  own targets (the figure above registers once over the workspace: on the UR10e that base
+  carries the workspace's extrapolation error into the volume);
+- ``..._user_frame_{nominal,compensated}_{max,rms}_mm``: the region's TCP targets given in the
+  user frame (a plant's program), solved through a user frame touched through the same arm
+  (nominal or calibrated, with the mock's true tool: the kinematics alone), scored against the
+  frame the true marker tops define (bench_placement.reference_frame);
 - ``compensation_<robot>_workspace_ratio`` [1]: nominal max / compensated max over the
   workspace (goal >= 10; and compensated max <= 0.1 mm in the volume).
 """
@@ -31,9 +38,11 @@ import numpy as np
 
 from benchlib import Figures
 from bench_identification import sphere_data
+from bench_placement import reference_frame
 from cobot_calib_ros import store
 from cobot_calib_ros.api import move
-from cobot_calib_ros.core import frames, kinematics, rig
+from cobot_calib_ros.core import frames, kinematics, rig, user_frame
+from cobot_calib_ros.core.cell import tool_down_orientation
 from cobot_calib_ros.core.kinematics import plans
 from cobot_calib_ros.core.kinematics.identification import register_rigid
 from cobot_calib_ros.core.kinematics.kinematic_calibration import CalibrationJob
@@ -97,6 +106,48 @@ def errors_mm(robot: SimRobot, repo, region: str, T_true_model: np.ndarray
     return {label: np.array(e) for label, e in errors.items()}
 
 
+def user_frame_errors(robot: SimRobot, repo, region: str) -> dict[str, np.ndarray]:
+    """|true tool - target| [mm] of the region's TCP targets given in the user frame, as a
+    plant's program gives them: each target put in the base by the frame the TRUE marker tops
+    define; solved through a user frame touched (perfectly: the true tool exactly on the true
+    marker tops) and measured through the same chain, the nominal arm or the calibrated one,
+    both with the mock's true tool (this bench measures the kinematics, not the TCP)."""
+    sim, tool = robot.sim, robot.sim.true_tool_offset
+    T_ref = reference_frame(sim)
+    R = tool_down_orientation(sim.world.T_base_user, 'z')
+    touches = np.array([kinematics.solve_ik_with_restarts(
+        robot.true, frames.make_transform(R, p), robot.cell.home, robot.cell.home).q
+        for p in sim.world.true_points_base()])
+    record = rig_of(repo, robot.cell, 'active', robot.model).active.kinematics
+    chains = {'nominal': robot.model.chain(tool=tool),
+              'compensated': robot.model.chain(record.params, tool=tool)}
+    frames_ = {label: user_frame.calibrate(
+        'rigid', robot.cell.nominal_points_user(), kinematics.fk(c, touches)[:, :3, 3],
+        max_rms_error=None).T_base_user for label, c in chains.items()}
+    errors: dict[str, list] = {}
+    nominal_tcp = rig.Rig(robot.cell, model=robot.model).chain('tcp')
+    for step in plans.tracker_plan(robot.cell, robot.model, region, TARGETS, SEEDS[region]):
+        q0 = np.array(step['q'])
+        T_user_tool = frames.invert(T_ref) @ kinematics.fk(nominal_tcp, q0)
+        for label, chain in chains.items():
+            solved = rig.solve_target(chain, T_user_tool, q0, robot.cell.home, frames_[label])
+            reached = kinematics.fk(robot.true, solved.q)[:3, 3]
+            errors.setdefault(f'user_frame_{label}', []).append(
+                np.linalg.norm(reached - (T_ref @ T_user_tool)[:3, 3]) * 1e3)
+    return {label: np.array(e) for label, e in errors.items()}
+
+
+def region_registered_mm(robot: SimRobot, repo, region: str) -> np.ndarray:
+    """|true coupling - calibrated coupling| [mm] at the region's targets after the best rigid
+    registration over those same targets (the base fitted where the error is measured)."""
+    calibrated = rig_of(repo, robot.cell, 'active', robot.model).chain('coupling')
+    q = np.array([s['q'] for s in plans.tracker_plan(robot.cell, robot.model, region,
+                                                      TARGETS, SEEDS[region])])
+    p = kinematics.fk(calibrated, q)[:, :3, 3]
+    t = kinematics.fk(robot.coupling, q)[:, :3, 3]
+    return np.linalg.norm(frames.apply(register_rigid(p, t), p) - t, axis=1) * 1e3
+
+
 def run() -> Figures:
     figures: Figures = {}
     for name, cell in CELLS.items():
@@ -107,7 +158,11 @@ def run() -> Figures:
             figures[f'compensation_{name}_base_offset_mm'] = (
                 float(np.linalg.norm(T_true_model[:3, 3]) * 1e3), 'mm')
             for region in SEEDS:
-                for label, e in errors_mm(robot, repo, region, T_true_model).items():
+                measured = {**errors_mm(robot, repo, region, T_true_model),
+                            **user_frame_errors(robot, repo, region),
+                            'compensated_region_registered': region_registered_mm(
+                                robot, repo, region)}
+                for label, e in measured.items():
                     prefix = f'compensation_{name}_{region}_{label}'
                     figures[f'{prefix}_max_mm'] = (float(e.max()), 'mm')
                     figures[f'{prefix}_rms_mm'] = (float(np.sqrt(np.mean(e ** 2))), 'mm')
