@@ -23,9 +23,10 @@ registration; the coupling is the tool the sphere calibration identifies.
   own targets (the figure above registers once over the workspace: on the UR10e that base
   carries the workspace's extrapolation error into the volume);
 - ``..._user_frame_{nominal,compensated}_{max,rms}_mm``: the region's TCP targets given in the
-  user frame (a plant's program), solved through a user frame touched through the same arm
-  (nominal or calibrated, with the mock's true tool: the kinematics alone), scored against the
-  frame the true marker tops define (bench_placement.reference_frame);
+  user frame (a plant's program), solved through the nominal or the calibrated arm, each with
+  the TCP and the user frame a perfect TCP calibration and perfect touches through that arm
+  give (the kinematics alone, no touch noise), scored against the frame the true marker tops
+  define (bench_placement.reference_frame);
 - ``compensation_<robot>_workspace_ratio`` [1]: nominal max / compensated max over the
   workspace (goal >= 10; and compensated max <= 0.1 mm in the volume).
 """
@@ -109,32 +110,58 @@ def errors_mm(robot: SimRobot, repo, region: str, T_true_model: np.ndarray
 def user_frame_errors(robot: SimRobot, repo, region: str) -> dict[str, np.ndarray]:
     """|true tool - target| [mm] of the region's TCP targets given in the user frame, as a
     plant's program gives them: each target put in the base by the frame the TRUE marker tops
-    define; solved through a user frame touched (perfectly: the true tool exactly on the true
-    marker tops) and measured through the same chain, the nominal arm or the calibrated one,
-    both with the mock's true tool (this bench measures the kinematics, not the TCP)."""
-    sim, tool = robot.sim, robot.sim.true_tool_offset
+    define; solved through the nominal arm or the calibrated one, each with the TCP a perfect
+    calibration through that arm finds (:func:`perfect_tcp`) and a user frame touched perfectly
+    (the true tool exactly on the true marker tops) through that arm and TCP: this bench
+    measures the kinematics, without the touch noise."""
+    sim = robot.sim
     T_ref = reference_frame(sim)
     R = tool_down_orientation(sim.world.T_base_user, 'z')
-    touches = np.array([kinematics.solve_ik_with_restarts(
-        robot.true, frames.make_transform(R, p), robot.cell.home, robot.cell.home).q
-        for p in sim.world.true_points_base()])
+    touches = np.array([_true_ik(robot, frames.make_transform(R, p))
+                        for p in sim.world.true_points_base()])
     record = rig_of(repo, robot.cell, 'active', robot.model).active.kinematics
-    chains = {'nominal': robot.model.chain(tool=tool),
-              'compensated': robot.model.chain(record.params, tool=tool)}
-    frames_ = {label: user_frame.calibrate(
-        'rigid', robot.cell.nominal_points_user(), kinematics.fk(c, touches)[:, :3, 3],
-        max_rms_error=None).T_base_user for label, c in chains.items()}
     errors: dict[str, list] = {}
+    solving = {}
+    for label, params in (('nominal', None), ('compensated', record.params)):
+        chain = robot.model.chain(params, tool=perfect_tcp(robot, params))
+        frame = user_frame.calibrate('rigid', robot.cell.nominal_points_user(),
+                                     kinematics.fk(chain, touches)[:, :3, 3],
+                                     max_rms_error=None).T_base_user
+        solving[label] = chain, frame
     nominal_tcp = rig.Rig(robot.cell, model=robot.model).chain('tcp')
     for step in plans.tracker_plan(robot.cell, robot.model, region, TARGETS, SEEDS[region]):
         q0 = np.array(step['q'])
         T_user_tool = frames.invert(T_ref) @ kinematics.fk(nominal_tcp, q0)
-        for label, chain in chains.items():
-            solved = rig.solve_target(chain, T_user_tool, q0, robot.cell.home, frames_[label])
+        for label, (chain, frame) in solving.items():
+            solved = rig.solve_target(chain, T_user_tool, q0, robot.cell.home, frame)
             reached = kinematics.fk(robot.true, solved.q)[:3, 3]
             errors.setdefault(f'user_frame_{label}', []).append(
                 np.linalg.norm(reached - (T_ref @ T_user_tool)[:3, 3]) * 1e3)
     return {label: np.array(e) for label, e in errors.items()}
+
+
+def _true_ik(robot: SimRobot, T_base_tool: np.ndarray) -> np.ndarray:
+    return kinematics.solve_ik_with_restarts(robot.true, T_base_tool, robot.cell.home,
+                                             robot.cell.home).q
+
+
+def perfect_tcp(robot: SimRobot, params) -> np.ndarray:
+    """T_flange_tcp (the cell tool's orientation) that the TCP calibration's default approaches
+    of P1, touched exactly by the true tool, give through the arm ``params`` (None: nominal):
+    the least-squares tool position t of R_i t + p_i = the true tip (the solve's own equations
+    with the point known); on the iiwa 7 it takes up d_7 / theta_7, which the sphere
+    calibration leaves to the coupling."""
+    from cobot_calib_ros.core.tcp.touches import plan_touches
+    point = frames.apply(robot.sim.world.T_base_user,
+                         robot.sim.world.marker(robot.cell.point_names[0]).true_top)
+    q = np.array([_true_ik(robot, frames.make_transform(R, point))
+                  for R in plan_touches(robot.cell.point_names[0]).orientations])
+    F = kinematics.fk(robot.model.chain(params), q)
+    t = np.linalg.lstsq(F[:, :3, :3].reshape(-1, 3), (point - F[:, :3, 3]).ravel(),
+                        rcond=None)[0]
+    T = np.array(robot.cell.tool_offset, dtype=float)
+    T[:3, 3] = t
+    return T
 
 
 def region_registered_mm(robot: SimRobot, repo, region: str) -> np.ndarray:

@@ -22,7 +22,8 @@ cells, with the same core calls the nodes make:
 
 Then TARGETS tool poses in the user frame (seeded: over the markers' area and 20 mm around it,
 0-50 mm above the table, the tool pointing down tilted up to 30 deg, turned up to 90 deg about
-its axis) are solved from home
+its axis; drawn again where the nominal arm cannot reach one 1 deg inside its joint limits)
+are solved from home
 - through ``move``: api.move.solve(frame='user', kinematics='active'), the code
   `cobot-calib move --frame user` runs;
 - through robot_adapter in driver mode: store.rigs.rig_of(...).chain('tcp') and
@@ -197,21 +198,28 @@ class FirstDay:
         self.T_flange_optical = solved.T_flange_optical
 
 
-def targets(cell, seed: int = TARGET_SEED) -> np.ndarray:
-    """(TARGETS, 4, 4) tool poses in the user frame (module doc)."""
+def targets(cell, model, T_base_user: np.ndarray, seed: int = TARGET_SEED) -> np.ndarray:
+    """(TARGETS, 4, 4) tool poses in the user frame (module doc) that the nominal arm reaches
+    through ``T_base_user`` with its joints 1 deg inside their limits (a program taught on the
+    cell; the others are drawn again)."""
+    from cobot_calib_ros.core.tcp.touches import JOINT_MARGIN
     rng = np.random.default_rng(seed)
     p = cell.nominal_points_user()
     lo, hi = p[:, :2].min(axis=0) - MARGIN, p[:, :2].max(axis=0) + MARGIN
     down = tool_down_orientation(np.eye(4), 'z')
+    chain = rig.Rig(cell, model=model).chain('tcp')
     out = []
-    for _ in range(TARGETS):
+    while len(out) < TARGETS:
         xy = rng.uniform(lo, hi)
         z = p[:, 2].mean() + rng.uniform(0.0, 0.05)
         azimuth = rng.uniform(0.0, 2.0 * np.pi)
         tilt = rng.uniform(0.0, MAX_TILT) * np.array([np.cos(azimuth), np.sin(azimuth), 0.0])
         R = Rotation.from_rotvec(tilt).as_matrix() @ down @ frames.rot_z(
             rng.uniform(-MAX_TURN, MAX_TURN))
-        out.append(frames.make_transform(R, [*xy, z]))
+        T = frames.make_transform(R, [*xy, z])
+        if kinematics.solve_ik_with_restarts(chain, T_base_user @ T, cell.home, cell.home,
+                                             JOINT_MARGIN):
+            out.append(T)
     return np.array(out)
 
 
@@ -353,7 +361,7 @@ def run() -> Figures:
         with tempfile.TemporaryDirectory() as root:
             day = FirstDay(sim, root)
             day.run()
-            goals = targets(sim.cell)
+            goals = targets(sim.cell, day.model, reference_frame(sim))
             for label, e in errors(day, goals).items():
                 figures[f'placement_{name}_{label}_max_mm'] = (float(e.max()), 'mm')
                 figures[f'placement_{name}_{label}_rms_mm'] = (
