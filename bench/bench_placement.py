@@ -42,7 +42,9 @@ sees). Figures [mm]:
   the results measured through it measured again from the same joints (kinematics: the TCP and
   the user frame through the true arm; tcp: the user frame through the true tool;
   user_frame: perfect touches, no touch noise), through robot_adapter's calls, to show which
-  result's error dominates; ``..._all_true_...``: every result true;
+  result's error dominates; ``..._true_nominal_{kinematics,tcp}_...``: the same from the
+  nominal results (what the nominal figure owes to the arm and to the tool);
+  ``..._all_true_...``: every result true;
 - ``..._landed_...``: the same where the arm lands (its repeatability on top; all_true_landed
   is the repeatability alone);
 - ``placement_<robot>_{kinematics,tcp}_error_mm`` and ``..._user_frame_error_{mm,mrad}``: each
@@ -247,9 +249,13 @@ def swapped_chain(day: FirstDay, swap: str):
     'kinematics': the TCP and the user frame through the true arm; 'tcp': the user frame
     through the true tool; 'user_frame': perfect touches, the true tool put exactly on the
     true marker tops, through the calibrated chain; 'all': the truth)."""
-    active = rig_of(day.calibrated, day.cell, 'latest', day.model)
     if swap == 'all':
         return day.arm.true, reference_frame(day.sim)
+    if swap.startswith('nominal'):      # the nominal results, one made true
+        params = day.arm.true_parameters if swap == 'nominal_kinematics' else None
+        tool = day.sim.true_tool_offset if swap == 'nominal_tcp' else day.cell.tool_offset
+        return _touched(day, day.model.chain(params, tool=tool), day.frame_joints)
+    active = rig_of(day.calibrated, day.cell, 'latest', day.model)
     params = (day.arm.true_parameters if swap == 'kinematics'
               else active.active.kinematics.params)
     if swap == 'tcp':
@@ -258,12 +264,15 @@ def swapped_chain(day: FirstDay, swap: str):
         tool = tcp_through(day, params)
     else:
         tool = active.tool('tcp')
-    chain = day.model.chain(params, tool=tool)
-    joints = day.frame_joints if swap != 'user_frame' else perfect_touches(day)
+    return _touched(day, day.model.chain(params, tool=tool),
+                    day.frame_joints if swap != 'user_frame' else perfect_touches(day))
+
+
+def _touched(day: FirstDay, chain, joints: np.ndarray):
+    """(chain, T_base_user of the rigid fit of the touches ``joints`` through it)."""
     p_base = kinematics.fk(chain, joints)[:, :3, 3]
-    fit = user_frame.calibrate('rigid', day.cell.nominal_points_user(), p_base,
-                               max_rms_error=None)
-    return chain, fit.T_base_user
+    return chain, user_frame.calibrate('rigid', day.cell.nominal_points_user(), p_base,
+                                       max_rms_error=None).T_base_user
 
 
 def tcp_through(day: FirstDay, params: np.ndarray) -> np.ndarray:
@@ -303,7 +312,8 @@ def errors(day: FirstDay, goals: np.ndarray) -> dict[str, np.ndarray]:
         out.setdefault(label, []).append(placed)
         out.setdefault(f'{label}_landed', []).append(landed)
 
-    swaps = {f'true_{s}': swapped_chain(day, s) for s in ('kinematics', 'tcp', 'user_frame')}
+    swaps = {f'true_{s}': swapped_chain(day, s)
+             for s in ('kinematics', 'tcp', 'user_frame', 'nominal_kinematics', 'nominal_tcp')}
     swaps['all_true'] = swapped_chain(day, 'all')
     active = rig_of(day.calibrated, day.cell, 'latest', day.model)
     adapter, T_base_user = active.chain('tcp'), active.T_base_user()
