@@ -44,6 +44,8 @@ from cobot_calib_ros import store
 from cobot_calib_ros.api import move
 from cobot_calib_ros.core import frames, kinematics, rig, user_frame
 from cobot_calib_ros.core.cell import tool_down_orientation
+from cobot_calib_ros.core.tcp import solve_position
+from cobot_calib_ros.core.tcp.touches import plan_touches, reachable_plan
 from cobot_calib_ros.core.kinematics import plans
 from cobot_calib_ros.core.kinematics.identification import register_rigid
 from cobot_calib_ros.core.kinematics.kinematic_calibration import CalibrationJob
@@ -141,26 +143,27 @@ def user_frame_errors(robot: SimRobot, repo, region: str) -> dict[str, np.ndarra
 
 
 def _true_ik(robot: SimRobot, T_base_tool: np.ndarray) -> np.ndarray:
-    return kinematics.solve_ik_with_restarts(robot.true, T_base_tool, robot.cell.home,
-                                             robot.cell.home).q
+    """Joints that put the TRUE tool at ``T_base_tool``; BenchFailed when none."""
+    result = kinematics.solve_ik_with_restarts(robot.true, T_base_tool, robot.cell.home,
+                                               robot.cell.home)
+    if not result:
+        raise benchlib.BenchFailed(f'{robot.cell.name}: a perfect touch: {result.message}')
+    return result.q
 
 
 def perfect_tcp(robot: SimRobot, params) -> np.ndarray:
     """T_flange_tcp (the cell tool's orientation) that the TCP calibration's default approaches
-    of P1, touched exactly by the true tool, give through the arm ``params`` (None: nominal):
-    the least-squares tool position t of R_i t + p_i = the true tip (the solve's own equations
-    with the point known); on the iiwa 7 it takes up d_7 / theta_7, which the sphere
+    of P1 (checked for reach, as tcp_calibrator plans them), touched exactly by the true tool,
+    give through the arm ``params`` (None: nominal), by the solve's own position fit
+    (core.tcp.solve_position); on the iiwa 7 it takes up d_7 / theta_7, which the sphere
     calibration leaves to the coupling."""
-    from cobot_calib_ros.core.tcp.touches import plan_touches
-    point = frames.apply(robot.sim.world.T_base_user,
-                         robot.sim.world.marker(robot.cell.point_names[0]).true_top)
-    q = np.array([_true_ik(robot, frames.make_transform(R, point))
-                  for R in plan_touches(robot.cell.point_names[0]).orientations])
-    F = kinematics.fk(robot.model.chain(params), q)
-    t = np.linalg.lstsq(F[:, :3, :3].reshape(-1, 3), (point - F[:, :3, 3]).ravel(),
-                        rcond=None)[0]
+    name = robot.cell.point_names[0]
+    point = frames.apply(robot.sim.world.T_base_user, robot.sim.world.marker(name).true_top)
+    plan = reachable_plan(plan_touches(name), robot.true, point, robot.cell.home,
+                          robot.cell.home)
+    q = np.array([_true_ik(robot, frames.make_transform(R, point)) for R in plan.orientations])
     T = np.array(robot.cell.tool_offset, dtype=float)
-    T[:3, 3] = t
+    T[:3, 3] = solve_position(kinematics.fk(robot.model.chain(params), q)).t
     return T
 
 
