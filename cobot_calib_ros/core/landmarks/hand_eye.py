@@ -152,8 +152,9 @@ def hand_eye_views(cell, model, count: int = 12, seed: int = 0, *,
     board inside the image and an IK solution within the joint limits on the nominal chain
     (``model``'s nominal parameters, camera at ``T_flange_optical``, default the cell's nominal
     hand-eye). ``T_base_user``: where the user frame (the table) is in base, e.g. the active
-    user-frame calibration (required: the cell file does not say). ValueError if the cell has
-    no camera or board, or too few views are found."""
+    user-frame calibration (required: the cell file does not say). A view with none at its
+    planned azimuth is drawn from any (:func:`reachable_view`). ValueError if the cell has no
+    camera or board, or a view cannot be found (naming it and the limit), before any motion."""
     if cell.camera is None or cell.landmarks is None or not cell.landmarks.board:
         raise ValueError(f'cell {cell.name!r} has no wrist camera or no board; add camera: '
                          'and landmarks: board: to the cell file')
