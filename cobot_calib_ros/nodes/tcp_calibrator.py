@@ -36,9 +36,11 @@ from cobot_calib_ros.core.provenance import missing_prerequisites
 from cobot_calib_ros.core.robot_port import CaptureFailed, MoveFailed, Stopped
 from cobot_calib_ros.core.tcp import GateLimits, gate_problem, solve_position, TooAlike
 from cobot_calib_ros.core.kinematics.urdf import rpy_from_matrix
-from cobot_calib_ros.core.tcp.touches import (DEFAULT_APPROACHES, DEFAULT_ELONGATION,
-                                              DEFAULT_TILT, plan_touches, solve_touches,
-                                              take_touches, TcpTouches)
+from cobot_calib_ros.core import frames
+from cobot_calib_ros.core.tcp.touches import (checked_plan, DEFAULT_APPROACHES,
+                                              DEFAULT_ELONGATION, DEFAULT_TILT, plan_touches,
+                                              solve_touches, take_touches, TcpTouches,
+                                              Unreachable)
 from cobot_calib_ros.nodes.job_node import JobNode
 from cobot_calib_ros.ros import convert, spin
 from cobot_calib_ros.ros.diagnostics import OK
@@ -87,14 +89,21 @@ class TcpCalibrator(JobNode):
         rig = self._rig(self._p('kinematics'))
         return rig.chain('flange'), rig.active.kinematics_label
 
-    def _R_reference(self) -> np.ndarray:
-        """The first approach: the tool pointing down the active user frame's z (the cell's
-        touch orientation), the base's without one."""
+    def _user_frame_or_none(self) -> np.ndarray | None:
+        """The active user frame (T_base_user), None without one."""
         try:
-            T = self._rig(self._p('kinematics')).T_base_user()
+            return self._rig(self._p('kinematics')).T_base_user()
         except (KeyError, ValueError):
-            T = np.eye(4)
-        return tool_down_orientation(T, 'z')
+            return None
+
+    def _reachable(self, plan, point: str, tilt: float, T_base_user):
+        """core.tcp.touches.checked_plan through the active kinematics and the cell tool's
+        active TCP (else its nominal tool_offset), the point where the active user frame puts
+        it (unknown without one)."""
+        chain = self._rig(self._p('kinematics')).chain('tcp')
+        p = None if T_base_user is None else frames.apply(
+            T_base_user, self._cell.marker(point).nominal_top)
+        return checked_plan(plan, chain, self._cell.home, tilt, p)
 
     def _run(self, goal_handle):
         goal, result = goal_handle.request, Action.Result()
@@ -116,11 +125,17 @@ class TcpCalibrator(JobNode):
                                  'ORIENTATION_Z (1) or ORIENTATION_ZX (2)')
             if not 0.0 < hold <= 10.0:
                 raise ValueError(f'hold {hold} s: give 0..10 s (0 = the parameter)')
-            plan = plan_touches(point, count, tilt, self._R_reference(),
-                                METHODS[goal.orientation], elongation)
+            T_base_user = self._user_frame_or_none()
+            plan = plan_touches(point, count, tilt, tool_down_orientation(
+                np.eye(4) if T_base_user is None else T_base_user, 'z'),
+                METHODS[goal.orientation], elongation)
+            plan, locate = self._reachable(plan, point, tilt, T_base_user)
             chain, kinematics_used = self._chain()
         except TooAlike as e:
             return self._end(goal_handle, result, Action.Result.TOO_ALIKE, f'planned {e}')
+        except Unreachable as e:
+            return self._end(goal_handle, result, Action.Result.MOTION_FAILED,
+                             f'planned touches of {point}: {e}')
         except (KeyError, ValueError) as e:
             return self._end(goal_handle, result, Action.Result.INVALID_GOAL,
                              str(e).strip("'"))
@@ -141,7 +156,14 @@ class TcpCalibrator(JobNode):
         try:
             touches = take_touches(plan, self._robot, chain, hold,
                                    cancelled=lambda: goal_handle.is_cancel_requested,
-                                   on_touch=on_touch)
+                                   on_touch=on_touch, locate=locate)
+        except TooAlike as e:
+            return self._end(goal_handle, result, Action.Result.TOO_ALIKE,
+                             f'planned from the first touch: {e}; nothing stored')
+        except Unreachable as e:
+            return self._end(goal_handle, result, Action.Result.MOTION_FAILED,
+                             f'planned from where the first touch found {point}: {e}; nothing '
+                             'stored')
         except Stopped as e:
             return self._end(goal_handle, result, Action.Result.CANCELED,
                              f'{e}; nothing stored')

@@ -9,8 +9,9 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from cobot_calib_ros.core.tcp import TcpSolution
-from cobot_calib_ros.core.tcp.touches import (DEFAULT_ELONGATION, DEFAULT_TILT, plan_touches,
-                                              solve_touches, take_touches, TcpPlan, TcpTouches)
+from cobot_calib_ros.core.tcp.touches import (checked_plan, DEFAULT_ELONGATION, DEFAULT_TILT,
+                                              plan_touches, solve_touches, take_touches,
+                                              TcpPlan, TcpTouches)
 from cobot_calib_ros.sim.robot import DirectRobot, SimRobot
 from cobot_calib_ros.sim.scenario import Simulation
 
@@ -36,7 +37,12 @@ def calibrate_tcp(sim: Simulation, seed: int, count: int = 6, tilt: float = DEFA
     chain = arm.model.chain(arm.true_parameters if exact_kinematics else None)
     plan = plan_touches(point or sim.cell.point_names[0], count, tilt, method=method,
                         elongation=elongation)
-    touches = take_touches(plan, robot, chain, HOLD_S)
+    # as tcp_calibrator without a user frame: the touches checked from where the first found
+    # the point, through the arm and the cell's nominal tool
+    tool_chain = arm.model.chain(arm.true_parameters if exact_kinematics else None,
+                                 tool=sim.cell.tool_offset)
+    plan, locate = checked_plan(plan, tool_chain, sim.cell.home, tilt)
+    touches = take_touches(plan, robot, chain, HOLD_S, locate=locate)
     return SimTcp(plan, touches, solve_touches(plan, touches), robot.robot_seconds)
 
 

@@ -132,19 +132,38 @@ def _failure_message(chain: Chain, q: Array, res: _Residual, iterations: int) ->
 
 
 def solve_ik_with_restarts(chain: Chain, T_base_tool_target: ArrayLike, q_seed: ArrayLike,
-                           home: ArrayLike) -> IkResult:
+                           home: ArrayLike, margin: float = 0.0) -> IkResult:
     """:func:`solve_ik` from ``q_seed``, then from ``home`` and from home with the last joint
     turned by -pi/2 and +pi/2: the local solver can stall at a joint limit, typically the
-    wrist's when the tool orientation changes a lot. The first success, else the first failure.
-    """
+    wrist's when the tool orientation changes a lot. The first success at least ``margin``
+    [rad] inside every joint limit, else the first failure (a solution only closer than
+    ``margin`` to a limit fails, its message naming the joints and the limits)."""
     home = np.asarray(home, dtype=float)
     turn = np.zeros_like(home)
     turn[-1] = math.pi / 2
     first = None
     for seed in (q_seed, home, home - turn, home + turn):
         result = solve_ik(chain, T_base_tool_target, seed)
+        if result and margin > 0.0:
+            result = _inside(chain, result, margin)
         if result:
             return result
         if first is None:
             first = result
     return first
+
+
+def _inside(chain: Chain, result: IkResult, margin: float) -> IkResult:
+    """``result`` itself when its joints are ``margin`` [rad] inside their limits, else a
+    failure naming the joints that are closer and their limits."""
+    q = result.q
+    near = [f'{name} {math.degrees(v):.1f} deg (limits {math.degrees(lo):.1f} .. '
+            f'{math.degrees(hi):.1f})'
+            for name, v, lo, hi in zip(chain.joint_names, q, chain.lower, chain.upper)
+            if v < lo + margin or v > hi - margin]
+    if not near:
+        return result
+    return IkResult(q, ErrorCode.MOTION_FAILED, result.position_error,
+                    result.orientation_error, result.iterations,
+                    f'within {math.degrees(margin):.1f} deg of a joint limit: '
+                    + ', '.join(near))

@@ -16,7 +16,7 @@ pose through the nominal hand-eye. Pure: numpy, scipy, OpenCV; no rclpy, message
 """
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 import math
 
@@ -152,8 +152,9 @@ def hand_eye_views(cell, model, count: int = 12, seed: int = 0, *,
     board inside the image and an IK solution within the joint limits on the nominal chain
     (``model``'s nominal parameters, camera at ``T_flange_optical``, default the cell's nominal
     hand-eye). ``T_base_user``: where the user frame (the table) is in base, e.g. the active
-    user-frame calibration (required: the cell file does not say). ValueError if the cell has
-    no camera or board, or too few views are found."""
+    user-frame calibration (required: the cell file does not say). A view with none at its
+    planned azimuth is drawn from any (:func:`reachable_view`). ValueError if the cell has no
+    camera or board, or a view cannot be found (naming it and the limit), before any motion."""
     if cell.camera is None or cell.landmarks is None or not cell.landmarks.board:
         raise ValueError(f'cell {cell.name!r} has no wrist camera or no board; add camera: '
                          'and landmarks: board: to the cell file')
@@ -168,24 +169,42 @@ def hand_eye_views(cell, model, count: int = 12, seed: int = 0, *,
     home = np.asarray(cell.home, dtype=float)
     views: list[Array] = []
     for k in range(count):
-        for _ in range(MAX_ATTEMPTS_PER_VIEW):
-            azimuth = 2.0 * math.pi * (k + rng.uniform(-0.3, 0.3)) / count
+        def draw(anywhere: bool) -> Array:
+            spread = rng.uniform(0.0, count) if anywhere else k + rng.uniform(-0.3, 0.3)
+            azimuth = 2.0 * math.pi * spread / count
             tilt = math.radians(rng.uniform(*TILT_RANGE_DEG))
             roll = math.radians(rng.uniform(*ROLL_RANGE_DEG))
             distance = rng.uniform(*DISTANCE_RANGE)
-            T = view_pose(T_base_board, size, distance, tilt, azimuth, roll)
-            if not board_in_image(frames.invert(T) @ T_base_board, size, camera):
-                continue
-            seed_q = views[-1] if views else home
-            ik = solve_ik_with_restarts(chain, T, seed_q, home)
-            if ik:
-                views.append(np.asarray(ik.q, dtype=float))
-                break
-        else:
-            raise ValueError(f'no reachable view of the board found for view {k + 1} of '
-                             f'{count} in {MAX_ATTEMPTS_PER_VIEW} attempts; check the board '
-                             'placement and T_base_user')
+            return view_pose(T_base_board, size, distance, tilt, azimuth, roll)
+        views.append(reachable_view(draw, T_base_board, size, camera, chain,
+                                    views[-1] if views else home, home,
+                                    f'view {k + 1} of {count}'))
     return views
+
+
+def reachable_view(draw: Callable[[bool], Array], T_base_board: Array,
+                   board_size: tuple[float, float], camera, chain, seed_q: Array, home: Array,
+                   label: str, margin_px: float = IMAGE_MARGIN_PX) -> Array:
+    """Joints [rad] of the first camera pose ``draw`` gives (``draw(False)``: one as planned;
+    ``draw(True)``: from anywhere around the board, tried once MAX_ATTEMPTS_PER_VIEW planned
+    ones failed) that has the whole board in the image and an inverse kinematics solution of
+    ``chain`` within the joint limits (solved from ``seed_q``, then ``home``), checked before
+    the robot moves. ValueError naming ``label`` and the last pose's limit when no pose of
+    2 x MAX_ATTEMPTS_PER_VIEW can be taken."""
+    problem = 'the board was never inside the image'
+    for attempt in range(2 * MAX_ATTEMPTS_PER_VIEW):
+        T = draw(attempt >= MAX_ATTEMPTS_PER_VIEW)
+        if not board_in_image(frames.invert(T) @ T_base_board, board_size, camera, margin_px):
+            continue
+        ik = solve_ik_with_restarts(chain, T, seed_q, home)
+        if ik:
+            return np.asarray(ik.q, dtype=float)
+        problem = (f'camera at {np.round(T[:3, 3], 3).tolist()} m in the base: '
+                   f'{ik.message}')
+    raise ValueError(f'no reachable view of the board found for {label} in '
+                     f'{2 * MAX_ATTEMPTS_PER_VIEW} attempts, from the planned azimuth and '
+                     f'then from any; the last: {problem}; check the board placement, '
+                     'T_base_user and the camera in the cell file')
 
 
 # -- solver ---------------------------------------------------------------------------------

@@ -14,11 +14,9 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from cobot_calib_ros.core import frames
-from cobot_calib_ros.core.kinematics.ik import solve_ik_with_restarts
 from cobot_calib_ros.core.landmarks.detect import BoardDetection, BoardFinder
-from cobot_calib_ros.core.landmarks.hand_eye import (_turn, board_in_image, board_view_setup,
-                                                     MAX_ATTEMPTS_PER_VIEW, view_pose)
+from cobot_calib_ros.core.landmarks.hand_eye import (_turn, board_view_setup, reachable_view,
+                                                     view_pose)
 from cobot_calib_ros.core.landmarks.intrinsics import BoardView, MIN_POINTS
 from cobot_calib_ros.core.landmarks.targets import BoardSpec
 
@@ -36,8 +34,10 @@ def intrinsics_views(cell, model, count: int = 24, seed: int = 0, *,
                      ) -> list[Array]:
     """``count`` joint configurations [rad] whose nominal camera sees the cell's whole board,
     its centre aimed in turn at each cell of a 3 x 3 grid over the image, tilted towards
-    azimuths spread around the board (so that every image region and tilt direction comes up).
-    ValueError if the cell has no camera or board, or a view cannot be found."""
+    azimuths spread around the board (so that every image region and tilt direction comes up);
+    where no view at the planned azimuth is reachable, one from another azimuth
+    (hand_eye.reachable_view). ValueError if the cell has no camera or board, or a view cannot
+    be found (naming it and the joint limit), before anything moves."""
     size, T_base_board, chain, camera = board_view_setup(cell, model, T_base_user,
                                                          T_flange_optical)
     rng = np.random.default_rng(seed)
@@ -50,22 +50,18 @@ def intrinsics_views(cell, model, count: int = 24, seed: int = 0, *,
                                                fy * (camera.height - 1)]])[0], 1.0]
         aim = np.linalg.inv(camera.K) @ aim
         turn = _turn(np.array([0.0, 0.0, 1.0]), aim / np.linalg.norm(aim)).T
-        for _ in range(MAX_ATTEMPTS_PER_VIEW):
-            azimuth = 2.0 * math.pi * (k * 0.382 + rng.uniform(-0.1, 0.1))   # golden steps
-            T = view_pose(T_base_board, size, rng.uniform(*DISTANCE_RANGE),
-                          math.radians(rng.uniform(*TILT_RANGE_DEG)), azimuth,
+
+        def draw(anywhere: bool) -> Array:
+            turns = rng.uniform(0.0, 1.0) if anywhere else k * 0.382 + rng.uniform(-0.1, 0.1)
+            T = view_pose(T_base_board, size, rng.uniform(*DISTANCE_RANGE),     # golden steps
+                          math.radians(rng.uniform(*TILT_RANGE_DEG)), 2.0 * math.pi * turns,
                           math.radians(rng.uniform(*ROLL_RANGE_DEG)))
             T[:3, :3] = T[:3, :3] @ turn
-            if not board_in_image(frames.invert(T) @ T_base_board, size, camera,
-                                  IMAGE_MARGIN_PX):
-                continue
-            ik = solve_ik_with_restarts(chain, T, views[-1] if views else home, home)
-            if ik:
-                views.append(np.asarray(ik.q, dtype=float))
-                break
-        else:
-            raise ValueError(f'no reachable view of the board found for view {k + 1} of '
-                             f'{count}; check the board pose and the camera in the cell file')
+            return T
+        views.append(reachable_view(
+            draw, T_base_board, size, camera, chain, views[-1] if views else home, home,
+            f'view {k + 1} of {count} (the board centre at {fx:.2f}, {fy:.2f} of the image)',
+            IMAGE_MARGIN_PX))
     return views
 
 

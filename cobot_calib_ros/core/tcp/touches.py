@@ -21,7 +21,7 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from cobot_calib_ros.core import kinematics
+from cobot_calib_ros.core import frames, kinematics
 from cobot_calib_ros.core.frames import Rotation
 from cobot_calib_ros.core.robot_port import Approach, Cancelled, check_cancel, never, RobotPort
 from cobot_calib_ros.core.tcp.solve import check_determined, solve_tcp, TcpSolution
@@ -33,6 +33,20 @@ DEFAULT_ELONGATION = 0.05     # [m]
 MAX_TILT = math.radians(60.0)
 ELONGATOR_AXES = {'none': (), 'z': ('z',), 'zx': ('z', 'x')}
 SIGNS = {'z': -1.0, 'x': 1.0}     # z: back up the tool's axis, clear of the table
+# The robot (or the operator) solves each touch through the real arm and tool, which differ
+# from the planning chain by millimetres: a planned touch keeps its joints this far inside
+# their limits, so the real one is inside them too.
+JOINT_MARGIN = math.radians(1.0)
+# Alternatives for an approach that cannot be reached, in order of preference: the azimuth of
+# its tilt moved by these fractions of the spacing between approaches, and the tool turned
+# about its own axis (which moves the wrist, not the flange) by these angles [rad].
+AZIMUTH_SHIFTS = (0.0, 0.25, -0.25, 0.5, -0.5, 0.75, -0.75, 1.0, -1.0, 1.5, -1.5)
+ROLLS = (0.0, math.pi / 2, -math.pi / 2, math.pi)
+
+
+class Unreachable(ValueError):
+    """A planned pose the arm cannot take (inverse kinematics, joint limits), found before
+    anything moves; the message names the pose and the limit."""
 
 
 @dataclass(frozen=True)
@@ -69,14 +83,90 @@ def plan_touches(point: str, count: int = DEFAULT_APPROACHES, tilt: float = DEFA
     if method != 'none' and not 0.005 <= elongation <= 0.3:
         raise ValueError(f'elongation {elongation * 1e3:.1f} mm: give 5..300 mm')
     R0 = np.diag([1.0, -1.0, -1.0]) if R_reference is None else np.asarray(R_reference, float)
-    orientations = [R0]
-    for k in range(count - 1):
-        azimuth = 2.0 * math.pi * k / (count - 1)
-        axis = np.array([math.cos(azimuth), math.sin(azimuth), 0.0])
-        orientations.append(Rotation.from_rotvec(tilt * axis).as_matrix() @ R0)
+    orientations = [R0] + [_tilted(R0, tilt, 2.0 * math.pi * k / (count - 1))
+                           for k in range(count - 1)]
     check_determined(orientations)
     return TcpPlan(point, tuple(orientations),
                    tuple((axis, SIGNS[axis] * elongation) for axis in ELONGATOR_AXES[method]))
+
+
+def _tilted(R0: Array, tilt: float, azimuth: float, roll: float = 0.0) -> Array:
+    """``R0`` tilted by ``tilt`` [rad] about the horizontal axis at ``azimuth`` [rad], the tool
+    turned by ``roll`` [rad] about its own z first."""
+    axis = np.array([math.cos(azimuth), math.sin(azimuth), 0.0])
+    return Rotation.from_rotvec(tilt * axis).as_matrix() @ R0 @ frames.rot_z(roll)
+
+
+def reachable_plan(plan: TcpPlan, chain: kinematics.Chain, point_base: ArrayLike,
+                   q_start: ArrayLike, home: ArrayLike, tilt: float = DEFAULT_TILT,
+                   margin: float = JOINT_MARGIN, taken: int = 0) -> TcpPlan:
+    """``plan`` with every touch checked, in order, for an inverse kinematics solution of
+    ``chain`` (the arm through the tool, as planned: nominal or calibrated) with the tip at
+    ``point_base`` (3,) [m, base] (or the elongator point) and the joints ``margin`` [rad]
+    inside their limits, each solved from the last (from ``q_start`` [rad], the arm's joints
+    now), as the robot goes from touch to touch. A tilted approach that cannot be reached is
+    replaced by the first of its alternatives that can (AZIMUTH_SHIFTS of its tilt's azimuth,
+    ROLLS of the tool about its axis); the first approach and the elongator touches may only
+    turn about the tool axis. Unreachable (a ValueError) naming the touch and the joint limit
+    when one has no reachable alternative, or TooAlike when the alternatives left the plan
+    undetermined: before anything moves. ``taken``: the first approaches already touched,
+    kept as they are (``q_start``: the joints at the last of them)."""
+    p = np.asarray(point_base, dtype=float)
+    home = np.asarray(home, dtype=float)
+    R0 = plan.orientations[0]
+    count = len(plan.orientations)
+    spacing = 2.0 * math.pi / max(count - 1, 1)
+    q = np.asarray(q_start, dtype=float)
+    chosen: list[Array] = list(plan.orientations[:taken])
+    for i in range(taken, count):
+        if i == 0:
+            options = [R0 @ frames.rot_z(roll) for roll in ROLLS]
+        else:
+            azimuth = spacing * (i - 1)
+            options = [_tilted(R0, tilt, azimuth + shift * spacing, roll)
+                       for shift in AZIMUTH_SHIFTS for roll in ROLLS]
+        R, q = _first_reachable(options, chain, p, q, home, margin, f'approach {i + 1}')
+        chosen.append(R)
+    for axis, d in plan.elongators:
+        R, q = _first_reachable([chosen[0]], chain, p + d * chosen[0][:, 'xyz'.index(axis)], q,
+                                home, margin, f'{axis} elongator')
+    check_determined(chosen)
+    return TcpPlan(plan.point, tuple(chosen), plan.elongators)
+
+
+def checked_plan(plan: TcpPlan, chain: kinematics.Chain, home: ArrayLike,
+                 tilt: float = DEFAULT_TILT, point_base: ArrayLike | None = None
+                 ) -> tuple[TcpPlan, Callable[[TcpPlan, Array], TcpPlan] | None]:
+    """How a TCP calibration checks its touches for the arm's reach (``chain``: the arm
+    through the tool as known: the active kinematics and TCP, else nominal): with the point's
+    position known (``point_base`` (3,) [m]: the active user frame's), (the plan checked by
+    :func:`reachable_plan` before anything moves, None); else (``plan``, the ``locate`` of
+    :func:`take_touches` that checks the rest from where the first touch, the operator's own
+    straight-down approach, found the point). Unreachable / TooAlike as reachable_plan."""
+    home = np.asarray(home, dtype=float)
+    if point_base is not None:
+        return reachable_plan(plan, chain, point_base, home, home, tilt), None
+
+    def locate(plan_: TcpPlan, q: Array) -> TcpPlan:
+        tip = kinematics.fk(chain, q)[:3, 3]
+        return reachable_plan(plan_, chain, tip, q, home, tilt, taken=1)
+    return plan, locate
+
+
+def _first_reachable(options: list[Array], chain: kinematics.Chain, p: Array, q: Array,
+                     home: Array, margin: float, label: str) -> tuple[Array, Array]:
+    """(orientation, joints [rad]) of the first of ``options`` whose tool pose at ``p`` the
+    arm reaches; Unreachable naming ``label`` and the first option's failure."""
+    first = None
+    for R in options:
+        ik = kinematics.solve_ik_with_restarts(chain, frames.make_transform(R, p), q, home,
+                                               margin)
+        if ik:
+            return R, np.asarray(ik.q, dtype=float)
+        first = first or ik
+    raise Unreachable(
+        f'{label}: no reachable tool orientation among {len(options)} tried (the planned one: '
+        f'{first.message}); touch another point (--point) or give a smaller tilt; nothing moved')
 
 
 @dataclass
@@ -91,13 +181,22 @@ class TcpTouches:
 
 def take_touches(plan: TcpPlan, robot: RobotPort, chain: kinematics.Chain, hold: float,
                  cancelled: Cancelled = never,
-                 on_touch: Callable[[int, TcpTouches], None] | None = None) -> TcpTouches:
+                 on_touch: Callable[[int, TcpTouches], None] | None = None,
+                 locate: Callable[[TcpPlan, Array], TcpPlan] | None = None) -> TcpTouches:
     """Touch every step of ``plan``, hold ``hold`` [s], capture the joints and take the flange
-    pose by ``chain`` (a chain ending at the flange). Stopped on a cancel between touches;
-    MoveFailed / CaptureFailed from the robot as they come."""
+    pose by ``chain`` (a chain ending at the flange). ``locate``: for a point whose position
+    was not known when planning, called once after the first touch with the plan and the
+    joints [rad] there; the remaining touches follow the plan it returns (e.g.
+    :func:`reachable_plan` from where the first touch found the point; its Unreachable ends the
+    run before the second touch). Stopped on a cancel between touches; MoveFailed /
+    CaptureFailed from the robot as they come."""
     touches = TcpTouches()
     steps = plan.steps()
-    for i, (label, approach) in enumerate(steps):
+    for i in range(len(steps)):
+        if i == 1 and locate is not None:
+            plan = locate(plan, touches.joints[0])
+            steps = plan.steps()
+        label, approach = steps[i]
         check_cancel(cancelled, f'touch {i + 1} of {len(steps)} ({label})')
         robot.touch(plan.point, approach)
         q = robot.capture(hold).q
