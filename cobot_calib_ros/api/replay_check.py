@@ -35,6 +35,7 @@ from typing import Callable
 import numpy as np
 
 from cobot_calib_ros.api import replay_harness
+from cobot_calib_ros.core.errors import ErrorCode
 from cobot_calib_ros.core.frames import transform_error
 from cobot_calib_ros.ros.marks import CAPTURES_TOPIC
 from cobot_calib_ros.ros.time import header_ns, s_to_ns
@@ -107,8 +108,8 @@ def read_expected(bag_path: str | os.PathLike) -> tuple[Path, dict]:
 
 
 @dataclass
-class CheckResult:
-    ok: bool
+class CheckResult(replay_harness.Verdict):
+    code: ErrorCode                 # replay_harness.Verdict: SUCCESS or IMPLAUSIBLE_FIT
     translation_m: float
     rotation_rad: float
     T_replayed: np.ndarray
@@ -134,11 +135,11 @@ def run_check(bag_path: str, rate: float = 0.0, say: Callable[[str], None] = pri
         T, rms, marks = _replay_and_calibrate(bag, expected, rate, clock_hz, say, recapture,
                                               holds)
     dt, dr = transform_error(T, expected['T_base_user'])
-    ok = dt < TOL_M and dr < TOL_RAD
+    code = replay_harness.verdict(dt < TOL_M and dr < TOL_RAD)
     say(f'replayed {marks} captures from {bag_path}; {expected.get("method", "rigid")} frame '
         f'vs {expected_path}: translation differs by {dt:.3e} m (tolerance {TOL_M:g}), '
         f'rotation by {dr:.3e} rad (tolerance {TOL_RAD:g})')
-    return CheckResult(ok, dt, dr, T, expected['T_base_user'], rms, marks,
+    return CheckResult(code, dt, dr, T, expected['T_base_user'], rms, marks,
                        time.monotonic() - started)
 
 

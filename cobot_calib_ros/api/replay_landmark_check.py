@@ -43,6 +43,7 @@ from typing import Callable
 import numpy as np
 
 from cobot_calib_ros.api import replay_check, replay_harness
+from cobot_calib_ros.core.errors import ErrorCode
 from cobot_calib_ros.ros.marks import CAPTURES_TOPIC as MARKS_TOPIC
 from cobot_calib_ros.ros.time import header_ns
 
@@ -143,8 +144,8 @@ def is_landmark_bag(bag) -> bool:
 
 
 @dataclass
-class LandmarkCheckResult:
-    ok: bool
+class LandmarkCheckResult(replay_harness.Verdict):
+    code: ErrorCode                 # replay_harness.Verdict: SUCCESS or IMPLAUSIBLE_FIT
     translation_m: float
     rotation_rad: float
     T_replayed: np.ndarray
@@ -196,7 +197,8 @@ def run_check(bag_path: str, rate: float = DEFAULT_RATE, say: Callable[[str], No
                     method=method)
     T = np.asarray(fit.fit.M, dtype=float)
     dt, dr = transform_error(T, expected['T_base_user'])
-    ok = bool(dt <= TOL_M and dr <= TOL_RAD and np.isfinite(dt) and np.isfinite(dr))
+    code = replay_harness.verdict(bool(dt <= TOL_M and dr <= TOL_RAD and np.isfinite(dt)
+                                       and np.isfinite(dr)))
     report = (f'replayed {len(needed)} images through landmark_detector ({passes} pass'
               f'{"es" if passes > 1 else ""}), {len(marks)} views paired'
               + (f' ({len(differs)} with another image than the live solver: marks {differs})'
@@ -205,19 +207,20 @@ def run_check(bag_path: str, rate: float = DEFAULT_RATE, say: Callable[[str], No
               f'translation differs by {dt:.3e} m (tolerance {TOL_M:g}), rotation by '
               f'{dr:.3e} rad (tolerance {TOL_RAD:g})')
     say(report)
-    return LandmarkCheckResult(ok, dt, dr, T, expected['T_base_user'], float(fit.fit.rms),
+    return LandmarkCheckResult(code, dt, dr, T, expected['T_base_user'], float(fit.fit.rms),
                                float(expected.get('rms_residual', float('nan'))), len(marks),
                                len(needed), passes, differs, time.monotonic() - started, report)
 
 
 def check(bag_path: str, rate: float | None = None, say: Callable[[str], None] = print
-          ) -> tuple[bool, str]:
-    """(ok, report) for the CLI; CheckError when the check cannot run."""
+          ) -> LandmarkCheckResult:
+    """The result for the CLI, its report with both matrices when it failed; CheckError when
+    the check cannot run."""
     result = run_check(bag_path, DEFAULT_RATE if rate is None else rate, say=say)
-    if not result.ok:
-        return False, (result.report + '\n  replayed:\n' + format_matrix(result.T_replayed)
-                       + '\n  expected:\n' + format_matrix(result.T_expected))
-    return True, result.report
+    if not result:
+        result.report += ('\n  replayed:\n' + format_matrix(result.T_replayed)
+                          + '\n  expected:\n' + format_matrix(result.T_expected))
+    return result
 
 
 def format_matrix(T: np.ndarray) -> str:

@@ -45,6 +45,7 @@ from typing import Callable
 import numpy as np
 
 from cobot_calib_ros.api import replay_check, replay_harness
+from cobot_calib_ros.core.errors import ErrorCode
 from cobot_calib_ros.ros import marks
 from cobot_calib_ros.ros.time import header_ns
 
@@ -183,8 +184,8 @@ def is_trial_bag(bag) -> bool:
 
 
 @dataclass
-class TrialCheckResult:
-    ok: bool
+class TrialCheckResult(replay_harness.Verdict):
+    code: ErrorCode                 # replay_harness.Verdict: SUCCESS or IMPLAUSIBLE_FIT
     rp_replayed: np.ndarray         # [m]
     rp_all_replayed: float          # [m]
     rp_expected: np.ndarray
@@ -248,13 +249,13 @@ def run_check(bag_path: str, rate: float = DEFAULT_RATE, say: Callable[[str], No
                              f'{stats.rp.size}')
         diffs += [np.max(np.abs(stats.rp - rp_rec)), abs(stats.rp_all - rp_all_rec)]
     worst = float(max(diffs))
-    ok = bool(np.isfinite(worst) and worst <= TOL_M)
+    code = replay_harness.verdict(bool(np.isfinite(worst) and worst <= TOL_M))
     say(f'rebuilt {len(marks)} probe averages from {len(samples)} replayed readings, all equal '
         f'to the live ones; {len(expected["readings"])} trial readings, {stats.cycles} cycles: '
         f'RP_all {stats.rp_all * 1e3:.6f} mm vs {rp_all_exp * 1e3:.6f} mm in {expected_path}'
         + (f' and {rp_all_rec * 1e3:.6f} mm recorded on {STATS_TOPIC}' if recorded else '')
         + f'; largest difference {worst:.3e} m (tolerance {TOL_M:g})')
-    return TrialCheckResult(ok, stats.rp, float(stats.rp_all), rp_exp, rp_all_exp, rp_rec,
+    return TrialCheckResult(code, stats.rp, float(stats.rp_all), rp_exp, rp_all_exp, rp_rec,
                             rp_all_rec, worst, len(marks), len(expected['readings']),
                             len(samples), time.monotonic() - started)
 
