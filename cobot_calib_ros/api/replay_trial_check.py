@@ -2,9 +2,10 @@
 
 A trial bag (bags/make_trial_bag.py, bags/trial_close) holds the raw probe output
 ``/probe/voltage``, proximity_sensor's mark of every probe/average it served on
-``/cobot_calib/probe_averages`` (MARKS_TOPIC: window start t0 as header.stamp, the window's
-duration, the response and the stamps of the readings it averaged, see
-nodes/proximity_sensor.py) and the live, latched
+``/cobot_calib/probe_averages`` (MARKS_TOPIC, cobot_calib_msgs/ProbeAverageMark, ros.marks:
+window start t0 as header.stamp, the window's duration, the response and the stamps of the
+readings it averaged; the sample bag's JointState marks are read through bags.mark_converter)
+and the live, latched
 ``/repeatability``; next to it ``expected.yaml``: the trial (method, axis, cycles, points), the
 probe's calibration table, the final live statistics (``rp``, ``rp_all``, ``mean_distance``,
 ``mean_deviation``, ``sigma`` [m]) and ``readings``: for each (cycle, point) of the trial the
@@ -69,16 +70,11 @@ CheckError = replay_check.CheckError
 Mark = marks.AverageMark
 
 
-def mark_of(msg) -> Mark:
-    """A MARKS_TOPIC message as a Mark (ros.marks.read_average_mark); CheckError if malformed."""
-    try:
-        return marks.read_average_mark(msg)
-    except ValueError as exc:
-        raise CheckError(str(exc)) from None
-
-
 def read_marks(bag) -> list[Mark]:
-    return [mark_of(bag.deserialize(m.rawdata, m.msgtype)) for m in bag.messages([MARKS_TOPIC])]
+    """The bag's MARKS_TOPIC messages as Marks (ros.marks.read_average_mark; an old bag's
+    JointState marks come converted, bags.mark_converter)."""
+    return [marks.read_average_mark(bag.deserialize(m.rawdata, m.msgtype))
+            for m in bag.messages([MARKS_TOPIC])]
 
 
 def bag_samples(bag, table: dict) -> list[tuple[int, float, int]]:

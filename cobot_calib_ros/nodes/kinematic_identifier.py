@@ -20,11 +20,10 @@ import sys
 from time import monotonic
 
 from cobot_calib_msgs.action import CollectSphereData, IdentifyKinematics
-from cobot_calib_msgs.msg import CollectionProgress, ErrorStats
+from cobot_calib_msgs.msg import CaptureMark, CollectionProgress, ErrorStats
 import numpy as np
 from rclpy.action import ActionServer, CancelResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
-from sensor_msgs.msg import JointState
 from std_msgs.msg import Header, String
 from visualization_msgs.msg import MarkerArray
 
@@ -45,7 +44,7 @@ from cobot_calib_ros.bags.errors import BagError
 from cobot_calib_ros.core.ids import record_id
 from cobot_calib_ros.core.rig import Rig
 from cobot_calib_ros.loaders import sources
-from cobot_calib_ros.ros import markers, marks, qos, results, spin
+from cobot_calib_ros.ros import markers, marks, qos, spin
 from cobot_calib_ros.ros.diagnostics import OK, WARN
 from cobot_calib_ros.ros.params import declare, read_once
 from cobot_calib_ros.ros.robot_calls import RobotCalls
@@ -73,7 +72,7 @@ class KinematicIdentifier(JobNode):
         self._health.watch(capture_retries=lambda: self._robot.capture_retries)
         self._health.set(OK, 'idle', job='')
         # every recorded pose, for recording a session (cobot-calib record); frame_id = target
-        self._captures = self.create_publisher(JointState, marks.CAPTURES, 100)
+        self._captures = self.create_publisher(CaptureMark, marks.CAPTURES, 100)
         # the live view: sphere centres and the coupling positions collected on them
         self._markers = self.create_publisher(MarkerArray, markers.TOPIC, markers.QOS)
         # every stored pose's progress and prediction, to echo, record and plot

@@ -23,11 +23,10 @@ import math
 import threading
 import time
 
-from cobot_calib_msgs.msg import ProbeVoltage, ProximityReading
+from cobot_calib_msgs.msg import ProbeAverageMark, ProbeVoltage, ProximityReading
 from cobot_calib_msgs.srv import AverageProximity
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
-from sensor_msgs.msg import JointState
 
 from cobot_calib_ros.core.errors import ErrorCode
 from cobot_calib_ros.core.sensors.probe import (average, average_window, curve_from_lists,
@@ -70,7 +69,7 @@ class ProximitySensor(Node):
         # cost 8-11 % of a core at 200 Hz (issue 23)
         self._reader = BatchReader(self, 'voltage', ProbeVoltage, 'probe/voltage',
                                    qos.PROBE_READINGS, self._on_voltages)
-        self._marks = self.create_publisher(JointState, marks.PROBE_AVERAGES, 100)
+        self._marks = self.create_publisher(ProbeAverageMark, marks.PROBE_AVERAGES, 100)
         self.create_service(AverageProximity, 'probe/average', self._on_average)
         self.get_logger().info(
             f'probe range {self._curve.min_range * 1e3:.2f}-{self._curve.max_range * 1e3:.2f} mm')
