@@ -113,7 +113,7 @@ class Bag:
         for topic, msgtype in mark_converter.legacy_topics(self.topics).items():
             info = self.topics[topic]
             info.converted_from, info.type = info.type, msgtype
-            info.type_hash, info.definition = '', None
+            info.type_hash, info.definition = interfaces.installed_type_hash(msgtype), None
             self._converters[topic] = None
 
     # -- public ---------------------------------------------------------------------------------
