@@ -27,6 +27,7 @@ from cobot_calib_ros.ros.params import read_once
 from cobot_calib_ros.store.cells import ResultsCell
 from cobot_calib_ros.store.rigs import rig_of
 
+
 def parse_user_frame(text: str) -> np.ndarray | None:
     """``"x y z roll pitch yaw"`` [m, rad] -> T_base_user; None for ''; ValueError else."""
     if not text.strip():
