@@ -5,10 +5,12 @@ The suite (mock_robot at 200 Hz, joint_state_monitor, user_frame_solver with the
 kinematic model and a temporary data_dir) runs on a private ROS_DOMAIN_ID. This process
 records ``/joint_states`` (raw bytes, receive stamps) with bags.writer.BagWriter (mcap, zstd),
 touches P1..P5 with the mock (move_to TOUCH), captures each with ``capture_joints`` (HOLD s),
-writes each capture as a mark on ``/cobot_calib/captures`` (sensor_msgs/JointState: header
-stamp = end of the hold, frame_id = point name, name/position = the captured mean, effort = its
-standard deviation, velocity zeros), then calls ``calibrate_user_frame`` (rigid, joint_captures) and writes the
-live result on ``/user_frame`` (latched) and in ``expected.yaml``.
+writes each capture as a mark on ``/cobot_calib/captures`` (cobot_calib_msgs/CaptureMark,
+ros.marks.capture_mark: header stamp = end of the hold, target = point name, the captured mean
+joints and their standard deviation; the bag kept here was made before that message and has
+sensor_msgs/JointState marks, read through bags.mark_converter), then calls
+``calibrate_user_frame`` (rigid, joint_captures) and writes the live result on ``/user_frame``
+(latched) and in ``expected.yaml``.
 
 ``--force`` replaces an existing bag. Run from anywhere; uses .venv's python.
 """
@@ -65,7 +67,8 @@ def make(out: Path, tmp: Path, domain: int) -> None:
 
     from cobot_calib_ros.ros.calls import call_service, spin_until
     from cobot_calib_ros.ros.session import session
-    from cobot_calib_ros.ros.time import ns_to_stamp, s_to_ns
+    from cobot_calib_ros.ros import marks
+    from cobot_calib_ros.ros.time import s_to_ns
     from cobot_calib_ros.api.launcher import NodeSpec, Suite
     from cobot_calib_ros import paths
     from cobot_calib_ros.bags import metadata
@@ -104,7 +107,7 @@ def make(out: Path, tmp: Path, domain: int) -> None:
     writer = BagWriter(out, compression='zstd')
     try:
         writer.add_topic('/joint_states', 'sensor_msgs/msg/JointState', [metadata.qos()])
-        writer.add_topic(replay_check.CAPTURES_TOPIC, 'sensor_msgs/msg/JointState',
+        writer.add_topic(replay_check.CAPTURES_TOPIC, marks.CAPTURE_TYPE,
                          [metadata.qos()])
         writer.add_topic('/user_frame', 'cobot_calib_msgs/msg/UserFrameCalibration',
                          [metadata.qos(durability='transient_local')])
@@ -143,21 +146,18 @@ def make(out: Path, tmp: Path, domain: int) -> None:
             end_ns = start_ns + s_to_ns(HOLD)
             if res.error_code != CaptureJoints.Response.SUCCESS:
                 raise SystemExit(f'capture {name}: {res.message}')
-            mark = JointState(name=list(res.name), position=list(res.position),
-                              velocity=[0.0] * len(res.name), effort=list(res.std))
-            mark.header.frame_id = name
-            mark.header.stamp = ns_to_stamp(end_ns)
+            mark = marks.capture_mark(name, res.name, res.position, res.std, end_ns)
             captures.append(mark)
             spin_until(node, lambda: False, SETTLE, executor)
             recording[0] = False
-            writer.write(replay_check.CAPTURES_TOPIC, cdr(mark, 'sensor_msgs/msg/JointState'),
+            writer.write(replay_check.CAPTURES_TOPIC, cdr(mark, marks.CAPTURE_TYPE),
                          end_ns, end_ns)
             # (written after the hold's samples: mcap orders by log time when read)
             print(f'{name}: {res.sample_count} samples, largest spread '
                   f'{max(res.std) * 1e6:.2f} urad', flush=True)
         request = CalibrateUserFrame.Request(
             method=METHOD, point_names=POINTS, kinematics=KINEMATICS,
-            joint_captures=[JointState(name=list(c.name), position=list(c.position))
+            joint_captures=[JointState(name=list(c.joint_names), position=list(c.position_rad))
                             for c in captures])
         res = call_service(node, calibrate, request, 60.0, executor)
         if res.error_code != CalibrateUserFrame.Response.SUCCESS:

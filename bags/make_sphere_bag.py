@@ -2,9 +2,10 @@
 
 A sphere-coupling session on the mock iiwa 7 (cell iiwa7_close): ``cobot-calib up`` runs the
 suite on a private ROS_DOMAIN_ID with a temporary data_dir, ``cobot-calib record`` records
-``/cobot_calib/captures`` (every pose kinematic_identifier records: sensor_msgs/JointState,
-frame_id = sphere name, position = the joints averaged over the hold, effort = their standard
-deviation), and ``cobot-calib identify --attach`` collects POSES of the 3 x 625 grid and
+``/cobot_calib/captures`` (every pose kinematic_identifier records: cobot_calib_msgs/CaptureMark,
+target = sphere name, the joints averaged over the hold and their standard deviation; the bag
+kept here was made before that message and has sensor_msgs/JointState marks, read through
+bags.mark_converter), and ``cobot-calib identify --attach`` collects POSES of the 3 x 625 grid and
 identifies. Its JSON report, with the ``cell``, is stored as ``expected.json``: ``cobot-calib
 replay bags/iiwa_spheres --check`` (and ``identify --source bags/iiwa_spheres``) must give the
 same parameters from the bag.

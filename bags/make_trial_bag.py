@@ -6,8 +6,10 @@ ROS_DOMAIN_ID (domain_coordinator, ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST) with
 data_dir; ``cobot-calib record --compress zstd`` records:
 
 - ``/probe/voltage`` (cobot_calib_msgs/ProbeVoltage): the raw probe output (mock, 200 Hz);
-- ``/cobot_calib/probe_averages`` (sensor_msgs/JointState): proximity_sensor's mark of every
-  probe/average it served (window start, duration, the response; nodes/proximity_sensor.py);
+- ``/cobot_calib/probe_averages`` (cobot_calib_msgs/ProbeAverageMark, ros.marks):
+  proximity_sensor's mark of every probe/average it served (window start, duration, the
+  response, the readings' stamps; the bag kept here was made before that message and has
+  sensor_msgs/JointState marks, read through bags.mark_converter);
 - ``/repeatability`` (cobot_calib_msgs/Repeatability, latched): the live statistics after each
   cycle;
 

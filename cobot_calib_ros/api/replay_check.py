@@ -1,8 +1,9 @@
 """`cobot-calib replay BAG --check`: replay a teach bag through the suite, compare the frame.
 
 A teach bag (bags/make_sample_bags.py) holds ``/joint_states``, the teach's captures as marks
-on ``/cobot_calib/captures`` (sensor_msgs/JointState: header.stamp = end of the hold,
-header.frame_id = point name, name/position = the captured mean) and the live ``/user_frame``;
+on ``/cobot_calib/captures`` (cobot_calib_msgs/CaptureMark, ros.marks: header.stamp = end of
+the hold, target = point name, the captured mean joints; the sample bag's JointState marks are
+read through bags.mark_converter) and the live ``/user_frame``;
 next to it ``expected.yaml`` (T_base_user, rms_residual, method, kinematics, point_names).
 
 The check starts joint_state_monitor and user_frame_solver on a private ROS_DOMAIN_ID
@@ -35,6 +36,7 @@ from typing import Callable
 import numpy as np
 
 from cobot_calib_ros.api import replay_harness
+from cobot_calib_ros.core.errors import ErrorCode
 from cobot_calib_ros.core.frames import transform_error
 from cobot_calib_ros.ros.marks import CAPTURES_TOPIC
 from cobot_calib_ros.ros.time import header_ns, s_to_ns
@@ -107,8 +109,8 @@ def read_expected(bag_path: str | os.PathLike) -> tuple[Path, dict]:
 
 
 @dataclass
-class CheckResult:
-    ok: bool
+class CheckResult(replay_harness.Verdict):
+    code: ErrorCode                 # replay_harness.Verdict: SUCCESS or IMPLAUSIBLE_FIT
     translation_m: float
     rotation_rad: float
     T_replayed: np.ndarray
@@ -134,11 +136,11 @@ def run_check(bag_path: str, rate: float = 0.0, say: Callable[[str], None] = pri
         T, rms, marks = _replay_and_calibrate(bag, expected, rate, clock_hz, say, recapture,
                                               holds)
     dt, dr = transform_error(T, expected['T_base_user'])
-    ok = dt < TOL_M and dr < TOL_RAD
+    code = replay_harness.verdict(dt < TOL_M and dr < TOL_RAD)
     say(f'replayed {marks} captures from {bag_path}; {expected.get("method", "rigid")} frame '
         f'vs {expected_path}: translation differs by {dt:.3e} m (tolerance {TOL_M:g}), '
         f'rotation by {dr:.3e} rad (tolerance {TOL_RAD:g})')
-    return CheckResult(ok, dt, dr, T, expected['T_base_user'], rms, marks,
+    return CheckResult(code, dt, dr, T, expected['T_base_user'], rms, marks,
                        time.monotonic() - started)
 
 
@@ -146,6 +148,7 @@ def _replay_and_calibrate(bag, expected: dict, rate: float, clock_hz: float, say
                           recapture: bool, holds: list[int]):
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from sensor_msgs.msg import JointState
+    from cobot_calib_msgs.msg import CaptureMark
     from cobot_calib_msgs.srv import CalibrateUserFrame
 
     from cobot_calib_ros import paths
@@ -165,8 +168,8 @@ def _replay_and_calibrate(bag, expected: dict, rate: float, clock_hz: float, say
     with replay_harness.replay_suite(specs, 'cobot_calib_replay_check', say,
                                      data_dir=True) as harness:
         node = harness.node
-        marks: list[JointState] = []
-        node.create_subscription(JointState, CAPTURES_TOPIC, marks.append,
+        marks: list[CaptureMark] = []
+        node.create_subscription(CaptureMark, CAPTURES_TOPIC, marks.append,
                                  QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE))
         calibrate = node.create_client(CalibrateUserFrame, 'calibrate_user_frame')
         harness.wait_for(calibrate.service_is_ready, 'calibrate_user_frame')
@@ -198,18 +201,18 @@ def _replay_and_calibrate(bag, expected: dict, rate: float, clock_hz: float, say
             raise CheckError(f'only {len(marks)} of {wanted} {CAPTURES_TOPIC} marks arrived')
         if recaptured is not None:
             for mark, again in zip(marks, recaptured):
-                worst = max(abs(a - b) for a, b in zip(mark.position, again.position))
-                say(f'  {mark.header.frame_id}: re-captured {again.name and len(again.name)} '
+                worst = max(abs(a - b) for a, b in zip(mark.position_rad, again.position))
+                say(f'  {mark.target}: re-captured {again.name and len(again.name)} '
                     f'joints, largest difference from the recorded mean {worst:.3e} rad')
-                mark.name, mark.position = list(again.name), list(again.position)
-        names = [m.header.frame_id for m in marks]
+                mark.joint_names, mark.position_rad = list(again.name), list(again.position)
+        names = [m.target for m in marks]
         if expected.get('point_names') and names != list(expected['point_names']):
             raise CheckError(f'the bag\'s captures are {names}, expected.yaml has '
                              f'{expected["point_names"]}')
         request = CalibrateUserFrame.Request(
             method=str(expected.get('method', 'rigid')), point_names=names,
             kinematics=kinematics,
-            joint_captures=[JointState(name=list(m.name), position=list(m.position))
+            joint_captures=[JointState(name=list(m.joint_names), position=list(m.position_rad))
                             for m in marks])
         try:
             res = call_service(node, calibrate, request, 60.0, harness.executor)

@@ -24,6 +24,8 @@ import tempfile
 import threading
 import time
 
+from cobot_calib_ros.core.errors import ErrorCode
+
 # The nodes under test are waited for until they are up or one of them has exited, so a slow
 # start on a loaded machine is not a failed check; the limit only ends a wait on a node that
 # runs but never comes up (measured: over 30 s to come up at load 30).
@@ -34,6 +36,22 @@ LOOK_PERIOD = 0.5        # [s] between looks at whether a node under test has ex
 
 class CheckError(RuntimeError):
     """The check could not run (a missing file, a node that did not come up)."""
+
+
+class Verdict:
+    """A check's result beside its figures: ``code`` SUCCESS when the replay gave the recorded
+    result within the check's tolerance, IMPLAUSIBLE_FIT when it did not; truthy on SUCCESS,
+    as core's results are (no ``ok`` flag beside the causes)."""
+
+    code: ErrorCode
+
+    def __bool__(self) -> bool:
+        return self.code == ErrorCode.SUCCESS
+
+
+def verdict(within_tolerance: bool) -> ErrorCode:
+    """The Verdict code of a replayed result that is, or is not, within the tolerance."""
+    return ErrorCode.SUCCESS if within_tolerance else ErrorCode.IMPLAUSIBLE_FIT
 
 
 @dataclass

@@ -3,9 +3,10 @@
 A landmark bag (bags/make_landmark_bag.py, bags/landmark_multi_close) holds the wrist camera's
 ``/wrist_camera/image_raw`` and ``/wrist_camera/camera_info`` around every view of a
 ``landmark_multi`` calibration, the view marks user_frame_solver published on
-``/cobot_calib/captures`` (MARKS_TOPIC, sensor_msgs/JointState: header.stamp = the ROS time
-after which landmarks count, frame_id = ``landmark_<id>``, position = the captured joints [rad]
-in the model's joint order, effort = their standard deviation) and the live, latched
+``/cobot_calib/captures`` (MARKS_TOPIC, cobot_calib_msgs/CaptureMark, ros.marks: header.stamp =
+the ROS time after which landmarks count, target = ``landmark_<id>``, the captured joints [rad]
+in the model's joint order and their standard deviation; the sample bag's JointState marks are
+read through bags.mark_converter) and the live, latched
 ``/user_frame``; next to it ``expected.yaml``: T_base_user (the calibration's matrix), method,
 kinematics, hand_eye, cell, calibration id, rms, the solver's max_rms_error / max_scale_error
 and, per view, the stamp of the image the live solver used.
@@ -43,6 +44,7 @@ from typing import Callable
 import numpy as np
 
 from cobot_calib_ros.api import replay_check, replay_harness
+from cobot_calib_ros.core.errors import ErrorCode
 from cobot_calib_ros.ros.marks import CAPTURES_TOPIC as MARKS_TOPIC
 from cobot_calib_ros.ros.time import header_ns
 
@@ -67,10 +69,10 @@ CheckError = replay_check.CheckError
 
 
 def marker_of(mark) -> int:
-    """The marker a view mark was planned for (frame_id ``landmark_<id>``)."""
-    found = MARKER.match(mark.header.frame_id)
+    """The marker a view mark was planned for (target ``landmark_<id>``)."""
+    found = MARKER.match(mark.target)
     if not found:
-        raise CheckError(f'mark frame_id {mark.header.frame_id!r} is not landmark_<id>')
+        raise CheckError(f'mark target {mark.target!r} is not landmark_<id>')
     return int(found.group(1))
 
 
@@ -90,7 +92,7 @@ def pair(marks: list, landmarks: list) -> list[tuple[int, object]]:
         t0, marker = header_ns(mark), marker_of(mark)
         seen = [x for x in ordered if x[0] > t0][:LANDMARK_IMAGES]
         if not seen:
-            raise CheckError(f'mark #{k} ({mark.header.frame_id}): no landmarks message of an '
+            raise CheckError(f'mark #{k} ({mark.target}): no landmarks message of an '
                              'image stamped after it')
         out.append(next((x for x in seen if shows(x[1], marker)), seen[-1]))
     return out
@@ -119,9 +121,9 @@ def fit_frame(marks: list, landmarks: list, *, cell_name: str, kinematics: str =
     order = list(model.joint_names)
     observations = []
     for k, (mark, msg) in enumerate(zip(marks, landmarks)):
-        if list(mark.name) != order:
-            raise CheckError(f'mark #{k}: joints {list(mark.name)}, the model has {order}')
-        T_base_optical = kin.fk(chain, np.array(mark.position, dtype=float))
+        if list(mark.joint_names) != order:
+            raise CheckError(f'mark #{k}: joints {list(mark.joint_names)}, the model has {order}')
+        T_base_optical = kin.fk(chain, np.array(mark.position_rad, dtype=float))
         observations += [views.observation(lm.id, T_base_optical,
                                            convert.pose_to_matrix(lm.pose.pose),
                                            lm.pose.covariance)
@@ -143,8 +145,8 @@ def is_landmark_bag(bag) -> bool:
 
 
 @dataclass
-class LandmarkCheckResult:
-    ok: bool
+class LandmarkCheckResult(replay_harness.Verdict):
+    code: ErrorCode                 # replay_harness.Verdict: SUCCESS or IMPLAUSIBLE_FIT
     translation_m: float
     rotation_rad: float
     T_replayed: np.ndarray
@@ -196,7 +198,8 @@ def run_check(bag_path: str, rate: float = DEFAULT_RATE, say: Callable[[str], No
                     method=method)
     T = np.asarray(fit.fit.M, dtype=float)
     dt, dr = transform_error(T, expected['T_base_user'])
-    ok = bool(dt <= TOL_M and dr <= TOL_RAD and np.isfinite(dt) and np.isfinite(dr))
+    code = replay_harness.verdict(bool(dt <= TOL_M and dr <= TOL_RAD and np.isfinite(dt)
+                                       and np.isfinite(dr)))
     report = (f'replayed {len(needed)} images through landmark_detector ({passes} pass'
               f'{"es" if passes > 1 else ""}), {len(marks)} views paired'
               + (f' ({len(differs)} with another image than the live solver: marks {differs})'
@@ -205,19 +208,20 @@ def run_check(bag_path: str, rate: float = DEFAULT_RATE, say: Callable[[str], No
               f'translation differs by {dt:.3e} m (tolerance {TOL_M:g}), rotation by '
               f'{dr:.3e} rad (tolerance {TOL_RAD:g})')
     say(report)
-    return LandmarkCheckResult(ok, dt, dr, T, expected['T_base_user'], float(fit.fit.rms),
+    return LandmarkCheckResult(code, dt, dr, T, expected['T_base_user'], float(fit.fit.rms),
                                float(expected.get('rms_residual', float('nan'))), len(marks),
                                len(needed), passes, differs, time.monotonic() - started, report)
 
 
 def check(bag_path: str, rate: float | None = None, say: Callable[[str], None] = print
-          ) -> tuple[bool, str]:
-    """(ok, report) for the CLI; CheckError when the check cannot run."""
+          ) -> LandmarkCheckResult:
+    """The result for the CLI, its report with both matrices when it failed; CheckError when
+    the check cannot run."""
     result = run_check(bag_path, DEFAULT_RATE if rate is None else rate, say=say)
-    if not result.ok:
-        return False, (result.report + '\n  replayed:\n' + format_matrix(result.T_replayed)
-                       + '\n  expected:\n' + format_matrix(result.T_expected))
-    return True, result.report
+    if not result:
+        result.report += ('\n  replayed:\n' + format_matrix(result.T_replayed)
+                          + '\n  expected:\n' + format_matrix(result.T_expected))
+    return result
 
 
 def format_matrix(T: np.ndarray) -> str:

@@ -21,7 +21,8 @@ from pathlib import Path
 import time
 from typing import Callable
 
-from cobot_calib_ros.api import replay_check
+from cobot_calib_ros.api import replay_check, replay_harness
+from cobot_calib_ros.core.errors import ErrorCode
 from cobot_calib_ros.ros.marks import CAPTURES_TOPIC
 
 EXPECTED_FILE = 'expected.json'
@@ -60,8 +61,8 @@ def dropped_names(report: dict) -> list[str]:
 
 
 @dataclass
-class SphereCheckResult:
-    ok: bool
+class SphereCheckResult(replay_harness.Verdict):
+    code: ErrorCode     # replay_harness.Verdict: SUCCESS or IMPLAUSIBLE_FIT
     poses: int
     worst: float                # largest |replayed - expected| over the identified values
     worst_name: str
@@ -90,11 +91,11 @@ def run_check(bag_path: str, say: Callable[[str], None] = print) -> SphereCheckR
     gaps = {n: abs(mine[n] - live[n]) for n in mine.keys() & live.keys()}
     worst_name = max(gaps, key=gaps.get, default='')
     worst = gaps.get(worst_name, float('inf'))
-    ok = not differences and worst <= TOL
+    code = replay_harness.verdict(not differences and worst <= TOL)
     report = (f'identified {got["rows"]} poses of {bag_path} on cell {expected["cell"]}: '
               f'{len(mine)} parameters, largest difference from {path} {worst:.3e}'
               + (f' ({worst_name})' if worst > 0 else '') + f' (tolerance {TOL:g})'
               + ''.join(f'; {d}' for d in differences))
     say(report)
-    return SphereCheckResult(ok, int(got['rows']), worst, worst_name, differences,
+    return SphereCheckResult(code, int(got['rows']), worst, worst_name, differences,
                              time.monotonic() - started, report)

@@ -2,9 +2,10 @@
 
 A trial bag (bags/make_trial_bag.py, bags/trial_close) holds the raw probe output
 ``/probe/voltage``, proximity_sensor's mark of every probe/average it served on
-``/cobot_calib/probe_averages`` (MARKS_TOPIC: window start t0 as header.stamp, the window's
-duration, the response and the stamps of the readings it averaged, see
-nodes/proximity_sensor.py) and the live, latched
+``/cobot_calib/probe_averages`` (MARKS_TOPIC, cobot_calib_msgs/ProbeAverageMark, ros.marks:
+window start t0 as header.stamp, the window's duration, the response and the stamps of the
+readings it averaged; the sample bag's JointState marks are read through bags.mark_converter)
+and the live, latched
 ``/repeatability``; next to it ``expected.yaml``: the trial (method, axis, cycles, points), the
 probe's calibration table, the final live statistics (``rp``, ``rp_all``, ``mean_distance``,
 ``mean_deviation``, ``sigma`` [m]) and ``readings``: for each (cycle, point) of the trial the
@@ -45,6 +46,7 @@ from typing import Callable
 import numpy as np
 
 from cobot_calib_ros.api import replay_check, replay_harness
+from cobot_calib_ros.core.errors import ErrorCode
 from cobot_calib_ros.ros import marks
 from cobot_calib_ros.ros.time import header_ns
 
@@ -68,16 +70,11 @@ CheckError = replay_check.CheckError
 Mark = marks.AverageMark
 
 
-def mark_of(msg) -> Mark:
-    """A MARKS_TOPIC message as a Mark (ros.marks.read_average_mark); CheckError if malformed."""
-    try:
-        return marks.read_average_mark(msg)
-    except ValueError as exc:
-        raise CheckError(str(exc)) from None
-
-
 def read_marks(bag) -> list[Mark]:
-    return [mark_of(bag.deserialize(m.rawdata, m.msgtype)) for m in bag.messages([MARKS_TOPIC])]
+    """The bag's MARKS_TOPIC messages as Marks (ros.marks.read_average_mark; an old bag's
+    JointState marks come converted, bags.mark_converter)."""
+    return [marks.read_average_mark(bag.deserialize(m.rawdata, m.msgtype))
+            for m in bag.messages([MARKS_TOPIC])]
 
 
 def bag_samples(bag, table: dict) -> list[tuple[int, float, int]]:
@@ -183,8 +180,8 @@ def is_trial_bag(bag) -> bool:
 
 
 @dataclass
-class TrialCheckResult:
-    ok: bool
+class TrialCheckResult(replay_harness.Verdict):
+    code: ErrorCode                 # replay_harness.Verdict: SUCCESS or IMPLAUSIBLE_FIT
     rp_replayed: np.ndarray         # [m]
     rp_all_replayed: float          # [m]
     rp_expected: np.ndarray
@@ -248,13 +245,13 @@ def run_check(bag_path: str, rate: float = DEFAULT_RATE, say: Callable[[str], No
                              f'{stats.rp.size}')
         diffs += [np.max(np.abs(stats.rp - rp_rec)), abs(stats.rp_all - rp_all_rec)]
     worst = float(max(diffs))
-    ok = bool(np.isfinite(worst) and worst <= TOL_M)
+    code = replay_harness.verdict(bool(np.isfinite(worst) and worst <= TOL_M))
     say(f'rebuilt {len(marks)} probe averages from {len(samples)} replayed readings, all equal '
         f'to the live ones; {len(expected["readings"])} trial readings, {stats.cycles} cycles: '
         f'RP_all {stats.rp_all * 1e3:.6f} mm vs {rp_all_exp * 1e3:.6f} mm in {expected_path}'
         + (f' and {rp_all_rec * 1e3:.6f} mm recorded on {STATS_TOPIC}' if recorded else '')
         + f'; largest difference {worst:.3e} m (tolerance {TOL_M:g})')
-    return TrialCheckResult(ok, stats.rp, float(stats.rp_all), rp_exp, rp_all_exp, rp_rec,
+    return TrialCheckResult(code, stats.rp, float(stats.rp_all), rp_exp, rp_all_exp, rp_rec,
                             rp_all_rec, worst, len(marks), len(expected['readings']),
                             len(samples), time.monotonic() - started)
 

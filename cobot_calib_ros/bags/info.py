@@ -75,6 +75,8 @@ def format_topic_names(bag: Bag) -> str:
 
 def _details(info: TopicInfo) -> list[str]:
     lines = [f'Type hash: {info.type_hash or "(none)"}']
+    if info.converted_from:
+        lines.append(f'Recorded as: {info.converted_from} (read through bags.mark_converter)')
     if not info.offered_qos:
         lines.append('Offered QoS: (not recorded)')
     for i, profile in enumerate(info.offered_qos):

@@ -17,6 +17,10 @@ What ``open_bag`` accepts and how it reads it:
   then read directly, a cut mcap file sequentially (mcap's StreamReader) up to its last complete
   chunk; ``bag.warnings`` says what was recovered. ``strict=True`` raises BagError instead.
 
+Marks recorded before they had messages of their own (sensor_msgs/JointState on the capture
+and probe-average topics) are read through bags.mark_converter: the topic shows the mark's type
+(``converted_from`` the recorded one) and its messages come converted.
+
 Every error is a BagError naming the file, the problem and what to do. Messages decode with a
 typestore of Jazzy's types plus this project's cobot_calib_msgs and tf2_msgs (interfaces); a
 bag's own definitions add only the types that typestore lacks (rosbag2's test bags carry
@@ -37,7 +41,7 @@ from rosbags.rosbag2.metadata import parse_qos
 from rosbags.typesys import get_types_from_idl, get_types_from_msg
 import yaml
 
-from cobot_calib_ros.bags import interfaces
+from cobot_calib_ros.bags import interfaces, mark_converter
 from cobot_calib_ros.bags.errors import BagError
 from cobot_calib_ros.bags.metadata import IN_PROGRESS_KEY
 
@@ -65,6 +69,7 @@ class TopicInfo:
     offered_qos: list[Qos] = field(default_factory=list)
     type_hash: str = ''
     definition: MessageDefinition | None = None
+    converted_from: str = ''        # the type recorded, when read through bags.mark_converter
 
 
 def open_bag(path: str | os.PathLike, strict: bool = False) -> 'Bag':
@@ -93,6 +98,7 @@ class Bag:
         self._sources: list[_Source] = []
         self._store = None
         self._refused = ''
+        self._converters: dict = {}             # topic -> its marks' converter (lazy)
         if not path.exists():
             raise BagError(f'{path}: no such bag (neither a directory nor a file); give the '
                            'directory `cobot-calib record -o` or `ros2 bag record -o` wrote')
@@ -104,6 +110,11 @@ class Bag:
         except BaseException:
             self.close()                       # the storage files opened before the error
             raise
+        for topic, msgtype in mark_converter.legacy_topics(self.topics).items():
+            info = self.topics[topic]
+            info.converted_from, info.type = info.type, msgtype
+            info.type_hash, info.definition = interfaces.installed_type_hash(msgtype), None
+            self._converters[topic] = None
 
     # -- public ---------------------------------------------------------------------------------
 
@@ -123,7 +134,10 @@ class Bag:
         """(topic, msgtype, timestamp_ns, rawdata) of the chosen topics (all when None), in
         time order within each storage file; ``start_ns`` <= stamp < ``stop_ns``."""
         wanted = self._wanted(topics)
-        return chain.from_iterable(s.messages(wanted, start_ns, stop_ns) for s in self._sources)
+        stream = chain.from_iterable(s.messages(wanted, start_ns, stop_ns) for s in self._sources)
+        if not self._converters.keys() & set(wanted):
+            return stream
+        return self._converted(stream)
 
     def select(self, topics: Iterable[str] | None = None) -> list[str]:
         """The topic names chosen (all when None; 'name' means '/name'); BagError for a topic
@@ -165,6 +179,25 @@ class Bag:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+    def _converted(self, stream: Iterator[BagMessage]) -> Iterator[BagMessage]:
+        """``stream`` with the legacy marks converted (bags.mark_converter)."""
+        for message in stream:
+            if message.topic not in self._converters:
+                yield message
+                continue
+            convert = self._converters[message.topic]
+            if convert is None:
+                convert = self._converters[message.topic] = mark_converter.converter(
+                    self.typestore, message.topic)
+            try:
+                rawdata = convert(message.rawdata)
+            except Exception as exc:  # noqa: BLE001 - rosbags' decoding errors alike
+                raise BagError(f'{self.path}: a {mark_converter.LEGACY_TYPE} mark on '
+                               f'{message.topic} does not convert ({_short(exc)}); the bag may '
+                               'be damaged') from None
+            yield BagMessage(message.topic, self.topics[message.topic].type,
+                             message.timestamp_ns, rawdata)
 
     # -- opening --------------------------------------------------------------------------------
 

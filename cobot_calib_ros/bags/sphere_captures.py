@@ -1,7 +1,8 @@
 """A recorded sphere-coupling session as the core's observations.
 
 kinematic_identifier publishes every collected pose on ``/cobot_calib/captures``
-(sensor_msgs/JointState: frame_id = the sphere's name, position = the averaged joints [rad]);
+(cobot_calib_msgs/CaptureMark: target = the sphere's name, the averaged joints [rad]; older
+bags' JointState marks are read through bags.mark_converter);
 a bag of that topic (`cobot-calib record /cobot_calib/captures`) is identified offline by
 ``cobot-calib identify --source BAG`` and by the ``identify_kinematics`` goal's ``file``.
 """
@@ -26,7 +27,7 @@ def sphere_observations(folder: str | Path, cell, model) -> tuple[SphereObservat
     with open_bag(folder) as bag:
         captures = [bag.deserialize(m.rawdata, m.msgtype) for m in bag.messages([CAPTURES_TOPIC])]
     names = cell.spheres.names if cell.spheres else ()
-    rows = [c for c in captures if c.header.frame_id in names]
+    rows = [c for c in captures if c.target in names]
     if not rows:
         raise ValueError(f'{folder}: no {CAPTURES_TOPIC} poses on the spheres {list(names)} of '
                          f'cell {cell.name}; record that topic during collect_sphere_data')
@@ -35,5 +36,5 @@ def sphere_observations(folder: str | Path, cell, model) -> tuple[SphereObservat
         q = [captured_joints(c, order) for c in rows]
     except KeyError as e:
         raise ValueError(f'{folder}: a capture lacks joint {e} of {order}') from None
-    return SphereObservations(q, [names.index(c.header.frame_id) for c in rows],
+    return SphereObservations(q, [names.index(c.target) for c in rows],
                               cell.spheres.known_distances()), len(rows)

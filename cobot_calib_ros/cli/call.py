@@ -294,12 +294,12 @@ class _Progress:
     on stderr while a call runs, and a line every QUIET_PROGRESS s without one."""
 
     def __init__(self, node) -> None:
-        from sensor_msgs.msg import JointState
+        from cobot_calib_msgs.msg import CaptureMark
         from cobot_calib_ros.ros.marks import CAPTURES_TOPIC
         self._node, self._count = node, 0
         self._last = time.monotonic()
         self._topic = CAPTURES_TOPIC
-        self._sub = node.create_subscription(JointState, CAPTURES_TOPIC, self._on_capture, 100)
+        self._sub = node.create_subscription(CaptureMark, CAPTURES_TOPIC, self._on_capture, 100)
 
     def matched(self) -> bool:
         """Every publisher of the marks the graph shows is matched to this subscription."""
@@ -308,7 +308,7 @@ class _Progress:
     def _on_capture(self, msg) -> None:
         self._count += 1
         self._last = time.monotonic()
-        print(f'  capture {self._count}: {msg.header.frame_id}', file=sys.stderr, flush=True)
+        print(f'  capture {self._count}: {msg.target}', file=sys.stderr, flush=True)
 
     def still_waiting(self, service: str, waited: float) -> None:
         if time.monotonic() - self._last >= QUIET_PROGRESS:

@@ -94,21 +94,23 @@ def run(args) -> int:
     camera_name = args.camera_name or (cell.camera.frame_id if cell and cell.camera
                                        else 'camera')
     from cobot_calib_ros.bags.errors import BagError
-    from cobot_calib_ros.core.landmarks.intrinsics import calibrate_intrinsics, IntrinsicsError
+    from cobot_calib_ros.core.errors import Refusal
+    from cobot_calib_ros.core.landmarks.intrinsics import calibrate_intrinsics
     from cobot_calib_ros.core.landmarks.intrinsics_views import detect_views
     try:
         views, skipped, size = detect_views(_images(args), spec)
-    except (ValueError, OSError, BagError) as e:
+    except (ValueError, OSError, BagError, Refusal) as e:
         return fail(f'intrinsics: {e}', EXIT_USAGE)
     if size is None:
         return fail(f'intrinsics: {args.source}: no images', EXIT_FAILED)
     try:
         fit = calibrate_intrinsics(views, size, args.model, name=camera_name)
-    except IntrinsicsError as e:
+    except Refusal as e:
+        cause = e.failure.code.name
         if args.json:
-            print_message({'error': e.code, 'message': str(e), 'views': len(views),
+            print_message({'error': cause, 'message': str(e), 'views': len(views),
                            'skipped': dict(skipped)}, True)
-        return fail(f'intrinsics refused ({e.code}): {e}')
+        return fail(f'intrinsics refused ({cause}): {e}')
     return _report(args, cell, fit, spec, views, skipped)
 
 

@@ -201,7 +201,7 @@ def _check(args) -> int:
         return fail(f'replay --check: {exc}')
     except KeyboardInterrupt:
         return fail('replay --check interrupted', EXIT_INTERRUPTED)
-    if result.ok:
+    if result:
         say(f'check passed in {result.wall_s:.1f} s')
         return EXIT_OK
     print('check FAILED: the replayed frame differs from the expected one\n'
@@ -239,14 +239,14 @@ def _check_landmarks(args) -> int:
     if isinstance(rate, int):
         return rate
     try:
-        ok, report = check.check(args.bag, rate, say=lambda text: print(text, flush=True))
+        result = check.check(args.bag, rate, say=lambda text: print(text, flush=True))
     except (check.CheckError, BagError) as exc:
         return fail(f'replay --check: {exc}')
     except KeyboardInterrupt:
         return fail('replay --check interrupted', EXIT_INTERRUPTED)
-    if ok:
+    if result:
         return EXIT_OK
-    print(report, file=sys.stderr, flush=True)
+    print(result.report, file=sys.stderr, flush=True)
     return 1
 
 
@@ -261,7 +261,7 @@ def _check_spheres(args) -> int:
         result = check.run_check(args.bag, say=lambda text: print(text, flush=True))
     except (check.CheckError, BagError) as exc:
         return fail(f'replay --check: {exc}')
-    if result.ok:
+    if result:
         print(f'check passed in {result.wall_s:.1f} s', flush=True)
         return EXIT_OK
     print('check FAILED: the identification differs from the expected one\n  '
@@ -286,7 +286,7 @@ def _check_trial(args) -> int:
         return fail(f'replay --check: {exc}')
     except KeyboardInterrupt:
         return fail('replay --check interrupted', EXIT_INTERRUPTED)
-    if result.ok:
+    if result:
         say(f'check passed in {result.wall_s:.1f} s')
         return EXIT_OK
     lines = ['check FAILED: the replayed repeatability differs from the expected one',

@@ -21,7 +21,7 @@ class ErrorCode(IntEnum):
     UNKNOWN_METHOD = 4
     UNKNOWN_POINT = 5
     CAPTURE_FAILED = 6       # a measurement (joints, image) could not be taken
-    STORAGE_FAILED = 7
+    STORAGE_FAILED = 7       # the store could not be written: disk full, no permission, no database
     IMPLAUSIBLE_FIT = 8      # a result beyond what its data allows (units? order?)
     NO_DATA = 9              # nothing to work on: no samples, no collection
     MOTION_FAILED = 10       # the robot did not reach a target (unreachable, no IK)

@@ -32,10 +32,10 @@ from cobot_calib_msgs.action import CalibrateIntrinsics
 from rclpy.action import ActionServer, CancelResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
 
+from cobot_calib_ros.core.errors import ErrorCode as E, Refusal
 from cobot_calib_ros.core.landmarks.camera import camera_info_yaml
 from cobot_calib_ros.core.landmarks.intrinsics import (calibrate_intrinsics, image_coverage,
-                                                       IntrinsicsError, MODELS,
-                                                       solve_view_pose)
+                                                       MODELS, solve_view_pose)
 from cobot_calib_ros.core.landmarks.intrinsics_capture import (take_intrinsics_views,
                                                                 take_live_views)
 from cobot_calib_ros.core.landmarks.intrinsics_views import detect_views, intrinsics_views
@@ -55,8 +55,6 @@ from cobot_calib_ros.store.records import IntrinsicsRecord
 
 Action = CalibrateIntrinsics
 DEFAULT_VIEWS = 20
-ERRORS = {'too_few_views': Action.Result.TOO_FEW_VIEWS, 'bad_input': Action.Result.INVALID_GOAL,
-          'degenerate_views': Action.Result.SOLVER_FAILED}
 
 
 class CameraCalibrator(JobNode):
@@ -99,12 +97,12 @@ class CameraCalibrator(JobNode):
         model = goal.model or 'plumb_bob'
         count = int(goal.views) or DEFAULT_VIEWS
         if model not in MODELS or not 4 <= count <= 200:
-            return self._end(goal_handle, result, Action.Result.INVALID_GOAL,
+            return self._end(goal_handle, result, E.INVALID_INPUT,
                              f'model must be one of {", ".join(MODELS)} (got {model!r}) and '
                              f'views 4..200 (0 = {DEFAULT_VIEWS}), got {goal.views}')
         if self._cell.camera is None or self._cell.landmarks is None or \
                 not self._cell.landmarks.board:
-            return self._end(goal_handle, result, Action.Result.INVALID_GOAL,
+            return self._end(goal_handle, result, E.INVALID_INPUT,
                              f'cell {self._cell.name!r} has no wrist camera or no board; add '
                              'camera: and landmarks: board: to the cell file')
         spec = BoardSpec.parse(self._cell.landmarks.board)
@@ -115,17 +113,18 @@ class CameraCalibrator(JobNode):
                 views, skipped, size = self._planned(goal_handle, count, spec)
             else:
                 views, skipped, size = self._live(goal_handle, count, spec)
+        except Refusal as e:
+            return self._end(goal_handle, result, e.failure.code, str(e))
         except ValueError as e:
-            return self._end(goal_handle, result, Action.Result.INVALID_GOAL, str(e))
+            return self._end(goal_handle, result, E.INVALID_INPUT, str(e))
         except Stopped as e:
-            return self._end(goal_handle, result, Action.Result.CANCELED,
-                             f'{e}; nothing stored')
+            return self._end(goal_handle, result, E.CANCELED, f'{e}; nothing stored')
         except CaptureFailed as e:
-            return self._end(goal_handle, result, Action.Result.CAPTURE_FAILED, str(e))
+            return self._end(goal_handle, result, E.CAPTURE_FAILED, str(e))
         try:
             fit = calibrate_intrinsics(views, size, model, name=self._camera_name())
-        except IntrinsicsError as e:
-            return self._end(goal_handle, result, ERRORS[e.code],
+        except Refusal as e:
+            return self._end(goal_handle, result, e.failure.code,
                              f'{e} ({len(skipped)} views skipped)')
         return self._store(goal_handle, result, fit, spec, views, goal.source or 'live')
 
@@ -190,7 +189,7 @@ class CameraCalibrator(JobNode):
             record.result.yaml_path = str(path)
             outcome = self._repository().intrinsics.save_and_activate(record)
         except (OSError, ValueError) as e:
-            return self._end(goal_handle, result, Action.Result.STORAGE_FAILED,
+            return self._end(goal_handle, result, E.STORAGE_FAILED,
                              f'could not store the intrinsics: {e}')
         result.calibration_id, result.yaml_path = record.id, record.result.yaml_path
         result.camera_info = model_to_camera_info(fit.camera, fit.camera.name)
@@ -202,9 +201,9 @@ class CameraCalibrator(JobNode):
                    f'cy {K[1, 2]:.3f} px, rms {fit.rms_px:.4f} px, held out '
                    f'{fit.heldout_rms_px:.4f} px, {fit.views_used} views')
         if not outcome:
-            return self._end(goal_handle, result, Action.Result.REJECTED,
+            return self._end(goal_handle, result, E.IMPLAUSIBLE_FIT,
                              f'{summary}; stored as rejected, not active: {outcome.reason}')
-        return self._end(goal_handle, result, Action.Result.SUCCESS, f'{summary}; active')
+        return self._end(goal_handle, result, E.SUCCESS, f'{summary}; active')
 
 
 def main(args=None) -> None:

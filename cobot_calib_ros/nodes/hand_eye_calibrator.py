@@ -39,6 +39,7 @@ from rclpy.action import ActionServer, CancelResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
 
 from cobot_calib_ros.core import frames
+from cobot_calib_ros.core.errors import ErrorCode as E
 from cobot_calib_ros.core.landmarks.hand_eye import check_noise, hand_eye_views, solve_hand_eye
 from cobot_calib_ros.core.landmarks.hand_eye_capture import (HandEyeViews,
                                                              take_hand_eye_views)
@@ -113,7 +114,7 @@ class HandEyeCalibrator(JobNode):
         return self._exclusive(goal_handle, self._run, Action.Result)
 
     def _cancelled(self, goal_handle, result, where: str):
-        return self._end(goal_handle, result, Action.Result.CANCELED,
+        return self._end(goal_handle, result, E.CANCELED,
                          f'cancelled {where}; nothing stored or published')
 
     def _run(self, goal_handle):
@@ -121,7 +122,7 @@ class HandEyeCalibrator(JobNode):
         count = int(goal.views) or DEFAULT_VIEWS
         hold = float(goal.hold) or self._p('hold_duration')
         if not (3 <= count <= 200) or not (0.0 < hold <= 10.0):
-            return self._end(goal_handle, result, Action.Result.INVALID_GOAL,
+            return self._end(goal_handle, result, E.INVALID_INPUT,
                              f'views must be 3..200 (0 = {DEFAULT_VIEWS}) and hold 0..10 s, '
                              f'got {goal.views} and {goal.hold}')
         try:
@@ -130,7 +131,7 @@ class HandEyeCalibrator(JobNode):
             rig = self._rig('active')       # the flange poses by the active kinematics
             active, chain = rig.active, rig.chain('flange')
         except (KeyError, ValueError) as e:
-            return self._end(goal_handle, result, Action.Result.INVALID_GOAL, str(e))
+            return self._end(goal_handle, result, E.INVALID_INPUT, str(e))
         through = {'kinematics': active.kinematics_label,
                    'intrinsics': active.label('intrinsics')}
         prerequisites = missing_prerequisites('the hand-eye is', through)
@@ -156,22 +157,18 @@ class HandEyeCalibrator(JobNode):
         except Stopped as e:
             return self._cancelled(goal_handle, result, str(e).removeprefix('cancelled '))
         except CaptureFailed as e:
-            return self._end(goal_handle, result, Action.Result.CAPTURE_FAILED, str(e))
+            return self._end(goal_handle, result, E.CAPTURE_FAILED, str(e))
         joints, flange, boards = views.joints, views.flange, views.boards
         covariances, skipped = views.covariances, views.skipped
         result.views_used, result.views_skipped = len(boards), len(skipped)
         if len(boards) < 3:
-            return self._end(goal_handle, result, Action.Result.TOO_FEW_VIEWS,
+            return self._end(goal_handle, result, E.TOO_FEW_POINTS,
                              f'only {len(boards)} of {count} views showed the board (at least '
                              f'3 needed); {len(skipped)} skipped: check the user frame, the '
                              'lighting and landmark_detector')
-        try:
-            solved = solve_hand_eye(flange, boards, covariances=covariances)
-        except (ValueError, np.linalg.LinAlgError) as e:
-            return self._end(goal_handle, result, Action.Result.SOLVER_FAILED, str(e))
+        solved = solve_hand_eye(flange, boards, covariances=covariances)
         if not solved:
-            return self._end(goal_handle, result, results.code('CalibrateHandEye', solved.code),
-                             solved.message)
+            return self._end(goal_handle, result, solved.code, solved.message)
         if goal_handle.is_cancel_requested:
             return self._cancelled(goal_handle, result, f'after all {count} views')
         record = self._record(solved, joints, flange, boards, covariances, skipped, count,
@@ -182,7 +179,7 @@ class HandEyeCalibrator(JobNode):
         try:
             self._store.save_and_activate(record)   # with a gate problem: kept, rejected
         except (OSError, ValueError) as e:
-            return self._end(goal_handle, result, Action.Result.STORAGE_FAILED,
+            return self._end(goal_handle, result, E.STORAGE_FAILED,
                              f'could not store the hand-eye calibration: {e}')
         result.calibration_id = record['id']
         result.t_flange_optical = convert.matrix_to_transform(
@@ -190,13 +187,13 @@ class HandEyeCalibrator(JobNode):
         result.residual_mm, result.residual_mrad = solved.residual_mm, solved.residual_mrad
         result.covariance = [float(v) for v in solved.covariance.ravel()]
         if gate:
-            return self._end(goal_handle, result, Action.Result.SOLVER_FAILED, (
+            return self._end(goal_handle, result, E.SOLVER_FAILED, (
                 f'{record["id"]} rejected, stored as rejected and not made active (the active '
                 f'hand-eye is unchanged): {gate}'))
         self._publish(record)
         nominal = frames.transform_error(solved.T_flange_optical,
                                          self._cell.camera.T_flange_optical)
-        return self._end(goal_handle, result, Action.Result.SUCCESS, (
+        return self._end(goal_handle, result, E.SUCCESS, (
             f'{record["id"]}: {len(boards)} views used, {len(skipped)} skipped '
             f'({views.unpaired} unpaired); residual RMS '
             f'{solved.residual_mm:.4f} mm / {solved.residual_mrad:.4f} mrad; '

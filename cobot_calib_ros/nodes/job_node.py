@@ -5,7 +5,8 @@ wrote out: the bootstrap (``cell_file``, ``layout``, ``data_dir`` read once; the
 kinematic model, the cell its results are stored under, its repository), the companion node the
 job's calls to other nodes spin on, diagnostics, one job at a time (a goal is rejected while one
 runs, and refused again if two raced past the check), and one way a goal ends (succeed, cancel
-or abort, logged, the diagnostics told). A node keeps its own parameters and its job's ``run``.
+or abort with a cause, core.errors.ErrorCode, answered through ros/results; logged, the
+diagnostics told). A node keeps its own parameters and its job's ``run``.
 """
 from __future__ import annotations
 
@@ -17,15 +18,14 @@ from rclpy.node import Node
 
 from cobot_calib_ros import paths, store
 from cobot_calib_ros.core import frames
+from cobot_calib_ros.core.errors import ErrorCode
 from cobot_calib_ros.core.kinematics import model_for
 from cobot_calib_ros.loaders import load_cell
-from cobot_calib_ros.ros import spin
+from cobot_calib_ros.ros import results, spin
 from cobot_calib_ros.ros.diagnostics import Diagnostics, OK, WARN
 from cobot_calib_ros.ros.params import read_once
 from cobot_calib_ros.store.cells import ResultsCell
 from cobot_calib_ros.store.rigs import rig_of
-
-SUCCESS = 0      # every action's result code for success (cobot_calib_msgs/action/*)
 
 
 def parse_user_frame(text: str) -> np.ndarray | None:
@@ -111,20 +111,21 @@ class JobNode(Node):
 
     def _exclusive(self, goal_handle, run, Result):
         """``run(goal_handle)`` holding the job lock: a goal that raced past _accept while
-        another runs ends at once with Result.INVALID_GOAL."""
+        another runs ends at once, BUSY."""
         if not self._busy.acquire(blocking=False):
             goal_handle.abort()
-            return Result(error_code=Result.INVALID_GOAL, message=f'{self._job_name} is running')
+            return results.answer(Result(), ErrorCode.BUSY, f'{self._job_name} is running')
         try:
             return run(goal_handle)
         finally:
             self._busy.release()
 
-    def _end(self, goal_handle, result, code: int, message: str):
-        """The goal's end: SUCCESS succeeds, a cancelled goal is canceled, anything else is
-        aborted; logged and told to the diagnostics."""
-        result.error_code, result.message = int(code), message
-        if code == SUCCESS:
+    def _end(self, goal_handle, result, cause: ErrorCode, message: str):
+        """The goal's end with ``cause``, answered in ``result`` through ros/results: SUCCESS
+        succeeds, a cancelled goal is canceled, anything else is aborted; logged and told to
+        the diagnostics."""
+        results.answer(result, cause, message)
+        if cause == ErrorCode.SUCCESS:
             goal_handle.succeed()
             spin.log_info(self.get_logger(), message)
         elif goal_handle.is_cancel_requested:
@@ -132,5 +133,5 @@ class JobNode(Node):
         else:
             goal_handle.abort()
             self.get_logger().warning(message)
-        self._health.set(OK if code == SUCCESS else WARN, message)
+        self._health.set(OK if cause == ErrorCode.SUCCESS else WARN, message)
         return result

@@ -23,9 +23,10 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import JointState
 
+from cobot_calib_ros.core.errors import ErrorCode
 from cobot_calib_ros.core.sensors.joint_buffer import (hold_statistics, JointRingBuffer,
                                                        StampGaps, StampMarks)
-from cobot_calib_ros.ros import spin
+from cobot_calib_ros.ros import results, spin
 from cobot_calib_ros.ros.batch_reader import BatchReader
 from cobot_calib_ros.ros.diagnostics import Diagnostics, OK, RateMeter, status_name, WARN
 from cobot_calib_ros.ros.params import declare, read_once
@@ -135,10 +136,9 @@ class JointStateMonitor(Node):
     def _on_capture(self, request, response):
         duration = request.duration or self.get_parameter('capture_duration').value
         if not 0.0 < duration <= self.get_parameter('buffer_duration').value:
-            response.error_code = CaptureJoints.Response.BAD_REQUEST
-            response.message = (f'duration {duration} s must be > 0 and within the buffer '
-                                f'({self.get_parameter("buffer_duration").value} s)')
-            return response
+            return results.answer(response, ErrorCode.INVALID_INPUT, (
+                f'duration {duration} s must be > 0 and within the buffer '
+                f'({self.get_parameter("buffer_duration").value} s)'))
         with self._lock:
             streaming = self._new_sample.wait_for(lambda: self._buffer.count > 0,
                                                   FIRST_SAMPLE_TIMEOUT)
@@ -155,10 +155,7 @@ class JointStateMonitor(Node):
             times, positions, duration, self._rate,
             self.get_parameter('min_sample_fraction').value,
             self.get_parameter('max_joint_std').value, names)
-        response.error_code = {'': CaptureJoints.Response.SUCCESS,
-                               'no_data': CaptureJoints.Response.NO_DATA,
-                               'moving': CaptureJoints.Response.MOVING}[capture.reason]
-        response.message = capture.message
+        results.answer(response, capture.code, capture.message)
         response.name = names
         response.position = capture.mean.tolist()
         response.std = capture.std.tolist()

@@ -20,11 +20,10 @@ import sys
 from time import monotonic
 
 from cobot_calib_msgs.action import CollectSphereData, IdentifyKinematics
-from cobot_calib_msgs.msg import CollectionProgress, ErrorStats
+from cobot_calib_msgs.msg import CaptureMark, CollectionProgress, ErrorStats
 import numpy as np
 from rclpy.action import ActionServer, CancelResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
-from sensor_msgs.msg import JointState
 from std_msgs.msg import Header, String
 from visualization_msgs.msg import MarkerArray
 
@@ -45,7 +44,7 @@ from cobot_calib_ros.bags.errors import BagError
 from cobot_calib_ros.core.ids import record_id
 from cobot_calib_ros.core.rig import Rig
 from cobot_calib_ros.loaders import sources
-from cobot_calib_ros.ros import markers, marks, qos, results, spin
+from cobot_calib_ros.ros import markers, marks, qos, spin
 from cobot_calib_ros.ros.diagnostics import OK, WARN
 from cobot_calib_ros.ros.params import declare, read_once
 from cobot_calib_ros.ros.robot_calls import RobotCalls
@@ -73,7 +72,7 @@ class KinematicIdentifier(JobNode):
         self._health.watch(capture_retries=lambda: self._robot.capture_retries)
         self._health.set(OK, 'idle', job='')
         # every recorded pose, for recording a session (cobot-calib record); frame_id = target
-        self._captures = self.create_publisher(JointState, marks.CAPTURES, 100)
+        self._captures = self.create_publisher(CaptureMark, marks.CAPTURES, 100)
         # the live view: sphere centres and the coupling positions collected on them
         self._markers = self.create_publisher(MarkerArray, markers.TOPIC, markers.QOS)
         # every stored pose's progress and prediction, to echo, record and plot
@@ -138,9 +137,9 @@ class KinematicIdentifier(JobNode):
         try:
             collection_id, meta = self._open_collection(goal)
         except ValueError as e:
-            return self._end(goal_handle, result, Collect.Result.INVALID_GOAL, str(e))
+            return self._end(goal_handle, result, ErrorCode.INVALID_INPUT, str(e))
         except OSError as e:
-            return self._end(goal_handle, result, Collect.Result.STORAGE_FAILED,
+            return self._end(goal_handle, result, ErrorCode.STORAGE_FAILED,
                              f'could not store the collection: {e}; check data_dir')
         result.collection_id = collection_id
         result.path = str(self._collections.directory / collection_id)
@@ -151,12 +150,12 @@ class KinematicIdentifier(JobNode):
         # plan's YAML, 0.1 s quiet, took most of a stopping node's 3 s grace at load)
         code, message, time = visit(goal_handle, collection_id, meta, hold, result)
         result.robot_time, result.robot_time_at_paper_hold = time.total, time.at_hold()
-        status = 'done' if code == Collect.Result.SUCCESS else 'aborted'
+        status = 'done' if code == ErrorCode.SUCCESS else 'aborted'
         try:
             self._collections.set_status(collection_id, status)
         except (OSError, ValueError) as e:
-            code, message = Collect.Result.STORAGE_FAILED, f'could not store the status: {e}'
-        if code == Collect.Result.SUCCESS:
+            code, message = ErrorCode.STORAGE_FAILED, f'could not store the status: {e}'
+        if code == ErrorCode.SUCCESS:
             message = (f'{collection_id}: {result.recorded} poses recorded, '
                        f'{result.skipped} skipped ({message}); robot time '
                        f'{time.total:.1f} s ({time.at_hold():.1f} s at a 1 s hold)')
@@ -282,10 +281,10 @@ class KinematicIdentifier(JobNode):
             self._collections.update(collection_id, planning={
                 **planning, 'state': planner.state.as_dict(), 'robot_time': total.as_dict()})
         except OSError as e:
-            return (Collect.Result.STORAGE_FAILED,
+            return (ErrorCode.STORAGE_FAILED,
                     f'{collection_id}: could not store the planning: {e}; check data_dir', time)
         if run.ending is Ending.DONE:
-            return Collect.Result.SUCCESS, f'stopped on {run.message}', time
+            return ErrorCode.SUCCESS, f'stopped on {run.message}', time
         return (*self._ended(run, collection_id), time)
 
     def _store(self, collection_id: str):
@@ -302,10 +301,10 @@ class KinematicIdentifier(JobNode):
         return lambda: goal_handle.is_cancel_requested or spin.stopping()
 
     @staticmethod
-    def _ended(run, collection_id: str) -> tuple[int, str]:
-        code = {Ending.CANCELED: Collect.Result.CANCELED,
-                Ending.MOTION_FAILED: Collect.Result.MOTION_FAILED,
-                Ending.CAPTURE_FAILED: Collect.Result.CAPTURE_FAILED}[run.ending]
+    def _ended(run, collection_id: str) -> tuple[ErrorCode, str]:
+        code = {Ending.CANCELED: ErrorCode.CANCELED,
+                Ending.MOTION_FAILED: ErrorCode.MOTION_FAILED,
+                Ending.CAPTURE_FAILED: ErrorCode.CAPTURE_FAILED}[run.ending]
         why = run.message
         if run.ending is Ending.CANCELED and spin.stopping():
             why = ('the kinematic_identifier node is shutting down (Ctrl-C or SIGTERM): '
@@ -346,7 +345,7 @@ class KinematicIdentifier(JobNode):
         total = self._robot.robot_seconds - start
         time = RobotTime(total - run.recorded * hold, run.recorded * hold, run.recorded)
         if run.ending is Ending.DONE:
-            return Collect.Result.SUCCESS, f'per pose: {run.per_pose()}', time
+            return ErrorCode.SUCCESS, f'per pose: {run.per_pose()}', time
         return (*self._ended(run, collection_id), time)
 
     def _publish_markers(self, q: np.ndarray) -> None:
@@ -384,9 +383,9 @@ class KinematicIdentifier(JobNode):
             job, partial, planning = self._job(goal)
         except Refusal as e:
             return self._end(goal_handle, result,
-                             results.code('IdentifyKinematics', e.failure.code), str(e))
+                             e.failure.code, str(e))
         except ValueError as e:
-            return self._end(goal_handle, result, Identify.Result.INVALID_GOAL, str(e))
+            return self._end(goal_handle, result, ErrorCode.INVALID_INPUT, str(e))
         self._health.set(OK, f'identifying from {job.source}', job=job.source)
         feedback = Identify.Feedback()
 
@@ -398,22 +397,22 @@ class KinematicIdentifier(JobNode):
         try:
             outcome = job.run(on_iteration)
         except JobCancelled:
-            return self._end(goal_handle, result, Identify.Result.CANCELED, 'canceled; '
+            return self._end(goal_handle, result, ErrorCode.CANCELED, 'canceled; '
                              'nothing stored')
         except Refusal as e:
             self._health.set(WARN, f'identification refused: {e}', job='')
             return self._end(goal_handle, result,
-                             results.code('IdentifyKinematics', e.failure.code),
+                             e.failure.code,
                              '; '.join(filter(None, (str(e), 'nothing stored', partial))))
         except (ValueError, np.linalg.LinAlgError) as e:
             self._health.set(WARN, f'identification failed: {e}', job='')
-            return self._end(goal_handle, result, Identify.Result.SOLVER_FAILED,
+            return self._end(goal_handle, result, ErrorCode.SOLVER_FAILED,
                              '; '.join(filter(None, (str(e), partial))))
         self._fill(result, outcome)
         if not outcome.verdict.passed:
             self._health.set(WARN, f'identification {outcome.verdict.line()}', job='')
             return self._end(goal_handle, result,
-                             results.code('IdentifyKinematics', ErrorCode.IMPLAUSIBLE_FIT),
+                             ErrorCode.IMPLAUSIBLE_FIT,
                              '; '.join(filter(None, (outcome.summary(), 'nothing stored',
                                                      partial))))
         if not goal.dry_run:
@@ -422,14 +421,14 @@ class KinematicIdentifier(JobNode):
                     outcome, extra={'planning': planning} if planning else None,
                     description=self._cell.urdf_robot)
             except (OSError, ValueError) as e:     # ValueError: the cell's URDF is not the chain
-                return self._end(goal_handle, result, Identify.Result.STORAGE_FAILED,
+                return self._end(goal_handle, result, ErrorCode.STORAGE_FAILED,
                                  f'could not store the kinematic calibration: {e}')
             result.calibration_id = saved.record.id
             result.yaml_path, result.urdf_path = (str(saved.paths['yaml']),
                                                   str(saved.paths['urdf']))
             if self._description is not None:
                 self._publish_description()
-        return self._end(goal_handle, result, Identify.Result.SUCCESS,
+        return self._end(goal_handle, result, ErrorCode.SUCCESS,
                          '; '.join(filter(None, (outcome.summary(), partial))))
 
     def _publish_description(self) -> None:

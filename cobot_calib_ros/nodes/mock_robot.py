@@ -275,9 +275,8 @@ class MockRobot(Node):
             results.fill(response, 'HandGuide', q_target)
             return response
         if not self._motion_lock.acquire(blocking=False):
-            response.error_code = HandGuide.Response.BUSY
-            response.message = 'the robot is moving (move_to); touch again when it stops'
-            return response
+            return results.answer(response, ErrorCode.BUSY, 'the robot is moving (move_to); '
+                                  'touch again when it stops')
         self._moving, self._ringing = True, False
         try:
             self._interpolate(lambda: False, None, q_target, 1.0)
@@ -288,9 +287,8 @@ class MockRobot(Node):
             self._moving = False
             self._motion_lock.release()
         response.positions, response.duration = self._robot.q.tolist(), self._motion_s
-        response.error_code = HandGuide.Response.SUCCESS
-        response.message = f'the operator guided the tool onto {request.point_name}'
-        return response
+        return results.answer(response, ErrorCode.SUCCESS,
+                              f'the operator guided the tool onto {request.point_name}')
 
     def _touch_target(self, request) -> np.ndarray | Failure:
         name, axis, distance = request.point_name, request.elongator_axis, request.elongation
@@ -321,8 +319,7 @@ class MockRobot(Node):
             return result
         if not self._motion_lock.acquire(blocking=False):
             goal_handle.abort()
-            result.error_code, result.message = MoveTo.Result.UNREACHABLE, 'robot busy (a touch)'
-            return result
+            return results.answer(result, ErrorCode.MOTION_FAILED, 'robot busy (a touch)')
         self._moving = True
         try:
             canceled = self._interpolate(lambda: goal_handle.is_cancel_requested,
@@ -343,10 +340,9 @@ class MockRobot(Node):
         result.positions = self._robot.q.tolist()
         if canceled:
             goal_handle.canceled()
-            result.error_code, result.message = MoveTo.Result.CANCELED, 'canceled'
-            return result
+            return results.answer(result, ErrorCode.CANCELED, 'canceled')
         goal_handle.succeed()
-        result.error_code, result.message = MoveTo.Result.SUCCESS, 'reached'
+        results.answer(result, ErrorCode.SUCCESS, 'reached')
         result.duration = self._motion_s
         return result
 
@@ -504,14 +500,12 @@ class MockRobot(Node):
         try:
             p = self._robot.laser_measurement()
         except ValueError as e:
-            response.error_code, response.message = MeasurePosition.Response.NOT_AVAILABLE, str(e)
-            return response
+            return results.answer(response, ErrorCode.NOT_AVAILABLE, str(e))
         response.point.header.stamp = self.get_clock().now().to_msg()
         response.point.header.frame_id = 'laser_tracker'
         response.point.point.x, response.point.point.y, response.point.point.z = map(float, p)
         response.sigma = self._sim.spheres.tracker.sigma
-        response.error_code, response.message = MeasurePosition.Response.SUCCESS, 'measured'
-        return response
+        return results.answer(response, ErrorCode.SUCCESS, 'measured')
 
     # -- ground truth ---------------------------------------------------------------------
     def _on_ground_truth(self, request, response):

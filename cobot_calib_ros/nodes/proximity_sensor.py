@@ -23,15 +23,15 @@ import math
 import threading
 import time
 
-from cobot_calib_msgs.msg import ProbeVoltage, ProximityReading
+from cobot_calib_msgs.msg import ProbeAverageMark, ProbeVoltage, ProximityReading
 from cobot_calib_msgs.srv import AverageProximity
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
-from sensor_msgs.msg import JointState
 
+from cobot_calib_ros.core.errors import ErrorCode
 from cobot_calib_ros.core.sensors.probe import (average, average_window, curve_from_lists,
                                                 read_distance, ReadingStatus)
-from cobot_calib_ros.ros import marks, qos, spin
+from cobot_calib_ros.ros import marks, qos, results, spin
 from cobot_calib_ros.ros.batch_reader import BatchReader
 from cobot_calib_ros.ros.convert import fill_average
 from cobot_calib_ros.ros.diagnostics import Diagnostics, OK, RateMeter, status_name, WARN
@@ -69,7 +69,7 @@ class ProximitySensor(Node):
         # cost 8-11 % of a core at 200 Hz (issue 23)
         self._reader = BatchReader(self, 'voltage', ProbeVoltage, 'probe/voltage',
                                    qos.PROBE_READINGS, self._on_voltages)
-        self._marks = self.create_publisher(JointState, marks.PROBE_AVERAGES, 100)
+        self._marks = self.create_publisher(ProbeAverageMark, marks.PROBE_AVERAGES, 100)
         self.create_service(AverageProximity, 'probe/average', self._on_average)
         self.get_logger().info(
             f'probe range {self._curve.min_range * 1e3:.2f}-{self._curve.max_range * 1e3:.2f} mm')
@@ -145,9 +145,8 @@ class ProximitySensor(Node):
     def _on_average(self, request, response):
         duration = request.duration or self._p('average_duration')
         if not 0.0 < duration <= 60.0:
-            response.error_code = AverageProximity.Response.BAD_REQUEST
-            response.message = f'duration {duration} s must be in (0, 60]'
-            return response
+            return results.answer(response, ErrorCode.INVALID_INPUT,
+                                  f'duration {duration} s must be in (0, 60]')
         t0_ns = now_ns(self)
         with self._lock:
             wait_past(self._lock, self._newest, t0_ns * 1e-9 + duration, STALL_TIMEOUT)

@@ -20,7 +20,7 @@ from cobot_calib_msgs.msg import Repeatability
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
 
-from cobot_calib_ros.core.errors import ErrorCode
+from cobot_calib_ros.core.errors import ErrorCode, Failure
 from cobot_calib_ros.core.repeatability import trial as trialmod
 from cobot_calib_ros.core.repeatability import PointStats
 from cobot_calib_ros.core.landmarks.views import setup_problem
@@ -152,8 +152,8 @@ class RepeatabilityTrial(JobNode):
     def _execute(self, goal_handle):
         if not self._busy.acquire(blocking=False):
             goal_handle.abort()
-            return RunTrial.Result(error_code=RunTrial.Result.INVALID_GOAL,
-                                   message='a trial is already running')
+            return results.fill(RunTrial.Result(), 'RunTrial',
+                                Failure(ErrorCode.BUSY, 'a trial is already running'))
         try:
             return self._run(goal_handle)
         finally:
@@ -181,14 +181,18 @@ class RepeatabilityTrial(JobNode):
             data = run.resume(resume) if resume is not None else run.start()
         except trialmod.TrialError as e:
             return self._failed(goal_handle, trial, e)
-        except (OSError, ValueError) as e:        # the store: disk full, no permission, ...
+        except OSError as e:                      # the store: disk full, no permission, ...
+            return self._failed(goal_handle, trial, trialmod.TrialError(
+                ErrorCode.STORAGE_FAILED, f'trial store {self._store.directory}: {e}; free '
+                'space or give this node write access there, then resume the trial'))
+        except ValueError as e:                   # a stored trial that does not read back
             return self._failed(goal_handle, trial, trialmod.TrialError(
                 ErrorCode.INVALID_INPUT, f'trial store {self._store.directory}: {e}'))
         return self._succeeded(goal_handle, trial, data)
 
     def _failed(self, goal_handle, trial: _Goal, error: trialmod.TrialError):
         self._send_feedback(None)
-        result = self._result(trial, results.code('RunTrial', error.code), str(error))
+        result = self._result(trial, error.code, str(error))
         subject = (trial_line(trial.trial_id, trial.meta) if trial.meta
                    else f'trial {trial.trial_id}')
         if error.code == ErrorCode.CANCELED:
@@ -208,15 +212,16 @@ class RepeatabilityTrial(JobNode):
         stats = trialmod.statistics(data)
         message = (f'{stats.cycles} cycles, RP_all {stats.rp_all * 1e3:.4f} mm '
                    f'({data.meta["method"]}, {data.meta["axis"]} axis)')
-        result = self._result(trial, RunTrial.Result.SUCCESS, message, data)
+        result = self._result(trial, ErrorCode.SUCCESS, message, data)
         goal_handle.succeed()
         self.get_logger().info(f'{trial_line(trial.trial_id, data.meta)}: done, {message}')
         self._health.set(OK, f'idle; trial {trial.trial_id} done: {message}')
         return result
 
-    def _result(self, trial: _Goal, code: int, message: str, data=None):
+    def _result(self, trial: _Goal, cause: ErrorCode, message: str, data=None):
         """The result with what is known of the trial: its stored method, axis, cycles, RP."""
-        result = RunTrial.Result(error_code=code, message=message, trial_id=trial.trial_id)
+        result = RunTrial.Result(error_code=results.code('RunTrial', cause), message=message,
+                                 trial_id=trial.trial_id)
         retries = trial.retries_since(self._calls.retries())
         result.capture_retries = retries['capture_joints']
         result.probe_retries = retries['probe_average']

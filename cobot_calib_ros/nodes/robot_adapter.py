@@ -51,6 +51,7 @@ ACCEPT_TIMEOUT = 10.0   # [s] for the controller to accept or reject a trajector
 RESULT_MARGIN = 60.0    # [s] past the trajectory's end before a move is given up
 SERVER_WAIT = 5.0       # [s] for the controller's action server to be discovered
 POLL = 0.01             # [s] between looks at a cancel request while waiting
+CANCELED = Failure(ErrorCode.CANCELED, 'canceled')   # a move_to goal canceled by its client
 
 
 class RobotAdapter(Node):
@@ -148,10 +149,9 @@ class RobotAdapter(Node):
             outcome = Failure(ErrorCode.MOTION_FAILED, f'{self._preset.action}: {e}')
         finally:
             self._busy = False
-        if outcome == 'canceled':
+        if isinstance(outcome, Failure) and outcome.code == ErrorCode.CANCELED:
             goal_handle.canceled()
-            result.error_code, result.message = MoveTo.Result.CANCELED, 'canceled'
-            return result
+            return results.fill(result, 'MoveTo', outcome)
         if isinstance(outcome, Failure):
             goal_handle.abort()
             results.fill(result, 'MoveTo', outcome)
@@ -159,12 +159,12 @@ class RobotAdapter(Node):
             return result
         q, seconds = outcome
         goal_handle.succeed()
-        result.error_code, result.message = MoveTo.Result.SUCCESS, 'reached and settled'
+        results.answer(result, ErrorCode.SUCCESS, 'reached and settled')
         result.positions, result.duration = q.tolist(), seconds
         return result
 
     def _move(self, goal_handle):
-        """(target joints, trajectory seconds), 'canceled', or a Failure."""
+        """(target joints, trajectory seconds), or a Failure (CANCELED when canceled)."""
         goal = goal_handle.request
         q_now = self._current()
         if isinstance(q_now, Failure):
@@ -231,7 +231,8 @@ class RobotAdapter(Node):
         return chain
 
     def _follow(self, goal_handle, action: str, q: np.ndarray, seconds: float):
-        """Run one trajectory to its end: None when it succeeded, else 'canceled' or why."""
+        """Run one trajectory to its end: None when it succeeded, else the Failure (CANCELED
+        when canceled)."""
         client = self._trajectory_clients[action]
         if not client.wait_for_server(timeout_sec=SERVER_WAIT):
             return Failure(ErrorCode.NOT_AVAILABLE, f'no {action} action server; is the driver '
@@ -264,7 +265,7 @@ class RobotAdapter(Node):
                 return Failure(ErrorCode.MOTION_FAILED, f'{action} did not end the move within '
                                f'{seconds + RESULT_MARGIN:.0f} s; the goal was canceled')
         if canceling:
-            return 'canceled'
+            return CANCELED
         code = answer.result.error_code
         if code != FollowJointTrajectory.Result.SUCCESSFUL:
             return driver.trajectory_failure(action, code, answer.result.error_string)
@@ -274,14 +275,14 @@ class RobotAdapter(Node):
 
     def _settle(self, goal_handle):
         """None once the arm is at rest (SettleWatch over readings taken after the trajectory
-        ended: at least one whole window of them), else 'canceled' or the failure."""
+        ended: at least one whole window of them), else the Failure (CANCELED when canceled)."""
         with self._lock:       # the readings from the trajectory's end on
             self._watch = driver.SettleWatch(self._preset.settle_speed,
                                              self._preset.settle_window)
         started = time.monotonic()
         while time.monotonic() - started < self._preset.settle_timeout:
             if goal_handle.is_cancel_requested:
-                return 'canceled'
+                return CANCELED
             with self._lock:
                 if self._watch.settled():
                     return None

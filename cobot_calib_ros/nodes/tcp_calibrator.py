@@ -32,6 +32,7 @@ from rclpy.action import ActionServer, CancelResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
 
 from cobot_calib_ros.core.cell import tool_down_orientation
+from cobot_calib_ros.core.errors import ErrorCode as E
 from cobot_calib_ros.core.provenance import missing_prerequisites
 from cobot_calib_ros.core.robot_port import CaptureFailed, MoveFailed, Stopped
 from cobot_calib_ros.core.tcp import GateLimits, gate_problem, solve_position, TooAlike
@@ -132,12 +133,12 @@ class TcpCalibrator(JobNode):
             plan, locate = self._reachable(plan, point, tilt, T_base_user)
             chain, kinematics_used = self._chain()
         except TooAlike as e:
-            return self._end(goal_handle, result, Action.Result.TOO_ALIKE, f'planned {e}')
+            return self._end(goal_handle, result, E.DEGENERATE_POINTS, f'planned {e}')
         except Unreachable as e:
-            return self._end(goal_handle, result, Action.Result.MOTION_FAILED,
+            return self._end(goal_handle, result, E.MOTION_FAILED,
                              f'planned touches of {point}: {e}')
         except (KeyError, ValueError) as e:
-            return self._end(goal_handle, result, Action.Result.INVALID_GOAL,
+            return self._end(goal_handle, result, E.INVALID_INPUT,
                              str(e).strip("'"))
         total = len(plan.steps())
         prerequisites = missing_prerequisites(f'the TCP of {tool} is',
@@ -158,25 +159,25 @@ class TcpCalibrator(JobNode):
                                    cancelled=lambda: goal_handle.is_cancel_requested,
                                    on_touch=on_touch, locate=locate)
         except TooAlike as e:
-            return self._end(goal_handle, result, Action.Result.TOO_ALIKE,
+            return self._end(goal_handle, result, E.DEGENERATE_POINTS,
                              f'planned from the first touch: {e}; nothing stored')
         except Unreachable as e:
-            return self._end(goal_handle, result, Action.Result.MOTION_FAILED,
+            return self._end(goal_handle, result, E.MOTION_FAILED,
                              f'planned from where the first touch found {point}: {e}; nothing '
                              'stored')
         except Stopped as e:
-            return self._end(goal_handle, result, Action.Result.CANCELED,
+            return self._end(goal_handle, result, E.CANCELED,
                              f'{e}; nothing stored')
         except MoveFailed as e:
-            return self._end(goal_handle, result, Action.Result.MOTION_FAILED, str(e))
+            return self._end(goal_handle, result, E.MOTION_FAILED, str(e))
         except CaptureFailed as e:
-            return self._end(goal_handle, result, Action.Result.CAPTURE_FAILED, str(e))
+            return self._end(goal_handle, result, E.CAPTURE_FAILED, str(e))
         try:
             solution = solve_touches(plan, touches, self._p('touch_sigma'))
         except TooAlike as e:
-            return self._end(goal_handle, result, Action.Result.TOO_ALIKE, str(e))
+            return self._end(goal_handle, result, E.DEGENERATE_POINTS, str(e))
         except (ValueError, np.linalg.LinAlgError) as e:
-            return self._end(goal_handle, result, Action.Result.SOLVER_FAILED, str(e))
+            return self._end(goal_handle, result, E.SOLVER_FAILED, str(e))
         nominal = self._cell.tool_offset if tool == self._cell.tool_frame else None
         gate = gate_problem(solution, GateLimits(touch_sigma=self._p('touch_sigma')), nominal)
         record = TcpRecord.from_solution(
@@ -186,7 +187,7 @@ class TcpCalibrator(JobNode):
         try:
             activation = self._repository().tcp.save_and_activate(record)
         except (OSError, ValueError) as e:
-            return self._end(goal_handle, result, Action.Result.STORAGE_FAILED,
+            return self._end(goal_handle, result, E.STORAGE_FAILED,
                              f'could not store the TCP calibration: {e}')
         position = solution.position
         result.calibration_id, result.active = record.id, bool(activation)
@@ -199,13 +200,13 @@ class TcpCalibrator(JobNode):
         result.condition = position.condition
         result.orientations_used = len(position.residuals)
         if gate:
-            return self._end(goal_handle, result, Action.Result.REJECTED, (
+            return self._end(goal_handle, result, E.IMPLAUSIBLE_FIT, (
                 f'{record.id} rejected, stored as rejected and not made active (the active TCP '
                 f'of {tool} is unchanged): {gate}'))
         x, y, z = position.t * 1e3
         angles = ', '.join(f'{math.degrees(a):.3f}'
                            for a in rpy_from_matrix(solution.R_flange_tcp))
-        return self._end(goal_handle, result, Action.Result.SUCCESS, (
+        return self._end(goal_handle, result, E.SUCCESS, (
             f'{record.id}: TCP of {tool} x {x:.3f} y {y:.3f} z {z:.3f} mm, rpy ({angles}) deg '
             f'({solution.method}); {len(position.residuals)} approaches, residual mean '
             f'{position.mean_residual_mm:.3f} mm, max {position.max_residual_mm:.3f} mm; '

@@ -51,7 +51,6 @@ from cobot_calib_ros.store.history import user_frame_change
 from cobot_calib_ros.core.rig import Rig
 from cobot_calib_ros.store.records import UserFrameRecord
 
-Res = CalibrateUserFrame.Response
 Choice = SetActiveCalibration
 FRAME_PARAMETERS = ('base_frame', 'user_frame')
 PUBLISH_TIMEOUT = 10.0   # [s] the calibrator waits this long for the node thread to publish
@@ -247,8 +246,8 @@ class UserFrameSolver(JobNode):
                                 f'could not store the calibration: {e}; check data_dir')
         self._report_drift(previous, record)
         response.calibration = record_to_msg(record)
-        response.error_code, response.message = Res.SUCCESS, '; '.join(
-            m for m in (fit.message or 'calibrated', prerequisites) if m)
+        results.answer(response, ErrorCode.SUCCESS, '; '.join(
+            m for m in (fit.message or 'calibrated', prerequisites) if m))
         self._publish_from_another_thread(response.calibration)
         spin.log_info(self.get_logger(), f'{record["id"]}: {len(names)} points, rms '
                       f'{fit.rms * 1e3:.4f} mm, max {fit.max_residual * 1e3:.4f} mm')
@@ -481,8 +480,9 @@ class UserFrameSolver(JobNode):
             last_refusal=self._last_refusal or 'none')
 
     def _on_set_active(self, request, response):
-        response.error_code, response.message = self._choose(request)
-        if response.error_code == Choice.Response.SUCCESS:
+        cause, text = self._choose(request)
+        results.answer(response, cause, text)
+        if cause == ErrorCode.SUCCESS:
             self.get_logger().info(f'set_active_calibration: {response.message}')
             self._publish_active()
         with self._store_lock:
@@ -491,9 +491,9 @@ class UserFrameSolver(JobNode):
             response.active = record_to_msg(active)
         return response
 
-    def _choose(self, request) -> tuple[int, str]:
-        """(error code, message) of an ACTIVATE or RETIRE request, applied to the store."""
-        Out = Choice.Response
+    def _choose(self, request) -> tuple[ErrorCode, str]:
+        """(cause, message) of an ACTIVATE or RETIRE request, applied to the store."""
+        Out = ErrorCode
         action, cid = request.action, request.calibration_id
         if action not in (Choice.Request.ACTIVATE, Choice.Request.RETIRE):
             return Out.INVALID_INPUT, (f'unknown action {action}; use ACTIVATE '
@@ -530,11 +530,11 @@ class UserFrameSolver(JobNode):
                 record = (self._store.get(request.calibration_id) if request.calibration_id
                           else self._store.active())
         except ValueError as e:        # not a possible calibration id
-            response.error_code = ConvertPoints.Response.INVALID_INPUT
+            response.error_code = results.code('ConvertPoints', ErrorCode.INVALID_INPUT)
             response.message = f'calibration_id {request.calibration_id!r}: {e}'
             return response
         if record is None:
-            response.error_code = ConvertPoints.Response.NO_CALIBRATION
+            response.error_code = results.code('ConvertPoints', ErrorCode.NO_CALIBRATION)
             response.message = (f'no calibration {request.calibration_id!r}' if
                                 request.calibration_id else
                                 'no active calibration: call calibrate_user_frame first (or '
@@ -542,7 +542,7 @@ class UserFrameSolver(JobNode):
             return response
         points = convert.points_to_array(request.points)
         if not np.all(np.isfinite(points)):
-            response.error_code = ConvertPoints.Response.INVALID_INPUT
+            response.error_code = results.code('ConvertPoints', ErrorCode.INVALID_INPUT)
             response.message = 'points contain NaN or inf'
             return response
         M = np.array(record['result']['M'])

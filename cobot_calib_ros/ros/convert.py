@@ -6,7 +6,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from cobot_calib_ros.core import frames
-from cobot_calib_ros.core.sensors.probe import AverageCode, ProbeAverage
+from cobot_calib_ros.core.errors import ErrorCode
+from cobot_calib_ros.core.sensors.probe import ProbeAverage
+from cobot_calib_ros.ros import results
 
 Array = NDArray[np.float64]
 
@@ -55,9 +57,9 @@ def transform_to_matrix(msg: TransformStamped) -> Array:
 def fill_average(response, result: ProbeAverage):
     """probe/average's response fields from core.sensors.probe.average's result (all but
     min_range and max_range; distance and std stay 0 unless SUCCESS)."""
-    response.error_code, response.message = int(result.code), result.message
+    results.answer(response, result.code, result.message)
     response.sample_count, response.rejected_count = result.sample_count, result.rejected_count
-    if result.code == AverageCode.OUT_OF_RANGE:
+    if result.code == ErrorCode.OUT_OF_RANGE:
         response.reading_status = int(result.status)
     if result:
         response.distance, response.std = result.distance, result.std

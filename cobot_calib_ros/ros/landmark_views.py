@@ -13,7 +13,7 @@ there is one, else the cell's nominal ``camera: hand_eye``).
 """
 from __future__ import annotations
 
-from sensor_msgs.msg import JointState
+from cobot_calib_msgs.msg import CaptureMark
 
 from cobot_calib_ros.core.robot_port import Capture
 from cobot_calib_ros.ros import marks
@@ -26,11 +26,11 @@ class CaptureMarks:
 
     def __init__(self, node, joint_names) -> None:
         self._joint_names = list(joint_names)
-        self._pub = node.create_publisher(JointState, marks.CAPTURES, 100)
+        self._pub = node.create_publisher(CaptureMark, marks.CAPTURES, 100)
 
     def __call__(self, marker_id: int, capture: Capture, stamp_ns: int) -> None:
         """The view's mark: header.stamp = the time after which landmarks count (ROS time),
-        frame_id = 'landmark_<id>' (the marker the view is planned for), name/position = the
-        captured joints [rad], effort = their standard deviation."""
+        target = 'landmark_<id>' (the marker the view is planned for), the captured joints
+        [rad] and their standard deviation."""
         self._pub.publish(marks.capture_mark(f'landmark_{marker_id}', self._joint_names,
                                              capture.q, capture.std, stamp_ns))

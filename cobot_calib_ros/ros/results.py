@@ -1,9 +1,10 @@
 """Each interface's result constant for a failure's cause (core.errors.ErrorCode): one table each.
 
-A node answers a Failure with ``code(interface, failure.code)`` (or :func:`fill`), never with the
-cause's own number: the interfaces number their constants differently. Every table is total: a
-cause an interface has no constant of maps to the nearest one it has (listed explicitly), so a
-new cause can never reach a client as a number the interface does not define
+A node answers a Failure with ``code(interface, failure.code)``, :func:`fill` or :func:`answer`,
+never with an interface's constant or the cause's own number: the interfaces number their
+constants differently (test/nodes/test_answers.py scans the nodes for any other way). Every
+table is total: a cause an interface has no constant of maps to the nearest one it has (listed
+explicitly), so a new cause can never reach a client as a number the interface does not define
 (test/ros/test_results.py checks it, and that every constant is some cause's answer).
 """
 from __future__ import annotations
@@ -87,9 +88,9 @@ TABLES: Mapping[str, Table] = MappingProxyType({
         ('STORAGE_FAILED', (E.STORAGE_FAILED,)), ('CANCELED', (E.CANCELED,))),
     'RunTrial': _table(
         RunTrial.Result, ('SUCCESS', (E.SUCCESS,)), ('INVALID_GOAL', _REQUEST + _FIT),
-        ('MOTION_FAILED', (E.MOTION_FAILED, E.CAPTURE_FAILED, E.MOVING, E.STORAGE_FAILED)),
+        ('MOTION_FAILED', (E.MOTION_FAILED, E.CAPTURE_FAILED, E.MOVING)),
         ('PROBE_FAILED', (E.PROBE_FAILED, E.NO_DATA, E.OUT_OF_RANGE, E.NOT_AVAILABLE)),
-        ('CANCELED', (E.CANCELED,))),
+        ('STORAGE_FAILED', (E.STORAGE_FAILED,)), ('CANCELED', (E.CANCELED,))),
     'MoveTo': _table(
         MoveTo.Result, ('SUCCESS', (E.SUCCESS,)),
         ('UNREACHABLE', (E.MOTION_FAILED, E.CAPTURE_FAILED, E.PROBE_FAILED, E.NO_DATA,
@@ -128,6 +129,25 @@ TABLES: Mapping[str, Table] = MappingProxyType({
 def code(interface: str, cause: E) -> int:
     """The result constant of ``interface`` (a name of TABLES) for ``cause``."""
     return TABLES[interface].code(cause)
+
+
+def interface_of(message) -> str:
+    """The name in TABLES of the interface a result or response message (or its class) is of."""
+    constants = message if isinstance(message, type) else type(message)
+    for name, table in TABLES.items():
+        if table.constants is constants:
+            return name
+    raise KeyError(f'{constants.__name__} has no table in ros/results.py; add one')
+
+
+def answer(message, cause: E, text: str):
+    """Set ``message.error_code`` to its own interface's constant for ``cause`` (an ErrorCode,
+    never an interface's number) and ``message.message`` to ``text``; the message."""
+    if not isinstance(cause, E):
+        raise TypeError(f'a cause is a core.errors.ErrorCode, not {cause!r}: the interfaces '
+                        'number their constants differently (ros/results.py)')
+    message.error_code, message.message = code(interface_of(message), cause), text
+    return message
 
 
 def fill(message, interface: str, failure: Failure):

@@ -5,8 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from cobot_calib_msgs.msg import Landmark, Landmarks
-from sensor_msgs.msg import JointState
+from cobot_calib_msgs.msg import CaptureMark, Landmark, Landmarks
 
 from cobot_calib_ros import paths
 from cobot_calib_ros.api import replay_landmark_check as check
@@ -33,7 +32,8 @@ def session(shift: dict[int, float]) -> tuple[list, list]:
         msg.landmarks.append(Landmark(id=i, kind=Landmark.KIND_MARKER))
         msg.landmarks[-1].pose.pose = convert.matrix_to_pose(T)
         msg.landmarks[-1].pose.covariance = list(np.eye(6).ravel() * 1e-8)
-    mark = JointState(name=list(model.joint_names), position=q.tolist())
+    mark = CaptureMark(target=f'landmark_{sorted(cell.landmarks.markers)[0]}',
+                       joint_names=list(model.joint_names), position_rad=q.tolist())
     return [mark], [msg]
 
 

@@ -10,6 +10,7 @@ import numpy as np
 import yaml
 
 from cobot_calib_ros.api import replay_landmark_check as check
+from cobot_calib_ros.core.errors import ErrorCode
 from cobot_calib_ros.bags.reader import open_bag
 from cobot_calib_ros.ros.time import header_ns
 
@@ -42,8 +43,9 @@ def test_tampered_expected_fails(tmp_path):
     data = yaml.safe_load(path.read_text())
     data['T_base_user'][0][3] += 5e-6          # 5 um off in x
     path.write_text(yaml.safe_dump(data, sort_keys=False))
-    ok, report = check.check(str(bag))
+    result = check.check(str(bag))
+    report = result.report
     print(report)
-    assert not ok
+    assert not result and result.code == ErrorCode.IMPLAUSIBLE_FIT
     assert 'translation differs by 5.0' in report, report
     assert 'expected:' in report

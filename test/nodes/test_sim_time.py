@@ -7,6 +7,7 @@ would hold 1.0 s at 2x and 0.25 s at 0.5x). The wall time a window takes and the
 holds depend on the machine's load: bench/bench_sim_time.py prints them.
 """
 from cobot_calib_msgs.action import MoveTo
+from cobot_calib_msgs.msg import ProbeAverageMark
 from cobot_calib_msgs.srv import AverageProximity, CaptureJoints, GetGroundTruth
 import pytest
 from sensor_msgs.msg import JointState
@@ -96,7 +97,8 @@ def test_a_probe_average_is_in_ros_time(ros, sim_clock, rate):
         client.destroy()
     assert moved.error_code == MoveTo.Result.SUCCESS, moved.message
     served = []         # proximity_sensor's mark of the average: its window's reading stamps
-    sub = ros.create_subscription(JointState, f'/{NS}/{marks.PROBE_AVERAGES}', served.append, 10)
+    sub = ros.create_subscription(ProbeAverageMark, f'/{NS}/{marks.PROBE_AVERAGES}',
+                                  served.append, 10)
     try:
         assert spin_until(ros, lambda: sub.get_publisher_count() > 0, 30.0,
                           ros.executor_for_tests)

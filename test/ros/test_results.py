@@ -57,3 +57,20 @@ def test_fill_sets_the_interfaces_constant_and_the_message() -> None:
     response = results.fill(CalibrateUserFrame.Response(), 'CalibrateUserFrame',
                             Failure(ErrorCode.CANCELED, 'cancelled'))
     assert response.error_code == CalibrateUserFrame.Response.CAPTURE_FAILED
+
+
+def test_answer_takes_a_cause_and_finds_the_interface_by_the_message() -> None:
+    result = results.answer(MoveTo.Result(), ErrorCode.CANCELED, 'canceled')
+    assert result.error_code == MoveTo.Result.CANCELED and result.message == 'canceled'
+    assert results.interface_of(MoveTo.Result) == 'MoveTo'
+    with pytest.raises(TypeError, match='ErrorCode'):
+        results.answer(MoveTo.Result(), MoveTo.Result.CANCELED, 'an interface constant')
+
+
+def test_disk_and_permission_errors_are_their_own_answer() -> None:
+    """STORAGE_FAILED reaches every job's client as a constant of its own (a trial's was
+    answered as INVALID_INPUT / MOTION_FAILED before issue 39)."""
+    for interface in ('RunTrial', 'CalibrateTcp', 'CalibrateHandEye', 'CalibrateIntrinsics',
+                      'CollectSphereData', 'IdentifyKinematics', 'CalibrateUserFrame',
+                      'SetActiveCalibration'):
+        assert results.TABLES[interface].names[ErrorCode.STORAGE_FAILED] == 'STORAGE_FAILED'

@@ -298,14 +298,29 @@ def solve_hand_eye(T_base_flange: Sequence[ArrayLike], T_optical_board: Sequence
     """T_flange_optical and T_base_board from matched flange and board poses (module
     docstring). ``covariances``: the board poses' 6x6 (landmark_detector's) to weight the
     views, default 0.1 mm / 1 mrad per axis; ``method``: the closed-form start, park.
-    Falsy for fewer than three views or degenerate rotations; ValueError for mismatched or
-    malformed lists and an unknown method."""
-    F = _as_transforms(T_base_flange, 'T_base_flange')
-    M = _as_transforms(T_optical_board, 'T_optical_board')
-    if len(F) != len(M):
-        raise ValueError(f'{len(F)} flange poses but {len(M)} board poses')
-    if method != 'park':
-        raise ValueError(f'unknown method {method!r}; use park')
+    Every problem is a falsy result, never raised: fewer than three views (TOO_FEW_POINTS),
+    degenerate rotations (DEGENERATE_POINTS), mismatched or malformed lists and an unknown
+    method (INVALID_INPUT), a solver that fails numerically (SOLVER_FAILED)."""
+    try:
+        F = _as_transforms(T_base_flange, 'T_base_flange')
+        M = _as_transforms(T_optical_board, 'T_optical_board')
+        if len(F) != len(M):
+            raise ValueError(f'{len(F)} flange poses but {len(M)} board poses')
+        if method != 'park':
+            raise ValueError(f'unknown method {method!r}; use park')
+        W = _whiteners(covariances, len(F))
+    except ValueError as e:
+        views = len(T_base_flange) if hasattr(T_base_flange, '__len__') else 0
+        return HandEyeResult.failed(Failure(ErrorCode.INVALID_INPUT, str(e)), views)
+    try:
+        return _solve(F, M, W, method)
+    except (ValueError, np.linalg.LinAlgError) as e:
+        return HandEyeResult.failed(Failure(ErrorCode.SOLVER_FAILED, (
+            f'the hand-eye solver failed numerically ({e}); check the views for NaN or '
+            'impossible poses')), len(F))
+
+
+def _solve(F: Array, M: Array, W: Array, method: str) -> HandEyeResult:
     if len(F) < MIN_VIEWS:
         return HandEyeResult.failed(Failure(ErrorCode.TOO_FEW_POINTS, (
             f'hand-eye calibration needs at least {MIN_VIEWS} views, got {len(F)}; take more '
@@ -315,7 +330,6 @@ def solve_hand_eye(T_base_flange: Sequence[ArrayLike], T_optical_board: Sequence
         return HandEyeResult.failed(degenerate, len(F))
     X0 = park_martin(F, M)
     B0 = _mean_transform(F @ X0 @ M)
-    W = _whiteners(covariances, len(F))
 
     def residual(d: Array, Xs: Array, Bs: Array) -> Array:
         dp, dr = _errors(_perturb(Xs, d[:6]), _perturb(Bs, d[6:]), F, M)

@@ -14,9 +14,10 @@ solved with those intrinsics alone); the coverage of the image (grid cells holdi
 and of board tilts, with what is missing; and the gate (nothing becomes active whose held-out
 error its fit does not explain). Reprojection errors are RMS over points of the pixel distance.
 
-Refused (IntrinsicsError, a ValueError with a ``code``): fewer than MIN_VIEWS views, a view
-with fewer than MIN_POINTS corners or non-finite values, and views all nearly fronto-parallel
-(the focal length is then not observable).
+Refused (core.errors.Refusal, its failure's code an ErrorCode): fewer than MIN_VIEWS views
+(TOO_FEW_POINTS), a view with fewer than MIN_POINTS corners or non-finite values
+(INVALID_INPUT), views all nearly fronto-parallel (the focal length is then not observable) or
+that OpenCV cannot calibrate (DEGENERATE_POINTS).
 """
 from __future__ import annotations
 
@@ -28,6 +29,7 @@ import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from cobot_calib_ros.core.errors import ErrorCode as E, Failure, Refusal
 from cobot_calib_ros.core.landmarks.camera import CameraModel
 
 Array = NDArray[np.float64]
@@ -53,13 +55,9 @@ _REGIONS = (('top-left', 'top', 'top-right'), ('left', 'centre', 'right'),
 _TILTS = ('left', 'right', 'up', 'down')
 
 
-class IntrinsicsError(ValueError):
-    """Views that cannot be calibrated; ``code``: 'bad_input', 'too_few_views' or
-    'degenerate_views'."""
-
-    def __init__(self, code: str, message: str) -> None:
-        super().__init__(message)
-        self.code = code
+def _refusal(code: E, message: str) -> Refusal:
+    """Views that cannot be calibrated, and why."""
+    return Refusal(Failure(code, message))
 
 
 @dataclass(frozen=True, eq=False)
@@ -75,14 +73,14 @@ class BoardView:
         obj = np.asarray(self.object_points, dtype=np.float64).reshape(-1, 3)
         img = np.asarray(self.image_points, dtype=np.float64).reshape(-1, 2)
         if len(obj) != len(img):
-            raise IntrinsicsError('bad_input', f'view {self.name}: {len(obj)} object points '
-                                  f'but {len(img)} image points')
+            raise _refusal(E.INVALID_INPUT, f'view {self.name}: {len(obj)} object points '
+                           f'but {len(img)} image points')
         if not (np.isfinite(obj).all() and np.isfinite(img).all()):
-            raise IntrinsicsError('bad_input', f'view {self.name}: points are not finite '
-                                  '(NaN or inf); drop the view or fix the detection')
+            raise _refusal(E.INVALID_INPUT, f'view {self.name}: points are not finite '
+                           '(NaN or inf); drop the view or fix the detection')
         if len(obj) < MIN_POINTS:
-            raise IntrinsicsError('bad_input', f'view {self.name}: {len(obj)} corners, at '
-                                  f'least {MIN_POINTS} needed; drop the view')
+            raise _refusal(E.INVALID_INPUT, f'view {self.name}: {len(obj)} corners, at '
+                           f'least {MIN_POINTS} needed; drop the view')
         object.__setattr__(self, 'object_points', obj)
         object.__setattr__(self, 'image_points', img)
 
@@ -143,17 +141,17 @@ def calibrate_intrinsics(views: Sequence[BoardView], image_size: tuple[int, int]
                          outlier_factor: float = OUTLIER_FACTOR, folds: int = FOLDS,
                          max_rms_px: float = MAX_RMS_PX) -> IntrinsicsFit:
     """Intrinsics of ``model`` from ``views`` of an image of ``image_size`` (width, height)
-    [px]; ``name`` the camera_name. IntrinsicsError when the views cannot determine them."""
+    [px]; ``name`` the camera_name. Refusal when the views cannot determine them."""
     width, height = (int(v) for v in image_size)
     if width <= 0 or height <= 0:
-        raise IntrinsicsError('bad_input', f'image size must be positive, got {image_size}')
+        raise _refusal(E.INVALID_INPUT, f'image size must be positive, got {image_size}')
     if model not in MODELS:
-        raise IntrinsicsError('bad_input', f'unknown model {model!r}; use one of '
-                              f'{", ".join(MODELS)}')
+        raise _refusal(E.INVALID_INPUT, f'unknown model {model!r}; use one of '
+                       f'{", ".join(MODELS)}')
     views = list(views)
     names = [v.name for v in views]
     if len(set(names)) != len(names):
-        raise IntrinsicsError('bad_input', 'view names must be unique')
+        raise _refusal(E.INVALID_INPUT, 'view names must be unique')
     _check_count(views, model)
     size = (width, height)
     camera, poses = _fit(views, size, model, name)
@@ -247,22 +245,22 @@ def _tilt(rvec: ArrayLike) -> tuple[float, set[str]]:
 
 def _check_count(views: Sequence[BoardView], model: str) -> None:
     if len(views) < MIN_VIEWS:
-        raise IntrinsicsError('too_few_views', f'{len(views)} views of the board; at least '
-                              f'{MIN_VIEWS} are needed ({model}), 15-30 over the whole image '
-                              'and tilted both ways are recommended')
+        raise _refusal(E.TOO_FEW_POINTS, f'{len(views)} views of the board; at least '
+                       f'{MIN_VIEWS} are needed ({model}), 15-30 over the whole image '
+                       'and tilted both ways are recommended')
     for v in views:
         if np.ptp(v.object_points[:, 2]) > 1e-9 or abs(v.object_points[0, 2]) > 1e-9:
-            raise IntrinsicsError('bad_input', f'view {v.name}: object points must lie on the '
-                                  'board plane z = 0')
+            raise _refusal(E.INVALID_INPUT, f'view {v.name}: object points must lie on the '
+                           'board plane z = 0')
 
 
 def _check_tilts(views: Sequence[BoardView], poses) -> None:
     tilts = [_tilt(poses[v.name][0])[0] for v in views]
     if max(tilts) < DEGENERATE_TILT_DEG:
-        raise IntrinsicsError('degenerate_views', f'every view is nearly fronto-parallel (the '
-                              f'largest tilt is {max(tilts):.1f} deg < {DEGENERATE_TILT_DEG:g} '
-                              'deg): the focal length cannot be told from the distance; tilt '
-                              'the board 20-40 deg left, right, up and down')
+        raise _refusal(E.DEGENERATE_POINTS, f'every view is nearly fronto-parallel (the '
+                       f'largest tilt is {max(tilts):.1f} deg < {DEGENERATE_TILT_DEG:g} '
+                       'deg): the focal length cannot be told from the distance; tilt '
+                       'the board 20-40 deg left, right, up and down')
 
 
 def _fit(views: Sequence[BoardView], size: tuple[int, int], model: str, name: str,
@@ -285,13 +283,13 @@ def _fit(views: Sequence[BoardView], size: tuple[int, int], model: str, name: st
             D = np.asarray(D, dtype=np.float64).ravel()[:8 if flags & cv2.CALIB_RATIONAL_MODEL
                                                         else 5]
     except cv2.error as e:
-        raise IntrinsicsError('degenerate_views', f'OpenCV could not calibrate these views: '
-                              f'{(e.err or str(e)).strip()}') from None
+        raise _refusal(E.DEGENERATE_POINTS, f'OpenCV could not calibrate these views: '
+                       f'{(e.err or str(e)).strip()}') from None
     try:
         camera = CameraModel(size[0], size[1], K, D, model, name)
     except ValueError as e:
-        raise IntrinsicsError('degenerate_views', f'the calibration diverged ({e}); add '
-                              'views tilted both ways over the whole image') from None
+        raise _refusal(E.DEGENERATE_POINTS, f'the calibration diverged ({e}); add '
+                       'views tilted both ways over the whole image') from None
     poses = {v.name: (np.asarray(r, dtype=np.float64).ravel(),
                       np.asarray(t, dtype=np.float64).ravel())
              for v, r, t in zip(views, rvecs, tvecs)}
@@ -337,8 +335,8 @@ def solve_view_pose(camera: CameraModel, view: BoardView) -> tuple[Array, Array]
     ok, rvec, tvec = cv2.solvePnP(view.object_points.reshape(-1, 1, 3), pts, K, D,
                                   flags=cv2.SOLVEPNP_ITERATIVE)
     if not ok:
-        raise IntrinsicsError('degenerate_views', f'view {view.name}: no pose with the '
-                              'fitted intrinsics')
+        raise _refusal(E.DEGENERATE_POINTS, f'view {view.name}: no pose with the '
+                       'fitted intrinsics')
     return rvec.ravel(), tvec.ravel()
 
 

@@ -9,6 +9,8 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
+from cobot_calib_ros.core.errors import ErrorCode
+
 Array = NDArray[np.float64]
 
 
@@ -123,7 +125,7 @@ class StampGaps:
 @dataclass(frozen=True)
 class HoldCapture:
     ok: bool
-    reason: str               # '', 'no_data', 'moving'
+    code: ErrorCode           # SUCCESS, NO_DATA or MOVING
     message: str
     mean: Array
     std: Array
@@ -142,15 +144,16 @@ def hold_statistics(times: Array, positions: Array, duration: float, expected_ra
     std = positions.std(axis=0, ddof=1) if count > 1 else np.full(width, math.nan)
     if count > 1 and np.max(std) > max_std:     # motion explains missing samples too
         worst = int(np.argmax(std))
-        return HoldCapture(False, 'moving', (
+        return HoldCapture(False, ErrorCode.MOVING, (
             f'the arm is moving: {joint_names[worst]} spread {std[worst]:.2e} rad > '
             f'{max_std:.1e} rad; wait until the motion ends, then capture again'),
             mean, std, count, span)
     needed = max(2, int(min_fraction * expected_rate * duration))
     if count < needed:
         empty = np.full(width, math.nan)
-        return HoldCapture(False, 'no_data', (
+        return HoldCapture(False, ErrorCode.NO_DATA, (
             f'only {count} joint_states samples in {duration:.3f} s (need {needed}); '
             'is the robot driver (mock_robot) publishing joint_states?'),
             empty, empty, count, span)
-    return HoldCapture(True, '', f'{count} samples over {span:.3f} s', mean, std, count, span)
+    return HoldCapture(True, ErrorCode.SUCCESS, f'{count} samples over {span:.3f} s', mean, std,
+                       count, span)

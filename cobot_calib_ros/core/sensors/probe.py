@@ -7,6 +7,8 @@ import math
 
 import numpy as np
 
+from cobot_calib_ros.core.errors import ErrorCode
+
 
 @dataclass(frozen=True)
 class ProbeCurve:
@@ -76,20 +78,11 @@ def curve_from_lists(distance: list[float], voltage: list[float]) -> ProbeCurve:
     return ProbeCurve(tuple(d.tolist()), tuple(v.tolist()))
 
 
-class AverageCode(IntEnum):
-    """Matches cobot_calib_msgs/srv/AverageProximity's error codes."""
-
-    SUCCESS = 0
-    NO_DATA = 1
-    OUT_OF_RANGE = 2
-    BAD_REQUEST = 3
-
-
 @dataclass(frozen=True)
 class ProbeAverage:
     """A window of readings averaged (what probe/average answers); truthy when SUCCESS."""
 
-    code: AverageCode
+    code: ErrorCode                # SUCCESS, NO_DATA or OUT_OF_RANGE
     message: str
     distance: float = math.nan     # mean of the in-range readings [m]; NaN unless SUCCESS
     std: float = math.nan          # their standard deviation (n - 1) [m]; NaN unless SUCCESS
@@ -98,14 +91,14 @@ class ProbeAverage:
     status: ReadingStatus = ReadingStatus.OK   # OUT_OF_RANGE: the status most rejected had
 
     def __bool__(self) -> bool:
-        return self.code == AverageCode.SUCCESS
+        return self.code == ErrorCode.SUCCESS
 
     def reading(self) -> Reading | None:
         """The averaged Reading (out of range: BELOW_RANGE / ABOVE_RANGE and NaN); None when
         the window gave none: no readings, or mostly INVALID ones (a broken probe signal)."""
-        if self.code == AverageCode.SUCCESS:
+        if self.code == ErrorCode.SUCCESS:
             return Reading(self.distance, ReadingStatus.OK)
-        if self.code == AverageCode.OUT_OF_RANGE and self.status in (
+        if self.code == ErrorCode.OUT_OF_RANGE and self.status in (
                 ReadingStatus.BELOW_RANGE, ReadingStatus.ABOVE_RANGE):
             return Reading(math.nan, self.status)
         return None
@@ -130,7 +123,7 @@ def average(window: list[Sample], duration: float) -> ProbeAverage:
     rejected = [s for _, _, s in window if s != ReadingStatus.OK]
     counts = {'sample_count': int(valid.size), 'rejected_count': len(rejected)}
     if not window:
-        return ProbeAverage(AverageCode.NO_DATA, f'no probe readings in {duration:.3f} s; '
+        return ProbeAverage(ErrorCode.NO_DATA, f'no probe readings in {duration:.3f} s; '
                             'is probe/voltage being published?', **counts)
     if rejected and len(rejected) >= len(window) / 2:
         status = max(set(rejected), key=rejected.count)
@@ -138,9 +131,9 @@ def average(window: list[Sample], duration: float) -> ProbeAverage:
                 ReadingStatus.ABOVE_RANGE: 'the target is beyond the probe range; '}.get(
                     status, 'the probe signal is not a number; check the probe and its cable, '
                     'then ')
-        return ProbeAverage(AverageCode.OUT_OF_RANGE, (
+        return ProbeAverage(ErrorCode.OUT_OF_RANGE, (
             f'{len(rejected)} of {len(window)} readings out of range ({status.name}): '
             f'{side}move the probe and measure again'), status=ReadingStatus(status), **counts)
-    return ProbeAverage(AverageCode.SUCCESS, f'{valid.size} readings, {len(rejected)} rejected',
+    return ProbeAverage(ErrorCode.SUCCESS, f'{valid.size} readings, {len(rejected)} rejected',
                         float(valid.mean()), float(valid.std(ddof=1)) if valid.size > 1 else 0.0,
                         **counts)

@@ -134,13 +134,17 @@ def test_fewer_than_three_views_are_refused():
 
 
 def test_mismatched_and_malformed_inputs_are_refused():
+    """One shape for every problem (issue 39 item 1): a falsy result with its cause, never a
+    raise beside it."""
     F = _flange_poses(4)
-    with pytest.raises(ValueError, match='4 flange poses but 3 board poses'):
-        solve_hand_eye(F, _boards(F)[:3])
-    with pytest.raises(ValueError, match='4x4'):
-        solve_hand_eye(F[:, :3], _boards(F))
-    with pytest.raises(ValueError, match='unknown method'):
-        solve_hand_eye(F, _boards(F), method='daniilidis')
+    for result, says in ((solve_hand_eye(F, _boards(F)[:3]), '4 flange poses but 3 board poses'),
+                         (solve_hand_eye(F[:, :3], _boards(F)), '4x4'),
+                         (solve_hand_eye(F, _boards(F), method='daniilidis'), 'unknown method'),
+                         (solve_hand_eye(F, _boards(F), covariances=np.zeros((3, 6, 6))),
+                          '4 finite 6x6')):
+        assert not result and result.code == ErrorCode.INVALID_INPUT, result.message
+        assert says in result.message
+        assert np.isnan(result.T_flange_optical).all()
 
 
 def test_rotations_about_one_axis_are_degenerate():

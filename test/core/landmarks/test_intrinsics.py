@@ -6,8 +6,8 @@ import pytest
 
 from cobot_calib_ros.core.landmarks.camera import (camera_info_yaml, CameraModel,
                                                    parse_camera_info)
-from cobot_calib_ros.core.landmarks.intrinsics import (BoardView, calibrate_intrinsics,
-                                                       IntrinsicsError)
+from cobot_calib_ros.core.errors import ErrorCode, Refusal
+from cobot_calib_ros.core.landmarks.intrinsics import BoardView, calibrate_intrinsics
 from cobot_calib_ros.loaders import load_camera_info_yaml
 
 SIZE = (1280, 800)
@@ -85,29 +85,30 @@ def test_an_outlier_view_is_named_dropped_and_the_fit_repeated():
 
 
 def test_too_few_views_are_refused():
-    with pytest.raises(IntrinsicsError, match='3 views') as e:
+    with pytest.raises(Refusal, match='3 views') as e:
         calibrate_intrinsics(_views(TRUTHS['plumb_bob'], n=3), SIZE, 'plumb_bob')
-    assert e.value.code == 'too_few_views'
+    assert e.value.failure.code == ErrorCode.TOO_FEW_POINTS
 
 
 def test_fronto_parallel_views_are_refused():
     views = _views(TRUTHS['plumb_bob'], n=8, tilt_deg=1.0)
-    with pytest.raises(IntrinsicsError, match='fronto-parallel') as e:
+    with pytest.raises(Refusal, match='fronto-parallel') as e:
         calibrate_intrinsics(views, SIZE, 'plumb_bob')
-    assert e.value.code == 'degenerate_views'
+    assert e.value.failure.code == ErrorCode.DEGENERATE_POINTS
 
 
 def test_nan_points_are_refused():
     px = TRUTHS['plumb_bob'].project(BOARD, [0.3, 0.1, 0], [0, 0, 0.5])
     px[3, 0] = np.nan
-    with pytest.raises(IntrinsicsError, match='not finite') as e:
+    with pytest.raises(Refusal, match='not finite') as e:
         BoardView('frame_3', BOARD, px)
-    assert e.value.code == 'bad_input'
+    assert e.value.failure.code == ErrorCode.INVALID_INPUT
 
 
 def test_unknown_model_is_refused():
-    with pytest.raises(IntrinsicsError, match='unknown model'):
+    with pytest.raises(Refusal, match='unknown model') as e:
         calibrate_intrinsics(_views(TRUTHS['plumb_bob'], n=5), SIZE, 'kannala')
+    assert e.value.failure.code == ErrorCode.INVALID_INPUT
 
 
 def test_coverage_names_the_missing_parts_and_fails_the_gate():

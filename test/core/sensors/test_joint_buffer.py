@@ -4,6 +4,7 @@ import math
 import numpy as np
 import pytest
 
+from cobot_calib_ros.core.errors import ErrorCode
 from cobot_calib_ros.core.sensors.joint_buffer import (hold_statistics, JointRingBuffer, Rejection,
                                                        StampGaps, StampMarks)
 
@@ -42,11 +43,11 @@ def test_hold_statistics_mean_std_and_refusals():
     np.testing.assert_allclose(ok.mean, [0.1, 0.2, 0.3], atol=1e-15)
     assert ok.std[0] == pytest.approx(np.sqrt(1000 / 999) * 1e-6, rel=1e-9)  # ddof=1
     few = hold_statistics(t[:400], q[:400], 1.0, 1000.0, 0.5, 1e-4, NAMES)
-    assert few.reason == 'no_data' and 'only 400 joint_states samples' in few.message
+    assert few.code == ErrorCode.NO_DATA and 'only 400 joint_states samples' in few.message
     moving = q.copy()
     moving[:, 1] += np.linspace(0.0, 0.01, 1000)
     refused = hold_statistics(t, moving, 1.0, 1000.0, 0.5, 1e-4, NAMES)
-    assert refused.reason == 'moving' and 'j2' in refused.message
+    assert refused.code == ErrorCode.MOVING and 'j2' in refused.message
 
 
 def test_stamp_marks_count_the_messages_before_each_whole_second():

@@ -35,9 +35,10 @@ def _window(*readings):
 
 
 def test_average_is_the_mean_and_sample_std_of_the_in_range_readings():
-    from cobot_calib_ros.core.sensors.probe import average, AverageCode
+    from cobot_calib_ros.core.errors import ErrorCode
+    from cobot_calib_ros.core.sensors.probe import average
     result = average(_window((1.0e-3, OK), (1.2e-3, OK), (math.nan, ABOVE), (1.4e-3, OK)), 0.2)
-    assert result and result.code == AverageCode.SUCCESS
+    assert result and result.code == ErrorCode.SUCCESS
     assert result.distance == pytest.approx(1.2e-3)
     assert result.std == pytest.approx(0.2e-3)                # n - 1: sqrt(0.08 / 2) um
     assert (result.sample_count, result.rejected_count) == (3, 1)
@@ -45,9 +46,10 @@ def test_average_is_the_mean_and_sample_std_of_the_in_range_readings():
 
 
 def test_average_needs_a_majority_in_range_and_names_the_side():
-    from cobot_calib_ros.core.sensors.probe import average, AverageCode
+    from cobot_calib_ros.core.errors import ErrorCode
+    from cobot_calib_ros.core.sensors.probe import average
     half = average(_window((1.0e-3, OK), (math.nan, BELOW)), 0.2)   # 1 of 2: not a majority
-    assert not half and half.code == AverageCode.OUT_OF_RANGE and half.status == BELOW
+    assert not half and half.code == ErrorCode.OUT_OF_RANGE and half.status == BELOW
     assert 'closer than the probe range' in half.message
     reading = half.reading()
     assert reading.status == BELOW and math.isnan(reading.distance)
@@ -58,16 +60,18 @@ def test_average_needs_a_majority_in_range_and_names_the_side():
 def test_mostly_invalid_readings_are_no_reading_not_out_of_range():
     """The node's rule (the in-process robot used to call this 'above range' and step the
     probe away): a probe signal that is not a number gives no reading at all."""
-    from cobot_calib_ros.core.sensors.probe import average, AverageCode
+    from cobot_calib_ros.core.errors import ErrorCode
+    from cobot_calib_ros.core.sensors.probe import average
     result = average(_window((math.nan, INVALID), (math.nan, INVALID), (1e-3, OK)), 0.2)
-    assert result.code == AverageCode.OUT_OF_RANGE and result.status == INVALID
+    assert result.code == ErrorCode.OUT_OF_RANGE and result.status == INVALID
     assert result.reading() is None and 'not a number' in result.message
 
 
 def test_an_empty_window_is_no_data_and_the_window_keeps_both_ends():
-    from cobot_calib_ros.core.sensors.probe import average, average_window, AverageCode
+    from cobot_calib_ros.core.errors import ErrorCode
+    from cobot_calib_ros.core.sensors.probe import average, average_window
     empty = average([], 0.25)
-    assert empty.code == AverageCode.NO_DATA and '0.250 s' in empty.message
+    assert empty.code == ErrorCode.NO_DATA and '0.250 s' in empty.message
     assert empty.reading() is None
     samples = _window(*[(1e-3, OK)] * 10)                        # stamps 0..9 ms
     assert [s[0] for s in average_window(samples, 2_000_000, 0.003)] == [
