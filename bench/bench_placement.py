@@ -82,8 +82,9 @@ from cobot_calib_ros.sim.scenario import load_simulation, Simulation
 from cobot_calib_ros.store.cells import ResultsCell
 from cobot_calib_ros.store.records import KinematicRecord, TcpRecord, UserFrameRecord
 from cobot_calib_ros.store.rigs import rig_of
+from cobot_calib_ros.paths import DEFAULT_CELL
 
-CELLS = {'sawyer': 'sawyer_close', 'iiwa7': 'iiwa7_close', 'ur10e': 'ur10e_close'}
+CELLS = {'sawyer': DEFAULT_CELL, 'iiwa7': 'iiwa7_close', 'ur10e': 'ur10e_close'}
 TARGETS = 50
 TARGET_SEED = 36
 IDENTIFY_HOLD = 0.05        # [s] `identify`'s --hold default
