@@ -182,6 +182,24 @@ def plane_file(folder: Path, m: int = 60, noise_m: float = 25e-6, seed: int = 15
                  [[*r[:6], str(int(r[6]))] for r in rows])
 
 
+def workspace_error(identified: list[dict], m: int = 500, seed: int = 99) -> float:
+    """RMS distance [m] of the ball (MARKER on tool0) of the URDF's arm with the
+    ``identified`` parameters (a report's list: name, value; none: nominal) from the true
+    arm's over ``m`` configurations, the best rigid fit between the two removed."""
+    from cobot_calib_ros.core.frames import kabsch
+    from cobot_calib_ros.core.kinematics.urdf import model_from_urdf
+    from cobot_calib_ros.core.kinematics.identification import measurement_fit as mf
+    errors = mf.ErrorModel(model_from_urdf(urdf(), 'base_link', 'tool0', 'arm6'), 'full')
+    q = configurations(m, seed)
+    T = errors.tip_poses(tuple(p['name'] for p in identified),
+                         np.array([p['value'] for p in identified]), q)
+    truth = fk(*true_origins(), q)
+    p, t = (F[:, :3, :3] @ MARKER + F[:, :3, 3] for F in (T, truth))
+    fitted = kabsch(p, t)
+    return float(np.sqrt(np.mean(np.sum((p @ fitted[:3, :3].T + fitted[:3, 3] - t) ** 2,
+                                        axis=1))))
+
+
 def urdf_file(folder: Path) -> Path:
     folder.mkdir(parents=True, exist_ok=True)
     path = folder / 'arm6.urdf'

@@ -88,7 +88,7 @@ def test_each_source_is_identified_by_the_one_call_with_the_one_report_shape(col
         assert all(set(p) >= {'name', 'value', 'nominal', 'delta'} for p in report['identified'])
         json.dumps(report)                                      # JSON-ready
     # held out where the source has rows to hold out (README's real-data figures)
-    assert file['held_out']['calibrated']['rmse_mm'] == pytest.approx(4.156, abs=5e-3)
+    assert file['held_out']['calibrated']['rmse_mm'] == pytest.approx(3.903, abs=5e-3)
     assert mukca['held_out']['calibrated']['mean_mm'] == pytest.approx(0.232, abs=1e-3)
     assert mukca['validation'] == {'leave_out': 'location',
                                    'groups': ['front', 'left_back', 'raised_left']}
@@ -100,7 +100,9 @@ def test_each_source_is_identified_by_the_one_call_with_the_one_report_shape(col
     assert stored['dropped'] == bag['dropped'] and len(bag['dropped']) == 6
     expected = json.loads((BAG / 'expected.json').read_text())
     live = {p['name']: p['value'] for p in expected['identified']}
-    assert max(abs(p['value'] - live[p['name']]) for p in stored['identified']) <= 1e-9
+    # the live session was recorded before the prior around nominal (issue 37), which moves
+    # these well-determined parameters by 1.0e-7 (m or rad); bit for bit before it
+    assert max(abs(p['value'] - live[p['name']]) for p in stored['identified']) <= 2e-7
 
 
 def test_options_a_source_does_not_take_are_named(collection):
