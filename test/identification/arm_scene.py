@@ -105,11 +105,15 @@ MARKER = np.array([0.03, -0.02, 0.09])           # on tool0
 
 def points_file(folder: Path, m: int = 60, noise_m: float = 50e-6, *, length: str = 'm',
                 scale: float = 1.0, angle: str = 'rad', angle_scale: float = 1.0,
-                seed: int = 13) -> Path:
+                seed: int = 13, zeroing: np.ndarray | None = None,
+                q: np.ndarray | None = None) -> Path:
     """A tracker measures one marker on tool0: positions [m] x ``scale`` in the CSV, joints
-    [rad] x ``angle_scale``, the sidecar declaring ``length`` and ``angle``."""
+    [rad] x ``angle_scale``, the sidecar declaring ``length`` and ``angle``; ``zeroing``
+    (6,) [rad] added to the true arm's zero offsets (an encoder zeroed off), ``q`` (m, 6)
+    [rad] the configurations (default :func:`configurations`)."""
     origins, offsets = true_origins()
-    q = configurations(m)
+    offsets = offsets if zeroing is None else offsets + zeroing
+    q = configurations(m) if q is None else q
     T = BASE @ fk(origins, offsets, q)
     p = T[:, :3, :3] @ MARKER + T[:, :3, 3]
     p += np.random.default_rng(seed).normal(0.0, noise_m, p.shape)

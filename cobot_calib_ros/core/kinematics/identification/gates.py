@@ -144,7 +144,7 @@ def undetermined_reason(model: KinematicModel | None, name: str, std: float) -> 
     unit, scale = _unit(model, name)
     typical = typical_deviation(model, name) * scale
     spread = 'no bound' if not math.isfinite(std) else f'+- {std * scale:.3g} {unit}'
-    return (f'held at nominal: the data do not determine it ({spread} from the fit, where a '
+    return (f'the data do not determine it ({spread} from the fit, where a '
             f'real arm deviates by ~{typical:g} {unit}; more or more varied poses, or a '
             'measurement that sees it, would)')
 

@@ -479,8 +479,11 @@ def identifiable(errors: ErrorModel, data: Measurements, rank_tol: float = RANK_
     labels = candidates + problem.kind.names + tuple(
         f'base_rotation_{c}' for c in 'xyz'[:gauge.shape[1]])
     nuisance = len(candidates) + len(problem.kind.names)
+    # zero offsets before the other parameters: at nominal a length can stand in for an
+    # offset to first order (parallel axes), not for the degrees an encoder is zeroed off by
+    zero = [c for c, n in enumerate(candidates) if gates.is_zero_offset(errors.model, n)]
     order = list(range(nuisance, len(labels))) + list(range(len(candidates), nuisance)) \
-        + list(range(len(candidates)))
+        + zero + [c for c in range(len(candidates)) if c not in zero]
     kept_cols: list[int] = []
     basis = np.empty((len(J), 0))
     dropped = []
