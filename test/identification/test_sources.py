@@ -88,7 +88,7 @@ def test_each_source_is_identified_by_the_one_call_with_the_one_report_shape(col
         assert all(set(p) >= {'name', 'value', 'nominal', 'delta'} for p in report['identified'])
         json.dumps(report)                                      # JSON-ready
     # held out where the source has rows to hold out (README's real-data figures)
-    assert file['held_out']['calibrated']['rmse_mm'] == pytest.approx(3.903, abs=5e-3)
+    assert file['held_out']['calibrated']['rmse_mm'] == pytest.approx(3.956, abs=5e-3)
     assert mukca['held_out']['calibrated']['mean_mm'] == pytest.approx(0.232, abs=1e-3)
     assert mukca['validation'] == {'leave_out': 'location',
                                    'groups': ['front', 'left_back', 'raised_left']}

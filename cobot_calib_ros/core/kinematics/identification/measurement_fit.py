@@ -64,9 +64,8 @@ FD_STEP = 1e-6            # [m or rad] central-difference step
 RANK_TOL = 1e-3           # a column is kept if >= this fraction of it is new (scaled columns)
 CORRELATED = 0.9
 OUTLIER_MADS = 5.0        # a row is an outlier beyond median + 5 scaled MADs of the errors
-PRIOR_PASSES = 2          # the prior's data sigma: the nominal model's scatter, then the first
-                          # pass's (iterated further it follows a plane-touch fit into its
-                          # collapse, where the scatter is below the noise)
+PRIOR_PASSES = 8          # the prior's data sigma: the nominal model's scatter, then each
+PRIOR_SETTLED = 0.9       # pass's, each pass from the last's solution, until it settles
 TOLERANCE = 1e-12         # trf's xtol, ftol and gtol
 MAX_EVALUATIONS = 200     # trf's residual evaluations, both stages of a robust loss
 SOLVERS = ('lm', 'nelder-mead')
@@ -183,6 +182,7 @@ class _Problem:
         self.kind = make_kind(data, errors.tip_poses((), np.empty(0), data.q))
         start = self.kind.x0 if nuisance is None else np.asarray(nuisance, dtype=float)
         self.x0 = np.concatenate([errors.start(self.names), start])
+        self.start = self.x0        # where the solve starts (:func:`fit`'s ``start``)
         self.n = len(self.names)
         # the Gaussian prior's rows, weight_i (x_i - nominal_i) = sigma_r / sigma_i (x_i -
         # nominal_i) beside the data's residuals (:func:`fit`); zeros: none
@@ -294,9 +294,9 @@ class _Problem:
         monitor = _Monitor(self.objective, loss, f_scale, callback, first_iteration)
         lower, upper = self.bounds(bounds)
         start = time.perf_counter()
-        monitor.step(self.x0)
+        monitor.step(self.start)
         if solver == 'nelder-mead':
-            x, converged, message = _nelder_mead(monitor, self.x0, lower, upper,
+            x, converged, message = _nelder_mead(monitor, self.start, lower, upper,
                                                  options or NM_CONVERGED)
         else:
             x, converged, message = self._trust_region(monitor, loss, f_scale, max_nfev,
@@ -325,7 +325,7 @@ class _Problem:
                                  f_scale=f_scale)
 
         def stages(box) -> tuple[Array, bool, str]:
-            x0, budget = self.x0, max_nfev
+            x0, budget = self.start, max_nfev
             if loss != 'linear':
                 first = run(x0, 'linear', budget, box)
                 if first.status <= 0:
@@ -574,7 +574,8 @@ def fit(errors: ErrorModel, data: Measurements, names: tuple[str, ...],
         nuisance: Array | None = None, loss: str = 'linear',
         bounds: DeviationBounds = DeviationBounds(), solver: str = 'lm',
         callback: Callback | None = None, options: dict | None = None,
-        prior_sigma_m: float = 0.0, first_iteration: int = 0) -> Fit:
+        prior_sigma_m: float = 0.0, first_iteration: int = 0,
+        start: Array | None = None) -> Fit:
     """Least squares over the named model parameters (none: the nuisance alone) and the
     nuisance on ``data``, from the nominal model and ``nuisance`` (default: the kind's
     start), the parameters kept within ``bounds`` of nominal (:meth:`_Problem.solve`).
@@ -584,6 +585,8 @@ def fit(errors: ErrorModel, data: Measurements, names: tuple[str, ...],
     prior = np.array([0.0 if n.startswith(compliance.PREFIX) else
                       prior_sigma_m / gates.typical_deviation(errors.model, n) for n in names])
     problem = _Problem(errors, data, names, nuisance, prior)
+    if start is not None:       # a pass of judged_fit goes on from the last
+        problem.start = np.asarray(start, dtype=float)
     minimum = len(problem.x0)
     count = len(problem.residuals(problem.x0))
     if count < minimum:
@@ -622,12 +625,16 @@ def judged_fit(errors: ErrorModel, data: Measurements, names: tuple[str, ...],
     names = tuple(names)
     if not names:
         return fit(errors, data, (), nuisance, loss, bounds, solver, callback, options), ()
-    result, iterations = fit(errors, data, (), nuisance, loss), 0
+    result, iterations, start = fit(errors, data, (), nuisance, loss), 0, None
+    sigma = result.data_rms()
     for _ in range(PRIOR_PASSES):
-        sigma = result.data_rms()
         result = fit(errors, data, names, nuisance, loss, bounds, solver, callback, options,
-                     sigma, iterations)
-        iterations = result.solution.iterations + 1
+                     sigma, iterations, start)
+        iterations, start = result.solution.iterations + 1, result.solution.x
+        last, sigma = sigma, result.data_rms()
+        if sigma > PRIOR_SETTLED * last:
+            break
+    sigma = last
     std = result.standard_deviations()[:len(names)]
     held = tuple(Held(n, float(v), gates.undetermined_reason(errors.model, n, float(v)))
                  for n, v in zip(names, std) if not gates.determined(errors.model, n, float(v)))
