@@ -16,8 +16,8 @@ UR10E = DATA / 'figaroh-ur10e'
 MUKCA = DATA / 'mukca-kuka-iiwa14'
 POSITIONER = DATA / 'industrial-calibration-positioner'
 # measured held-out figures (make bench prints them)
-UR10E_NOMINAL_MM, UR10E_MM = 4.528, 4.156
-UR10E_NOMINAL_MRAD, UR10E_MRAD = 9.933, 7.608
+UR10E_NOMINAL_MM, UR10E_MM = 4.528, 3.956          # 4.156 before issue 37's prior
+UR10E_NOMINAL_MRAD, UR10E_MRAD = 9.933, 7.541      # 7.608 before
 MUKCA_NOMINAL_MM, MUKCA_MM = 0.705, 0.232
 MUKCA_COMPLIANCE_MM = 0.136            # per location 0.090, 0.080, 0.249
 POSITIONER_NOMINAL_MM, POSITIONER_MM, POSITIONER_MRAD = 0.460, 0.410, 0.927
@@ -56,7 +56,9 @@ def test_mukca_iiwa14_with_joint_compliance_leave_one_location_out():
     compliance per revolute joint (full+compliance: a deflection in proportion to the joint's
     gravity torque) brings the held-out MAE to 0.136 mm (goal <= 0.20 mm: met), the raised
     location to 0.249 mm. The first and last axes carry no gravity torque here (a1 vertical,
-    the ball on a7's axis): their compliances are dropped."""
+    the ball on a7's axis): their compliances are dropped; a5's the data do not determine
+    (+- 3.4 mrad/(N m) against the 1 mrad/(N m) yardstick): held at nominal (0) with its
+    reason (issue 37; 0.1360 mm with it, 0.1358 without)."""
     r = identify_source(MUKCA / 'kuka_14', measurement='spheres',
                         urdf=str(MUKCA / 'iiwa14.urdf'), base_link='base_link',
                         tip_link='tool0', leave_out='location',
@@ -68,7 +70,8 @@ def test_mukca_iiwa14_with_joint_compliance_leave_one_location_out():
     assert [round(f['calibrated']['mean_mm'], 3) for f in r['folds']] == \
         pytest.approx([0.090, 0.080, 0.249], abs=2e-3)
     springs = {p['name'] for p in r['identified'] if p['name'].startswith('compliance_')}
-    assert springs == {f'compliance_joint_a{i}' for i in range(2, 7)}
+    assert springs == {f'compliance_joint_a{i}' for i in (2, 3, 4, 6)}
+    assert [h['name'] for h in r['held']] == ['compliance_joint_a5']
 
 
 def test_two_axis_positioner_dh_five_fold():
