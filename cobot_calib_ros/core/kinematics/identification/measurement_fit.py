@@ -341,15 +341,18 @@ class _Problem:
             return x, converged, message
         return stages(bounds)
 
-    def standard_deviations(self, x: Array, loss: str = 'linear',
-                            f_scale: float = 1.0) -> Array:
+    def standard_deviations(self, x: Array, loss: str = 'linear', f_scale: float = 1.0,
+                            prior: bool = True) -> Array:
         """sqrt(diag(s^2 (J^T W J)^-1)) of every unknown at x, s^2 = sum(w r^2) / (N - U) (N
         residuals, U unknowns, W the robust ``loss``'s weights rho'((r / f_scale)^2) there)
         [m or rad]; inf for one the data do not determine. With a prior its rows join J (the
-        posterior's spread: never above the prior's sigma), s^2 from the data's rows."""
-        J, r = self.objective_columns(x), self.objective(x)
+        posterior's spread: never above the prior's sigma) unless ``prior`` is False (what the
+        data alone say), s^2 from the data's rows."""
+        with_prior = prior and self.prior.any()
+        J = self.objective_columns(x) if with_prior else self.columns(x)
+        r = self.objective(x) if with_prior else self.residuals(x)
         root = np.sqrt(WEIGHTS[loss]((r / f_scale) ** 2))
-        J, r = J * root[:, None], (r * root)[:len(r) - (self.n if self.prior.any() else 0)]
+        J, r = J * root[:, None], (r * root)[:len(r) - (self.n if with_prior else 0)]
         N, U = len(r), J.shape[1]
         scale = np.linalg.norm(J, axis=0)
         scale[scale == 0.0] = 1.0   # an all-zero column shows up as a zero singular value
@@ -552,11 +555,11 @@ class Fit:
         r = self.problem.residuals(self.solution.x)
         return float(np.sqrt(np.mean(r * r)))
 
-    def standard_deviations(self) -> Array:
+    def standard_deviations(self, prior: bool = True) -> Array:
         """Of the named parameters, then the nuisance [m or rad] (:meth:`_Problem.
-        standard_deviations`)."""
+        standard_deviations`; ``prior`` False: what the data alone say)."""
         return self.problem.standard_deviations(self.solution.x, self.solution.loss,
-                                                self.solution.f_scale)
+                                                self.solution.f_scale, prior)
 
     @property
     def deltas(self) -> Array:
@@ -805,9 +808,8 @@ def calibrate(errors: ErrorModel, data: Measurements, *, loss: str = 'linear',
                              callback, options)
     problems = gates.at_bounds(errors.model, final.names, final.deltas, bounds)
     if not final.converged:
-        problems.append(f'the solver did not converge ({final.solution.message}, '
-                        f'{final.solution.iterations} iterations): the model may be far from '
-                        'the optimum')
+        problems.append(f'the solver did not converge ({final.solution.message}): the model '
+                        'may be far from the optimum')
     return Calibration(data, nominal, ident, final, tuple(problems), held)
 
 
