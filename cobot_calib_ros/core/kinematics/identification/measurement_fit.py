@@ -618,26 +618,34 @@ def judged_fit(errors: ErrorModel, data: Measurements, names: tuple[str, ...],
                callback: Callback | None = None,
                options: dict | None = None) -> tuple[Fit, tuple[Held, ...]]:
     """The fit of ``names`` as a real arm is judged (:mod:`.gates`): maximum a posteriori with
-    a Gaussian prior around nominal (each parameter's sigma its kind's typical deviation, the
-    data's sigma the RMS residual of the nominal model, then of that first pass:
-    ``PRIOR_PASSES``), so a parameter the data barely see stays near nominal without a hard
-    bound; then each parameter's standard deviation from that fit (at the robust loss's
-    weights, the prior's rows included): one the data do not determine (:func:`gates.
-    determined`) is held at nominal with its reason and the rest refitted with the same
-    prior. The bounds stay as the ceiling of what a real arm can be."""
+    a Gaussian prior around nominal (each parameter's sigma its kind's typical deviation; the
+    data's sigma the RMS residual of the nominal model, then of each pass, each pass going on
+    from the last's solution, until it falls by less than ``PRIOR_SETTLED``; those passes are
+    'lm''s, and Nelder-Mead, when asked for, then solves once from nominal on the settled
+    prior), so a parameter the data barely see stays near nominal without a hard bound; then
+    each parameter's standard deviation from that fit (at the robust loss's weights, the
+    prior's rows included): one the data do not determine (:func:`gates.determined`) is held
+    at nominal with its reason and the rest refitted from nominal with the same prior. The
+    bounds stay as the ceiling of what a real arm can be. Data that pull a parameter the
+    prior's passes hold near nominal (noise-free data along a direction they barely see) keep
+    the prior's bias: the data's scatter is estimated from the same residuals."""
     names = tuple(names)
     if not names:
         return fit(errors, data, (), nuisance, loss, bounds, solver, callback, options), ()
     result, iterations, start = fit(errors, data, (), nuisance, loss), 0, None
     sigma = result.data_rms()
-    for _ in range(PRIOR_PASSES):
-        result = fit(errors, data, names, nuisance, loss, bounds, solver, callback, options,
+    for _ in range(PRIOR_PASSES):      # 'lm' settles the prior (Nelder-Mead takes a minute)
+        result = fit(errors, data, names, nuisance, loss, bounds, 'lm', callback, None,
                      sigma, iterations, start)
         iterations, start = result.solution.iterations + 1, result.solution.x
         last, sigma = sigma, result.data_rms()
         if sigma > PRIOR_SETTLED * last:
             break
     sigma = last
+    if solver != 'lm':                 # the solver asked for, from nominal, on that prior
+        result = fit(errors, data, names, nuisance, loss, bounds, solver, callback, options,
+                     sigma, iterations)
+        iterations = result.solution.iterations + 1
     std = result.standard_deviations()[:len(names)]
     held = tuple(Held(n, float(v), gates.undetermined_reason(errors.model, n, float(v)))
                  for n, v in zip(names, std) if not gates.determined(errors.model, n, float(v)))
