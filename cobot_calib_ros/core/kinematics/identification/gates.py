@@ -70,7 +70,7 @@ class DeviationBounds:
 
     length_m: float = MAX_DEVIATION_M
     angle_rad: float = MAX_DEVIATION_RAD
-    offset_rad: float = MAX_OFFSET_RAD      # a revolute joint's zero offset (:func:`is_zero_offset`)
+    offset_rad: float = MAX_OFFSET_RAD      # a revolute joint's zero offset (is_zero_offset)
 
     def __post_init__(self) -> None:
         values = (self.length_m, self.angle_rad, self.offset_rad)
