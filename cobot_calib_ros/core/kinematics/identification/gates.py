@@ -7,10 +7,12 @@ the live suite):
    inside the model's limits (radians read as degrees and the reverse named), the measured
    positions spread like the arm's tip does at those joints (metres read as millimetres and the
    reverse named), known sphere distances no longer than the arm can span, enough equations.
-2. **Each parameter is judged by what the data say about it**: its standard deviation from
-   the fit (s^2 (J^T J)^-1 at the solution, at the robust loss's weights) against how far a
-   real arm deviates (:func:`typical_deviation`: 1 mm, 10 mrad). One the data do not
-   determine (std above half of that) is held at nominal with its reason
+2. **Each parameter is judged by what the data say about it**: the solve is maximum a
+   posteriori with a Gaussian prior around nominal of how far a real arm deviates
+   (:func:`typical_deviation`: 1 mm, 10 mrad), and each parameter's standard deviation from
+   that fit (s^2 (J^T W J)^-1 at the solution, W the robust loss's weights, the prior's rows
+   included) is set against it. One the data do not determine (std above 0.9 of the prior's
+   sigma: :func:`determined`) is held at nominal with its reason
    (:func:`undetermined_reason`) and never sinks the calibration; one far from nominal but
    determined is kept and reported as large (:func:`large_note`: a zero offset of degrees is
    typical of encoder zeroing). The solve stays where a real arm can be
@@ -66,7 +68,8 @@ _ANGLE_FIELDS = ('roll', 'pitch', 'yaw', 'alpha', 'theta', 'compliance')  # (com
 @dataclass(frozen=True)
 class DeviationBounds:
     """How far from nominal an identified parameter may be: ``length_m`` [m] for lengths (and
-    a prismatic joint's zero offset), ``angle_rad`` [rad] for angles and zero offsets."""
+    a prismatic joint's zero offset), ``angle_rad`` [rad] for angles, ``offset_rad`` [rad]
+    for a revolute joint's zero offset."""
 
     length_m: float = MAX_DEVIATION_M
     angle_rad: float = MAX_DEVIATION_RAD
