@@ -85,7 +85,9 @@ def _gate(report: dict) -> str:
     if not report['verdict']['passed']:
         return f'gate: {verdict_line(report)}'
     bounds = report.get('bounds')
+    offsets = report.get('offset_bound_mrad')
     within = f'deviations within {bounds["length_mm"]:g} mm / {bounds["angle_mrad"]:g} mrad' \
+        + (f' / zero offsets {offsets:g} mrad' if offsets else '') \
         if bounds else 'every deviation within its bound'
     compared = ', held out no worse than nominal' if report.get('held_out') else \
         ', validation no worse than nominal' if report.get('tracker') else ''
