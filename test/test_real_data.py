@@ -78,7 +78,9 @@ def test_mukca_iiwa14_with_joint_compliance_leave_one_location_out(mukca_geometr
     held out it beats the geometric model at every location, most at the raised one (where
     the arm's pose, hence its gravity torques, differ most from the other two), and meets the
     goal <= 0.20 mm. The first and last axes carry no gravity torque here (a1 vertical, the
-    ball on a7's axis): their compliances are dropped."""
+    ball on a7's axis): their compliances are dropped.
+    a5's the data do not determine (+- 3.4 mrad/(N m) against the 1 mrad/(N m) yardstick):
+    held at nominal (0) with its reason (issue 37)."""
     r = identify_source(MUKCA / 'kuka_14', measurement='spheres',
                         urdf=str(MUKCA / 'iiwa14.urdf'), base_link='base_link',
                         tip_link='tool0', leave_out='location',
@@ -91,7 +93,8 @@ def test_mukca_iiwa14_with_joint_compliance_leave_one_location_out(mukca_geometr
     assert min(gains.values()) > 0, gains
     assert max(gains, key=gains.get) == 'raised_left', gains
     springs = {p['name'] for p in r['identified'] if p['name'].startswith('compliance_')}
-    assert springs == {f'compliance_joint_a{i}' for i in range(2, 7)}
+    assert springs == {f'compliance_joint_a{i}' for i in (2, 3, 4, 6)}
+    assert [h['name'] for h in r['held']] == ['compliance_joint_a5']
 
 
 def test_two_axis_positioner_dh_five_fold():

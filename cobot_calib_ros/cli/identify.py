@@ -102,11 +102,11 @@ def _measurement_arguments(p) -> None:
                         'gravity torque')
     p.add_argument('--max-deviation-mm', type=float, default=MAX_DEVIATION_M * 1e3,
                    metavar='MM', help='the most a length of the model may move from nominal '
-                   f'[mm] (default {MAX_DEVIATION_M * 1e3:g}); a parameter that ends there is '
-                   'not determined by the data and the result is refused')
+                   f'[mm] (default {MAX_DEVIATION_M * 1e3:g}); a determined parameter that ends '
+                   'there is refused (one the data do not determine is held at nominal)')
     p.add_argument('--max-deviation-mrad', type=float, default=MAX_DEVIATION_RAD * 1e3,
-                   metavar='MRAD', help='the same for angles and zero offsets [mrad] (default '
-                   f'{MAX_DEVIATION_RAD * 1e3:g})')
+                   metavar='MRAD', help='the same for angles [mrad] (default '
+                   f'{MAX_DEVIATION_RAD * 1e3:g}; a zero offset may move 350 mrad)')
     held = p.add_mutually_exclusive_group()
     held.add_argument('--folds', type=int, default=None, metavar='K',
                       help=f'k-fold validation, row i in fold i %% K (default {DEFAULT_FOLDS})')

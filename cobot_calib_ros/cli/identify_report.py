@@ -43,6 +43,12 @@ def text(report: dict) -> str:
     if report.get('partial'):
         lines.append(report['partial'])
     lines += [f'dropped {d["name"]}: {d["reason"]}' for d in report['dropped']]
+    lines += [f'held {h["name"]} at nominal: {h["reason"]}' for h in report.get('held', ())]
+    lines += [f'large: {note}' for note in report.get('large', ())]
+    prior = report.get('prior')
+    if prior:
+        lines.append(f'prior around nominal: {prior["length_mm"]:g} mm, {prior["angle_mrad"]:g} '
+                     f'mrad (data sigma {prior["data_sigma_mm"]:.3g} mm)')
     lines += _correlated(report) + [f'outlier: sample {o["sample"]} ({o["error_mm"]:.3f} mm)'
                                     for o in report.get('outliers', ())]
     lines.append(parameters_table(report['identified']))
@@ -87,7 +93,9 @@ def _gate(report: dict) -> str:
     if not report['verdict']['passed']:
         return f'gate: {verdict_line(report)}'
     bounds = report.get('bounds')
+    offsets = report.get('offset_bound_mrad')
     within = f'deviations within {bounds["length_mm"]:g} mm / {bounds["angle_mrad"]:g} mrad' \
+        + (f' / zero offsets {offsets:g} mrad' if offsets else '') \
         if bounds else 'every deviation within its bound'
     compared = ', held out no worse than nominal' if report.get('held_out') else \
         ', validation no worse than nominal' if report.get('tracker') else ''

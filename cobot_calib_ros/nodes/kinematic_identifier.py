@@ -119,8 +119,9 @@ class KinematicIdentifier(JobNode):
                 'may be off nominal [m]; a result with a parameter beyond is refused, nothing '
                 'stored', 1e-5, 0.1)
         declare(self, 'max_deviation_angle', MAX_DEVIATION_RAD,
-                'Identification gate: the most an angle or zero offset may be off nominal '
-                '[rad]; a result with a parameter beyond is refused, nothing stored', 1e-5, 0.5)
+                'Identification gate: the most an angle may be off nominal [rad] (a zero '
+                'offset: 0.35 rad); a result with a parameter beyond is refused, nothing '
+                'stored', 1e-5, 0.5)
 
     def _exclusive(self, goal_handle, run, Result):
         try:

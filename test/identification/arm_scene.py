@@ -105,11 +105,15 @@ MARKER = np.array([0.03, -0.02, 0.09])           # on tool0
 
 def points_file(folder: Path, m: int = 60, noise_m: float = 50e-6, *, length: str = 'm',
                 scale: float = 1.0, angle: str = 'rad', angle_scale: float = 1.0,
-                seed: int = 13) -> Path:
+                seed: int = 13, zeroing: np.ndarray | None = None,
+                q: np.ndarray | None = None) -> Path:
     """A tracker measures one marker on tool0: positions [m] x ``scale`` in the CSV, joints
-    [rad] x ``angle_scale``, the sidecar declaring ``length`` and ``angle``."""
+    [rad] x ``angle_scale``, the sidecar declaring ``length`` and ``angle``; ``zeroing``
+    (6,) [rad] added to the true arm's zero offsets (an encoder zeroed off), ``q`` (m, 6)
+    [rad] the configurations (default :func:`configurations`)."""
     origins, offsets = true_origins()
-    q = configurations(m)
+    offsets = offsets if zeroing is None else offsets + zeroing
+    q = configurations(m) if q is None else q
     T = BASE @ fk(origins, offsets, q)
     p = T[:, :3, :3] @ MARKER + T[:, :3, 3]
     p += np.random.default_rng(seed).normal(0.0, noise_m, p.shape)
@@ -180,6 +184,24 @@ def plane_file(folder: Path, m: int = 60, noise_m: float = 25e-6, seed: int = 15
             'ball': [float(v) for v in ball]}
     return write(folder, 'plane', side, side['joints'] + ['plane'],
                  [[*r[:6], str(int(r[6]))] for r in rows])
+
+
+def workspace_error(identified: list[dict], m: int = 500, seed: int = 99) -> float:
+    """RMS distance [m] of the ball (MARKER on tool0) of the URDF's arm with the
+    ``identified`` parameters (a report's list: name, value; none: nominal) from the true
+    arm's over ``m`` configurations, the best rigid fit between the two removed."""
+    from cobot_calib_ros.core.frames import kabsch
+    from cobot_calib_ros.core.kinematics.urdf import model_from_urdf
+    from cobot_calib_ros.core.kinematics.identification import measurement_fit as mf
+    errors = mf.ErrorModel(model_from_urdf(urdf(), 'base_link', 'tool0', 'arm6'), 'full')
+    q = configurations(m, seed)
+    T = errors.tip_poses(tuple(p['name'] for p in identified),
+                         np.array([p['value'] for p in identified]), q)
+    truth = fk(*true_origins(), q)
+    p, t = (F[:, :3, :3] @ MARKER + F[:, :3, 3] for F in (T, truth))
+    fitted = kabsch(p, t)
+    return float(np.sqrt(np.mean(np.sum((p @ fitted[:3, :3].T + fitted[:3, 3] - t) ** 2,
+                                        axis=1))))
 
 
 def urdf_file(folder: Path) -> Path:

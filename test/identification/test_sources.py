@@ -104,7 +104,9 @@ def test_each_source_is_identified_by_the_one_call_with_the_one_report_shape(col
     assert stored['dropped'] == bag['dropped'] and len(bag['dropped']) == 6
     expected = json.loads((BAG / 'expected.json').read_text())
     live = {p['name']: p['value'] for p in expected['identified']}
-    assert max(abs(p['value'] - live[p['name']]) for p in stored['identified']) <= 1e-9
+    # the live session was recorded before the prior around nominal (issue 37), which moves
+    # these well-determined parameters by 1.0e-7 (m or rad); bit for bit before it
+    assert max(abs(p['value'] - live[p['name']]) for p in stored['identified']) <= 2e-7
 
 
 def test_options_a_source_does_not_take_are_named(collection):

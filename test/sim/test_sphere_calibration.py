@@ -68,8 +68,8 @@ def test_sphere_calibration_cuts_the_max_error_in_the_calibrated_volume(cell):
     assert 0.3 < volume['nominal']['max_mm'] and 1.5 < workspace['nominal']['max_mm'] < 4.0
     assert ratio <= 0.30
     assert workspace['calibrated']['max_mm'] <= 1.2 * laser_ws
-    assert [d.name for d in sphere.identifiability.dropped][:4] == \
-        ['alpha_1', 'a_1', 'theta_1', 'd_1']
+    assert {'alpha_1', 'a_1', 'theta_1', 'd_1'} <= {d.name for d in
+                                                   sphere.identifiability.dropped}
 
 
 def test_identified_deviations_match_the_true_robot(cell):

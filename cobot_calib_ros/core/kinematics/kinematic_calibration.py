@@ -102,6 +102,7 @@ class Outcome:
     validation: dict[str, dict]       # region -> {'nominal': stats, 'calibrated': stats}
     table: str                        # the identified model as the paper's Table 6
     verdict: Verdict = Verdict()      # the gates' (module doc, steps 2-3)
+    notes: tuple[str, ...] = ()       # parameters held at nominal and large ones, with why
 
     def summary(self) -> str:
         r = self.result
@@ -112,7 +113,7 @@ class Outcome:
         for region, table in self.validation.items():
             parts.append(f'{region}: max error {table["nominal"]["max_mm"]:.3f} -> '
                          f'{table["calibrated"]["max_mm"]:.3f} mm')
-        return '; '.join(parts)
+        return '; '.join(parts + list(self.notes))
 
 
 @dataclass
@@ -156,8 +157,11 @@ class CalibrationJob:
             p for region, t in validation.items() for p in gates.result_problems(
                 True, t['nominal']['mean_mm'] * 1e-3, t['calibrated']['mean_mm'] * 1e-3,
                 what=f'mean tracker error ({region})')))
+        notes = tuple(f'held {h.name} at nominal: {h.reason}' for h in calibration.held) + \
+            tuple(f'large: {note}' for note in calibration.large())
         return Outcome(model, self._inputs(), result, calibration.identifiability, free_values,
-                       nominal_values, validation, table6(model, result.params), verdict)
+                       nominal_values, validation, table6(model, result.params), verdict,
+                       notes)
 
     def error_model(self) -> mf.ErrorModel:
         return error_model(self.model)

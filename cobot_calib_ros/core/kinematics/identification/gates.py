@@ -7,11 +7,19 @@ the live suite):
    inside the model's limits (radians read as degrees and the reverse named), the measured
    positions spread like the arm's tip does at those joints (metres read as millimetres and the
    reverse named), known sphere distances no longer than the arm can span, enough equations.
-2. **The solve stays where a real arm can be** (:class:`DeviationBounds`): every identified
-   deviation from nominal within a few millimetres and tens of milliradians (the defaults,
-   which a user can see and change). The solver is bounded by them, so it cannot collapse the
-   arm onto a degenerate solution (a ball that never moves fits every plane); a parameter that
-   ends on its bound is not determined by the data, and the result is refused.
+2. **Each parameter is judged by what the data say about it**: the solve is maximum a
+   posteriori with a Gaussian prior around nominal of how far a real arm deviates
+   (:func:`typical_deviation`: 1 mm, 10 mrad), and each parameter's standard deviation from
+   that fit (s^2 (J^T W J)^-1 at the solution, W the robust loss's weights, the prior's rows
+   included) is set against it. One the data do not determine (std above 0.9 of the prior's
+   sigma: :func:`determined`) is held at nominal with its reason
+   (:func:`undetermined_reason`) and never sinks the calibration; one far from nominal but
+   determined is kept and reported as large (:func:`large_note`: a zero offset of degrees is
+   typical of encoder zeroing). The solve stays where a real arm can be
+   (:class:`DeviationBounds`: a few millimetres, tens of milliradians, a zero offset 20
+   degrees; the defaults, which a user can see and change), so it cannot collapse the arm onto
+   a degenerate solution (a ball that never moves fits every plane); a determined parameter
+   that ends on its bound is a wrong model, and the result is refused.
 3. **The result is better than what it replaces** (:func:`judge`): converged, held-out error no
    worse than the nominal model's, and not below the measurement's own noise (a fit that
    predicts held-out data better than the instrument measures them has found a degenerate
@@ -32,9 +40,23 @@ from cobot_calib_ros.core.errors import ErrorCode, Failure, Refusal
 from cobot_calib_ros.core.kinematics.model import KinematicModel
 
 Array = NDArray[np.float64]
-MAX_DEVIATION_M = 0.005          # a real arm's joint origins are off by < ~1 mm; 5 mm is ample
-MAX_DEVIATION_RAD = 0.05         # and its axes by < ~5 mrad, its zero offsets by < ~20 mrad
+MAX_DEVIATION_M = 0.02           # a real arm's joint origins are off by < ~1 mm, a humanoid's
+                                 # by several: 20 mm is no drawing error but a wrong model
+MAX_DEVIATION_RAD = 0.05         # and its axes by < ~5 mrad
+MAX_OFFSET_RAD = 0.35            # its zero offsets: humanoid and mobile arms by degrees (encoder
+                                 # zeroing); 20 deg is no zeroing error but a wrong model
 AT_BOUND = 0.99                  # a deviation beyond this fraction of its bound sits on it
+# How far a real arm of any kind deviates from its drawing (one sigma): the Gaussian prior
+# around nominal of the solve (measurement_fit.judged_fit) and the yardstick a parameter's
+# standard deviation is judged by: 1 mm for lengths, 10 mrad for angles and zero offsets; a
+# compliance, rad/(N m), has no nominal and no prior, its yardstick 1e-3 (a light arm's joint
+# stiffness is ~1000 N m/rad)
+TYPICAL_LENGTH_M = 1e-3
+TYPICAL_ANGLE_RAD = 10e-3
+TYPICAL_COMPLIANCE = 1e-3
+DETERMINED = 0.9                 # determined: std from the fit with the prior <= 0.9 of the
+                                 # prior's sigma (the data add >= 1/4 of the prior's information)
+LARGE = 3.0                      # large: a determined deviation beyond 3 typical ones
 LIMIT_SLACK_RAD = 0.05           # joint readings may pass a URDF limit by a little
 SMALLEST_JOINT_SPAN_RAD = 0.2    # all joints within 11.5 deg: no arm is calibrated so
                                  # (2 pi rad read as degrees is 0.11 rad)
@@ -46,24 +68,28 @@ _ANGLE_FIELDS = ('roll', 'pitch', 'yaw', 'alpha', 'theta', 'compliance')  # (com
 @dataclass(frozen=True)
 class DeviationBounds:
     """How far from nominal an identified parameter may be: ``length_m`` [m] for lengths (and
-    a prismatic joint's zero offset), ``angle_rad`` [rad] for angles and zero offsets."""
+    a prismatic joint's zero offset), ``angle_rad`` [rad] for angles, ``offset_rad`` [rad]
+    for a revolute joint's zero offset."""
 
     length_m: float = MAX_DEVIATION_M
     angle_rad: float = MAX_DEVIATION_RAD
+    offset_rad: float = MAX_OFFSET_RAD      # a revolute joint's zero offset (is_zero_offset)
 
     def __post_init__(self) -> None:
-        if not (self.length_m > 0.0 and self.angle_rad > 0.0
-                and math.isfinite(self.length_m) and math.isfinite(self.angle_rad)):
+        values = (self.length_m, self.angle_rad, self.offset_rad)
+        if not all(v > 0.0 and math.isfinite(v) for v in values):
             raise ValueError(f'deviation bounds must be finite and > 0, got '
-                             f'{self.length_m} m and {self.angle_rad} rad')
+                             f'{self.length_m} m, {self.angle_rad} rad and {self.offset_rad} rad')
 
     def half_widths(self, model: KinematicModel, names: tuple[str, ...]) -> Array:
         """The bound of each named parameter [m or rad]."""
-        return np.array([self.angle_rad if is_angle(model, n) else self.length_m
+        return np.array([self.offset_rad if is_zero_offset(model, n) else
+                         self.angle_rad if is_angle(model, n) else self.length_m
                          for n in names], dtype=float)
 
     def describe(self) -> str:
-        return f'{self.length_m * 1e3:g} mm / {self.angle_rad * 1e3:g} mrad'
+        return (f'{self.length_m * 1e3:g} mm / {self.angle_rad * 1e3:g} mrad (zero offsets '
+                f'{self.offset_rad * 1e3:g} mrad)')
 
 
 def is_angle(model: KinematicModel, name: str) -> bool:
@@ -74,20 +100,89 @@ def is_angle(model: KinematicModel, name: str) -> bool:
     return name.split('_', 1)[0] in _ANGLE_FIELDS
 
 
+def is_zero_offset(model: KinematicModel | None, name: str) -> bool:
+    """Whether ``name`` turns a revolute joint about its own axis (its zero offset: where an
+    encoder zeroing error shows): ``offset_<joint>``, an MDH ``theta_<i>``, or a URDF origin's
+    ``yaw_<joint>`` when the origin's roll and pitch are nominally 0 (the placement is
+    Rz(yaw) Ry(pitch) Rx(roll) before the joint's own Rz)."""
+    if model is None or not is_angle(model, name) or name.startswith('compliance'):
+        return False
+    field, _, rest = name.partition('_')
+    if field == 'offset':
+        return True
+    if field == 'theta' and model.kind == 'mdh':
+        return True
+    if field == 'yaw' and model.kind == 'origin' and rest in model.joint_names:
+        joint = model.joint_names.index(rest)
+        if len(model.prismatic) and model.prismatic[joint]:
+            return False
+        row = model.rows()[joint]
+        return abs(math.remainder(row[3], 2 * math.pi)) < 1e-9 and \
+            abs(math.remainder(row[4], 2 * math.pi)) < 1e-9
+    return False
+
+
+def typical_deviation(model: KinematicModel | None, name: str) -> float:
+    """How far a real arm's parameter ``name`` deviates from its drawing (one sigma) [m, rad
+    or rad/(N m)]: the yardstick its standard deviation is judged by."""
+    if name.startswith('compliance'):
+        return TYPICAL_COMPLIANCE
+    return TYPICAL_ANGLE_RAD if is_angle(model, name) else TYPICAL_LENGTH_M
+
+
+def _unit(model: KinematicModel | None, name: str) -> tuple[str, float]:
+    if name.startswith('compliance'):
+        return 'mrad/(N m)', 1e3
+    return ('mrad', 1e3) if is_angle(model, name) else ('mm', 1e3)
+
+
+def determined(model: KinematicModel | None, name: str, std: float) -> bool:
+    """Whether the data determine ``name``: its standard deviation [m or rad] from the fit
+    within :data:`DETERMINED` of a real arm's typical deviation (a NaN or inf std: not)."""
+    return bool(std <= DETERMINED * typical_deviation(model, name))
+
+
+def undetermined_reason(model: KinematicModel | None, name: str, std: float) -> str:
+    """Why ``name`` is held at nominal: its std against what a real arm deviates by."""
+    unit, scale = _unit(model, name)
+    typical = typical_deviation(model, name) * scale
+    spread = 'no bound' if not math.isfinite(std) else f'+- {std * scale:.3g} {unit}'
+    return (f'the data do not determine it ({spread} from the fit, where a '
+            f'real arm deviates by ~{typical:g} {unit}; more or more varied poses, or a '
+            'measurement that sees it, would)')
+
+
+def large_note(model: KinematicModel | None, name: str, delta: float,
+               std: float) -> str | None:
+    """'<name> +61.0 mrad +- 0.4: large, ...' for a determined deviation beyond :data:`LARGE`
+    typical ones; None when it is not large."""
+    if not abs(delta) > LARGE * typical_deviation(model, name):
+        return None
+    unit, scale = _unit(model, name)
+    why = ('typical of encoder zeroing' if is_zero_offset(model, name) else
+           'a soft joint, or link bending lumped into it' if name.startswith('compliance') else
+           'check the drawing or the assembly' if not is_angle(model, name) else
+           'check the mounting of this joint\'s axis')
+    return f'{name} {delta * scale:+.4g} {unit} +- {std * scale:.2g}: large, {why}'
+
+
 def at_bounds(model: KinematicModel, names: tuple[str, ...], deltas: ArrayLike,
               bounds: DeviationBounds) -> list[str]:
-    """One problem per parameter whose deviation sits on its bound."""
+    """One problem per parameter whose deviation sits on its bound. Called on determined
+    parameters (an undetermined one is held at nominal before): the data put the arm where
+    no real arm is, which is a wrong model, not an arm off its drawing."""
     deltas = np.asarray(deltas, dtype=float)
     widths = bounds.half_widths(model, names)
     out = []
     for name, d, w in zip(names, deltas, widths):
         if not abs(d) < AT_BOUND * w:
-            unit, scale = ('mrad', 1e3) if is_angle(model, name) else ('mm', 1e3)
+            unit, scale = _unit(model, name)
             out.append(f'{name} ran to its bound ({d * scale:+.3f} {unit} off nominal, '
-                       f'bound {w * scale:g} {unit}): the data do not determine it (too few or too '
-                       'alike poses, or a measurement that cannot see it: try --model '
-                       'offsets), or the arm is off by more than a real arm is (check the '
-                       'units; the bound is --max-deviation-mm / --max-deviation-mrad)')
+                       f'bound {w * scale:g} {unit}), where the data pull it further: the '
+                       'model does not fit these data (a measurement that cannot see the '
+                       'full model, e.g. plane touches: try --model offsets; or a unit '
+                       'mistake), or the arm is off by more than a real arm is (the bound is '
+                       '--max-deviation-mm / --max-deviation-mrad)')
     return out
 
 

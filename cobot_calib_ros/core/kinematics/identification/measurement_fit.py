@@ -64,6 +64,8 @@ FD_STEP = 1e-6            # [m or rad] central-difference step
 RANK_TOL = 1e-3           # a column is kept if >= this fraction of it is new (scaled columns)
 CORRELATED = 0.9
 OUTLIER_MADS = 5.0        # a row is an outlier beyond median + 5 scaled MADs of the errors
+PRIOR_PASSES = 8          # the prior's data sigma: the nominal model's scatter, then each
+PRIOR_SETTLED = 0.9       # pass's, each pass from the last's solution, until it settles
 TOLERANCE = 1e-12         # trf's xtol, ftol and gtol
 MAX_EVALUATIONS = 200     # trf's residual evaluations, both stages of a robust loss
 SOLVERS = ('lm', 'nelder-mead')
@@ -74,6 +76,15 @@ LOSSES: dict[str, Callable[[Array], Array]] = {
     'huber': lambda z: np.where(z <= 1.0, z, 2.0 * np.sqrt(z) - 1.0),
     'cauchy': np.log1p,
     'arctan': np.arctan,
+}
+# rho'(z): a row's weight at the solution (iteratively reweighted least squares), for the
+# standard deviations at the robust loss's weights
+WEIGHTS: dict[str, Callable[[Array], Array]] = {
+    'linear': np.ones_like,
+    'soft_l1': lambda z: 1.0 / np.sqrt(1.0 + z),
+    'huber': lambda z: np.where(z <= 1.0, 1.0, 1.0 / np.sqrt(np.maximum(z, 1.0))),
+    'cauchy': lambda z: 1.0 / (1.0 + z),
+    'arctan': lambda z: 1.0 / (1.0 + z * z),
 }
 NM_STEP = 1e-3  # Nelder-Mead initial simplex edge along each unknown: 1 mm or 1 mrad
 # Nelder-Mead run to convergence (the product's setting and make bench's): the simplex within
@@ -166,12 +177,16 @@ class _Problem:
     """Residuals and their Jacobian over x = [the named model parameters..., nuisance...]."""
 
     def __init__(self, errors: ErrorModel, data: Measurements, names: tuple[str, ...],
-                 nuisance: Array | None = None) -> None:
+                 nuisance: Array | None = None, prior: Array | None = None) -> None:
         self.errors, self.data, self.names = errors, data, tuple(names)
         self.kind = make_kind(data, errors.tip_poses((), np.empty(0), data.q))
         start = self.kind.x0 if nuisance is None else np.asarray(nuisance, dtype=float)
         self.x0 = np.concatenate([errors.start(self.names), start])
+        self.start = self.x0        # where the solve starts (:func:`fit`'s ``start``)
         self.n = len(self.names)
+        # the Gaussian prior's rows, weight_i (x_i - nominal_i) = sigma_r / sigma_i (x_i -
+        # nominal_i) beside the data's residuals (:func:`fit`); zeros: none
+        self.prior = np.zeros(self.n) if prior is None else np.asarray(prior, dtype=float)
         self._tip_key, self._tip = b'', np.empty((0, 4, 4))
         self._columns_key, self._columns = b'', np.empty((0, 0))
 
@@ -187,6 +202,22 @@ class _Problem:
 
     def residuals(self, x: Array) -> Array:
         return self.kind.residuals(self.tip(x), x[self.n:])
+
+    def objective(self, x: Array) -> Array:
+        """The residuals the solve minimises: the data's, then the prior's."""
+        r = self.residuals(x)
+        if not self.prior.any():
+            return r
+        return np.concatenate([r, self.prior * (x[:self.n] - self.x0[:self.n])])
+
+    def objective_columns(self, x: Array) -> Array:
+        """d :meth:`objective` / d x."""
+        J = self.columns(x)
+        if not self.prior.any():
+            return J
+        rows = np.zeros((self.n, J.shape[1]))
+        rows[:, :self.n] = np.diag(self.prior)
+        return np.vstack([J, rows])
 
     def jacobian(self, x: Array) -> Array:
         """The model parameters through the tip's twists (:mod:`.tip_jacobian`), the nuisance
@@ -236,7 +267,8 @@ class _Problem:
 
     def solve(self, max_nfev: int | None = MAX_EVALUATIONS, loss: str = 'linear',
               bounds: DeviationBounds = DeviationBounds(), solver: str = 'lm',
-              callback: Callback | None = None, options: dict | None = None) -> Solution:
+              callback: Callback | None = None, options: dict | None = None,
+              first_iteration: int = 0) -> Solution:
         """The bounded solve from x0 (module docstring); ``callback`` as :func:`calibrate`'s.
 
         'lm' with a robust loss starts from the least-squares solution: from the nominal
@@ -259,20 +291,20 @@ class _Problem:
         f_scale = 1.0
         if loss != 'linear':      # inliers: within ~ the start's median residual
             f_scale = max(float(np.median(np.abs(r0))), 1e-9)
-        monitor = _Monitor(self.residuals, loss, f_scale, callback)
+        monitor = _Monitor(self.objective, loss, f_scale, callback, first_iteration)
         lower, upper = self.bounds(bounds)
         start = time.perf_counter()
-        monitor.step(self.x0)
+        monitor.step(self.start)
         if solver == 'nelder-mead':
-            x, converged, message = _nelder_mead(monitor, self.x0, lower, upper,
+            x, converged, message = _nelder_mead(monitor, self.start, lower, upper,
                                                  options or NM_CONVERGED)
         else:
             x, converged, message = self._trust_region(monitor, loss, f_scale, max_nfev,
                                                        (lower, upper))
-        r = self.residuals(x)
+        r = self.objective(x)
         return Solution(x, converged, message if converged else f'did not converge: {message}',
                         monitor.iterations, time.perf_counter() - start, monitor.cost(r),
-                        float(np.sqrt(np.mean(r * r))))
+                        float(np.sqrt(np.mean(r * r))), loss, f_scale)
 
     def _trust_region(self, monitor: '_Monitor', loss: str, f_scale: float,
                       max_nfev: int | None, bounds: tuple[Array, Array]
@@ -283,7 +315,7 @@ class _Problem:
         (a collapsing fit) the bounded solve from the start."""
         def jacobian(x: Array) -> Array:
             monitor.step(x)          # trf takes the Jacobian once per accepted step
-            return self.columns(x)
+            return self.objective_columns(x)
 
         def run(x0: Array, stage_loss: str, budget: int | None, box):
             from scipy.optimize import least_squares    # here: importing it takes 0.3 s
@@ -293,7 +325,7 @@ class _Problem:
                                  f_scale=f_scale)
 
         def stages(box) -> tuple[Array, bool, str]:
-            x0, budget = self.x0, max_nfev
+            x0, budget = self.start, max_nfev
             if loss != 'linear':
                 first = run(x0, 'linear', budget, box)
                 if first.status <= 0:
@@ -309,15 +341,23 @@ class _Problem:
             return x, converged, message
         return stages(bounds)
 
-    def standard_deviations(self, x: Array) -> Array:
-        """sqrt(diag(s^2 (J^T J)^-1)) of every unknown at x, s^2 = sum(r^2) / (N - U) (N
-        residuals, U unknowns) [m or rad]; inf for one the data do not determine."""
-        J, r = self.columns(x), self.residuals(x)
-        N, U = J.shape
+    def standard_deviations(self, x: Array, loss: str = 'linear', f_scale: float = 1.0,
+                            prior: bool = True) -> Array:
+        """sqrt(diag(s^2 (J^T W J)^-1)) of every unknown at x, s^2 = sum(w r^2) / (N - U) (N
+        residuals, U unknowns, W the robust ``loss``'s weights rho'((r / f_scale)^2) there)
+        [m or rad]; inf for one the data do not determine. With a prior its rows join J (the
+        posterior's spread: never above the prior's sigma) unless ``prior`` is False (what the
+        data alone say), s^2 from the data's rows."""
+        with_prior = prior and self.prior.any()
+        J = self.objective_columns(x) if with_prior else self.columns(x)
+        r = self.objective(x) if with_prior else self.residuals(x)
+        root = np.sqrt(WEIGHTS[loss]((r / f_scale) ** 2))
+        J, r = J * root[:, None], (r * root)[:len(r) - (self.n if with_prior else 0)]
+        N, U = len(r), J.shape[1]
         scale = np.linalg.norm(J, axis=0)
         scale[scale == 0.0] = 1.0   # an all-zero column shows up as a zero singular value
         _, sv, Vt = np.linalg.svd(J / scale, full_matrices=False)
-        null = sv <= sv[0] * max(N, U) * np.finfo(float).eps
+        null = sv <= sv[0] * max(len(J), U) * np.finfo(float).eps
         s2 = float(r @ r) / (N - U) if N > U else np.inf
         var = ((Vt[~null] / sv[~null, None]) ** 2).sum(axis=0) * s2 / scale ** 2
         undetermined = (np.abs(Vt[null]) > 1e-8).any(axis=0)
@@ -337,16 +377,18 @@ class Solution:
     seconds: float
     cost: float
     rms_m: float
+    loss: str = 'linear'
+    f_scale: float = 1.0          # [m]: the robust loss's inlier scale
 
 
 class _Monitor:
     """Counts iterations and asks the callback whether to go on (:func:`calibrate`)."""
 
     def __init__(self, residuals: Callable[[Array], Array], loss: str, f_scale: float,
-                 callback: Callback | None) -> None:
+                 callback: Callback | None, first_iteration: int = 0) -> None:
         self.rho, self.f_scale, self.callback = LOSSES[loss], f_scale, callback
         self._residuals = residuals
-        self.iterations = -1
+        self.iterations = first_iteration - 1   # a later pass counts on (judged_fit)
         self._last_x, self._last_r, self._stepped = b'', np.empty(0), b''
 
     def cost(self, r: Array) -> float:
@@ -440,8 +482,11 @@ def identifiable(errors: ErrorModel, data: Measurements, rank_tol: float = RANK_
     labels = candidates + problem.kind.names + tuple(
         f'base_rotation_{c}' for c in 'xyz'[:gauge.shape[1]])
     nuisance = len(candidates) + len(problem.kind.names)
+    # zero offsets before the other parameters: at nominal a length can stand in for an
+    # offset to first order (parallel axes), not for the degrees an encoder is zeroed off by
+    zero = [c for c, n in enumerate(candidates) if gates.is_zero_offset(errors.model, n)]
     order = list(range(nuisance, len(labels))) + list(range(len(candidates), nuisance)) \
-        + list(range(len(candidates)))
+        + zero + [c for c in range(len(candidates)) if c not in zero]
     kept_cols: list[int] = []
     basis = np.empty((len(J), 0))
     dropped = []
@@ -499,15 +544,22 @@ class Fit:
     nuisance: Array
     problem: _Problem
     solution: Solution
+    prior_sigma_m: float = 0.0      # the data's sigma the prior was weighed with (0: none)
 
     @property
     def converged(self) -> bool:
         return self.solution.converged
 
-    def standard_deviations(self) -> Array:
+    def data_rms(self) -> float:
+        """RMS of the data's residuals at the solution [m] (the prior's rows left out)."""
+        r = self.problem.residuals(self.solution.x)
+        return float(np.sqrt(np.mean(r * r)))
+
+    def standard_deviations(self, prior: bool = True) -> Array:
         """Of the named parameters, then the nuisance [m or rad] (:meth:`_Problem.
-        standard_deviations`)."""
-        return self.problem.standard_deviations(self.solution.x)
+        standard_deviations`; ``prior`` False: what the data alone say)."""
+        return self.problem.standard_deviations(self.solution.x, self.solution.loss,
+                                                self.solution.f_scale, prior)
 
     @property
     def deltas(self) -> Array:
@@ -524,11 +576,20 @@ class Fit:
 def fit(errors: ErrorModel, data: Measurements, names: tuple[str, ...],
         nuisance: Array | None = None, loss: str = 'linear',
         bounds: DeviationBounds = DeviationBounds(), solver: str = 'lm',
-        callback: Callback | None = None, options: dict | None = None) -> Fit:
+        callback: Callback | None = None, options: dict | None = None,
+        prior_sigma_m: float = 0.0, first_iteration: int = 0,
+        start: Array | None = None) -> Fit:
     """Least squares over the named model parameters (none: the nuisance alone) and the
     nuisance on ``data``, from the nominal model and ``nuisance`` (default: the kind's
-    start), the parameters kept within ``bounds`` of nominal (:meth:`_Problem.solve`)."""
-    problem = _Problem(errors, data, names, nuisance)
+    start), the parameters kept within ``bounds`` of nominal (:meth:`_Problem.solve`).
+    ``prior_sigma_m`` > 0: maximum a posteriori with a Gaussian prior around nominal, each
+    parameter's sigma its typical deviation (:func:`gates.typical_deviation`), the data's
+    residuals' sigma ``prior_sigma_m`` [m]."""
+    prior = np.array([0.0 if n.startswith(compliance.PREFIX) else
+                      prior_sigma_m / gates.typical_deviation(errors.model, n) for n in names])
+    problem = _Problem(errors, data, names, nuisance, prior)
+    if start is not None:       # a pass of judged_fit goes on from the last
+        problem.start = np.asarray(start, dtype=float)
     minimum = len(problem.x0)
     count = len(problem.residuals(problem.x0))
     if count < minimum:
@@ -536,9 +597,63 @@ def fit(errors: ErrorModel, data: Measurements, names: tuple[str, ...],
                          f'({len(names)} parameters + {minimum - len(names)} frames/targets): '
                          f'measure more rows or use a smaller --model')
     solution = problem.solve(loss=loss, bounds=bounds, solver=solver, callback=callback,
-                             options=options)
+                             options=options, first_iteration=first_iteration)
     x = solution.x
-    return Fit(tuple(names), x[:problem.n], x[problem.n:], problem, solution)
+    return Fit(tuple(names), x[:problem.n], x[problem.n:], problem, solution, prior_sigma_m)
+
+
+@dataclass(frozen=True)
+class Held:
+    """A parameter the data do not determine, held at nominal: its std [m or rad] from the
+    fit that held it (inf: none) and why (:func:`gates.undetermined_reason`)."""
+
+    name: str
+    std: float
+    reason: str
+
+
+def judged_fit(errors: ErrorModel, data: Measurements, names: tuple[str, ...],
+               nuisance: Array | None = None, loss: str = 'linear',
+               bounds: DeviationBounds = DeviationBounds(), solver: str = 'lm',
+               callback: Callback | None = None,
+               options: dict | None = None) -> tuple[Fit, tuple[Held, ...]]:
+    """The fit of ``names`` as a real arm is judged (:mod:`.gates`): maximum a posteriori with
+    a Gaussian prior around nominal (each parameter's sigma its kind's typical deviation; the
+    data's sigma the RMS residual of the nominal model, then of each pass, each pass going on
+    from the last's solution, until it falls by less than ``PRIOR_SETTLED``; those passes are
+    'lm''s, and Nelder-Mead, when asked for, then solves once from nominal on the settled
+    prior), so a parameter the data barely see stays near nominal without a hard bound; then
+    each parameter's standard deviation from that fit (at the robust loss's weights, the
+    prior's rows included): one the data do not determine (:func:`gates.determined`) is held
+    at nominal with its reason and the rest refitted from nominal with the same prior. The
+    bounds stay as the ceiling of what a real arm can be. Data that pull a parameter the
+    prior's passes hold near nominal (noise-free data along a direction they barely see) keep
+    the prior's bias: the data's scatter is estimated from the same residuals."""
+    names = tuple(names)
+    if not names:
+        return fit(errors, data, (), nuisance, loss, bounds, solver, callback, options), ()
+    result, iterations, start = fit(errors, data, (), nuisance, loss), 0, None
+    sigma = result.data_rms()
+    for _ in range(PRIOR_PASSES):      # 'lm' settles the prior (Nelder-Mead takes a minute)
+        result = fit(errors, data, names, nuisance, loss, bounds, 'lm', callback, None,
+                     sigma, iterations, start)
+        iterations, start = result.solution.iterations + 1, result.solution.x
+        last, sigma = sigma, result.data_rms()
+        if sigma > PRIOR_SETTLED * last:
+            break
+    sigma = last
+    if solver != 'lm':                 # the solver asked for, from nominal, on that prior
+        result = fit(errors, data, names, nuisance, loss, bounds, solver, callback, options,
+                     sigma, iterations)
+        iterations = result.solution.iterations + 1
+    std = result.standard_deviations()[:len(names)]
+    held = tuple(Held(n, float(v), gates.undetermined_reason(errors.model, n, float(v)))
+                 for n, v in zip(names, std) if not gates.determined(errors.model, n, float(v)))
+    if held:
+        names = tuple(n for n in names if n not in {h.name for h in held})
+        result = fit(errors, data, names, nuisance, loss, bounds, solver, callback, options,
+                     sigma, iterations)
+    return result, held
 
 
 def balanced(errors: ErrorModel, data: Measurements, loss: str = 'linear') -> Measurements:
@@ -603,10 +718,11 @@ def cross_validate(errors: ErrorModel, data: Measurements, held_out: list[Array]
         test = data.take(rows)
         nominal = fit(errors, train, (), loss=loss)
         ident = identifiable(errors, train, rank_tol, nominal.nuisance)
+        calibrated, held = judged_fit(errors, train, ident.kept, nominal.nuisance, loss,
+                                      bounds)
         entry = {'held_out': labels[f] if labels else f, 'rows': int(len(rows)),
-                 'parameters': len(ident.kept)}
-        for name, result in (('nominal', nominal), ('calibrated', fit(
-                errors, train, ident.kept, nominal.nuisance, loss, bounds))):
+                 'parameters': len(calibrated.names), 'held': len(held)}
+        for name, result in (('nominal', nominal), ('calibrated', calibrated)):
             e_pos, e_rot = result.row_errors(test)
             pos[name][rows], rot[name][rows] = e_pos, e_rot
             entry[name] = stats(e_pos, e_rot)
@@ -657,14 +773,23 @@ def data_problems(errors: ErrorModel, data: Measurements) -> list[str]:
 class Calibration:
     """One identification on all rows (:func:`calibrate`): the data as fitted (pose data
     balanced), the nuisance fitted with the nominal model, the identifiable parameters there,
-    their fit, and the gates' problems with that fit itself (a parameter on its bound, a
-    solve that did not converge)."""
+    their fit (those the data do not determine held at nominal: ``held``), and the gates'
+    problems with that fit itself (a determined parameter on its bound, a solve that did not
+    converge)."""
 
     data: Measurements
     nominal: Fit
     identifiability: Identifiability
     fit: Fit
     problems: tuple[str, ...]
+    held: tuple[Held, ...] = ()
+
+    def large(self) -> list[str]:
+        """One note per determined parameter far from nominal (:func:`gates.large_note`)."""
+        model, std = self.fit.problem.errors.model, self.fit.standard_deviations()
+        notes = (gates.large_note(model, n, float(d), float(s))
+                 for n, d, s in zip(self.fit.names, self.fit.deltas, std))
+        return [n for n in notes if n]
 
 
 def calibrate(errors: ErrorModel, data: Measurements, *, loss: str = 'linear',
@@ -687,13 +812,13 @@ def calibrate(errors: ErrorModel, data: Measurements, *, loss: str = 'linear',
     equations = len(nominal.problem.residuals(nominal.problem.x0))
     gates.refuse(gates.equation_problems(equations, len(ident.kept) + len(nominal.nuisance),
                                          len(data)), ErrorCode.TOO_FEW_POINTS)
-    final = fit(errors, data, ident.kept, nominal.nuisance, loss, bounds, solver, callback,
-                options)
+    final, held = judged_fit(errors, data, ident.kept, nominal.nuisance, loss, bounds, solver,
+                             callback, options)
     problems = gates.at_bounds(errors.model, final.names, final.deltas, bounds)
     if not final.converged:
         problems.append(f'the solver did not converge ({final.solution.message}): the model '
                         'may be far from the optimum')
-    return Calibration(data, nominal, ident, final, tuple(problems))
+    return Calibration(data, nominal, ident, final, tuple(problems), held)
 
 
 def identify_measurements(errors: ErrorModel, data: Measurements, held_out: list[Array], *,
@@ -715,12 +840,19 @@ def identify_measurements(errors: ErrorModel, data: Measurements, held_out: list
     verdict = Verdict(calibration.problems + tuple(gates.result_problems(
         True, cv.nominal['rmse_mm'] * 1e-3, cv.calibrated['rmse_mm'] * 1e-3, noise_m)))
     nominal = dict(zip(errors.candidates, errors.start(errors.candidates)))
+    std = final.standard_deviations()
     return {
         'measurement': data.kind, 'model': errors.name, 'robot': errors.model.name,
         'loss': loss, 'rotation_weight': data.rotation_weight if data.has_rotation else None,
         'rows': len(data), 'samples': int(len(np.unique(sample))),
         'verdict': verdict.to_dict(),
         'bounds': {'length_mm': bounds.length_m * 1e3, 'angle_mrad': bounds.angle_rad * 1e3},
+        'offset_bound_mrad': bounds.offset_rad * 1e3,
+        'prior': {'length_mm': gates.TYPICAL_LENGTH_M * 1e3,
+                  'angle_mrad': gates.TYPICAL_ANGLE_RAD * 1e3,
+                  'data_sigma_mm': final.prior_sigma_m * 1e3,
+                  'compliance_yardstick_mrad_per_nm': gates.TYPICAL_COMPLIANCE * 1e3,
+                  'determined_below': gates.DETERMINED, 'large_beyond': gates.LARGE},
         'noise_mm': noise_m * 1e3,
         'held_out': {'nominal': cv.nominal, 'calibrated': cv.calibrated},
         'folds': list(cv.folds),
@@ -732,8 +864,11 @@ def identify_measurements(errors: ErrorModel, data: Measurements, held_out: list
         'condition_number': ident.condition_number,
         'converged': final.converged,
         'identified': [{'name': n, 'value': float(v), 'nominal': float(nominal[n]),
-                        'delta': float(v - nominal[n])} for n, v in zip(final.names,
-                                                                       final.values)],
+                        'delta': float(v - nominal[n]), 'std': float(s)}
+                       for n, v, s in zip(final.names, final.values, std)],
+        'large': calibration.large(),
+        'held': [{'name': h.name, 'std': h.std if math.isfinite(h.std) else None,
+                  'reason': h.reason} for h in calibration.held],
         'dropped': [{'name': d.name, 'reason': d.reason} for d in ident.dropped],
         'correlated': [{'a': a, 'b': b, 'correlation': c} for a, b, c in ident.correlated],
         'outliers': [{'sample': int(sample[i]), 'error_mm': float(e_pos[i] * 1e3)}
