@@ -14,8 +14,8 @@ driver), BENCH_DETECTOR_SECONDS (default 5) after a warm-up, and takes the landm
   split by the node's /diagnostics counts (between its first and last report in the window)
   into ``dds_dropped_percent`` (never reached its callback), of which
   ``dds_lost_in_transport_percent`` DDS reported lost on the way (the reader's message_lost
-  events) and the rest were replaced in the reader's queue (IMAGE_QUEUE_DEPTH) before the
-  executor took them, and ``queue_dropped_percent`` (of those it took, dropped from its own
+  events) and ``dds_replaced_in_reader_queue_percent`` the rest, replaced in the reader's
+  queue (IMAGE_QUEUE_DEPTH) before the executor took them, and ``queue_dropped_percent`` (of those it took, dropped from its own
   queue, FRAME_QUEUE_DEPTH, while it was behind);
 - ``detector_<res>_<target>_latency_p50_ms``: publish to landmarks received;
 - ``detector_<res>_<target>_detect_ms``: the node's own time per image (its /diagnostics
@@ -102,9 +102,12 @@ class Run:
         (t0, in0, drop0, lost0), (t1, in1, drop1, lost1) = self.counts[0], self.counts[-1]
         sent = sum(t0 <= t < t1 for t in self.sent.values())
         received = in1 - in0
+        not_taken, lost = max(0, sent - received), lost1 - lost0
         return {
-            'dds_dropped_percent': (100.0 * max(0, sent - received) / max(sent, 1), '%'),
-            'dds_lost_in_transport_percent': (100.0 * (lost1 - lost0) / max(sent, 1), '%'),
+            'dds_dropped_percent': (100.0 * not_taken / max(sent, 1), '%'),
+            'dds_lost_in_transport_percent': (100.0 * lost / max(sent, 1), '%'),
+            'dds_replaced_in_reader_queue_percent': (
+                100.0 * max(0, not_taken - lost) / max(sent, 1), '%'),
             'queue_dropped_percent': (100.0 * (drop1 - drop0) / max(received, 1), '%'),
         }
 
