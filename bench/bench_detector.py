@@ -16,8 +16,9 @@ driver), BENCH_DETECTOR_SECONDS (default 5) after a warm-up, and takes the landm
   ``dds_lost_in_transport_percent`` DDS reported lost on the way (the reader's message_lost
   events) and ``dds_not_reported_lost_percent`` the rest: replaced in the reader's queue
   (IMAGE_QUEUE_DEPTH) before the executor took them, or lost on the way without an event
-  (seen at 100 Hz with the reading process starved: a 50-deep reader lost 10 % so), and ``queue_dropped_percent`` (of those it took, dropped from its own
-  queue, FRAME_QUEUE_DEPTH, while it was behind);
+  (seen at 100 Hz with the reading process starved: a 50-deep reader lost 10 % so), and
+  ``queue_dropped_percent`` (of those it took, dropped from its own queue, FRAME_QUEUE_DEPTH,
+  while it was behind);
 - ``detector_<res>_<target>_latency_p50_ms``: publish to landmarks received;
 - ``detector_<res>_<target>_detect_ms``: the node's own time per image (its /diagnostics
   ``detect_ms_mean``: OpenCV's search + refinement, poses and message). The node runs the two
