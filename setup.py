@@ -28,7 +28,7 @@ setup(
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
-        ('share/' + package_name + '/config', glob('config/*.yaml')),
+        ('share/' + package_name + '/config', glob('config/*.yaml') + glob('config/*.xml')),
         ('share/' + package_name + '/config/cells', glob('config/cells/*.yaml')
          + glob('config/cells/*.urdf') + glob('config/cells/*.LICENSE')),
     ],

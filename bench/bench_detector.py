@@ -12,9 +12,13 @@ driver), BENCH_DETECTOR_SECONDS (default 5) after a warm-up, and takes the landm
   in that time (goals at 1280x800: markers >= 100, boards >= 30);
 - ``detector_<res>_<target>_dropped_percent``: images sent without a landmarks message back,
   split by the node's /diagnostics counts (between its first and last report in the window)
-  into ``dds_dropped_percent`` (never reached its callback: lost in transport or replaced in
-  the depth-1 reader queue) and ``queue_dropped_percent`` (of those it took, replaced in its
-  one-slot queue while it was busy);
+  into ``dds_dropped_percent`` (never reached its callback), of which
+  ``dds_lost_in_transport_percent`` DDS reported lost on the way (the reader's message_lost
+  events) and ``dds_not_reported_lost_percent`` the rest: replaced in the reader's queue
+  (IMAGE_QUEUE_DEPTH) before the executor took them, or lost on the way without an event
+  (seen at 100 Hz with the reading process starved: a 50-deep reader lost 10 % so), and
+  ``queue_dropped_percent`` (of those it took, dropped from its own queue, FRAME_QUEUE_DEPTH,
+  while it was behind);
 - ``detector_<res>_<target>_latency_p50_ms``: publish to landmarks received;
 - ``detector_<res>_<target>_detect_ms``: the node's own time per image (its /diagnostics
   ``detect_ms_mean``: OpenCV's search + refinement, poses and message). The node runs the two
@@ -22,8 +26,10 @@ driver), BENCH_DETECTOR_SECONDS (default 5) after a warm-up, and takes the landm
   1000 / the slower stage);
 - ``detector_<res>_<target>_found``: landmarks per message (4 markers or 1 board expected).
 
-Every process runs with bench/fastdds_large_images.xml (shared-memory segments large enough
-for a 1 MB frame; see FASTDDS_PROFILE).
+Every process runs with the product's Fast DDS profile (api.dds_profile.large_data_env:
+config/fastdds_large_images.xml, shared-memory segments large enough for a 1 MB frame).
+BENCH_DETECTOR_FASTDDS_PROFILE=<file> publishes with that profile instead ('' without one);
+the node keeps the product's.
 """
 from __future__ import annotations
 
@@ -43,6 +49,7 @@ import benchlib
 from benchlib import BenchFailed, Figures, Ros
 from cobot_calib_ros import paths
 from cobot_calib_ros.api import launcher
+from cobot_calib_ros.api.dds_profile import large_data_env, PROFILE_ENV
 from cobot_calib_ros.core import frames, kinematics
 from cobot_calib_ros.paths import cell_file
 from cobot_calib_ros.ros.images import gray_to_image, model_to_camera_info
@@ -62,11 +69,6 @@ TARGETS = {
 FRAMES = 4              # different noise, cycled
 WARMUP_S = 2.0
 STATUS = f'{NODE}: health'
-# Fast DDS's default shared-memory segment (512 KB) cannot hold a 1280x800 frame; without this
-# profile most of them were lost (99 % at 30 Hz in one run). BENCH_DETECTOR_FASTDDS_PROFILE=''
-# measures without it.
-FASTDDS_PROFILE = benchlib.BENCH_DIR / 'fastdds_large_images.xml'
-PROFILE_ENV = 'FASTRTPS_DEFAULT_PROFILES_FILE'
 
 
 @dataclass
@@ -77,7 +79,8 @@ class Run:
     received: dict[int, tuple[float, int]] = field(default_factory=dict)  # stamp -> (t, found)
     measuring: bool = False
     detect_ms: list[float] = field(default_factory=list)
-    counts: list[tuple[float, int, int]] = field(default_factory=list)  # t, frames_in, dropped
+    # t, frames_in, dropped (node's queue), lost_in_transport
+    counts: list[tuple[float, int, int, int]] = field(default_factory=list)
 
     def on_landmarks(self, msg: Landmarks) -> None:
         stamp = stamp_to_ns(msg.header.stamp)
@@ -91,17 +94,22 @@ class Run:
                 if values.get('detect_ms_mean', 'nan') != 'nan':
                     self.detect_ms.append(float(values['detect_ms_mean']))
                 self.counts.append((time.perf_counter(), int(values.get('frames_in', 0)),
-                                    int(values.get('dropped', 0))))
+                                    int(values.get('dropped', 0)),
+                                    int(values.get('lost_in_transport', 0))))
 
     def node_figures(self) -> Figures:
         """Where the images went, from the node's counts between two of its reports."""
         if len(self.counts) < 2:
             return {}
-        (t0, in0, drop0), (t1, in1, drop1) = self.counts[0], self.counts[-1]
+        (t0, in0, drop0, lost0), (t1, in1, drop1, lost1) = self.counts[0], self.counts[-1]
         sent = sum(t0 <= t < t1 for t in self.sent.values())
         received = in1 - in0
+        not_taken, lost = max(0, sent - received), lost1 - lost0
         return {
-            'dds_dropped_percent': (100.0 * max(0, sent - received) / max(sent, 1), '%'),
+            'dds_dropped_percent': (100.0 * not_taken / max(sent, 1), '%'),
+            'dds_lost_in_transport_percent': (100.0 * lost / max(sent, 1), '%'),
+            'dds_not_reported_lost_percent': (
+                100.0 * max(0, not_taken - lost) / max(sent, 1), '%'),
             'queue_dropped_percent': (100.0 * (drop1 - drop0) / max(received, 1), '%'),
         }
 
@@ -197,11 +205,14 @@ def measure(ros: Ros, images, info, rate: float, seconds: float) -> Figures:
 
 
 @contextmanager
-def fastdds_profile(path: str):
-    """$FASTRTPS_DEFAULT_PROFILES_FILE set to ``path`` ('' unset) for this process and the nodes
-    started meanwhile; restored afterwards (run_all runs every bench in one process)."""
+def fastdds_profile(path: str | None):
+    """$FASTRTPS_DEFAULT_PROFILES_FILE for this process (and the nodes started meanwhile, which
+    the launcher gives the large-image transports in any case): the product's (None), ``path``
+    or unset (''); restored afterwards (run_all runs every bench in one process)."""
     old = os.environ.get(PROFILE_ENV)
-    if path:
+    if path is None:
+        os.environ[PROFILE_ENV] = large_data_env()[PROFILE_ENV]
+    elif path:
         os.environ[PROFILE_ENV] = path
     else:
         os.environ.pop(PROFILE_ENV, None)
@@ -215,7 +226,7 @@ def fastdds_profile(path: str):
 
 
 def run() -> Figures:
-    with fastdds_profile(os.environ.get('BENCH_DETECTOR_FASTDDS_PROFILE', str(FASTDDS_PROFILE))):
+    with fastdds_profile(os.environ.get('BENCH_DETECTOR_FASTDDS_PROFILE')):
         return run_targets(float(os.environ.get('BENCH_DETECTOR_SECONDS', '5')))
 
 

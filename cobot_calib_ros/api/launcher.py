@@ -19,6 +19,7 @@ import time
 
 from cobot_calib_ros import paths
 from cobot_calib_ros.nodes import DRIVER_NODES, NODES
+from cobot_calib_ros.api.dds_profile import large_data_env
 from cobot_calib_ros.ros.spin import LAUNCHER_PID_ENV
 
 SUITE = tuple(n for n in NODES if n not in DRIVER_NODES)   # the suite, in launch order
@@ -86,8 +87,7 @@ class Suite:
         # the node asks for a SIGTERM when this process dies (spin.die_with_launcher): no
         # preexec_fn, which can deadlock the child of a process with DDS threads before its
         # exec, and Popen waits for that exec (a restart in `up` once hung so)
-        env = {**(self._env if self._env is not None else os.environ),
-               LAUNCHER_PID_ENV: str(os.getpid())}
+        env = {**large_data_env(self._env), LAUNCHER_PID_ENV: str(os.getpid())}
         with open(self.log_path(spec.key), mode) as log:
             self.processes[spec.key] = subprocess.Popen(
                 spec.command(), stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,

@@ -48,6 +48,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    from cobot_calib_ros.api.dds_profile import large_data_env
+    os.environ.update(large_data_env())    # camera images of 1 MB and more
     from cobot_calib_ros.cli.common import EXIT_INTERRUPTED, GuardedStdout
     stdout = sys.stdout
     sys.stdout = GuardedStdout(stdout)     # `cobot-calib ... | head`: the verb's own exit code

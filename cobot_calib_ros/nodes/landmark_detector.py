@@ -12,10 +12,11 @@ either (checked every DEMAND_PERIOD), so a camera driver that publishes only to 
 nobody used (issue 23).
 
 Detection (core.landmarks) runs on two worker threads, so the executor keeps taking images: a
-one-slot queue holds the newest image and a newer one replaces it (counted as ``dropped``). The
-first thread runs OpenCV's search on it (the GIL released), then hands it to the second, which
-refines the corners, solves the poses and publishes, while the first searches the next image
-(one image in each stage, nothing dropped between them; ``landmarks`` keep the images' order).
+queue of up to FRAME_QUEUE_DEPTH images waits for them, and when it is full its oldest image is
+dropped (counted as ``dropped``). The first thread runs OpenCV's search on the oldest (the GIL
+released), then hands it to the second, which refines the corners, solves the poses and
+publishes, while the first searches the next image (one image in each stage, nothing dropped
+between them; ``landmarks`` keep the images' order).
 Images are checked on arrival: an empty or corrupt one (data length against step x height), an
 unsupported encoding, or one before any camera_info is counted under ``failed_<reason>``, logged
 (throttled) and skipped; the node never stops for an image.
@@ -34,7 +35,8 @@ reason (WARN when nothing was configured: a cell without landmarks), and every i
 ``failed_configuration``. min_marker_fraction [1]: the smallest single marker searched, as a
 fraction of the image's larger side (DEFAULT_MIN_MARKER_FRACTION; 0 = every size).
 
-/diagnostics (1 Hz): ``frames_in``, ``frames_out``, ``dropped``, ``failures`` with
+/diagnostics (1 Hz): ``frames_in``, ``frames_out``, ``dropped`` (the node's queue),
+``lost_in_transport`` (DDS's message_lost events of the image subscription), ``failures`` with
 ``failed_<reason>``, ``detect_ms_mean`` over the last second (search + refinement, poses and
 message of one image; the two stages overlap, so the node keeps up with more than
 1000 / detect_ms images per second), the configuration, and
@@ -43,7 +45,7 @@ configuration.
 """
 from __future__ import annotations
 
-from collections import Counter
+from collections import Counter, deque
 from dataclasses import dataclass
 import math
 import sys
@@ -55,6 +57,7 @@ import cv2
 from geometry_msgs.msg import Point, Pose, PoseWithCovariance, Quaternion
 import numpy as np
 from rclpy.clock import Clock, ClockType
+from rclpy.event_handler import QoSMessageLostInfo, SubscriptionEventCallbacks
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data, QoSProfile
 from sensor_msgs.msg import CameraInfo, Image
@@ -78,13 +81,20 @@ NO_IMAGE_TIMEOUT = 2.0      # [s] of wall time without an image: /diagnostics wa
 DEMAND_PERIOD = 0.1         # [s] between looks at whether anyone subscribes to landmarks
 INTRINSICS_CHECK_PERIOD = 2.0   # [s] between looks at which intrinsics are active
 LIVE_REFINE = tuple(r for r in REFINE_METHODS if r != 'apriltag')   # apriltag: ~2 fps
-# Best effort, as cameras publish; a queue of IMAGE_QUEUE_DEPTH images so that a late executor
-# round (the GIL held by the poses thread, another process on the core) does not lose frames in
-# DDS: with depth 1, 17-37 % of the frames sent at 100 Hz at 1280 x 800 were replaced in the
-# reader's queue before the executor took them; with 5, 0-0.6 % (bench_detector, load 11-17,
-# side by side). The node's own one-slot queue (FrameSlot) still keeps only the newest for the
-# search, so a deeper reader queue adds no latency while the node keeps up.
-IMAGE_QUEUE_DEPTH = 5
+# Best effort, as cameras publish; the reader keeps IMAGE_QUEUE_DEPTH images so that a late
+# executor round (the GIL held by the poses thread, another process on the core) does not lose
+# frames in DDS: with depth 1, 17-37 % of the frames sent at 100 Hz at 1280 x 800 were replaced in
+# the reader's queue before the executor took them; with 5, 0-0.6 % at load 11-17, but at load
+# 11-20 a 30 Hz reader with depth 5 still lost 7-26 % of 1280 x 800 frames that way (none with
+# 50; message_lost 0: not in transport; 2026-11-28). One second at 30 fps: the executor only
+# moves each image to FrameQueue, so the reader's queue fills only while the executor is
+# starved, and adds no latency while it is not.
+IMAGE_QUEUE_DEPTH = 30
+# The node's own queue between the executor and the search: a burst of late work (the machine
+# busy for a moment) waits in it instead of being lost; beyond FRAME_QUEUE_DEPTH images (the
+# node slower than the camera for long) the oldest are dropped and counted, so the landmarks
+# stay at most this many images behind.
+FRAME_QUEUE_DEPTH = 8
 LATEST_INFO_QOS = QoSProfile(depth=1, reliability=qos_profile_sensor_data.reliability,
                              durability=qos_profile_sensor_data.durability)
 IMAGE_QOS = QoSProfile(depth=IMAGE_QUEUE_DEPTH,
@@ -161,26 +171,29 @@ def configure(cell_file: str, dictionary: str, marker_length: float, board: str,
     return Config(name, float(length), spec, refine)
 
 
-class FrameSlot:
-    """One-slot queue between the executor and the worker: the newest frame wins."""
+class FrameQueue:
+    """Images between the executor and the search, oldest first; a full queue drops its oldest
+    (counted in ``dropped``)."""
 
-    def __init__(self) -> None:
+    def __init__(self, depth: int = FRAME_QUEUE_DEPTH) -> None:
         self._cond = threading.Condition()
-        self._item = None
+        self._items: deque = deque()
+        self._depth = depth
         self.dropped = 0
 
     def put(self, item) -> None:
         with self._cond:
-            self.dropped += self._item is not None
-            self._item = item
+            if len(self._items) >= self._depth:
+                self._items.popleft()
+                self.dropped += 1
+            self._items.append(item)
             self._cond.notify()
 
     def take(self, timeout: float):
         with self._cond:
-            if self._item is None:
+            if not self._items:
                 self._cond.wait(timeout)
-            item, self._item = self._item, None
-            return item
+            return self._items.popleft() if self._items else None
 
 
 class Handoff:
@@ -300,7 +313,7 @@ class LandmarkDetector(Node):
         self._failures_reported = 0
         self._detect_s: list[float] = []
         self._last_image = self._started = time.monotonic()
-        self._slot = FrameSlot()
+        self._queue = FrameQueue()
         self._handoff = Handoff()
         self._pub = self.create_publisher(Landmarks, 'landmarks', 10)
         self._image_sub = None              # only while someone subscribes to landmarks
@@ -420,12 +433,19 @@ class LandmarkDetector(Node):
         """Take images while someone subscribes to landmarks; rest otherwise."""
         wanted = self._pub.get_subscription_count() > 0
         if wanted and self._image_sub is None:
-            self._image_sub = self.create_subscription(Image, 'wrist_camera/image_raw',
-                                                       self._on_image, IMAGE_QOS)
+            self._image_sub = self.create_subscription(
+                Image, 'wrist_camera/image_raw', self._on_image, IMAGE_QOS,
+                event_callbacks=SubscriptionEventCallbacks(message_lost=self._on_lost))
             self._last_image = time.monotonic()
         elif not wanted and self._image_sub is not None:
             self.destroy_subscription(self._image_sub)
             self._image_sub = None
+
+    def _on_lost(self, info: QoSMessageLostInfo) -> None:
+        """Images DDS reports lost on the way (e.g. fragments overwritten in a shared-memory
+        segment too small for them: see config/fastdds_large_images.xml)."""
+        with self._lock:
+            self._counts['lost_in_transport'] += info.total_count_change
 
     def _on_info(self, msg: CameraInfo) -> None:
         key = (msg.width, msg.height, msg.distortion_model, msg.header.frame_id,
@@ -474,7 +494,7 @@ class LandmarkDetector(Node):
         if problem:
             self._fail('camera_info_mismatch', f'image refused: {problem}')
             return
-        self._slot.put((msg.header, gray, camera))
+        self._queue.put((msg.header, gray, camera))
 
     def _fail(self, reason: str, message: str) -> None:
         with self._lock:
@@ -488,7 +508,7 @@ class LandmarkDetector(Node):
     # second than one thread doing both (measured in one process, 2 cores).
     def _search(self) -> None:
         while self._running and self.context.ok():
-            item = self._slot.take(timeout=spin.WAKE_PERIOD)
+            item = self._queue.take(timeout=spin.WAKE_PERIOD)
             if item is None:
                 continue
             header, gray, camera = item
@@ -551,7 +571,8 @@ class LandmarkDetector(Node):
             level, message = OK, 'detecting'
         self._diagnostics.set(
             level, message, frames_in=counts.get('frames_in', 0),
-            frames_out=counts.get('frames_out', 0), dropped=self._slot.dropped,
+            frames_out=counts.get('frames_out', 0), dropped=self._queue.dropped,
+            lost_in_transport=counts.get('lost_in_transport', 0),
             failures=failures, **failed,
             detect_ms_mean=f'{1e3 * float(np.mean(times)):.2f}' if times else 'nan',
             configuration=self._config.describe() if self._config else 'none',

@@ -28,7 +28,7 @@ from cobot_calib_ros.core.landmarks.pipeline import Pipeline
 from cobot_calib_ros.ros.action_client import ActionClient
 from cobot_calib_ros.ros.calls import run_action, spin_until
 from cobot_calib_ros.core import frames
-from cobot_calib_ros.nodes.landmark_detector import (configure, FrameSlot, Handoff,
+from cobot_calib_ros.nodes.landmark_detector import (configure, FrameQueue, Handoff,
                                                      LandmarkDetector, NotConfigured)
 from cobot_calib_ros.paths import cell_file
 from cobot_calib_ros.ros import convert
@@ -260,11 +260,12 @@ def test_a_bad_configuration_says_why(args, words):
     assert isinstance(error.value, NotConfigured) == (args[0] == 'iiwa7_close')
 
 
-def test_the_slot_keeps_the_newest_and_counts_the_dropped():
-    slot = FrameSlot()
-    for frame in (1, 2, 3):
-        slot.put(frame)
-    assert (slot.take(0.0), slot.dropped, slot.take(0.0)) == (3, 2, None)
+def test_the_frame_queue_keeps_the_newest_in_order_and_counts_the_dropped():
+    queue = FrameQueue(depth=3)
+    for frame in (1, 2, 3, 4, 5):
+        queue.put(frame)
+    assert [queue.take(0.0) for _ in range(4)] == [3, 4, 5, None]
+    assert queue.dropped == 2
 
 
 def test_the_handoff_between_the_stages_waits_instead_of_dropping():
