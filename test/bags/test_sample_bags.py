@@ -58,7 +58,8 @@ def test_altered_sphere_expectation_fails_and_names_the_parameter(tmp_path):
     bag = tmp_path / 'iiwa_spheres'
     shutil.copytree(BAGS / 'iiwa_spheres', bag)
     expected = json.loads((bag / 'expected.json').read_text())
-    expected['identified'][3]['value'] += 1e-6                  # d_2 off by 1 um
+    d_2 = next(p for p in expected['identified'] if p['name'] == 'd_2')
+    d_2['value'] += 1e-6                                        # d_2 off by 1 um
     (bag / 'expected.json').write_text(json.dumps(expected))
     done = replay_check(bag)
     assert done.returncode == 1, done.stdout + done.stderr

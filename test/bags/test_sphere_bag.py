@@ -13,14 +13,13 @@ def test_identify_from_the_bag_reproduces_the_live_identification(capsys):
     assert main(['identify', '--source', str(BAG), '--json']) == 0
     got = json.loads(capsys.readouterr().out)
     assert got['rows'] == 150 and got['source_kind'] == 'bag'
-    # the live session was recorded before issue 37: zero offsets now come first in the
-    # identifiability order (the same parameters dropped) and the prior around nominal moves
-    # these well-determined values by < 1e-7 (m or rad); bit for bit before it
-    assert sorted(d['name'] for d in got['dropped']) == sorted(expected['dropped_parameters'])
-    live = {p['name']: p['value'] for p in expected['identified']}
-    assert sorted(p['name'] for p in got['identified']) == sorted(live)
-    for mine in got['identified']:
-        assert abs(mine['value'] - live[mine['name']]) <= 2e-7, mine['name']
+    # expected.json's parameters are the live session's as identified since issue 37 (zero
+    # offsets first in the identifiability order, the prior around nominal: < 6e-8 from the
+    # live recording's own values)
+    assert [d['name'] for d in got['dropped']] == expected['dropped_parameters']
+    assert [p['name'] for p in got['identified']] == [p['name'] for p in expected['identified']]
+    for mine, live in zip(got['identified'], expected['identified']):
+        assert abs(mine['value'] - live['value']) <= 1e-9, mine['name']
     # spheres see no base, the coupling is one point on the tool (issue 37.5)
     assert {u['name']: u['affects'] for u in got['unseen']} == {
         'alpha_1': 'base', 'a_1': 'base', 'theta_1': 'base', 'd_1': 'base', 'theta_7': 'tool',
