@@ -15,7 +15,7 @@ from cobot_calib_ros.paths import DEFAULT_CELL
 # most runs, after 1.6 s at worst (25 runs).
 CHECK_MIN_WAIT = 2.5     # [s]
 CHECK_MAX_WAIT = 3.0     # [s]
-READY_TIMEOUT = 120.0    # [s] for every node to answer after the start (9 processes, 2 cores)
+READY_TIMEOUT = 120.0    # [s] for every node to answer after the start (11 processes, 2 cores)
 WATCH_PERIOD = 0.2       # [s] between looks at the node processes
 STOP_TIMEOUT = 6.0       # [s] after the SIGINT before SIGTERM, 2 s, SIGKILL: down in 10 s
 QUICK_EXIT = 10.0        # [s] an exit this soon after the start counts as a failed start
