@@ -166,7 +166,11 @@ def _serve(suite, specs, env: dict[str, str] | None = None, namespace: str = '')
     stopped = False
     try:
         with ros_node('_cobot_calib_up', namespace) as node:     # Ctrl-C: a KeyboardInterrupt in a wait
-            respawn, ready = _Respawn(suite, node), _Ready(suite, node)
+            from cobot_calib_ros.ros.suite_nodes import SuitePublisher
+            news = SuitePublisher(node)     # every node's start and exit, for the clients
+            for key, process in suite.processes.items():
+                news.started(suite.specs[key].full_name, process.pid)
+            respawn, ready = _Respawn(suite, node, news), _Ready(suite, node)
             try:
                 while not stop:
                     ready.forget(respawn.check())
@@ -248,8 +252,8 @@ class _Respawn:
     """A node that exits is started again, as launch's respawn, and said so; one that exits
     QUICK_EXITS times in a row within QUICK_EXIT s of its start is left down (named)."""
 
-    def __init__(self, suite, node) -> None:
-        self._suite, self._node = suite, node
+    def __init__(self, suite, node, news) -> None:
+        self._suite, self._node, self._news = suite, node, news   # news: SuitePublisher
         self._started = {key: time.monotonic() for key in suite.processes}
         self._quick = dict.fromkeys(suite.processes, 0)
         self._restarts = dict.fromkeys(suite.processes, 0)
@@ -278,6 +282,8 @@ class _Respawn:
     def _exited(self, key: str, code: int) -> bool:
         quick = time.monotonic() - self._started[key] < QUICK_EXIT
         self._quick[key] = self._quick[key] + 1 if quick else 0
+        full_name = self._suite.specs[key].full_name
+        self._news.exited(full_name, code, left_down=self._quick[key] >= QUICK_EXITS)
         print(f'{key} exited with code {code}; last log lines:\n{self._suite.log_tail(key)}',
               file=sys.stderr, flush=True)
         if self._quick[key] >= QUICK_EXITS:
@@ -291,6 +297,7 @@ class _Respawn:
         self._restarts[key] += 1
         self._forget(key)
         self._suite.restart(key)
+        self._news.started(full_name, self._suite.processes[key].pid)
         self._started[key] = time.monotonic()
         self._coming_back[key] = AnswerCheck(self._node, self._suite.specs[key].full_name)
         print(f'{key}: restarting (restart {self._restarts[key]}); the other nodes keep '

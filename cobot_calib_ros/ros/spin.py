@@ -254,15 +254,24 @@ class Companion:
                     f'{self._thread.name}: stopped by an exception in a callback: {exc!r}')
 
     def run_action(self, client, goal, accept_timeout: float, result_timeout: float):
-        """Send ``goal`` from any thread and block until its result; None if rejected.
+        """Send ``goal`` from any thread and block until its result; None if rejected;
+        ServerLost when its server node exits, restarts or leaves the graph meanwhile
+        (ros.calls.ServerWatch).
 
         rclpy's ActionClient is not thread-safe: a goal response can arrive on this executor
         before send_goal_async (called from another thread) has registered its sequence
         number, and is then dropped ("Ignoring unexpected goal response") and the call hangs.
         So sending and asking for the result both happen on the companion's own thread.
         """
+        from cobot_calib_ros.ros.calls import ServerWatch
+        from cobot_calib_ros.ros.suite_nodes import suite_watch
+        suite_watch(self.node)      # the launcher's news of node exits, from before the goal
+        sent_at = time.time()
         sent = self.send_goal(client, goal, accept_timeout)
-        return None if sent is None else wait(sent[1], result_timeout).result
+        if sent is None:
+            return None
+        watch = ServerWatch(self.node, client, sent_at)     # its server exits: goal lost
+        return wait(sent[1], result_timeout, watch.ended).result
 
     def send_goal(self, client, goal, accept_timeout: float):
         """Send ``goal`` on the companion's thread (:meth:`run_action` says why): its goal
@@ -360,17 +369,32 @@ def pause(seconds: float) -> None:
         raise Stopping('the node is shutting down')
 
 
-def wait(future, timeout: float):
+class ServerLost(TimeoutError):
+    """A wait ended because the server that was to answer exited, restarted or is gone."""
+
+
+LOST_CHECK_PERIOD = 0.25    # [s] between two looks of ``wait`` at its ``lost`` check
+
+
+def wait(future, timeout: float, lost: Callable[[], str] | None = None):
     """Block this thread until ``future`` is done (another executor completes it); its result.
 
-    Raises TimeoutError after ``timeout`` [s], Stopping as soon as the process shuts down.
+    Raises TimeoutError after ``timeout`` [s], Stopping as soon as the process shuts down,
+    ServerLost when ``lost()`` (asked every LOST_CHECK_PERIOD s) says why the answer will
+    never come.
     """
     done = threading.Event()
     future.add_done_callback(lambda _: done.set())
     deadline = time.monotonic() + timeout
+    looked = time.monotonic()
     while not done.wait(min(WAKE_PERIOD, max(0.0, deadline - time.monotonic()))):
         if _stopping.is_set():
             raise Stopping('the node is shutting down')
+        if lost is not None and time.monotonic() - looked >= LOST_CHECK_PERIOD:
+            looked = time.monotonic()
+            why = lost()
+            if why:
+                raise ServerLost(why)
         if time.monotonic() >= deadline:
             raise TimeoutError(f'no answer within {timeout:.0f} s')
     return future.result()
