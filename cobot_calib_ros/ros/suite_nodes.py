@@ -7,8 +7,9 @@ process on ``suite/nodes`` (relative: a namespaced suite's own), reliable and tr
 (latched), again at every start and exit: diagnostic_msgs/DiagnosticArray, one status per node
 named by its full name ('/tcp_calibrator'), level OK while it runs, ERROR once it exited, the
 values ``pid``, ``starts``, ``running``, ``started``, and ``exit_code`` and ``exited`` of its
-last exit (times: wall-clock seconds, as text). A client waiting on a goal (ros.calls.ServerWatch) asks SuiteWatch whether the goal's
-node exited after the goal was sent: that goal is lost, said within the launcher's watch period.
+last exit (times: wall-clock seconds, as text). A client waiting on a goal
+(ros.calls.ServerWatch) asks SuiteWatch whether the goal's node exited after the goal was
+sent: that goal is lost, said within the launcher's watch period.
 A node that `up` did not start (a real robot's driver) is not on the topic; the graph tells.
 """
 from __future__ import annotations
