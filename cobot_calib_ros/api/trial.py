@@ -121,6 +121,9 @@ class TrialClient:
                             '(cobot-calib up) on the same ROS_DOMAIN_ID?')
         self._last = self._reading = None
         self._heard = self._seen = time.monotonic()
+        from cobot_calib_ros.ros.suite_nodes import suite_watch
+        suite_watch(self.node)          # the launcher's news of node exits, from before the goal
+        self._sent = time.time()
         send = self._client.send_goal_async(goal, feedback_callback=self._feedback)
         self._answered(send, goal.trial_id)
         if not send.result().accepted:
@@ -142,7 +145,7 @@ class TrialClient:
 
     def _follow(self, handle, trial_id: str, timeout: float | None):
         from cobot_calib_ros.ros.calls import CallError, ServerWatch
-        watch = ServerWatch(self.node, self._client)     # gone, or restarted: goal lost
+        watch = ServerWatch(self.node, self._client, self._sent)   # exited, gone: goal lost
         result = handle.get_result_async()
         deadline = None if timeout is None else time.monotonic() + timeout
         resume = f'resume it with: cobot-calib trial --trial-id {trial_id}'

@@ -28,6 +28,8 @@
   out writes those off as lost (``PlayResult.written_off``), so a message lost on a best-effort
   path cannot stop the replay. play() returns when every counted message is counted or written
   off.
+- Without flow control a consumer's count on ``~/consumed`` (if one publishes it) still tells
+  the player what was lost: ``PlayResult.lost``, published minus the count at the end.
 - Before starting it waits, up to ``wait_subscribers`` seconds, until every topic has a
   subscriber matched to its publisher (and every subscriber the graph knows of is matched):
   a publisher needs 0.02-3.5 s to match one in another process here, and messages sent before
@@ -87,6 +89,7 @@ SPIN_PERIOD = 0.05           # [s]
 RESEND_S = 0.5               # [s] of wall time without a first consumed message: send again
 WRITE_OFF_S = 5.0            # [s] of wall time without progress: the messages out are lost
 FLOW_POLL_S = 0.002          # [s] between looks at the consumers' count while the window is full
+LOST_WAIT = 2.0              # [s] after the end for the consumers' last count (no flow control)
 
 
 @dataclass
@@ -138,6 +141,8 @@ class PlayResult:
     resent: int = 0                  # flow control: sent again before the first was consumed
     written_off: int = 0             # flow control: counted messages never reported consumed
                                      # (written off as lost on the way), all plays so far
+    lost: int | None = None          # without flow control: published - the consumers' count
+                                     # on ~/consumed at the end; None: no count came
 
     @property
     def speed(self) -> float:
@@ -189,11 +194,12 @@ class BagPlayer(Node):
         self._stop = threading.Event()
         self.create_service(Trigger, '~/resume', self._on_resume)
         self.create_service(Trigger, '~/pause', self._on_pause)
-        self._reported = 0
-        if flow is None and window > 0:
-            flow = FlowControl(int(window), lambda: self._reported)
+        self._reported = -1             # the consumers' count on ~/consumed; -1: none came
+        if flow is None:                # flow control by ~/consumed, or counting the lost
             self.create_subscription(UInt64, '~/consumed', self._on_consumed,
                                      QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
+            if window > 0:
+                flow = FlowControl(int(window), lambda: max(0, self._reported))
         self.flow = flow
         self._sent = 0                  # counted messages published (flow control)
         self._written_off = 0
@@ -310,6 +316,12 @@ class BagPlayer(Node):
         if started is not None:
             result.wall_s = (self._last_publish_wall - started - self._paused_ns) / NS_PER_S
         result.unacknowledged = self._wait_acknowledged(FINAL_ACK_TIMEOUT)
+        if self.flow is None and (self._reported >= 0 or self.count_publishers(
+                self.resolve_topic_name('~/consumed'))):
+            deadline = time.monotonic() + LOST_WAIT
+            while self._reported < result.published and time.monotonic() < deadline:
+                time.sleep(FLOW_POLL_S)
+            result.lost = max(0, result.published - max(0, self._reported))
         return result
 
     def _play_pass(self, result: PlayResult) -> int | None:
@@ -345,7 +357,9 @@ class BagPlayer(Node):
             if self._stop.is_set():
                 break
             counted = flow is not None and flow.counts(message.topic)
-            if counted:
+            # the window checked here first: _await_window for every message cost a tenth
+            # of the replay's time at full speed
+            if counted and self._sent - flow.consumed() - self._written_off >= flow.window:
                 held = self._await_window(result, previous if previous is not None else stamp)
                 if base_wall is not None:
                     base_wall += held
@@ -499,12 +513,18 @@ def main(args=None) -> None:
         count = sum(player.bag.topics[t].count for t in player.topics)
         log.info(f'replaying {player.bag.path}: {count} messages on {len(player.topics)} '
                  f'topics, rate {player.rate:g} (0 = as fast as possible)')
+        if player.flow is None:
+            log.info('no window: a subscriber slower than the replay loses what overflows its '
+                     'history (counted if it publishes its count on ~/consumed)')
         with spinning(player):
             result = player.play()
         log.info(f'published {result.published} messages in {result.wall_s:.3f} s '
                  f'({result.speed:.2f}x real time)')
         if result.written_off:
             log.warning(f'{result.written_off} messages never counted on ~/consumed')
+        if result.lost:
+            log.warning(f'lost: {result.lost} of {result.published} (not counted on '
+                        '~/consumed)')
         if result.unacknowledged:
             log.warning('subscribers did not acknowledge the last messages on '
                         + ', '.join(result.unacknowledged))

@@ -110,12 +110,32 @@ def run(args) -> int:
         if args.json:
             print_message({'error': cause, 'message': str(e), 'views': len(views),
                            'skipped': dict(skipped)}, True)
-        return fail(f'intrinsics refused ({cause}): {e}')
+        return fail(f'intrinsics refused ({cause}): {e}; {_what_was_read(views, skipped)}')
     return _report(args, cell, fit, spec, views, skipped)
+
+
+SKIPS_SHOWN = 5     # skipped images named in a refusal
+
+
+def _what_was_read(views, skipped) -> str:
+    """How many images were read, how many showed the board, and why the first others did
+    not (what the detector found in them)."""
+    line = f'{len(views) + len(skipped)} images read, {len(views)} with the board'
+    if skipped:
+        line += ('; skipped: ' + '; '.join(f'{name}: {why}' for name, why in
+                                           skipped[:SKIPS_SHOWN])
+                 + (f' (and {len(skipped) - SKIPS_SHOWN} more)' if len(skipped) > SKIPS_SHOWN
+                    else ''))
+        if not views:
+            line += '; images of another board? check --board (squares, dict)'
+    return line
 
 
 def _images(args):
     source = Path(args.source)
+    if not source.exists():
+        raise OSError(f'{source}: no such folder or bag (give a folder of images or a rosbag2 '
+                      'bag)')
     if source.is_dir() and not (source / 'metadata.yaml').exists() and not any(
             source.glob('*.mcap')) and not any(source.glob('*.db3')):
         from cobot_calib_ros.loaders.images import folder_images

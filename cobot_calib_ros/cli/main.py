@@ -4,6 +4,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import os
+import re
 import sys
 
 # One module per verb in cobot_calib_ros/cli/, in --help order. A verb module has
@@ -37,8 +38,19 @@ VERBS = (
 )
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse's parser, which also takes a negative number in exponent notation for a value
+    (``--rpy -3.14 -5.37e-05 7.6e-05``): Python < 3.13 takes ``-5.37e-05`` for an option."""
+
+    NEGATIVE_NUMBER = re.compile(r'^-(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?$')
+
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self._negative_number_matcher = self.NEGATIVE_NUMBER
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog='cobot-calib', description=__doc__)
+    parser = _Parser(prog='cobot-calib', description=__doc__)
     subparsers = parser.add_subparsers(dest='command', required=True, metavar='COMMAND')
     for name in VERBS:
         verb = importlib.import_module(f'cobot_calib_ros.cli.{name}')

@@ -132,6 +132,10 @@ def _replay(bag, args) -> int:
         say(f'replaying {bag.path}: {count} messages on {len(player.topics)} topics, '
             f'{ns_to_s(bag.duration_ns):.3f} s recorded, {speed}'
             + (', looping' if args.loop else '') + ' (Ctrl-C to stop)')
+        if not args.window:
+            say(f'no --window: a subscriber slower than the replay loses what overflows its '
+                f'history; the lost are counted if it publishes its count on /{NODE_NAME}/'
+                'consumed (--window N: lossless for such a subscriber)')
         with spinning(player):
             try:
                 result = player.play()
@@ -143,6 +147,11 @@ def _replay(bag, args) -> int:
         if args.window:
             say(f'flow control: {result.resent} sent again before the first was counted, '
                 f'{result.written_off} never counted on /{NODE_NAME}/consumed')
+        elif result.lost is not None:
+            say(f'lost: {result.lost} of {result.published} (not counted on '
+                f'/{NODE_NAME}/consumed)')
+        else:
+            say(f'lost: not known (no count on /{NODE_NAME}/consumed)')
         if result.unacknowledged:
             return fail('replay: subscribers did not acknowledge the last messages on '
                         + ', '.join(result.unacknowledged))

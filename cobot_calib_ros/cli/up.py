@@ -15,7 +15,7 @@ from cobot_calib_ros.paths import DEFAULT_CELL
 # most runs, after 1.6 s at worst (25 runs).
 CHECK_MIN_WAIT = 2.5     # [s]
 CHECK_MAX_WAIT = 3.0     # [s]
-READY_TIMEOUT = 120.0    # [s] for every node to answer after the start (9 processes, 2 cores)
+READY_TIMEOUT = 120.0    # [s] for every node to answer after the start (11 processes, 2 cores)
 WATCH_PERIOD = 0.2       # [s] between looks at the node processes
 STOP_TIMEOUT = 6.0       # [s] after the SIGINT before SIGTERM, 2 s, SIGKILL: down in 10 s
 QUICK_EXIT = 10.0        # [s] an exit this soon after the start counts as a failed start
@@ -180,7 +180,11 @@ def _serve(suite, specs, env: dict[str, str] | None = None, namespace: str = '')
     stopped = False
     try:
         with ros_node('_cobot_calib_up', namespace) as node:     # Ctrl-C: a KeyboardInterrupt in a wait
-            respawn, ready = _Respawn(suite, node), _Ready(suite, node)
+            from cobot_calib_ros.ros.suite_nodes import SuitePublisher
+            news = SuitePublisher(node)     # every node's start and exit, for the clients
+            for key, process in suite.processes.items():
+                news.started(suite.specs[key].full_name, process.pid)
+            respawn, ready = _Respawn(suite, node, news), _Ready(suite, node)
             try:
                 while not stop:
                     ready.forget(respawn.check())
@@ -262,8 +266,8 @@ class _Respawn:
     """A node that exits is started again, as launch's respawn, and said so; one that exits
     QUICK_EXITS times in a row within QUICK_EXIT s of its start is left down (named)."""
 
-    def __init__(self, suite, node) -> None:
-        self._suite, self._node = suite, node
+    def __init__(self, suite, node, news) -> None:
+        self._suite, self._node, self._news = suite, node, news   # news: SuitePublisher
         self._started = {key: time.monotonic() for key in suite.processes}
         self._quick = dict.fromkeys(suite.processes, 0)
         self._restarts = dict.fromkeys(suite.processes, 0)
@@ -292,6 +296,8 @@ class _Respawn:
     def _exited(self, key: str, code: int) -> bool:
         quick = time.monotonic() - self._started[key] < QUICK_EXIT
         self._quick[key] = self._quick[key] + 1 if quick else 0
+        full_name = self._suite.specs[key].full_name
+        self._news.exited(full_name, code, left_down=self._quick[key] >= QUICK_EXITS)
         print(f'{key} exited with code {code}; last log lines:\n{self._suite.log_tail(key)}',
               file=sys.stderr, flush=True)
         if self._quick[key] >= QUICK_EXITS:
@@ -305,6 +311,7 @@ class _Respawn:
         self._restarts[key] += 1
         self._forget(key)
         self._suite.restart(key)
+        self._news.started(full_name, self._suite.processes[key].pid)
         self._started[key] = time.monotonic()
         self._coming_back[key] = AnswerCheck(self._node, self._suite.specs[key].full_name)
         print(f'{key}: restarting (restart {self._restarts[key]}); the other nodes keep '

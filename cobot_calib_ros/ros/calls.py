@@ -14,6 +14,7 @@ from rclpy.node import Node
 
 from cobot_calib_ros.ros import interrupts
 from cobot_calib_ros.ros.action_client import ActionClient
+from cobot_calib_ros.ros.suite_nodes import suite_watch
 
 
 class CallError(RuntimeError):
@@ -68,11 +69,14 @@ def run_action(node: Node, client: ActionClient, goal, timeout: float = 60.0,
                feedback=None, executor=None):
     """Send a goal, wait for its result; returns (status, result). Ctrl-C (KeyboardInterrupt)
     while it runs cancels the goal, waits up to CANCEL_WAIT s for it to end and raises
-    Interrupted. A server that leaves the graph meanwhile, or is replaced by a new instance
-    that does not know the goal (a restarted node), ends the wait (ServerWatch)."""
+    Interrupted. A server node that exits meanwhile (the suite's launcher says so on
+    ros.suite_nodes' topic), leaves the graph, or is replaced by a new instance that does not
+    know the goal (a restarted node) ends the wait (ServerWatch)."""
     if not spin_until(node, client.server_is_ready, min(timeout, 10.0), executor):
         raise CallError(f'action {client._action_name} is not available; '
                         'is the node suite up (cobot-calib up)?')
+    suite_watch(node)       # subscribed before the goal: the launcher's news reaches it early
+    sent = time.time()
     send = client.send_goal_async(goal, feedback_callback=feedback)
     watch = None
     try:
@@ -81,7 +85,7 @@ def run_action(node: Node, client: ActionClient, goal, timeout: float = 60.0,
         handle = send.result()
         if not handle.accepted:
             raise CallError(f'action {client._action_name} rejected the goal (busy?)')
-        watch = ServerWatch(node, client)
+        watch = ServerWatch(node, client, sent)
         result = handle.get_result_async()
         deadline = time.monotonic() + timeout
         while not spin_until(node, result.done, min(WATCH_PERIOD, deadline - time.monotonic()),
@@ -106,33 +110,41 @@ class ServerWatch:
     """Whether the action server instance that accepted a goal still serves it, for a client
     waiting on that goal.
 
-    The instance is known by the graph ids (GIDs) of its status publisher, taken when the watch
-    starts (right after the goal was accepted). A node that exits cleanly leaves the graph at
-    once; a killed one (kill -9, a crash) only when DDS's participant lease runs out (Fast DDS:
-    20 s). Once the instance has been out of the graph for GONE_AFTER s, ended() says so: the
-    node is gone, or, when another instance serves the action (`cobot-calib up` restarted the
-    node), it restarted and the goal was lost with the old instance: a new server never knows
-    an old one's goals, so waiting on would never end.
+    First the suite's launcher (ros.suite_nodes): `cobot-calib up` says on its latched topic
+    when a node process it started exits, within its watch period; a node that exited after
+    the goal was sent lost the goal. Without that news (a node `up` did not start, a real
+    robot's driver) the graph: the instance is known by the graph ids (GIDs) of its status
+    publisher, taken when the watch starts (right after the goal was accepted). A new instance
+    of the same node serving the action means the node restarted and the goal was lost with
+    the old one (a new server never knows an old one's goals). A node that exits cleanly leaves
+    the graph at once; a killed one only when DDS's participant lease runs out (Fast DDS: 20
+    s). Once the instance has been out of the graph for GONE_AFTER s, ended() says so.
     """
 
     GONE_AFTER = 3.0      # [s] unseen before the server counts as gone
 
-    def __init__(self, node: Node, client: ActionClient) -> None:
+    def __init__(self, node: Node, client: ActionClient, sent: float | None = None) -> None:
+        """``sent``: when the goal was sent (time.time()); default now."""
         self._node, self._client, self.action = node, client, client._action_name
+        self._sent = time.time() if sent is None else sent
+        self._suite = suite_watch(node)
         self._status_topic = _resolved(node, self.action) + '/_action/status'
-        self._name = ''
-        self._accepted = set(self._servers())
+        self._name = self._full_name = ''
+        self._accepted = self._servers()
         self._seen = time.monotonic()
 
     def _servers(self) -> dict[tuple, str]:
-        """The action's server instances on the graph now: GID -> node name ('' while DDS
-        has not told it yet)."""
+        """The action's server instances on the graph now: GID -> full node name ('' while
+        DDS has not told it yet)."""
         with contextlib.suppress(Exception):      # a graph query during shutdown
-            servers = {tuple(info.endpoint_gid): info.node_name for info in
-                       self._node.get_publishers_info_by_topic(self._status_topic)}
-            servers = {gid: '' if name == UNKNOWN_NODE else name
-                       for gid, name in servers.items()}
-            self._name = self._name or next(filter(None, servers.values()), '')
+            servers = {tuple(info.endpoint_gid): ('' if info.node_name == UNKNOWN_NODE else
+                                                  _full_name(info.node_namespace,
+                                                             info.node_name))
+                       for info in self._node.get_publishers_info_by_topic(
+                           self._status_topic)}
+            if not self._full_name:
+                self._full_name = next(filter(None, servers.values()), '')
+                self._name = self._full_name.rsplit('/', 1)[-1]
             return servers
         return {}
 
@@ -144,11 +156,18 @@ class ServerWatch:
         return self._name or action_server_node(self._node, self.action) or 'server'
 
     def ended(self) -> str:
-        """'' while the accepting instance is there (or out of the graph under GONE_AFTER s);
-        else why the goal will not end: the node is gone, or it restarted (goal lost)."""
+        """'' while the accepting instance serves the goal (or is out of the graph under
+        GONE_AFTER s); else why the goal will not end: the node exited or restarted (goal
+        lost), or it is gone."""
         now = time.monotonic()
         servers = self._servers()
-        there = (self._accepted & servers.keys()) if self._accepted \
+        exited = self._suite.exit_since(self._full_name, self._sent) if self._full_name \
+            else None
+        if exited is not None:
+            return self.exited_line(exited)
+        if self._replaced(servers):
+            return self.lost_line()
+        there = (self._accepted.keys() & servers.keys()) if self._accepted \
             else self._client.server_is_ready()
         if there:
             self._seen = now
@@ -157,10 +176,35 @@ class ServerWatch:
             return ''
         return self.lost_line() if servers else self.gone_line()
 
+    def _replaced(self, servers: dict[tuple, str]) -> bool:
+        """A new instance of the one node that served the action when the goal was accepted
+        serves it now: that node restarted (two of one name do not serve one action)."""
+        if len(self._accepted) != 1 or not self._full_name:
+            return False
+        return any(gid not in self._accepted and name == self._full_name
+                   for gid, name in servers.items())
+
     def restarted(self) -> bool:
-        """Another instance serves the action and the accepting one is out of the graph."""
+        """The node exited after the goal was sent (the launcher says), or another instance
+        serves the action and the accepting one is out of the graph or replaced."""
         servers = self._servers()
-        return bool(self._accepted and servers and not self._accepted & servers.keys())
+        if self._full_name and self._suite.exit_since(self._full_name, self._sent):
+            return True
+        return self._replaced(servers) or bool(
+            self._accepted and servers and not self._accepted.keys() & servers.keys())
+
+    def exited_line(self, exited) -> str:
+        """What the launcher's news means for the goal: ``exited`` a ros.suite_nodes
+        NodeProcess."""
+        after = max(0.0, exited.exited - self._sent)
+        how = f'{exited.how_it_ended()} {after:.1f} s after the goal was sent'
+        if exited.left_down:
+            return (f'the {self.server_node} node is gone ({how}; cobot-calib up left it down '
+                    f'after repeated quick exits): the {self.action} goal is lost; its log in '
+                    '~/.ros/log says why it ended')
+        return (f'the {self.server_node} node restarted: goal lost ({how}; cobot-calib up '
+                f'starts it again, and the new {self.server_node} does not know the '
+                f'{self.action} goal; its log in ~/.ros/log says why the old one ended)')
 
     def gone_line(self) -> str:
         return (f'the {self.server_node} node is gone ({self.action} unavailable for '
@@ -171,6 +215,10 @@ class ServerWatch:
         return (f'the {self.server_node} node restarted: goal lost (the new {self.server_node} '
                 f'does not know the {self.action} goal of the one that accepted it; its log '
                 'in ~/.ros/log says why the old one ended)')
+
+
+def _full_name(namespace: str, name: str) -> str:
+    return f'{namespace.rstrip("/")}/{name}'
 
 
 def _resolved(node: Node, action: str) -> str:

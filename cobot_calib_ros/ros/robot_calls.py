@@ -27,7 +27,8 @@ from cobot_calib_ros.core.robot_port import (Approach, Capture, CaptureFailed, M
 from cobot_calib_ros.core.sensors.probe import Reading, ReadingStatus
 from cobot_calib_ros.ros.action_client import ActionClient
 from cobot_calib_ros.ros.convert import matrix_to_pose
-from cobot_calib_ros.ros.spin import absent_after, Companion, pause, Stopping, until, wait
+from cobot_calib_ros.ros.spin import (absent_after, Companion, pause, ServerLost, Stopping, until,
+                                     wait)
 
 SERVER_WAIT = 5.0       # [s] for move_to / capture_joints to be discovered
 MOVE_TIMEOUT = 120.0    # [s] for one move_to to finish (every caller's bound on a hung move)
@@ -94,7 +95,7 @@ class RobotCalls:
             if not until(self.move_client.server_is_ready, SERVER_WAIT):
                 raise MoveFailed(NO_MOVE_TO)
             result = self._answers.run_action(self.move_client, goal, 10.0, MOVE_TIMEOUT)
-        except Stopping as e:
+        except (Stopping, ServerLost) as e:
             raise MoveFailed(f'move_to: {e}')
         except TimeoutError as e:
             raise MoveFailed(f'move_to: {e}; is mock_robot (or robot_adapter) up?')

@@ -46,6 +46,12 @@ EXECUTOR_ENV = 'COBOT_CALIB_EXECUTOR'
 EXECUTORS = ('events', 'single')
 DEFAULT_EXECUTOR = 'single'
 WAKE_PERIOD = 0.1     # [s] longest wait of one spin_once of a loop that checks for a stop
+# [s] longest wait of an idle executor's spin_once (a node's own, a companion's): a stop wakes
+# it at once (a signal through SignalWaker, a companion's destroy through Executor.wake), so
+# this only bounds a missed wake. Each wake of rclpy's executor rebuilds its wait set in
+# Python: at WAKE_PERIOD, the main and companion loops were most of an idle node's 1.0-1.7 %
+# of a core (bench_idle, py-spy)
+IDLE_WAKE = 2.0
 STOP_GRACE = 3.0      # [s] for callbacks in flight to end after a stop, before the teardown
 TEARDOWN_DUMP = 4.0   # [s] a teardown still running this long prints every thread's stack
 # [s] a teardown still running this long ends the process (exit 0, said in its log): rclpy's
@@ -88,14 +94,16 @@ def run(make_node: Callable[[], Node], args=None, threads: int = 1) -> None:
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     stop = threading.Event()
     previous = {sig: signal.signal(sig, _stop_handler(stop)) for sig in STOP_SIGNALS}
-    node = executor = None
+    node = executor = waker = None
     try:
         node = make_node()
         executor = (MultiThreadedExecutor(num_threads=threads) if threads > 1
                     else make_executor())
         executor.add_node(node)
+        waker = SignalWaker(executor)
+        period = idle_wake(executor)
         while node.context.ok() and not stop.is_set():
-            executor.spin_once(timeout_sec=WAKE_PERIOD)
+            executor.spin_once(timeout_sec=period)
         _finish_work_in_flight(executor, node.context)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
@@ -110,12 +118,49 @@ def run(make_node: Callable[[], Node], args=None, threads: int = 1) -> None:
         if node is None or node.context.ok():
             raise
     finally:
+        if waker is not None:
+            waker.close()
         _teardown(node)
         for sig, handler in previous.items():
             if sig != signal.SIGINT:        # _teardown keeps a late Ctrl-C away
                 signal.signal(sig, handler)
     if stop.is_set():
         _exit_now()
+
+
+def idle_wake(executor) -> float:
+    """The longest wait of ``executor``'s idle spin_once: IDLE_WAKE when it can be woken
+    (Executor.wake), else WAKE_PERIOD (the EventsExecutor)."""
+    return IDLE_WAKE if hasattr(executor, 'wake') else WAKE_PERIOD
+
+
+class SignalWaker:
+    """Wakes ``executor`` as soon as a signal arrives, so its spin_once can wait long.
+
+    Python runs a signal's handler only when the main thread runs Python again, and a main
+    thread in rcl_wait does so at the wait's timeout. signal.set_wakeup_fd has the C-level
+    handler write the signal's number to a pipe at once; a thread reading it wakes the
+    executor (Executor.wake), so the wait returns and the handler runs. Main thread only."""
+
+    def __init__(self, executor) -> None:
+        self._read, self._write = os.pipe()
+        os.set_blocking(self._write, False)
+        self._previous = signal.set_wakeup_fd(self._write, warn_on_full_buffer=False)
+        wake = getattr(executor, 'wake', None)      # the EventsExecutor has none: it wakes
+        self._thread = threading.Thread(target=self._run, args=(wake,), daemon=True,
+                                        name='signal_waker')
+        self._thread.start()
+
+    def _run(self, wake) -> None:
+        with contextlib.suppress(OSError):
+            while os.read(self._read, 64) and wake is not None:
+                wake()
+
+    def close(self) -> None:
+        signal.set_wakeup_fd(self._previous)
+        os.close(self._write)               # the reader's read returns b'': it ends
+        self._thread.join(timeout=1.0)
+        os.close(self._read)
 
 
 def die_with_launcher() -> None:
@@ -245,24 +290,34 @@ class Companion:
         self._thread.start()
 
     def _spin(self) -> None:
+        period = idle_wake(self._executor)
         try:
             while self._running and self.node.context.ok():
-                self._executor.spin_once(timeout_sec=WAKE_PERIOD)
+                self._executor.spin_once(timeout_sec=period)
         except Exception as exc:  # noqa: BLE001 - mostly: the context was shut down under us
             if self._running and self.node.context.ok():   # no: a callback raised
                 self.node.get_logger().error(
                     f'{self._thread.name}: stopped by an exception in a callback: {exc!r}')
 
     def run_action(self, client, goal, accept_timeout: float, result_timeout: float):
-        """Send ``goal`` from any thread and block until its result; None if rejected.
+        """Send ``goal`` from any thread and block until its result; None if rejected;
+        ServerLost when its server node exits, restarts or leaves the graph meanwhile
+        (ros.calls.ServerWatch).
 
         rclpy's ActionClient is not thread-safe: a goal response can arrive on this executor
         before send_goal_async (called from another thread) has registered its sequence
         number, and is then dropped ("Ignoring unexpected goal response") and the call hangs.
         So sending and asking for the result both happen on the companion's own thread.
         """
+        from cobot_calib_ros.ros.calls import ServerWatch
+        from cobot_calib_ros.ros.suite_nodes import suite_watch
+        suite_watch(self.node)      # the launcher's news of node exits, from before the goal
+        sent_at = time.time()
         sent = self.send_goal(client, goal, accept_timeout)
-        return None if sent is None else wait(sent[1], result_timeout).result
+        if sent is None:
+            return None
+        watch = ServerWatch(self.node, client, sent_at)     # its server exits: goal lost
+        return wait(sent[1], result_timeout, watch.ended).result
 
     def send_goal(self, client, goal, accept_timeout: float):
         """Send ``goal`` on the companion's thread (:meth:`run_action` says why): its goal
@@ -281,7 +336,10 @@ class Companion:
         # Stop the spinning thread before shutting its executor down: Executor.shutdown()
         # destroys the guard condition a concurrent wait may still hold (a segfault at exit).
         self._running = False
-        self._thread.join(timeout=2.0)      # it wakes every WAKE_PERIOD: only a blocked callback
+        wake = getattr(self._executor, 'wake', None)
+        if wake is not None:
+            wake()                          # out of its spin_once now
+        self._thread.join(timeout=2.0)      # still running after: a blocked callback
         if self._thread.is_alive():
             return                      # still blocked: leave the rest to process exit
         self._executor.shutdown(timeout_sec=1.0)
@@ -360,17 +418,32 @@ def pause(seconds: float) -> None:
         raise Stopping('the node is shutting down')
 
 
-def wait(future, timeout: float):
+class ServerLost(TimeoutError):
+    """A wait ended because the server that was to answer exited, restarted or is gone."""
+
+
+LOST_CHECK_PERIOD = 0.25    # [s] between two looks of ``wait`` at its ``lost`` check
+
+
+def wait(future, timeout: float, lost: Callable[[], str] | None = None):
     """Block this thread until ``future`` is done (another executor completes it); its result.
 
-    Raises TimeoutError after ``timeout`` [s], Stopping as soon as the process shuts down.
+    Raises TimeoutError after ``timeout`` [s], Stopping as soon as the process shuts down,
+    ServerLost when ``lost()`` (asked every LOST_CHECK_PERIOD s) says why the answer will
+    never come.
     """
     done = threading.Event()
     future.add_done_callback(lambda _: done.set())
     deadline = time.monotonic() + timeout
+    looked = time.monotonic()
     while not done.wait(min(WAKE_PERIOD, max(0.0, deadline - time.monotonic()))):
         if _stopping.is_set():
             raise Stopping('the node is shutting down')
+        if lost is not None and time.monotonic() - looked >= LOST_CHECK_PERIOD:
+            looked = time.monotonic()
+            why = lost()
+            if why:
+                raise ServerLost(why)
         if time.monotonic() >= deadline:
             raise TimeoutError(f'no answer within {timeout:.0f} s')
     return future.result()

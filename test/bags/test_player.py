@@ -12,6 +12,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosbags.interfaces import QosTime
 from sensor_msgs.msg import JointState
+from std_msgs.msg import UInt64
 from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
 
@@ -224,6 +225,41 @@ def test_flow_control_loses_nothing_to_a_consumer_slower_than_the_player(
     assert result.published == 300
     assert got[-300:] == recorded                   # the first may have come twice (resent)
     assert got[:len(got) - 300] == recorded[:len(got) - 300]
+
+
+def test_without_flow_control_the_lost_are_counted_from_the_consumers_count(
+        best_effort_bag, client, player_context):
+    """The lossy mode (no window) says what was lost when the consumer publishes its running
+    count on bag_player/consumed: published minus that count at the end."""
+    got = []
+    client.node.create_subscription(
+        JointState, '/slow/joint_states', got.append,
+        QoSProfile(depth=3, reliability=ReliabilityPolicy.BEST_EFFORT), raw=True)
+    count = client.node.create_publisher(UInt64, 'bag_player/consumed', QoSProfile(
+        depth=10, reliability=ReliabilityPolicy.RELIABLE))
+    stop = threading.Event()
+
+    def slow_consumer() -> None:
+        while not stop.is_set():
+            client.executor.spin_once(timeout_sec=0.01)
+            count.publish(UInt64(data=len(got)))
+            time.sleep(0.003)
+    with open_bag(best_effort_bag) as bag:
+        player = BagPlayer(bag, rate=0, wait_subscribers=10.0, context=player_context)
+        consumer = threading.Thread(target=slow_consumer, daemon=True)
+        consumer.start()
+        try:
+            assert client.spin_until(lambda: player.count_publishers(
+                '/bag_player/consumed') > 0 and count.get_subscription_count() > 0)
+            with spinning(player):
+                result = player.play()
+            time.sleep(0.5)             # the consumer's last rounds (its count is final)
+        finally:
+            stop.set()
+            consumer.join(timeout=5)
+        player.destroy_node()
+    assert result.published == 300 and result.written_off == 0
+    assert result.lost == 300 - len(got), (result.lost, len(got))
 
 
 def test_flow_control_window_must_hold_a_message():

@@ -45,6 +45,15 @@ def test_every_verb_is_a_module_with_add_parser_and_run():
         assert run.__module__ == f'cobot_calib_ros.cli.{module}' and run.__name__ == 'run'
 
 
+def test_negative_numbers_in_exponent_notation_are_values_not_options():
+    args = main.build_parser().parse_args(['move', '--xyz', '0.5', '-1e-3', '-.25', '--rpy',
+                                           '-3.14151951', '-5.37e-05', '7.63E-05'])
+    assert args.xyz == [0.5, -1e-3, -0.25]
+    assert args.rpy == [-3.14151951, -5.37e-05, 7.63e-05]
+    with pytest.raises(SystemExit):     # an option is still an option
+        main.build_parser().parse_args(['move', '--xyz', '1', '2', '3', '--rpy', '0', '0', '-e'])
+
+
 @pytest.mark.parametrize('values, problem', [
     ('{duration: 0.5', "expected ',' or '}'"), ('{a: [1, 2}', "expected ',' or ']'"),
     ('{duration: @x}', 'cannot start any token')])

@@ -145,29 +145,23 @@ def test_a_restarted_kinematic_identifier_lost_the_goal_and_the_wait_ends(short_
     assert 'Traceback' not in err
 
 
-def test_ctrl_c_after_a_restart_says_the_goal_was_lost(cell):
-    """issue 31 item 2: a Ctrl-C while the client waited on the lost goal printed an empty
-    reason ('ended before the cancel came: ;')."""
+def test_a_node_restarted_outside_up_ends_the_wait_when_its_new_instance_shows(cell):
+    """issue 38 item 1, the graph's fallback for a node `up` did not start (no suite/nodes
+    news): with the default 20 s lease the killed instance stays on the graph, but a new
+    instance of the same node serving the action means the goal was lost, so the wait ends
+    then. (Issue 31's Ctrl-C while waiting on the lost goal cannot come any more: the wait
+    no longer lasts until the old instance's lease ends.)"""
     suite, env, store = cell
     proc = _identify(env)
     try:
         _until_poses_come(proc)
         _kill_and_restart(suite)
-        log = suite.log_path('kinematic_identifier')
-        deadline = time.monotonic() + 120
-        while log.read_text().count('collections in') < 2:      # the new instance is up
-            assert time.monotonic() < deadline, log.read_text()
-            time.sleep(0.5)
-        time.sleep(3.0)         # discovered by the client (its cancel and result reach it)
-        assert proc.poll() is None        # still waiting: the old instance is in its lease
-        proc.send_signal(signal.SIGINT)
-        _, err = proc.communicate(timeout=60)
+        _, err = proc.communicate(timeout=240)
     finally:
         proc.kill()
-    assert proc.returncode == 130, err
-    assert 'identify stopped (Ctrl-C): the kinematic_identifier node restarted: goal lost' \
-        in err, err
-    assert 'came: ;' not in err
+    assert proc.returncode == 1, err
+    assert 'the kinematic_identifier node restarted: goal lost' in err, err
+    assert 'came: ;' not in err and 'Traceback' not in err
     (collection_id,) = [m['id'] for m in store.list_collections()]
     assert err.strip().endswith(f'--attach --resume {collection_id}'), err
 

@@ -117,3 +117,18 @@ def test_no_board_is_a_usage_error(shots, capsys):
     folder, _ = shots
     code, _, err = _run(capsys, folder)
     assert code == 2 and '--board' in err
+
+
+def test_a_missing_folder_is_named_as_such(tmp_path, capsys):
+    code, _, err = _run(capsys, tmp_path / 'nowhere', '--cell', 'ur10e_close')
+    assert code == 2 and 'nowhere: no such folder or bag' in err, err
+
+
+def test_images_of_another_board_say_what_was_read_and_found(shots, tmp_path, capsys):
+    folder, _ = shots       # 12 views of a DICT_4X4_50 board, a text file, a broken PNG
+    code, _, err = _run(capsys, folder, '--board',
+                        'charuco:squares=7x5,square=0.03,marker=0.022,dict=DICT_5X5_50')
+    assert code == 1 and '0 views of the board' in err, err
+    assert '13 images read, 0 with the board' in err, err      # broken.png is read, unreadable
+    assert 'view00.png: 0 board corners found, 6 needed (0 of its markers)' in err, err
+    assert 'check --board' in err, err

@@ -143,6 +143,29 @@ def test_a_killed_node_is_restarted_and_the_others_keep_running(up):
     assert up.proc.poll() is None
 
 
+def test_a_killed_job_node_ends_its_client_with_its_name_from_the_launcher(up):
+    """issue 38 item 1: kinematic_identifier killed under `identify`: `up` says the exit on
+    suite/nodes at once, so the client ends with the node's name, how it ended and that the
+    goal is lost, and does not wait for the graph (the killed participant's 20 s lease: the
+    graph never says 'killed by SIGKILL')."""
+    up.ready()
+    client = subprocess.Popen(
+        _cli('identify', '--robot', 'sawyer', '--attach', '--hold', '0.02',
+             '--validation-configs', '0', '--dry-run'),
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=up.env)
+    try:
+        _wait_line(client, '  pose ', 180.0)         # the collection's first feedback
+        os.kill(up.node_pids()['kinematic_identifier'], signal.SIGKILL)
+        _, err = client.communicate(timeout=120)
+    finally:
+        client.kill()
+    assert client.returncode == 1, err
+    assert re.search(r'the kinematic_identifier node restarted: goal lost \(killed by SIGKILL '
+                     r'[\d.]+ s after the goal was sent; cobot-calib up starts it again', err), err
+    assert 'Traceback' not in err
+    up.wait_for(r'^kinematic_identifier: restarted and answering again', 120.0)
+
+
 def test_ctrl_c_stops_every_node_cleanly_while_a_trial_runs(up):
     """SIGINT to `up`'s process group: every node gets one SIGINT and exits 0 within 10 s, the
     trial in flight is aborted with its readings on disk (resumable), no traceback anywhere."""

@@ -78,10 +78,14 @@ def test_nothing_is_rendered_while_nobody_subscribes_to_the_images(context):
         # subscribe to them (1 kHz unread cost it ~2 % of a core, and the robot a reader)
         assert not spin_until(node, lambda: camera._published > 0
                               or publisher.get_subscription_count() > 0, 1.5, executor)
-        node.create_subscription(Image, 'wrist_camera/image_raw', images.append,
-                                 qos_profile_sensor_data)
+        assert camera._timer.is_canceled()         # not even a timer wakes it at rest
+        images_sub = node.create_subscription(Image, 'wrist_camera/image_raw', images.append,
+                                              qos_profile_sensor_data)
         assert spin_until(node, lambda: len(images) >= 2, 30.0, executor), 'no image'
         assert publisher.get_subscription_count() == 1
+        node.destroy_subscription(images_sub)      # the last viewer leaves: at rest again
+        assert spin_until(node, lambda: camera._timer.is_canceled()
+                          and publisher.get_subscription_count() == 0, 30.0, executor)
     finally:
         executor.shutdown(timeout_sec=1.0)
         camera.destroy_node()

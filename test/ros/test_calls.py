@@ -3,6 +3,7 @@ item 2): the new instance does not know the goal, so the wait ends naming the no
 the goal was lost, instead of waiting for a result that never comes. Real processes, real
 signals, on a ROS domain of their own."""
 import os
+import threading
 import subprocess
 import time
 
@@ -86,3 +87,46 @@ def test_a_goal_lost_to_a_restarted_server_ends_the_wait_naming_the_node(server)
     # the goal's own deadline was not what ended it: the lease (6 s) and GONE_AFTER (3 s)
     waited = time.monotonic() - killed[0]
     assert waited < GOAL_TIMEOUT - 50.0, waited
+
+
+def test_a_move_a_node_waits_on_ends_when_the_robot_restarts(server):
+    """issue 38 item 1, inside a node: RobotCalls' move_to (on a spin.Companion, as every job
+    node moves the arm) whose mock_robot is killed and started again fails naming it, instead
+    of waiting out MOVE_TIMEOUT (120 s) for a result that never comes."""
+    from action_msgs.msg import GoalStatus, GoalStatusArray
+    import numpy as np
+    from cobot_calib_ros.core.robot_port import MoveFailed
+    from cobot_calib_ros.ros.robot_calls import RobotCalls
+    from cobot_calib_ros.ros.spin import Companion
+    start, node, executor = server
+    first = start()
+    seen, executing = [], []
+    node.create_subscription(JointState, 'joint_states', seen.append, qos_profile_sensor_data)
+    def on_status(msg: GoalStatusArray) -> None:
+        executing.extend(s for s in msg.status_list if s.status == GoalStatus.STATUS_EXECUTING)
+    node.create_subscription(GoalStatusArray, 'move_to/_action/status', on_status, 10)
+    answers = Companion(node, 'answers')
+    calls = RobotCalls(answers)
+    try:
+        assert spin_until(node, lambda: seen and calls.move_client.server_is_ready(),
+                          START_TIMEOUT, executor)
+        target = np.array(seen[-1].position)
+        target[0] += 1.0                    # 50 s of motion at 2 % of 1 rad/s
+        failed = []
+
+        def move() -> None:
+            try:
+                calls.move_joints(target, speed_scale=0.02)
+            except MoveFailed as e:
+                failed.append(str(e))
+        mover = threading.Thread(target=move, daemon=True)
+        mover.start()
+        assert spin_until(node, lambda: bool(executing), START_TIMEOUT, executor)
+        first.kill()
+        first.wait()
+        start()                             # as `cobot-calib up` restarts a node that exited
+        mover.join(timeout=GOAL_TIMEOUT)
+        assert failed, 'the move neither failed nor ended'
+        assert failed[0].startswith('move_to: the mock_robot node restarted: goal lost'), failed
+    finally:
+        answers.destroy()

@@ -82,9 +82,11 @@ def detect_views(images: Iterable[tuple[str, NDArray[np.uint8] | None]], spec: B
             skipped.append((name, f'{shape[0]}x{shape[1]} px, the first image is '
                                   f'{size[0]}x{size[1]}'))
             continue
-        view = board_view(name, finder.finish(finder.find(image)), spec)
+        detection = finder.finish(finder.find(image))
+        view = board_view(name, detection, spec)
         if view is None:
-            skipped.append((name, f'fewer than {MIN_POINTS} board corners found'))
+            skipped.append((name, f'{len(detection)} board corners found, {MIN_POINTS} '
+                                  f'needed ({len(detection.markers)} of its markers)'))
         else:
             views.append(view)
     return views, skipped, size
