@@ -74,10 +74,14 @@ def test_a_profile_with_its_own_transports_is_left_alone(tmp_path):
 
 def test_fast_dds_takes_the_merged_profile_and_maps_the_large_segment():
     """The session's profile (conftest) merged: Fast DDS maps a 16 MB segment; the session's
-    profile alone leaves its default (512 KB)."""
+    profile alone leaves its default (512 KB). The probe is alone on a domain of its own: a
+    participant also maps the segments of the peers it discovers (another test's 16 MB)."""
+    import domain_coordinator
     # the session's own profile: an in-process `cobot-calib` call of another test of this
     # worker has put the merged one into os.environ (cli.main does, as every command does)
-    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
-               FASTRTPS_DEFAULT_PROFILES_FILE=str(TESTS / 'fastdds_no_lease_check.xml'))
-    assert segment_mapped(large_data_env(env)) >= SEGMENT_BYTES
-    assert 0 < segment_mapped(env) < 2 ** 20
+    with domain_coordinator.domain_id() as domain:
+        env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
+                   ROS_DOMAIN_ID=str(domain),
+                   FASTRTPS_DEFAULT_PROFILES_FILE=str(TESTS / 'fastdds_no_lease_check.xml'))
+        assert segment_mapped(large_data_env(env)) >= SEGMENT_BYTES
+        assert 0 < segment_mapped(env) < 2 ** 20
