@@ -1,5 +1,5 @@
-"""Issue 36 must-show 3: a new cell's first day with the README's defaults, on each mock cell's
-whole node suite (`cobot-calib up`'s nodes as processes, own domain, temporary data_dir):
+"""Issue 36 must-show 3 (run by test_first_day_*.py): a new cell's first day with the README's
+defaults, on each mock cell's whole node suite (`cobot-calib up`'s nodes as processes, own domain, temporary data_dir):
 `identify --attach --planned`, `tcp`, `calibrate_user_frame` rigid P1-P5, `intrinsics
 --planned`, `hand-eye`, `move --frame user`; every step succeeds (iiwa7_close has no wrist
 camera: its intrinsics and hand-eye are refused before anything moves, saying so), and the tool
@@ -18,7 +18,6 @@ import time
 
 import domain_coordinator
 import numpy as np
-import pytest
 
 from cobot_calib_ros.api import launcher
 from cobot_calib_ros.core import frames, kinematics, user_frame
@@ -40,8 +39,10 @@ def _run(env, *args, timeout=1200) -> tuple[subprocess.CompletedProcess, float]:
     return out, time.monotonic() - start
 
 
-@pytest.mark.parametrize('cell', ['sawyer_close', 'iiwa7_close', 'ur10e_close'])
-def test_the_first_day_with_the_readme_defaults_succeeds(cell, tmp_path):
+def run_the_first_day(cell: str, tmp_path) -> None:
+    """The first day on ``cell``'s suite, every step asserted (the module doc); one test file per
+    cell (test_first_day_<robot>.py), so that pytest-xdist's loadfile gives the three ~2 min
+    runs to whichever worker is free."""
     sim = load_simulation(cell_file(cell))
     camera = sim.cell.camera is not None and sim.cell.landmarks is not None
     with domain_coordinator.domain_id() as domain:
