@@ -1,10 +1,10 @@
 """Issue 36 must-show 3 (run by test_first_day_*.py): a new cell's first day with the README's
-defaults, on each mock cell's whole node suite (`cobot-calib up`'s nodes as processes, own domain, temporary data_dir):
-`identify --attach --planned`, `tcp`, `calibrate_user_frame` rigid P1-P5, `intrinsics
---planned`, `hand-eye`, `move --frame user`; every step succeeds (iiwa7_close has no wrist
-camera: its intrinsics and hand-eye are refused before anything moves, saying so), and the tool
-`move` sends over the layout's centre lands there: the mock's TRUE tool tip against the target
-in the frame the TRUE marker tops define.
+defaults, on each mock cell's whole node suite (`cobot-calib up`'s nodes as processes, own
+domain, temporary data_dir): `identify --attach --planned`, `tcp`, `calibrate_user_frame` rigid
+P1-P5, `intrinsics --planned`, `hand-eye`, `move --frame user`; every step succeeds (iiwa7_close
+has no wrist camera: its intrinsics and hand-eye are refused before anything moves, saying so),
+and the tool `move` sends over the layout's centre lands there: the mock's TRUE tool tip against
+the target in the frame the TRUE marker tops define.
 
 Nothing but the mock's defaults is changed (the verbs' and the nodes' own defaults; the mock
 moves at its cell's time_scale). Slow by nature: the planned identification dominates (the
