@@ -46,12 +46,13 @@ EXECUTOR_ENV = 'COBOT_CALIB_EXECUTOR'
 EXECUTORS = ('events', 'single')
 DEFAULT_EXECUTOR = 'single'
 WAKE_PERIOD = 0.1     # [s] longest wait of one spin_once of a loop that checks for a stop
-# [s] longest wait of an idle executor's spin_once (a node's own, a companion's): a stop wakes
-# it at once (a signal through SignalWaker, a companion's destroy through Executor.wake), so
-# this only bounds a missed wake. Each wake of rclpy's executor rebuilds its wait set in
-# Python: at WAKE_PERIOD, the main and companion loops were most of an idle node's 1.0-1.7 %
-# of a core (bench_idle, py-spy)
-IDLE_WAKE = 2.0
+# [s] longest wait of an idle executor's spin_once (a node's own, a companion's). A stop wakes
+# it at once (a signal through SignalWaker, a companion's destroy through Executor.wake), and at
+# 2 s an idle node's 10 Hz wait-set rebuilds were gone (bench_idle 16.5-18 % at load 3-17), but
+# a fresh-clone run with it saw a user_frame_solver outlive its killed launcher by 30 s and a
+# mock_robot hand_guide call go unanswered for 60 s, unexplained: back to
+# WAKE_PERIOD until that is understood (issue 38.4)
+IDLE_WAKE = WAKE_PERIOD
 STOP_GRACE = 3.0      # [s] for callbacks in flight to end after a stop, before the teardown
 TEARDOWN_DUMP = 4.0   # [s] a teardown still running this long prints every thread's stack
 # [s] a teardown still running this long ends the process (exit 0, said in its log): rclpy's
