@@ -27,6 +27,7 @@ from typing import Protocol
 import numpy as np
 from numpy.typing import NDArray
 
+from cobot_calib_ros.core.errors import ErrorCode, Failure
 from cobot_calib_ros.core.sensors.probe import Reading
 
 Array = NDArray[np.float64]
@@ -58,6 +59,15 @@ class CaptureFailed(PortError):
 
 class Stopped(PortError):
     """The caller cancelled the procedure (raised between poses by :func:`check_cancel`)."""
+
+
+def port_failure(error: PortError, suffix: str = '') -> Failure:
+    """The Failure a procedure returns for a port call that did not happen (issue 39.2):
+    Stopped CANCELED, MoveFailed MOTION_FAILED, any other CAPTURE_FAILED; ``suffix`` is
+    appended to the message (e.g. '; nothing stored')."""
+    code = (ErrorCode.CANCELED if isinstance(error, Stopped) else ErrorCode.MOTION_FAILED
+            if isinstance(error, MoveFailed) else ErrorCode.CAPTURE_FAILED)
+    return Failure(code, f'{error}{suffix}')
 
 
 def check_cancel(cancelled: Cancelled, where: str) -> None:

@@ -1,5 +1,5 @@
 """A TCP calibration on the simulated cell in-process (no ROS), as tcp_calibrator does it live:
-the same plan, touch procedure and solve (core.tcp.touches) over the sim's robot port. For
+the same procedure (core.tcp.procedure.calibrate_tcp) over the sim's robot port. For
 tests and bench/bench_tcp.py; :func:`moved_tool` gives the same cell with its real tool bent."""
 from __future__ import annotations
 
@@ -9,9 +9,9 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from cobot_calib_ros.core.tcp import TcpSolution
-from cobot_calib_ros.core.tcp.touches import (checked_plan, DEFAULT_ELONGATION, DEFAULT_TILT,
-                                              plan_touches, solve_touches, take_touches,
-                                              TcpPlan, TcpTouches)
+from cobot_calib_ros.core.tcp.procedure import calibrate_tcp as run_procedure, TcpRequest
+from cobot_calib_ros.core.tcp.touches import (DEFAULT_ELONGATION, DEFAULT_TILT, TcpPlan,
+                                              TcpTouches)
 from cobot_calib_ros.sim.robot import DirectRobot, SimRobot
 from cobot_calib_ros.sim.scenario import Simulation
 
@@ -31,19 +31,20 @@ def calibrate_tcp(sim: Simulation, seed: int, count: int = 6, tilt: float = DEFA
                   exact_kinematics: bool = False, point: str = '') -> SimTcp:
     """One TCP calibration with operator seed ``seed``; the flange poses through the nominal
     kinematics, or the mock's true arm (``exact_kinematics``: as with an exact kinematic
-    calibration active)."""
+    calibration active). RuntimeError with the Failure's message when it fails."""
     arm = SimRobot(sim, seed_offset=seed)
     robot = DirectRobot(arm, sim.probe)
     chain = arm.model.chain(arm.true_parameters if exact_kinematics else None)
-    plan = plan_touches(point or sim.cell.point_names[0], count, tilt, method=method,
-                        elongation=elongation)
     # as tcp_calibrator without a user frame: the touches checked from where the first found
     # the point, through the arm and the cell's nominal tool
     tool_chain = arm.model.chain(arm.true_parameters if exact_kinematics else None,
                                  tool=sim.cell.tool_offset)
-    plan, locate = checked_plan(plan, tool_chain, sim.cell.home, tilt)
-    touches = take_touches(plan, robot, chain, HOLD_S, locate=locate)
-    return SimTcp(plan, touches, solve_touches(plan, touches), robot.robot_seconds)
+    request = TcpRequest(point or sim.cell.point_names[0], count, tilt, method, elongation,
+                         HOLD_S)
+    run = run_procedure(request, robot, chain, tool_chain, sim.cell.home)
+    if not run:
+        raise RuntimeError(f'{run.code.name}: {run.message}')
+    return SimTcp(run.plan, run.touches, run.solution, robot.robot_seconds)
 
 
 def moved_tool(sim: Simulation, offset_m: Sequence[float]) -> Simulation:

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from cobot_calib_ros.core import frames
-from cobot_calib_ros.core.tcp import (GateLimits, gate_problem, solve_position, solve_tcp,
-                                      TooAlike)
+from cobot_calib_ros.core.errors import ErrorCode, Refusal
+from cobot_calib_ros.core.tcp import GateLimits, gate_problem, solve_position, solve_tcp
 from cobot_calib_ros.core.kinematics.urdf import rpy_from_matrix
 from cobot_calib_ros.core.tcp.touches import plan_touches
 
@@ -33,7 +33,7 @@ def test_noise_free_approaches_give_the_tool_and_the_point_exactly():
     assert np.allclose(position.t, T_FLANGE_TCP[:3, 3], atol=1e-12)
     assert np.allclose(position.c, FIXED_POINT, atol=1e-12)
     assert np.allclose(position.linear, [*T_FLANGE_TCP[:3, 3], *FIXED_POINT], atol=1e-12)
-    assert position.max_residual_mm < 1e-9
+    assert position.max_residual_m < 1e-12
     assert 2.0 < position.condition < 20.0
 
 
@@ -43,7 +43,7 @@ def test_noisy_touches_give_the_tool_within_their_noise_and_pass_the_gate():
     error = np.linalg.norm(position.t - T_FLANGE_TCP[:3, 3])
     std = np.sqrt(np.trace(position.covariance[:3, :3]))
     assert error < 4 * std and std < 5 * sigma
-    assert 0.0 < position.mean_residual_mm <= position.max_residual_mm < 5 * sigma * 1e3
+    assert 0.0 < position.mean_residual_m <= position.max_residual_m < 5 * sigma
     assert position.rms_per_axis == pytest.approx(sigma, rel=0.5)
     solution = solve_tcp(_approaches(8, noise=sigma))
     assert gate_problem(solution, GateLimits(touch_sigma=sigma), nominal=T_FLANGE_TCP) == ''
@@ -53,8 +53,9 @@ def test_three_nearly_parallel_orientations_are_refused_naming_them():
     """Must-show 1: orientations 0.3 and 0.4 deg apart do not determine the tool."""
     R0 = np.diag([1.0, -1.0, -1.0])
     Rs = [R0, frames.rot_x(math.radians(0.3)) @ R0, frames.rot_y(math.radians(0.4)) @ R0]
-    with pytest.raises(TooAlike) as refusal:
+    with pytest.raises(Refusal) as refusal:
         solve_position([_flange(R) for R in Rs])
+    assert refusal.value.failure.code == ErrorCode.DEGENERATE_POINTS
     message = str(refusal.value)
     assert 'approaches 1 and 2 differ by 0.3 deg' in message
     assert 'approaches 1 and 3 differ by 0.4 deg' in message
@@ -66,7 +67,7 @@ def test_a_fourth_distinct_approach_does_not_rescue_three_alike_ones():
     """Three alike and one tilted: all rotation differences are about one axis."""
     R0 = np.diag([1.0, -1.0, -1.0])
     Rs = [R0, frames.rot_x(0.004) @ R0, frames.rot_x(-0.003) @ R0, frames.rot_x(0.6) @ R0]
-    with pytest.raises(TooAlike, match=r'approaches 1 and 2 differ by 0\.2 deg') as refusal:
+    with pytest.raises(Refusal, match=r'approaches 1 and 2 differ by 0\.2 deg') as refusal:
         solve_position([_flange(R) for R in Rs])
     assert 'approaches 1 and 4' not in str(refusal.value)
 
@@ -74,7 +75,7 @@ def test_a_fourth_distinct_approach_does_not_rescue_three_alike_ones():
 def test_approaches_far_apart_about_one_axis_are_refused_naming_the_axis():
     R0 = np.diag([1.0, -1.0, -1.0])
     Rs = [frames.rot_y(a) @ R0 for a in (-0.6, -0.2, 0.2, 0.6)]
-    with pytest.raises(TooAlike, match=r'turn about one axis \(base direction \[-?0\.0, '
+    with pytest.raises(Refusal, match=r'turn about one axis \(base direction \[-?0\.0, '
                                        r'-?1\.0, -?0\.0\]\)'):
         solve_position([_flange(R) for R in Rs])
 
@@ -169,6 +170,6 @@ def test_plans_refuse_goals_that_cannot_work():
 
 
 def test_a_plan_too_alike_is_refused_before_anything_moves():
-    with pytest.raises(TooAlike, match=r'approaches 1 and 2 differ by 6\.0 deg.*tilt them'):
+    with pytest.raises(Refusal, match=r'approaches 1 and 2 differ by 6\.0 deg.*tilt them'):
         plan_touches('P1', 4, math.radians(6.0))
     assert len(plan_touches('P1', 4, math.radians(12.0)).orientations) == 4

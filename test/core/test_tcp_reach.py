@@ -9,9 +9,10 @@ import numpy as np
 import pytest
 
 from cobot_calib_ros.core import frames, kinematics
+from cobot_calib_ros.core.errors import ErrorCode, Refusal
 from cobot_calib_ros.core.robot_port import MoveFailed
 from cobot_calib_ros.core.tcp.touches import (checked_plan, JOINT_MARGIN, plan_touches,
-                                              reachable_plan, take_touches, Unreachable)
+                                              reachable_plan, take_touches)
 from cobot_calib_ros.paths import cell_file
 from cobot_calib_ros.sim.robot import DirectRobot, SimRobot
 from cobot_calib_ros.sim.scenario import load_simulation
@@ -80,8 +81,9 @@ def test_a_point_out_of_reach_is_refused_before_any_motion_naming_the_touch_and_
     arm, robot = _robot(IIWA)
     chain = arm.model.chain(tool=IIWA.cell.tool_offset)
     far = np.array([1.5, 0.0, 0.2])
-    with pytest.raises(Unreachable, match=r'approach 1: .*no convergence.*nothing moved'):
+    with pytest.raises(Refusal, match=r'approach 1: .*no convergence.*nothing moved') as e:
         checked_plan(plan_touches('P1', 6), chain, IIWA.cell.home, point_base=far)
+    assert e.value.failure.code == ErrorCode.MOTION_FAILED
     assert robot.touches == 0
 
 

@@ -74,8 +74,9 @@ def test_the_procedure_finds_the_true_tool_where_the_nominal_one_is_off():
     nominal_error = np.linalg.norm(SIM.cell.tool_offset[:3, 3] - truth[:3, 3])
     z_error = math.acos(min(1.0, solution.R_flange_tcp[:, 2] @ truth[:3, 2]))
     print(f'TCP error {error * 1e3:.4f} mm (nominal {nominal_error * 1e3:.3f} mm), '
-          f'z {z_error * 1e3:.3f} mrad; residual mean {solution.position.mean_residual_mm:.4f}'
-          f' max {solution.position.max_residual_mm:.4f} mm')
+          f'z {z_error * 1e3:.3f} mrad; residual mean '
+          f'{solution.position.mean_residual_m * 1e3:.4f} max '
+          f'{solution.position.max_residual_m * 1e3:.4f} mm')
     nominal_z_error = frames.rotation_angle(SIM.cell.tool_offset[:3, :3].T @ truth[:3, :3])
     assert error < 0.25 * nominal_error
     assert z_error < 0.5 * nominal_z_error

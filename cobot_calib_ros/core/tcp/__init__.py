@@ -7,8 +7,8 @@
   (tcp_calibrator over ROS, the bench and the tests over the simulation).
 """
 from cobot_calib_ros.core.tcp.solve import (GateLimits, gate_problem, solve_position,
-                                            solve_tcp, TcpPosition, TcpSolution, TooAlike,
+                                            solve_tcp, TcpPosition, TcpSolution, too_alike,
                                             tool_orientation)
 
 __all__ = ['GateLimits', 'gate_problem', 'solve_position', 'solve_tcp', 'TcpPosition',
-           'TcpSolution', 'TooAlike', 'tool_orientation']
+           'TcpSolution', 'too_alike', 'tool_orientation']

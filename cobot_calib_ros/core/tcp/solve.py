@@ -5,7 +5,7 @@ pose (R_i, p_i) gives R_i t + p_i = c, t the tip in the flange frame: stacked,
 [R_i | -I] [t; c] = -p_i (3N x 6), solved by SVD. It has rank 6 only when the rotations differ
 about at least two non-parallel axes; its condition number is the factor by which the touch
 noise grows into t, so approaches too alike (condition above :data:`MAX_CONDITION`) are refused
-naming the pairs that are (:class:`TooAlike`). The algebraic solution already is the least
+naming the pairs that are (a core.errors.Refusal, DEGENERATE_POINTS: :func:`too_alike`). The algebraic solution already is the least
 squares of the tip residuals R_i t + p_i - c (they are linear in t and c); the refinement
 (scipy least_squares, soft-L1 at the touch noise) keeps one slipped touch from pulling the
 others.
@@ -16,7 +16,7 @@ x); z = normalise(tip_Z - tip_ref) (its sign flipped when the point lies back up
 axis, a negative distance), x = tip_X - tip_ref made orthogonal to z (else the flange x),
 y = z x x, all in the flange frame of the reference approach.
 
-Units: metres and radians; the ``*_mm`` properties are for reports, as pendants give them.
+Units: metres and radians throughout (reports convert to mm where they print).
 """
 from __future__ import annotations
 
@@ -28,6 +28,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from cobot_calib_ros.core import frames
+from cobot_calib_ros.core.errors import ErrorCode, Failure, Refusal
 
 Array = NDArray[np.float64]
 MIN_APPROACHES = 3
@@ -37,8 +38,10 @@ MIN_ELONGATION = 0.005  # [m] an elongator point nearer the reference gives no d
 ORIENTATION_METHODS = ('none', 'z', 'zx')
 
 
-class TooAlike(ValueError):
-    """The approaches do not determine the tool: the message names those too alike."""
+def too_alike(message: str) -> Refusal:
+    """The refusal of approaches that do not determine the tool (DEGENERATE_POINTS); the
+    message names those too alike."""
+    return Refusal(Failure(ErrorCode.DEGENERATE_POINTS, message))
 
 
 @dataclass(frozen=True)
@@ -58,12 +61,12 @@ class TcpPosition:
         return np.linalg.norm(self.residuals, axis=1)
 
     @property
-    def mean_residual_mm(self) -> float:
-        return float(self.distances.mean() * 1e3)
+    def mean_residual_m(self) -> float:
+        return float(self.distances.mean())
 
     @property
-    def max_residual_mm(self) -> float:
-        return float(self.distances.max() * 1e3)
+    def max_residual_m(self) -> float:
+        return float(self.distances.max())
 
     @property
     def rms_per_axis(self) -> float:
@@ -121,21 +124,22 @@ def too_alike_message(R: Array, null_vector: Array, condition: float) -> str:
 
 def check_determined(R: ArrayLike) -> float:
     """The condition number of the system of rotations ``R`` (N, 3, 3) (flange or tool
-    orientations alike: a constant tool rotation does not change it); TooAlike when it is
-    above MAX_CONDITION. A plan is checked before anything moves."""
+    orientations alike: a constant tool rotation does not change it); a :func:`too_alike`
+    Refusal when it is above MAX_CONDITION. A plan is checked before anything moves."""
     R = np.asarray(R, dtype=float)
     A, _ = _system(R, np.zeros((len(R), 3)))
     _, s, Vt = np.linalg.svd(A, full_matrices=False)
     condition = float(s[0] / s[-1]) if s[-1] > 0 else math.inf
     if condition > MAX_CONDITION:
-        raise TooAlike(too_alike_message(R, Vt[-1], condition))
+        raise too_alike(too_alike_message(R, Vt[-1], condition))
     return condition
 
 
 def solve_position(T_base_flange: ArrayLike, robust_scale: float = 5e-5) -> TcpPosition:
     """The tip and the fixed point from (N, 4, 4) flange poses in the base frame.
 
-    TooAlike when the approaches do not determine them; ValueError for bad input.
+    Refusal (DEGENERATE_POINTS) when the approaches do not determine them; ValueError for
+    bad input.
     ``robust_scale`` [m]: where the refinement's soft-L1 loss turns linear (the touch noise).
     """
     T = _check_poses(T_base_flange)
@@ -226,8 +230,9 @@ def gate_problem(solution: TcpSolution, limits: GateLimits = GateLimits(),
         bound = limits.touch_sigma * math.sqrt(chi2.ppf(limits.confidence, dof) / dof)
         rms = math.sqrt(float(np.sum(pos.residuals ** 2)) / dof)
         if rms > bound:
-            return (f'residual {rms * 1e3:.3f} mm per axis (mean {pos.mean_residual_mm:.3f} mm, '
-                    f'max {pos.max_residual_mm:.3f} mm) is more than the touch noise '
+            return (f'residual {rms * 1e3:.3f} mm per axis (mean '
+                    f'{pos.mean_residual_m * 1e3:.3f} mm, max {pos.max_residual_m * 1e3:.3f} '
+                    'mm) is more than the touch noise '
                     f'({limits.touch_sigma * 1e3:.3f} mm) explains (<= {bound * 1e3:.3f} mm): '
                     'a touch slipped, or the tool moved on the flange; touch again')
     length = float(np.linalg.norm(pos.t))

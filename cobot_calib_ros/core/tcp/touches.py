@@ -22,6 +22,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from cobot_calib_ros.core import frames, kinematics
+from cobot_calib_ros.core.errors import ErrorCode, Failure, Refusal
 from cobot_calib_ros.core.frames import Rotation
 from cobot_calib_ros.core.robot_port import Approach, Cancelled, check_cancel, never, RobotPort
 from cobot_calib_ros.core.tcp.solve import check_determined, solve_tcp, TcpSolution
@@ -44,9 +45,10 @@ AZIMUTH_SHIFTS = (0.0, 0.25, -0.25, 0.5, -0.5, 0.75, -0.75, 1.0, -1.0, 1.5, -1.5
 ROLLS = (0.0, math.pi / 2, -math.pi / 2, math.pi)
 
 
-class Unreachable(ValueError):
-    """A planned pose the arm cannot take (inverse kinematics, joint limits), found before
-    anything moves; the message names the pose and the limit."""
+def unreachable(message: str) -> Refusal:
+    """The refusal (MOTION_FAILED) of a planned pose the arm cannot take (inverse kinematics,
+    joint limits), found before anything moves; the message names the pose and the limit."""
+    return Refusal(Failure(ErrorCode.MOTION_FAILED, message))
 
 
 @dataclass(frozen=True)
@@ -70,8 +72,9 @@ def plan_touches(point: str, count: int = DEFAULT_APPROACHES, tilt: float = DEFA
                  elongation: float = DEFAULT_ELONGATION) -> TcpPlan:
     """``count`` approaches of ``point`` (the first in ``R_reference``, default the tool
     pointing down the base z) and the elongator touches of ``method`` ('none', 'z', 'zx').
-    ValueError naming a goal that cannot work; TooAlike (a ValueError) for approaches that
-    would not determine the tool (a small tilt), before anything moves."""
+    ValueError naming a goal that cannot work; a Refusal (DEGENERATE_POINTS, core.tcp.solve.
+    too_alike) for approaches that would not determine the tool (a small tilt), before
+    anything moves."""
     if not 4 <= count <= 32:
         raise ValueError(f'{count} approaches: give 4..32 (KUKA and ABB use 4, more average '
                          'the touch noise)')
@@ -107,9 +110,9 @@ def reachable_plan(plan: TcpPlan, chain: kinematics.Chain, point_base: ArrayLike
     now), as the robot goes from touch to touch. A tilted approach that cannot be reached is
     replaced by the first of its alternatives that can (AZIMUTH_SHIFTS of its tilt's azimuth,
     ROLLS of the tool about its axis); the first approach and the elongator touches may only
-    turn about the tool axis. Unreachable (a ValueError) naming the touch and the joint limit
-    when one has no reachable alternative, or TooAlike when the alternatives left the plan
-    undetermined: before anything moves. ``taken``: the first approaches already touched,
+    turn about the tool axis. A Refusal: MOTION_FAILED (:func:`unreachable`) naming the touch
+    and the joint limit when one has no reachable alternative, DEGENERATE_POINTS when the
+    alternatives left the plan undetermined: before anything moves. ``taken``: the first approaches already touched,
     kept as they are (``q_start``: the joints at the last of them)."""
     p = np.asarray(point_base, dtype=float)
     home = np.asarray(home, dtype=float)
@@ -142,7 +145,7 @@ def checked_plan(plan: TcpPlan, chain: kinematics.Chain, home: ArrayLike,
     position known (``point_base`` (3,) [m]: the active user frame's), (the plan checked by
     :func:`reachable_plan` before anything moves, None); else (``plan``, the ``locate`` of
     :func:`take_touches` that checks the rest from where the first touch, the operator's own
-    straight-down approach, found the point). Unreachable / TooAlike as reachable_plan."""
+    straight-down approach, found the point). Refusals as reachable_plan."""
     home = np.asarray(home, dtype=float)
     if point_base is not None:
         return reachable_plan(plan, chain, point_base, home, home, tilt), None
@@ -156,7 +159,7 @@ def checked_plan(plan: TcpPlan, chain: kinematics.Chain, home: ArrayLike,
 def _first_reachable(options: list[Array], chain: kinematics.Chain, p: Array, q: Array,
                      home: Array, margin: float, label: str) -> tuple[Array, Array]:
     """(orientation, joints [rad]) of the first of ``options`` whose tool pose at ``p`` the
-    arm reaches; Unreachable naming ``label`` and the first option's failure."""
+    arm reaches; a Refusal (MOTION_FAILED) naming ``label`` and the first option's failure."""
     first = None
     for R in options:
         ik = kinematics.solve_ik_with_restarts(chain, frames.make_transform(R, p), q, home,
@@ -164,7 +167,7 @@ def _first_reachable(options: list[Array], chain: kinematics.Chain, p: Array, q:
         if ik:
             return R, np.asarray(ik.q, dtype=float)
         first = first or ik
-    raise Unreachable(
+    raise unreachable(
         f'{label}: no reachable tool orientation among {len(options)} tried (the planned one: '
         f'{first.message}); touch another point (--point) or give a smaller tilt; nothing moved')
 
@@ -187,7 +190,7 @@ def take_touches(plan: TcpPlan, robot: RobotPort, chain: kinematics.Chain, hold:
     pose by ``chain`` (a chain ending at the flange). ``locate``: for a point whose position
     was not known when planning, called once after the first touch with the plan and the
     joints [rad] there; the remaining touches follow the plan it returns (e.g.
-    :func:`reachable_plan` from where the first touch found the point; its Unreachable ends the
+    :func:`reachable_plan` from where the first touch found the point; its Refusal ends the
     run before the second touch). Stopped on a cancel between touches; MoveFailed /
     CaptureFailed from the robot as they come."""
     touches = TcpTouches()
