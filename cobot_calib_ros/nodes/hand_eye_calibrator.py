@@ -11,6 +11,8 @@ FK of the active kinematic calibration (nominal when none is active; the record'
 no board within ``landmark_timeout``, or whose captured joints are not where the move ended
 (unpaired: the image may show another pose) is skipped and counted. A cancel is honoured
 before every view.
+The goal is one call of api.hand_eye.calibrate_and_store (the procedure core.landmarks.
+hand_eye_capture.calibrate_hand_eye, the record and its activation).
 With at least three views, core.landmarks.hand_eye.solve_hand_eye (closed form, then the joint
 least-squares refinement of T_flange_optical and T_base_board, weighted by the landmarks'
 covariances) gives the result; it is stored under ``<data_dir>/hand_eye`` (CalibrationStore:
@@ -30,23 +32,17 @@ hold_duration [s], speed_scale [1], landmark_timeout [s].
 """
 from __future__ import annotations
 
-import time
-
 from cobot_calib_msgs.action import CalibrateHandEye
 from geometry_msgs.msg import TransformStamped
 import numpy as np
 from rclpy.action import ActionServer, CancelResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
 
-from cobot_calib_ros.core import frames
+from cobot_calib_ros.api.hand_eye import (calibrate_and_store, HandEyeOutcome,
+                                          HandEyeViewsRequest)
 from cobot_calib_ros.core.errors import ErrorCode as E
-from cobot_calib_ros.core.landmarks.hand_eye import check_noise, hand_eye_views, solve_hand_eye
-from cobot_calib_ros.core.landmarks.hand_eye_capture import (HandEyeViews,
-                                                             take_hand_eye_views)
-from cobot_calib_ros.core.ids import record_id
-from cobot_calib_ros.core.provenance import missing_prerequisites
-from cobot_calib_ros.core.robot_port import CaptureFailed, Stopped
-from cobot_calib_ros.ros import convert, qos, results, spin
+from cobot_calib_ros.core.landmarks.hand_eye_capture import HandEyeViews
+from cobot_calib_ros.ros import convert, qos, spin
 from cobot_calib_ros.ros.diagnostics import OK, WARN
 from cobot_calib_ros.ros.params import declare, read_once
 from cobot_calib_ros.ros.landmark_watch import LandmarkWatch
@@ -54,19 +50,9 @@ from cobot_calib_ros.ros.robot_calls import RobotCalls
 from cobot_calib_ros.ros.tf_static import StaticBroadcaster
 from cobot_calib_ros.ros.time import now_ns
 from cobot_calib_ros.nodes.job_node import JobNode
-from cobot_calib_ros.store.records import HandEyeInputs, HandEyeRecord, HandEyeResult
 
 Action = CalibrateHandEye
 DEFAULT_VIEWS = 12
-
-
-def _gate_problem(solved, covariances) -> str:
-    """'' when the hand-eye may become active (core.landmarks.hand_eye.check_noise), else
-    why not."""
-    try:
-        return check_noise(solved, covariances).problem
-    except ValueError as e:
-        return f'cannot check the residual against the views\' noise: {e}'
 
 
 class HandEyeCalibrator(JobNode):
@@ -113,33 +99,16 @@ class HandEyeCalibrator(JobNode):
     def _on_goal(self, goal_handle):
         return self._exclusive(goal_handle, self._run, Action.Result)
 
-    def _cancelled(self, goal_handle, result, where: str):
-        return self._end(goal_handle, result, E.CANCELED,
-                         f'cancelled {where}; nothing stored or published')
-
     def _run(self, goal_handle):
         goal, result = goal_handle.request, Action.Result()
-        count = int(goal.views) or DEFAULT_VIEWS
-        hold = float(goal.hold) or self._p('hold_duration')
-        if not (3 <= count <= 200) or not (0.0 < hold <= 10.0):
-            return self._end(goal_handle, result, E.INVALID_INPUT,
-                             f'views must be 3..200 (0 = {DEFAULT_VIEWS}) and hold 0..10 s, '
-                             f'got {goal.views} and {goal.hold}')
+        request = HandEyeViewsRequest(int(goal.views) or DEFAULT_VIEWS,
+                                      float(goal.hold) or self._p('hold_duration'),
+                                      self._p('landmark_timeout'), self._p('seed'))
         try:
-            plan = hand_eye_views(self._cell, self._model, count, self._p('seed'),
-                                  T_base_user=self._T_base_user())
-            rig = self._rig('active')       # the flange poses by the active kinematics
-            active, chain = rig.active, rig.chain('flange')
+            rig, T_base_user = self._rig('active'), self._T_base_user()
         except (KeyError, ValueError) as e:
             return self._end(goal_handle, result, E.INVALID_INPUT, str(e))
-        through = {'kinematics': active.kinematics_label,
-                   'intrinsics': active.label('intrinsics')}
-        prerequisites = missing_prerequisites('the hand-eye is', through)
-        if prerequisites:
-            self.get_logger().warning(prerequisites)
-        self._health.set(OK, f'calibrating: {count} views')
-        t_start = time.monotonic()
-        feedback = Action.Feedback(total=count)
+        feedback = Action.Feedback(total=request.count)
 
         def on_view(i: int, used: bool, views: HandEyeViews) -> None:
             if not used:
@@ -147,79 +116,30 @@ class HandEyeCalibrator(JobNode):
             feedback.view_index, feedback.board_seen = i, used
             feedback.used, feedback.skipped = views.used, len(views.skipped)
             goal_handle.publish_feedback(feedback)
-
+        self._health.set(OK, f'calibrating: {request.count} views')
         self._robot.speed_scale = self._p('speed_scale')
-        try:
-            views = take_hand_eye_views(
-                plan, self._robot, self._watch, chain, hold=hold,
-                landmark_timeout=self._p('landmark_timeout'),
-                cancelled=lambda: goal_handle.is_cancel_requested, on_view=on_view)
-        except Stopped as e:
-            return self._cancelled(goal_handle, result, str(e).removeprefix('cancelled '))
-        except CaptureFailed as e:
-            return self._end(goal_handle, result, E.CAPTURE_FAILED, str(e))
-        joints, flange, boards = views.joints, views.flange, views.boards
-        covariances, skipped = views.covariances, views.skipped
-        result.views_used, result.views_skipped = len(boards), len(skipped)
-        if len(boards) < 3:
-            return self._end(goal_handle, result, E.TOO_FEW_POINTS,
-                             f'only {len(boards)} of {count} views showed the board (at least '
-                             f'3 needed); {len(skipped)} skipped: check the user frame, the '
-                             'lighting and landmark_detector')
-        solved = solve_hand_eye(flange, boards, covariances=covariances)
-        if not solved:
-            return self._end(goal_handle, result, solved.code, solved.message)
-        if goal_handle.is_cancel_requested:
-            return self._cancelled(goal_handle, result, f'after all {count} views')
-        record = self._record(solved, joints, flange, boards, covariances, skipped, count,
-                              through)
-        gate = _gate_problem(solved, covariances)
-        if gate:
-            record['gate_problem'] = gate
-        try:
-            self._store.save_and_activate(record)   # with a gate problem: kept, rejected
-        except (OSError, ValueError) as e:
-            return self._end(goal_handle, result, E.STORAGE_FAILED,
-                             f'could not store the hand-eye calibration: {e}')
-        result.calibration_id = record['id']
+        outcome = calibrate_and_store(
+            request, self._robot, self._watch, rig, self._repository(), T_base_user,
+            now_ns(self), flange_frame=self._p('flange_frame'),
+            cancelled=lambda: goal_handle.is_cancel_requested, progress=on_view,
+            warn=self.get_logger().warning)
+        if outcome:
+            self._answered(result, outcome)
+        return self._end(goal_handle, result, outcome.code, outcome.message)
+
+    def _answered(self, result, outcome: HandEyeOutcome) -> None:
+        """The result fields of a stored hand-eye ([m, rad]; the _mm / _mrad ones in mm and
+        mrad); an active one published."""
+        solved, views = outcome.run.result, outcome.run.views
+        result.views_used, result.views_skipped = views.used, len(views.skipped)
+        result.calibration_id = outcome.record.id
         result.t_flange_optical = convert.matrix_to_transform(
             solved.T_flange_optical, '', '').transform
-        result.residual_mm, result.residual_mrad = solved.residual_mm, solved.residual_mrad
+        result.residual_mm = solved.residual_m * 1e3
+        result.residual_mrad = solved.residual_rad * 1e3
         result.covariance = [float(v) for v in solved.covariance.ravel()]
-        if gate:
-            return self._end(goal_handle, result, E.SOLVER_FAILED, (
-                f'{record["id"]} rejected, stored as rejected and not made active (the active '
-                f'hand-eye is unchanged): {gate}'))
-        self._publish(record)
-        nominal = frames.transform_error(solved.T_flange_optical,
-                                         self._cell.camera.T_flange_optical)
-        return self._end(goal_handle, result, E.SUCCESS, (
-            f'{record["id"]}: {len(boards)} views used, {len(skipped)} skipped '
-            f'({views.unpaired} unpaired); residual RMS '
-            f'{solved.residual_mm:.4f} mm / {solved.residual_mrad:.4f} mrad; '
-            f'{nominal[0] * 1e3:.3f} mm / {nominal[1] * 1e3:.3f} mrad from the nominal '
-            f'hand-eye; {time.monotonic() - t_start:.1f} s'
-            + (f'; {prerequisites}' if prerequisites else '')))
-
-    def _record(self, solved, joints, flange, boards, covariances, skipped, planned,
-                through: dict[str, str]) -> dict:
-        return HandEyeRecord(
-            id=record_id('hand_eye'), stamp_ns=now_ns(self), method='park+least_squares',
-            kinematics=through['kinematics'], measured_through=through,
-            flange_frame=self._p('flange_frame'),
-            camera_frame=self._cell.camera.frame_id, cell=self._results_cell.name,
-            inputs=HandEyeInputs(joints=joints, T_base_flange=flange, T_optical_board=boards,
-                                 board_covariances=covariances, skipped=skipped,
-                                 planned_views=planned),
-            result=HandEyeResult(T_flange_optical=solved.T_flange_optical,
-                                 T_base_board=solved.T_base_board,
-                                 initial_T_flange_optical=solved.initial,
-                                 residual_mm=solved.residual_mm,
-                                 residual_mrad=solved.residual_mrad,
-                                 residuals_mm=solved.residuals_mm,
-                                 residuals_mrad=solved.residuals_mrad,
-                                 covariance=solved.covariance,
-                                 views_used=len(boards))).to_dict()
+        if outcome.code == E.SUCCESS:
+            self._publish(outcome.record.to_dict())
 
     def _publish(self, record: dict) -> None:
         stamp = self.get_clock().now().to_msg()

@@ -46,37 +46,24 @@ DEFAULT_SIGMA_RAD = 1e-3             # [rad]
 
 @dataclass(frozen=True, eq=False)
 class HandEyeResult:
-    """``T_flange_optical``, ``T_base_board`` (4, 4) [m]; ``residual_mm``/``residual_mrad``:
-    RMS over the views of the board-position and board-rotation residual; ``residuals_mm``/
-    ``residuals_mrad`` per view; ``covariance`` (6, 6) of T_flange_optical over (x y z rx ry
+    """``T_flange_optical``, ``T_base_board`` (4, 4) [m]; ``residual_m``/``residual_rad``:
+    RMS over the views of the board-position and board-rotation residual; ``residuals_m``/
+    ``residuals_rad`` per view; ``covariance`` (6, 6) of T_flange_optical over (x y z rx ry
     rz) [m, rad], the rotation a left perturbation in the flange frame; ``initial``: OpenCV's
-    closed-form (Park) T_flange_optical; ``method``: its name. Falsy when the views cannot
-    give a hand-eye (``code`` TOO_FEW_POINTS or DEGENERATE_POINTS, ``message`` what to do);
-    the arrays are then NaN."""
+    closed-form (Park) T_flange_optical; ``method``: its name. A solve that cannot give one
+    returns a core.errors.Failure instead."""
 
     T_flange_optical: Array
     T_base_board: Array
-    residual_mm: float
-    residual_mrad: float
-    residuals_mm: Array
-    residuals_mrad: Array
+    residual_m: float
+    residual_rad: float
+    residuals_m: Array
+    residuals_rad: Array
     covariance: Array
     initial: Array
     method: str
     n_views: int
     nfev: int
-    code: ErrorCode = ErrorCode.SUCCESS
-    message: str = ''
-
-    def __bool__(self) -> bool:
-        return self.code == ErrorCode.SUCCESS
-
-    @classmethod
-    def failed(cls, failure: Failure, n_views: int) -> 'HandEyeResult':
-        nan4, nan = np.full((4, 4), np.nan), np.full(n_views, np.nan)
-        return cls(nan4, nan4.copy(), math.nan, math.nan, nan, nan.copy(),
-                   np.full((6, 6), np.nan), nan4.copy(), '', n_views, 0, failure.code,
-                   failure.message)
 
 
 def _board_centre(board_size: tuple[float, float]) -> Array:
@@ -294,11 +281,11 @@ def park_martin(F: Array, M: Array) -> Array:
 
 def solve_hand_eye(T_base_flange: Sequence[ArrayLike], T_optical_board: Sequence[ArrayLike], *,
                    covariances: Sequence[ArrayLike] | None = None,
-                   method: str = 'park') -> HandEyeResult:
+                   method: str = 'park') -> HandEyeResult | Failure:
     """T_flange_optical and T_base_board from matched flange and board poses (module
     docstring). ``covariances``: the board poses' 6x6 (landmark_detector's) to weight the
     views, default 0.1 mm / 1 mrad per axis; ``method``: the closed-form start, park.
-    Every problem is a falsy result, never raised: fewer than three views (TOO_FEW_POINTS),
+    Every problem is a Failure, never raised: fewer than three views (TOO_FEW_POINTS),
     degenerate rotations (DEGENERATE_POINTS), mismatched or malformed lists and an unknown
     method (INVALID_INPUT), a solver that fails numerically (SOLVER_FAILED)."""
     try:
@@ -310,24 +297,23 @@ def solve_hand_eye(T_base_flange: Sequence[ArrayLike], T_optical_board: Sequence
             raise ValueError(f'unknown method {method!r}; use park')
         W = _whiteners(covariances, len(F))
     except ValueError as e:
-        views = len(T_base_flange) if hasattr(T_base_flange, '__len__') else 0
-        return HandEyeResult.failed(Failure(ErrorCode.INVALID_INPUT, str(e)), views)
+        return Failure(ErrorCode.INVALID_INPUT, str(e))
     try:
         return _solve(F, M, W, method)
     except (ValueError, np.linalg.LinAlgError) as e:
-        return HandEyeResult.failed(Failure(ErrorCode.SOLVER_FAILED, (
+        return Failure(ErrorCode.SOLVER_FAILED, (
             f'the hand-eye solver failed numerically ({e}); check the views for NaN or '
-            'impossible poses')), len(F))
+            'impossible poses'))
 
 
-def _solve(F: Array, M: Array, W: Array, method: str) -> HandEyeResult:
+def _solve(F: Array, M: Array, W: Array, method: str) -> HandEyeResult | Failure:
     if len(F) < MIN_VIEWS:
-        return HandEyeResult.failed(Failure(ErrorCode.TOO_FEW_POINTS, (
+        return Failure(ErrorCode.TOO_FEW_POINTS, (
             f'hand-eye calibration needs at least {MIN_VIEWS} views, got {len(F)}; take more '
-            'views of the board')), len(F))
+            'views of the board'))
     degenerate = check_rotation_spread(F)
     if degenerate is not None:
-        return HandEyeResult.failed(degenerate, len(F))
+        return degenerate
     X0 = park_martin(F, M)
     B0 = _mean_transform(F @ X0 @ M)
 
@@ -354,12 +340,12 @@ def _solve(F: Array, M: Array, W: Array, method: str) -> HandEyeResult:
     # X's perturbation: translation added in the flange frame, rotation on the left in the
     # flange frame: the same as (x y z rx ry rz) of T_flange_optical.
     dp, dr = _errors(X, B, F, M)
-    pos = np.linalg.norm(dp, axis=1) * 1e3
-    rot = np.linalg.norm(dr, axis=1) * 1e3
+    pos = np.linalg.norm(dp, axis=1)
+    rot = np.linalg.norm(dr, axis=1)
     return HandEyeResult(
         T_flange_optical=X, T_base_board=B,
-        residual_mm=float(np.sqrt(np.mean(pos ** 2))),
-        residual_mrad=float(np.sqrt(np.mean(rot ** 2))), residuals_mm=pos, residuals_mrad=rot,
+        residual_m=float(np.sqrt(np.mean(pos ** 2))),
+        residual_rad=float(np.sqrt(np.mean(rot ** 2))), residuals_m=pos, residuals_rad=rot,
         covariance=cov[:6, :6], initial=X0, method=method, n_views=len(F), nfev=nfev)
 
 
@@ -377,14 +363,14 @@ MAX_NOISE_RATIO = 3.0
 
 @dataclass(frozen=True)
 class NoiseCheck:
-    """The residual against what the views' board-pose covariances explain: ``expected_mm``/
-    ``expected_mrad`` the RMS residual that noise alone would leave (the same statistic as
-    HandEyeResult.residual_mm/_mrad), ``ratio`` the larger of residual / expected [1];
+    """The residual against what the views' board-pose covariances explain: ``expected_m``/
+    ``expected_rad`` the RMS residual that noise alone would leave (the same statistic as
+    HandEyeResult.residual_m/_rad), ``ratio`` the larger of residual / expected [1];
     ``problem`` '' when the ratio is within ``max_ratio``, else why the result must not be
     made active."""
 
-    expected_mm: float
-    expected_mrad: float
+    expected_m: float
+    expected_rad: float
     ratio: float
     max_ratio: float
     problem: str
@@ -407,15 +393,16 @@ def check_noise(result: HandEyeResult, covariances: Sequence[ArrayLike],
     kept = max(1.0 - 12.0 / (6.0 * result.n_views), 1e-3)
     pos = np.trace(C[:, :3, :3], axis1=1, axis2=2)
     rot = np.trace(C[:, 3:, 3:], axis1=1, axis2=2)
-    expected_mm = float(np.sqrt(np.mean(pos) * kept)) * 1e3
-    expected_mrad = float(np.sqrt(np.mean(rot) * kept)) * 1e3
-    if expected_mm <= 0.0 or expected_mrad <= 0.0:
+    expected_m = float(np.sqrt(np.mean(pos) * kept))
+    expected_rad = float(np.sqrt(np.mean(rot) * kept))
+    if expected_m <= 0.0 or expected_rad <= 0.0:
         raise ValueError('covariances must be positive definite: no noise to compare with')
-    ratio = max(result.residual_mm / expected_mm, result.residual_mrad / expected_mrad)
+    ratio = max(result.residual_m / expected_m, result.residual_rad / expected_rad)
     problem = '' if ratio <= max_ratio else (
-        f'residual RMS {result.residual_mm:.3f} mm / {result.residual_mrad:.3f} mrad is '
-        f'{ratio:.1f}x what the views\' noise leaves ({expected_mm:.3f} mm / '
-        f'{expected_mrad:.3f} mrad; at most {max_ratio:g}x): some views do not fit the others '
+        f'residual RMS {result.residual_m * 1e3:.3f} mm / {result.residual_rad * 1e3:.3f} mrad '
+        f'is {ratio:.1f}x what the views\' noise leaves ({expected_m * 1e3:.3f} mm / '
+        f'{expected_rad * 1e3:.3f} mrad; at most {max_ratio:g}x): some views do not fit the '
+        'others '
         '(an image of another pose than its joints, a board that moved); repeat the '
         'calibration on a quiet machine and check that the robot rests at every view')
-    return NoiseCheck(expected_mm, expected_mrad, ratio, max_ratio, problem)
+    return NoiseCheck(expected_m, expected_rad, ratio, max_ratio, problem)

@@ -12,6 +12,10 @@ that is unreachable, shows no board, or cannot be paired is skipped and counted;
 that fails ends the run (PortError), as does ``cancelled()`` (Stopped, checked before every
 view: the caller stores nothing). Runs the same over ROS (RobotCalls, LandmarkWatch) and
 in-process on the simulation (DirectRobot, DirectCamera).
+
+:func:`calibrate_hand_eye` is the whole procedure (issue 39.2): plan the views, take them,
+solve, gate; a :class:`HandEyeRun` or a core.errors.Failure. Storing and publishing are the
+caller's (api.hand_eye.calibrate_and_store, hand_eye_calibrator).
 """
 from __future__ import annotations
 
@@ -22,8 +26,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from cobot_calib_ros.core import kinematics
+from cobot_calib_ros.core.errors import ErrorCode, Failure
+from cobot_calib_ros.core.landmarks.hand_eye import (check_noise, hand_eye_views, HandEyeResult,
+                                                     MIN_VIEWS, solve_hand_eye)
 from cobot_calib_ros.core.robot_port import (CameraPort, CaptureFailed, Cancelled,
-                                             check_cancel, MoveFailed, never, RobotPort)
+                                             check_cancel, MoveFailed, never, port_failure,
+                                             PortError, RobotPort, Stopped)
 
 Array = NDArray[np.float64]
 # Captured joints further than this from the joints the move reached [rad] (any joint): the
@@ -120,3 +128,57 @@ def _take_view(views: HandEyeViews, robot: RobotPort, camera: CameraPort,
     views.boards.append(board.T_optical_target)
     views.covariances.append(board.covariance)
     return ''
+
+
+@dataclass(frozen=True)
+class HandEyeRun:
+    """What a hand-eye calibration took and solved; ``gate_problem`` '' when the result may
+    become active (core.landmarks.hand_eye.check_noise), else why not."""
+
+    views: HandEyeViews
+    result: HandEyeResult
+    gate_problem: str
+
+
+def noise_gate(result: HandEyeResult, covariances) -> str:
+    """'' when the hand-eye may become active (check_noise), else why not."""
+    try:
+        return check_noise(result, covariances).problem
+    except ValueError as e:
+        return f'cannot check the residual against the views\' noise: {e}'
+
+
+def calibrate_hand_eye(cell, model, robot: RobotPort, camera: CameraPort,
+                       chain: kinematics.Chain, *, count: int, T_base_user, seed: int = 0,
+                       hold: float, landmark_timeout: float, cancelled: Cancelled = never,
+                       progress: ViewDone | None = None) -> HandEyeRun | Failure:
+    """Plan ``count`` views of ``cell``'s board (hand_eye_views on ``model``'s nominal chain,
+    the board where ``T_base_user`` (4, 4) puts it), take them (:func:`take_hand_eye_views`,
+    the flange poses by ``chain``), solve and gate. Failures: INVALID_INPUT (no camera or
+    board, no reachable view), TOO_FEW_POINTS (fewer than three views showed the board),
+    DEGENERATE_POINTS / SOLVER_FAILED (the solve), CAPTURE_FAILED, CANCELED (before a view or
+    after the last): nothing to store."""
+    try:
+        plan = hand_eye_views(cell, model, count, seed, T_base_user=T_base_user)
+    except ValueError as e:
+        return Failure(ErrorCode.INVALID_INPUT, str(e))
+    try:
+        views = take_hand_eye_views(plan, robot, camera, chain, hold=hold,
+                                    landmark_timeout=landmark_timeout, cancelled=cancelled,
+                                    on_view=progress)
+    except Stopped as e:
+        return port_failure(e, '; nothing stored or published')
+    except PortError as e:
+        return port_failure(e)
+    if views.used < MIN_VIEWS:
+        return Failure(ErrorCode.TOO_FEW_POINTS, (
+            f'only {views.used} of {count} views showed the board (at least {MIN_VIEWS} '
+            f'needed); {len(views.skipped)} skipped: check the user frame, the lighting and '
+            'landmark_detector'))
+    result = solve_hand_eye(views.flange, views.boards, covariances=views.covariances)
+    if not result:
+        return result
+    if cancelled():
+        return Failure(ErrorCode.CANCELED,
+                       f'cancelled after all {count} views; nothing stored or published')
+    return HandEyeRun(views, result, noise_gate(result, views.covariances))

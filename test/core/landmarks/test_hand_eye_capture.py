@@ -86,9 +86,9 @@ def test_the_views_recover_the_true_hand_eye_and_pass_the_noise_gate(plan):
     result, distance, angle = _error(views)
     check = check_noise(result, views.covariances)
     print(f'\nhand-eye in-process: {distance * 1e3:.4f} mm / {angle * 1e3:.4f} mrad from the '
-          f'truth; residual {result.residual_mm:.4f} mm / {result.residual_mrad:.4f} mrad, '
-          f'expected from the noise {check.expected_mm:.4f} mm / {check.expected_mrad:.4f} '
-          f'mrad, ratio {check.ratio:.2f}')
+          f'truth; residual {result.residual_m * 1e3:.4f} mm / {result.residual_rad * 1e3:.4f} '
+          f'mrad, expected from the noise {check.expected_m * 1e3:.4f} mm / '
+          f'{check.expected_rad * 1e3:.4f} mrad, ratio {check.ratio:.2f}')
     assert distance < 0.5e-3 and angle < 2e-3
     # this draw sits in the README's in-process spread over 20 draws (bench/bench_hand_eye.py:
     # 0.122-0.126 mm / 0.31-0.41 mrad)
@@ -108,7 +108,7 @@ def test_an_image_of_the_arm_before_it_arrived_fails_the_noise_gate(plan):
     result, distance, angle = _error(views)
     check = check_noise(result, views.covariances)
     print(f'\nstale images: {distance * 1e3:.3f} mm / {angle * 1e3:.3f} mrad from the truth; '
-          f'residual {result.residual_mm:.3f} mm, ratio {check.ratio:.1f}')
+          f'residual {result.residual_m * 1e3:.3f} mm, ratio {check.ratio:.1f}')
     assert not check and 'some views do not fit the others' in check.problem
 
 
