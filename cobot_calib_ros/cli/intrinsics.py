@@ -12,8 +12,6 @@ from pathlib import Path
 
 from cobot_calib_ros.cli.common import EXIT_FAILED, EXIT_OK, EXIT_USAGE, fail, print_message
 
-SUITE_TIMEOUT = 1800.0     # [s] for calibrate_intrinsics on the suite (live: up to live_timeout)
-
 EPILOG = """\
 examples:
   cobot-calib intrinsics shots/ \\
@@ -95,7 +93,7 @@ def run(args) -> int:
                                        else 'camera')
     from cobot_calib_ros.bags.errors import BagError
     from cobot_calib_ros.core.errors import Refusal
-    from cobot_calib_ros.core.landmarks.intrinsics import calibrate_intrinsics
+    from cobot_calib_ros.core.landmarks.intrinsics_capture import fit_views
     from cobot_calib_ros.core.landmarks.intrinsics_views import detect_views
     try:
         views, skipped, size = detect_views(_images(args), spec)
@@ -103,15 +101,15 @@ def run(args) -> int:
         return fail(f'intrinsics: {e}', EXIT_USAGE)
     if size is None:
         return fail(f'intrinsics: {args.source}: no images', EXIT_FAILED)
-    try:
-        fit = calibrate_intrinsics(views, size, args.model, name=camera_name)
-    except Refusal as e:
-        cause = e.failure.code.name
+    run = fit_views(views, skipped, size, args.model, camera_name)
+    if not run:
+        cause = run.code.name
         if args.json:
-            print_message({'error': cause, 'message': str(e), 'views': len(views),
+            print_message({'error': cause, 'message': run.message, 'views': len(views),
                            'skipped': dict(skipped)}, True)
-        return fail(f'intrinsics refused ({cause}): {e}; {_what_was_read(views, skipped)}')
-    return _report(args, cell, fit, spec, views, skipped)
+        return fail(f'intrinsics refused ({cause}): {run.message}; '
+                    f'{_what_was_read(views, skipped)}')
+    return _report(args, cell, run, spec)
 
 
 SKIPS_SHOWN = 5     # skipped images named in a refusal
@@ -144,30 +142,22 @@ def _images(args):
     return bag_images(source, args.topic, args.every)
 
 
-def _report(args, cell, fit, spec, views, skipped) -> int:
+def _report(args, cell, run, spec) -> int:
     from cobot_calib_ros import paths, store
-    from cobot_calib_ros.core.landmarks.camera import camera_info_yaml
+    from cobot_calib_ros.api.intrinsics import store_run
     from cobot_calib_ros.store.cells import ResultsCell
-    from cobot_calib_ros.store.files import atomic_write_text, ensure_dir
-    from cobot_calib_ros.store.records import IntrinsicsRecord
-    record = IntrinsicsRecord.from_fit(fit, camera=fit.camera.name, source=str(args.source),
-                                       board=str(spec), views=[v.name for v in views])
-    if args.output:
-        yaml_path = Path(args.output)
-    elif cell is not None:
-        folder = paths.data_dir(args.data_dir) / 'intrinsics'
-        ensure_dir(folder)
-        yaml_path = folder / f'{record.id}.yaml'
-    else:
-        yaml_path = Path(f'{fit.camera.name}.yaml')
-    atomic_write_text(yaml_path, camera_info_yaml(fit.camera))
-    record.result.yaml_path = str(yaml_path.resolve())
-    stored = {}
-    if cell is not None:
-        repo = store.open(paths.data_dir(args.data_dir), args.db, ResultsCell.of(cell))
-        outcome = repo.intrinsics.save_and_activate(record)
-        stored = {'record': record.id, 'active': bool(outcome),
-                  'not_active_because': outcome.reason}
+    fit, views, skipped = run.fit, run.views, run.skipped
+    data_dir = paths.data_dir(args.data_dir)
+    yaml_path = Path(args.output) if args.output else \
+        None if cell is not None else Path(f'{fit.camera.name}.yaml')
+    repo = None if cell is None else store.open(data_dir, args.db, ResultsCell.of(cell))
+    outcome = store_run(run, source=str(args.source), board=str(spec), repo=repo,
+                        data_dir=data_dir, yaml_path=yaml_path)
+    if not outcome:
+        return fail(f'intrinsics: {outcome.message}', EXIT_FAILED)
+    record = outcome.record
+    stored = {} if cell is None else {'record': record.id, 'active': outcome.active,
+                                      'not_active_because': outcome.not_active_because}
     K = fit.camera.K
     out = {'camera': fit.camera.name, 'model': fit.model,
            'image_size': [fit.camera.width, fit.camera.height],
@@ -195,7 +185,8 @@ def _report(args, cell, fit, spec, views, skipped) -> int:
         print(f'  gate: {fit.gate_problem or "passes"}')
         print(f'  wrote {record.result.yaml_path}')
         if stored:
-            state = 'active' if stored['active'] else f'not active: {outcome.reason}'
+            state = 'active' if stored['active'] else \
+                f'not active: {outcome.not_active_because}'
             print(f'  stored {record.id} for cell {cell.name}, {state}')
     return EXIT_OK
 
@@ -203,9 +194,9 @@ def _report(args, cell, fit, spec, views, skipped) -> int:
 def _on_the_suite(args) -> int:
     """calibrate_intrinsics on the running suite; prints its result."""
     from cobot_calib_msgs.action import CalibrateIntrinsics
-    from cobot_calib_ros.ros.action_client import ActionClient
+    from cobot_calib_ros.api.intrinsics import calibrate_on_suite
     from cobot_calib_ros.cli.common import EXIT_INTERRUPTED, ros_node, say
-    from cobot_calib_ros.ros.calls import CallError, Interrupted, run_action
+    from cobot_calib_ros.ros.calls import CallError, Interrupted
     if args.views and args.views < 4:
         return fail(f'--views {args.views}: need at least 4 (default 20)', EXIT_USAGE)
 
@@ -216,16 +207,13 @@ def _on_the_suite(args) -> int:
 
     goal = CalibrateIntrinsics.Goal(model=args.model, views=args.views, planned=args.planned)
     with ros_node('cobot_calib_intrinsics') as node:
-        client = ActionClient(node, CalibrateIntrinsics, 'calibrate_intrinsics')
         try:
-            _, result = run_action(node, client, goal, SUITE_TIMEOUT, feedback)
+            result = calibrate_on_suite(node, goal, feedback)
         except CallError as e:
             return fail(f'intrinsics calibration failed: {e}', EXIT_FAILED)
         except Interrupted as e:        # Ctrl-C: the goal is cancelled, nothing stored
             return fail(f'intrinsics calibration cancelled (Ctrl-C): {e.message}',
                         EXIT_INTERRUPTED)
-        finally:
-            client.destroy()
     k = list(result.camera_info.k)
     out = {'error_code': result.error_code, 'message': result.message,
            'calibration_id': result.calibration_id, 'fx': k[0], 'fy': k[4], 'cx': k[2],

@@ -5,9 +5,9 @@ approaches of the fixed point (core.tcp.touches.plan_touches: the first with the
 down the active user frame's z, or the base's, the others tilted by ``tilt`` about horizontal
 axes spread round the point) and the elongator touches of the orientation method; the goal
 is one call of api.tcp.calibrate_and_store (the procedure core.tcp.procedure.calibrate_tcp,
-the gate, the record and its activation). It takes the touches over RobotCalls (on the mock, mock_robot/hand_guide guides
-the real tool in each orientation; on a real cell the operator guides the arm and confirms each
-touch on ``tcp_calibrator/confirm_touch``), capturing the joints over ``hold`` and taking the
+the gate, the record and its activation). It takes the touches over RobotCalls (on the
+mock, mock_robot/hand_guide guides the real tool in each orientation; on a real cell the
+operator guides the arm and confirms each touch on ``tcp_calibrator/confirm_touch``), capturing the joints over ``hold`` and taking the
 flange pose through the ACTIVE kinematics (the ``kinematics`` parameter: latest, nominal or an
 id). Then core.tcp.solve_tcp: the position by SVD with the rank test (approaches too alike:
 TOO_ALIKE, named), the robust refinement, the orientation from the elongator points.

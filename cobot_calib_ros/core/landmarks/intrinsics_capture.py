@@ -12,21 +12,32 @@ sim.camera.DirectImages).
 Live (take_live_views): no robot; the user moves the board (or the camera) and every image is
 searched; one becomes a view when it differs from every view kept (MIN_VIEW_SHIFT_PX), until
 ``count`` views or the time is up.
+
+The procedures (issue 39.2): :func:`calibrate_planned` (plan, take, fit), :func:`calibrate_live`
+(take the live views, fit) and :func:`calibrate_images` (a folder's or a bag's images, fit):
+each an :class:`IntrinsicsRun` or a core.errors.Failure. Writing the camera_info YAML,
+storing and activating are api.intrinsics's.
 """
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
 from numpy.typing import NDArray
 
+from cobot_calib_ros.core.errors import ErrorCode, Failure, Refusal
 from cobot_calib_ros.core.landmarks.detect import BoardFinder
-from cobot_calib_ros.core.landmarks.intrinsics import BoardView, MIN_POINTS
-from cobot_calib_ros.core.landmarks.intrinsics_views import board_view
+from cobot_calib_ros.core.landmarks.intrinsics import (BoardView, calibrate_intrinsics, Coverage,
+                                                       image_coverage, IntrinsicsFit,
+                                                       MIN_POINTS, solve_view_pose)
+from cobot_calib_ros.core.landmarks.intrinsics_views import (board_view, detect_views,
+                                                             intrinsics_views)
 from cobot_calib_ros.core.landmarks.targets import BoardSpec
 from cobot_calib_ros.core.robot_port import (CaptureFailed, Cancelled, check_cancel, MoveFailed,
-                                             never, RobotPort)
+                                             never, port_failure, PortError, RobotPort,
+                                             Stopped)
 
 IMAGE_TIMEOUT = 5.0          # [s] for an image after the arm came to rest
 # live views (the user moves the board): an image is a new view when its corners moved at
@@ -120,3 +131,106 @@ def take_live_views(images: ImagePort, spec: BoardSpec, count: int, *, deadline:
             if on_view is not None:
                 on_view(seen, views, skipped)
     return views, skipped, size
+
+
+# views kept so far, views wanted, the coverage of the image and of tilts so far (judged with
+# the nominal intrinsics)
+Progress = Callable[[int, int, Coverage], None]
+Views = tuple[list[BoardView], list[tuple[str, str]], tuple[int, int]]
+
+
+@dataclass(frozen=True)
+class IntrinsicsRun:
+    """A fit and the views it came from; ``skipped``: (view name, why) of the others."""
+
+    fit: IntrinsicsFit
+    views: list[BoardView]
+    skipped: list[tuple[str, str]]
+
+
+def fit_views(views: Sequence[BoardView], skipped: list[tuple[str, str]],
+              size: tuple[int, int], model: str, name: str) -> IntrinsicsRun | Failure:
+    """calibrate_intrinsics of ``views``; its refusal as a Failure."""
+    try:
+        return IntrinsicsRun(calibrate_intrinsics(views, size, model, name=name), list(views),
+                             skipped)
+    except Refusal as e:
+        return e.failure
+
+
+def _coverage_of(nominal, count: int, progress: Progress | None) -> ViewDone | None:
+    """A take_* on_view telling ``progress`` the views and coverage (poses solved with the
+    ``nominal`` camera)."""
+    if progress is None:
+        return None
+
+    def on_view(_, views, skipped) -> None:
+        poses = {v.name: solve_view_pose(nominal, v) for v in views}
+        progress(len(views), count, image_coverage(views, poses, (nominal.width,
+                                                                  nominal.height)))
+    return on_view
+
+
+def _fitted(take: Callable[[], Views], model: str, name: str) -> IntrinsicsRun | Failure:
+    """Take the views (a port error, a cancel: its Failure), then fit them; a refusal says how
+    many views were skipped."""
+    try:
+        views, skipped, size = take()
+    except Stopped as e:
+        return port_failure(e, '; nothing stored')
+    except PortError as e:
+        return port_failure(e)
+    except Refusal as e:
+        return e.failure
+    run = fit_views(views, skipped, size, model, name)
+    if not run:
+        return Failure(run.code, f'{run.message} ({len(skipped)} views skipped)')
+    return run
+
+
+def calibrate_planned(cell, kinematic_model, robot: RobotPort, images: ImagePort, *,
+                      count: int, T_base_user, model: str, seed: int = 0,
+                      image_timeout: float = IMAGE_TIMEOUT, cancelled: Cancelled = never,
+                      progress: Progress | None = None) -> IntrinsicsRun | Failure:
+    """The cell's camera moved by the arm through ``count`` planned views of its board (where
+    ``T_base_user`` puts it; intrinsics_views on ``kinematic_model``'s nominal chain), then
+    fitted with ``model``. Failures: INVALID_INPUT (no view plan), CAPTURE_FAILED, CANCELED,
+    and the fit's (TOO_FEW_POINTS, DEGENERATE_POINTS, INVALID_INPUT)."""
+    try:
+        plan = intrinsics_views(cell, kinematic_model, count, seed, T_base_user=T_base_user)
+    except ValueError as e:
+        return Failure(ErrorCode.INVALID_INPUT, str(e))
+    spec = BoardSpec.parse(cell.landmarks.board)
+    on_view = _coverage_of(cell.camera.camera_model(), count, progress)
+    return _fitted(lambda: take_intrinsics_views(plan, robot, images, spec, cancelled=cancelled,
+                                                 on_view=on_view,
+                                                 image_timeout=image_timeout),
+                   model, cell.camera.frame_id)
+
+
+def calibrate_live(cell, images: ImagePort, *, count: int, deadline: Callable[[], bool],
+                   model: str, image_timeout: float = IMAGE_TIMEOUT,
+                   cancelled: Cancelled = never,
+                   progress: Progress | None = None) -> IntrinsicsRun | Failure:
+    """The cell's camera's live images while the user moves the board (or the camera): up to
+    ``count`` new views until ``deadline()``, then fitted with ``model``. Failures as
+    :func:`calibrate_planned`."""
+    spec = BoardSpec.parse(cell.landmarks.board)
+    on_view = _coverage_of(cell.camera.camera_model(), count, progress)
+    return _fitted(lambda: take_live_views(images, spec, count, deadline=deadline,
+                                           cancelled=cancelled, on_view=on_view,
+                                           image_timeout=image_timeout),
+                   model, cell.camera.frame_id)
+
+
+def calibrate_images(images: Iterable[tuple[str, np.ndarray | None]], spec: BoardSpec, *,
+                     model: str, name: str, source: str = 'the source'
+                     ) -> IntrinsicsRun | Failure:
+    """Images read from a folder or a bag ((name, mono8 or None: unreadable)) fitted with
+    ``model``; INVALID_INPUT when there are none."""
+    def take() -> Views:
+        views, skipped, size = detect_views(images, spec)
+        if size is None:
+            raise Refusal(Failure(ErrorCode.INVALID_INPUT, f'{source}: no images'))
+        return views, skipped, size
+    return _fitted(take, model, name)

@@ -5,10 +5,10 @@ pose (R_i, p_i) gives R_i t + p_i = c, t the tip in the flange frame: stacked,
 [R_i | -I] [t; c] = -p_i (3N x 6), solved by SVD. It has rank 6 only when the rotations differ
 about at least two non-parallel axes; its condition number is the factor by which the touch
 noise grows into t, so approaches too alike (condition above :data:`MAX_CONDITION`) are refused
-naming the pairs that are (a core.errors.Refusal, DEGENERATE_POINTS: :func:`too_alike`). The algebraic solution already is the least
-squares of the tip residuals R_i t + p_i - c (they are linear in t and c); the refinement
-(scipy least_squares, soft-L1 at the touch noise) keeps one slipped touch from pulling the
-others.
+naming the pairs that are (a core.errors.Refusal, DEGENERATE_POINTS: :func:`too_alike`).
+The algebraic solution already is the least squares of the tip residuals R_i t + p_i - c
+(they are linear in t and c); the refinement (scipy least_squares, soft-L1 at the touch
+noise) keeps one slipped touch from pulling the others.
 
 Orientation (ABB's 5- and 6-point methods): at the reference approach (the first), the tip is
 moved without turning the tool onto an elongator point along the tool's z (and one along its

@@ -112,8 +112,8 @@ def reachable_plan(plan: TcpPlan, chain: kinematics.Chain, point_base: ArrayLike
     ROLLS of the tool about its axis); the first approach and the elongator touches may only
     turn about the tool axis. A Refusal: MOTION_FAILED (:func:`unreachable`) naming the touch
     and the joint limit when one has no reachable alternative, DEGENERATE_POINTS when the
-    alternatives left the plan undetermined: before anything moves. ``taken``: the first approaches already touched,
-    kept as they are (``q_start``: the joints at the last of them)."""
+    alternatives left the plan undetermined: before anything moves. ``taken``: the first
+    approaches already touched, kept as they are (``q_start``: the joints at the last of them)."""
     p = np.asarray(point_base, dtype=float)
     home = np.asarray(home, dtype=float)
     R0 = plan.orientations[0]
