@@ -16,7 +16,7 @@ from typing import Callable
 import numpy as np
 
 from cobot_calib_ros.api.identification_store import (cell_urdf, measurement_scope,
-                                                      store_measurements, store_outcome,
+                                                      saved_keys, store_measurements, store_open,
                                                       ur_path, validation_figures)
 from cobot_calib_ros.core.kinematics.identification.gates import (MAX_DEVIATION_M,
                                                                    MAX_DEVIATION_RAD)
@@ -307,7 +307,7 @@ def identify_source(path: str | Path, *, cell: str | None = None,
               ('--urdf', urdf), ('--dh', dh), ('--base-link', base_link),
               ('--tip-link', tip_link), ('--model', model), ('--folds', folds),
               ('--leave-out', leave_out))
-    from cobot_calib_ros.core.kinematics.kinematic_calibration import CalibrationJob
+    from cobot_calib_ros.api import kinematics
     from cobot_calib_ros.loaders import load_cell
     from cobot_calib_ros.paths import cell_file
     if not cell:
@@ -316,22 +316,40 @@ def identify_source(path: str | Path, *, cell: str | None = None,
         source = sources.load_source(path, cell=load_cell(cell_file(cell)))
         validation = sources.tracker_sets(path.parent, source.cell.robot) \
             if kind == sources.COLLECTION else {}
-        outcome = CalibrationJob(source.cell, source.model, source.observations,
-                                 source=source.provenance.get('collection', str(path)),
-                                 solver=solver, loss=loss, max_configs=max_configs,
-                                 validation=validation, bounds=bounds).run()
     except (KeyError, ValueError) as e:
-        message = str(e).strip("'")
-        raise IdentificationFailed(message if str(path) in message else f'{path}: {message}') \
-            from None
+        raise IdentificationFailed(_on_path(path, e)) from None
+    repository = store_open(source.cell, data_dir, db) if store else None
+    got = kinematics.identify(kinematics.JobSource(source, validation), kinematics.Settings(
+        solver, loss, max_configs=max_configs, bounds=bounds),
+        None if repository is None else repository.kinematics)
+    outcome = got.outcome if isinstance(got, (kinematics.Identified, kinematics.GateRefused)) \
+        else None
+    if outcome is None:
+        _raise(got, path)
     report = _job_report(source, outcome, bounds)
     if not store:
         report.update(stored=False, not_stored='--no-store: a dry run')
-    elif not outcome.verdict.passed:
+    elif not got:
         report.update(stored=False, not_stored='refused by its gate: nothing stored')
     else:
-        report.update(store_outcome(source, outcome, data_dir, db))
+        report.update(saved_keys(got.saved))
     return validation_figures(report)
+
+
+def _on_path(path: Path, error: Exception) -> str:
+    message = str(error).strip("'")
+    return message if str(path) in message else f'{path}: {message}'
+
+
+def _raise(failure, path: Path):
+    """A failure of api.kinematics.identify as the CLI's exceptions: the gates' refusal of
+    the data as a Refusal, storage as OSError, anything else IdentificationFailed."""
+    from cobot_calib_ros.core.errors import ErrorCode, Refusal
+    if failure.code in (ErrorCode.INVALID_INPUT, ErrorCode.SOLVER_FAILED, ErrorCode.CANCELED):
+        raise IdentificationFailed(_on_path(path, ValueError(failure.message)))
+    if failure.code == ErrorCode.STORAGE_FAILED:
+        raise OSError(failure.message)
+    raise Refusal(failure)
 
 
 def _only_for(where: str, kind: str, *given) -> None:

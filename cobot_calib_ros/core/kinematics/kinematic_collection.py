@@ -146,14 +146,18 @@ def new_collection(cell: Cell, model: KinematicModel, request: CollectionRequest
     extra: dict[str, Any] = {'known_distances': cell.spheres.known_distances(),
                              'coupling_offset_xyz': coupling}
     if request.planned:
+        step_deg = math.degrees(request.tilt_step_rad)
+        try:
+            tilts = tilt_grid_deg(step_deg)
+        except ValueError as e:
+            return Failure(ErrorCode.INVALID_INPUT, f'candidate tilt step: {e}')
         max_poses = request.max_poses or PLANNED_MAX_POSES
         problem = too_few_poses(cell, model, max_poses)
         if problem:
             return Failure(ErrorCode.INVALID_INPUT, problem)
-        step_deg = math.degrees(request.tilt_step_rad)
         say(f'planned collection: solving IK for the candidate poses (tilts in '
             f'{step_deg:.4g} deg steps)')
-        plan, unreachable = sphere_candidates(cell, model, tilt_grid_deg(step_deg))
+        plan, unreachable = sphere_candidates(cell, model, tilts)
         say(f'{len(plan)} candidates reachable, {len(unreachable)} not')
         settings = PlanSettings(max_poses=max_poses, target_mm=request.target_error_m * 1e3,
                                 min_gain=request.min_gain)
