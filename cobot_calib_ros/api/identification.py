@@ -427,9 +427,16 @@ def _job_report(source, outcome, bounds) -> dict:
             'dropped': [{'name': d.name, 'reason': d.reason}
                         for d in outcome.identifiability.dropped],
             'unseen': outcome_unseen(outcome),
-            'tracker': {region: _ratio(t) for region, t in outcome.validation.items()},
+            'tracker': {region: _ratio(_in_mm(t)) for region, t in outcome.validation.items()},
             'rms_mm': r.rms_m * 1e3, 'iterations': r.iterations,
             'solve_seconds': r.solve_seconds, 'calibration_id': '', 'table6': outcome.table}
+
+
+def _in_mm(table: dict) -> dict:
+    """A region's Table 5 rows from core (error_stats [m]) as the report's [mm]."""
+    return {key: {'count': table[key]['count'], **{
+        f'{k}_mm': table[key][f'{k}_m'] * 1e3 for k in ('mean', 'std', 'min', 'max')}}
+        for key in ('nominal', 'calibrated')}
 
 
 def _ratio(table: dict) -> dict:

@@ -1,17 +1,21 @@
 """kinematic_identifier: sphere-coupling data collection and kinematic identification.
 
 Two actions, one long job at a time (the node spins two threads: one runs the job, the other
-answers cancels and feedback):
+answers cancels and feedback). Each goal handler is parameters in, one api.kinematics call, the
+result out (issue 39.2); the procedures run the same in-process on the simulation.
 
-- ``collect_sphere_data``: the second paper's Algorithm 2 through ``move_to`` (compliant: the
-  coupling self-centres on the sphere) and ``capture_joints``, or laser-tracker configurations
-  through ``laser_tracker/measure``; every pose is stored as it is measured and a collection
-  resumes after a restart. ``planned``: each sphere pose is chosen with the data so far
-  (core.kinematics.planning), with a predicted accuracy and a stopping rule.
-- ``identify_kinematics``: the one identification engine (core.kinematics.kinematic_calibration:
-  the data as measurements, identifiability, Levenberg-Marquardt or Nelder-Mead, the gates),
-  validation on laser-tracker collections, stored as JSON + YAML + calibrated URDF and made
-  the active kinematic calibration that user_frame_solver and repeatability_trial use.
+- ``collect_sphere_data`` (api.kinematics.collect over ros.robot_calls, the robot port; the
+  procedure is core.kinematics.kinematic_collection): the second paper's Algorithm 2 through
+  ``move_to`` (compliant: the coupling self-centres on the sphere) and ``capture_joints``, or
+  laser-tracker configurations through ``laser_tracker/measure``; every pose is stored as it
+  is measured and a collection resumes after a restart. ``planned``: each sphere pose is
+  chosen with the data so far (core.kinematics.planning), with a predicted accuracy [m] and a
+  stopping rule. Every pose is published as a capture mark, on collection_progress and as
+  live-view markers.
+- ``identify_kinematics`` (api.kinematics.identify): the one identification engine
+  (core.kinematics.kinematic_calibration), validation on laser-tracker collections, the
+  gate, stored as JSON + YAML + calibrated URDF and made the active kinematic calibration
+  that user_frame_solver and repeatability_trial use; robot_description follows it.
 """
 from __future__ import annotations
 
@@ -60,26 +64,13 @@ class KinematicIdentifier(JobNode):
         self._robot = RobotCalls(self._answers)
         self._health.watch(capture_retries=lambda: self._robot.capture_retries)
         self._health.set(OK, 'idle', job='')
-        # every recorded pose, for recording a session (cobot-calib record); frame_id = target
-        self._captures = self.create_publisher(CaptureMark, marks.CAPTURES, 100)
-        # the live view: sphere centres and the coupling positions collected on them
-        self._markers = self.create_publisher(MarkerArray, markers.TOPIC, markers.QOS)
-        # every stored pose's progress and prediction, to echo, record and plot
-        self._progress = self.create_publisher(CollectionProgress, 'collection_progress',
-                                               qos.LATCHED)
-        self._collected: list[np.ndarray] = []
-        spheres = self._cell.spheres
-        self._coupling = None if spheres is None else Rig(
-            self._cell, model=self._model).nominal_chain('coupling')
+        self._create_publishers()
         group = ReentrantCallbackGroup()
-        self._collect = ActionServer(
-            self, Collect, 'collect_sphere_data', execute_callback=self._on_collect,
-            goal_callback=self._accept, cancel_callback=lambda _: CancelResponse.ACCEPT,
-            callback_group=group)
-        self._identify = ActionServer(
-            self, Identify, 'identify_kinematics', execute_callback=self._on_identify,
-            goal_callback=self._accept, cancel_callback=lambda _: CancelResponse.ACCEPT,
-            callback_group=group)
+        self._actions = [ActionServer(
+            self, Action, name, execute_callback=run, goal_callback=self._accept,
+            cancel_callback=lambda _: CancelResponse.ACCEPT, callback_group=group)
+            for Action, name, run in ((Collect, 'collect_sphere_data', self._on_collect),
+                                      (Identify, 'identify_kinematics', self._on_identify))]
         self.get_logger().info(f'{self._cell.robot} cell "{self._cell.name}": collections in '
                                f'{self._collections.directory}, kinematic calibrations in '
                                f'{self._calibrations.directory}')
@@ -89,6 +80,18 @@ class KinematicIdentifier(JobNode):
             self._described = None
             self._publish_description()
             self.create_timer(DESCRIPTION_CHECK_PERIOD, self._publish_description)
+
+    def _create_publishers(self) -> None:
+        # every recorded pose, for recording a session (cobot-calib record); frame_id = target
+        self._captures = self.create_publisher(CaptureMark, marks.CAPTURES, 100)
+        # the live view: sphere centres and the coupling positions collected on them
+        self._markers = self.create_publisher(MarkerArray, markers.TOPIC, markers.QOS)
+        # every stored pose's progress and prediction, to echo, record and plot
+        self._progress = self.create_publisher(CollectionProgress, 'collection_progress',
+                                               qos.LATCHED)
+        self._collected: list[np.ndarray] = []
+        self._coupling = None if self._cell.spheres is None else Rig(
+            self._cell, model=self._model).nominal_chain('coupling')
 
     def _declare_parameters(self) -> None:
         read_once(self, 'publish_robot_description', False,
@@ -171,14 +174,14 @@ class KinematicIdentifier(JobNode):
             feedback = Collect.Feedback(
                 index=pose.index, total=pose.total, target=pose.target, recorded=pose.recorded,
                 skipped=pose.skipped, robot_time=pose.robot_time_s,
-                predicted_max_error=pose.prediction.max_mm * 1e-3 if planned else 0.0,
-                predicted_rms_error=pose.prediction.rms_mm * 1e-3 if planned else 0.0)
+                predicted_max_error=pose.prediction.max_m if planned else 0.0,
+                predicted_rms_error=pose.prediction.rms_m if planned else 0.0)
             self._captures.publish(marks.capture_mark(pose.target, self._model.joint_names,
                                                       pose.capture.q, pose.capture.std,
                                                       now_ns(self)))
             if pose.target != 'tracker' and self._coupling is not None:
                 self._publish_markers(pose.capture.q)
-            self._publish_progress(goal_handle.request.collection_id, feedback, planned)
+            self._publish_progress(pose.collection_id, feedback, planned)
             goal_handle.publish_feedback(feedback)
         return on_pose
 
@@ -291,10 +294,9 @@ def _fill(result, got) -> None:
 
 
 def _stats_msg(stats: dict) -> ErrorStats:
-    """Table 5 statistics (mm in the core's dict) as an SI message."""
-    return ErrorStats(count=int(stats['count']), mean=stats['mean_mm'] * 1e-3,
-                      std=stats['std_mm'] * 1e-3, min=stats['min_mm'] * 1e-3,
-                      max=stats['max_mm'] * 1e-3)
+    """Table 5 statistics (core.kinematics.identification.validation.error_stats) [m]."""
+    return ErrorStats(count=int(stats['count']), mean=stats['mean_m'], std=stats['std_m'],
+                      min=stats['min_m'], max=stats['max_m'])
 
 
 def main(args=None) -> None:

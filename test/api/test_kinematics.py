@@ -155,8 +155,8 @@ def test_the_identification_is_validated_on_the_tracker_stored_written_back_and_
     assert table['nominal']['count'] == table['calibrated']['count'] == 30
     # nominal 0.268 mm, calibrated 0.066 mm max measured: the tracker's own noise (25 um an
     # axis) is what remains
-    assert table['calibrated']['max_mm'] < 0.4 * table['nominal']['max_mm']
-    assert table['calibrated']['mean_mm'] < 0.06
+    assert table['calibrated']['max_m'] < 0.4 * table['nominal']['max_m']
+    assert table['calibrated']['mean_m'] < 6e-5
     assert iterations == list(range(got.outcome.result.iterations + 1))
     saved = got.saved
     assert repo.kinematics.active('sawyer')['id'] == saved.record.id

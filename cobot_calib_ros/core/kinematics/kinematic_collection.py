@@ -83,10 +83,11 @@ class Resume:
 
 @dataclass(frozen=True)
 class PoseProgress:
-    """One recorded pose, for feedback: counts over the whole collection (a resume goes on
-    counting), robot time of this run [s], the prediction [m] (planned; inf before it has
-    one, None for a plain collection)."""
+    """One recorded pose of collection ``collection_id``, for feedback: counts over the
+    whole collection (a resume goes on counting), robot time of this run [s], the prediction
+    (planned; inf before it has one, None for a plain collection)."""
 
+    collection_id: str
     index: int
     total: int
     target: str
@@ -184,10 +185,10 @@ def collect_kinematics(model: KinematicModel, meta: Mapping[str, Any], resume: R
 
     def on_pose(record: PoseRecord, capture: Capture, run: CollectionRun) -> None:
         if progress is not None:
+            target = 'tracker' if laser else meta['targets'][record.target]
             progress(PoseProgress(
-                record.index, len(plan), 'tracker' if laser else meta['targets'][record.target],
-                before + run.recorded, skipped_before + run.skipped,
-                robot.robot_seconds - start, capture))
+                meta['id'], record.index, len(plan), target, before + run.recorded,
+                skipped_before + run.skipped, robot.robot_seconds - start, capture))
 
     run = collect(plan, resume.next_index, robot, log, hold=hold, laser=laser,
                   cancelled=cancelled, on_pose=on_pose)
@@ -220,9 +221,9 @@ def _planned(model: KinematicModel, meta: Mapping[str, Any], resume: Resume,
                 prediction: Prediction) -> None:
         if progress is not None:
             progress(PoseProgress(
-                len(planner.q) - 1, planner.settings.max_poses, meta['targets'][record.target],
-                len(planner.q), len(planner.state.skipped), robot.robot_seconds - start,
-                capture, prediction))
+                meta['id'], len(planner.q) - 1, planner.settings.max_poses,
+                meta['targets'][record.target], len(planner.q), len(planner.state.skipped),
+                robot.robot_seconds - start, capture, prediction))
 
     run, time = collect_planned(planner, robot, log, hold=hold, on_pose=on_pose,
                                 cancelled=cancelled)
@@ -233,7 +234,7 @@ def _planned(model: KinematicModel, meta: Mapping[str, Any], resume: Resume,
     collected = Collected(
         meta['id'], len(planner.q), len(planner.state.skipped), time,
         f'stopped on {run.message}', planner.state.stop or '',
-        last.max_mm * 1e-3 if last else math.inf,
+        last.max_m if last else math.inf,
         {**planning, 'state': planner.state.as_dict(), 'robot_time': total.as_dict()})
     return _ended(run, collected)
 

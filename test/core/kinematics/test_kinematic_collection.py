@@ -63,7 +63,7 @@ def test_a_planned_collection_resumes_with_its_plan_and_robot_time(planned):
     assert resumed.planning['robot_time']['total_s'] == pytest.approx(robot.robot_seconds)
     assert resumed.planning['robot_time']['poses'] == 12 == resumed.time.poses + 5
     # the predictions [m]: none while the data cannot determine the model, then a few um
-    predicted = [p.prediction.max_mm * 1e-3 for p in seen]
+    predicted = [p.prediction.max_m for p in seen]
     assert math.isinf(predicted[0]) and resumed.predicted_max_m == predicted[-1]
     assert 1e-7 < resumed.predicted_max_m < 1e-4
     assert [r.index for r in log] == resumed.planning['state']['chosen']
