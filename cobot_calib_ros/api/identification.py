@@ -267,8 +267,8 @@ def identify_source(path: str | Path, *, cell: str | None = None,
     given, must be the file's kind), error ``model``, held out by ``folds`` or ``leave_out``
     (default: a MUKCa folder one location at a time, else 5-fold); ``unseen`` names the
     parameters its measurement kind cannot see (core writeback). A bag or a collection: the
-    ``cell``'s (a name or path) robot, identified as the kinematic_identifier node does
-    (core CalibrationJob, ``solver``, ``max_configs``).
+    ``cell``'s (a name or path) robot, identified by the node's own call
+    (api.kinematics.identify: ``solver``, ``max_configs``).
 
     ``store``: a result that passes its gate is stored and made active in ``data_dir`` /
     ``db`` (paths.data_dir, store.open), whatever the source, as the node does: the record,

@@ -84,7 +84,7 @@ def test_a_canceled_collection_resumes_where_it_stopped(ros, actions, trial_data
         got.append(message.feedback)
 
     client = actions[0]
-    send = client.send_goal_async(Collect(max_configs=24, hold=0.02),
+    send = client.send_goal_async(Collect(max_configs=12, hold=0.02),
                                   feedback_callback=cancel_after_five)
     assert spin_until(ros, send.done, 10.0, ros.executor_for_tests)
     handle = send.result()
@@ -96,7 +96,7 @@ def test_a_canceled_collection_resumes_where_it_stopped(ros, actions, trial_data
     assert first.error_code == CollectSphereData.Result.CANCELED, first.message
     assert 'resume' in first.message
     stored = CollectionStore(trial_data).load(first.collection_id)
-    assert stored.meta['status'] == 'aborted' and 5 <= stored.next_index < 24
+    assert stored.meta['status'] == 'aborted' and 5 <= stored.next_index < 12
     resumed_feedback = []
     resumed = _run(ros, client, Collect(collection_id=first.collection_id, hold=0.02),
                    feedback=lambda message: resumed_feedback.append(message.feedback))
@@ -110,13 +110,13 @@ def test_a_canceled_collection_resumes_where_it_stopped(ros, actions, trial_data
     assert resumed_feedback[0].recorded == len(stored.q) + 1
     assert resumed_feedback[0].skipped >= len(stored.skipped)
     data = CollectionStore(trial_data).load(first.collection_id)
-    assert len(data.q) + len(data.skipped) == 24 and data.meta['status'] == 'done'
+    assert len(data.q) + len(data.skipped) == 12 and data.meta['status'] == 'done'
     # collection_progress counts the collection's poses across both goals
     spin_until(ros, lambda: sum(m.collection_id == first.collection_id for m in progress)
                >= len(data.q), 10.0, ros.executor_for_tests)
     mine = [m for m in progress if m.collection_id == first.collection_id]
     assert [m.poses for m in mine] == list(range(1, len(data.q) + 1))
-    assert all(not m.planned and m.poses_max == 24 for m in mine)
+    assert all(not m.planned and m.poses_max == 12 for m in mine)
     assert all(np.isinf([m.predicted_max_error, m.predicted_max_error_mm]).all() for m in mine)
     again = _run(ros, client, Collect(collection_id=first.collection_id))
     assert again.error_code == CollectSphereData.Result.INVALID_GOAL
