@@ -180,19 +180,22 @@ def identify_on_suite(client: IdentifyClient, *, say: Callable[[str], None],
 
 def resumable(given: str, cell: str) -> tuple[str, bool]:
     """(collection id, complete?) for --resume [ID]: the given id, else the newest unfinished
-    sphere collection of the cell's robot in the data dir ($COBOT_CALIB_DATA, the suite's
-    default). An id not in this data dir is sent as it is (an attached suite may store
-    elsewhere). ValueError when there is nothing to resume."""
+    sphere collection of the cell (its robot, and its name where stored) in the data dir
+    ($COBOT_CALIB_DATA, the suite's default). An id not in this data dir is sent as it is
+    (an attached suite may store elsewhere). ValueError when there is nothing to resume."""
     from cobot_calib_ros import paths, store
     from cobot_calib_ros.loaders import load_cell
+    from cobot_calib_ros.store.cells import ResultsCell
     from cobot_calib_ros.store.files import check_id
     collections = store.open(paths.data_dir('')).collections
     if given:
         stored = collections.load(check_id(given))
         return given, stored is not None and stored.meta['status'] == 'done'
-    robot = load_cell(paths.cell_file(cell)).robot
-    for meta in collections.list_collections():
-        if meta['source'] == 'spheres' and meta['robot'] == robot and meta['status'] != 'done':
+    results_cell = ResultsCell.of(load_cell(paths.cell_file(cell)))
+    robot = results_cell.robot
+    for meta in collections.list_collections():     # the suite's cell's own, as it resumes
+        if meta['source'] == 'spheres' and meta['status'] != 'done' and not \
+                results_cell.problem(meta.get('cell', ''), meta.get('robot', '')):
             return meta['id'], False
     raise ValueError(f'no unfinished {robot} sphere collection in {collections.directory}; give '
                      'its id (--resume ID)')
@@ -312,9 +315,14 @@ def identify_source(path: str | Path, *, cell: str | None = None,
     from cobot_calib_ros.paths import cell_file
     if not cell:
         raise ValueError(f'{path}: a {kind} is identified on its cell: give --cell or --robot')
+    from cobot_calib_ros.store.cells import ResultsCell
+    from cobot_calib_ros.store.collections import CollectionStore
     try:
         source = sources.load_source(path, cell=load_cell(cell_file(cell)))
-        validation = sources.tracker_sets(path.parent, source.cell.robot) \
+        # the tracker sets beside a collection, of its cell, as the node validates with
+        validation = kinematics.validation_sets(
+            CollectionStore.of_folder(path.parent.resolve()), source.cell,
+            ResultsCell.of(source.cell), {'volume': '', 'workspace': ''}) \
             if kind == sources.COLLECTION else {}
     except (KeyError, ValueError) as e:
         raise IdentificationFailed(_on_path(path, e)) from None

@@ -223,17 +223,25 @@ def goal_source(collections, cell, model, results_cell, *, file: str = '',
             kind = 'laser_tracker' if objective == 'absolute' else 'spheres'
             source = sources.of_collection(_collection(
                 collections, cell, results_cell, collection_id, kind), cell, model)
-        sets = {}
-        for region, given in (validation or {}).items():
-            found = _collection(collections, cell, results_cell, given, 'laser_tracker',
-                                region, required=False)
-            if found is not None:
-                sets[region] = sources.observations(found)
+        sets = validation_sets(collections, cell, results_cell, validation or {})
     except Refusal as e:
         return e.failure
     except ValueError as e:
         return Failure(ErrorCode.INVALID_INPUT, str(e))
     return JobSource(source, sets)
+
+
+def validation_sets(collections, cell, results_cell, named: dict[str, str]) -> dict:
+    """region -> PositionObservations of the laser-tracker collections of this cell in
+    ``collections``: the one ``named`` for the region, '' the newest finished one (none: the
+    region is left out). Refusal for a named one that is missing or another cell's."""
+    sets = {}
+    for region, given in named.items():
+        found = _collection(collections, cell, results_cell, given, 'laser_tracker', region,
+                            required=False)
+        if found is not None:
+            sets[region] = sources.observations(found)
+    return sets
 
 
 def _file_source(file: str, cell):

@@ -191,3 +191,26 @@ def test_unknown_settings_and_a_cancel_store_nothing(collected):
     assert cancelled.code == ErrorCode.CANCELED and cancelled.message == \
         'canceled; nothing stored'
     assert len(repo.kinematics.history()) == before
+
+
+def test_identify_source_on_a_collection_folder_validates_on_its_cell_s_tracker_sets(
+        collected):
+    """`identify --source COLLECTION`: the same call as the node, validated on the newest
+    finished tracker set of the cell beside it, not a newer one another cell of the same
+    robot wrote there (review 12237a8, section 3); the report in mm."""
+    from cobot_calib_ros.api.identification import identify_source
+    repo, spheres, tracker = collected
+    plan = [{'q': list(MODEL.nominal[:7] * 0.0), 'target': -1} for _ in range(3)]
+    repo.collections.create('far-tracker', source='laser_tracker', robot='sawyer',
+                            joint_names=MODEL.joint_names, targets=[], plan=plan,
+                            extra={'region': 'volume', 'cell': 'sawyer_far'})
+    for index in range(3):
+        repo.collections.append('far-tracker', index, -1, np.zeros(7), p=np.full(3, 9.0))
+    repo.collections.set_status('far-tracker', 'done')
+    report = identify_source(repo.collections.directory / spheres.collection_id,
+                             cell='sawyer_close')
+    assert report['verdict']['passed'] and report['stored'] is False
+    volume = report['tracker']['volume']
+    assert volume['nominal']['count'] == 30 and list(report['tracker']) == ['volume']
+    assert volume['calibrated']['max_mm'] < 0.4 * volume['nominal']['max_mm']
+    assert report['validation_max_mm']['volume']['calibrated'] == volume['calibrated']['max_mm']
