@@ -148,8 +148,8 @@ class Compared:
         """Where --target-mm at ``ratio`` x the full grid's predicted max (the noise this run
         estimated; no truth used) stops this run: poses, robot time at the paper's hold [s],
         held-out max [mm]."""
-        target = ratio * self.full_predicted.max_mm
-        curve = [p.max_mm for p in self.planner.state.predictions]
+        target = ratio * self.full_predicted.max_m
+        curve = [p.max_m for p in self.planner.state.predictions]
         k = next((k for k, v in enumerate(curve) if v <= target), len(curve) - 1)
         seconds = float(np.sum(self.moves[:k + 1]) + (k + 1) * PAPER_HOLD)
         return k + 1, seconds, bench.held_out_mm(*self.estimates[k])[0]
@@ -199,7 +199,7 @@ def run() -> Figures:
     k, target_s, target_truth = c.target_stop(bench, TARGET_OVER_FULL)
     planned_s = c.robot_time.at_hold(PAPER_HOLD)
     figures.update({
-        'target_1p2_full_predicted_um': (TARGET_OVER_FULL * full_predicted.max_mm * 1e3, 'um'),
+        'target_1p2_full_predicted_um': (TARGET_OVER_FULL * full_predicted.max_m * 1e6, 'um'),
         'target_1p2_poses': (float(k), 'poses'),
         'target_1p2_heldout_max_um': (target_truth * 1e3, 'um'),
         'target_1p2_over_full_max_error_ratio': (target_truth / c.full_truth, 'x'),
@@ -223,7 +223,7 @@ def run() -> Figures:
         'full_over_planned_robot_time': (c.full_paper_s / planned_s, 'x'),
         'planned_robot_s_fast_hold': (c.robot_time.total, 's'),
         'full_robot_s_fast_hold': (c.full_s, 's'),
-        'full_predicted_max_um': (full_predicted.max_mm * 1e3, 'um'),
+        'full_predicted_max_um': (full_predicted.max_m * 1e6, 'um'),
         'planned_poses_to_full_predicted': (float(reach), 'poses'),
         'planned_robot_s_to_full_predicted': (reach_s, 's'),
     })
@@ -270,7 +270,7 @@ def planned_50_figures(robot: str, cell: str, grid=None, pool=None) -> Figures:
         q, t, _, _ = bench.measure(grid)
         full_draws.append(bench.identify_mm(planner.parameter_set, q, t)[0])
     full_mean = float(np.mean(full_draws))
-    predicted = planner.state.predictions[-1].max_mm
+    predicted = planner.state.predictions[-1].max_m * 1e3     # [mm]
     name = f'planned_50_{robot}_'
     return {
         name + 'poses': (float(n), 'poses'),
@@ -344,13 +344,13 @@ def prediction_figures(measured: dict, means: dict[int, float]) -> Figures:
     figures: Figures = {}
     for count, (prediction, (truth, _)) in sorted(measured.items()):
         mean = means[count]
-        figures[f'predicted_max_um_at_{count}'] = (prediction.max_mm * 1e3, 'um')
+        figures[f'predicted_max_um_at_{count}'] = (prediction.max_m * 1e6, 'um')
         figures[f'measured_max_um_at_{count}'] = (truth * 1e3, 'um')
         figures[f'measured_mean_max_um_at_{count}'] = (mean * 1e3, 'um')
         figures[f'prediction_error_percent_at_{count}'] = (
-            (prediction.max_mm / mean - 1.0) * 100.0, '%')
+            (prediction.max_m * 1e3 / mean - 1.0) * 100.0, '%')
         figures[f'prediction_error_percent_this_run_at_{count}'] = (
-            (prediction.max_mm / truth - 1.0) * 100.0, '%')
+            (prediction.max_m * 1e3 / truth - 1.0) * 100.0, '%')
     return figures
 
 

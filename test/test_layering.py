@@ -100,9 +100,6 @@ EXCEPTIONS = {
     ('cobot_calib_ros.core.repeatability.trial', 'store'),
     # nodes.NODES, the registry of the node modules the launcher starts (setup.py reads it too)
     ('cobot_calib_ros.api.launcher', 'nodes'),
-    # a bag of sphere captures as the identification's input (review 5252a67 section 4.1:
-    # acceptable; the parsing sits next to the mark protocol, ros.marks)
-    ('cobot_calib_ros.nodes.kinematic_identifier', 'bags'),
     # the one loader of identification sources (issue 28.5) recognises them by their look and
     # reads each where it is written: a collection folder by store.collections, a bag's
     # sphere captures by bags.sphere_captures

@@ -16,7 +16,7 @@ from typing import Callable
 import numpy as np
 
 from cobot_calib_ros.api.identification_store import (cell_urdf, measurement_scope,
-                                                      store_measurements, store_outcome,
+                                                      saved_keys, store_measurements, store_open,
                                                       ur_path, validation_figures)
 from cobot_calib_ros.core.kinematics.identification.gates import (MAX_DEVIATION_M,
                                                                    MAX_DEVIATION_RAD)
@@ -180,19 +180,22 @@ def identify_on_suite(client: IdentifyClient, *, say: Callable[[str], None],
 
 def resumable(given: str, cell: str) -> tuple[str, bool]:
     """(collection id, complete?) for --resume [ID]: the given id, else the newest unfinished
-    sphere collection of the cell's robot in the data dir ($COBOT_CALIB_DATA, the suite's
-    default). An id not in this data dir is sent as it is (an attached suite may store
-    elsewhere). ValueError when there is nothing to resume."""
+    sphere collection of the cell (its robot, and its name where stored) in the data dir
+    ($COBOT_CALIB_DATA, the suite's default). An id not in this data dir is sent as it is
+    (an attached suite may store elsewhere). ValueError when there is nothing to resume."""
     from cobot_calib_ros import paths, store
     from cobot_calib_ros.loaders import load_cell
+    from cobot_calib_ros.store.cells import ResultsCell
     from cobot_calib_ros.store.files import check_id
     collections = store.open(paths.data_dir('')).collections
     if given:
         stored = collections.load(check_id(given))
         return given, stored is not None and stored.meta['status'] == 'done'
-    robot = load_cell(paths.cell_file(cell)).robot
-    for meta in collections.list_collections():
-        if meta['source'] == 'spheres' and meta['robot'] == robot and meta['status'] != 'done':
+    results_cell = ResultsCell.of(load_cell(paths.cell_file(cell)))
+    robot = results_cell.robot
+    for meta in collections.list_collections():     # the suite's cell's own, as it resumes
+        if meta['source'] == 'spheres' and meta['status'] != 'done' and not \
+                results_cell.problem(meta.get('cell', ''), meta.get('robot', '')):
             return meta['id'], False
     raise ValueError(f'no unfinished {robot} sphere collection in {collections.directory}; give '
                      'its id (--resume ID)')
@@ -267,8 +270,8 @@ def identify_source(path: str | Path, *, cell: str | None = None,
     given, must be the file's kind), error ``model``, held out by ``folds`` or ``leave_out``
     (default: a MUKCa folder one location at a time, else 5-fold); ``unseen`` names the
     parameters its measurement kind cannot see (core writeback). A bag or a collection: the
-    ``cell``'s (a name or path) robot, identified as the kinematic_identifier node does
-    (core CalibrationJob, ``solver``, ``max_configs``).
+    ``cell``'s (a name or path) robot, identified by the node's own call
+    (api.kinematics.identify: ``solver``, ``max_configs``).
 
     ``store``: a result that passes its gate is stored and made active in ``data_dir`` /
     ``db`` (paths.data_dir, store.open), whatever the source, as the node does: the record,
@@ -307,31 +310,54 @@ def identify_source(path: str | Path, *, cell: str | None = None,
               ('--urdf', urdf), ('--dh', dh), ('--base-link', base_link),
               ('--tip-link', tip_link), ('--model', model), ('--folds', folds),
               ('--leave-out', leave_out))
-    from cobot_calib_ros.core.kinematics.kinematic_calibration import CalibrationJob
+    from cobot_calib_ros.api import kinematics
     from cobot_calib_ros.loaders import load_cell
     from cobot_calib_ros.paths import cell_file
     if not cell:
         raise ValueError(f'{path}: a {kind} is identified on its cell: give --cell or --robot')
+    from cobot_calib_ros.store.cells import ResultsCell
+    from cobot_calib_ros.store.collections import CollectionStore
     try:
         source = sources.load_source(path, cell=load_cell(cell_file(cell)))
-        validation = sources.tracker_sets(path.parent, source.cell.robot) \
+        # the tracker sets beside a collection, of its cell, as the node validates with
+        validation = kinematics.validation_sets(
+            CollectionStore.of_folder(path.parent.resolve()), source.cell,
+            ResultsCell.of(source.cell), {'volume': '', 'workspace': ''}) \
             if kind == sources.COLLECTION else {}
-        outcome = CalibrationJob(source.cell, source.model, source.observations,
-                                 source=source.provenance.get('collection', str(path)),
-                                 solver=solver, loss=loss, max_configs=max_configs,
-                                 validation=validation, bounds=bounds).run()
     except (KeyError, ValueError) as e:
-        message = str(e).strip("'")
-        raise IdentificationFailed(message if str(path) in message else f'{path}: {message}') \
-            from None
+        raise IdentificationFailed(_on_path(path, e)) from None
+    repository = store_open(source.cell, data_dir, db) if store else None
+    got = kinematics.identify(kinematics.JobSource(source, validation), kinematics.Settings(
+        solver, loss, max_configs=max_configs, bounds=bounds),
+        None if repository is None else repository.kinematics)
+    outcome = got.outcome if isinstance(got, (kinematics.Identified, kinematics.GateRefused)) \
+        else None
+    if outcome is None:
+        _raise(got, path)
     report = _job_report(source, outcome, bounds)
     if not store:
         report.update(stored=False, not_stored='--no-store: a dry run')
-    elif not outcome.verdict.passed:
+    elif not got:
         report.update(stored=False, not_stored='refused by its gate: nothing stored')
     else:
-        report.update(store_outcome(source, outcome, data_dir, db))
+        report.update(saved_keys(got.saved))
     return validation_figures(report)
+
+
+def _on_path(path: Path, error: Exception) -> str:
+    message = str(error).strip("'")
+    return message if str(path) in message else f'{path}: {message}'
+
+
+def _raise(failure, path: Path):
+    """A failure of api.kinematics.identify as the CLI's exceptions: the gates' refusal of
+    the data as a Refusal, storage as OSError, anything else IdentificationFailed."""
+    from cobot_calib_ros.core.errors import ErrorCode, Refusal
+    if failure.code in (ErrorCode.INVALID_INPUT, ErrorCode.SOLVER_FAILED, ErrorCode.CANCELED):
+        raise IdentificationFailed(_on_path(path, ValueError(failure.message)))
+    if failure.code == ErrorCode.STORAGE_FAILED:
+        raise OSError(failure.message)
+    raise Refusal(failure)
 
 
 def _only_for(where: str, kind: str, *given) -> None:
@@ -409,9 +435,16 @@ def _job_report(source, outcome, bounds) -> dict:
             'dropped': [{'name': d.name, 'reason': d.reason}
                         for d in outcome.identifiability.dropped],
             'unseen': outcome_unseen(outcome),
-            'tracker': {region: _ratio(t) for region, t in outcome.validation.items()},
+            'tracker': {region: _ratio(_in_mm(t)) for region, t in outcome.validation.items()},
             'rms_mm': r.rms_m * 1e3, 'iterations': r.iterations,
             'solve_seconds': r.solve_seconds, 'calibration_id': '', 'table6': outcome.table}
+
+
+def _in_mm(table: dict) -> dict:
+    """A region's Table 5 rows from core (error_stats [m]) as the report's [mm]."""
+    return {key: {'count': table[key]['count'], **{
+        f'{k}_mm': table[key][f'{k}_m'] * 1e3 for k in ('mean', 'std', 'min', 'max')}}
+        for key in ('nominal', 'calibrated')}
 
 
 def _ratio(table: dict) -> dict:

@@ -100,13 +100,9 @@ def validation_figures(report: dict) -> dict:
     return report
 
 
-def store_outcome(source, outcome, data_dir: str | None = None, db: str | None = None) -> dict:
-    """Store a bag's or a collection's outcome and make it active, as the node does (the
-    cell's URDF written back, a UR arm's kinematics YAML)."""
+def store_open(cell, data_dir: str | None = None, db: str | None = None):
+    """The repository a bag's or a collection's result of ``cell`` is stored in, as the node
+    stores it (``data_dir``: paths.data_dir; ``db``: a database instead)."""
     from cobot_calib_ros import paths, store
     from cobot_calib_ros.store.cells import ResultsCell
-    planning = source.provenance.get('planning')
-    saved = store.open(paths.data_dir(data_dir), db, ResultsCell.of(source.cell)).kinematics \
-        .save_outcome(outcome, extra={'planning': planning} if planning else None,
-                      description=source.cell.urdf_robot)
-    return saved_keys(saved)
+    return store.open(paths.data_dir(data_dir), db, ResultsCell.of(cell))

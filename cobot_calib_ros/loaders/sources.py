@@ -153,21 +153,3 @@ def load_collection_folder(folder: str | Path):
     if data is None:
         raise ValueError(f'{path}: unreadable collection: {folder_store.meta_problem(path.name)}')
     return data
-
-
-def tracker_sets(directory: Path, robot: str) -> dict:
-    """The newest finished laser-tracker collection of ``robot`` per region ('volume',
-    'workspace') in a folder of collections, as the node validates with: region ->
-    PositionObservations (none there: {})."""
-    from cobot_calib_ros.store.collections import CollectionStore
-    folder_store = CollectionStore.of_folder(Path(directory).resolve())
-    found = {}
-    for meta in folder_store.list_collections():       # newest first
-        region = meta.get('region')
-        if meta['source'] == 'laser_tracker' and meta['status'] == 'done' and \
-                meta['robot'] == robot and region in ('volume', 'workspace') and \
-                region not in found:
-            collection = folder_store.load(meta['id'])
-            if collection is not None:
-                found[region] = observations(collection)
-    return found

@@ -4,7 +4,6 @@ the result (issue 10)."""
 import json
 import os
 import re
-import shutil
 import time
 from pathlib import Path
 
@@ -18,13 +17,15 @@ from cobot_calib_msgs.msg import CollectionProgress
 from cobot_calib_msgs.srv import CalibrateUserFrame, SetActiveCalibration
 from cobot_calib_ros.ros.action_client import ActionClient
 from cobot_calib_ros.ros.calls import run_action, spin_until
-from cobot_calib_ros.core.kinematics import fk, model_by_name, plans
+from cobot_calib_ros.api import kinematics as kinematics_api
+from cobot_calib_ros.core.kinematics import fk, model_by_name, model_for, plans
+from cobot_calib_ros.core.kinematics.kinematic_collection import CollectionRequest
 from cobot_calib_ros.core.kinematics.identification import SphereObservations
 from cobot_calib_ros.core.kinematics.kinematic_calibration import CalibrationJob
 from cobot_calib_ros.core.kinematics.urdf import model_from_urdf
 from cobot_calib_ros.paths import cell_file
 from cobot_calib_ros.ros import markers
-from cobot_calib_ros.sim.robot import SimRobot
+from cobot_calib_ros.sim.robot import DirectRobot, SimRobot
 from cobot_calib_ros.sim.scenario import load_simulation
 from cobot_calib_ros.store.cells import ResultsCell
 from cobot_calib_ros.store.collections import CollectionStore
@@ -61,27 +62,19 @@ def progress(ros):
 
 
 @pytest.fixture(scope='module')
-def collected(ros, actions, trial_data):
-    """A small sphere collection (20 poses per sphere) and a laser-tracker volume set."""
-    got = []
-    spheres = _run(ros, actions[0], Collect(max_configs=60, hold=0.02),
-                   feedback=lambda m: got.append(m.feedback))
-    tracker = _run(ros, actions[0], Collect(source='laser_tracker', max_configs=30,
-                                            hold=0.02))
-    return spheres, tracker, got
-
-
-def test_collection_stores_every_pose_with_feedback(collected, trial_data):
-    spheres, tracker, feedback = collected
-    assert spheres.error_code == 0, spheres.message
-    assert spheres.recorded + spheres.skipped == 60 and spheres.recorded >= 55
-    assert tracker.error_code == 0 and tracker.recorded == 30, tracker.message
-    assert {f.target for f in feedback} == {'S1', 'S2', 'S3'}
-    assert feedback[-1].recorded == spheres.recorded and feedback[-1].total == 60
-    data = CollectionStore(trial_data).load(spheres.collection_id)
-    assert data.meta['status'] == 'done' and len(data.q) == spheres.recorded
-    assert sorted(set(data.target.tolist())) == [0, 1, 2]
-    assert np.isfinite(CollectionStore(trial_data).load(tracker.collection_id).p).all()
+def collected(trial_data):
+    """A small sphere collection (60 poses) and a laser-tracker volume set in the suite's data
+    dir, collected in-process on the mock (api.kinematics.collect over DirectRobot, as the
+    node collects: test/api/test_kinematics.py checks it); the node identifies them."""
+    sim = load_simulation(cell_file('sawyer_close'))
+    robot, collections = DirectRobot(SimRobot(sim, seed_offset=1), sim.probe), \
+        store.open(trial_data, cell=CELL).collections
+    spheres, tracker = (kinematics_api.collect(
+        collections, sim.cell, model_for(sim.cell), CELL, request, robot, hold=0.02)
+        for request in (CollectionRequest(max_configs=60),
+                        CollectionRequest(source='laser_tracker', max_configs=30)))
+    assert spheres and tracker, (spheres, tracker)
+    return spheres, tracker
 
 
 def test_a_canceled_collection_resumes_where_it_stopped(ros, actions, trial_data, progress):
@@ -91,7 +84,7 @@ def test_a_canceled_collection_resumes_where_it_stopped(ros, actions, trial_data
         got.append(message.feedback)
 
     client = actions[0]
-    send = client.send_goal_async(Collect(max_configs=24, hold=0.02),
+    send = client.send_goal_async(Collect(max_configs=12, hold=0.02),
                                   feedback_callback=cancel_after_five)
     assert spin_until(ros, send.done, 10.0, ros.executor_for_tests)
     handle = send.result()
@@ -103,22 +96,27 @@ def test_a_canceled_collection_resumes_where_it_stopped(ros, actions, trial_data
     assert first.error_code == CollectSphereData.Result.CANCELED, first.message
     assert 'resume' in first.message
     stored = CollectionStore(trial_data).load(first.collection_id)
-    assert stored.meta['status'] == 'aborted' and 5 <= stored.next_index < 24
+    assert stored.meta['status'] == 'aborted' and 5 <= stored.next_index < 12
     resumed_feedback = []
     resumed = _run(ros, client, Collect(collection_id=first.collection_id, hold=0.02),
                    feedback=lambda message: resumed_feedback.append(message.feedback))
     assert resumed.error_code == 0, resumed.message
+    assert resumed.collection_id == first.collection_id and resumed.path.endswith(
+        f'kinematic_data/{first.collection_id}')
+    assert resumed.message.startswith(f'{first.collection_id}: {resumed.recorded} poses '
+                                      'recorded')
+    assert 0.0 < resumed.robot_time < resumed.robot_time_at_paper_hold
     # issue 31.9: the resume's first new pose said "1 recorded"; it is the collection's next
     assert resumed_feedback[0].recorded == len(stored.q) + 1
     assert resumed_feedback[0].skipped >= len(stored.skipped)
     data = CollectionStore(trial_data).load(first.collection_id)
-    assert len(data.q) + len(data.skipped) == 24 and data.meta['status'] == 'done'
+    assert len(data.q) + len(data.skipped) == 12 and data.meta['status'] == 'done'
     # collection_progress counts the collection's poses across both goals
     spin_until(ros, lambda: sum(m.collection_id == first.collection_id for m in progress)
                >= len(data.q), 10.0, ros.executor_for_tests)
     mine = [m for m in progress if m.collection_id == first.collection_id]
     assert [m.poses for m in mine] == list(range(1, len(data.q) + 1))
-    assert all(not m.planned and m.poses_max == 24 for m in mine)
+    assert all(not m.planned and m.poses_max == 12 for m in mine)
     assert all(np.isinf([m.predicted_max_error, m.predicted_max_error_mm]).all() for m in mine)
     again = _run(ros, client, Collect(collection_id=first.collection_id))
     assert again.error_code == CollectSphereData.Result.INVALID_GOAL
@@ -127,7 +125,7 @@ def test_a_canceled_collection_resumes_where_it_stopped(ros, actions, trial_data
 
 def test_identification_is_validated_stored_and_exported_as_urdf(ros, actions, collected,
                                                                   trial_data):
-    spheres, tracker, _ = collected
+    spheres, tracker = collected
     before = store.open(trial_data, cell=CELL).kinematics.active('sawyer')
     if before is None:      # the nominal URDF while no calibration is active (a calibration
         # an earlier test retired stays latched until the node's next check republishes)
@@ -206,7 +204,7 @@ def test_a_result_outside_the_deviation_bounds_is_refused_and_nothing_is_stored(
     origins are off by tenths of a millimetre: with the length bound at 0.01 mm the same
     identification that passes above is refused, and no calibration is stored or made
     active."""
-    spheres, tracker, _ = collected
+    spheres, tracker = collected
     kinematics = store.open(trial_data).kinematics
     before, active = len(kinematics.history()), kinematics.active('sawyer')
     _set_identifier_parameter(ros, 'max_deviation_length', 1e-5)
@@ -224,41 +222,42 @@ def test_a_result_outside_the_deviation_bounds_is_refused_and_nothing_is_stored(
 
 def test_a_planned_collection_predicts_stops_and_is_stored_with_its_calibration(
         ros, actions, trial_data, progress):
-    """Issue 20: collect_sphere_data planned: feedback with the prediction and robot time,
-    the same on collection_progress (for the live view's plot), the stop reason, the plan and
-    predictions stored with the collection and the calibration."""
+    """Issue 20: collect_sphere_data planned: feedback with the prediction [m] and robot time,
+    the same on collection_progress (for the live view's plot) with its _mm field, the stop
+    reason, the planning stored with the calibration (22 poses: the fewest the gate lets
+    identify the Sawyer's 33 unknowns from, 2 equations each). The procedure's resume and stored state:
+    test/core/kinematics/test_kinematic_collection.py."""
     got = []
-    collected = _run(ros, actions[0], Collect(planned=True, max_poses=40, hold=0.02),
+    collected = _run(ros, actions[0], Collect(planned=True, max_poses=22, hold=0.02),
                      feedback=lambda m: got.append(m.feedback), timeout=900.0)
-    spin_until(ros, lambda: len(progress) >= 40, 10.0, ros.executor_for_tests)
+    spin_until(ros, lambda: sum(m.collection_id == collected.collection_id for m in progress)
+               >= 22, 10.0, ros.executor_for_tests)
     assert collected.error_code == 0, collected.message
-    assert collected.recorded == 40 and collected.stop_reason == 'max_poses: 40 poses measured'
-    assert [f.recorded for f in got] == list(range(1, 41)) and got[-1].total == 40
+    assert collected.recorded == 22 and collected.stop_reason == 'max_poses: 22 poses measured'
+    assert [f.recorded for f in got] == list(range(1, 23)) and got[-1].total == 22
     predicted = [f.predicted_max_error for f in got]
     assert np.isinf(predicted[0]) and np.isfinite(predicted[-1])
-    assert 1e-7 < collected.predicted_max_error == predicted[-1] < 5e-5     # [m]
-    assert 0.0 < got[-1].robot_time <= collected.robot_time
+    assert 1e-7 < collected.predicted_max_error == predicted[-1] < 1e-4     # [m]
+    assert 0.0 < got[-1].robot_time <= collected.robot_time + 1e-9     # move + hold sums
     mine = [m for m in progress if m.collection_id == collected.collection_id]
-    assert [m.poses for m in mine] == list(range(1, 41))
-    assert all(m.planned and m.poses_max == 40 for m in mine)
+    assert [m.poses for m in mine] == list(range(1, 23))
+    assert all(m.planned and m.poses_max == 22 for m in mine)
     assert [m.predicted_max_error for m in mine] == predicted
     assert [m.predicted_max_error_mm for m in mine] == [p * 1e3 for p in predicted]
     assert [m.robot_time for m in mine] == [f.robot_time for f in got]
     assert [m.target for m in mine] == [f.target for f in got]
-    # the live view's markers: the coupling at each of this goal's 40 poses
+    # the live view's markers: the coupling at each of this goal's 22 poses
     drawn = _pose_markers(listen_late(ros, MarkerArray, markers.TOPIC, markers.QOS,
                                       _pose_markers))
-    assert drawn and len(drawn[-1].points) == 40
+    assert drawn and len(drawn[-1].points) == 22
     assert collected.robot_time_at_paper_hold == pytest.approx(
-        collected.robot_time + 40 * (1.0 - 0.02))
+        collected.robot_time + 22 * (1.0 - 0.02))
     meta = CollectionStore(trial_data).load(collected.collection_id).meta
-    state = meta['planning']['state']
-    assert len(state['chosen']) == 40 == len(state['predictions']) == len(state['initial_plan'])
     # the candidates on the node's candidate_tilt_step (30 deg here, conftest), not 15 deg
     tilts = {int(t) for step in meta['plan']
              for t in re.findall(r'r[xyz]([+-]\d+)', step['label'])}
     assert {-30, 30} <= tilts and all(t % 30 == 0 for t in tilts)   # Sawyer: none at 60
-    assert state['stop'] == collected.stop_reason
+    assert meta['planning']['state']['stop'] == collected.stop_reason
     assert meta['planning']['robot_time']['total_s'] == pytest.approx(collected.robot_time)
     result = _run(ros, actions[1], Identify(collection_id=collected.collection_id))
     try:
@@ -290,38 +289,6 @@ def test_bad_goals_get_a_reason(ros, actions):
     solver = _run(ros, actions[1], Identify(solver='gradient'))
     assert solver.error_code == IdentifyKinematics.Result.INVALID_GOAL
     assert 'nelder-mead' in solver.message
-
-
-def test_another_cell_s_collections_are_neither_resumed_nor_identified(ros, actions,
-                                                                       trial_data):
-    """A data dir shared with the iiwa7 cell: its collections (a finished one, and one to
-    resume) are refused by name on this Sawyer suite, and nothing is written to them."""
-    iiwa = model_by_name('iiwa7')
-    collections = CollectionStore(trial_data)
-    plan = [{'q': [0.0] * 7, 'target': k % 3} for k in range(6)]
-    for collection_id, status in (('iiwa7-done', 'done'), ('iiwa7-cut', 'aborted')):
-        collections.create(collection_id, source='spheres', robot='iiwa7',
-                           joint_names=iiwa.joint_names, targets=['S1', 'S2', 'S3'], plan=plan,
-                           extra={'known_distances': [], 'cell': 'iiwa7_close'})
-        for index in range(6 if status == 'done' else 2):
-            collections.append(collection_id, index, index % 3, np.full(7, 0.1 * index))
-        collections.set_status(collection_id, status)
-    why = ("it was made in cell 'iiwa7_close' on the iiwa7; this is cell 'sawyer_close' on "
-           "the sawyer")
-    try:
-        identified = _run(ros, actions[1], Identify(collection_id='iiwa7-done'))
-        resumed = _run(ros, actions[0], Collect(collection_id='iiwa7-cut'))
-        assert identified.error_code == IdentifyKinematics.Result.INVALID_GOAL
-        assert identified.message.startswith(
-            f"collection iiwa7-done is not this cell's: {why}"), identified.message
-        assert resumed.error_code == CollectSphereData.Result.INVALID_GOAL
-        assert resumed.message.startswith(
-            f"collection iiwa7-cut is not this cell's: {why}"), resumed.message
-        assert collections.meta('iiwa7-cut')['status'] == 'aborted'
-        assert len(collections.load('iiwa7-cut').index) == 2
-    finally:        # later tests count this data dir's collections
-        for collection_id in ('iiwa7-done', 'iiwa7-cut'):
-            shutil.rmtree(collections.directory / collection_id)
 
 
 def _identified_in_process(trial_data) -> str:

@@ -55,19 +55,19 @@ def test_sphere_calibration_cuts_the_max_error_in_the_calibrated_volume(cell):
     laser = CalibrationJob(sim.cell, robot.model, tracker['calibration'],
                            validation=validation).run()
     volume, workspace = sphere.validation['volume'], sphere.validation['workspace']
-    ratio = volume['calibrated']['max_mm'] / volume['nominal']['max_mm']
-    ratio_ws = workspace['calibrated']['max_mm'] / workspace['nominal']['max_mm']
-    laser_ws = laser.validation['workspace']['calibrated']['max_mm']
-    print(f'\nvolume: nominal max {volume["nominal"]["max_mm"]:.3f} mm, sphere-calibrated '
-          f'{volume["calibrated"]["max_mm"]:.3f} mm ({ratio:.1%}; goal <= 30 %)')
-    print(f'workspace: nominal max {workspace["nominal"]["max_mm"]:.3f} mm, sphere '
-          f'{workspace["calibrated"]["max_mm"]:.3f} mm ({ratio_ws:.1%}; paper '
-          f'{PAPER_RATIO:.1%}), laser {laser_ws:.3f} mm; sphere / laser '
-          f'{workspace["calibrated"]["max_mm"] / laser_ws:.2f} (paper '
+    ratio = volume['calibrated']['max_m'] / volume['nominal']['max_m']
+    ratio_ws = workspace['calibrated']['max_m'] / workspace['nominal']['max_m']
+    laser_ws = laser.validation['workspace']['calibrated']['max_m']
+    print(f'\nvolume: nominal max {volume["nominal"]["max_m"] * 1e3:.3f} mm, sphere-calibrated '
+          f'{volume["calibrated"]["max_m"] * 1e3:.3f} mm ({ratio:.1%}; goal <= 30 %)')
+    print(f'workspace: nominal max {workspace["nominal"]["max_m"] * 1e3:.3f} mm, sphere '
+          f'{workspace["calibrated"]["max_m"] * 1e3:.3f} mm ({ratio_ws:.1%}; paper '
+          f'{PAPER_RATIO:.1%}), laser {laser_ws * 1e3:.3f} mm; sphere / laser '
+          f'{workspace["calibrated"]["max_m"] / laser_ws:.2f} (paper '
           f'{PAPER_SPHERE_OVER_LASER:.2f})')
-    assert 0.3 < volume['nominal']['max_mm'] and 1.5 < workspace['nominal']['max_mm'] < 4.0
+    assert 3e-4 < volume['nominal']['max_m'] and 1.5e-3 < workspace['nominal']['max_m'] < 4e-3
     assert ratio <= 0.30
-    assert workspace['calibrated']['max_mm'] <= 1.2 * laser_ws
+    assert workspace['calibrated']['max_m'] <= 1.2 * laser_ws
     assert {'alpha_1', 'a_1', 'theta_1', 'd_1'} <= {d.name for d in
                                                    sphere.identifiability.dropped}
 

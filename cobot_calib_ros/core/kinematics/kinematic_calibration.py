@@ -99,7 +99,7 @@ class Outcome:
     identifiability: mf.Identifiability
     free_values: Array                # identified values of result.free [m, rad]
     nominal_values: Array             # the same parameters of the nominal model [m, rad]
-    validation: dict[str, dict]       # region -> {'nominal': stats, 'calibrated': stats}
+    validation: dict[str, dict]       # region -> {'nominal', 'calibrated'}: error_stats [m]
     table: str                        # the identified model as the paper's Table 6
     verdict: Verdict = Verdict()      # the gates' (module doc, steps 2-3)
     notes: tuple[str, ...] = ()       # parameters held at nominal and large ones, with why
@@ -111,8 +111,8 @@ class Outcome:
                  f'{len(self.identifiability.dropped)} dropped, RMS {r.rms_m * 1e3:.4f} mm in '
                  f'{r.solve_seconds:.2f} s ({r.iterations} iterations)']
         for region, table in self.validation.items():
-            parts.append(f'{region}: max error {table["nominal"]["max_mm"]:.3f} -> '
-                         f'{table["calibrated"]["max_mm"]:.3f} mm')
+            parts.append(f'{region}: max error {table["nominal"]["max_m"] * 1e3:.3f} -> '
+                         f'{table["calibrated"]["max_m"] * 1e3:.3f} mm')
         return '; '.join(parts + list(self.notes))
 
 
@@ -155,7 +155,7 @@ class CalibrationJob:
         nominal_values = np.concatenate([errors.start(calibration.fit.names), self.tool_xyz0])
         verdict = Verdict(calibration.problems + tuple(
             p for region, t in validation.items() for p in gates.result_problems(
-                True, t['nominal']['mean_mm'] * 1e-3, t['calibrated']['mean_mm'] * 1e-3,
+                True, t['nominal']['mean_m'], t['calibrated']['mean_m'],
                 what=f'mean tracker error ({region})')))
         notes = tuple(f'held {h.name} at nominal: {h.reason}' for h in calibration.held) + \
             tuple(f'large: {note}' for note in calibration.large())

@@ -134,22 +134,25 @@ def too_few_poses(cell: Cell, model: KinematicModel, max_poses: int) -> str:
 
 @dataclass(frozen=True)
 class Prediction:
-    """Predicted held-out error in the task volume after ``poses`` poses [mm]."""
+    """Predicted held-out error in the task volume after ``poses`` poses [m]."""
 
     poses: int
-    rms_mm: float           # RMS over the test configurations of the 3-D error
-    max_mm: float           # expected max over the test configurations
-    sigma_mm: float         # coupling noise per axis it assumes
+    rms_m: float            # RMS over the test configurations of the 3-D error
+    max_m: float            # expected max over the test configurations
+    sigma_m: float          # coupling noise per axis it assumes
 
     def as_dict(self) -> dict[str, float | None]:
         """Plain values for storage; None where the prediction is infinite."""
-        return {'poses': self.poses, 'rms_mm': _finite(self.rms_mm),
-                'max_mm': _finite(self.max_mm), 'sigma_mm': self.sigma_mm}
+        return {'poses': self.poses, 'rms_m': _finite(self.rms_m),
+                'max_m': _finite(self.max_m), 'sigma_m': self.sigma_m}
 
     @classmethod
     def from_dict(cls, d) -> Prediction:
-        return cls(int(d['poses']), *(math.inf if d[k] is None else float(d[k])
-                                      for k in ('rms_mm', 'max_mm', 'sigma_mm')))
+        """From :meth:`as_dict`, or a collection stored before wave 6 (its keys in mm)."""
+        scale = 1e-3 if 'max_mm' in d else 1.0
+        return cls(int(d['poses']), *(math.inf if d[k] is None else float(d[k]) * scale
+                                      for k in (('rms_mm', 'max_mm', 'sigma_mm') if scale < 1
+                                                else ('rms_m', 'max_m', 'sigma_m'))))
 
 
 def _finite(value: float) -> float | None:
@@ -239,22 +242,22 @@ def predict(M: Array, F: int, task: Array, sigma: float, draws: Array, poses: in
     alone may pass a rank-deficient M on roundoff)."""
     scale = np.sqrt(np.clip(np.diag(M), 1e-300, None))
     if np.linalg.matrix_rank(M / np.outer(scale, scale), hermitian=True) < len(M):
-        return Prediction(poses, math.inf, math.inf, sigma * 1e3)
+        return Prediction(poses, math.inf, math.inf, sigma)
     try:
         L = np.linalg.cholesky(M)
     except np.linalg.LinAlgError:
-        return Prediction(poses, math.inf, math.inf, sigma * 1e3)
+        return Prediction(poses, math.inf, math.inf, sigma)
     Minv = np.linalg.inv(L).T @ np.linalg.inv(L)
     cov = sigma ** 2 * Minv[:F, :F]
     cov = 0.5 * (cov + cov.T)
     w, V = np.linalg.eigh(cov)
     if w.min() < -1e-9 * max(w.max(), 1e-300):
-        return Prediction(poses, math.inf, math.inf, sigma * 1e3)
+        return Prediction(poses, math.inf, math.inf, sigma)
     root = V * np.sqrt(np.clip(w, 0.0, None))
     errors = (task @ root @ draws).reshape(-1, 3, draws.shape[1])
     rms = math.sqrt(float(np.einsum('ij,jk,ik->', task, cov, task)) / (len(task) // 3))
     worst = float(np.linalg.norm(errors, axis=1).max(axis=0).mean())
-    return Prediction(poses, rms * 1e3, worst * 1e3, sigma * 1e3)
+    return Prediction(poses, rms, worst, sigma)
 
 
 def _pick(A: Array, M: Array, task_weight: Array | None, ridge: float,
@@ -485,16 +488,16 @@ class SpherePlanner:
     def stop_reason(self) -> str | None:
         """Why to stop now, or None (module doc)."""
         s, done = self.settings, self.state.predictions
-        if done and s.target_mm > 0.0 and done[-1].max_mm <= s.target_mm:
-            return (f'target: predicted max error {done[-1].max_mm:.4f} mm <= '
+        if done and s.target_mm > 0.0 and done[-1].max_m * 1e3 <= s.target_mm:
+            return (f'target: predicted max error {done[-1].max_m * 1e3:.4f} mm <= '
                     f'{s.target_mm:g} mm after {len(done)} poses')
         if s.min_gain > 0.0 and len(done) > s.gain_window and math.isfinite(
-                done[-1 - s.gain_window].max_mm):
-            before, now = done[-1 - s.gain_window].max_mm, done[-1].max_mm
+                done[-1 - s.gain_window].max_m):
+            before, now = done[-1 - s.gain_window].max_m, done[-1].max_m
             gain = 1.0 - (now / before) ** (1.0 / s.gain_window)
             if gain < s.min_gain:
                 return (f'gain: predicted max error fell {gain:.2%} per pose over the last '
-                        f'{s.gain_window} poses (< {s.min_gain:.2%}), at {now:.4f} mm')
+                        f'{s.gain_window} poses (< {s.min_gain:.2%}), at {now * 1e3:.4f} mm')
         if len(self.q) >= s.max_poses:
             return f'max_poses: {s.max_poses} poses measured'
         if not self.available.any():

@@ -101,19 +101,19 @@ def test_the_prediction_agrees_with_the_measured_held_out_error(planned_30, volu
     planner, robot, _, _, _, _ = planned_30
     prediction = planner.state.predictions[-1]
     measured = _held_out_max_mm(robot, planner.params, planner.tool_xyz, volume[1])
-    print(f'\n30 poses: predicted max {prediction.max_mm * 1e3:.2f} um (RMS '
-          f'{prediction.rms_mm * 1e3:.2f} um, sigma {prediction.sigma_mm * 1e3:.2f} um), '
+    print(f'\n30 poses: predicted max {prediction.max_m * 1e6:.2f} um (RMS '
+          f'{prediction.rms_m * 1e6:.2f} um, sigma {prediction.sigma_m * 1e6:.2f} um), '
           f'measured {measured * 1e3:.2f} um')
     # the fit's noise estimate: the coupling's 3 um per axis plus the encoders' share
-    assert 2.5e-3 < prediction.sigma_mm < 4.0e-3
-    assert abs(prediction.max_mm / measured - 1.0) < 0.35
+    assert 2.5e-6 < prediction.sigma_m < 4.0e-6
+    assert abs(prediction.max_m * 1e3 / measured - 1.0) < 0.35
 
 
 def test_the_plan_before_the_robot_moves_predicts_a_falling_error(planner_template):
     planner = _planner(planner_template, max_poses=40)
     state = planner.start()
     assert len(state.initial_plan) == 40 == len(set(state.initial_plan))
-    rms = [p.rms_mm for p in state.initial_predictions]
+    rms = [p.rms_m for p in state.initial_predictions]
     assert math.isinf(rms[0])                                # 1 pose: 34 unknowns undetermined
     first = next(k for k, c in enumerate(rms) if math.isfinite(c))
     finite = rms[first:]
@@ -124,8 +124,8 @@ def test_the_plan_before_the_robot_moves_predicts_a_falling_error(planner_templa
     assert first >= max(10, every_sphere) and first <= 15
     assert all(math.isfinite(c) for c in finite)
     assert all(b < a for a, b in zip(finite, finite[1:]))
-    worst = [p.max_mm for p in state.initial_predictions]
-    assert 0.002 < worst[-1] < 0.8 * worst[24] < 0.010       # mm, at the 5 um prior sigma
+    worst = [p.max_m for p in state.initial_predictions]
+    assert 2e-6 < worst[-1] < 0.8 * worst[24] < 1e-5         # [m], at the 5 um prior sigma
     assert not planner.q                                     # planning moves nothing
 
 
@@ -138,11 +138,11 @@ def test_weighting_travel_saves_robot_time_for_little_accuracy(planner_template)
         planner = _planner(planner_template, max_poses=60, travel_weight=weight)
         chosen, predictions = planner.plan(60)
         moves = np.abs(np.diff(planner.pool_q[chosen], axis=0)).max(axis=1).sum()
-        plans_[weight] = (moves, predictions[-1].max_mm)
+        plans_[weight] = (moves, predictions[-1].max_m)
     (near_moves, near_max), (far_moves, far_max) = \
         plans_[PlanSettings().travel_weight], plans_[1.0]
     print(f'\nmoves {near_moves:.1f} s against {far_moves:.1f} s, predicted max '
-          f'{near_max * 1e3:.2f} um against {far_max * 1e3:.2f} um')
+          f'{near_max * 1e6:.2f} um against {far_max * 1e6:.2f} um')
     assert near_moves < 0.8 * far_moves
     assert near_max < 1.15 * far_max
 
@@ -150,15 +150,15 @@ def test_weighting_travel_saves_robot_time_for_little_accuracy(planner_template)
 def test_target_stops_at_the_first_pose_predicted_within_it(planner_template):
     planner, log = _planner(planner_template, max_poses=60, target_mm=0.006), []
     run, _ = collect_planned(planner, _robot(2), log.append, hold=HOLD)
-    curve = [p.max_mm for p in planner.state.predictions]
+    curve = [p.max_m for p in planner.state.predictions]
     assert planner.state.stop.startswith('target: predicted max error')
-    assert curve[-1] <= 0.006 < min(curve[:-1]) and run.recorded == len(curve) < 60
+    assert curve[-1] <= 6e-6 < min(curve[:-1]) and run.recorded == len(curve) < 60
 
 
 def test_gain_stops_once_the_prediction_flattens(planner_template):
     planner = _planner(planner_template, max_poses=200, min_gain=0.02, gain_window=5)
     run, _ = collect_planned(planner, _robot(3), lambda r: None, hold=HOLD)
-    curve = [p.max_mm for p in planner.state.predictions]
+    curve = [p.max_m for p in planner.state.predictions]
     assert planner.state.stop.startswith('gain: predicted max error fell')
     assert 1.0 - (curve[-1] / curve[-6]) ** 0.2 < 0.02
     assert 1.0 - (curve[-2] / curve[-7]) ** 0.2 >= 0.02 and run.recorded < 200
@@ -190,7 +190,7 @@ def test_a_resumed_collection_goes_on_as_the_uninterrupted_one(planned_30, plann
     planner = _planner(planner_template, max_poses=30)
     rows = [r for r in log[:25]]
     prediction = planner.resume([r.index for r in rows], np.array([r.q for r in rows]))
-    assert prediction.max_mm == pytest.approx(whole.state.predictions[24].max_mm, rel=1e-3)
+    assert prediction.max_m == pytest.approx(whole.state.predictions[24].max_m, rel=1e-3)
     assert planner.next_pose() == whole.state.chosen[25]
 
 
@@ -246,12 +246,12 @@ def test_predict_is_the_covariance_formula():
     draws = rng.standard_normal((4, 20000))
     p = predict(M, 4, task, 2e-6, draws, 50)
     cov = 4e-12 * np.linalg.inv(M)[:4, :4]
-    assert p.rms_mm == pytest.approx(1e3 * math.sqrt(np.trace(task @ cov @ task.T) / 4))
+    assert p.rms_m == pytest.approx(math.sqrt(np.trace(task @ cov @ task.T) / 4))
     errors = (task @ np.linalg.cholesky(cov) @ draws).reshape(4, 3, -1)
-    assert p.max_mm == pytest.approx(1e3 * np.linalg.norm(errors, axis=1).max(0).mean(),
+    assert p.max_m == pytest.approx(np.linalg.norm(errors, axis=1).max(0).mean(),
                                      rel=0.02)
     singular = predict(M[:, :] * 0.0, 4, task, 2e-6, draws, 0)
-    assert math.isinf(singular.max_mm) and math.isinf(singular.rms_mm)
+    assert math.isinf(singular.max_m) and math.isinf(singular.rms_m)
 
 
 def test_predict_is_infinite_when_a_sphere_centre_is_undetermined():
@@ -260,7 +260,7 @@ def test_predict_is_infinite_when_a_sphere_centre_is_undetermined():
     rows = rng.normal(size=(33, 34)) * np.logspace(-3, 0, 34)
     M = rows.T @ rows
     p = predict(M, 30, rng.normal(size=(6, 30)), 2e-6, rng.standard_normal((30, 50)), 11)
-    assert math.isinf(p.max_mm) and math.isinf(p.rms_mm)
+    assert math.isinf(p.max_m) and math.isinf(p.rms_m)
 
 
 def test_the_greedy_pick_is_the_best_rank_3_update():

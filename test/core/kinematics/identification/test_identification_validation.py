@@ -19,8 +19,8 @@ def parse_table(text: str) -> tuple[str, np.ndarray]:
 
 def test_error_stats_on_fixed_numbers():
     stats = error_stats([0.001, 0.002, 0.003, 0.006])  # metres
-    assert stats == pytest.approx({'mean_mm': 3.0, 'std_mm': np.sqrt(3.5), 'min_mm': 1.0,
-                                   'max_mm': 6.0})
+    assert stats == pytest.approx({'mean_m': 3e-3, 'std_m': np.sqrt(3.5) * 1e-3,
+                                   'min_m': 1e-3, 'max_m': 6e-3})
     with pytest.raises(ValueError, match='finite'):
         error_stats([0.001, np.nan])
     with pytest.raises(ValueError, match='at least one'):
