@@ -89,7 +89,9 @@ ALLOWED = {
     'store': {'core', 'paths'},
     'ros': {'core'},
     'bags': {'core', 'ros'},
-    'nodes': {'core', 'loaders', 'paths', 'ros', 'store', 'sim'},   # sim: the mocks only (above)
+    # sim: the mocks only (above); api: a kind's one store-and-activate path, which the node
+    # and the CLI verb both call (issue 39.2)
+    'nodes': {'api', 'core', 'loaders', 'paths', 'ros', 'store', 'sim'},
     'api': {'core', 'loaders', 'paths', 'ros', 'store', 'bags'},
     'cli': {'api', 'core', 'loaders', 'paths', 'ros', 'store', 'bags', 'sim'},
 }
