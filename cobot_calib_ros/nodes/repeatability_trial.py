@@ -209,7 +209,8 @@ class RepeatabilityTrial(JobNode):
         stats = trialmod.statistics(data)
         message = (f'{stats.cycles} cycles, RP_all {stats.rp_all * 1e3:.4f} mm '
                    f'({data.meta["method"]}, {data.meta["axis"]} axis)')
-        self._end(goal_handle, result := self._result(trial, data), ErrorCode.SUCCESS, message)
+        self._end(goal_handle, result := self._result(trial, data), ErrorCode.SUCCESS,
+                  f'{trial_line(trial.trial_id, data.meta)}: done, {message}')
         self._health.set(OK, f'idle; trial {trial.trial_id} done: {message}')
         return result
 
