@@ -1,6 +1,10 @@
 """user_frame_solver: the calibrate_user_frame service, point conversion, durable history.
 
-calibrate_user_frame is served on its own executor thread (a spin.Companion): a live
+calibrate_user_frame translates the request (SI, the node's parameters) into one call of
+api.user_frame.calibrate, the path `cobot-calib user-frame --points` takes too (the procedure
+is core.user_frame.procedure's: touches over ros.robot_calls, the FK of captures, fit, gate;
+then the record, store and activation), and the answer back; set_active_calibration is
+api.user_frame.choose. It is served on its own executor thread (a spin.Companion): a live
 calibration that visits points blocks only that thread, so user_to_robot, robot_to_user,
 list_calibrations and set_active_calibration keep answering meanwhile.
 
