@@ -26,8 +26,7 @@ from __future__ import annotations
 import functools
 import threading
 
-from cobot_calib_msgs.msg import (PointResidual, SurfaceModel as SurfaceMsg,
-                                  UserFrameCalibration)
+from cobot_calib_msgs.msg import UserFrameCalibration
 from cobot_calib_msgs.srv import (CalibrateUserFrame, ConvertPoints, ListCalibrations,
                                   SetActiveCalibration)
 import numpy as np
@@ -46,8 +45,9 @@ from cobot_calib_ros.ros.params import declare
 from cobot_calib_ros.ros.landmark_views import CaptureMarks
 from cobot_calib_ros.ros.landmark_watch import LandmarkWatch
 from cobot_calib_ros.ros.robot_calls import RobotCalls
-from cobot_calib_ros.ros.time import now_ns, ns_to_stamp
+from cobot_calib_ros.ros.time import now_ns
 from cobot_calib_ros.ros.tf_static import StaticBroadcaster
+from cobot_calib_ros.ros.user_frame_msg import record_to_msg
 from cobot_calib_ros.nodes.job_node import JobNode
 from cobot_calib_ros.store.history import user_frame_change
 from cobot_calib_ros.store.records import UserFrameRecord
@@ -67,38 +67,6 @@ def frames_problem(base: tuple[str, str], user: tuple[str, str]) -> str:
         return (f'{base[0]} and {user[0]} are both {base[1]!r}: the user frame needs a frame '
                 'id of its own')
     return ''
-
-
-def record_to_msg(record: dict) -> UserFrameCalibration:
-    r = record['result']
-    inputs = record['inputs']
-    msg = UserFrameCalibration(id=record['id'], method=record['method'],
-                               kinematics=record.get('kinematics', ''))
-    msg.stamp = ns_to_stamp(record['stamp_ns'])
-    msg.transform = convert.matrix_to_transform(
-        np.array(r['T_base_user']), record['base_frame'], record['user_frame'], msg.stamp)
-    msg.matrix = [float(v) for v in np.ravel(r['M'])]
-    outliers = set(r['outliers'])
-    for i, (name, pu, pb, res) in enumerate(zip(inputs['point_names'], inputs['points_user'],
-                                                inputs['points_base'], r['residuals'])):
-        [pu_msg], [pb_msg] = convert.array_to_points([pu]), convert.array_to_points([pb])
-        pr = PointResidual(name=name, point_user=pu_msg, point_base=pb_msg,
-                           residual_norm=float(np.linalg.norm(res)), outlier=i in outliers)
-        pr.residual.x, pr.residual.y, pr.residual.z = (float(v) for v in res)
-        msg.residuals.append(pr)
-    msg.rms_residual, msg.max_residual = float(r['rms']), float(r['max_residual'])
-    msg.condition_number, msg.collinearity = float(r['condition_number']), float(r['collinearity'])
-    msg.covariance = [float(v) for v in np.ravel(r['covariance'])]
-    msg.scale_x, msg.scale_y, msg.scale_z = (float(v) for v in r['scale'])
-    msg.shear_xy, msg.shear_xz, msg.shear_yz = (float(v) for v in r['shear'])
-    s = r.get('surface')
-    if s:
-        msg.surface = SurfaceMsg(valid=bool(s['valid']), powers_x=list(s['powers_x']),
-                                 powers_y=list(s['powers_y']),
-                                 coefficients=[float(c) for c in s['coefficients']],
-                                 rms_before=float(s['rms_before']),
-                                 rms_after=float(s['rms_after']))
-    return msg
 
 
 class UserFrameSolver(JobNode):
