@@ -96,7 +96,7 @@ class _FullDisk:
      ['four_point', 'landmark_multi']),
     (api.Request(names=NAMES, kinematics='no-such'), None, None, ErrorCode.INVALID_INPUT,
      ["kinematics 'no-such'", 'use latest, nominal']),
-    (api.Request(names=NAMES), _Unreachable(), None, ErrorCode.CAPTURE_FAILED,
+    (api.Request(names=NAMES), _Unreachable(), None, ErrorCode.MOTION_FAILED,
      ['capture at P1 failed', 'out of reach']),
     (api.Request(p_user=TOPS * 1e3, p_base=SIM.world.true_points_base() * 1e3), None, None,
      ErrorCode.INVALID_INPUT, ['look like millimetres']),
@@ -105,7 +105,7 @@ class _FullDisk:
     (api.Request(names=NAMES), _robot(), _FullDisk(), ErrorCode.STORAGE_FAILED,
      ['could not store', 'No space left']),
 ], ids=['unknown_point', 'no_points', 'unknown_method', 'unknown_kinematics',
-        'capture_failed', 'points_in_mm', 'base_in_mm', 'disk_full'])
+        'touch_failed', 'points_in_mm', 'base_in_mm', 'disk_full'])
 def test_a_refused_calibration_says_why_and_stores_nothing(tmp_path, request_, robot,
                                                            frames_store, cause, words):
     repo = _repo(tmp_path)

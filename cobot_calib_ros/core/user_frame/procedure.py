@@ -15,8 +15,8 @@ import numpy as np
 
 from cobot_calib_ros.core import kinematics
 from cobot_calib_ros.core.errors import ErrorCode, Failure, Refusal
-from cobot_calib_ros.core.robot_port import (Cancelled, check_cancel, never, PortError,
-                                             RobotPort, Stopped)
+from cobot_calib_ros.core.robot_port import (Cancelled, check_cancel, MoveFailed, never,
+                                             PortError, RobotPort, Stopped)
 from cobot_calib_ros.core.user_frame import landmarks as landmark_frames
 from cobot_calib_ros.core.user_frame.fit import calibrate
 from cobot_calib_ros.core.user_frame.plausibility import MAX_RMS_ERROR, MAX_SCALE_ERROR
@@ -71,7 +71,8 @@ def touch_joints(robot: RobotPort, names: Sequence[str], duration: float = CAPTU
                  cancelled: Cancelled = never,
                  progress: Callable[[str], None] | None = None) -> list[np.ndarray]:
     """Each named point touched and held for ``duration`` [s]: the mean joints [rad];
-    Refusal CAPTURE_FAILED (CANCELED) when a touch or capture did not happen (was cancelled)."""
+    Refusal MOTION_FAILED / CAPTURE_FAILED when a touch / a capture did not happen, CANCELED
+    when ``cancelled()`` between points."""
     joints = []
     for name in names:
         try:
@@ -81,8 +82,9 @@ def touch_joints(robot: RobotPort, names: Sequence[str], duration: float = CAPTU
         except Stopped as e:
             raise Refusal(Failure(ErrorCode.CANCELED, str(e))) from None
         except PortError as e:
-            raise Refusal(Failure(ErrorCode.CAPTURE_FAILED,
-                                  f'capture at {name} failed: {e}')) from None
+            cause = ErrorCode.MOTION_FAILED if isinstance(e, MoveFailed) else \
+                ErrorCode.CAPTURE_FAILED
+            raise Refusal(Failure(cause, f'capture at {name} failed: {e}')) from None
         if progress is not None:
             progress(name)
     return joints
