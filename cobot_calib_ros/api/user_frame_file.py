@@ -84,40 +84,37 @@ def calibrate_from_file(repo, cell, points_path: str | Path, *, method: str = 'r
                         kinematics: str = 'active', T_base_tracker=None,
                         max_rms_error: float = MAX_RMS_ERROR, store: bool = True) -> dict:
     """Fit, gate, store and activate the user frame of a points file (module doc) in ``repo``
-    (the cell's repository). The report (JSON-ready, mm): id, method, points, rms_mm,
-    max_residual_mm, residuals_mm {name: mm}, T_base_user, measured_through, stored, active.
-    ValueError for a file that does not fit; core.errors.Refusal for a fit its gate refuses
-    (nothing stored)."""
-    from cobot_calib_ros.core import kinematics as kin, user_frame
-    from cobot_calib_ros.store.records import UserFrameRecord
-    from cobot_calib_ros.store.rigs import rig_of
-    rig = rig_of(repo, cell, kinematics)
-    points = read_points(points_path, rig.model.joint_names)
-    if points.joints is not None:
-        if T_base_tracker is not None:
-            raise ValueError('--base-from-tracker applies to measured x,y,z, not to joints')
-        p_base = kin.fk(rig.chain('tcp'), points.joints)[:, :3, 3]
-        through = {'kinematics': rig.active.kinematics_label, 'tcp': rig.active.tcp_label}
-    else:
+    (the cell's repository) through api.user_frame.calibrate, the service's path. The report
+    (JSON-ready, mm): id, method, points, rms_mm, max_residual_mm, residuals_mm {name: mm},
+    T_base_user, measured_through, stored, active. ValueError for a file that does not fit;
+    core.errors.Refusal for a fit its gate refuses (nothing stored) or a store that cannot be
+    written (STORAGE_FAILED)."""
+    from cobot_calib_ros.api import user_frame as user_frame_api
+    from cobot_calib_ros.core.kinematics import model_for
+    from cobot_calib_ros.core.user_frame.procedure import Gate
+    model = model_for(cell)
+    points = read_points(points_path, model.joint_names)
+    p_base = None
+    if points.measured is not None:
         T = np.eye(4) if T_base_tracker is None else np.asarray(T_base_tracker, dtype=float)
         p_base = points.measured @ T[:3, :3].T + T[:3, 3]
-        through = {}
-    fit = user_frame.calibrate(method, points.p_user, p_base, names=points.names,
-                               max_rms_error=max_rms_error)
-    if not fit:
-        raise Refusal(Failure(ErrorCode(fit.code), f'REFUSED: {fit.message}'))
-    record = UserFrameRecord.from_fit(fit, None, points.names, points.p_user, p_base,
-                                      (cell.base_frame, cell.user_frame), time.time_ns(),
-                                      through.get('kinematics', ''), '',
-                                      through.get('tcp', ''), measured_through=through)
-    report = {'id': record.id, 'method': fit.method, 'points': len(points.names),
-              'rms_mm': fit.rms * 1e3, 'max_residual_mm': fit.max_residual * 1e3,
-              'residuals_mm': dict(zip(points.names, (float(np.linalg.norm(r)) * 1e3
-                                                      for r in fit.residuals))),
-              'T_base_user': np.asarray(fit.T_base_user).tolist(),
-              'measured_through': through, 'message': fit.message, 'stored': False,
-              'active': False}
-    if store:
-        activation = repo.user_frames.save_and_activate(record.to_dict())
-        report.update(stored=True, active=bool(activation))
-    return report
+    elif T_base_tracker is not None:
+        raise ValueError('--base-from-tracker applies to measured x,y,z, not to joints')
+    request = user_frame_api.Request(
+        method=method, names=tuple(points.names), p_user=points.p_user, p_base=p_base,
+        joints=points.joints, kinematics=kinematics, frames=(cell.base_frame, cell.user_frame),
+        gate=Gate(max_rms_error=max_rms_error), store=store)
+    done = user_frame_api.calibrate(repo, cell, request, stamp_ns=time.time_ns(), model=model)
+    if not done:
+        if done.code == ErrorCode.INVALID_INPUT and done.message.startswith('kinematics '):
+            raise ValueError(f'--{done.message}')
+        refused = '' if done.code == ErrorCode.STORAGE_FAILED else 'REFUSED: '
+        raise Refusal(Failure(ErrorCode(done.code), f'{refused}{done.message}'))
+    fit = done.measured.fit
+    return {'id': done.record['id'], 'method': fit.method, 'points': len(points.names),
+            'rms_mm': fit.rms * 1e3, 'max_residual_mm': fit.max_residual * 1e3,
+            'residuals_mm': dict(zip(points.names, (float(np.linalg.norm(r)) * 1e3
+                                                    for r in fit.residuals))),
+            'T_base_user': np.asarray(fit.T_base_user).tolist(),
+            'measured_through': done.through, 'message': fit.message, 'stored': done.stored,
+            'active': done.active}

@@ -15,7 +15,6 @@ from cobot_calib_ros.cli.common import (EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK, 
 from cobot_calib_ros.cli.db import add_db_options
 from cobot_calib_ros.paths import DEFAULT_CELL
 
-DEFAULT_POINTS = ('P1', 'P3', 'P5')
 SUITE_WAIT = 5.0        # [s] for the robot's calls to be discovered (a running suite: < 2 s)
 
 
@@ -26,7 +25,7 @@ def add_parser(subparsers):
     p.add_argument('what', choices=['user-frame', 'kinematics'], help='what to check')
     p.add_argument('--poses', type=int, default=None,
                    help='kinematics: sphere poses to visit (default 16)')
-    p.add_argument('--points', nargs='+', default=list(DEFAULT_POINTS),
+    p.add_argument('--points', nargs='+', default=None,
                    help='cell points to touch (default P1 P3 P5)')
     p.add_argument('--tolerance-mm', type=float, default=None,
                    help='user-frame: largest point error that passes [mm] (default 0.2, the '
@@ -47,10 +46,8 @@ def run(args) -> int:
     problem = cell_problem(args.robot_cell) if args.robot_cell else ''
     if problem:
         return fail(problem, EXIT_USAGE)
-    from cobot_calib_ros.core.robot_port import PortError
     from cobot_calib_ros.ros import spin
     from cobot_calib_ros.ros.robot_calls import RobotCalls
-    from cobot_calib_ros.store.cells import ResultsCell
     with ros_node('cobot_calib_check', args.namespace.strip('/')) as node:
         companion = spin.Companion(node, 'clients')
         try:
@@ -58,34 +55,37 @@ def run(args) -> int:
             absent = robot.absent(SUITE_WAIT)
             if absent:      # every call would wait and fail: say so before anything else
                 return fail(f'check {args.what}: {_no_suite(args, absent)}; nothing checked')
-            from cobot_calib_ros import paths, store    # seconds of imports: after the refusal
+            from cobot_calib_ros import paths    # seconds of imports: after the refusal
+            from cobot_calib_ros.api import check as checks
             from cobot_calib_ros.api.move import suite_cell
-            from cobot_calib_ros.core import kinematics
             from cobot_calib_ros.core.cell import CellFileError
+            from cobot_calib_ros.core.errors import ErrorCode
             from cobot_calib_ros.loaders import load_cell
             try:
                 cell = load_cell(paths.cell_file(args.robot_cell or suite_cell(node)))
             except CellFileError as e:
                 return fail(str(e), EXIT_USAGE)
-            results_cell = (ResultsCell(args.cell, cell.robot) if args.cell
-                            else ResultsCell.of(cell, args.namespace))
-            repo = store.open(paths.data_dir(args.data_dir), args.db, results_cell)
-            model = kinematics.model_for(cell)
-            prepare = _user_frame if args.what == 'user-frame' else _kinematics
-            try:
-                prepared = prepare(args, cell, model, repo)
-            except (OSError, KeyError, ValueError) as exc:
-                return fail(f'check {args.what}: {exc.args[0] if exc.args else exc}',
-                            EXIT_USAGE if isinstance(exc, ValueError) else EXIT_FAILED)
-            method, against, run_check, print_details, stale = prepared
-            check = run_check(robot)
-        except (PortError, ValueError) as exc:
-            return fail(f'check stopped: {exc}; nothing stored')
+            repo = checks.open_results(cell, args.data_dir, args.db, args.cell, args.namespace)
+            tolerance = None if args.tolerance_mm is None else args.tolerance_mm * 1e-3
+            prepared = checks.prepare(args.what, cell, repo, poses=args.poses,
+                                      points=args.points or checks.DEFAULT_POINTS,
+                                      tolerance_m=tolerance)
+            if not prepared:
+                return fail(f'check {args.what}: {prepared.message}', EXIT_USAGE
+                            if prepared.code == ErrorCode.INVALID_INPUT else EXIT_FAILED)
+            say(args, prepared.announce)
+            for line in prepared.stale:
+                say(args, f'stale: {line.line()}')
+            check = prepared.run(robot)
+        except ValueError as exc:
+            check = exc
         except KeyboardInterrupt:
             return fail('check interrupted; nothing stored', EXIT_INTERRUPTED)
         finally:
             companion.destroy()          # its thread stops before the session shuts down
-    return _report(args, repo, check, method, against, print_details, stale)
+    if isinstance(check, ValueError) or not check:
+        return fail(f'check stopped: {getattr(check, "message", check)}; nothing stored')
+    return _report(args, prepared, check)
 
 
 def _no_suite(args, absent: list[str]) -> str:
@@ -101,81 +101,23 @@ def _no_suite(args, absent: list[str]) -> str:
             'cobot-calib up')
 
 
-def _user_frame(args, cell, model, repo):
-    """('user_frame', the active frame's id, the check, its printout, the stale results it
-    uses) or ValueError/OSError."""
+def _report(args, prepared, check) -> int:
+    import json
     import numpy as np
-    from cobot_calib_ros.core.health_checks import check_user_frame, predicted_points
-    from cobot_calib_ros.store.rigs import rig_of
-    unknown = [n for n in args.points if cell.marker(n) is None]
-    if unknown:
-        raise ValueError(f'unknown point(s) {unknown}; the cell has {cell.point_names}')
-    active = repo.user_frames.active()
-    if active is None:
-        raise KeyError(f'no active user frame in the results of cell {repo.cell}; calibrate '
-                       'first (cobot-calib teach, or call calibrate_user_frame)')
-    the_rig = rig_of(repo, cell, 'active', model)      # what programs move with
-    chain = the_rig.chain('tcp')
-    p_user = np.array([cell.marker(n).nominal_top for n in args.points])
-    predicted = predicted_points(active['inputs'], active['result'], args.points, p_user)
-    say(args, f'checking {active["id"]} at {", ".join(args.points)} '
-              f'(kinematics {the_rig.active.kinematics_label}, TCP {the_rig.active.tcp_label})')
-    stale = the_rig.active.stale_used('tcp', True)
-    for line in stale:
-        say(args, f'stale: {line.line()}')
-
-    def details(check):
-        for name, error in zip(check.names, check.errors):
+    from cobot_calib_ros.api.check import record
+    from cobot_calib_ros.core.health_checks import PASS
+    stored = record(prepared, check)
+    if not stored:
+        return fail(f'check: {stored.message}')
+    if args.json:
+        print(json.dumps(stored))
+    else:
+        for name, error in zip(prepared.points, getattr(check, 'errors', ())):
             print(f'  {name}: {np.linalg.norm(error) * 1e3:.3f} mm  '
                   f'({", ".join(f"{e * 1e3:+.3f}" for e in error)})')
-    return ('user_frame', active['id'], lambda robot: check_user_frame(
-        robot, chain, predicted, args.points, **_tolerance(args)), details, stale)
-
-
-def _kinematics(args, cell, model, repo):
-    """('kinematics', the active calibration's id or 'nominal', the check, its printout, the
-    stale results it uses)."""
-    from cobot_calib_ros.core.health_checks import check_kinematics, KINEMATIC_POSES
-    from cobot_calib_ros.core.kinematics import plans
-    from cobot_calib_ros.store.rigs import rig_of
-    if cell.spheres is None:
-        raise ValueError(f'cell {cell.name!r} has no spheres (config/cells/iiwa7_close.yaml '
-                         'has); give --robot-cell')
-    poses = KINEMATIC_POSES if args.poses is None else args.poses
-    the_rig = rig_of(repo, cell, 'active', model)
-    chain = the_rig.chain('coupling')
-    plan, _ = plans.sphere_plan(cell, model, poses)
-    against = the_rig.active.kinematics_label
-    stale = the_rig.active.stale_of(('kinematics',))
-    for line in stale:
-        say(args, f'stale: {line.line()}')
-    say(args, f'checking the {model.name} model ({against}) on {len(plan)} sphere poses')
-    return ('kinematics', against, lambda robot: check_kinematics(
-        robot, chain, plan, **_tolerance(args)), lambda check: None, stale)
-
-
-def _tolerance(args) -> dict[str, float]:
-    """The check's tolerance_m if --tolerance-mm is given; else the check's own default."""
-    return {} if args.tolerance_mm is None else {'tolerance_m': args.tolerance_mm * 1e-3}
-
-
-def _report(args, repo, check, method: str, against: str, details, stale=()) -> int:
-    import json
-    from cobot_calib_ros.core.health_checks import PASS
-    from cobot_calib_ros.store.records import check_record
-    record = check_record(check, method, against)
-    record['stale'] = [s.to_dict() for s in stale]      # core.provenance: one line each
-    try:
-        repo.checks.save(record)
-    except OSError as exc:
-        return fail(f'check: {check.message()}; could not store it: {exc}')
-    if args.json:
-        print(json.dumps(record))
-    else:
-        details(check)
         print(f'robot time: {check.robot_seconds:.1f} s')
         print(check.message())
-        for stale in record['stale']:
+        for stale in stored['stale']:
             print(f'stale: {stale["message"]}')
-        print(f'stored as {record["id"]}')
+        print(f'stored as {stored["id"]}')
     return EXIT_OK if check.verdict == PASS else EXIT_FAILED

@@ -43,7 +43,7 @@ def run(args) -> int:
     from cobot_calib_ros import paths, store
     from cobot_calib_ros.api.user_frame_file import calibrate_from_file
     from cobot_calib_ros.core.cell import CellFileError
-    from cobot_calib_ros.core.errors import Refusal
+    from cobot_calib_ros.core.errors import ErrorCode, Refusal
     from cobot_calib_ros.core.frames import from_xyz_rpy
     from cobot_calib_ros.store.cells import ResultsCell
     if not args.max_rms_mm > 0:
@@ -62,6 +62,8 @@ def run(args) -> int:
                                      max_rms_error=args.max_rms_mm * 1e-3,
                                      store=not args.no_store)
     except Refusal as e:
+        if e.failure.code == ErrorCode.STORAGE_FAILED:
+            return fail(f'user-frame: {e}')
         return fail(f'user-frame {args.points}: {e}; nothing stored', EXIT_FAILED)
     except KeyError as e:
         return fail(f'user-frame: --kinematics: {e.args[0]}', EXIT_USAGE)

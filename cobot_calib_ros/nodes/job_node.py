@@ -1,4 +1,6 @@
-"""The base of the nodes that run calibration jobs as actions (issue 30 item 5).
+"""The base of the nodes that run calibration jobs as actions (issue 30 item 5), and the cell
+bootstrap (read_cell_setup: cell_file, layout, data_dir read once; the cell, its model, the cell
+its results are stored under, its repository) that it and robot_adapter share.
 
 What hand_eye_calibrator, kinematic_identifier, repeatability_trial and user_frame_solver each
 wrote out: the bootstrap (``cell_file``, ``layout``, ``data_dir`` read once; the cell, its
@@ -10,6 +12,8 @@ diagnostics told). A node keeps its own parameters and its job's ``run``.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+from pathlib import Path
 import threading
 
 import numpy as np
@@ -18,14 +22,42 @@ from rclpy.node import Node
 
 from cobot_calib_ros import paths, store
 from cobot_calib_ros.core import frames
-from cobot_calib_ros.core.errors import ErrorCode
 from cobot_calib_ros.core.kinematics import model_for
 from cobot_calib_ros.loaders import load_cell
+from cobot_calib_ros.core.errors import ErrorCode
 from cobot_calib_ros.ros import results, spin
 from cobot_calib_ros.ros.diagnostics import Diagnostics, OK, WARN
 from cobot_calib_ros.ros.params import read_once
 from cobot_calib_ros.store.cells import ResultsCell
 from cobot_calib_ros.store.rigs import rig_of
+
+
+# -- the bootstrap every node of a cell repeats: JobNode's, robot_adapter's -------------------
+DATA_DIR_DEFAULT = 'empty = $COBOT_CALIB_DATA or ~/.ros/cobot_calib'
+
+
+@dataclass(frozen=True)
+class CellSetup:
+    cell: object            # core.cell.Cell
+    model: object           # its kinematic model (core.kinematics.model_for)
+    root: Path              # the data dir
+    results_cell: ResultsCell
+
+    def repository(self):
+        """The results of this cell, opened afresh."""
+        return store.open(self.root, cell=self.results_cell)
+
+
+def read_cell_setup(node, *, cell_help: str, data_help: str,
+                    layout_help: str | None = None) -> CellSetup:
+    """Read ``cell_file``, ``layout`` (only when ``layout_help`` is given) and ``data_dir`` of
+    ``node`` once and load its cell (CellFileError / ValueError as load_cell raises them)."""
+    read_once(node, 'cell_file', paths.DEFAULT_CELL, cell_help)
+    layout = read_once(node, 'layout', '', layout_help) if layout_help is not None else ''
+    data_dir = read_once(node, 'data_dir', '', f'{data_help}; {DATA_DIR_DEFAULT}')
+    cell = load_cell(paths.cell_file(node.get_parameter('cell_file').value), layout or None)
+    return CellSetup(cell, model_for(cell), paths.data_dir(data_dir),
+                     ResultsCell.of(cell, node.get_namespace()))
 
 
 def parse_user_frame(text: str) -> np.ndarray | None:
@@ -50,14 +82,10 @@ class JobNode(Node):
                  **kwargs) -> None:
         super().__init__(name, **kwargs)
         self._job_name = job
-        read_once(self, 'cell_file', paths.DEFAULT_CELL, cell_help)
-        read_once(self, 'layout', '', layout_help)
-        read_once(self, 'data_dir', '', f'{data_help}; empty = $COBOT_CALIB_DATA or '
-                  '~/.ros/cobot_calib')
-        self._cell = load_cell(paths.cell_file(self._p('cell_file')), self._p('layout') or None)
-        self._model = model_for(self._cell)
-        self._root = paths.data_dir(self._p('data_dir'))
-        self._results_cell = ResultsCell.of(self._cell, self.get_namespace())
+        self._setup = read_cell_setup(self, cell_help=cell_help, data_help=data_help,
+                                      layout_help=layout_help)
+        self._cell, self._model = self._setup.cell, self._setup.model
+        self._root, self._results_cell = self._setup.root, self._setup.results_cell
         self._answers = spin.Companion(self, 'clients')
         self._busy = threading.Lock()
         self._health = Diagnostics(self)
@@ -71,7 +99,7 @@ class JobNode(Node):
 
     def _repository(self):
         """The results of this node's cell, opened afresh (another node may have stored since)."""
-        return store.open(self._root, cell=self._results_cell)
+        return self._setup.repository()
 
     def _foreign(self, meta: dict) -> str:
         """'' if a stored trial or collection (its metadata) is this cell's, or legacy

@@ -142,8 +142,7 @@ class JointStateMonitor(Node):
         with self._lock:
             streaming = self._new_sample.wait_for(lambda: self._buffer.count > 0,
                                                   FIRST_SAMPLE_TIMEOUT)
-        t0 = now_ns(self) * 1e-9
-        t1 = t0 + duration
+        t1 = (t0 := now_ns(self) * 1e-9) + duration
         with self._lock:
             if streaming:
                 wait_past(self._new_sample,
@@ -156,8 +155,7 @@ class JointStateMonitor(Node):
             self.get_parameter('min_sample_fraction').value,
             self.get_parameter('max_joint_std').value, names)
         results.answer(response, capture.code, capture.message)
-        response.name = names
-        response.position = capture.mean.tolist()
+        response.name, response.position = names, capture.mean.tolist()
         response.std = capture.std.tolist()
         response.sample_count = capture.count
         response.window = capture.span

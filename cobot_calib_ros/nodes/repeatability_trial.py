@@ -28,7 +28,7 @@ from cobot_calib_ros.core.robot_port import PortError
 from cobot_calib_ros.nodes.job_node import JobNode
 from cobot_calib_ros.store.files import check_id
 from cobot_calib_ros.store.records import TrialSetup
-from cobot_calib_ros.ros import qos, results, spin
+from cobot_calib_ros.ros import qos, spin
 from cobot_calib_ros.ros.diagnostics import OK, WARN
 from cobot_calib_ros.ros.params import declare, read_once
 from cobot_calib_ros.ros.landmark_views import CaptureMarks
@@ -37,6 +37,13 @@ from cobot_calib_ros.ros.robot_calls import RobotCalls
 from cobot_calib_ros.ros.time import now_ns
 
 HEARTBEAT = 2.0         # [s] feedback at least this often while a trial runs (see RunTrial)
+
+
+def store_failure(directory, error: OSError) -> Failure:
+    """A trial store that cannot be written (disk full, no permission): STORAGE_FAILED, and
+    what to do; the trial is resumable from what was stored."""
+    return Failure(ErrorCode.STORAGE_FAILED, f'trial store {directory}: {error}; free space '
+                   'or give this node write access there, then resume the trial')
 
 
 def stats_msg(trial_id: str, meta: dict, cycles_done: int, stats: PointStats | None,
@@ -130,16 +137,15 @@ class RepeatabilityTrial(JobNode):
     # -- goals ----------------------------------------------------------------------------
     def _accept(self, goal) -> GoalResponse:
         """Reject what needs no store to judge (a rejected goal carries no message, so the
-        client checks the same with the same core functions first); log why."""
+        client checks the same with the same core functions first); log why. Then JobNode's
+        rule: one job at a time."""
         why = self._goal_problem(goal)
         if why:
             self.get_logger().warning(f'run_trial goal rejected: {why}')
             return GoalResponse.REJECT
-        return GoalResponse.ACCEPT
+        return super()._accept(goal)
 
     def _goal_problem(self, goal) -> str:
-        if self._busy.locked():
-            return 'a trial is already running; wait for its end or cancel it'
         problem = trialmod.goal_problem(goal.method, goal.axis, goal.cycles)
         if problem or not goal.trial_id:
             return problem
@@ -150,15 +156,7 @@ class RepeatabilityTrial(JobNode):
         return ''
 
     def _execute(self, goal_handle):
-        if not self._busy.acquire(blocking=False):
-            goal_handle.abort()
-            return results.fill(RunTrial.Result(), 'RunTrial',
-                                Failure(ErrorCode.BUSY, 'a trial is already running'))
-        try:
-            return self._run(goal_handle)
-        finally:
-            self._send_feedback(None)
-            self._busy.release()
+        return self._exclusive(goal_handle, self._run, RunTrial.Result)
 
     def _send_feedback(self, goal_handle, feedback=None) -> None:
         """Publish ``feedback`` and keep it for the heartbeat; None: the goal is ending."""
@@ -180,31 +178,30 @@ class RepeatabilityTrial(JobNode):
             run, resume = self._prepare(trial, goal_handle)
             data = run.resume(resume) if resume is not None else run.start()
         except trialmod.TrialError as e:
-            return self._failed(goal_handle, trial, e)
-        except OSError as e:                      # the store: disk full, no permission, ...
-            return self._failed(goal_handle, trial, trialmod.TrialError(
-                ErrorCode.STORAGE_FAILED, f'trial store {self._store.directory}: {e}; free '
-                'space or give this node write access there, then resume the trial'))
+            return self._failed(goal_handle, trial, e.failure)
+        except OSError as e:
+            return self._failed(goal_handle, trial, store_failure(self._store.directory, e))
         except ValueError as e:                   # a stored trial that does not read back
-            return self._failed(goal_handle, trial, trialmod.TrialError(
+            return self._failed(goal_handle, trial, Failure(
                 ErrorCode.INVALID_INPUT, f'trial store {self._store.directory}: {e}'))
+        finally:
+            self._send_feedback(None)
         return self._succeeded(goal_handle, trial, data)
 
-    def _failed(self, goal_handle, trial: _Goal, error: trialmod.TrialError):
+    def _failed(self, goal_handle, trial: _Goal, failure: Failure):
+        """The goal's end through JobNode._end; a cancelled trial is resumable, so the node
+        stays OK (idle) and says how to resume it."""
         self._send_feedback(None)
-        result = self._result(trial, error.code, str(error))
-        subject = (trial_line(trial.trial_id, trial.meta) if trial.meta
-                   else f'trial {trial.trial_id}')
-        if error.code == ErrorCode.CANCELED:
-            goal_handle.canceled()
+        self._end(goal_handle, result := self._result(trial), failure.code, failure.message)
+        if failure.code == ErrorCode.CANCELED:
+            subject = (trial_line(trial.trial_id, trial.meta) if trial.meta
+                       else f'trial {trial.trial_id}')
             cycle = trial.progress[0] + 1
             self.get_logger().info(f'{subject}: canceled in cycle {cycle}; send trial_id '
                                    f'{trial.trial_id} to resume it')
             self._health.set(OK, f'idle; {subject} stopped on request in cycle {cycle}')
         else:
-            goal_handle.abort()
-            self.get_logger().warning(f'{subject}: failed: {error}')
-            self._health.set(WARN, f'last trial {trial.trial_id} failed: {error}')
+            self._health.set(WARN, f'last trial {trial.trial_id} failed: {failure.message}')
         return result
 
     def _succeeded(self, goal_handle, trial: _Goal, data):
@@ -212,16 +209,15 @@ class RepeatabilityTrial(JobNode):
         stats = trialmod.statistics(data)
         message = (f'{stats.cycles} cycles, RP_all {stats.rp_all * 1e3:.4f} mm '
                    f'({data.meta["method"]}, {data.meta["axis"]} axis)')
-        result = self._result(trial, ErrorCode.SUCCESS, message, data)
-        goal_handle.succeed()
-        self.get_logger().info(f'{trial_line(trial.trial_id, data.meta)}: done, {message}')
+        self._end(goal_handle, result := self._result(trial, data), ErrorCode.SUCCESS,
+                  f'{trial_line(trial.trial_id, data.meta)}: done, {message}')
         self._health.set(OK, f'idle; trial {trial.trial_id} done: {message}')
         return result
 
-    def _result(self, trial: _Goal, cause: ErrorCode, message: str, data=None):
-        """The result with what is known of the trial: its stored method, axis, cycles, RP."""
-        result = RunTrial.Result(error_code=results.code('RunTrial', cause), message=message,
-                                 trial_id=trial.trial_id)
+    def _result(self, trial: _Goal, data=None):
+        """The result with what is known of the trial: its stored method, axis, cycles, RP
+        (its cause and message are JobNode._end's)."""
+        result = RunTrial.Result(trial_id=trial.trial_id)
         retries = trial.retries_since(self._calls.retries())
         result.capture_retries = retries['capture_joints']
         result.probe_retries = retries['probe_average']

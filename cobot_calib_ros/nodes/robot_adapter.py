@@ -35,13 +35,12 @@ from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectoryPoint
 import yaml
 
-from cobot_calib_ros import paths, store
+from cobot_calib_ros import paths
 from cobot_calib_ros.core import driver, kinematics, rig
 from cobot_calib_ros.core.errors import ErrorCode, Failure
-from cobot_calib_ros.loaders import load_cell
 from cobot_calib_ros.core.rig import Rig
+from cobot_calib_ros.nodes.job_node import read_cell_setup
 from cobot_calib_ros.ros.action_client import ActionClient
-from cobot_calib_ros.store.cells import ResultsCell
 from cobot_calib_ros.store.rigs import rig_of
 from cobot_calib_ros.ros import convert, qos, results, spin
 from cobot_calib_ros.ros.params import declare, read_once
@@ -57,23 +56,20 @@ CANCELED = Failure(ErrorCode.CANCELED, 'canceled')   # a move_to goal canceled b
 class RobotAdapter(Node):
     def __init__(self, **kwargs) -> None:
         super().__init__('robot_adapter', **kwargs)
-        read_once(self, 'cell_file', paths.DEFAULT_CELL,
-                  'Cell YAML (robot model, tool, home): a path or a name in config/cells')
+        self._setup = read_cell_setup(
+            self, cell_help='Cell YAML (robot model, tool, home): a path or a name in '
+            'config/cells', data_help='Results root (the active kinematic calibration)')
         read_once(self, 'driver', 'mock', 'Driver preset: a name in presets_file')
         read_once(self, 'presets_file', '',
                   'Driver presets YAML; empty = config/driver_presets.yaml')
-        read_once(self, 'data_dir', '', 'Results root (the active kinematic calibration); '
-                  'empty = $COBOT_CALIB_DATA or ~/.ros/cobot_calib')
         declare(self, 'kinematics', 'latest', 'Model pose targets are solved on: latest (the '
                 'active kinematic calibration of the cell\'s robot, nominal if none), nominal, '
                 'or a kinematic calibration id')
         self._preset = self._load_preset()
-        cell = load_cell(paths.cell_file(self.get_parameter('cell_file').value))
-        self._cell, self._home = cell, cell.home
-        self._model = kinematics.model_for(cell)
+        cell = self._setup.cell
+        self._cell, self._home, self._model = cell, cell.home, self._setup.model
         self._model_names = tuple(self._model.joint_names)
         self._chain = Rig(cell, model=self._model).nominal_chain()     # the joint limits
-        self._results_cell = ResultsCell.of(cell, self.get_namespace())
         self._names = self._preset.joint_names or self._model_names
         self._answers = spin.Companion(self, 'driver')
         self._latest: bytes | None = None        # the last joint_states, raw
@@ -218,8 +214,7 @@ class RobotAdapter(Node):
         """The TCP chain of the ``kinematics`` parameter's model, from the stored results."""
         choice = self.get_parameter('kinematics').value
         try:
-            repo = store.open(paths.data_dir(self.get_parameter('data_dir').value),
-                              cell=self._results_cell)
+            repo = self._setup.repository()
             the_rig = rig_of(repo, self._cell, choice, self._model)
             chain = the_rig.chain('tcp')
         except (KeyError, ValueError, OSError) as e:

@@ -1,6 +1,10 @@
 """user_frame_solver: the calibrate_user_frame service, point conversion, durable history.
 
-calibrate_user_frame is served on its own executor thread (a spin.Companion): a live
+calibrate_user_frame translates the request (SI, the node's parameters) into one call of
+api.user_frame.calibrate, the path `cobot-calib user-frame --points` takes too (the procedure
+is core.user_frame.procedure's: touches over ros.robot_calls, the FK of captures, fit, gate;
+then the record, store and activation), and the answer back; set_active_calibration is
+api.user_frame.choose. It is served on its own executor thread (a spin.Companion): a live
 calibration that visits points blocks only that thread, so user_to_robot, robot_to_user,
 list_calibrations and set_active_calibration keep answering meanwhile.
 
@@ -22,33 +26,30 @@ from __future__ import annotations
 import functools
 import threading
 
-from cobot_calib_msgs.msg import (PointResidual, SurfaceModel as SurfaceMsg,
-                                  UserFrameCalibration)
+from cobot_calib_msgs.msg import UserFrameCalibration
 from cobot_calib_msgs.srv import (CalibrateUserFrame, ConvertPoints, ListCalibrations,
                                   SetActiveCalibration)
 import numpy as np
 from rcl_interfaces.msg import SetParametersResult
 from visualization_msgs.msg import MarkerArray
 
-from cobot_calib_ros.core import frames, kinematics, user_frame
+from cobot_calib_ros.api import user_frame as user_frame_api
+from cobot_calib_ros.core import frames, user_frame
 from cobot_calib_ros.core.cell import check_frame_id
 from cobot_calib_ros.core.drift import DriftLimits
 from cobot_calib_ros.core.errors import ErrorCode, Failure, Refusal
-from cobot_calib_ros.core.landmarks import views
-from cobot_calib_ros.core.provenance import missing_prerequisites
-from cobot_calib_ros.core.robot_port import PortError
-from cobot_calib_ros.core.user_frame import landmarks as landmark_frames
+from cobot_calib_ros.core.user_frame.procedure import Gate
 from cobot_calib_ros.ros import convert, markers, qos, results, spin
 from cobot_calib_ros.ros.diagnostics import Diagnostics, OK, status_name, WARN
-from cobot_calib_ros.ros.params import declare, read_once
+from cobot_calib_ros.ros.params import declare
 from cobot_calib_ros.ros.landmark_views import CaptureMarks
 from cobot_calib_ros.ros.landmark_watch import LandmarkWatch
 from cobot_calib_ros.ros.robot_calls import RobotCalls
-from cobot_calib_ros.ros.time import now_ns, ns_to_stamp
+from cobot_calib_ros.ros.time import now_ns
 from cobot_calib_ros.ros.tf_static import StaticBroadcaster
+from cobot_calib_ros.ros.user_frame_msg import record_to_msg
 from cobot_calib_ros.nodes.job_node import JobNode
 from cobot_calib_ros.store.history import user_frame_change
-from cobot_calib_ros.core.rig import Rig
 from cobot_calib_ros.store.records import UserFrameRecord
 
 Choice = SetActiveCalibration
@@ -66,38 +67,6 @@ def frames_problem(base: tuple[str, str], user: tuple[str, str]) -> str:
         return (f'{base[0]} and {user[0]} are both {base[1]!r}: the user frame needs a frame '
                 'id of its own')
     return ''
-
-
-def record_to_msg(record: dict) -> UserFrameCalibration:
-    r = record['result']
-    inputs = record['inputs']
-    msg = UserFrameCalibration(id=record['id'], method=record['method'],
-                               kinematics=record.get('kinematics', ''))
-    msg.stamp = ns_to_stamp(record['stamp_ns'])
-    msg.transform = convert.matrix_to_transform(
-        np.array(r['T_base_user']), record['base_frame'], record['user_frame'], msg.stamp)
-    msg.matrix = [float(v) for v in np.ravel(r['M'])]
-    outliers = set(r['outliers'])
-    for i, (name, pu, pb, res) in enumerate(zip(inputs['point_names'], inputs['points_user'],
-                                                inputs['points_base'], r['residuals'])):
-        [pu_msg], [pb_msg] = convert.array_to_points([pu]), convert.array_to_points([pb])
-        pr = PointResidual(name=name, point_user=pu_msg, point_base=pb_msg,
-                           residual_norm=float(np.linalg.norm(res)), outlier=i in outliers)
-        pr.residual.x, pr.residual.y, pr.residual.z = (float(v) for v in res)
-        msg.residuals.append(pr)
-    msg.rms_residual, msg.max_residual = float(r['rms']), float(r['max_residual'])
-    msg.condition_number, msg.collinearity = float(r['condition_number']), float(r['collinearity'])
-    msg.covariance = [float(v) for v in np.ravel(r['covariance'])]
-    msg.scale_x, msg.scale_y, msg.scale_z = (float(v) for v in r['scale'])
-    msg.shear_xy, msg.shear_xz, msg.shear_yz = (float(v) for v in r['shear'])
-    s = r.get('surface')
-    if s:
-        msg.surface = SurfaceMsg(valid=bool(s['valid']), powers_x=list(s['powers_x']),
-                                 powers_y=list(s['powers_y']),
-                                 coefficients=[float(c) for c in s['coefficients']],
-                                 rms_before=float(s['rms_before']),
-                                 rms_after=float(s['rms_after']))
-    return msg
 
 
 class UserFrameSolver(JobNode):
@@ -209,49 +178,41 @@ class UserFrameSolver(JobNode):
 
     # -- calibrate ------------------------------------------------------------------------
     def _on_calibrate(self, request, response):
-        fit = None
-        unknown = landmark_frames.method_problem(request.method)
-        if unknown is not None:
-            return self._refuse(response, unknown.code, unknown.message)
         try:
-            frames_ = self._request_frames(request)
-            if request.method in landmark_frames.LANDMARK_METHODS:
-                names, p_user, p_base, through, fit = self._landmark_fit(request)
-            else:
-                names, p_user, p_base, through = self._points(request)
+            outcome = user_frame_api.calibrate(
+                self._repository(), self._cell, self._request(request), stamp_ns=now_ns(self),
+                robot=self._robot, camera=self._camera, model=self._model,
+                frames_store=self._store, lock=self._store_lock, on_view=self._marks)
         except Refusal as e:
-            return self._refuse(response, e.failure.code, e.failure.message)
-        if fit is None:
-            fit = self._fit(request, names, p_user, p_base)
-        if not fit:
-            return self._refuse(response, fit.code, fit.message)
-        # landmark_multi: the fiducials' centres lie on the table, so they carry its height
-        # field like touched points do; one marker's single frame has nothing to fit
-        surface = (user_frame.fit_surface(p_user, p_base, fit.M, names=names)
-                   if request.fit_surface and request.method !=
-                   landmark_frames.LANDMARK_SINGLE else None)
-        record = UserFrameRecord.from_fit(
-            fit, surface, names, p_user, p_base, frames_, now_ns(self),
-            through.get('kinematics', ''), through.get('hand_eye', ''), through.get('tcp', ''),
-            measured_through=through).to_dict()
-        prerequisites = missing_prerequisites('the user frame is', through)
-        if prerequisites:
-            self.get_logger().warning(prerequisites)
-        try:
-            with self._store_lock:
-                previous = self._store.active()
-                self._store.save_and_activate(record)   # user frames have no gate (yet)
-        except OSError as e:
-            return self._refuse(response, ErrorCode.STORAGE_FAILED,
-                                f'could not store the calibration: {e}; check data_dir')
-        self._report_drift(previous, record)
-        response.calibration = record_to_msg(record)
-        results.answer(response, ErrorCode.SUCCESS, '; '.join(
-            m for m in (fit.message or 'calibrated', prerequisites) if m))
+            outcome = e.failure
+        if not outcome:
+            return self._refuse(response, outcome)
+        if outcome.prerequisites:
+            self.get_logger().warning(outcome.prerequisites)
+        self._report_drift(outcome.previous, outcome.record)
+        response.calibration = record_to_msg(outcome.record)
+        results.answer(response, ErrorCode.SUCCESS, outcome.message)
         self._publish_from_another_thread(response.calibration)
-        spin.log_info(self.get_logger(), f'{record["id"]}: {len(names)} points, rms '
-                      f'{fit.rms * 1e3:.4f} mm, max {fit.max_residual * 1e3:.4f} mm')
+        fit = outcome.measured.fit
+        spin.log_info(self.get_logger(), f'{outcome.record["id"]}: {len(fit.residuals)} '
+                      f'points, rms {fit.rms * 1e3:.4f} mm, max {fit.max_residual * 1e3:.4f} mm')
         return response
+
+    def _request(self, request) -> user_frame_api.Request:
+        """The service request in SI, with the node's parameters; Refusal INVALID_INPUT for
+        frame ids tf2 would not accept or joint captures that do not fit the names."""
+        gate = Gate(self._p('max_rms_error'), self._p('max_scale_error'),
+                    self._p('robust_threshold'), request.fit_surface)
+        names = list(request.point_names)
+        return user_frame_api.Request(
+            method=request.method, names=tuple(names),
+            p_user=convert.points_to_array(request.points_user),
+            p_base=convert.points_to_array(request.points_base),
+            joints=self._given_joints(names, request.joint_captures)
+            if request.joint_captures else None,
+            kinematics=request.kinematics or self._p('kinematics'),
+            frames=self._request_frames(request), gate=gate,
+            capture_duration=self._p('capture_duration'))
 
     def _report_drift(self, previous, record) -> None:
         """The drift status: the new frame against the previously active one (store.history:
@@ -269,74 +230,12 @@ class UserFrameSolver(JobNode):
         if change.level != OK:
             self.get_logger().warning(change.message)
 
-    def _fit(self, request, names: list[str], p_user, p_base) -> user_frame.FrameFit:
-        """The fit, refused (IMPLAUSIBLE_FIT) beyond max_rms_error / max_scale_error."""
-        opts = {'threshold': self._p('robust_threshold')} if request.method == 'robust' else {}
-        return user_frame.calibrate(request.method, p_user, p_base, names=names,
-                                    max_rms_error=self._p('max_rms_error'),
-                                    max_scale_error=self._p('max_scale_error'), **opts)
-
-    def _refuse(self, response, code, message: str):
-        results.fill(response, 'CalibrateUserFrame', Failure(ErrorCode(code), message))
-        self.get_logger().warning(f'calibrate_user_frame refused: {message}')
-        self._last_refusal = f'{ErrorCode(code).name}: {message}'
+    def _refuse(self, response, failure: Failure):
+        results.fill(response, 'CalibrateUserFrame', failure)
+        self.get_logger().warning(f'calibrate_user_frame refused: {failure.message}')
+        self._last_refusal = f'{ErrorCode(failure.code).name}: {failure.message}'
         self._update_health()
         return response
-
-    def _points(self, request) -> tuple[list[str], np.ndarray, np.ndarray, dict[str, str]]:
-        """Names, nominal user points, measured base points [m], and the results they were
-        measured through (the kinematics and the TCP; {} for points given in the request)."""
-        p_user = convert.points_to_array(request.points_user)
-        p_base = convert.points_to_array(request.points_base)
-        names = list(request.point_names)
-        if len(p_user) or len(p_base):
-            if names and len(names) != len(p_user):
-                raise Refusal(Failure(ErrorCode.INVALID_INPUT, (
-                    f'{len(names)} point names for {len(p_user)} points; give one name per '
-                    'point or none')))
-            return names or [f'P{i + 1}' for i in range(len(p_user))], p_user, p_base, {}
-        if not names:
-            raise Refusal(Failure(ErrorCode.TOO_FEW_POINTS, (
-                'no points: give points_user + points_base, or point_names of the cell to '
-                'visit live')))
-        self._check_names(names)
-        rig = self._rig(request.kinematics or self._p('kinematics'))
-        chain = rig.chain('tcp')
-        through = {'kinematics': rig.active.kinematics_label, 'tcp': rig.active.tcp_label}
-        if request.joint_captures:
-            joints = self._given_joints(names, request.joint_captures)
-        else:
-            joints = [self._capture_live(name) for name in names]
-        p_user = np.array([self._cell.marker(n).nominal_top for n in names])
-        p_base = np.array([kinematics.fk(chain, q)[:3, 3] for q in joints])
-        return names, p_user, p_base, through
-
-    def _rig(self, choice: str) -> Rig:
-        """The cell's rig with the kinematics ``choice`` names and the active hand-eye, read
-        fresh: kinematic_identifier or hand_eye_calibrator may have stored new ones since."""
-        try:
-            return super()._rig(choice)
-        except (KeyError, ValueError) as e:
-            raise Refusal(Failure(ErrorCode.INVALID_INPUT, (
-                f'kinematics {choice!r}: {str(e).strip(chr(39))}; use latest, nominal or a '
-                f'stored kinematic calibration id')))
-
-    def _check_names(self, names: list[str]) -> None:
-        unknown = [n for n in names if self._cell.marker(n) is None]
-        if unknown and not self._cell.point_names:
-            raise Refusal(Failure(ErrorCode.UNKNOWN_POINT, (
-                f'named points {unknown}: a calibration of named points needs the cell\'s '
-                'layouts: section, which this cell has not; give points_user + points_base, '
-                'or measure offline (cobot-calib user-frame --points)')))
-        if unknown:
-            raise Refusal(Failure(ErrorCode.UNKNOWN_POINT, (
-                f'unknown point(s) {unknown}; the cell defines {self._cell.point_names}')))
-
-    def _capture_live(self, name: str) -> np.ndarray:
-        try:
-            return self._robot.touch_and_capture(name, self._p('capture_duration'))
-        except PortError as e:
-            raise Refusal(Failure(ErrorCode.CAPTURE_FAILED, f'capture at {name} failed: {e}'))
 
     def _given_joints(self, names: list[str], captures) -> list[np.ndarray]:
         """Joint captures in the model's joint order [rad], one per named point."""
@@ -356,38 +255,6 @@ class UserFrameSolver(JobNode):
                     f'{order}; missing or not finite: {missing or "NaN/inf values"}')))
             joints.append(q)
         return joints
-
-    # -- landmark methods (wrist camera) ---------------------------------------------------
-    def _landmark_fit(self, request):
-        """landmark_single / landmark_multi (ros.landmark_views): names, p_user, p_base,
-        the results measured through (kinematics, hand-eye, intrinsics) and the FrameFit."""
-        problem = views.setup_problem(self._cell)
-        if problem:
-            raise Refusal(Failure(ErrorCode.INVALID_INPUT, f'{request.method}: {problem}'))
-        guess = self._user_frame_guess()
-        rig = self._rig(request.kinematics or self._p('kinematics'))
-        through = {'kinematics': rig.active.kinematics_label,
-                   'hand_eye': rig.active.hand_eye_label,
-                   'intrinsics': rig.active.label('intrinsics')}
-        result = views.measure_frame(
-            request.method, self._cell, self._robot, self._camera, T_base_user_guess=guess,
-            plan_chain=rig.nominal_chain('camera'), chain=rig.chain('camera'),
-            capture_duration=self._p('capture_duration'),
-            max_rms_error=self._p('max_rms_error'), max_scale_error=self._p('max_scale_error'),
-            on_view=self._marks)
-        if result.code in (ErrorCode.INVALID_INPUT, ErrorCode.CAPTURE_FAILED):
-            raise Refusal(Failure(result.code, result.message))     # no fit to store
-        return result.names, result.p_user, result.p_base, through, result.fit
-
-    def _user_frame_guess(self) -> np.ndarray:
-        """Where the table is, to plan views by: the active user-frame calibration."""
-        with self._store_lock:
-            record = self._store.active()
-        if record is None or record['result'].get('T_base_user') is None:
-            raise Refusal(Failure(ErrorCode.INVALID_INPUT, (
-                'landmark methods plan their views by the active user frame and there is '
-                'none: calibrate once with points first (a few millimetres off is fine)')))
-        return np.array(record['result']['T_base_user'], dtype=float)
 
     # -- the active calibration, latched ---------------------------------------------------
     def _publish_from_another_thread(self, msg: UserFrameCalibration) -> None:
@@ -480,9 +347,10 @@ class UserFrameSolver(JobNode):
             last_refusal=self._last_refusal or 'none')
 
     def _on_set_active(self, request, response):
-        cause, text = self._choose(request)
-        results.answer(response, cause, text)
-        if cause == ErrorCode.SUCCESS:
+        chosen = self._choose(request)
+        results.answer(response, ErrorCode.SUCCESS if chosen else chosen.code,
+                       chosen if chosen else chosen.message)
+        if chosen:
             self.get_logger().info(f'set_active_calibration: {response.message}')
             self._publish_active()
         with self._store_lock:
@@ -491,37 +359,16 @@ class UserFrameSolver(JobNode):
             response.active = record_to_msg(active)
         return response
 
-    def _choose(self, request) -> tuple[ErrorCode, str]:
-        """(cause, message) of an ACTIVATE or RETIRE request, applied to the store."""
-        Out = ErrorCode
-        action, cid = request.action, request.calibration_id
-        if action not in (Choice.Request.ACTIVATE, Choice.Request.RETIRE):
-            return Out.INVALID_INPUT, (f'unknown action {action}; use ACTIVATE '
-                                       f'({Choice.Request.ACTIVATE}) or RETIRE '
-                                       f'({Choice.Request.RETIRE})')
-        retire = action == Choice.Request.RETIRE
-        if retire and not cid:
-            return Out.INVALID_INPUT, ('RETIRE needs a calibration_id; list_calibrations '
-                                       'shows the stored ones')
-        try:
-            with self._store_lock:
-                activation = self._store.retire(cid) if retire else self._store.activate(cid)
-                active = self._store.active()
-        except ValueError as e:
-            return Out.INVALID_INPUT, f'calibration_id {cid!r}: {e}'
-        except KeyError:
-            return Out.NO_CALIBRATION, (f'no calibration {cid!r}; list_calibrations shows the '
-                                        'stored ones')
-        except OSError as e:
-            return Out.STORAGE_FAILED, (f'could not store the choice: {e}; nothing changed, '
-                                        'check data_dir')
-        if cid and activation is not None and not activation:     # failed its gate
-            return Out.INVALID_INPUT, activation.reason
-        now = (f'{active["id"]} is active' if active else
-               'no calibration is active: calibrate, or activate a retired one')
-        done = f'retired {cid}' if retire else (f'activated {cid}' if cid else
-                                               'back to the default (newest non-retired)')
-        return Out.SUCCESS, f'{done}; {now}'
+    def _choose(self, request) -> str | Failure:
+        """An ACTIVATE or RETIRE request applied to the store (api.user_frame.choose)."""
+        actions = {Choice.Request.ACTIVATE: user_frame_api.ACTIVATE,
+                   Choice.Request.RETIRE: user_frame_api.RETIRE}
+        if request.action not in actions:
+            return Failure(ErrorCode.INVALID_INPUT, (
+                f'unknown action {request.action}; use ACTIVATE ({Choice.Request.ACTIVATE}) '
+                f'or RETIRE ({Choice.Request.RETIRE})'))
+        return user_frame_api.choose(self._store, actions[request.action],
+                                     request.calibration_id, self._store_lock)
 
     # -- conversion and history -----------------------------------------------------------
     def _convert(self, request, response, to_base: bool):

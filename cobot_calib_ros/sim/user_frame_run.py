@@ -9,11 +9,12 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from cobot_calib_ros.core import kinematics, user_frame
+from cobot_calib_ros.core import user_frame
+from cobot_calib_ros.core.user_frame import procedure
 from cobot_calib_ros.sim.robot import DirectRobot, SimRobot
 from cobot_calib_ros.sim.scenario import Simulation
 
-HOLD_S = 0.5        # [s] capture_joints' default
+HOLD_S = procedure.CAPTURE_DURATION
 
 
 @dataclass(frozen=True)
@@ -33,12 +34,8 @@ def calibrate_user_frame(sim: Simulation, seed: int, names: Sequence[str] = (),
     arm = SimRobot(sim, seed_offset=seed)
     robot = DirectRobot(arm, sim.probe)
     chain = arm.model.chain(tool=cell.tool_offset)
-    p_base = []
-    for name in names:
-        robot.touch(name)
-        p_base.append(kinematics.fk(chain, robot.capture(HOLD_S).q)[:3, 3])
+    p_base = procedure.points_of_joints(chain, procedure.touch_joints(robot, names, HOLD_S))
     p_user = np.array([cell.marker(n).nominal_top for n in names])
-    p_base = np.array(p_base)
     fit = user_frame.calibrate(method, p_user, p_base, names=names)
     return SimCalibration(fit, names, p_user, p_base, robot.robot_seconds)
 

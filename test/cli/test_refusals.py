@@ -255,16 +255,14 @@ def test_param_lists_gets_and_sets_as_ros2_param(parameter_node):
 def test_demo_attach_takes_the_cell_and_data_dir_of_the_running_suite(tmp_path):
     """Issue 23.3: `demo --attach` without --cell took sawyer_close against an iiwa suite and
     raised ValueError; it now asks the suite's user_frame_solver for its cell and data dir."""
-    from cobot_calib_ros.cli import demo
+    from cobot_calib_ros.api import demo
     from cobot_calib_ros.ros.session import session
     with _spinning_node('user_frame_solver') as node:
         node.declare_parameter('cell_file', '/somewhere/iiwa7_close.yaml')
         node.declare_parameter('data_dir', str(tmp_path))
         with session('cobot_calib_demo_test') as (client, _):
-            assert demo._attached(SimpleNamespace(cell=None), client) == (
-                '/somewhere/iiwa7_close.yaml', tmp_path)
-            assert demo._attached(SimpleNamespace(cell='sawyer_close'), client) == (
-                'sawyer_close', tmp_path)
+            assert demo.attached(None, client) == ('/somewhere/iiwa7_close.yaml', tmp_path)
+            assert demo.attached('sawyer_close', client) == ('sawyer_close', tmp_path)
 
 
 def test_nodes_the_launcher_starts_write_only_their_own_log(monkeypatch):

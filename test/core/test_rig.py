@@ -104,9 +104,9 @@ def test_no_node_verb_or_api_builds_a_chain_of_its_own():
     assert found == [
         # the demo scores against the mock's true robot (its ground truth service), and
         # against its true arm with the model's tool (the arm's part of the error)
-        'cli/demo.py: return model.chain(np.array(truth.true_parameters), tool=tool)',
-        "cli/demo.py: true_arm = rig.model.chain(np.array(truth.true_parameters), "
-        "tool=rig.tool('tcp'))"]
+        "api/demo.py: true_arm = rig.model.chain(np.array(truth.true_parameters), "
+        "tool=rig.tool('tcp'))",
+        'api/demo.py: return model.chain(np.array(truth.true_parameters), tool=tool)']
 
 
 def test_the_user_frame_is_the_active_sets_or_refused_naming_the_cell():
