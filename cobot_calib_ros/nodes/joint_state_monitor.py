@@ -24,8 +24,9 @@ from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import JointState
 
 from cobot_calib_ros.core.errors import ErrorCode
-from cobot_calib_ros.core.sensors.joint_buffer import (hold_statistics, JointRingBuffer,
-                                                       StampGaps, StampMarks)
+from cobot_calib_ros.core.sensors.joint_buffer import (HOLD_EXTENSIONS, hold_statistics,
+                                                      JointRingBuffer, samples_needed,
+                                                      StampGaps, StampMarks)
 from cobot_calib_ros.ros import results, spin
 from cobot_calib_ros.ros.batch_reader import BatchReader
 from cobot_calib_ros.ros.diagnostics import Diagnostics, OK, RateMeter, status_name, WARN
@@ -142,18 +143,13 @@ class JointStateMonitor(Node):
         with self._lock:
             streaming = self._new_sample.wait_for(lambda: self._buffer.count > 0,
                                                   FIRST_SAMPLE_TIMEOUT)
-        t1 = (t0 := now_ns(self) * 1e-9) + duration
-        with self._lock:
-            if streaming:
-                wait_past(self._new_sample,
-                          lambda: (self._buffer.latest_time, self._buffer.count), t1,
-                          STALL_TIMEOUT)
-            times, positions = self._buffer.window(t0, t1)
-            names = list(self._buffer.joint_names or [])
+        fraction = self.get_parameter('min_sample_fraction').value
+        needed = samples_needed(duration, self._rate, fraction)
+        t0 = now_ns(self) * 1e-9
+        times, positions, names, t1 = self._hold(t0, duration, needed, streaming)
         capture = hold_statistics(
-            times, positions, duration, self._rate,
-            self.get_parameter('min_sample_fraction').value,
-            self.get_parameter('max_joint_std').value, names)
+            times, positions, duration, self._rate, fraction,
+            self.get_parameter('max_joint_std').value, names, window_s=t1 - t0)
         results.answer(response, capture.code, capture.message)
         response.name, response.position = names, capture.mean.tolist()
         response.std = capture.std.tolist()
@@ -162,6 +158,24 @@ class JointStateMonitor(Node):
         if not capture.ok:
             self.get_logger().warning(f'capture_joints refused: {capture.message}')
         return response
+
+    def _hold(self, t0: float, duration: float, needed: int, streaming: bool):
+        """(times, positions, joint names, end [s]) of the samples stamped from ``t0`` over
+        ``duration`` [s], the hold going on by whole windows (HOLD_EXTENSIONS at most) while
+        it has fewer than ``needed``."""
+        t1 = t0 + duration
+        with self._lock:
+            for extension in range(HOLD_EXTENSIONS + 1 if streaming else 1):
+                t1 += duration if extension else 0.0
+                received = self._buffer.count
+                if streaming:
+                    wait_past(self._new_sample,
+                              lambda: (self._buffer.latest_time, self._buffer.count), t1,
+                              STALL_TIMEOUT)
+                times, positions = self._buffer.window(t0, t1)
+                if len(times) >= needed or self._buffer.count == received:
+                    break                   # enough, or the stream has stopped
+            return times, positions, list(self._buffer.joint_names or []), t1
 
     def _diagnose(self) -> None:
         """The /diagnostics status, just before each publication (receiver thread)."""

@@ -310,34 +310,37 @@ class MockRobot(Node):
 
     def _execute_move(self, goal_handle):
         goal = goal_handle.request
-        result = MoveTo.Result()
         q_target = self._target_joints(goal)
         if isinstance(q_target, Failure):
-            goal_handle.abort()
-            results.fill(result, 'MoveTo', q_target)
             self.get_logger().warning(f'move_to refused: {q_target.message}')
-            return result
+            return self._end_move(goal_handle, q_target)
         if not self._motion_lock.acquire(blocking=False):
-            goal_handle.abort()
-            return results.answer(result, ErrorCode.MOTION_FAILED, 'robot busy (a touch)')
+            return self._end_move(goal_handle, Failure(ErrorCode.MOTION_FAILED,
+                                                       'robot busy (a touch)'))
         self._moving = True
         try:
-            canceled = self._interpolate(lambda: goal_handle.is_cancel_requested,
-                                         goal_handle.publish_feedback, q_target,
-                                         goal.speed_scale or 1.0)
-            if goal.compliant and not canceled:
-                canceled = self._comply(q_target)
+            ended = self._interpolate(lambda: goal_handle.is_cancel_requested,
+                                      goal_handle.publish_feedback, q_target,
+                                      goal.speed_scale or 1.0)
+            if goal.compliant and not ended:
+                ended = self._comply(q_target)
         except spin.Stopping:
-            canceled = _SHUTTING_DOWN
+            ended = _SHUTTING_DOWN
         finally:
             self._moving = False
             self._motion_lock.release()
-        if isinstance(canceled, Failure):
+        return self._end_move(goal_handle, ended if isinstance(ended, Failure) else None,
+                              self._robot.q, canceled=ended is True)
+
+    def _end_move(self, goal_handle, failure: Failure | None, q: np.ndarray | None = None,
+                  canceled: bool = False):
+        """MoveTo's end: aborted with ``failure``, canceled, or reached (at joints ``q``)."""
+        result = MoveTo.Result()
+        if q is not None:
+            result.positions = q.tolist()
+        if failure is not None:
             goal_handle.abort()
-            results.fill(result, 'MoveTo', canceled)
-            result.positions = self._robot.q.tolist()
-            return result
-        result.positions = self._robot.q.tolist()
+            return results.fill(result, 'MoveTo', failure)
         if canceled:
             goal_handle.canceled()
             return results.answer(result, ErrorCode.CANCELED, 'canceled')
@@ -428,64 +431,55 @@ class MockRobot(Node):
         """Execute a joint trajectory point by point, each segment in its time (simulated,
         times time_scale); as a joint_trajectory_controller answers, with driver_fault."""
         R = FollowJointTrajectory.Result
-        result = R()
         points = self._trajectory_points(goal_handle.request.trajectory)
         if isinstance(points, tuple):
-            goal_handle.abort()
-            result.error_code, result.error_string = points
+            code, text = points
+        elif not self._motion_lock.acquire(blocking=False):
+            code, text = R.INVALID_GOAL, 'robot busy (a touch)'
+        else:
+            self._moving, self._ringing = True, False
+            try:
+                code, text = self._run_trajectory(goal_handle, points, comply)
+            except spin.Stopping:
+                code, text = R.PATH_TOLERANCE_VIOLATED, _SHUTTING_DOWN.message
+            finally:
+                self._moving = False
+                self._motion_lock.release()
+        result = R(error_string=text)
+        if code is None:
+            goal_handle.canceled()
             return result
-        if not self._motion_lock.acquire(blocking=False):
-            goal_handle.abort()
-            result.error_code, result.error_string = R.INVALID_GOAL, 'robot busy (a touch)'
-            return result
-        self._moving, self._ringing = True, False
+        result.error_code = code
+        goal_handle.succeed() if code == R.SUCCESSFUL else goal_handle.abort()
+        return result
+
+    def _run_trajectory(self, goal_handle, points, comply: bool) -> tuple[int | None, str]:
+        """The trajectory's motion: (FollowJointTrajectory error code, error string); code
+        None when the goal was canceled."""
+        R = FollowJointTrajectory.Result
         fault = self._param('driver_fault')
         feedback = FollowJointTrajectory.Feedback(joint_names=list(self._robot.model.joint_names))
 
         def step(q, _progress):
             feedback.desired.positions = feedback.actual.positions = q.tolist()
             goal_handle.publish_feedback(feedback)
-        try:
-            canceled, before = False, 0.0
-            for i, (q, t) in enumerate(points):
-                stop_at = 0.5 if fault == 'abort' and i == len(points) - 1 else 1.0
-                canceled = self._travel(lambda: goal_handle.is_cancel_requested, step,
-                                        self._robot.q, q, t - before, stop_at)
-                before = t
-                if canceled or stop_at < 1.0:
-                    break
-            if not canceled and fault == 'abort':
-                self._robot.settle(self._robot.q)
-                goal_handle.abort()
-                result.error_code = R.PATH_TOLERANCE_VIOLATED
-                result.error_string = (f'{self._robot.model.joint_names[0]} beyond its path '
-                                       'tolerance (driver_fault abort)')
-                return result
-            if not canceled:
-                self._robot.settle(points[-1][0])
-                if comply:
-                    complied = self._comply(points[-1][0])
-                    if isinstance(complied, Failure):
-                        goal_handle.abort()
-                        result.error_code, result.error_string = R.GOAL_TOLERANCE_VIOLATED, \
-                            complied.message
-                        return result
-                self._ringing = fault == 'ring'
-        except spin.Stopping:
-            goal_handle.abort()
-            result.error_code = R.PATH_TOLERANCE_VIOLATED
-            result.error_string = _SHUTTING_DOWN.message
-            return result
-        finally:
-            self._moving = False
-            self._motion_lock.release()
-        if canceled:
-            goal_handle.canceled()
-            result.error_string = 'canceled'
-            return result
-        goal_handle.succeed()
-        result.error_code = R.SUCCESSFUL
-        return result
+        before = 0.0
+        for i, (q, t) in enumerate(points):
+            stop_at = 0.5 if fault == 'abort' and i == len(points) - 1 else 1.0
+            if self._travel(lambda: goal_handle.is_cancel_requested, step, self._robot.q, q,
+                            t - before, stop_at):
+                return None, 'canceled'
+            before = t
+        if fault == 'abort':
+            self._robot.settle(self._robot.q)
+            return R.PATH_TOLERANCE_VIOLATED, (f'{self._robot.model.joint_names[0]} beyond its '
+                                               'path tolerance (driver_fault abort)')
+        self._robot.settle(points[-1][0])
+        complied = self._comply(points[-1][0]) if comply else None
+        if isinstance(complied, Failure):
+            return R.GOAL_TOLERANCE_VIOLATED, complied.message
+        self._ringing = fault == 'ring'
+        return R.SUCCESSFUL, ''
 
     def _comply(self, q_target: np.ndarray) -> bool | Failure:
         """Impedance control at the target: a coupling near a sphere self-centres on it (the

@@ -104,13 +104,6 @@ def test_the_scan_catches_every_way_a_constant_comes_back(source: str, expected:
 # -- a node's goal and service handlers: parameters in, one call, message out (issue 39.2) ---
 
 MAX_HANDLER_LINES = 30
-# Handlers over the limit, expected to fail until cut: in other engineers' areas of wave 6
-# (tcp_calibrator, hand_eye_calibrator, camera_calibrator: camprocs; kinematic_identifier:
-# kinprocs), cut on their branches at the same time, and the mock robot's (the hardware's
-# stand-in, nobody's area in wave 6). The integrator empties this list after merging.
-EXPECTED_OVER = {
-    'mock_robot.py': {'_execute_move', '_follow'},
-}
 
 
 def _self_method(node: ast.AST) -> str | None:
@@ -166,14 +159,6 @@ def handler_sizes(source: str) -> dict[str, int]:
 def test_every_handler_of_a_node_is_at_most_30_lines(path: Path) -> None:
     over = {name for name, lines in handler_sizes(path.read_text()).items()
             if lines > MAX_HANDLER_LINES}
-    expected = EXPECTED_OVER.get(path.name, set())
-    if expected:
-        assert over <= expected, f'{path.name}: handlers over {MAX_HANDLER_LINES} lines ' \
-            f'beyond the expected ones: {sorted(over - expected)}'
-        assert over == expected, f'{path.name}: {sorted(expected - over)} now within ' \
-            f'{MAX_HANDLER_LINES} lines; remove them from EXPECTED_OVER'
-        pytest.xfail(f'{path.name}: {sorted(over)} cut on another branch of wave 6; '
-                     'empty EXPECTED_OVER after merging')
     assert not over, (
         f'{path.name}: handlers over {MAX_HANDLER_LINES} lines: '
         f'{ {n: handler_sizes(path.read_text())[n] for n in over} }; a handler reads the goal '

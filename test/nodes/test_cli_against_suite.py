@@ -9,6 +9,8 @@ import pytest
 
 from rosutil import cli, cli_command, STOP_TIMEOUT
 
+from cobot_calib_ros.core.sensors.joint_buffer import HOLD_EXTENSIONS
+
 SUITE_NODES = {'/mock_robot', '/joint_state_monitor', '/proximity_sensor',
                '/user_frame_solver', '/repeatability_trial'}
 CAPTURE = 'cobot_calib_msgs/srv/CaptureJoints'
@@ -70,10 +72,13 @@ def test_int_and_exponent_durations_do_not_abort_the_client(ros):
     assert short['error_code'] == 0, short['message']
     # success needs min_sample_fraction (0.5) x 1 kHz x the window: 100 samples for 0.2 s,
     # and a window of 1 ns (or 0.2 ms) would hold at most one
-    assert short['sample_count'] >= 100 and short['window'] <= 0.2
+    # (a loaded machine's thinned stream makes the hold go on by whole windows: at most
+    # 1 + HOLD_EXTENSIONS of them)
+    longest = 1 + HOLD_EXTENSIONS
+    assert short['sample_count'] >= 100 and short['window'] <= 0.2 * longest
     whole = _json(cli('call', 'capture_joints', '{duration: 1}', '--json'))
     assert whole['error_code'] == 0, whole['message']
-    assert whole['sample_count'] >= 500 and whole['window'] <= 1.0     # 1 is 1 s, not 1 ns
+    assert whole['sample_count'] >= 500 and whole['window'] <= longest  # 1 is 1 s, not 1 ns
 
 
 def test_a_starved_stream_is_no_data_naming_the_window(ros, tmp_path):
@@ -92,6 +97,34 @@ def test_a_starved_stream_is_no_data_naming_the_window(ros, tmp_path):
     assert res.message == ('only 0 joint_states samples in 0.200 s (need 100); is the robot '
                            'driver (mock_robot) publishing joint_states?')
     assert res.sample_count == 0 and all(math.isnan(v) for v in res.position)
+
+
+def test_a_thinned_stream_makes_the_hold_go_on_until_it_has_its_samples(ros, tmp_path):
+    """A driver's stream arriving at a quarter of its rate (a loaded machine's 1 kHz timer
+    missing ticks): the hold goes on by whole windows until it has the samples it needs, the
+    verdict an idle machine gives, instead of NO_DATA."""
+    from cobot_calib_msgs.srv import CaptureJoints
+    from sensor_msgs.msg import JointState
+    from cobot_calib_ros.api import launcher
+    from rosutil import call
+    publisher = ros.create_publisher(JointState, '/thinned/joint_states', 100)
+
+    def tick():
+        message = JointState(name=['j1', 'j2'], position=[0.1, -0.2])
+        message.header.stamp = ros.get_clock().now().to_msg()
+        publisher.publish(message)
+    timer = ros.create_timer(0.004, tick)          # 250 Hz against the expected 1 kHz
+    thinned = launcher.Suite(tmp_path / 'logs')
+    thinned.start([launcher.NodeSpec('joint_state_monitor', namespace='thinned')])
+    try:
+        res = call(ros, CaptureJoints, '/thinned/capture_joints', timeout=30.0, duration=0.2)
+    finally:
+        ros.destroy_timer(timer)
+        ros.destroy_publisher(publisher)
+        assert thinned.stop(STOP_TIMEOUT) == {'thinned.joint_state_monitor': 0}
+    assert res.error_code == 0, res.message      # 100 samples needed, ~50 come per window
+    assert res.sample_count >= 100 and 0.2 < res.window <= 0.2 * (1 + HOLD_EXTENSIONS)
+    assert res.position == pytest.approx([0.1, -0.2])
 
 
 def test_int_points_are_converted_as_floats(ros, translation_id):

@@ -133,10 +133,23 @@ class HoldCapture:
     span: float               # [s]
 
 
+# A hold that got too few samples goes on for up to this many more windows: on a loaded
+# machine the driver's 1 kHz stream arrives thinned (its timer misses ticks), and a capture
+# must give the same verdict as on an idle one; a driver that does not publish still fails.
+HOLD_EXTENSIONS = 4
+
+
+def samples_needed(duration: float, expected_rate: float, min_fraction: float) -> int:
+    """The samples a hold of ``duration`` [s] must average at least."""
+    return max(2, int(min_fraction * expected_rate * duration))
+
+
 def hold_statistics(times: Array, positions: Array, duration: float, expected_rate: float,
                     min_fraction: float, max_std: float,
-                    joint_names: list[str]) -> HoldCapture:
-    """Mean and spread of a hold window; refuses too few samples or a moving arm."""
+                    joint_names: list[str], window_s: float | None = None) -> HoldCapture:
+    """Mean and spread of a hold window of ``duration`` [s] (collected over ``window_s``
+    [s] >= duration when the hold went on for missing samples); refuses too few samples
+    or a moving arm."""
     count = len(times)
     span = float(times[-1] - times[0]) if count > 1 else 0.0
     width = positions.shape[1] if positions.ndim == 2 else 0
@@ -148,11 +161,11 @@ def hold_statistics(times: Array, positions: Array, duration: float, expected_ra
             f'the arm is moving: {joint_names[worst]} spread {std[worst]:.2e} rad > '
             f'{max_std:.1e} rad; wait until the motion ends, then capture again'),
             mean, std, count, span)
-    needed = max(2, int(min_fraction * expected_rate * duration))
+    needed = samples_needed(duration, expected_rate, min_fraction)
     if count < needed:
         empty = np.full(width, math.nan)
         return HoldCapture(False, ErrorCode.NO_DATA, (
-            f'only {count} joint_states samples in {duration:.3f} s (need {needed}); '
+            f'only {count} joint_states samples in {window_s or duration:.3f} s (need {needed}); '
             'is the robot driver (mock_robot) publishing joint_states?'),
             empty, empty, count, span)
     return HoldCapture(True, ErrorCode.SUCCESS, f'{count} samples over {span:.3f} s', mean, std,
