@@ -59,6 +59,30 @@ def test_a_profile_without_transports_keeps_its_settings_and_gets_the_large_segm
              for d in root.iter(q('transport_descriptor'))}
     assert used == set(sizes)
     assert [int(s.text) for s in sizes.values() if s is not None] == [SEGMENT_BYTES]
+    consumer = root.find(f'{q("log")}/{q("consumer")}')          # Fast DDS's errors: stderr
+    assert consumer.find(q('class')).text == 'StdoutErrConsumer'
+
+
+def test_fast_dds_errors_go_to_stderr_not_stdout(tmp_path):
+    """A Fast DDS error (here: a profile naming a transport it does not define) is printed on
+    stderr with the product's log section, on stdout without it (Fast DDS's default), where it
+    broke `--json` output and tests that read a process's stdout line by line."""
+    ours = ET.parse(large_data_profile()).getroot()
+    ET.register_namespace('', NS)
+    for with_log in (True, False):
+        root = ET.fromstring(ET.tostring(ours))
+        if not with_log:
+            root.remove(root.find(q('log')))
+        ET.SubElement(next(root.iter(q('userTransports'))), q('transport_id')).text = 'undefined'
+        profile = tmp_path / f'log_{with_log}.xml'
+        profile.write_bytes(ET.tostring(root))
+        out = subprocess.run([sys.executable, '-c', 'import rclpy; rclpy.init(); '
+                              'rclpy.create_node("n"); print("created")'],
+                             env=dict(os.environ, FASTRTPS_DEFAULT_PROFILES_FILE=str(profile)),
+                             capture_output=True, text=True, timeout=60)
+        error = 'Transport Node not found. Given ID: undefined'
+        assert (error in out.stderr, error in out.stdout) == (with_log, not with_log), out
+        assert out.stdout.splitlines()[-1] == 'created'
 
 
 def test_a_profile_with_its_own_transports_is_left_alone(tmp_path):

@@ -66,7 +66,7 @@ def bystander(domain_id):
 def _server(mode: str):
     # the hung server is killed: off the graph 6 s later (not after the default 20 s lease)
     proc = _python(SERVER, mode, env=short_lease(dict(os.environ)) if mode == 'hang' else None)
-    assert proc.stdout.readline().strip() == 'serving', proc.stderr.read()
+    _line(proc, 'serving')
     yield proc
     proc.kill()
     proc.wait()
@@ -84,7 +84,9 @@ def hung_server(domain_id):
 
 def _line(proc: subprocess.Popen, expected: str) -> None:
     line = proc.stdout.readline().strip()
-    assert line == expected, f'{line!r}: {proc.stderr.read()}'
+    if line != expected:                # its stderr ends only when it does: stop it first
+        proc.kill()
+        pytest.fail(f'{line!r} instead of {expected!r}: {proc.communicate()[1]}')
 
 
 def test_a_server_that_left_the_graph_is_named_long_before_the_timeout(bystander,

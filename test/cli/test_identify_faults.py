@@ -64,7 +64,8 @@ def _until_poses_come(proc: subprocess.Popen) -> list[str]:
         lines.append(line)
         if line.lstrip().startswith('pose '):
             return lines
-    pytest.fail(f'no collection progress: {"".join(lines)}{proc.stderr.read()}')
+    proc.kill()                         # its stderr ends only when it does
+    pytest.fail(f'no collection progress: {"".join(lines)}{proc.communicate()[1]}')
 
 
 def test_ctrl_c_cancels_the_collection_keeps_its_poses_and_resume_finishes_it(cell):
