@@ -34,7 +34,9 @@ import time
 from typing import Callable
 
 import rclpy
-from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.exceptions import (InvalidHandle, InvalidParameterTypeException,
+                              InvalidParameterValueException)
 from rclpy.executors import (Executor, ExternalShutdownException, MultiThreadedExecutor,
                              SingleThreadedExecutor)
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
@@ -46,13 +48,10 @@ EXECUTOR_ENV = 'COBOT_CALIB_EXECUTOR'
 EXECUTORS = ('events', 'single')
 DEFAULT_EXECUTOR = 'single'
 WAKE_PERIOD = 0.1     # [s] longest wait of one spin_once of a loop that checks for a stop
-# [s] longest wait of an idle executor's spin_once (a node's own, a companion's). A stop wakes
-# it at once (a signal through SignalWaker, a companion's destroy through Executor.wake), and at
-# 2 s an idle node's 10 Hz wait-set rebuilds were gone (bench_idle 16.5-18 % at load 3-17), but
-# a fresh-clone run with it saw a user_frame_solver outlive its killed launcher by 30 s and a
-# mock_robot hand_guide call go unanswered for 60 s, unexplained: back to
-# WAKE_PERIOD until that is understood (issue 38.4)
-IDLE_WAKE = WAKE_PERIOD
+# [s] longest wait of an idle executor's spin_once (a node's own, a companion's): a stop ends
+# it at once (Wake: a signal through SignalWaker, a companion's destroy), so this only bounds a
+# missed wake; at WAKE_PERIOD an idle node's 10 Hz wait-set rebuilds were most of its CPU
+IDLE_WAKE = 2.0
 STOP_GRACE = 3.0      # [s] for callbacks in flight to end after a stop, before the teardown
 TEARDOWN_DUMP = 4.0   # [s] a teardown still running this long prints every thread's stack
 # [s] a teardown still running this long ends the process (exit 0, said in its log): rclpy's
@@ -101,7 +100,7 @@ def run(make_node: Callable[[], Node], args=None, threads: int = 1) -> None:
         executor = (MultiThreadedExecutor(num_threads=threads) if threads > 1
                     else make_executor())
         executor.add_node(node)
-        waker = SignalWaker(executor)
+        waker = SignalWaker(wake_for(node, executor))
         period = idle_wake(executor)
         while node.context.ok() and not stop.is_set():
             executor.spin_once(timeout_sec=period)
@@ -130,24 +129,51 @@ def run(make_node: Callable[[], Node], args=None, threads: int = 1) -> None:
 
 
 def idle_wake(executor) -> float:
-    """The longest wait of ``executor``'s idle spin_once: IDLE_WAKE when it can be woken
-    (Executor.wake), else WAKE_PERIOD (the EventsExecutor)."""
-    return IDLE_WAKE if hasattr(executor, 'wake') else WAKE_PERIOD
+    """The longest wait of ``executor``'s idle spin_once: IDLE_WAKE when a Wake can end it
+    (rclpy's Python executors), else WAKE_PERIOD: the EventsExecutor has no guard conditions
+    ("Guard conditions not supported") and its wake() does not end spin_once either."""
+    return IDLE_WAKE if isinstance(executor, Executor) else WAKE_PERIOD
+
+
+class Wake:
+    """Ends the spin_once that ``node``'s executor is in now, from any thread.
+
+    Executor.wake() does not: rclpy's _wait_for_ready_callbacks takes a woken wait that found
+    no work for a change of entities, rebuilds its wait set and waits again until the
+    spin_once's timeout (spin_once(3.0) woken after 0.5 s returned after 3.0 s, single- and
+    multi-threaded). So with a long IDLE_WAKE every stop waited it out: a node's exit on
+    SIGTERM, and Companion.destroy, whose 2 s join then gave up and left the teardown to run
+    beside a live companion wait. A guard condition with a callback is work: the executor
+    runs its empty callback and spin_once returns. Its own callback group, so a long callback
+    of the node's default group does not hold it back."""
+
+    def __init__(self, node: Node) -> None:
+        self._guard = node.create_guard_condition(lambda: None,
+                                                  MutuallyExclusiveCallbackGroup())
+
+    def __call__(self) -> None:
+        with contextlib.suppress(InvalidHandle):     # the node was destroyed: nothing to end
+            self._guard.trigger()
+
+
+def wake_for(node: Node, executor) -> Wake | None:
+    """A Wake of ``node`` on ``executor``, or None for the EventsExecutor (no IDLE_WAKE)."""
+    return Wake(node) if isinstance(executor, Executor) else None
 
 
 class SignalWaker:
-    """Wakes ``executor`` as soon as a signal arrives, so its spin_once can wait long.
+    """Ends the main thread's spin_once as soon as a signal arrives, so it can wait long.
 
     Python runs a signal's handler only when the main thread runs Python again, and a main
     thread in rcl_wait does so at the wait's timeout. signal.set_wakeup_fd has the C-level
-    handler write the signal's number to a pipe at once; a thread reading it wakes the
-    executor (Executor.wake), so the wait returns and the handler runs. Main thread only."""
+    handler write the signal's number to a pipe at once; a thread reading it calls ``wake``
+    (a Wake, or None: the EventsExecutor spins short), so the wait returns and the handler
+    runs. Main thread only."""
 
-    def __init__(self, executor) -> None:
+    def __init__(self, wake: Callable[[], None] | None) -> None:
         self._read, self._write = os.pipe()
         os.set_blocking(self._write, False)
         self._previous = signal.set_wakeup_fd(self._write, warn_on_full_buffer=False)
-        wake = getattr(executor, 'wake', None)      # the EventsExecutor has none: it wakes
         self._thread = threading.Thread(target=self._run, args=(wake,), daemon=True,
                                         name='signal_waker')
         self._thread.start()
@@ -286,6 +312,7 @@ class Companion:
         self.node.owner_name = owner.get_name()      # its process's own node (others_on_graph)
         self._executor = make_executor(owner.context)
         self._executor.add_node(self.node)
+        self._wake = wake_for(self.node, self._executor)
         self._running = True
         self._thread = threading.Thread(target=self._spin, daemon=True, name=role)
         self._thread.start()
@@ -337,9 +364,8 @@ class Companion:
         # Stop the spinning thread before shutting its executor down: Executor.shutdown()
         # destroys the guard condition a concurrent wait may still hold (a segfault at exit).
         self._running = False
-        wake = getattr(self._executor, 'wake', None)
-        if wake is not None:
-            wake()                          # out of its spin_once now
+        if self._wake is not None:
+            self._wake()                    # out of its spin_once now
         self._thread.join(timeout=2.0)      # still running after: a blocked callback
         if self._thread.is_alive():
             return                      # still blocked: leave the rest to process exit

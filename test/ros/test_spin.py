@@ -1,5 +1,6 @@
 """spin: the executor choice; timers and Companion threads running, and clean exits, in node
-processes of each executor (a hung executor is killed with its process, never hangs the test).
+processes of each executor (a hung executor is killed with its process, never hangs the test);
+a Wake ends an executor's long idle wait at once.
 
 They run on a ROS domain of their own (domain_coordinator), not the session's.
 """
@@ -9,9 +10,15 @@ import select
 import signal
 import subprocess
 import sys
+import threading
+import time
 
 import domain_coordinator
 import pytest
+import rclpy
+from rclpy.context import Context
+from rclpy.executors import MultiThreadedExecutor, SingleThreadedExecutor
+from rclpy.node import Node
 
 from cobot_calib_ros.ros import spin
 
@@ -21,6 +28,9 @@ import sys
 from rclpy.node import Node
 from std_msgs.msg import String
 from cobot_calib_ros.ros import spin
+
+# idle waits longer than the test's TIMEOUT: a stop must not wait for one to end
+spin.IDLE_WAKE = 600.0
 
 
 class Ticker(Node):
@@ -64,10 +74,69 @@ def test_the_executor_comes_from_the_environment(monkeypatch):
         spin.executor_kind()
 
 
-def _read_line(proc: subprocess.Popen, timeout: float) -> str:
-    """The next line the process prints, or '' after `timeout` [s]."""
-    ready, _, _ = select.select([proc.stdout], [], [], timeout)
-    return proc.stdout.readline().strip() if ready else ''
+LONG_WAIT = 60.0        # [s] an idle wait that only a wake ends within the test's joins
+
+
+@pytest.fixture
+def context():
+    ctx = Context()
+    rclpy.init(context=ctx)
+    yield ctx
+    rclpy.try_shutdown(context=ctx)
+
+
+@pytest.mark.parametrize('make', [SingleThreadedExecutor,
+                                  lambda context: MultiThreadedExecutor(2, context=context)],
+                         ids=['single', 'multi'])
+def test_a_wake_ends_a_long_spin_once(context, make):
+    """rclpy's Executor.wake does not: it only has the wait set rebuilt, and the wait goes on
+    until the timeout (spin_once(3.0) woken after 0.5 s returned after 3.0 s), so with a long
+    idle wait a stop went unseen that long (issue 38.4)."""
+    node = Node('wake_test', context=context)
+    executor = make(context=context)
+    executor.add_node(node)
+    wake = spin.Wake(node)
+    spinning = threading.Thread(target=executor.spin_once, args=(LONG_WAIT,), daemon=True)
+    try:
+        spinning.start()
+        spinning.join(0.5)          # into its wait, or not yet: the wake ends it either way
+        wake()
+        spinning.join(10.0)
+        assert not spinning.is_alive()
+    finally:
+        spinning.join(LONG_WAIT)
+        executor.shutdown(timeout_sec=1.0)
+        node.destroy_node()
+
+
+def test_a_destroyed_companion_stops_at_once_with_a_long_idle_wait(context, monkeypatch):
+    """Companion.destroy joins its thread for 2 s, then gives up and leaves the teardown to
+    run beside a companion still in its wait: it did so whenever that wait outlasted the join
+    (Executor.wake did not end it)."""
+    monkeypatch.setattr(spin, 'IDLE_WAKE', LONG_WAIT)
+    owner = Node('companion_owner', context=context)
+    companion = spin.Companion(owner, 'helper')
+    try:
+        spin.wait(companion.submit(lambda: None), 10.0)     # spinning; idle from here on
+        companion.destroy()
+        assert not companion._thread.is_alive()
+    finally:
+        owner.destroy_node()
+
+
+def _printed(proc: subprocess.Popen, line: str, timeout: float) -> bool:
+    """Whether the process prints ``line`` within ``timeout`` [s]. Other lines are passed
+    over: Fast DDS logs a shared-memory port another process on the machine holds."""
+    deadline = time.monotonic() + timeout
+    while (remaining := deadline - time.monotonic()) > 0:
+        if not select.select([proc.stdout], [], [], remaining)[0]:
+            return False
+        printed = proc.stdout.readline()
+        if printed.strip() == line:
+            return True
+        if not printed:             # it exited
+            return False
+    return False
 
 
 def _start_node(kind: str, domain: int) -> subprocess.Popen:
@@ -86,7 +155,7 @@ def test_a_node_runs_and_exits_cleanly_on_a_signal(domain, kind, signum):
     once ended in exit code 130: a late KeyboardInterrupt in destroy_node)."""
     proc = _start_node(kind, domain)
     try:
-        assert _read_line(proc, TIMEOUT) == 'ticking and receiving'
+        assert _printed(proc, 'ticking and receiving', TIMEOUT)
         proc.send_signal(signum)
         out, _ = proc.communicate(timeout=TIMEOUT)
     finally:
