@@ -53,7 +53,7 @@ from cobot_calib_ros.nodes.job_node import JobNode
 from cobot_calib_ros.store.files import check_id
 
 Collect, Identify = CollectSphereData, IdentifyKinematics
-PLANNED_MAX_POSES = 100
+PLANNED_MAX_POSES = 50
 DESCRIPTION_CHECK_PERIOD = 2.0   # [s] between looks at the active calibration (robot_description)
 PLANNING_TASK_SEED = 1      # the task volume's configurations (the validation set is seed 0)
 
