@@ -55,7 +55,7 @@ def add_parser(subparsers):
                         'lowers the predicted error in the calibrated volume, with a stopping '
                         'rule; prints the prediction after every pose')
     p.add_argument('--max-poses', type=int, default=0,
-                   help='--planned: at most this many poses (default 100)')
+                   help='--planned: at most this many poses (default 50)')
     p.add_argument('--target-mm', type=float, default=0.0,
                    help='--planned: stop once the predicted max error in the calibrated '
                         'volume is at most this [mm] (default: off)')

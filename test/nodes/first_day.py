@@ -8,7 +8,7 @@ the target in the frame the TRUE marker tops define.
 
 Nothing but the mock's defaults is changed (the verbs' and the nodes' own defaults; the mock
 moves at its cell's time_scale). Slow by nature: the planned identification dominates (the
-candidate poses' IK and 100 planned poses, then two 125-pose validation collections); each
+candidate poses' IK and 50 planned poses, then two 125-pose validation collections); each
 step's wall time is printed.
 """
 import json

@@ -38,7 +38,7 @@ from cobot_calib_ros.core.robot_port import Cancelled, Capture, never, RobotPort
 
 Array = NDArray[np.float64]
 SOURCES = ('spheres', 'laser_tracker')
-PLANNED_MAX_POSES = 100
+PLANNED_MAX_POSES = 50
 PLANNING_TASK_SEED = 1      # the task volume's configurations (the validation set is seed 0)
 
 

@@ -31,6 +31,19 @@ then the fit's residual estimate).
   134 s with 2, 132 s with 16). Tried and not kept (within the run-to-run scatter of +-4 s):
   planning the remaining poses as a route by cheapest insertion (135-143 s), visiting a
   planned batch in 2-opt order, staying on one sphere for blocks of poses.
+- **50 poses (issue 38.5).** The per-second rule above spends few seconds on each pose, not
+  few poses: at 50 poses on the iiwa 7 it predicts 1.67x the full grid's max error. Two
+  levers bring 50 near the grid (offline, iiwa 7, predicted max at 50 over the grid's):
+  each candidate's :func:`flipped_configurations` in the pool (the same coupling pose with
+  the shoulder, elbow or wrist turned over: 9,382 -> 59,177 candidates; per pose 1.31x ->
+  1.14x), and the choice by gain per pose, the quickest of the poses within ``gain_slack``
+  (10 %) of the largest gain (1.16x in 145 s of robot time, against 1.14x in 205 s per
+  pose; 20 %: 1.24x in 129 s). UR10e (no exact flips): 0.55x in 116 s (per second: 0.61x
+  in 77 s). Tried and not kept: an exchange pass over the greedy 50 (V criterion 5 %
+  lower, predicted max 1.10-1.13x, 30 s a sweep over the pool); the gates' prior (1 mm,
+  10 mrad) in M (no change beyond the expected max's draw scatter: its information is
+  ~1e-5 of a pose's). Measured (bench_planning, six noise draws): the iiwa 7's 50 poses
+  1.44x the grid's expected max error (the goal 1.2x missed), the UR10e's 0.86x.
 - **Sequential.** :class:`SpherePlanner` is told each measured pose (its measured joints, or
   that it was skipped), refits, and re-plans the next pose with the data so far; its
   :meth:`SpherePlanner.stop_reason` is the stopping rule: the predicted max error at or under
@@ -41,6 +54,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+import itertools
 import math
 from typing import Any
 
@@ -52,7 +66,7 @@ from cobot_calib_ros.core.driver import move_seconds
 from cobot_calib_ros.core.kinematics.identification.observations import SphereObservations
 from cobot_calib_ros.core.kinematics.identification.parameters import ParameterSet
 from cobot_calib_ros.core.kinematics.kinematic_calibration import fit_spheres, free_parameters
-from cobot_calib_ros.core.kinematics.model import KinematicModel
+from cobot_calib_ros.core.kinematics.model import fk, KinematicModel
 from cobot_calib_ros.core.kinematics.plans import even_subset, sphere_plan
 
 Array = NDArray[np.float64]
@@ -86,8 +100,58 @@ def sphere_candidates(cell: Cell, model: KinematicModel,
                       arm_deg: Sequence[float] = CANDIDATE_ARM_DEG
                       ) -> tuple[list[dict], list[str]]:
     """The candidate pool: :func:`plans.sphere_plan`'s grid over ``tilt_deg`` about x, y, z
-    and ``arm_deg`` arm angles (the null space of a 7-joint arm); steps and skipped poses."""
-    return sphere_plan(cell, model, angles_deg=tuple(tilt_deg), arm_angles_deg=tuple(arm_deg))
+    and ``arm_deg`` arm angles (the null space of a 7-joint arm), then each pose's
+    :func:`flipped_configurations` after them; steps and skipped poses."""
+    steps, skipped = sphere_plan(cell, model, angles_deg=tuple(tilt_deg),
+                                 arm_angles_deg=tuple(arm_deg))
+    if not steps:
+        return steps, skipped
+    chain = model.chain(tool=cell.spheres.coupling_offset)
+    origin, q, names = flipped_configurations(chain, np.array([s['q'] for s in steps]))
+    return steps + [{'q': row.tolist(), 'target': steps[k]['target'],
+                     'label': f"{steps[k]['label']} flip {name}"}
+                    for k, row, name in zip(origin, q, names)], skipped
+
+
+FLIP_TOLERANCE = 1e-9       # [m] and [1]: a flipped configuration's tool pose off the original's
+
+
+def flipped_configurations(chain, q: ArrayLike) -> tuple[NDArray[np.int64], Array, list[str]]:
+    """Other joint configurations of ``chain`` with the same tool poses as q (m, n) [rad]:
+    for every set of three consecutive joints a, b, c whose turn (q_a + pi, -q_b, q_c + pi)
+    leaves the pose unchanged (a spherical shoulder or wrist, the iiwa's elbow), each
+    combination of such turns, kept where exact (FK within :data:`FLIP_TOLERANCE`) and inside
+    the joint limits. The joint centres stay where they were (only the links between turn
+    over), so what the original pose clears, the flipped one clears; but the joints move
+    through other parts of their ranges, which shows the model's errors from other sides
+    (offline, 50 poses chosen per pose on the iiwa 7: 1.31x -> 1.14x the full grid's
+    predicted max error). Returns each one's row in q, the configurations (k, n), and their names
+    ('1-3', '3-5+5-7', ...: 1-based joints of each turn)."""
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    n = q.shape[1]
+    T = fk(chain, q)
+    turns = [(a, a + 1, a + 2) for a in range(n - 2)]
+    origin, rows, names = [], [], []
+    for count in range(1, len(turns) + 1):
+        for combo in itertools.combinations(turns, count):
+            q2 = q.copy()
+            for a, b, c in combo:
+                q2[:, a] += math.pi
+                q2[:, b] = -q2[:, b]
+                q2[:, c] += math.pi
+            outside = (q2 < chain.lower) | (q2 > chain.upper)
+            q2 = np.where(outside, np.remainder(q2 + math.pi, 2 * math.pi) - math.pi, q2)
+            inside = np.all((q2 >= chain.lower) & (q2 <= chain.upper), axis=1)
+            exact = np.abs(fk(chain, q2) - T).reshape(len(q), -1).max(axis=1) < FLIP_TOLERANCE
+            keep = np.flatnonzero(inside & exact)
+            if not len(keep):
+                continue
+            origin.append(keep)
+            rows.append(q2[keep])
+            names += ['+'.join(f'{a + 1}-{c + 1}' for a, _, c in combo)] * len(keep)
+    if not rows:
+        return np.zeros(0, dtype=np.int64), np.zeros((0, n)), []
+    return np.concatenate(origin), np.concatenate(rows), names
 
 
 def fewest_poses(free: int, spheres: int, known_distances: int) -> int:
@@ -163,7 +227,7 @@ def _finite(value: float) -> float | None:
 class PlanSettings:
     """How many poses, and when to stop."""
 
-    max_poses: int = 100
+    max_poses: int = 50         # issue 38.5's count (module doc: the error it reaches)
     target_mm: float = 0.0      # stop once the predicted max error is at or under it (0: off)
     min_gain: float = 0.0       # stop once the predicted max falls by less than this fraction
     gain_window: int = 10       # ... per pose, averaged over this many poses (0 min_gain: off)
@@ -175,12 +239,17 @@ class PlanSettings:
     travel_weight: float = 4.0   # >= 1: a move's second counts this many hold seconds in the
     #                             choice (the greedy per second is myopic: a far pose now costs
     #                             the moves back too; module doc)
+    gain_slack: float = 0.1     # > 0 (with joint_speed > 0): instead of the gain per second,
+    #                             the quickest pose of those within this fraction of the
+    #                             largest gain (travel_weight then unused)
 
     def __post_init__(self) -> None:
         if self.criterion not in CRITERIA:
             raise ValueError(f'criterion must be one of {CRITERIA}, got {self.criterion!r}')
         if self.max_poses < 1:
             raise ValueError(f'max_poses must be >= 1, got {self.max_poses}')
+        if not 0.0 <= self.gain_slack < 1.0:
+            raise ValueError(f'gain_slack must be in [0, 1), got {self.gain_slack}')
         if not (self.target_mm >= 0.0 and self.min_gain >= 0.0 and self.sigma_prior > 0.0
                 and self.joint_speed >= 0.0 and self.pose_seconds > 0.0
                 and self.travel_weight >= 1.0):
@@ -261,10 +330,11 @@ def predict(M: Array, F: int, task: Array, sigma: float, draws: Array, poses: in
 
 
 def _pick(A: Array, M: Array, task_weight: Array | None, ridge: float,
-          seconds: Array | None = None) -> int:
+          seconds: Array | None = None, slack: float = 0.0) -> int:
     """Index of the candidate block (C, 3, D) that most increases log det M (task_weight
     None) or most decreases trace(W M^-1) (W (D, D)), per its robot ``seconds`` (C,) if
-    given; M regularised by ``ridge``."""
+    given, or with ``slack`` > 0 the quickest of those within that fraction of the largest
+    gain; M regularised by ``ridge``."""
     D = M.shape[0]
     Minv = np.linalg.inv(M + ridge * np.eye(D))
     G = A @ Minv                                          # (C, 3, D)
@@ -274,7 +344,12 @@ def _pick(A: Array, M: Array, task_weight: Array | None, ridge: float,
     else:
         GW = G @ task_weight
         gain = np.einsum('cii->c', np.linalg.solve(S, GW @ G.transpose(0, 2, 1)))
-    return int(np.argmax(gain if seconds is None else gain / seconds))
+    if seconds is None:
+        return int(np.argmax(gain))
+    if slack > 0.0:
+        best = gain.max()
+        return int(np.argmin(np.where(gain >= best - slack * abs(best), seconds, np.inf)))
+    return int(np.argmax(gain / seconds))
 
 
 @dataclass
@@ -395,7 +470,7 @@ class SpherePlanner:
             if not len(idx):
                 break
             pick = int(idx[_pick(self.pool_A[idx], M, weight, self.ridge,
-                                 self._seconds(here, idx))])
+                                 self._seconds(here, idx), self.settings.gain_slack)])
             here = self.pool_q[pick]
             available[pick] = False
             A = self.pool_A[pick]

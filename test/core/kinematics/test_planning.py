@@ -13,7 +13,8 @@ from cobot_calib_ros.core.kinematics.collection import Ending
 from cobot_calib_ros.core.kinematics.identification import register_rigid, SphereObservations
 from cobot_calib_ros.core.kinematics.kinematic_calibration import fit_spheres
 from cobot_calib_ros.core.kinematics.planned_collection import collect_planned, PAPER_HOLD
-from cobot_calib_ros.core.kinematics.planning import (_pick, fewest_poses, PlanSettings,
+from cobot_calib_ros.core.kinematics.planning import (_pick, fewest_poses,
+                                                      flipped_configurations, PlanSettings,
                                                       predict, sphere_candidates,
                                                       SpherePlanner, tilt_grid_deg,
                                                       too_few_poses)
@@ -135,7 +136,8 @@ def test_weighting_travel_saves_robot_time_for_little_accuracy(planner_template)
     2.73 um against 2.54 um (weight 16: 45.1 s, 2.78 um)."""
     plans_ = {}
     for weight in (1.0, PlanSettings().travel_weight):
-        planner = _planner(planner_template, max_poses=60, travel_weight=weight)
+        planner = _planner(planner_template, max_poses=60, travel_weight=weight,
+                           gain_slack=0.0)
         chosen, predictions = planner.plan(60)
         moves = np.abs(np.diff(planner.pool_q[chosen], axis=0)).max(axis=1).sum()
         plans_[weight] = (moves, predictions[-1].max_m)
@@ -145,6 +147,60 @@ def test_weighting_travel_saves_robot_time_for_little_accuracy(planner_template)
           f'{near_max * 1e6:.2f} um against {far_max * 1e6:.2f} um')
     assert near_moves < 0.8 * far_moves
     assert near_max < 1.15 * far_max
+
+
+def test_the_slack_choice_moves_less_for_nearly_the_per_pose_accuracy(planner_template):
+    """issue 38.5: the default (the quickest pose within gain_slack of the largest gain)
+    against the gain per pose with travel ignored (joint_speed 0), offline plans of 50
+    poses."""
+    plans_ = {}
+    for settings in ({}, {'joint_speed': 0.0}):
+        planner = _planner(planner_template, max_poses=50, **settings)
+        chosen, predictions = planner.plan(50)
+        moves = np.abs(np.diff(planner.pool_q[chosen], axis=0)).max(axis=1).sum()
+        plans_[bool(settings)] = (moves, predictions[-1].max_mm)
+    (slack_moves, slack_max), (pose_moves, pose_max) = plans_[False], plans_[True]
+    print(f'\nmoves {slack_moves:.1f} s against {pose_moves:.1f} s, predicted max '
+          f'{slack_max * 1e3:.2f} um against {pose_max * 1e3:.2f} um')
+    assert slack_moves < 0.8 * pose_moves
+    assert slack_max < 1.1 * pose_max
+
+
+def test_the_slack_pick_is_the_quickest_within_the_slack_of_the_best():
+    rng = np.random.default_rng(2)
+    A = rng.normal(size=(40, 3, 5))
+    M = np.einsum('cij,cik->jk', A[:10], A[:10])
+    W = np.diag([1.0, 2.0, 0.5, 0.0, 3.0])
+    seconds = rng.uniform(1.0, 3.0, 40)
+    mse = np.array([np.trace(W @ np.linalg.inv(M + a.T @ a)) for a in A])
+    gain = np.trace(W @ np.linalg.inv(M)) - mse
+    for slack in (0.05, 0.3):
+        within = np.flatnonzero(gain >= (1.0 - slack) * gain.max())
+        assert _pick(A, M, W, 0.0, seconds, slack) == within[np.argmin(seconds[within])]
+    assert _pick(A, M, W, 0.0, seconds) == int(np.argmax(gain / seconds))
+
+
+def test_a_flipped_configuration_is_the_same_pose_inside_the_limits():
+    """The iiwa 7's shoulder, elbow and wrist (q_a + pi, -q_b, q_c + pi) turns and their
+    combinations: 7 more configurations of a pose where the limits allow; the UR10e's
+    parallel shoulder-elbow-wrist joints have none."""
+    chain = MODEL.chain(tool=SIM.cell.spheres.coupling_offset)
+    rng = np.random.default_rng(3)
+    q = rng.uniform(0.5 * chain.lower, 0.5 * chain.upper, (20, 7))
+    origin, flipped, names = flipped_configurations(chain, q)
+    assert sorted(set(names)) == ['1-3', '1-3+3-5', '1-3+3-5+5-7', '1-3+5-7', '3-5',
+                                  '3-5+5-7', '5-7']
+    np.testing.assert_allclose(kinematics.fk(chain, flipped), kinematics.fk(chain, q[origin]),
+                               atol=1e-12)
+    assert np.all((flipped >= chain.lower) & (flipped <= chain.upper))
+    assert np.all(np.abs(flipped - q[origin]).max(axis=1) > 1.0)
+    wrist = np.array(names) == '5-7'
+    np.testing.assert_allclose(flipped[wrist][:, :4], q[origin[wrist]][:, :4])
+    np.testing.assert_allclose(flipped[wrist][:, 5], -q[origin[wrist]][:, 5])
+    ur = load_simulation(cell_file('ur10e_close'))
+    ur_chain = SimRobot(ur).model.chain(tool=ur.cell.spheres.coupling_offset)
+    ur_q = rng.uniform(-1.0, 1.0, (10, 6))
+    assert len(flipped_configurations(ur_chain, ur_q)[1]) == 0
 
 
 def test_target_stops_at_the_first_pose_predicted_within_it(planner_template):
@@ -292,5 +348,7 @@ def test_bad_settings_say_what_to_give():
         PlanSettings(target_mm=-1.0)
     with pytest.raises(ValueError, match='travel_weight >= 1'):
         PlanSettings(travel_weight=0.5)
+    with pytest.raises(ValueError, match=r'gain_slack must be in \[0, 1\)'):
+        PlanSettings(gain_slack=1.0)
     with pytest.raises(ValueError, match='no candidate poses'):
         SpherePlanner(MODEL, [], DISTANCES, TOOL0, np.zeros((1, 7)))
