@@ -10,6 +10,7 @@ import time
 import pytest
 
 from machine import short_lease
+from proc_lines import Lines
 
 SERVICE = '/doomed_capture'
 # A node serving SERVICE; its callback prints 'asked', then answers at once (argv[1] 'answer')
@@ -66,10 +67,13 @@ def bystander(domain_id):
 def _server(mode: str):
     # the hung server is killed: off the graph 6 s later (not after the default 20 s lease)
     proc = _python(SERVER, mode, env=short_lease(dict(os.environ)) if mode == 'hang' else None)
-    assert proc.stdout.readline().strip() == 'serving', proc.stderr.read()
-    yield proc
-    proc.kill()
-    proc.wait()
+    proc.lines = Lines(proc.stdout)
+    try:
+        _line(proc, 'serving')
+        yield proc
+    finally:
+        proc.kill()
+        proc.wait()
 
 
 @pytest.fixture
@@ -82,9 +86,15 @@ def hung_server(domain_id):
     yield from _server('hang')
 
 
-def _line(proc: subprocess.Popen, expected: str) -> None:
-    line = proc.stdout.readline().strip()
-    assert line == expected, f'{line!r}: {proc.stderr.read()}'
+def _line(server: subprocess.Popen, expected: str, timeout: float = 60.0) -> None:
+    """Until the server prints ``expected``. Fast DDS prints its own errors on stdout too (an
+    SHM port another process holds: 'RTPS_TRANSPORT_SHM Error ... open_and_lock_file failed',
+    harmless, it takes another port), so the server's first line need not be the one; and its
+    stderr is read only once it has exited (a read of a running server's waits for its end)."""
+    if server.lines.match(rf'^{expected}$', timeout) is None:
+        server.kill()
+        pytest.fail(f'no {expected!r} from the server within {timeout} s: '
+                    f'{"".join(server.lines.seen)}{server.communicate()[1]}')
 
 
 def test_a_server_that_left_the_graph_is_named_long_before_the_timeout(bystander,
