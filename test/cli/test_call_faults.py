@@ -10,6 +10,7 @@ import time
 import pytest
 
 from machine import short_lease
+from proc_lines import Lines
 
 SERVICE = '/doomed_capture'
 # A node serving SERVICE; its callback prints 'asked', then answers at once (argv[1] 'answer')
@@ -66,10 +67,13 @@ def bystander(domain_id):
 def _server(mode: str):
     # the hung server is killed: off the graph 6 s later (not after the default 20 s lease)
     proc = _python(SERVER, mode, env=short_lease(dict(os.environ)) if mode == 'hang' else None)
-    _line(proc, 'serving')
-    yield proc
-    proc.kill()
-    proc.wait()
+    proc.lines = Lines(proc.stdout)
+    try:
+        _line(proc, 'serving')
+        yield proc
+    finally:
+        proc.kill()
+        proc.wait()
 
 
 @pytest.fixture
@@ -82,11 +86,16 @@ def hung_server(domain_id):
     yield from _server('hang')
 
 
-def _line(proc: subprocess.Popen, expected: str) -> None:
-    line = proc.stdout.readline().strip()
-    if line != expected:                # its stderr ends only when it does: stop it first
-        proc.kill()
-        pytest.fail(f'{line!r} instead of {expected!r}: {proc.communicate()[1]}')
+def _line(server: subprocess.Popen, expected: str, timeout: float = 60.0) -> None:
+    """Until the server prints ``expected``. The session's Fast DDS profile sends Fast DDS's
+    own errors to stderr (an SHM port another process holds: 'RTPS_TRANSPORT_SHM Error ...
+    open_and_lock_file failed', harmless), but a profile without that log section prints them
+    on stdout, so the server's first line need not be the one; and its stderr is read only once
+    it has exited (a read of a running server's waits for its end)."""
+    if server.lines.match(rf'^{expected}$', timeout) is None:
+        server.kill()
+        pytest.fail(f'no {expected!r} from the server within {timeout} s: '
+                    f'{"".join(server.lines.seen)}{server.communicate()[1]}')
 
 
 def test_a_server_that_left_the_graph_is_named_long_before_the_timeout(bystander,

@@ -43,6 +43,12 @@ def test_every_verb_is_a_module_with_add_parser_and_run():
     for verb, module in [('call', 'call'), ('list', 'list_cmd'), ('demo', 'demo_cmd')]:
         run = verbs[verb].get_default('run')
         assert run.__module__ == f'cobot_calib_ros.cli.{module}' and run.__name__ == 'run'
+    # a command line builds the parser of its own verb only, found by main.command_of
+    for verb, sub in verbs.items():
+        module = sub.get_default('run').__module__.rsplit('.', 1)[1]
+        assert main.command_of(module) == verb
+        alone = main.build_parser([verb, '--help'])._subparsers._group_actions[0].choices
+        assert list(alone) == [verb]
 
 
 def test_negative_numbers_in_exponent_notation_are_values_not_options():
