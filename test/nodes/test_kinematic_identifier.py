@@ -65,7 +65,7 @@ def progress(ros):
 def collected(trial_data):
     """A small sphere collection (60 poses) and a laser-tracker volume set in the suite's data
     dir, collected in-process on the mock (api.kinematics.collect over DirectRobot, as the
-    node collects: test/api/test_kinematics.py checks it); the node identifies them."""
+    node collects: test/api/test_kinematics_api.py checks it); the node identifies them."""
     sim = load_simulation(cell_file('sawyer_close'))
     robot, collections = DirectRobot(SimRobot(sim, seed_offset=1), sim.probe), \
         store.open(trial_data, cell=CELL).collections
