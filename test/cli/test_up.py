@@ -231,7 +231,7 @@ def test_ctrl_c_during_a_collection_aborts_its_goal_for_the_client_and_every_nod
         Path(running.env['COBOT_CALIB_DATA'])).list_collections()]
     assert client.returncode == 1, err
     # whichever heard of the stop first says so: the node, or the robot that ended the move
-    assert f'failed: {collection_id}: ' in err and 'stopped at pose ' in err, err
+    assert 'failed: ' in err and f'{collection_id}: stopped at pose ' in err, err
     assert 'is shutting down (Ctrl-C or SIGTERM)' in err, err
     assert err.strip().endswith(f'--attach --resume {collection_id}'), err
     stored = CollectionStore(Path(running.env['COBOT_CALIB_DATA'])).load(collection_id)

@@ -165,8 +165,15 @@ def hold_statistics(times: Array, positions: Array, duration: float, expected_ra
     if count < needed:
         empty = np.full(width, math.nan)
         return HoldCapture(False, ErrorCode.NO_DATA, (
-            f'only {count} joint_states samples in {window_s or duration:.3f} s (need {needed}); '
+            f'only {count} joint_states samples in {_held(duration, window_s)} (need {needed}); '
             'is the robot driver (mock_robot) publishing joint_states?'),
             empty, empty, count, span)
     return HoldCapture(True, ErrorCode.SUCCESS, f'{count} samples over {span:.3f} s', mean, std,
                        count, span)
+
+
+def _held(duration: float, window_s: float | None) -> str:
+    """'0.200 s', or '1.000 s (the 0.200 s hold went on)' when it went on for samples."""
+    if window_s is None or window_s <= duration * (1.0 + 1e-9):
+        return f'{duration:.3f} s'
+    return f'{window_s:.3f} s (the {duration:.3f} s hold went on)'
