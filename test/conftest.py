@@ -1,8 +1,11 @@
 """Every test session gets its own ROS_DOMAIN_ID and keeps DDS on loopback."""
+import atexit
 import os
 from pathlib import Path
+import shutil
 import sys
 import tempfile
+import xml.etree.ElementTree as ET
 
 import pytest
 from hypothesis import settings
@@ -12,15 +15,45 @@ from hypothesis import settings
 settings.register_profile('no_deadline', deadline=None)
 settings.load_profile('no_deadline')
 
+PROFILES_NS = 'http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles'
+
+
+def _session_dds_profile(directory: Path) -> Path:
+    """test/fastdds_no_lease_check.xml with Fast DDS's own log in ``directory``/fastdds.log: a
+    busy machine's harmless 'RTPS_TRANSPORT_SHM Error ... open_and_lock_file failed' (an SHM
+    port another process holds) would otherwise be in the stderr of any process a test
+    compares (the product's profile sends it to stderr, test/api/test_dds_profile.py)."""
+    def q(tag: str) -> str:
+        return f'{{{PROFILES_NS}}}{tag}'
+    ET.register_namespace('', PROFILES_NS)
+    tree = ET.parse(Path(__file__).with_name('fastdds_no_lease_check.xml'))
+    consumer = tree.getroot().find(f'{q("log")}/{q("consumer")}')
+    for child in list(consumer):
+        consumer.remove(child)
+    ET.SubElement(consumer, q('class')).text = 'FileConsumer'
+    for name, value in (('filename', str(directory / 'fastdds.log')), ('append', 'TRUE')):
+        prop = ET.SubElement(consumer, q('property'))
+        ET.SubElement(prop, q('name')).text = name
+        ET.SubElement(prop, q('value')).text = value
+    out = directory / 'fastdds_no_lease_check.xml'
+    tree.write(out, encoding='utf-8', xml_declaration=True)
+    return out
+
+
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+# what the session writes outside pytest's tmp_path, removed when it ends
+SESSION_DIR = Path(tempfile.mkdtemp(prefix='cobot_calib_test_'))
+atexit.register(shutil.rmtree, SESSION_DIR, ignore_errors=True)
 # commands store their results (identify stores every source): never in the user's
 # ~/.ros/cobot_calib; a test that looks at its results gives its own data dir
-os.environ.setdefault('COBOT_CALIB_DATA', tempfile.mkdtemp(prefix='cobot_calib_test_data_'))
+if 'COBOT_CALIB_DATA' not in os.environ:
+    os.environ['COBOT_CALIB_DATA'] = str(SESSION_DIR / 'data')
+    (SESSION_DIR / 'data').mkdir()
 # every process of the session (this one, nodes, commands) announces an infinite DDS lease:
 # no lease checks, which can deadlock Fast DDS 2.14.5 (see the file); a test that kills a
 # process on purpose gives it a short lease of its own
-os.environ.setdefault('FASTRTPS_DEFAULT_PROFILES_FILE',
-                      str(Path(__file__).with_name('fastdds_no_lease_check.xml')))
+if 'FASTRTPS_DEFAULT_PROFILES_FILE' not in os.environ:
+    os.environ['FASTRTPS_DEFAULT_PROFILES_FILE'] = str(_session_dds_profile(SESSION_DIR))
 # tools/pg_cluster.py: the throwaway PostgreSQL of test/store (and bench_database)
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'tools'))
 
