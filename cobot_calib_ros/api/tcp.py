@@ -92,15 +92,16 @@ def calibrate_and_store(request: TcpRequest, robot: RobotPort, rig, repo, tool: 
     record = TcpRecord.from_solution(
         solution, tool, request.point, touches.labels, touches.joints, touches.flange,
         stamp_ns, through['kinematics'], request.tilt,
-        request.elongation if plan.elongators else 0.0, gate, measured_through=through)
+        request.elongation if plan.elongators else 0.0, '' if gate is None else gate.message,
+        measured_through=through)
     try:
         activation = repo.tcp.save_and_activate(record)
     except (OSError, ValueError) as e:
         return Failure(ErrorCode.STORAGE_FAILED, f'could not store the TCP calibration: {e}')
-    if gate:
-        return TcpOutcome(record, run, bool(activation), ErrorCode.IMPLAUSIBLE_FIT, (
+    if gate is not None:
+        return TcpOutcome(record, run, bool(activation), gate.code, (
             f'{record.id} rejected, stored as rejected and not made active (the active TCP '
-            f'of {tool} is unchanged): {gate}'))
+            f'of {tool} is unchanged): {gate.message}'))
     position = solution.position
     x, y, z = position.t * 1e3
     angles = ', '.join(f'{math.degrees(a):.3f}' for a in rpy_from_matrix(solution.R_flange_tcp))

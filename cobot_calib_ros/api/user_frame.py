@@ -114,8 +114,8 @@ def _measure(repo, cell, request: Request, robot, camera, model, frames_store, l
     if method in landmark_frames.LANDMARK_METHODS:
         from cobot_calib_ros.core.landmarks import views
         problem = views.setup_problem(cell)
-        if problem:
-            raise Refusal(Failure(ErrorCode.INVALID_INPUT, f'{method}: {problem}'))
+        if problem is not None:
+            raise Refusal(Failure(problem.code, f'{method}: {problem.message}'))
         with lock:
             guess = _active_frame(frames_store)
         chosen = rig(repo, cell, request.kinematics, model)

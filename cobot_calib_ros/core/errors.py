@@ -53,3 +53,9 @@ class Refusal(Exception):
     def __init__(self, failure: Failure) -> None:
         super().__init__(failure.message)
         self.failure = failure
+
+
+def first_failure(*checks: Failure | None) -> Failure | None:
+    """The first of ``checks`` that is a Failure, else None (a Failure is falsy: checks that
+    return ``Failure | None`` cannot be chained with ``or``)."""
+    return next((check for check in checks if check is not None), None)

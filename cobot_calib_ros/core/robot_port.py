@@ -105,16 +105,18 @@ class Approach:
                 f"tool's {self.axis}, without turning the tool from the first approach")
 
 
-def elongator_problem(axis: str, distance: float) -> str:
-    """'' if (``axis``, ``distance`` [m]) names an elongator point ('' and 0: the point
-    itself), else what is wrong with it."""
+def elongator_problem(axis: str, distance: float) -> Failure | None:
+    """None if (``axis``, ``distance`` [m]) names an elongator point ('' and 0: the point
+    itself), else an INVALID_INPUT Failure saying what is wrong with it."""
     if not axis:
-        return '' if distance == 0.0 else f'elongation {distance} m without an elongator axis'
+        return None if distance == 0.0 else Failure(
+            ErrorCode.INVALID_INPUT, f'elongation {distance} m without an elongator axis')
     if axis not in ('z', 'x'):
-        return f"elongator axis {axis!r}: use 'z' or 'x'"
+        return Failure(ErrorCode.INVALID_INPUT, f"elongator axis {axis!r}: use 'z' or 'x'")
     if not math.isfinite(distance) or not 0.0 < abs(distance) < 1.0:
-        return f'elongation {distance} m: must be non-zero and within 1 m, e.g. -0.05'
-    return ''
+        return Failure(ErrorCode.INVALID_INPUT,
+                       f'elongation {distance} m: must be non-zero and within 1 m, e.g. -0.05')
+    return None
 
 
 class RobotPort(Protocol):
