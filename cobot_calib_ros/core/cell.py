@@ -213,8 +213,10 @@ def check_frame_id(frame_id: str) -> Failure | None:
         return Failure(ErrorCode.INVALID_INPUT, 'a frame id must not be empty')
     bad = sorted(set(frame_id) - FRAME_ID_CHARS)
     if bad or frame_id.startswith('/'):
-        return Failure(ErrorCode.INVALID_INPUT, f'frame id {frame_id!r} has characters tf2 does not accept ({"".join(bad) or "/"}'
-                '); use letters, digits and _ (e.g. user_frame), no leading /')
+        return Failure(ErrorCode.INVALID_INPUT,
+                       f'frame id {frame_id!r} has characters tf2 does not accept '
+                       f'({"".join(bad) or "/"}'
+                       '); use letters, digits and _ (e.g. user_frame), no leading /')
     return None
 
 

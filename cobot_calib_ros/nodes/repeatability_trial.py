@@ -333,9 +333,10 @@ class RepeatabilityTrial(JobNode):
     def _layout_problem(self, meta: dict) -> Failure | None:
         if meta['layout'] == self._cell.layout:
             return None
-        return Failure(ErrorCode.INVALID_INPUT, f'trial {meta["id"]} was measured on the {meta["layout"]} layout, this node '
-                f'uses {self._cell.layout}; start the suite with layout:={meta["layout"]} to '
-                'resume it')
+        return Failure(ErrorCode.INVALID_INPUT,
+                       f'trial {meta["id"]} was measured on the {meta["layout"]} layout, this '
+                       f'node uses {self._cell.layout}; start the suite with '
+                       f'layout:={meta["layout"]} to resume it')
 
     def _announce(self, trial: _Goal, goal_handle, resume, feedback) -> None:
         """The first feedback, before waiting for the robot: what runs (for a resume: the

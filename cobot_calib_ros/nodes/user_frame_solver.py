@@ -65,8 +65,9 @@ def frames_problem(base: tuple[str, str], user: tuple[str, str]) -> Failure | No
         if why is not None:
             return Failure(why.code, f'{source}: {why.message}')
     if base[1] == user[1]:
-        return Failure(ErrorCode.INVALID_INPUT, f'{base[0]} and {user[0]} are both {base[1]!r}: the user frame needs a frame '
-                'id of its own')
+        return Failure(ErrorCode.INVALID_INPUT,
+                       f'{base[0]} and {user[0]} are both {base[1]!r}: the user frame needs a '
+                       'frame id of its own')
     return None
 
 
@@ -153,9 +154,9 @@ class UserFrameSolver(JobNode):
 
     def _startup_checks(self) -> None:
         problem = self._frame_parameters_problem()
-        if problem is not None:   # given with -p or --params-file: refused per request, not a crash
-            self.get_logger().error(f'{problem.message}; calibrations that do not name their frames '
-                                    'are refused until it is set right (ros2 param set)')
+        if problem is not None:   # given with -p or --params-file: refused per request
+            self.get_logger().error(f'{problem.message}; calibrations that do not name their '
+                                    'frames are refused until it is set right (ros2 param set)')
 
     def _on_set_parameters(self, params) -> SetParametersResult:
         """Refuse a base_frame / user_frame that tf2 would not accept, with the reason. Only

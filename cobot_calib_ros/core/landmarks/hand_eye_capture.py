@@ -72,8 +72,10 @@ def pairing_problem(reached: Array, captured: Array,
     worst = int(np.argmax(delta))
     if delta[worst] <= tolerance:
         return None
-    return Failure(ErrorCode.MOVING, f'joint {worst + 1} captured {delta[worst] * 1e3:.3f} mrad from where the move '
-            f'ended (at most {tolerance * 1e3:.3f}): the arm was not at rest around the image')
+    return Failure(ErrorCode.MOVING,
+                   f'joint {worst + 1} captured {delta[worst] * 1e3:.3f} mrad from where the '
+                   f'move ended (at most {tolerance * 1e3:.3f}): the arm was not at rest around '
+                   'the image')
 
 
 def take_hand_eye_views(plan: Sequence[Array], robot: RobotPort, camera: CameraPort,

@@ -107,8 +107,9 @@ def setup_problem(cell) -> Failure | None:
     """None when the cell has a camera and landmarks, else an INVALID_INPUT Failure saying
     what to add to the cell file."""
     if cell.camera is None or cell.landmarks is None or not cell.landmarks.markers:
-        return Failure(ErrorCode.INVALID_INPUT, f'cell {cell.name!r} has no wrist camera or no landmarks; add camera: and '
-                'landmarks: markers: to the cell file')
+        return Failure(ErrorCode.INVALID_INPUT,
+                       f'cell {cell.name!r} has no wrist camera or no landmarks; add camera: and '
+                       'landmarks: markers: to the cell file')
     return None
 
 
