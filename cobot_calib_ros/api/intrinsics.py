@@ -17,7 +17,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from cobot_calib_ros.core.errors import ErrorCode, Failure
+from cobot_calib_ros.core.errors import ErrorCode, Failure, Refusal
 from cobot_calib_ros.core.landmarks.camera import camera_info_yaml
 from cobot_calib_ros.core.landmarks.intrinsics import MODELS
 from cobot_calib_ros.core.landmarks.intrinsics_capture import (calibrate_images,
@@ -85,6 +85,8 @@ def store_run(run: IntrinsicsRun, *, source: str, board: str, repo=None, data_di
                                  Path(data_dir) / 'intrinsics' / f'{record.id}.yaml')
         record.result.yaml_path = str(path.resolve())
         activation = None if repo is None else repo.intrinsics.save_and_activate(record)
+    except Refusal as e:                          # another cell's (store.cells)
+        return e.failure
     except (OSError, ValueError) as e:
         return Failure(ErrorCode.STORAGE_FAILED, f'could not store the intrinsics: {e}')
     active = bool(activation)

@@ -13,7 +13,7 @@ import numpy as np
 
 from cobot_calib_ros.core import frames
 from cobot_calib_ros.core.cell import tool_down_orientation
-from cobot_calib_ros.core.errors import ErrorCode, Failure
+from cobot_calib_ros.core.errors import ErrorCode, Failure, Refusal
 from cobot_calib_ros.core.kinematics.urdf import rpy_from_matrix
 from cobot_calib_ros.core.provenance import missing_prerequisites
 from cobot_calib_ros.core.robot_port import Cancelled, never, RobotPort
@@ -40,7 +40,7 @@ class TcpOutcome:
 def _user_frame_or_none(rig) -> np.ndarray | None:
     try:
         return rig.T_base_user()
-    except (KeyError, ValueError):
+    except (KeyError, ValueError, Refusal):
         return None
 
 
@@ -96,6 +96,8 @@ def calibrate_and_store(request: TcpRequest, robot: RobotPort, rig, repo, tool: 
         measured_through=through)
     try:
         activation = repo.tcp.save_and_activate(record)
+    except Refusal as e:                          # another cell's (store.cells)
+        return e.failure
     except (OSError, ValueError) as e:
         return Failure(ErrorCode.STORAGE_FAILED, f'could not store the TCP calibration: {e}')
     if gate is not None:

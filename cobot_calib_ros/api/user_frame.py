@@ -179,6 +179,8 @@ def choose(frames_store, action: str, calibration_id: str,
         with lock:
             activation = frames_store.retire(cid) if retire else frames_store.activate(cid)
             active = frames_store.active()
+    except Refusal as e:                # another cell's (store.cells)
+        return e.failure
     except ValueError as e:
         return Failure(ErrorCode.INVALID_INPUT, f'calibration_id {cid!r}: {e}')
     except KeyError:

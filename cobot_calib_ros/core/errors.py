@@ -33,6 +33,7 @@ class ErrorCode(IntEnum):
     OUT_OF_RANGE = 16        # readings outside the instrument's range
     NOT_AVAILABLE = 17       # the cell has no such instrument
     BUSY = 18                # another job is running
+    FOREIGN_RESULT = 19      # a stored result of another cell or robot (store.cells)
 
 
 @dataclass(frozen=True)

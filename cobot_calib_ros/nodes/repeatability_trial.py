@@ -120,7 +120,7 @@ class RepeatabilityTrial(JobNode):
         self._republish.cancel()
         for meta in sorted(self._store.list_trials(), key=lambda m: m['updated_ns'],
                            reverse=True):
-            if self._foreign(meta):
+            if self._foreign(meta) is not None:
                 continue
             data = self._store.load(meta['id'])
             if data is None:
@@ -313,10 +313,10 @@ class RepeatabilityTrial(JobNode):
                                     point_names=self._cell.point_names).to_dict()
             return None
         foreign = self._foreign(stored.meta)
-        if foreign:
-            raise trialmod.TrialError(ErrorCode.INVALID_INPUT, (
-                f'trial {trial.trial_id} is not this cell\'s: {foreign}; resume it on its own '
-                'cell\'s suite, or leave the trial id out to start a new trial'))
+        if foreign is not None:
+            raise trialmod.TrialError(foreign.code, (
+                f'trial {trial.trial_id} is not this cell\'s: {foreign.message}; resume it on '
+                'its own cell\'s suite, or leave the trial id out to start a new trial'))
         trial.meta = stored.meta
         problem = first_failure(
             trialmod.resume_problem(stored.meta, goal.method, goal.axis, goal.cycles),

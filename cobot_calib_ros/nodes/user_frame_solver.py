@@ -380,6 +380,9 @@ class UserFrameSolver(JobNode):
             with self._store_lock:
                 record = (self._store.get(request.calibration_id) if request.calibration_id
                           else self._store.active())
+        except Refusal as e:           # another cell's (store.cells)
+            return results.answer(response, e.failure.code, f'calibration_id '
+                                  f'{request.calibration_id!r}: {e.failure.message}')
         except ValueError as e:        # not a possible calibration id
             response.error_code = results.code('ConvertPoints', ErrorCode.INVALID_INPUT)
             response.message = f'calibration_id {request.calibration_id!r}: {e}'

@@ -17,7 +17,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from cobot_calib_ros.store.cells import ForeignResult, LEGACY_CELL, legacy_note, ResultsCell
+from cobot_calib_ros.store.cells import foreign_result, LEGACY_CELL, legacy_note, ResultsCell
 from cobot_calib_ros.store.files import (atomic_write_text, check_id, ensure_dir, ID_PATTERN,
                                          is_int, read_mapping, to_plain, WarningLog)
 
@@ -129,9 +129,9 @@ class CalibrationStore(WarningLog):
     that record's scope), the others are in ``active_ids`` {scope: id}.
 
     ``cell`` (store.cells.ResultsCell): the cell whose records this store holds; saved
-    records get its name and robot (a record of another is refused: ForeignResult, a
-    ValueError), :meth:`get` of another cell's id is refused naming both. Its choices are
-    ``cells: {name: {active_ids, retired}}`` in ``active.json``; the top-level ones are those
+    records get its name and robot (a record of another is refused: a core.errors.Refusal
+    of cause FOREIGN_RESULT), :meth:`get` of another cell's id is refused naming both. Its
+    choices are ``cells: {name: {active_ids, retired}}`` in ``active.json``; the top-level ones are those
     made before results were keyed by cell (and of a store opened with no cell: every record,
     as before).
     """
@@ -173,24 +173,24 @@ class CalibrationStore(WarningLog):
         return path
 
     def _keyed(self, plain: dict[str, Any]) -> dict[str, Any]:
-        """``plain`` with this store's cell name and robot; ForeignResult if it is another
-        cell's or was made on another robot."""
+        """``plain`` with this store's cell name and robot; a FOREIGN_RESULT Refusal if it is
+        another cell's or was made on another robot."""
         if self.cell is None:
             return plain
         why = self.cell.problem(str(plain.get('cell') or ''), str(plain.get('robot') or ''))
-        if why:
-            raise ForeignResult(f'calibration {plain["id"]} refused: {why}')
+        if why is not None:
+            raise foreign_result(f'calibration {plain["id"]} refused: {why.message}')
         return {**plain, 'cell': self.cell.name,
                 **({'robot': self.cell.robot} if self.cell.robot else {})}
 
     def get(self, record_id: str) -> dict[str, Any] | None:
         """The record with this id, or None if absent or unreadable (see ``warnings``);
-        ForeignResult (a ValueError) naming both if it is another cell's or robot's."""
+        a FOREIGN_RESULT Refusal naming both if it is another cell's or robot's."""
         record = self._index().get(check_id(record_id))
         if record is None:
             why = self._elsewhere(record_id)
             if why:
-                raise ForeignResult(f'calibration {record_id} is not this cell\'s: {why}')
+                raise foreign_result(f'calibration {record_id} is not this cell\'s: {why}')
         return record
 
     def _elsewhere(self, record_id: str) -> str:
@@ -376,9 +376,9 @@ class CalibrationStore(WarningLog):
         if self._records is None:
             records, others, legacy = {}, {}, []
             for record, cell, robot in self._stored():
-                why = self.cell.problem(cell, robot) if self.cell else ''
-                if why:
-                    others[record['id']] = why
+                why = self.cell.problem(cell, robot) if self.cell else None
+                if why is not None:
+                    others[record['id']] = why.message
                     continue
                 records[record['id']] = record
                 if self.cell and cell in ('', LEGACY_CELL):

@@ -339,8 +339,8 @@ class DbCalibrationHistory(CalibrationStore):
         why = super()._elsewhere(record_id)
         if why or self.cell is None:
             return why
-        return next((why for cell, robot in self.database.find(self.kind, record_id)
-                     if (why := self.cell.problem(cell, robot))), '')
+        return next((why.message for cell, robot in self.database.find(self.kind, record_id)
+                     if (why := self.cell.problem(cell, robot)) is not None), '')
 
     def _write_selection(self, kept: dict[str, str], retired: frozenset[str]) -> None:
         self.database.set_selection(self.cell_name, self.kind, kept, retired)
