@@ -129,12 +129,13 @@ class Settings:
     max_configs: int = 0
     bounds: DeviationBounds = field(default_factory=DeviationBounds)
 
-    def problem(self) -> str:
+    def problem(self) -> Failure | None:
         for name, value, known in (('solver', self.solver, SOLVERS), ('loss', self.loss, LOSSES),
                                    ('objective', self.objective or OBJECTIVES[0], OBJECTIVES)):
             if value not in known:
-                return f'unknown {name} {value!r}; use one of {", ".join(known)}'
-        return ''
+                return Failure(ErrorCode.INVALID_INPUT,
+                               f'unknown {name} {value!r}; use one of {", ".join(known)}')
+        return None
 
 
 @dataclass(frozen=True)
@@ -164,8 +165,8 @@ def identify(job: JobSource, settings: Settings, kinematics=None, *,
     ``cancelled()`` between them. Failures: INVALID_INPUT, the gates' refusal of the data
     (its cause), SOLVER_FAILED, CANCELED, GateRefused, STORAGE_FAILED."""
     problem = settings.problem()
-    if problem:
-        return Failure(ErrorCode.INVALID_INPUT, problem)
+    if problem is not None:
+        return problem
     source, partial = job.source, job.partial
     try:
         calibration = CalibrationJob(

@@ -44,15 +44,16 @@ def _user_frame_or_none(rig) -> np.ndarray | None:
         return None
 
 
-def _point_problem(cell, point: str) -> str:
+def _point_problem(cell, point: str) -> Failure | None:
     if not point:
         try:
             cell.require('the TCP calibration (no point_name)', 'layouts')
         except ValueError as e:
-            return str(e)
+            return Failure(ErrorCode.INVALID_INPUT, str(e))
     if point not in cell.point_names:
-        return f'unknown point {point!r}; the cell has {cell.point_names}'
-    return ''
+        return Failure(ErrorCode.INVALID_INPUT,
+                       f'unknown point {point!r}; the cell has {cell.point_names}')
+    return None
 
 
 def calibrate_and_store(request: TcpRequest, robot: RobotPort, rig, repo, tool: str,
@@ -66,8 +67,8 @@ def calibrate_and_store(request: TcpRequest, robot: RobotPort, rig, repo, tool: 
     nothing. ``warn`` is told the missing prerequisites before anything moves."""
     cell = rig.cell
     problem = _point_problem(cell, request.point)
-    if problem:
-        return Failure(ErrorCode.INVALID_INPUT, problem)
+    if problem is not None:
+        return problem
     if not 0.0 < request.hold <= 10.0:
         return Failure(ErrorCode.INVALID_INPUT,
                        f'hold {request.hold} s: give 0..10 s (0 = the parameter)')
