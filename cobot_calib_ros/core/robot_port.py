@@ -8,9 +8,14 @@ truth. SI units: joints [rad], poses (4, 4) in the base frame [m], durations [s]
 in the camera's clock.
 
 Failures. A call that did not happen raises a :class:`PortError`: :class:`MoveFailed` for a
-move or a touch (unreachable, refused, timed out), :class:`CaptureFailed` for a joint capture,
-a probe reading, a tracker measurement or a camera that sends no images. The message says what
-to check; the procedure decides whether that skips a pose or ends the run.
+move or a touch (unreachable, refused, timed out; :class:`RobotStopped` when the arm was
+stopped), :class:`CaptureFailed` for a joint capture, a probe reading, a tracker measurement or
+a camera that sends no images, :class:`Stopped` for a cancel. The message says what to check;
+the procedure decides whether that skips a pose or ends the run. These stay exceptions: they
+are not a refusal of data (that is a core.errors.Failure, or a Refusal raised deep inside) but
+a port call that did not happen, which a procedure cannot return past; at its edge
+:func:`port_failure` turns them into the Failure it returns (MOTION_FAILED, CAPTURE_FAILED,
+CANCELED).
 
 Cancelling. A procedure takes ``cancelled: Cancelled`` (default :func:`never`) and calls it
 between poses (never inside a port call): when it returns True the procedure stops at that pose
