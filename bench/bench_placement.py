@@ -151,6 +151,7 @@ class FirstDay:
         self.tcp_plan, self.tcp_touches = plan, touches
         solution = solve_touches(plan, touches, TOUCH_SIGMA)
         gate = gate_problem(solution, GateLimits(touch_sigma=TOUCH_SIGMA), self.cell.tool_offset)
+        gate = '' if gate is None else gate.message
         record = TcpRecord.from_solution(solution, self.cell.tool_frame, point, touches.labels,
                                          touches.joints, touches.flange, 0,
                                          active.active.kinematics_label, 0.52, 0.0, gate,

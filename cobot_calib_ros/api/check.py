@@ -10,7 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from cobot_calib_ros import paths, store
-from cobot_calib_ros.core.errors import ErrorCode, Failure
+from cobot_calib_ros.core.errors import ErrorCode, Failure, Refusal
 from cobot_calib_ros.core.robot_port import MoveFailed, PortError, RobotPort
 from cobot_calib_ros.store.cells import ResultsCell
 from cobot_calib_ros.store.rigs import rig_of
@@ -63,6 +63,8 @@ def prepare(what: str, cell, repo, *, points=DEFAULT_POINTS, poses: int | None =
             return _user_frame(cell, repo, tuple(points), tolerance, model)
         if what == KINEMATICS:
             return _kinematics(cell, repo, poses, tolerance, model)
+    except Refusal as e:
+        return e.failure
     except ValueError as e:
         return Failure(ErrorCode.INVALID_INPUT, str(e))
     except OSError as e:

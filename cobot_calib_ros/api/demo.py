@@ -11,6 +11,7 @@ import numpy as np
 from cobot_calib_ros import store
 from cobot_calib_ros.core import cell as cellmod
 from cobot_calib_ros.core import frames, kinematics, user_frame
+from cobot_calib_ros.core.errors import Refusal
 from cobot_calib_ros.core.rig import ActiveSet, Rig
 from cobot_calib_ros.core.user_frame.procedure import points_of_joints
 from cobot_calib_ros.paths import data_dir
@@ -142,7 +143,7 @@ def _kinematics(choice: str, client: DemoClient, cell, root: Path, identify_conf
     kinematic_store = store.open(root, cell=ResultsCell.of(cell)).kinematics
     try:
         record = kinematic_store.resolve(choice, robot)
-    except (KeyError, ValueError) as e:
+    except (KeyError, ValueError, Refusal) as e:
         raise RuntimeError(f'--kinematics {choice}: {e}') from None
     if record is None:
         say(f'no kinematic calibration of the {robot} in {kinematic_store.directory}: '

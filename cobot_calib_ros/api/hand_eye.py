@@ -17,7 +17,7 @@ import time
 import numpy as np
 
 from cobot_calib_ros.core import frames
-from cobot_calib_ros.core.errors import ErrorCode, Failure
+from cobot_calib_ros.core.errors import ErrorCode, Failure, Refusal
 from cobot_calib_ros.core.ids import record_id
 from cobot_calib_ros.core.landmarks.hand_eye_capture import (calibrate_hand_eye as
                                                              run_procedure, HandEyeRun,
@@ -92,6 +92,8 @@ def calibrate_and_store(request: HandEyeViewsRequest, robot: RobotPort, camera: 
     record = _record(run, request.count, through, stamp_ns, flange_frame, cell.camera.frame_id)
     try:
         repo.hand_eye.save_and_activate(record)   # with a gate problem: kept, rejected
+    except Refusal as e:                          # another cell's (store.cells)
+        return e.failure
     except (OSError, ValueError) as e:
         return Failure(ErrorCode.STORAGE_FAILED, f'could not store the hand-eye calibration: {e}')
     if run.gate_problem:

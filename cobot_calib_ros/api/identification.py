@@ -18,6 +18,7 @@ import numpy as np
 from cobot_calib_ros.api.identification_store import (cell_urdf, measurement_scope,
                                                       saved_keys, store_measurements, store_open,
                                                       ur_path, validation_figures)
+from cobot_calib_ros.core.errors import Refusal
 from cobot_calib_ros.core.kinematics.identification.gates import (MAX_DEVIATION_M,
                                                                    MAX_DEVIATION_RAD)
 
@@ -194,8 +195,8 @@ def resumable(given: str, cell: str) -> tuple[str, bool]:
     results_cell = ResultsCell.of(load_cell(paths.cell_file(cell)))
     robot = results_cell.robot
     for meta in collections.list_collections():     # the suite's cell's own, as it resumes
-        if meta['source'] == 'spheres' and meta['status'] != 'done' and not \
-                results_cell.problem(meta.get('cell', ''), meta.get('robot', '')):
+        if meta['source'] == 'spheres' and meta['status'] != 'done' and \
+                results_cell.problem(meta.get('cell', ''), meta.get('robot', '')) is None:
             return meta['id'], False
     raise ValueError(f'no unfinished {robot} sphere collection in {collections.directory}; give '
                      'its id (--resume ID)')
@@ -324,7 +325,7 @@ def identify_source(path: str | Path, *, cell: str | None = None,
             CollectionStore.of_folder(path.parent.resolve()), source.cell,
             ResultsCell.of(source.cell), {'volume': '', 'workspace': ''}) \
             if kind == sources.COLLECTION else {}
-    except (KeyError, ValueError) as e:
+    except (KeyError, ValueError, Refusal) as e:
         raise IdentificationFailed(_on_path(path, e)) from None
     repository = store_open(source.cell, data_dir, db) if store else None
     got = kinematics.identify(kinematics.JobSource(source, validation), kinematics.Settings(

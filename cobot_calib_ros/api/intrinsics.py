@@ -17,7 +17,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from cobot_calib_ros.core.errors import ErrorCode, Failure
+from cobot_calib_ros.core.errors import ErrorCode, Failure, Refusal
 from cobot_calib_ros.core.landmarks.camera import camera_info_yaml
 from cobot_calib_ros.core.landmarks.intrinsics import MODELS
 from cobot_calib_ros.core.landmarks.intrinsics_capture import (calibrate_images,
@@ -85,6 +85,8 @@ def store_run(run: IntrinsicsRun, *, source: str, board: str, repo=None, data_di
                                  Path(data_dir) / 'intrinsics' / f'{record.id}.yaml')
         record.result.yaml_path = str(path.resolve())
         activation = None if repo is None else repo.intrinsics.save_and_activate(record)
+    except Refusal as e:                          # another cell's (store.cells)
+        return e.failure
     except (OSError, ValueError) as e:
         return Failure(ErrorCode.STORAGE_FAILED, f'could not store the intrinsics: {e}')
     active = bool(activation)
@@ -100,17 +102,20 @@ def store_run(run: IntrinsicsRun, *, source: str, board: str, repo=None, data_di
                              f'{summary}; active' if active else summary)
 
 
-def _request_problem(request: IntrinsicsRequest, cell) -> str:
+def _request_problem(request: IntrinsicsRequest, cell) -> Failure | None:
     if request.model not in MODELS or not 4 <= request.count <= 200:
-        return (f'model must be one of {", ".join(MODELS)} (got {request.model!r}) and views '
-                f'4..200 (0 = {DEFAULT_VIEWS}), got {request.count}')
+        return Failure(ErrorCode.INVALID_INPUT,
+                       f'model must be one of {", ".join(MODELS)} (got {request.model!r}) and '
+                       f'views 4..200 (0 = {DEFAULT_VIEWS}), got {request.count}')
     if cell.camera is None or cell.landmarks is None or not cell.landmarks.board:
-        return (f'cell {cell.name!r} has no wrist camera or no board; add camera: and '
-                'landmarks: board: to the cell file')
+        return Failure(ErrorCode.INVALID_INPUT,
+                       f'cell {cell.name!r} has no wrist camera or no board; add camera: and '
+                       'landmarks: board: to the cell file')
     if request.source and not Path(request.source).is_dir():
-        return (f'source {request.source!r} is not a folder of images (a bag: run '
-                '`cobot-calib intrinsics BAG`)')
-    return ''
+        return Failure(ErrorCode.INVALID_INPUT,
+                       f'source {request.source!r} is not a folder of images (a bag: run '
+                       '`cobot-calib intrinsics BAG`)')
+    return None
 
 
 def calibrate_on_cell(request: IntrinsicsRequest, cell, kinematic_model, robot, images, *,
@@ -122,8 +127,8 @@ def calibrate_on_cell(request: IntrinsicsRequest, cell, kinematic_model, robot, 
     ``T_base_user()`` puts it: ValueError saying what to do) or live ones until
     ``live_deadline()``; fitted and stored (:func:`store_run`, the YAML under ``data_dir``)."""
     problem = _request_problem(request, cell)
-    if problem:
-        return Failure(ErrorCode.INVALID_INPUT, problem)
+    if problem is not None:
+        return problem
     common = dict(model=request.model, image_timeout=request.image_timeout,
                   cancelled=cancelled, progress=progress)
     if request.source:

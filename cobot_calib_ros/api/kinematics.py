@@ -76,10 +76,10 @@ def _open(collections, cell, model, results_cell, request, collection_id, say
         if stored is not None:
             meta = stored.meta
             foreign = results_cell.problem(meta.get('cell', ''), meta.get('robot', ''))
-            if foreign:
-                return Failure(ErrorCode.INVALID_INPUT, (
-                    f'collection {collection_id} is not this cell\'s: {foreign}; resume it on '
-                    'its own cell\'s suite, or give a new id (or none)'))
+            if foreign is not None:
+                return Failure(foreign.code, (
+                    f'collection {collection_id} is not this cell\'s: {foreign.message}; '
+                    'resume it on its own cell\'s suite, or give a new id (or none)'))
             if meta['status'] == 'done':
                 return Failure(ErrorCode.INVALID_INPUT, f'collection {collection_id} is '
                                'complete; give a new id (or none) to collect again')
@@ -129,12 +129,13 @@ class Settings:
     max_configs: int = 0
     bounds: DeviationBounds = field(default_factory=DeviationBounds)
 
-    def problem(self) -> str:
+    def problem(self) -> Failure | None:
         for name, value, known in (('solver', self.solver, SOLVERS), ('loss', self.loss, LOSSES),
                                    ('objective', self.objective or OBJECTIVES[0], OBJECTIVES)):
             if value not in known:
-                return f'unknown {name} {value!r}; use one of {", ".join(known)}'
-        return ''
+                return Failure(ErrorCode.INVALID_INPUT,
+                               f'unknown {name} {value!r}; use one of {", ".join(known)}')
+        return None
 
 
 @dataclass(frozen=True)
@@ -164,8 +165,8 @@ def identify(job: JobSource, settings: Settings, kinematics=None, *,
     ``cancelled()`` between them. Failures: INVALID_INPUT, the gates' refusal of the data
     (its cause), SOLVER_FAILED, CANCELED, GateRefused, STORAGE_FAILED."""
     problem = settings.problem()
-    if problem:
-        return Failure(ErrorCode.INVALID_INPUT, problem)
+    if problem is not None:
+        return problem
     source, partial = job.source, job.partial
     try:
         calibration = CalibrationJob(
@@ -260,8 +261,8 @@ def _file_source(file: str, cell):
 def _collection(collections, cell, results_cell, collection_id: str, source: str,
                 region: str | None = None, required: bool = True):
     """The given collection of this cell, else the newest done one of ``source`` (and
-    region); Refusal NO_DATA / INVALID_INPUT."""
-    def foreign(meta: dict) -> str:
+    region); Refusal NO_DATA / FOREIGN_RESULT."""
+    def foreign(meta: dict) -> Failure | None:
         return results_cell.problem(meta.get('cell', ''), meta.get('robot', ''))
     if collection_id:
         data = collections.load(check_id(collection_id))
@@ -269,13 +270,13 @@ def _collection(collections, cell, results_cell, collection_id: str, source: str
             raise Refusal(Failure(ErrorCode.NO_DATA, f'no readable collection '
                                   f'{collection_id!r} in {collections.directory}'))
         problem = foreign(data.meta)
-        if problem:
-            raise Refusal(Failure(ErrorCode.INVALID_INPUT, (
-                f'collection {collection_id} is not this cell\'s: {problem}; identify it '
-                'on its own cell\'s suite (or offline: cobot-calib identify --source)')))
+        if problem is not None:
+            raise Refusal(Failure(problem.code, (
+                f'collection {collection_id} is not this cell\'s: {problem.message}; identify '
+                'it on its own cell\'s suite (or offline: cobot-calib identify --source)')))
         return data
     for meta in collections.list_collections():
-        if meta['source'] == source and meta['status'] == 'done' and not foreign(meta) \
+        if meta['source'] == source and meta['status'] == 'done' and foreign(meta) is None \
                 and (region is None or meta.get('region') == region):
             return collections.load(meta['id'])
     if required:

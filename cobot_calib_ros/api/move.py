@@ -60,8 +60,9 @@ def solve(cell, repo, T_frame_tool: np.ndarray, seed: np.ndarray, *, frame: str 
     label = active.kinematics_label
     T_base_tool = T_base_frame @ np.asarray(T_frame_tool, float)
     if not result:
+        far = out_of_reach(chain, T_base_tool[:3, 3])
         raise ValueError(f'the target cannot be reached by the {label} model: '
-                         f'{out_of_reach(chain, T_base_tool[:3, 3]) or result.message}')
+                         f'{(result if far is None else far).message}')
     note = active.kinematics.unseen_tool_note if active.kinematics is not None else ''
     return Solved(result.q, T_base_tool, label, frame_label, active.tool_label(tool),
                   active.stale_used(tool, frame == 'user'), note)

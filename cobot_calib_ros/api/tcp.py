@@ -13,7 +13,7 @@ import numpy as np
 
 from cobot_calib_ros.core import frames
 from cobot_calib_ros.core.cell import tool_down_orientation
-from cobot_calib_ros.core.errors import ErrorCode, Failure
+from cobot_calib_ros.core.errors import ErrorCode, Failure, Refusal
 from cobot_calib_ros.core.kinematics.urdf import rpy_from_matrix
 from cobot_calib_ros.core.provenance import missing_prerequisites
 from cobot_calib_ros.core.robot_port import Cancelled, never, RobotPort
@@ -40,19 +40,20 @@ class TcpOutcome:
 def _user_frame_or_none(rig) -> np.ndarray | None:
     try:
         return rig.T_base_user()
-    except (KeyError, ValueError):
+    except (KeyError, ValueError, Refusal):
         return None
 
 
-def _point_problem(cell, point: str) -> str:
+def _point_problem(cell, point: str) -> Failure | None:
     if not point:
         try:
             cell.require('the TCP calibration (no point_name)', 'layouts')
         except ValueError as e:
-            return str(e)
+            return Failure(ErrorCode.INVALID_INPUT, str(e))
     if point not in cell.point_names:
-        return f'unknown point {point!r}; the cell has {cell.point_names}'
-    return ''
+        return Failure(ErrorCode.INVALID_INPUT,
+                       f'unknown point {point!r}; the cell has {cell.point_names}')
+    return None
 
 
 def calibrate_and_store(request: TcpRequest, robot: RobotPort, rig, repo, tool: str,
@@ -66,8 +67,8 @@ def calibrate_and_store(request: TcpRequest, robot: RobotPort, rig, repo, tool: 
     nothing. ``warn`` is told the missing prerequisites before anything moves."""
     cell = rig.cell
     problem = _point_problem(cell, request.point)
-    if problem:
-        return Failure(ErrorCode.INVALID_INPUT, problem)
+    if problem is not None:
+        return problem
     if not 0.0 < request.hold <= 10.0:
         return Failure(ErrorCode.INVALID_INPUT,
                        f'hold {request.hold} s: give 0..10 s (0 = the parameter)')
@@ -92,15 +93,18 @@ def calibrate_and_store(request: TcpRequest, robot: RobotPort, rig, repo, tool: 
     record = TcpRecord.from_solution(
         solution, tool, request.point, touches.labels, touches.joints, touches.flange,
         stamp_ns, through['kinematics'], request.tilt,
-        request.elongation if plan.elongators else 0.0, gate, measured_through=through)
+        request.elongation if plan.elongators else 0.0, '' if gate is None else gate.message,
+        measured_through=through)
     try:
         activation = repo.tcp.save_and_activate(record)
+    except Refusal as e:                          # another cell's (store.cells)
+        return e.failure
     except (OSError, ValueError) as e:
         return Failure(ErrorCode.STORAGE_FAILED, f'could not store the TCP calibration: {e}')
-    if gate:
-        return TcpOutcome(record, run, bool(activation), ErrorCode.IMPLAUSIBLE_FIT, (
+    if gate is not None:
+        return TcpOutcome(record, run, bool(activation), gate.code, (
             f'{record.id} rejected, stored as rejected and not made active (the active TCP '
-            f'of {tool} is unchanged): {gate}'))
+            f'of {tool} is unchanged): {gate.message}'))
     position = solution.position
     x, y, z = position.t * 1e3
     angles = ', '.join(f'{math.degrees(a):.3f}' for a in rpy_from_matrix(solution.R_flange_tcp))

@@ -3,6 +3,8 @@ from __future__ import annotations
 
 import time
 
+from cobot_calib_ros.core.errors import ErrorCode, Failure
+
 
 class TrialClient:
     """Sends run_trial goals and prints the progress (one rclpy node).
@@ -45,24 +47,26 @@ class TrialClient:
         self._session.__exit__(None, None, None)
 
     @staticmethod
-    def request_problem(method: str, axis: str, cycles: int, trial_id: str) -> str:
-        """'' if the node would accept this goal ('' / 0 = not given), else why not: the same
-        core checks the node's goal callback makes (a rejected goal carries no reason)."""
+    def request_problem(method: str, axis: str, cycles: int, trial_id: str) -> Failure | None:
+        """None if the node would accept this goal ('' / 0 = not given), else an INVALID_INPUT
+        Failure saying why not: the same core checks the node's goal callback makes (a
+        rejected goal carries no reason)."""
         from cobot_calib_ros.core.repeatability.trial import goal_problem
         from cobot_calib_ros.store.files import check_id
         problem = goal_problem(method, axis, cycles)
-        if problem or not trial_id:
+        if problem is not None or not trial_id:
             return problem
         try:
             check_id(trial_id)
         except ValueError as e:
-            return f'trial id: {e}'
-        return ''
+            return Failure(ErrorCode.INVALID_INPUT, f'trial id: {e}')
+        return None
 
-    def unknown_trial(self, trial_id: str) -> str:
-        """'' if ``trial_id`` is stored in the data dir of the repeatability_trial node (or that
-        node does not answer: the goal will say so), else 'no trial X; unfinished: ...' (a
-        resume of a trial that is not there would start a fresh one under that id)."""
+    def unknown_trial(self, trial_id: str) -> Failure | None:
+        """None if ``trial_id`` is stored in the data dir of the repeatability_trial node (or
+        that node does not answer: the goal will say so), else a NO_DATA Failure 'no trial X;
+        unfinished: ...' (a resume of a trial that is not there would start a fresh one under
+        that id)."""
         from cobot_calib_ros import paths, store
         from cobot_calib_ros.ros.calls import CallError
         from cobot_calib_ros.ros.remote_params import read_parameter
@@ -70,13 +74,13 @@ class TrialClient:
             root = paths.data_dir(read_parameter(self.node, 'repeatability_trial', 'data_dir',
                                                  10.0))
         except CallError:
-            return ''
+            return None
         trials = store.open(root).trials
         stored = trials.list_trials()
         if any(meta['id'] == trial_id for meta in stored):
-            return ''
+            return None
         unfinished = [meta['id'] for meta in stored if meta['status'] != 'done']
-        return (f'no trial {trial_id} in {trials.directory}; unfinished: '
+        return Failure(ErrorCode.NO_DATA, f'no trial {trial_id} in {trials.directory}; unfinished: '
                 f'{", ".join(unfinished) if unfinished else "none"} (leave --trial-id out to '
                 'start a new trial)')
 
@@ -89,8 +93,8 @@ class TrialClient:
         from cobot_calib_ros.ros.calls import CallError
         from cobot_calib_ros.core.repeatability.trial import new_trial_id
         problem = self.request_problem(method, axis, cycles, trial_id)
-        if problem:
-            raise CallError(f'rejected: {problem}')
+        if problem is not None:
+            raise CallError(f'rejected: {problem.message}')
         trial_id = trial_id or new_trial_id(method, axis)    # known before any feedback
         goal = self.RunTrial.Goal(trial_id=trial_id, method=method, axis=axis,
                                   cycles=cycles, layout=layout)

@@ -114,8 +114,8 @@ def _measure(repo, cell, request: Request, robot, camera, model, frames_store, l
     if method in landmark_frames.LANDMARK_METHODS:
         from cobot_calib_ros.core.landmarks import views
         problem = views.setup_problem(cell)
-        if problem:
-            raise Refusal(Failure(ErrorCode.INVALID_INPUT, f'{method}: {problem}'))
+        if problem is not None:
+            raise Refusal(Failure(problem.code, f'{method}: {problem.message}'))
         with lock:
             guess = _active_frame(frames_store)
         chosen = rig(repo, cell, request.kinematics, model)
@@ -179,6 +179,8 @@ def choose(frames_store, action: str, calibration_id: str,
         with lock:
             activation = frames_store.retire(cid) if retire else frames_store.activate(cid)
             active = frames_store.active()
+    except Refusal as e:                # another cell's (store.cells)
+        return e.failure
     except ValueError as e:
         return Failure(ErrorCode.INVALID_INPUT, f'calibration_id {cid!r}: {e}')
     except KeyError:

@@ -43,9 +43,9 @@ def run(args) -> int:
     from cobot_calib_ros.cli.common import cell_problem
     if args.poses is not None and args.poses < 4:       # the user's input first (exit 2)
         return fail(f'check {args.what}: --poses {args.poses}: give 4 or more', EXIT_USAGE)
-    problem = cell_problem(args.robot_cell) if args.robot_cell else ''
-    if problem:
-        return fail(problem, EXIT_USAGE)
+    problem = cell_problem(args.robot_cell) if args.robot_cell else None
+    if problem is not None:
+        return fail(problem.message, EXIT_USAGE)
     from cobot_calib_ros.ros import spin
     from cobot_calib_ros.ros.robot_calls import RobotCalls
     with ros_node('cobot_calib_check', args.namespace.strip('/')) as node:

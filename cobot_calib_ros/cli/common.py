@@ -123,20 +123,23 @@ def cell_names() -> str:
     return ', '.join(sorted(p.stem for p in (paths.config_dir() / 'cells').glob('*.yaml')))
 
 
-def cell_problem(name_or_path: str, layout: str = '') -> str:
-    """'' if the cell file (a path or a name in config/cells) is usable, else one line: the
-    file, the line and key, what is expected (or the cells there are)."""
+def cell_problem(name_or_path: str, layout: str = '') -> Failure | None:
+    """None if the cell file (a path or a name in config/cells) is usable, else an
+    INVALID_INPUT Failure of one line: the file, the line and key, what is expected (or the
+    cells there are)."""
     from cobot_calib_ros import paths
     from cobot_calib_ros.core.cell import CellFileError
+    from cobot_calib_ros.core.errors import ErrorCode, Failure
     from cobot_calib_ros.loaders import load_cell
     path = paths.cell_file(name_or_path)
     if not path.is_file():
-        return f'cell file {path} not found; give a cell YAML path or a name ({cell_names()})'
+        return Failure(ErrorCode.INVALID_INPUT, f'cell file {path} not found; give a cell YAML '
+                       f'path or a name ({cell_names()})')
     try:
         load_cell(path, layout or None)
     except CellFileError as e:
-        return str(e)
-    return ''
+        return Failure(ErrorCode.INVALID_INPUT, str(e))
+    return None
 
 
 def add_robot_options(p, cell_help: str) -> None:

@@ -130,9 +130,9 @@ def run(args) -> int:
     from cobot_calib_ros.ros.calls import CallError
     if not args.attach and args.cell is None:
         args.cell = DEFAULT_CELL
-    problem = cell_problem(args.cell) if args.cell else ''
-    if problem:
-        return fail(f'demo: {problem}', EXIT_USAGE)
+    problem = cell_problem(args.cell) if args.cell else None
+    if problem is not None:
+        return fail(f'demo: {problem.message}', EXIT_USAGE)
     try:
         with _suite(args) as root:
             client = DemoClient()

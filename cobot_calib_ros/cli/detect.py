@@ -215,8 +215,9 @@ def _process(setup: _Setup, index: int, path: str) -> dict:
     args, camera = setup.args, setup.camera
     image = read_image(path)
     h, w = image.shape[:2]
-    if camera is not None and camera.size_problem(image.shape):
-        raise ImageFailure(camera.size_problem(image.shape) + ' (--camera-info)')
+    wrong_size = camera.size_problem(image.shape) if camera is not None else None
+    if wrong_size is not None:
+        raise ImageFailure(wrong_size.message + ' (--camera-info)')
     result = {'image': path, 'width': w, 'height': h, 'dictionary': setup.dictionary,
               'refine': args.refine, 'markers': []}
     found = setup.pipeline.detect(image, camera)

@@ -32,24 +32,26 @@ def run_trial(args) -> int:
     --method, --axis, --cycles left out (None / '') send '' / 0: a new trial takes the
     defaults, a resumed one its stored values (a given value must match the stored one)."""
     from cobot_calib_ros.ros.calls import CallError
+    from cobot_calib_ros.core.errors import ErrorCode, Failure, first_failure
     from cobot_calib_ros.core.repeatability.trial import cycles_problem
     method, axis, trial_id = args.method or '', args.axis or '', args.trial_id or ''
     cycles = args.cycles if args.cycles is not None else 0
     stall = getattr(args, 'stall_timeout', None)
     stall = TrialClient.STALL_TIMEOUT if stall is None else stall
-    problem = ((args.cycles is not None and cycles_problem(args.cycles))
-               or TrialClient.request_problem(method, axis, cycles, trial_id)
-               or ('' if math.isfinite(stall) and stall > 0.0 else
-                   f'--stall-timeout {stall:g}: give a time > 0 [s] (default '
-                   f'{TrialClient.STALL_TIMEOUT:g})'))
-    if problem:
-        print(f'trial rejected: {problem}', file=sys.stderr)
+    problem = first_failure(
+        cycles_problem(args.cycles) if args.cycles is not None else None,
+        TrialClient.request_problem(method, axis, cycles, trial_id),
+        None if math.isfinite(stall) and stall > 0.0 else Failure(
+            ErrorCode.INVALID_INPUT, f'--stall-timeout {stall:g}: give a time > 0 [s] '
+            f'(default {TrialClient.STALL_TIMEOUT:g})'))
+    if problem is not None:
+        print(f'trial rejected: {problem.message}', file=sys.stderr)
         return 2
     client = TrialClient(functools.partial(common.say, args), stall)
     try:
-        unknown = trial_id and client.unknown_trial(trial_id)
-        if unknown:
-            print(f'trial rejected: {unknown}', file=sys.stderr)
+        unknown = client.unknown_trial(trial_id) if trial_id else None
+        if unknown is not None:
+            print(f'trial rejected: {unknown.message}', file=sys.stderr)
             return 2
         result = client.run(method, axis, cycles, trial_id)
     except TrialClient.Stopped as e:

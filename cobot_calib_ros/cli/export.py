@@ -69,6 +69,7 @@ def run(args) -> int:
                                                     FRAME_NUMBERS, paste_text, to_values,
                                                     TOOL_NUMBERS)
     from cobot_calib_ros.cli.db import cell_of
+    from cobot_calib_ros.core.errors import Refusal
     root = paths.data_dir(args.data_dir)
     try:
         every = store.open(root, args.db)           # an id is found in any cell's results
@@ -81,7 +82,7 @@ def run(args) -> int:
         is_tool = found is None and (args.tool or args.id != 'active')
         if is_tool:
             found = find_tcp(repo, args.id, args.tool)
-    except ValueError as exc:
+    except (ValueError, Refusal) as exc:      # Refusal: another cell's id (store.cells)
         return fail(f'export: {exc}', EXIT_USAGE)
     except OSError as exc:
         return fail(f'export: {exc}')

@@ -118,9 +118,9 @@ def run(args) -> int:
     if args.max_configs < 0 or args.validation_configs < 0 or not args.hold > 0:
         return fail('--max-configs and --validation-configs must be >= 0, --hold > 0 [s]',
                     EXIT_USAGE)
-    problem = cell_problem(args.cell) if args.cell else ''
-    if problem:
-        return fail(f'identify: {problem}', EXIT_USAGE)
+    problem = cell_problem(args.cell) if args.cell else None
+    if problem is not None:
+        return fail(f'identify: {problem.message}', EXIT_USAGE)
     if args.max_poses < 0 or args.target_mm < 0 or not 0 <= args.min_gain < 1:
         return fail('--max-poses and --target-mm must be >= 0, --min-gain in [0, 1)',
                     EXIT_USAGE)

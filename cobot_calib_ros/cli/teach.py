@@ -17,6 +17,7 @@ import json
 from cobot_calib_ros.api.teach import NODE_NAME, TeachError, TeachSession
 from cobot_calib_ros.cli.common import (EXIT_INTERRUPTED, EXIT_OK, EXIT_USAGE, fail, ros_node,
                                         say)
+from cobot_calib_ros.core.errors import ErrorCode, Failure
 from cobot_calib_ros.paths import DEFAULT_CELL
 
 
@@ -45,8 +46,8 @@ def run(args) -> int:
     from cobot_calib_ros.loaders import load_cell
     from cobot_calib_ros.paths import cell_file
     problem = options_problem(args)
-    if problem:
-        return fail(f'{problem}; nothing was touched', EXIT_USAGE)
+    if problem is not None:
+        return fail(f'{problem.message}; nothing was touched', EXIT_USAGE)
     try:
         cell = load_cell(cell_file(args.cell), args.layout or None)
         cell.require('teach (its points are the layout\'s markers; a points file: '
@@ -67,9 +68,9 @@ def run(args) -> int:
             return fail('teach interrupted; nothing was stored', EXIT_INTERRUPTED)
 
 
-def options_problem(args) -> str:
-    """'' if --method, --hold and --timeout can be used, else why not: checked before the first
-    touch, not after the last."""
+def options_problem(args) -> Failure | None:
+    """None if --method, --hold and --timeout can be used, else an INVALID_INPUT Failure saying
+    why not: checked before the first touch, not after the last."""
     import math
     from cobot_calib_ros.core.user_frame import METHODS
     from cobot_calib_ros.core.user_frame.landmarks import LANDMARK_METHODS
@@ -77,11 +78,12 @@ def options_problem(args) -> str:
         why = ('measures the frame with the wrist camera, not from touches (cobot-calib call '
                f'calibrate_user_frame "{{method: {args.method}}}")'
                if args.method in LANDMARK_METHODS else 'is not a method')
-        return f'--method {args.method} {why}; teach can use: {", ".join(METHODS)}'
+        return Failure(ErrorCode.INVALID_INPUT,
+                       f'--method {args.method} {why}; teach can use: {", ".join(METHODS)}')
     for option, value in (('--hold', args.hold), ('--timeout', args.timeout)):
         if not (math.isfinite(value) and value > 0.0):
-            return f'{option} {value:g}: give a time > 0 [s]'
-    return ''
+            return Failure(ErrorCode.INVALID_INPUT, f'{option} {value:g}: give a time > 0 [s]')
+    return None
 
 
 def report(args, res, captures) -> int:

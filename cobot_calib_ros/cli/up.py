@@ -8,6 +8,7 @@ import signal
 import sys
 import time
 
+from cobot_calib_ros.core.errors import ErrorCode, Failure
 from cobot_calib_ros.cli.common import cell_problem, domain_id, EXIT_USAGE, fail, ros_node
 from cobot_calib_ros.paths import DEFAULT_CELL
 
@@ -57,13 +58,16 @@ def add_parser(subparsers):
 
 def run(args) -> int:
     from cobot_calib_ros.api import launcher
-    problem = cell_problem(args.cell, args.layout) or simulation_problem(args.cell, args.layout)
-    if problem:
-        return fail(f'{problem}; nothing started', EXIT_USAGE)
+    problem = cell_problem(args.cell, args.layout)
+    if problem is None:     # the mock's part: only of a cell file that reads
+        problem = simulation_problem(args.cell, args.layout)
+    if problem is not None:
+        return fail(f'{problem.message}; nothing started', EXIT_USAGE)
     namespace = args.namespace.strip('/')
     problem = namespace_problem(namespace)
-    if problem:
-        return fail(f'--namespace {args.namespace!r}: {problem}; nothing started', EXIT_USAGE)
+    if problem is not None:
+        return fail(f'--namespace {args.namespace!r}: {problem.message}; nothing started',
+                    EXIT_USAGE)
     layout = {'layout': args.layout} if args.layout else {}
     overrides = {n: layout for n in ('mock_robot', 'user_frame_solver', 'repeatability_trial')}
     if args.robot_description:
@@ -100,13 +104,14 @@ def _robot_of(cell: str) -> str:
         return ''
 
 
-def namespace_problem(namespace: str) -> str:
-    """'' if ``namespace`` ('' : none) is a usable ROS namespace and cell name, else why not."""
+def namespace_problem(namespace: str) -> Failure | None:
+    """None if ``namespace`` ('' : none) is a usable ROS namespace and cell name, else an
+    INVALID_INPUT Failure saying why not."""
     if namespace and not re.fullmatch(r'[A-Za-z][A-Za-z0-9_]{0,62}(/[A-Za-z][A-Za-z0-9_]{0,62})*',
                                       namespace):
-        return ('a namespace is letters, digits and _ (starting with a letter), parts '
-                'separated by /, e.g. cell_07')
-    return ''
+        return Failure(ErrorCode.INVALID_INPUT, 'a namespace is letters, digits and _ (starting '
+                       'with a letter), parts separated by /, e.g. cell_07')
+    return None
 
 
 def suite_environment(db: str, robot: str = '') -> dict[str, str] | None:
@@ -124,9 +129,10 @@ def suite_environment(db: str, robot: str = '') -> dict[str, str] | None:
     return env
 
 
-def simulation_problem(cell: str, layout: str) -> str:
-    """'' if the mock robot's part of the cell file is usable too, else file:line: key: what is
-    expected: `up` starts the mock, so it checks that part before any node runs."""
+def simulation_problem(cell: str, layout: str) -> Failure | None:
+    """None if the mock robot's part of the cell file is usable too, else an INVALID_INPUT
+    Failure file:line: key: what is expected: `up` starts the mock, so it checks that part
+    before any node runs."""
     from cobot_calib_ros import paths
     from cobot_calib_ros.core.cell import CellFileError
     from cobot_calib_ros.sim.scenario import load_simulation
@@ -135,11 +141,13 @@ def simulation_problem(cell: str, layout: str) -> str:
         load_simulation(path, layout or None)
     except CellFileError as e:
         if 'simulation' not in _top_keys(path):
-            return (f'up starts the mock robot, which needs the cell\'s simulation: section; '
-                    f'{path} has none (a real cell): identify, user-frame, filter and export '
-                    'run from it with no suite (README "A plant\'s path")')
-        return str(e)
-    return ''
+            return Failure(ErrorCode.INVALID_INPUT,
+                           f'up starts the mock robot, which needs the cell\'s simulation: '
+                           f'section; {path} has none (a real cell): identify, user-frame, '
+                           'filter and export run from it with no suite (README "A plant\'s '
+                           'path")')
+        return Failure(ErrorCode.INVALID_INPUT, str(e))
+    return None
 
 
 def _top_keys(path) -> tuple[str, ...]:

@@ -22,6 +22,7 @@ from numpy.typing import NDArray
 import yaml
 
 from cobot_calib_ros.core import frames
+from cobot_calib_ros.core.errors import ErrorCode, Failure
 from cobot_calib_ros.core.kinematics.robots import ROBOTS, UrdfRobot
 from cobot_calib_ros.core.units import MAX_CELL_LENGTH
 
@@ -205,15 +206,18 @@ def tool_down_orientation(T_base_user: Array, axis: str = 'z') -> Array:
     return T_base_user[:3, :3] @ R_user
 
 
-def check_frame_id(frame_id: str) -> str:
-    """'' if ``frame_id`` is a valid tf2 frame id (letters, digits, '_', '/'), else why not."""
+def check_frame_id(frame_id: str) -> Failure | None:
+    """None if ``frame_id`` is a valid tf2 frame id (letters, digits, '_', '/'), else an
+    INVALID_INPUT Failure saying why not."""
     if not frame_id:
-        return 'a frame id must not be empty'
+        return Failure(ErrorCode.INVALID_INPUT, 'a frame id must not be empty')
     bad = sorted(set(frame_id) - FRAME_ID_CHARS)
     if bad or frame_id.startswith('/'):
-        return (f'frame id {frame_id!r} has characters tf2 does not accept ({"".join(bad) or "/"}'
-                '); use letters, digits and _ (e.g. user_frame), no leading /')
-    return ''
+        return Failure(ErrorCode.INVALID_INPUT,
+                       f'frame id {frame_id!r} has characters tf2 does not accept '
+                       f'({"".join(bad) or "/"}'
+                       '); use letters, digits and _ (e.g. user_frame), no leading /')
+    return None
 
 
 # -- reading a cell file ------------------------------------------------------------------
@@ -317,8 +321,8 @@ def parse_cell(text: str, path: str | Path, layout: str | None = None) -> Cell:
     frames_ = {k: r.name(k, default=d) for k, d in (
         ('base_frame', 'base_link'), ('tool_frame', 'tool0'), ('user_frame', 'user_frame'))}
     for key, value in frames_.items():
-        if check_frame_id(value):
-            raise r.fail((key,), check_frame_id(value))
+        if (bad_id := check_frame_id(value)) is not None:
+            raise r.fail((key,), bad_id.message)
     layouts = r.get('layouts', default=None)
     if layouts is None and layout is None and r.get('layout', default=None) is None:
         chosen = ''           # a real cell: no marker layouts (Cell.require: who needs them)
@@ -398,8 +402,8 @@ def _camera(r: CellReader) -> WristCamera | None:
     if r.get('camera', default=None) is None:
         return None
     frame_id = r.name('camera', 'frame_id')
-    if check_frame_id(frame_id):
-        raise r.fail(('camera', 'frame_id'), check_frame_id(frame_id))
+    if (bad_id := check_frame_id(frame_id)) is not None:
+        raise r.fail(('camera', 'frame_id'), bad_id.message)
     width, height = r.vector('camera', 'resolution', length=2)
     if width != int(width) or height != int(height) or width <= 0 or height <= 0:
         raise r.fail(('camera', 'resolution'), f'expected [width, height] in pixels, got '

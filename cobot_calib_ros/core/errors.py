@@ -33,6 +33,7 @@ class ErrorCode(IntEnum):
     OUT_OF_RANGE = 16        # readings outside the instrument's range
     NOT_AVAILABLE = 17       # the cell has no such instrument
     BUSY = 18                # another job is running
+    FOREIGN_RESULT = 19      # a stored result of another cell or robot (store.cells)
 
 
 @dataclass(frozen=True)
@@ -53,3 +54,9 @@ class Refusal(Exception):
     def __init__(self, failure: Failure) -> None:
         super().__init__(failure.message)
         self.failure = failure
+
+
+def first_failure(*checks: Failure | None) -> Failure | None:
+    """The first of ``checks`` that is a Failure, else None (a Failure is falsy: checks that
+    return ``Failure | None`` cannot be chained with ``or``)."""
+    return next((check for check in checks if check is not None), None)

@@ -8,9 +8,14 @@ truth. SI units: joints [rad], poses (4, 4) in the base frame [m], durations [s]
 in the camera's clock.
 
 Failures. A call that did not happen raises a :class:`PortError`: :class:`MoveFailed` for a
-move or a touch (unreachable, refused, timed out), :class:`CaptureFailed` for a joint capture,
-a probe reading, a tracker measurement or a camera that sends no images. The message says what
-to check; the procedure decides whether that skips a pose or ends the run.
+move or a touch (unreachable, refused, timed out; :class:`RobotStopped` when the arm was
+stopped), :class:`CaptureFailed` for a joint capture, a probe reading, a tracker measurement or
+a camera that sends no images, :class:`Stopped` for a cancel. The message says what to check;
+the procedure decides whether that skips a pose or ends the run. These stay exceptions: they
+are not a refusal of data (that is a core.errors.Failure, or a Refusal raised deep inside) but
+a port call that did not happen, which a procedure cannot return past; at its edge
+:func:`port_failure` turns them into the Failure it returns (MOTION_FAILED, CAPTURE_FAILED,
+CANCELED).
 
 Cancelling. A procedure takes ``cancelled: Cancelled`` (default :func:`never`) and calls it
 between poses (never inside a port call): when it returns True the procedure stops at that pose
@@ -105,16 +110,18 @@ class Approach:
                 f"tool's {self.axis}, without turning the tool from the first approach")
 
 
-def elongator_problem(axis: str, distance: float) -> str:
-    """'' if (``axis``, ``distance`` [m]) names an elongator point ('' and 0: the point
-    itself), else what is wrong with it."""
+def elongator_problem(axis: str, distance: float) -> Failure | None:
+    """None if (``axis``, ``distance`` [m]) names an elongator point ('' and 0: the point
+    itself), else an INVALID_INPUT Failure saying what is wrong with it."""
     if not axis:
-        return '' if distance == 0.0 else f'elongation {distance} m without an elongator axis'
+        return None if distance == 0.0 else Failure(
+            ErrorCode.INVALID_INPUT, f'elongation {distance} m without an elongator axis')
     if axis not in ('z', 'x'):
-        return f"elongator axis {axis!r}: use 'z' or 'x'"
+        return Failure(ErrorCode.INVALID_INPUT, f"elongator axis {axis!r}: use 'z' or 'x'")
     if not math.isfinite(distance) or not 0.0 < abs(distance) < 1.0:
-        return f'elongation {distance} m: must be non-zero and within 1 m, e.g. -0.05'
-    return ''
+        return Failure(ErrorCode.INVALID_INPUT,
+                       f'elongation {distance} m: must be non-zero and within 1 m, e.g. -0.05')
+    return None
 
 
 class RobotPort(Protocol):

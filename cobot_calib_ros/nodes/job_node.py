@@ -24,7 +24,7 @@ from cobot_calib_ros import paths, store
 from cobot_calib_ros.core import frames
 from cobot_calib_ros.core.kinematics import model_for
 from cobot_calib_ros.loaders import load_cell
-from cobot_calib_ros.core.errors import ErrorCode
+from cobot_calib_ros.core.errors import ErrorCode, Failure, Refusal
 from cobot_calib_ros.ros import results, spin
 from cobot_calib_ros.ros.diagnostics import Diagnostics, OK, WARN
 from cobot_calib_ros.ros.params import read_once
@@ -101,10 +101,10 @@ class JobNode(Node):
         """The results of this node's cell, opened afresh (another node may have stored since)."""
         return self._setup.repository()
 
-    def _foreign(self, meta: dict) -> str:
-        """'' if a stored trial or collection (its metadata) is this cell's, or legacy
-        (stored before they named their cell: on this robot or an unrecorded one), else why
-        not (store.cells)."""
+    def _foreign(self, meta: dict) -> Failure | None:
+        """None if a stored trial or collection (its metadata) is this cell's, or legacy
+        (stored before they named their cell: on this robot or an unrecorded one), else a
+        FOREIGN_RESULT Failure saying why not (store.cells)."""
         return self._results_cell.problem(meta.get('cell', ''), meta.get('robot', ''))
 
     def _rig(self, kinematics: str = 'latest'):
@@ -125,7 +125,7 @@ class JobNode(Node):
             return self._user_frame
         try:
             return self._rig().T_base_user()
-        except (KeyError, ValueError):
+        except (KeyError, ValueError, Refusal):
             raise ValueError(f'no user frame to find the board by: cell {self._cell.name} has '
                              'no active one; calibrate it first (cobot-calib teach, or call '
                              'calibrate_user_frame) or set the user_frame parameter') from None

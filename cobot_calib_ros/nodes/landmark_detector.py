@@ -491,8 +491,8 @@ class LandmarkDetector(Node):
             self._fail(e.reason, f'image refused: {e}')
             return
         problem = camera.size_problem(gray.shape)
-        if problem:
-            self._fail('camera_info_mismatch', f'image refused: {problem}')
+        if problem is not None:
+            self._fail('camera_info_mismatch', f'image refused: {problem.message}')
             return
         self._queue.put((msg.header, gray, camera))
 

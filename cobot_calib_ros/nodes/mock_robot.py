@@ -293,8 +293,8 @@ class MockRobot(Node):
     def _touch_target(self, request) -> np.ndarray | Failure:
         name, axis, distance = request.point_name, request.elongator_axis, request.elongation
         problem = elongator_problem(axis, distance)
-        if problem:
-            return Failure(ErrorCode.INVALID_INPUT, problem)
+        if problem is not None:
+            return problem
         if not request.oriented:
             if axis:
                 return Failure(ErrorCode.INVALID_INPUT, f'the elongator point of {name} needs '

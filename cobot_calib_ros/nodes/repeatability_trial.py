@@ -20,7 +20,7 @@ from cobot_calib_msgs.msg import Repeatability
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
 
-from cobot_calib_ros.core.errors import ErrorCode, Failure
+from cobot_calib_ros.core.errors import ErrorCode, Failure, first_failure
 from cobot_calib_ros.core.repeatability import trial as trialmod
 from cobot_calib_ros.core.repeatability import PointStats
 from cobot_calib_ros.core.landmarks.views import setup_problem
@@ -81,7 +81,7 @@ class RepeatabilityTrial(JobNode):
         self._store = self._repository().trials
         self._calls = RobotCalls(self._answers, self._p('speed_scale'),
                                  probe_window=self._p('probe_window'), operator=self.get_name())
-        self._camera = None if setup_problem(self._cell) else LandmarkWatch(
+        self._camera = None if setup_problem(self._cell) is not None else LandmarkWatch(
             lambda: now_ns(self), self._answers.node)
         self._marks = CaptureMarks(self._answers.node, self._model.joint_names)
         self._pub = self.create_publisher(Repeatability, 'repeatability', qos.LATCHED)
@@ -120,7 +120,7 @@ class RepeatabilityTrial(JobNode):
         self._republish.cancel()
         for meta in sorted(self._store.list_trials(), key=lambda m: m['updated_ns'],
                            reverse=True):
-            if self._foreign(meta):
+            if self._foreign(meta) is not None:
                 continue
             data = self._store.load(meta['id'])
             if data is None:
@@ -140,20 +140,20 @@ class RepeatabilityTrial(JobNode):
         client checks the same with the same core functions first); log why. Then JobNode's
         rule: one job at a time."""
         why = self._goal_problem(goal)
-        if why:
-            self.get_logger().warning(f'run_trial goal rejected: {why}')
+        if why is not None:
+            self.get_logger().warning(f'run_trial goal rejected: {why.message}')
             return GoalResponse.REJECT
         return super()._accept(goal)
 
-    def _goal_problem(self, goal) -> str:
+    def _goal_problem(self, goal) -> Failure | None:
         problem = trialmod.goal_problem(goal.method, goal.axis, goal.cycles)
-        if problem or not goal.trial_id:
+        if problem is not None or not goal.trial_id:
             return problem
         try:
             check_id(goal.trial_id)
         except ValueError as e:
-            return f'trial_id: {e}'
-        return ''
+            return Failure(ErrorCode.INVALID_INPUT, f'trial_id: {e}')
+        return None
 
     def _execute(self, goal_handle):
         return self._exclusive(goal_handle, self._run, RunTrial.Result)
@@ -313,15 +313,16 @@ class RepeatabilityTrial(JobNode):
                                     point_names=self._cell.point_names).to_dict()
             return None
         foreign = self._foreign(stored.meta)
-        if foreign:
-            raise trialmod.TrialError(ErrorCode.INVALID_INPUT, (
-                f'trial {trial.trial_id} is not this cell\'s: {foreign}; resume it on its own '
-                'cell\'s suite, or leave the trial id out to start a new trial'))
+        if foreign is not None:
+            raise trialmod.TrialError(foreign.code, (
+                f'trial {trial.trial_id} is not this cell\'s: {foreign.message}; resume it on '
+                'its own cell\'s suite, or leave the trial id out to start a new trial'))
         trial.meta = stored.meta
-        problem = (trialmod.resume_problem(stored.meta, goal.method, goal.axis, goal.cycles)
-                   or self._layout_problem(stored.meta))
-        if problem:
-            raise trialmod.TrialError(ErrorCode.INVALID_INPUT, problem)
+        problem = first_failure(
+            trialmod.resume_problem(stored.meta, goal.method, goal.axis, goal.cycles),
+            self._layout_problem(stored.meta))
+        if problem is not None:
+            raise trialmod.TrialError(problem.code, problem.message)
         if stored.resume is None:
             raise trialmod.TrialError(ErrorCode.INVALID_INPUT, (
                 f'trial {trial.trial_id} ({trialmod.describe(stored.meta)}) is complete; '
@@ -329,12 +330,13 @@ class RepeatabilityTrial(JobNode):
         trial.progress, trial.resumed = stored.resume, True
         return stored
 
-    def _layout_problem(self, meta: dict) -> str:
+    def _layout_problem(self, meta: dict) -> Failure | None:
         if meta['layout'] == self._cell.layout:
-            return ''
-        return (f'trial {meta["id"]} was measured on the {meta["layout"]} layout, this node '
-                f'uses {self._cell.layout}; start the suite with layout:={meta["layout"]} to '
-                'resume it')
+            return None
+        return Failure(ErrorCode.INVALID_INPUT,
+                       f'trial {meta["id"]} was measured on the {meta["layout"]} layout, this '
+                       f'node uses {self._cell.layout}; start the suite with '
+                       f'layout:={meta["layout"]} to resume it')
 
     def _announce(self, trial: _Goal, goal_handle, resume, feedback) -> None:
         """The first feedback, before waiting for the robot: what runs (for a resume: the

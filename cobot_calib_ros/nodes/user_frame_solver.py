@@ -57,16 +57,18 @@ FRAME_PARAMETERS = ('base_frame', 'user_frame')
 PUBLISH_TIMEOUT = 10.0   # [s] the calibrator waits this long for the node thread to publish
 
 
-def frames_problem(base: tuple[str, str], user: tuple[str, str]) -> str:
-    """'' if the (source, frame id) pairs can be base -> user on /tf_static, else why not."""
+def frames_problem(base: tuple[str, str], user: tuple[str, str]) -> Failure | None:
+    """None if the (source, frame id) pairs can be base -> user on /tf_static, else an
+    INVALID_INPUT Failure saying why not."""
     for source, frame_id in (base, user):
         why = check_frame_id(frame_id)
-        if why:
-            return f'{source}: {why}'
+        if why is not None:
+            return Failure(why.code, f'{source}: {why.message}')
     if base[1] == user[1]:
-        return (f'{base[0]} and {user[0]} are both {base[1]!r}: the user frame needs a frame '
-                'id of its own')
-    return ''
+        return Failure(ErrorCode.INVALID_INPUT,
+                       f'{base[0]} and {user[0]} are both {base[1]!r}: the user frame needs a '
+                       'frame id of its own')
+    return None
 
 
 class UserFrameSolver(JobNode):
@@ -147,21 +149,21 @@ class UserFrameSolver(JobNode):
                 'false refusals) is refused with IMPLAUSIBLE_FIT [1]', 1e-4, 1.0)
 
     # -- frame ids -------------------------------------------------------------------------
-    def _frame_parameters_problem(self) -> str:
+    def _frame_parameters_problem(self) -> Failure | None:
         return frames_problem(*((f'parameter {n}', self._p(n)) for n in FRAME_PARAMETERS))
 
     def _startup_checks(self) -> None:
         problem = self._frame_parameters_problem()
-        if problem:     # given with -p or --params-file: refused per request, not a crash
-            self.get_logger().error(f'{problem}; calibrations that do not name their frames '
-                                    'are refused until it is set right (ros2 param set)')
+        if problem is not None:   # given with -p or --params-file: refused per request
+            self.get_logger().error(f'{problem.message}; calibrations that do not name their '
+                                    'frames are refused until it is set right (ros2 param set)')
 
     def _on_set_parameters(self, params) -> SetParametersResult:
         """Refuse a base_frame / user_frame that tf2 would not accept, with the reason. Only
         the values being set are checked: a bad one from start-up must not block the fix."""
         new = {p.name: p.value for p in params if p.name in FRAME_PARAMETERS}
-        whys = [f'{name}: {check_frame_id(value)}' for name, value in new.items()
-                if check_frame_id(value)]
+        whys = [f'{name}: {why.message}' for name, value in new.items()
+                if (why := check_frame_id(value)) is not None]
         merged = {n: new.get(n, self._p(n)) for n in FRAME_PARAMETERS}
         if new and not whys and merged['base_frame'] == merged['user_frame']:
             whys.append(f'base_frame and user_frame would both be {merged["user_frame"]!r}: '
@@ -172,8 +174,8 @@ class UserFrameSolver(JobNode):
         pairs = [(f'request {n}', value) if value else (f'parameter {n}', self._p(n))
                  for n, value in zip(FRAME_PARAMETERS, (request.base_frame, request.user_frame))]
         why = frames_problem(*pairs)
-        if why:
-            raise Refusal(Failure(ErrorCode.INVALID_INPUT, why))
+        if why is not None:
+            raise Refusal(why)
         return pairs[0][1], pairs[1][1]
 
     # -- calibrate ------------------------------------------------------------------------
@@ -298,8 +300,9 @@ class UserFrameSolver(JobNode):
         children = [t.child_frame_id for t in self._tf.transforms]
         if children not in ([], [transform.child_frame_id]):
             self._tf = self._fresh_tf()
-        self._tf_problem = frames_problem(('its base frame', transform.header.frame_id),
-                                          ('its user frame', transform.child_frame_id))
+        bad_frames = frames_problem(('its base frame', transform.header.frame_id),
+                                    ('its user frame', transform.child_frame_id))
+        self._tf_problem = '' if bad_frames is None else bad_frames.message   # a health note
         try:
             if not self._tf_problem:
                 self._tf.send(transform)
@@ -330,7 +333,8 @@ class UserFrameSolver(JobNode):
         with self._store_lock:
             record, ids = self._store.active(), self._store.ids()
             retired = self._store.retired()
-        problem = self._frame_parameters_problem() or self._tf_problem
+        bad_parameters = self._frame_parameters_problem()
+        problem = self._tf_problem if bad_parameters is None else bad_parameters.message
         if problem:
             level, message = WARN, problem
         elif record is None:
@@ -376,6 +380,9 @@ class UserFrameSolver(JobNode):
             with self._store_lock:
                 record = (self._store.get(request.calibration_id) if request.calibration_id
                           else self._store.active())
+        except Refusal as e:           # another cell's (store.cells)
+            return results.answer(response, e.failure.code, f'calibration_id '
+                                  f'{request.calibration_id!r}: {e.failure.message}')
         except ValueError as e:        # not a possible calibration id
             response.error_code = results.code('ConvertPoints', ErrorCode.INVALID_INPUT)
             response.message = f'calibration_id {request.calibration_id!r}: {e}'

@@ -41,7 +41,8 @@ def _table(constants: type, *groups: tuple[str, tuple[E, ...]]) -> Table:
 _FIT = (E.TOO_FEW_POINTS, E.DEGENERATE_POINTS, E.IMPLAUSIBLE_FIT, E.SOLVER_FAILED)
 _ROBOT = (E.CAPTURE_FAILED, E.MOTION_FAILED, E.PROBE_FAILED, E.NO_DATA, E.MOVING,
           E.OUT_OF_RANGE, E.NOT_AVAILABLE)
-_REQUEST = (E.INVALID_INPUT, E.UNKNOWN_METHOD, E.UNKNOWN_POINT, E.NO_CALIBRATION, E.BUSY)
+_REQUEST = (E.INVALID_INPUT, E.UNKNOWN_METHOD, E.UNKNOWN_POINT, E.NO_CALIBRATION, E.BUSY,
+            E.FOREIGN_RESULT)
 
 TABLES: Mapping[str, Table] = MappingProxyType({
     'CalibrateUserFrame': _table(
@@ -51,7 +52,7 @@ TABLES: Mapping[str, Table] = MappingProxyType({
         ('CAPTURE_FAILED', (E.MOTION_FAILED, E.PROBE_FAILED, E.NO_DATA, E.MOVING,
                             E.OUT_OF_RANGE, E.NOT_AVAILABLE, E.CANCELED)),
         ('IMPLAUSIBLE_FIT', (E.SOLVER_FAILED,)),
-        ('INVALID_INPUT', (E.NO_CALIBRATION, E.BUSY))),
+        ('INVALID_INPUT', (E.NO_CALIBRATION, E.BUSY, E.FOREIGN_RESULT))),
     'CalibrateHandEye': _table(
         CalibrateHandEye.Result, ('SUCCESS', (E.SUCCESS,)), ('INVALID_GOAL', _REQUEST),
         ('TOO_FEW_VIEWS', (E.TOO_FEW_POINTS,)),

@@ -17,7 +17,8 @@ import json
 from pathlib import Path
 from typing import Any
 
-from cobot_calib_ros.store.cells import ForeignResult, LEGACY_CELL, legacy_note, ResultsCell
+from cobot_calib_ros.core.errors import ErrorCode, Failure
+from cobot_calib_ros.store.cells import foreign_result, LEGACY_CELL, legacy_note, ResultsCell
 from cobot_calib_ros.store.files import (atomic_write_text, check_id, ensure_dir, ID_PATTERN,
                                          is_int, read_mapping, to_plain, WarningLog)
 
@@ -27,20 +28,24 @@ LOCK_FILE = '.active.lock'
 RESERVED_IDS = (ACTIVE_FILE.removesuffix('.json'),)
 
 
-def _record_problem(record: Mapping[str, Any]) -> str:
-    """'' if ``record`` is a valid calibration record, else what is wrong with it."""
+def _record_problem(record: Mapping[str, Any]) -> Failure | None:
+    """None if ``record`` is a valid calibration record, else an INVALID_INPUT Failure
+    saying what is wrong with it."""
     missing = [k for k in RECORD_KEYS if k not in record]
     if missing:
-        return f'missing keys {missing}'
+        return Failure(ErrorCode.INVALID_INPUT, f'missing keys {missing}')
     if not isinstance(record['id'], str) or not ID_PATTERN.fullmatch(record['id']):
-        return f'bad id {record["id"]!r}'
+        return Failure(ErrorCode.INVALID_INPUT, f'bad id {record["id"]!r}')
     if record['id'] in RESERVED_IDS:
-        return f'id {record["id"]!r} is reserved (the active choice is stored under it)'
+        return Failure(ErrorCode.INVALID_INPUT,
+                       f'id {record["id"]!r} is reserved (the active choice is stored under it)')
     if not is_int(record['stamp_ns']):
-        return f'stamp_ns must be an int [ns], got {record["stamp_ns"]!r}'
+        return Failure(ErrorCode.INVALID_INPUT,
+                       f'stamp_ns must be an int [ns], got {record["stamp_ns"]!r}')
     if not isinstance(record['method'], str):
-        return f'method must be a string, got {record["method"]!r}'
-    return ''
+        return Failure(ErrorCode.INVALID_INPUT,
+                       f'method must be a string, got {record["method"]!r}')
+    return None
 
 
 @dataclass(frozen=True)
@@ -71,25 +76,29 @@ def _read_selection(path: Path) -> tuple[dict[str, Any], str]:
         return {}, f'cells must map cell names to their choices, got {cells!r}'
     for choices in (data, *cells.values()):
         problem = _choices_problem(choices)
-        if problem:
-            return {}, problem
+        if problem is not None:
+            return {}, problem.message
     return data, ''
 
 
-def _choices_problem(data: Mapping[str, Any]) -> str:
-    """'' if ``data`` holds valid choices (active_id, active_ids, retired), else why not."""
+def _choices_problem(data: Mapping[str, Any]) -> Failure | None:
+    """None if ``data`` holds valid choices (active_id, active_ids, retired), else an
+    INVALID_INPUT Failure saying why not."""
     chosen, retired = data.get('active_id'), data.get('retired', [])
     if chosen is not None and not (isinstance(chosen, str) and ID_PATTERN.fullmatch(chosen)):
-        return f'active_id must be null or a calibration id, got {chosen!r}'
+        return Failure(ErrorCode.INVALID_INPUT,
+                       f'active_id must be null or a calibration id, got {chosen!r}')
     scoped = data.get('active_ids', {})
     if not isinstance(scoped, dict) or not all(
             isinstance(k, str) and isinstance(v, str) and ID_PATTERN.fullmatch(v)
             for k, v in scoped.items()):
-        return f'active_ids must map scopes to calibration ids, got {scoped!r}'
+        return Failure(ErrorCode.INVALID_INPUT,
+                       f'active_ids must map scopes to calibration ids, got {scoped!r}')
     if not isinstance(retired, list) or not all(
             isinstance(r, str) and ID_PATTERN.fullmatch(r) for r in retired):
-        return f'retired must be a list of calibration ids, got {retired!r}'
-    return ''
+        return Failure(ErrorCode.INVALID_INPUT,
+                       f'retired must be a list of calibration ids, got {retired!r}')
+    return None
 
 
 @contextlib.contextmanager
@@ -129,11 +138,11 @@ class CalibrationStore(WarningLog):
     that record's scope), the others are in ``active_ids`` {scope: id}.
 
     ``cell`` (store.cells.ResultsCell): the cell whose records this store holds; saved
-    records get its name and robot (a record of another is refused: ForeignResult, a
-    ValueError), :meth:`get` of another cell's id is refused naming both. Its choices are
-    ``cells: {name: {active_ids, retired}}`` in ``active.json``; the top-level ones are those
-    made before results were keyed by cell (and of a store opened with no cell: every record,
-    as before).
+    records get its name and robot (a record of another is refused: a core.errors.Refusal
+    of cause FOREIGN_RESULT), :meth:`get` of another cell's id is refused naming both. Its
+    choices are ``cells: {name: {active_ids, retired}}`` in ``active.json``; the top-level
+    ones are those made before results were keyed by cell (and of a store opened with no
+    cell: every record, as before).
     """
 
     def __init__(self, root: Path, subdir: str = 'calibrations', scope_key: str = '',
@@ -163,8 +172,8 @@ class CalibrationStore(WarningLog):
         returns its path."""
         plain = to_plain(record.to_dict() if hasattr(record, 'to_dict') else record)
         problem = _record_problem(plain)
-        if problem:
-            raise ValueError(f'invalid calibration record: {problem}')
+        if problem is not None:
+            raise ValueError(f'invalid calibration record: {problem.message}')
         plain = self._keyed(plain)
         ensure_dir(self.directory)
         path = self._path(plain['id'])
@@ -173,24 +182,24 @@ class CalibrationStore(WarningLog):
         return path
 
     def _keyed(self, plain: dict[str, Any]) -> dict[str, Any]:
-        """``plain`` with this store's cell name and robot; ForeignResult if it is another
-        cell's or was made on another robot."""
+        """``plain`` with this store's cell name and robot; a FOREIGN_RESULT Refusal if it is
+        another cell's or was made on another robot."""
         if self.cell is None:
             return plain
         why = self.cell.problem(str(plain.get('cell') or ''), str(plain.get('robot') or ''))
-        if why:
-            raise ForeignResult(f'calibration {plain["id"]} refused: {why}')
+        if why is not None:
+            raise foreign_result(f'calibration {plain["id"]} refused: {why.message}')
         return {**plain, 'cell': self.cell.name,
                 **({'robot': self.cell.robot} if self.cell.robot else {})}
 
     def get(self, record_id: str) -> dict[str, Any] | None:
         """The record with this id, or None if absent or unreadable (see ``warnings``);
-        ForeignResult (a ValueError) naming both if it is another cell's or robot's."""
+        a FOREIGN_RESULT Refusal naming both if it is another cell's or robot's."""
         record = self._index().get(check_id(record_id))
         if record is None:
             why = self._elsewhere(record_id)
             if why:
-                raise ForeignResult(f'calibration {record_id} is not this cell\'s: {why}')
+                raise foreign_result(f'calibration {record_id} is not this cell\'s: {why}')
         return record
 
     def _elsewhere(self, record_id: str) -> str:
@@ -376,9 +385,9 @@ class CalibrationStore(WarningLog):
         if self._records is None:
             records, others, legacy = {}, {}, []
             for record, cell, robot in self._stored():
-                why = self.cell.problem(cell, robot) if self.cell else ''
-                if why:
-                    others[record['id']] = why
+                why = self.cell.problem(cell, robot) if self.cell else None
+                if why is not None:
+                    others[record['id']] = why.message
                     continue
                 records[record['id']] = record
                 if self.cell and cell in ('', LEGACY_CELL):
@@ -408,9 +417,10 @@ class CalibrationStore(WarningLog):
         if record is None:
             return None
         problem = _record_problem(record)
-        if not problem and record['id'] != path.stem:
-            problem = f'id {record["id"]!r} does not match the file name'
-        if problem:
-            self._warn(f'{path}: skipped, {problem}')
+        if problem is None and record['id'] != path.stem:
+            problem = Failure(ErrorCode.INVALID_INPUT,
+                              f'id {record["id"]!r} does not match the file name')
+        if problem is not None:
+            self._warn(f'{path}: skipped, {problem.message}')
             return None
         return record

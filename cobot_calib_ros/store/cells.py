@@ -5,8 +5,8 @@ namespace when it runs in one (``up --namespace plant/cell_07``: ``plant.cell_07
 cell file's name (``sawyer_close``): :meth:`ResultsCell.of`, the one rule for nodes and
 commands. Every record a cell stores carries ``cell`` and ``robot``; a cell's histories hold
 its own records only, so two robots share a data dir (or a database) and each activates only
-its own results. A record of another cell or another robot is refused by name
-(:class:`ForeignResult`).
+its own results. A record of another cell or another robot is refused by name: a
+core.errors.Refusal (:func:`foreign_result`) of cause FOREIGN_RESULT.
 
 Records stored before results were keyed by cell (no ``cell`` key in the folder store, rows
 of cell ``default`` in the database) are *legacy*: a cell takes them as its own when their
@@ -18,11 +18,15 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from cobot_calib_ros.core.errors import ErrorCode, Failure, Refusal
+
 LEGACY_CELL = 'default'     # the database rows' cell before results were keyed by cell
 
 
-class ForeignResult(ValueError):
-    """A record of another cell or another robot asked for (or given) to this cell."""
+def foreign_result(message: str) -> Refusal:
+    """The refusal of a record of another cell or another robot asked for (or given) to this
+    cell: FOREIGN_RESULT."""
+    return Refusal(Failure(ErrorCode.FOREIGN_RESULT, message))
 
 
 @dataclass(frozen=True)
@@ -43,16 +47,18 @@ class ResultsCell:
     def __str__(self) -> str:
         return f'{self.name} ({self.robot})' if self.robot else self.name
 
-    def problem(self, cell: str, robot: str) -> str:
-        """'' if a record stored under ``cell`` ('' : legacy, before keying) made on
-        ``robot`` ('' : not recorded) is this cell's, else why not (naming both)."""
+    def problem(self, cell: str, robot: str) -> Failure | None:
+        """None if a record stored under ``cell`` ('' : legacy, before keying) made on
+        ``robot`` ('' : not recorded) is this cell's, else a FOREIGN_RESULT Failure saying why
+        not (naming both)."""
         made = f'the {robot}' if robot else 'an unrecorded robot'
         mine = f'cell {self.name!r}' + (f' on the {self.robot}' if self.robot else '')
         if cell and cell != LEGACY_CELL and cell != self.name:
-            return f'it was made in cell {cell!r} on {made}; this is {mine}'
+            return Failure(ErrorCode.FOREIGN_RESULT,
+                           f'it was made in cell {cell!r} on {made}; this is {mine}')
         if robot and self.robot and robot != self.robot:
-            return f'it was made on {made}; this is {mine}'
-        return ''
+            return Failure(ErrorCode.FOREIGN_RESULT, f'it was made on {made}; this is {mine}')
+        return None
 
 
 def legacy_note(cell: ResultsCell, where: str, ids: list[str]) -> str:

@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from cobot_calib_ros.core.errors import ErrorCode, Failure
 from cobot_calib_ros.store.files import append_line, check_id, read_lines, to_plain
 from cobot_calib_ros.store.folders import FolderStore
 
@@ -51,19 +52,20 @@ class Collection:
                     len(self.meta['plan']))
 
 
-def _problem(meta: Mapping[str, Any], collection_id: str) -> str:
+def _problem(meta: Mapping[str, Any], collection_id: str) -> Failure | None:
     missing = [k for k in META_KEYS if k not in meta]
     if missing:
-        return f'missing keys {missing}'
+        return Failure(ErrorCode.INVALID_INPUT, f'missing keys {missing}')
     if meta['id'] != collection_id:
-        return f'id {meta["id"]!r} does not match the folder name'
+        return Failure(ErrorCode.INVALID_INPUT, f'id {meta["id"]!r} does not match the folder name')
     if meta['source'] not in SOURCES or meta['status'] not in STATUSES:
-        return f'bad source {meta["source"]!r} or status {meta["status"]!r}'
+        return Failure(ErrorCode.INVALID_INPUT,
+                       f'bad source {meta["source"]!r} or status {meta["status"]!r}')
     n = len(meta['joint_names'])
     if not all(isinstance(step, Mapping) and len(step.get('q', ())) == n
                for step in meta['plan']):
-        return f'every plan step needs q with {n} joint positions'
-    return ''
+        return Failure(ErrorCode.INVALID_INPUT, f'every plan step needs q with {n} joint positions')
+    return None
 
 
 class CollectionStore(FolderStore):
@@ -80,7 +82,7 @@ class CollectionStore(FolderStore):
         folder_store.directory = Path(directory)
         return folder_store
 
-    def _meta_problem(self, meta: Mapping[str, Any], record_id: str) -> str:
+    def _meta_problem(self, meta: Mapping[str, Any], record_id: str) -> Failure | None:
         return _problem(meta, record_id)
 
     def create(self, collection_id: str, *, source: str, robot: str,
@@ -97,8 +99,8 @@ class CollectionStore(FolderStore):
                 'targets': list(targets), 'plan': to_plain(list(plan)), 'status': 'running',
                 'created_ns': now, 'updated_ns': now}
         problem = _problem(meta, collection_id)
-        if problem:
-            raise ValueError(f'invalid collection: {problem}')
+        if problem is not None:
+            raise ValueError(f'invalid collection: {problem.message}')
         self._create_folder(meta)
         return meta
 

@@ -313,8 +313,8 @@ class DbCalibrationHistory(CalibrationStore):
         """Write ``record`` in one transaction; returns where: '<url>#<cell>/<kind>/<id>'."""
         plain = to_plain(record.to_dict() if hasattr(record, 'to_dict') else record)
         problem = _record_problem(plain)
-        if problem:
-            raise ValueError(f'invalid calibration record: {problem}')
+        if problem is not None:
+            raise ValueError(f'invalid calibration record: {problem.message}')
         plain = self._keyed(plain)
         self.database.put(self.cell_name, self.kind, plain, self.scope_of(plain))
         self._index()[plain['id']] = plain
@@ -329,8 +329,8 @@ class DbCalibrationHistory(CalibrationStore):
             for row in self.database.rows(cell, self.kind):
                 record = json.loads(row['body'])
                 problem = _record_problem(record)
-                if problem:
-                    self._warn(f'{self}: {row["id"]} skipped, {problem}')
+                if problem is not None:
+                    self._warn(f'{self}: {row["id"]} skipped, {problem.message}')
                     continue
                 robot = str(record.get('robot') or row['robot_model'] or '')
                 yield record, '' if row['cell'] == LEGACY_CELL else row['cell'], robot
@@ -339,8 +339,8 @@ class DbCalibrationHistory(CalibrationStore):
         why = super()._elsewhere(record_id)
         if why or self.cell is None:
             return why
-        return next((why for cell, robot in self.database.find(self.kind, record_id)
-                     if (why := self.cell.problem(cell, robot))), '')
+        return next((why.message for cell, robot in self.database.find(self.kind, record_id)
+                     if (why := self.cell.problem(cell, robot)) is not None), '')
 
     def _write_selection(self, kept: dict[str, str], retired: frozenset[str]) -> None:
         self.database.set_selection(self.cell_name, self.kind, kept, retired)

@@ -10,6 +10,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, ClassVar
 
+from cobot_calib_ros.core.errors import Failure
 from cobot_calib_ros.store.files import (atomic_write_text, check_id, dump_yaml, ensure_dir,
                                          fsync_dir, read_mapping, to_plain, WarningLog)
 
@@ -26,8 +27,9 @@ class FolderStore(WarningLog):
         self.directory = Path(directory)
         self._meta: dict[str, dict[str, Any]] = {}   # written or read by this store
 
-    def _meta_problem(self, meta: Mapping[str, Any], record_id: str) -> str:
-        """'' if ``meta`` is valid metadata of ``record_id``, else what is wrong."""
+    def _meta_problem(self, meta: Mapping[str, Any], record_id: str) -> Failure | None:
+        """None if ``meta`` is valid metadata of ``record_id``, else an INVALID_INPUT Failure
+        saying what is wrong."""
         raise NotImplementedError
 
     def _create_folder(self, meta: dict[str, Any]) -> None:
@@ -65,7 +67,8 @@ class FolderStore(WarningLog):
             return None, (f'{path.parent}: skipped, no {self.META_FILE} (missing or aborted '
                           'create)')
         meta, problem = read_mapping(path)
-        problem = problem or self._meta_problem(meta, record_id)
+        if not problem and (invalid := self._meta_problem(meta, record_id)) is not None:
+            problem = invalid.message
         return (None, f'{path}: skipped, {problem}') if problem else (meta, '')
 
     def _list_meta(self) -> list[dict[str, Any]]:

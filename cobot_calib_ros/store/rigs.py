@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from cobot_calib_ros.core import provenance, rig
+from cobot_calib_ros.core.errors import Refusal
 from cobot_calib_ros.core.kinematics.robots import model_for
 from cobot_calib_ros.core.rig import ActiveSet, NOMINAL, Rig
 from cobot_calib_ros.store.kinematics import unseen_tool_note
@@ -201,7 +202,7 @@ def _stale(repository, cell, model, active: ActiveSet, kind: str, result, throug
     if was != NOMINAL:
         try:
             before = KINDS[through].typed(history_of(repository, through).get(was))
-        except (OSError, ValueError, KeyError):
+        except (OSError, ValueError, KeyError, Refusal):
             before = None
         if before is None:
             return provenance.Stale(kind, result.id, through, was, active.label(through))
@@ -246,6 +247,6 @@ def _joints(repository, kind: str, result_id: str) -> np.ndarray | None:
     try:
         record = history_of(repository, kind).get(result_id)
         q = np.array(record['inputs']['joints'], dtype=float)
-    except (AttributeError, KeyError, OSError, TypeError, ValueError):
+    except (AttributeError, KeyError, OSError, TypeError, ValueError, Refusal):
         return None
     return q if q.ndim == 2 and q.size else None

@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from cobot_calib_ros.core.errors import ErrorCode, Failure
 from cobot_calib_ros.core.repeatability import AXES, correct_distance, Direction, DIRECTIONS
 from cobot_calib_ros.store.files import append_line, check_id, is_int, read_lines, to_plain
 from cobot_calib_ros.store.folders import FolderStore
@@ -47,21 +48,26 @@ class _Row:
     stamp_ns: int
 
 
-def _trial_problem(meta: Mapping[str, Any], trial_id: str) -> str:
-    """'' if ``meta`` is valid trial metadata for ``trial_id``, else what is wrong."""
+def _trial_problem(meta: Mapping[str, Any], trial_id: str) -> Failure | None:
+    """None if ``meta`` is valid trial metadata for ``trial_id``, else an INVALID_INPUT
+    Failure saying what is wrong."""
     missing = [k for k in TRIAL_KEYS if k not in meta]
     if missing:
-        return f'missing keys {missing}'
+        return Failure(ErrorCode.INVALID_INPUT, f'missing keys {missing}')
     if meta['id'] != trial_id:
-        return f'id {meta["id"]!r} does not match the directory name'
+        return Failure(ErrorCode.INVALID_INPUT,
+                       f'id {meta["id"]!r} does not match the directory name')
     names = meta['point_names']
     if not isinstance(names, list) or not names or not all(isinstance(n, str) for n in names):
-        return f'point_names must be a non-empty list of strings, got {names!r}'
+        return Failure(ErrorCode.INVALID_INPUT,
+                       f'point_names must be a non-empty list of strings, got {names!r}')
     if not is_int(meta['cycles_total']) or meta['cycles_total'] < 1:
-        return f'cycles_total must be an int >= 1, got {meta["cycles_total"]!r}'
+        return Failure(ErrorCode.INVALID_INPUT,
+                       f'cycles_total must be an int >= 1, got {meta["cycles_total"]!r}')
     if meta['status'] not in TRIAL_STATUSES:
-        return f'status must be one of {TRIAL_STATUSES}, got {meta["status"]!r}'
-    return ''
+        return Failure(ErrorCode.INVALID_INPUT,
+                       f'status must be one of {TRIAL_STATUSES}, got {meta["status"]!r}')
+    return None
 
 
 def _check_point_names(point_names: Sequence[str]) -> list[str]:
@@ -130,7 +136,7 @@ class TrialStore(FolderStore):
         super().__init__(Path(root) / 'trials')
         self.root = Path(root)
 
-    def _meta_problem(self, meta: Mapping[str, Any], record_id: str) -> str:
+    def _meta_problem(self, meta: Mapping[str, Any], record_id: str) -> Failure | None:
         return _trial_problem(meta, record_id)
 
     def create(self, trial_id: str, *, method: str, axis: str, layout: str,

@@ -126,7 +126,7 @@ def test_another_cell_s_collections_are_neither_resumed_nor_identified(tmp_path)
     resumed = _collect(repo, CollectionRequest(), robot, collection_id='iiwa7-cut')
     identified = api.goal_source(repo.collections, SIM.cell, MODEL, CELL,
                                  collection_id='iiwa7-done')
-    assert resumed.code == identified.code == ErrorCode.INVALID_INPUT
+    assert resumed.code == identified.code == ErrorCode.FOREIGN_RESULT
     assert resumed.message.startswith(f"collection iiwa7-cut is not this cell's: {why}")
     assert identified.message.startswith(f"collection iiwa7-done is not this cell's: {why}")
     assert robot.moves == 0 and repo.collections.meta('iiwa7-cut')['status'] == 'aborted'

@@ -13,7 +13,7 @@ from cobot_calib_ros.cli.main import main
     ('cell_07', True), ('plant/cell_07', True), ('', True), ('7cell', False),
     ('cell 07', False), ('cell-07', False), ('cell//07', False)])
 def test_namespace_problem(namespace, ok):
-    assert (up.namespace_problem(namespace) == '') == ok
+    assert (up.namespace_problem(namespace) is None) == ok
 
 
 def test_a_bad_namespace_starts_nothing(capsys):

@@ -109,4 +109,4 @@ def test_a_missing_file_says_where_cells_are(tmp_path):
     ('user_frame', True), ('table_2/user', True), ('bad frame!', False), ('', False),
     ('/user_frame', False)])
 def test_frame_ids_are_checked_as_tf2_accepts_them(frame_id, ok):
-    assert (check_frame_id(frame_id) == '') == ok
+    assert (check_frame_id(frame_id) is None) == ok

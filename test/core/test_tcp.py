@@ -46,7 +46,7 @@ def test_noisy_touches_give_the_tool_within_their_noise_and_pass_the_gate():
     assert 0.0 < position.mean_residual_m <= position.max_residual_m < 5 * sigma
     assert position.rms_per_axis == pytest.approx(sigma, rel=0.5)
     solution = solve_tcp(_approaches(8, noise=sigma))
-    assert gate_problem(solution, GateLimits(touch_sigma=sigma), nominal=T_FLANGE_TCP) == ''
+    assert gate_problem(solution, GateLimits(touch_sigma=sigma), nominal=T_FLANGE_TCP) is None
 
 
 def test_three_nearly_parallel_orientations_are_refused_naming_them():
@@ -140,17 +140,19 @@ def test_the_gate_names_a_slipped_touch_a_far_tool_and_a_turned_elongator():
     flange = _approaches(6, noise=2e-5)
     flange[2, :3, 3] += [0.0, 0.0, 2e-3]            # a touch 2 mm off
     problem = gate_problem(solve_tcp(flange, robust_scale=1.0), GateLimits(touch_sigma=2e-5))
+    assert problem.code == ErrorCode.IMPLAUSIBLE_FIT
+    problem = problem.message
     assert 'more than the touch noise (0.020 mm) explains' in problem
     assert 'touch again' in problem
     solution = solve_tcp(_approaches(6))
     nominal = T_FLANGE_TCP.copy()
     nominal[:3, 3] += [0.0, 0.0, 0.03]
-    assert "30.0 mm from the cell's tool_offset" in gate_problem(solution, nominal=nominal)
-    assert 'beyond 100 mm' in gate_problem(solution, GateLimits(max_tool_length=0.1))
+    assert "30.0 mm from the cell's tool_offset" in gate_problem(solution, nominal=nominal).message
+    assert 'beyond 100 mm' in gate_problem(solution, GateLimits(max_tool_length=0.1)).message
     approaches, elongators = _elongators('z')
     T, d = elongators['z']
     elongators['z'] = (T @ frames.make_transform(frames.rot_x(0.05), [0, 0, 0]), d)
-    assert 'turned 2.86 deg' in gate_problem(solve_tcp(approaches, elongators))
+    assert 'turned 2.86 deg' in gate_problem(solve_tcp(approaches, elongators)).message
 
 
 def test_plans_refuse_goals_that_cannot_work():

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from cobot_calib_ros.core import frames, kinematics
+from cobot_calib_ros.core.errors import ErrorCode
 from cobot_calib_ros.core.robot_port import Approach, elongator_problem, MoveFailed
 from cobot_calib_ros.core.tcp import gate_problem, GateLimits
 from cobot_calib_ros.core.tcp.touches import plan_touches, solve_touches, take_touches
@@ -45,13 +46,14 @@ def test_an_oriented_touch_puts_the_true_tip_on_the_point_in_that_orientation():
 
 
 def test_an_elongator_point_is_an_axis_and_a_distance_or_refused_saying_why():
-    assert elongator_problem('', 0.0) == '' and elongator_problem('z', -0.05) == ''
-    assert elongator_problem('x', 0.05) == ''
-    assert "use 'z' or 'x'" in elongator_problem('y', 0.05)
-    assert 'within 1 m' in elongator_problem('z', 2.5)
-    assert 'within 1 m' in elongator_problem('z', 0.0)
-    assert 'within 1 m' in elongator_problem('z', float('nan'))
-    assert 'without an elongator axis' in elongator_problem('', 0.05)
+    assert elongator_problem('', 0.0) is None and elongator_problem('z', -0.05) is None
+    assert elongator_problem('x', 0.05) is None
+    assert "use 'z' or 'x'" in elongator_problem('y', 0.05).message
+    assert 'within 1 m' in elongator_problem('z', 2.5).message
+    assert 'within 1 m' in elongator_problem('z', 0.0).message
+    assert 'within 1 m' in elongator_problem('z', float('nan')).message
+    assert 'without an elongator axis' in elongator_problem('', 0.05).message
+    assert elongator_problem('y', 0.05).code == ErrorCode.INVALID_INPUT
 
 def test_an_unreachable_approach_fails_as_a_move():
     _, robot = _robot()
@@ -80,5 +82,5 @@ def test_the_procedure_finds_the_true_tool_where_the_nominal_one_is_off():
     nominal_z_error = frames.rotation_angle(SIM.cell.tool_offset[:3, :3].T @ truth[:3, :3])
     assert error < 0.25 * nominal_error
     assert z_error < 0.5 * nominal_z_error
-    assert gate_problem(solution, GateLimits(), nominal=SIM.cell.tool_offset) == ''
+    assert gate_problem(solution, GateLimits(), nominal=SIM.cell.tool_offset) is None
     assert robot.moves == 9

@@ -13,7 +13,8 @@ import shutil
 import pytest
 
 from cobot_calib_ros import store
-from cobot_calib_ros.store.cells import ForeignResult, LEGACY_CELL, ResultsCell
+from cobot_calib_ros.core.errors import ErrorCode, Refusal
+from cobot_calib_ros.store.cells import LEGACY_CELL, ResultsCell
 from cobot_calib_ros.store.database import Database
 from cobot_calib_ros.store.repository import FolderRepository
 
@@ -66,12 +67,13 @@ def test_two_robots_cells_on_one_data_dir_activate_only_their_own_results(opener
     assert iiwa.hand_eye.active() is None and iiwa.kinematics.active('sawyer') is None
     for history, record_id in ((iiwa.user_frames, 'frame-sawyer'),
                                (iiwa.kinematics, 'lm-sawyer')):
-        with pytest.raises(ForeignResult, match=(
+        with pytest.raises(Refusal, match=(
                 rf"{record_id} is not this cell's: it was made in cell '\w*sawyer_close' on "
                 r"the sawyer; this is cell '\w*iiwa7_close' on the iiwa7")):
             history.activate(record_id)
-    with pytest.raises(ForeignResult, match='made on the sawyer; this is cell .* on the iiwa7'):
+    with pytest.raises(Refusal, match='made on the sawyer; this is cell .* on the iiwa7') as e:
         iiwa.hand_eye.save(_stored('hand_eye') | {'robot': 'sawyer', 'cell': ''})
+    assert e.value.failure.code == ErrorCode.FOREIGN_RESULT
     assert iiwa.user_frames.save_and_activate(_frame('frame-iiwa', 2))
     again = opener(SAWYER)                      # reopened: each keeps its own, as stored
     assert again.user_frames.active()['id'] == 'frame-sawyer'
@@ -88,7 +90,7 @@ def test_a_cell_name_used_again_with_another_robot_takes_none_of_its_results(ope
         _frame('frame-07', 1))
     other = opener(ResultsCell('cell_07', 'iiwa7'))
     assert other.user_frames.active() is None
-    with pytest.raises(ForeignResult, match="made on the sawyer; this is cell '.*cell_07' on "
+    with pytest.raises(Refusal, match="made on the sawyer; this is cell '.*cell_07' on "
                                             'the iiwa7'):
         other.user_frames.get('frame-07')
 
@@ -103,13 +105,13 @@ def test_a_5252a67_folder_store_is_read_by_the_cell_of_each_record_s_robot(tmp_p
                "'sawyer_close'" in w for w in sawyer.user_frames.warnings)
     assert sawyer.hand_eye.active()['id'] == _stored('hand_eye')['id']   # it named its cell
     assert sawyer.kinematics.resolve('latest', 'sawyer') is None
-    with pytest.raises(ForeignResult, match="made on the iiwa7; this is cell 'sawyer_close' "
+    with pytest.raises(Refusal, match="made on the iiwa7; this is cell 'sawyer_close' "
                                             'on the sawyer'):
         sawyer.kinematics.resolve(_stored('kinematics')['id'], 'sawyer')
     iiwa = store.open(data, cell=IIWA)
     assert iiwa.kinematics.resolve('latest', 'iiwa7')['id'] == _stored('kinematics')['id']
     assert iiwa.hand_eye.active() is None
-    with pytest.raises(ForeignResult, match="made in cell 'sawyer_close'"):
+    with pytest.raises(Refusal, match="made in cell 'sawyer_close'"):
         iiwa.hand_eye.get(_stored('hand_eye')['id'])
     # the cell's own choice over the legacy one, kept across a restart; the old one unchanged
     assert sawyer.user_frames.activate(None).record_id == '20261125T150121.300898935Z-rigid'
@@ -147,7 +149,7 @@ def test_database_rows_from_before_the_keying_go_to_the_cell_of_their_robot(lega
     monkeypatch.delenv('COBOT_CALIB_ROBOT')
     iiwa = store.open(tmp_path / 'iiwa', db_url, IIWA).user_frames
     assert not {f'{name}-a', f'{name}-b'} & iiwa.ids()
-    with pytest.raises(ForeignResult, match='made on the sawyer; this is cell .* on the iiwa7'):
+    with pytest.raises(Refusal, match='made on the sawyer; this is cell .* on the iiwa7'):
         iiwa.get(f'{name}-a')
     sawyer = store.open(tmp_path / 'sawyer', db_url, ResultsCell(f'{name}_sawyer', 'sawyer'))
     assert sawyer.user_frames.active()['id'] == f'{name}-a'         # the legacy choice

@@ -26,6 +26,7 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from cobot_calib_ros.core.errors import ErrorCode, Failure
 from cobot_calib_ros.core.frames import from_pose, invert, to_pose, transform_error
 from cobot_calib_ros.core.kinematics.model import Chain, fk
 from cobot_calib_ros.core.rig import solve_target
@@ -157,8 +158,8 @@ def filter_targets(targets: list[Target], calibrated: Chain, nominal: Chain, hom
     for target in targets:
         result = solve_target(calibrated, target.pose, seed, home, T_base_frame)
         if not result:
-            unreachable.append(Unreachable(target.name, out_of_reach(
-                calibrated, (T_base_frame @ target.pose)[:3, 3]) or result.message))
+            far = out_of_reach(calibrated, (T_base_frame @ target.pose)[:3, 3])
+            unreachable.append(Unreachable(target.name, (result if far is None else far).message))
             continue
         seed = result.q
         pose = T_frame_base @ fk(nominal, result.q)
@@ -174,18 +175,20 @@ def reach(chain: Chain) -> float:
     return float(links + np.linalg.norm((chain.flange @ chain.tool)[:3, 3]))
 
 
-def out_of_reach(chain: Chain, p_base: ArrayLike) -> str:
-    """'' when the position ``p_base`` [m] is within :func:`reach` of the first joint, else
-    how far beyond it is, and a hint when it looks like millimetres."""
+def out_of_reach(chain: Chain, p_base: ArrayLike) -> Failure | None:
+    """None when the position ``p_base`` [m] is within :func:`reach` of the first joint, else
+    a MOTION_FAILED Failure saying how far beyond it is, and a hint when it looks like
+    millimetres."""
     p = np.asarray(p_base, dtype=float)
     distance = float(np.linalg.norm(p - np.asarray(chain.placements)[0, :3, 3]))
     limit = reach(chain)
     if distance <= limit:
-        return ''
+        return None
     hint = ('; it looks like millimetres: give the position in metres (or a --format in mm)'
             if distance > 20.0 * limit and distance * 1e-3 <= limit else '')
-    return (f'{distance:.4g} m from the first joint, {distance - limit:.4g} m beyond the arm\'s '
-            f'reach of {limit:.4g} m with this tool{hint}')
+    return Failure(ErrorCode.MOTION_FAILED,
+                   f'{distance:.4g} m from the first joint, {distance - limit:.4g} m beyond '
+                   f'the arm\'s reach of {limit:.4g} m with this tool{hint}')
 
 
 def filtered_csv(filtered: tuple[Filtered, ...], joint_names: tuple[str, ...],

@@ -12,6 +12,8 @@ import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from cobot_calib_ros.core.errors import ErrorCode, Failure
+
 # distortion_model (sensor_msgs/CameraInfo names) -> allowed numbers of coefficients
 DISTORTION_MODELS = {
     'plumb_bob': (0, 4, 5),            # k1 k2 p1 p2 [k3], OpenCV's default model
@@ -76,14 +78,15 @@ class CameraModel:
     def is_fisheye(self) -> bool:
         return self.distortion_model == 'equidistant'
 
-    def size_problem(self, image_shape: tuple[int, ...]) -> str | None:
-        """Why the intrinsics do not fit an image of this (rows, cols[, channels]) shape, or None."""
+    def size_problem(self, image_shape: tuple[int, ...]) -> Failure | None:
+        """None if the intrinsics fit an image of this (rows, cols[, channels]) shape, else an
+        INVALID_INPUT Failure saying why not."""
         if self.width is None or self.height is None:
             return None
         h, w = image_shape[:2]
         if (w, h) != (self.width, self.height):
-            return (f'the image is {w}x{h} px but the camera info is for '
-                    f'{self.width}x{self.height} px')
+            return Failure(ErrorCode.INVALID_INPUT, f'the image is {w}x{h} px but the camera '
+                           f'info is for {self.width}x{self.height} px')
         return None
 
     @property

@@ -65,15 +65,17 @@ ViewDone = Callable[[int, bool, HandEyeViews], None]   # view index, board used,
 
 
 def pairing_problem(reached: Array, captured: Array,
-                    tolerance: float = PAIRING_TOLERANCE_RAD) -> str:
-    """'' when the joints captured after the image agree with those reached at rest, else
-    which joint moved by how much."""
+                    tolerance: float = PAIRING_TOLERANCE_RAD) -> Failure | None:
+    """None when the joints captured after the image agree with those reached at rest, else
+    a MOVING Failure saying which joint moved by how much."""
     delta = np.abs(np.asarray(captured, dtype=float) - np.asarray(reached, dtype=float))
     worst = int(np.argmax(delta))
     if delta[worst] <= tolerance:
-        return ''
-    return (f'joint {worst + 1} captured {delta[worst] * 1e3:.3f} mrad from where the move '
-            f'ended (at most {tolerance * 1e3:.3f}): the arm was not at rest around the image')
+        return None
+    return Failure(ErrorCode.MOVING,
+                   f'joint {worst + 1} captured {delta[worst] * 1e3:.3f} mrad from where the '
+                   f'move ended (at most {tolerance * 1e3:.3f}): the arm was not at rest around '
+                   'the image')
 
 
 def take_hand_eye_views(plan: Sequence[Array], robot: RobotPort, camera: CameraPort,
@@ -93,41 +95,44 @@ def take_hand_eye_views(plan: Sequence[Array], robot: RobotPort, camera: CameraP
             why = _take_view(views, robot, camera, chain, q, hold, landmark_timeout)
         except CaptureFailed as e:
             raise CaptureFailed(f'{where}: {e}') from e
-        if why:
-            views.skipped.append({'view': i, 'reason': why})
+        if why is not None:
+            views.skipped.append({'view': i, 'reason': why.message})
         if on_view is not None:
-            on_view(i, not why, views)
+            on_view(i, why is None, views)
     return views
 
 
 def _take_view(views: HandEyeViews, robot: RobotPort, camera: CameraPort,
-               chain: kinematics.Chain, q: Array, hold: float, timeout: float) -> str:
-    """One view appended to ``views``: '' if it was used, else why it was skipped."""
+               chain: kinematics.Chain, q: Array, hold: float, timeout: float
+               ) -> Failure | None:
+    """One view appended to ``views``: None if it was used, else a Failure saying why it was
+    skipped."""
     try:
         reached = robot.move_joints(q)
     except MoveFailed as e:
-        return f'unreachable: {e}'
+        return Failure(ErrorCode.MOTION_FAILED, f'unreachable: {e}')
     rest_ns = camera.now_ns()
     try:
         image = camera.landmarks_after(rest_ns, lambda im: im.find('board') is not None,
                                        BOARD_IMAGES, timeout)
     except CaptureFailed as e:
-        return f'no image: {e}'
+        return Failure(ErrorCode.CAPTURE_FAILED, f'no image: {e}')
     board = image.find('board')
     if board is None:
-        return f'no board seen in {BOARD_IMAGES} images'
+        return Failure(ErrorCode.CAPTURE_FAILED, f'no board seen in {BOARD_IMAGES} images')
     capture = robot.capture(hold)
     problem = pairing_problem(reached, capture.q)
     if image.stamp_ns <= rest_ns:
-        problem = f'the image is stamped before the arm came to rest ({image.stamp_ns} ns)'
-    if problem:
+        problem = Failure(ErrorCode.MOVING, 'the image is stamped before the arm came to rest '
+                          f'({image.stamp_ns} ns)')
+    if problem is not None:
         views.unpaired += 1
-        return f'unpaired: {problem}'
+        return Failure(problem.code, f'unpaired: {problem.message}')
     views.joints.append(capture.q)
     views.flange.append(kinematics.fk(chain, capture.q))
     views.boards.append(board.T_optical_target)
     views.covariances.append(board.covariance)
-    return ''
+    return None
 
 
 @dataclass(frozen=True)

@@ -169,11 +169,13 @@ def calibrate_intrinsics(views: Sequence[BoardView], image_size: tuple[int, int]
     fit = IntrinsicsFit(camera, _rms(camera, used, poses), view_rms, outliers,
                         _heldout_rms(used, size, model, name, camera, folds),
                         image_coverage(views, poses, size), len(used), poses)
-    return dataclasses.replace(fit, gate_problem=gate_problem(fit, max_rms_px))
+    gate = gate_problem(fit, max_rms_px)
+    return dataclasses.replace(fit, gate_problem='' if gate is None else gate.message)
 
 
-def gate_problem(fit: IntrinsicsFit, max_rms_px: float = MAX_RMS_PX) -> str:
-    """'' if ``fit`` may become a camera's active intrinsics, else why not: the held-out
+def gate_problem(fit: IntrinsicsFit, max_rms_px: float = MAX_RMS_PX) -> Failure | None:
+    """None if ``fit`` may become a camera's active intrinsics, else an IMPLAUSIBLE_FIT
+    Failure saying why not: the held-out
     error its fit does not explain (overfitting: too few or too alike views), a fit error above
     ``max_rms_px`` (bad detections, wrong model), or corners on too little of the image."""
     problems = []
@@ -192,7 +194,7 @@ def gate_problem(fit: IntrinsicsFit, max_rms_px: float = MAX_RMS_PX) -> str:
                         f'(< {100 * MIN_COVERAGE:.0f} %)')
     if problems and not fit.coverage.complete:
         problems.append(fit.coverage.message)
-    return '; '.join(problems)
+    return Failure(E.IMPLAUSIBLE_FIT, '; '.join(problems)) if problems else None
 
 
 def image_coverage(views: Sequence[BoardView], poses: dict[str, tuple[Array, Array]],

@@ -103,12 +103,14 @@ def landmark_frame(method: str, cell, observations: Sequence[landmark_frames.Obs
         max_scale_error=max_scale_error)
 
 
-def setup_problem(cell) -> str:
-    """'' when the cell has a camera and landmarks, else what to add to the cell file."""
+def setup_problem(cell) -> Failure | None:
+    """None when the cell has a camera and landmarks, else an INVALID_INPUT Failure saying
+    what to add to the cell file."""
     if cell.camera is None or cell.landmarks is None or not cell.landmarks.markers:
-        return (f'cell {cell.name!r} has no wrist camera or no landmarks; add camera: and '
-                'landmarks: markers: to the cell file')
-    return ''
+        return Failure(ErrorCode.INVALID_INPUT,
+                       f'cell {cell.name!r} has no wrist camera or no landmarks; add camera: and '
+                       'landmarks: markers: to the cell file')
+    return None
 
 
 ViewMark = Callable[[int, Capture, int], None]   # marker id, the view's capture, t [ns]
@@ -131,9 +133,9 @@ def measure_frame(method: str, cell, robot: RobotPort, camera: CameraPort, *,
     be taken or a target was never seen; else :func:`landmark_frame`'s fit (falsy when refused).
     Raises core.robot_port.Stopped when ``cancelled()`` between views."""
     problem = setup_problem(cell)
-    if problem:
+    if problem is not None:
         return landmark_frames.LandmarkFit.failed(
-            method, Failure(ErrorCode.INVALID_INPUT, f'{method}: {problem}'))
+            method, Failure(problem.code, f'{method}: {problem.message}'))
     observations = []
     for marker_id, q in plan_views(method, cell, plan_chain, T_base_user_guess, cell.home):
         check_cancel(cancelled, f'the view of landmark {marker_id}')

@@ -39,7 +39,7 @@ from numpy.typing import NDArray
 
 from cobot_calib_ros.core import frames, kinematics, user_frame
 from cobot_calib_ros.core.cell import Cell, Marker, tool_down_orientation
-from cobot_calib_ros.core.errors import ErrorCode, Failure, Refusal
+from cobot_calib_ros.core.errors import ErrorCode, Failure, first_failure, Refusal
 from cobot_calib_ros.core.landmarks import views
 from cobot_calib_ros.core.landmarks.views import ViewMark
 from cobot_calib_ros.core.repeatability.iso9283 import (
@@ -198,42 +198,47 @@ class Plan:
     extra: dict = field(default_factory=dict)
 
     def check(self) -> None:
-        problem = (method_problem(self.method) or axis_problem(self.axis)
-                   or cycles_problem(self.cycles))
-        if problem:
-            raise TrialError(ErrorCode.INVALID_INPUT, problem)
+        problem = first_failure(method_problem(self.method), axis_problem(self.axis),
+                                cycles_problem(self.cycles))
+        if problem is not None:
+            raise TrialError(problem.code, problem.message)
         if self.method != 'reference' and len(self.markers) < 3:
             raise TrialError(ErrorCode.INVALID_INPUT, f'{self.method} needs at least 3 points')
 
 
-def method_problem(method: str) -> str:
-    """'' if ``method`` is one of METHODS, else why not (one line)."""
-    return '' if method in METHODS else (f'unknown method {method!r}; use one of '
-                                         f'{", ".join(METHODS)}')
+def method_problem(method: str) -> Failure | None:
+    """None if ``method`` is one of METHODS, else an INVALID_INPUT Failure (one line)."""
+    return None if method in METHODS else Failure(
+        ErrorCode.INVALID_INPUT, f'unknown method {method!r}; use one of {", ".join(METHODS)}')
 
 
-def axis_problem(axis: str) -> str:
-    """'' if ``axis`` is one of AXES, else why not (one line)."""
-    return '' if axis in AXES else f'unknown axis {axis!r}; use one of {", ".join(AXES)}'
+def axis_problem(axis: str) -> Failure | None:
+    """None if ``axis`` is one of AXES, else an INVALID_INPUT Failure (one line)."""
+    return None if axis in AXES else Failure(
+        ErrorCode.INVALID_INPUT, f'unknown axis {axis!r}; use one of {", ".join(AXES)}')
 
 
-def cycles_problem(cycles: int) -> str:
-    """'' if ``cycles`` is a valid number of cycles, else why not (one line)."""
+def cycles_problem(cycles: int) -> Failure | None:
+    """None if ``cycles`` is a valid number of cycles, else an INVALID_INPUT Failure."""
     if not MIN_CYCLES <= cycles <= MAX_CYCLES:
-        return (f'cycles must be {MIN_CYCLES}..{MAX_CYCLES} (RP needs the spread of at least '
-                f'{MIN_CYCLES} cycles), got {cycles}')
-    return ''
+        return Failure(ErrorCode.INVALID_INPUT,
+                       f'cycles must be {MIN_CYCLES}..{MAX_CYCLES} (RP needs the spread of at '
+                       f'least {MIN_CYCLES} cycles), got {cycles}')
+    return None
 
 
-def goal_problem(method: str, axis: str, cycles: int) -> str:
-    """'' if a trial request is valid, else why not (one line); the client and the node both
-    check it. '' and 0 stand for "not given" (the default, or the stored value on resume)."""
-    return ((method and method_problem(method)) or (axis and axis_problem(axis))
-            or (cycles and cycles_problem(cycles)) or '')
+def goal_problem(method: str, axis: str, cycles: int) -> Failure | None:
+    """None if a trial request is valid, else an INVALID_INPUT Failure (one line); the client
+    and the node both check it. '' and 0 stand for "not given" (the default, or the stored
+    value on resume)."""
+    return first_failure(method_problem(method) if method else None,
+                         axis_problem(axis) if axis else None,
+                         cycles_problem(cycles) if cycles else None)
 
 
-def resume_problem(meta: dict, method: str, axis: str, cycles: int) -> str:
-    """'' if a request may resume the stored trial ``meta``, else why not (one line).
+def resume_problem(meta: dict, method: str, axis: str, cycles: int) -> Failure | None:
+    """None if a request may resume the stored trial ``meta``, else an INVALID_INPUT Failure
+    saying why not (one line).
 
     Given values must equal the stored ones; '' and 0 take the stored ones."""
     asked = {'method': method, 'axis': axis, 'cycles': cycles}
@@ -241,9 +246,10 @@ def resume_problem(meta: dict, method: str, axis: str, cycles: int) -> str:
     differ = [f'{key} {asked[key]} (stored: {stored[key]})' for key in asked
               if asked[key] and asked[key] != stored[key]]
     if not differ:
-        return ''
-    return (f'trial {meta["id"]} is {describe(meta)}; cannot resume it with '
-            f'{", ".join(differ)}: leave those out to resume it, or pick a new trial id')
+        return None
+    return Failure(ErrorCode.INVALID_INPUT,
+                   f'trial {meta["id"]} is {describe(meta)}; cannot resume it with '
+                   f'{", ".join(differ)}: leave those out to resume it, or pick a new trial id')
 
 
 def describe(meta: dict) -> str:

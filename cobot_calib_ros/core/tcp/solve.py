@@ -220,8 +220,9 @@ class GateLimits:
 
 
 def gate_problem(solution: TcpSolution, limits: GateLimits = GateLimits(),
-                 nominal: ArrayLike | None = None) -> str:
-    """'' when ``solution`` may become the tool's active TCP, else why not (and what to do).
+                 nominal: ArrayLike | None = None) -> Failure | None:
+    """None when ``solution`` may become the tool's active TCP, else an IMPLAUSIBLE_FIT
+    Failure saying why not (and what to do).
     ``nominal``: the cell's (4, 4) tool_offset when this is the cell's tool."""
     pos = solution.position
     dof = pos.residuals.size - 6
@@ -230,24 +231,29 @@ def gate_problem(solution: TcpSolution, limits: GateLimits = GateLimits(),
         bound = limits.touch_sigma * math.sqrt(chi2.ppf(limits.confidence, dof) / dof)
         rms = math.sqrt(float(np.sum(pos.residuals ** 2)) / dof)
         if rms > bound:
-            return (f'residual {rms * 1e3:.3f} mm per axis (mean '
+            return Failure(ErrorCode.IMPLAUSIBLE_FIT,
+                           f'residual {rms * 1e3:.3f} mm per axis (mean '
                     f'{pos.mean_residual_m * 1e3:.3f} mm, max {pos.max_residual_m * 1e3:.3f} '
                     'mm) is more than the touch noise '
                     f'({limits.touch_sigma * 1e3:.3f} mm) explains (<= {bound * 1e3:.3f} mm): '
                     'a touch slipped, or the tool moved on the flange; touch again')
     length = float(np.linalg.norm(pos.t))
     if length > limits.max_tool_length:
-        return (f'tool length {length * 1e3:.1f} mm is beyond {limits.max_tool_length * 1e3:.0f}'
+        return Failure(ErrorCode.IMPLAUSIBLE_FIT,
+                       f'tool length {length * 1e3:.1f} mm is beyond '
+                       f'{limits.max_tool_length * 1e3:.0f}'
                 ' mm: not a tool on this flange (check the fixed point stayed put)')
     if nominal is not None:
         off = float(np.linalg.norm(pos.t - np.asarray(nominal, dtype=float)[:3, 3]))
         if off > limits.max_nominal_difference:
-            return (f'the TCP is {off * 1e3:.1f} mm from the cell\'s tool_offset (more than '
+            return Failure(ErrorCode.IMPLAUSIBLE_FIT,
+                           f'the TCP is {off * 1e3:.1f} mm from the cell\'s tool_offset (more '
+                           'than '
                     f'{limits.max_nominal_difference * 1e3:.0f} mm): another tool? calibrate '
                     'it under its own name, or correct tool_offset in the cell file')
     if solution.turn_rad > limits.max_turn_rad:
-        return (f'the tool turned {math.degrees(solution.turn_rad):.2f} deg between the '
+        return Failure(ErrorCode.IMPLAUSIBLE_FIT,
+                       f'the tool turned {math.degrees(solution.turn_rad):.2f} deg between the '
                 f'reference and an elongator touch (<= {math.degrees(limits.max_turn_rad):.1f}'
                 ' deg): move onto the elongator points without turning the tool')
-    return ''
-
+    return None

@@ -42,7 +42,7 @@ def test_ros_camera_calibration_yaml_uses_k_and_d_not_p(tmp_path):
     np.testing.assert_allclose(cam.K, [[700.1, 0, 375.2], [0, 699.8, 241.3], [0, 0, 1]])
     np.testing.assert_allclose(cam.D, [-0.28, 0.07, 0.0002, 0.0001, 0])
     assert cam.size_problem((480, 752, 3)) is None
-    assert '640x480' in cam.size_problem((480, 640))
+    assert '640x480' in cam.size_problem((480, 640)).message
 
 
 def test_camera_info_message_echo(tmp_path):

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from cobot_calib_ros.core import frames, kinematics
+from cobot_calib_ros.core.errors import ErrorCode
 from cobot_calib_ros.core.landmarks.hand_eye import check_noise, hand_eye_views, solve_hand_eye
 from cobot_calib_ros.core.landmarks.hand_eye_capture import (pairing_problem,
                                                              PAIRING_TOLERANCE_RAD,
@@ -156,5 +157,7 @@ def test_a_failed_joint_capture_ends_the_views_naming_the_view(plan):
 
 def test_pairing_compares_every_joint():
     q = np.array([0.1, -0.2, 0.3])
-    assert pairing_problem(q, q + 0.9 * PAIRING_TOLERANCE_RAD) == ''
-    assert pairing_problem(q, q + [0, 0, -2e-4]).startswith('joint 3 captured 0.200 mrad')
+    assert pairing_problem(q, q + 0.9 * PAIRING_TOLERANCE_RAD) is None
+    moved = pairing_problem(q, q + [0, 0, -2e-4])
+    assert moved.code == ErrorCode.MOVING
+    assert moved.message.startswith('joint 3 captured 0.200 mrad')

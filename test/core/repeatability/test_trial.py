@@ -229,14 +229,15 @@ def test_bad_plans_are_refused_before_moving(tmp_path, method, axis, cycles, mes
     ('', '', 1, 'cycles must be 2..10000'), ('', '', 10001, 'cycles must be 2..10000'),
     ('', '', -1, 'got -1')])
 def test_goal_problem_names_what_is_wrong(method, axis, cycles, message):
-    assert message in goal_problem(method, axis, cycles)
+    problem = goal_problem(method, axis, cycles)
+    assert problem.code == ErrorCode.INVALID_INPUT and message in problem.message
 
 
 @pytest.mark.parametrize('method, axis, cycles', [
     ('', '', 0), ('robust', 'x', 2), ('reference', 'z', 10000)])
 def test_goal_problem_accepts_defaults_and_every_method_and_axis(method, axis, cycles):
-    assert goal_problem(method, axis, cycles) == ''
-    assert all(goal_problem(m, a, 0) == '' for m in METHODS for a in AXES)
+    assert goal_problem(method, axis, cycles) is None
+    assert all(goal_problem(m, a, 0) is None for m in METHODS for a in AXES)
 
 
 STORED = {'id': 't7', 'method': 'rigid', 'axis': 'x', 'cycles_total': 3}
@@ -245,7 +246,7 @@ STORED = {'id': 't7', 'method': 'rigid', 'axis': 'x', 'cycles_total': 3}
 @pytest.mark.parametrize('method, axis, cycles', [
     ('', '', 0), ('rigid', '', 0), ('', 'x', 3), ('rigid', 'x', 3)])
 def test_a_resume_may_leave_out_or_repeat_the_stored_settings(method, axis, cycles):
-    assert resume_problem(STORED, method, axis, cycles) == ''
+    assert resume_problem(STORED, method, axis, cycles) is None
 
 
 @pytest.mark.parametrize('method, axis, cycles, differ', [
@@ -256,6 +257,8 @@ def test_a_resume_may_leave_out_or_repeat_the_stored_settings(method, axis, cycl
 def test_a_resume_with_other_settings_is_refused_saying_what_is_stored(method, axis, cycles,
                                                                        differ):
     problem = resume_problem(STORED, method, axis, cycles)
+    assert problem.code == ErrorCode.INVALID_INPUT
+    problem = problem.message
     assert problem.startswith('trial t7 is rigid, x axis, 3 cycles; cannot resume it with ')
     assert differ in problem and 'leave those out' in problem
 
