@@ -20,6 +20,7 @@ from typing import Any
 from cobot_calib_ros.store.cells import ForeignResult, LEGACY_CELL, legacy_note, ResultsCell
 from cobot_calib_ros.store.files import (atomic_write_text, check_id, ensure_dir, ID_PATTERN,
                                          is_int, read_mapping, to_plain, WarningLog)
+from cobot_calib_ros.store.renamed import with_current_names
 
 RECORD_KEYS = ('id', 'stamp_ns', 'method', 'inputs', 'result')
 ACTIVE_FILE = 'active.json'
@@ -413,4 +414,4 @@ class CalibrationStore(WarningLog):
         if problem:
             self._warn(f'{path}: skipped, {problem}')
             return None
-        return record
+        return with_current_names(record)

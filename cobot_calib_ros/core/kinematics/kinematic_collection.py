@@ -137,7 +137,7 @@ def new_collection(cell: Cell, model: KinematicModel, request: CollectionRequest
     if cell.spheres is None:
         return Failure(ErrorCode.NOT_AVAILABLE, f'cell {cell.name} has no spheres: section '
                        '(sphere plate and coupling); add it to the cell file')
-    coupling = cell.spheres.coupling_offset[:3, 3]
+    coupling = cell.spheres.T_flange_coupling[:3, 3]
     if source == 'laser_tracker':
         region = request.region or 'volume'
         plan = plans.tracker_plan(cell, model, region,
