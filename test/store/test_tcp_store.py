@@ -88,7 +88,7 @@ def test_a_tcp_record_stored_with_the_old_key_reads_with_the_new_one(repo):
     assert 'T_flange_tcp' not in again['result']                # legacy name
     assert np.allclose(again['result']['T_flange_tool'], record['result']['T_flange_tool'],
                        atol=0)
-    assert np.allclose(TcpRecord.from_dict(again).result.T_flange_tool[2, 3],
+    assert np.allclose(np.asarray(TcpRecord.from_dict(again).result.T_flange_tool)[2, 3],
                        T_FLANGE_TOOL[2, 3] + 0.01, atol=1e-9)
 
 
