@@ -24,6 +24,8 @@ RULES: list[tuple[str, str]] = [
     (r'\btrue_tool_offset\b', 'T_flange_tool_true'),
     (r'\btool_offset\b', 'T_flange_tool'),
     (r'\bcoupling_offset\b', 'T_flange_coupling'),
+    (r'\bcoupling_offset_true\b', 'p_flange_coupling_true'),   # a position only
+    (r'\bcoupling_offset_xyz\b', 'p_flange_coupling'),
     (r'\bT_flange_tcp\b', 'T_flange_tool'),
     (r'\bR_flange_tcp\b', 'R_flange_tool'),
     (r'\bt_flange_tcp\b', 't_flange_tool'),

@@ -50,6 +50,7 @@ RENAMED_KEYS: dict[str, dict[tuple[str, ...], str]] = {
              ('spheres', 'coupling_offset'): 'T_flange_coupling',     # legacy name
              ('camera', 'hand_eye'): 'T_flange_optical'},             # legacy name
     'simulation': {('tool_offset_true',): 'T_flange_tool_true',       # legacy name
+                   ('spheres', 'coupling_offset_true'): 'p_flange_coupling_true',  # legacy name
                    ('camera', 'hand_eye_true'): 'T_flange_optical_true'},  # legacy name
 }
 """Per section, a key's path before issue 39.3 (one name per transform) -> its name now; the

@@ -117,6 +117,7 @@ OLD_KEYS = [('  T_flange_tool:', '  tool_offset:'),                 # legacy nam
             ('    T_flange_coupling:', '    coupling_offset:'),     # legacy name
             ('    T_flange_optical:', '    hand_eye:'),             # legacy name
             ('  T_flange_tool_true:', '  tool_offset_true:'),       # legacy name
+            ('    p_flange_coupling_true:', '    coupling_offset_true:'),  # legacy name
             ('    T_flange_optical_true:', '    hand_eye_true:')]   # legacy name
 
 
@@ -150,6 +151,7 @@ def test_a_cell_file_with_the_old_key_names_reads_the_same_with_a_note(tmp_path)
                       (before.cell.spheres.T_flange_coupling, now.cell.spheres.T_flange_coupling),
                       (before.cell.camera.T_flange_optical, now.cell.camera.T_flange_optical),
                       (before.T_flange_tool_true, now.T_flange_tool_true),
+                      (before.spheres.T_flange_coupling, now.spheres.T_flange_coupling),
                       (before.camera.T_flange_optical, now.camera.T_flange_optical)):
         np.testing.assert_array_equal(got, want)
 
