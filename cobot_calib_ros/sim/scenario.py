@@ -171,7 +171,7 @@ def _spheres(r: CellReader, cell: Cell) -> SphereTruth | None:
                                       r.vector(*keys, 'plate_true', 'rpy', length=3))
     coupling = plate.T_flange_coupling.copy()
     coupling[:3, 3] = r.vector(*keys, 'p_flange_coupling_true', length=3,
-                               default=plate.T_flange_coupling[:3, 3])
+                               default=plate.T_flange_coupling[:3, 3].tolist())
     tracker = LaserTracker(
         frames.from_xyz_rpy(r.vector(*keys, 'laser_tracker', 'xyz', length=3, default=[2, 0, 0]),
                             r.vector(*keys, 'laser_tracker', 'rpy', length=3, default=[0, 0, 0])),

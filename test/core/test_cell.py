@@ -162,3 +162,10 @@ def test_a_key_given_under_its_old_and_new_name_is_refused(tmp_path):
     refusal = "cell.tool_offset: give 'T_flange_tool' only"          # legacy name
     with pytest.raises(CellFileError, match=refusal):
         load_cell(both)
+
+
+def test_a_simulation_without_a_true_coupling_takes_the_nominal_one(tmp_path):
+    from cobot_calib_ros.sim.scenario import load_simulation
+    sim = load_simulation(_broken(tmp_path, '    p_flange_coupling_true: [0.0204, -0.0003, 0.1006]',
+                                  ''))
+    np.testing.assert_array_equal(sim.spheres.T_flange_coupling, sim.cell.spheres.T_flange_coupling)
