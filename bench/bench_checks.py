@@ -56,7 +56,7 @@ def run() -> Figures:
                                            RECALIBRATE)):
             arm = SimRobot(world, seed_offset=500 + k)
             check = check_user_frame(DirectRobot(arm, world.probe),
-                                     arm.model.chain(tool=sim.cell.tool_offset), predicted,
+                                     arm.model.chain(tool=sim.cell.T_flange_tool), predicted,
                                      POINTS)
             seconds.append(check.robot_seconds)
             wrong += check.verdict != truth
@@ -73,7 +73,7 @@ def _kinematics() -> Figures:
     sim = load_simulation(cell_file('iiwa7_close'))
     model = kinematics.model_by_name(sim.cell.robot)
     plan, _ = plans.sphere_plan(sim.cell, model, KINEMATIC_POSES)
-    nominal = model.chain(tool=sim.cell.spheres.coupling_offset)
+    nominal = model.chain(tool=sim.cell.spheres.T_flange_coupling)
     seconds, spreads, wrong = [], {'true': [], 'nominal': []}, 0
     for k in range(KIN_CHECKS):
         for name, truth in (('true', PASS), ('nominal', RECALIBRATE)):

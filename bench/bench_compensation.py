@@ -152,7 +152,7 @@ def _true_ik(robot: SimRobot, T_base_tool: np.ndarray) -> np.ndarray:
 
 
 def perfect_tcp(robot: SimRobot, params) -> np.ndarray:
-    """T_flange_tcp (the cell tool's orientation) that the TCP calibration's default approaches
+    """T_flange_tool (the cell tool's orientation) that the TCP calibration's default approaches
     of P1 (checked for reach, as tcp_calibrator plans them), touched exactly by the true tool,
     give through the arm ``params`` (None: nominal), by the solve's own position fit
     (core.tcp.solve_position); on the iiwa 7 it takes up d_7 / theta_7, which the sphere
@@ -162,7 +162,7 @@ def perfect_tcp(robot: SimRobot, params) -> np.ndarray:
     plan = reachable_plan(plan_touches(name), robot.true, point, robot.cell.home,
                           robot.cell.home)
     q = np.array([_true_ik(robot, frames.make_transform(R, point)) for R in plan.orientations])
-    T = np.array(robot.cell.tool_offset, dtype=float)
+    T = np.array(robot.cell.T_flange_tool, dtype=float)
     T[:3, 3] = solve_position(kinematics.fk(robot.model.chain(params), q)).t
     return T
 

@@ -73,7 +73,7 @@ def sphere_data(robot: SimRobot, cell) -> SphereObservations:
 
 def held_out_mm(robot: SimRobot, outcome, q: np.ndarray) -> tuple[float, float]:
     """Max and mean error [mm] of the identified model against the true robot."""
-    tool = frames.make_transform(np.eye(3), outcome.result.tool_xyz)
+    tool = frames.make_transform(np.eye(3), outcome.result.p_flange_tool)
     p_model = kinematics.fk(robot.model.chain(outcome.result.params, tool), q)[:, :3, 3]
     p_true = kinematics.fk(robot.coupling, q)[:, :3, 3]
     errors = np.linalg.norm(frames.apply(register_rigid(p_model, p_true), p_model) - p_true,

@@ -56,7 +56,7 @@ def write_points_file(folder: Path, rows: int = ROWS, seed: int = SEED) -> tuple
                'frames': {'measured_in': 'tracker', 'base': sim.cell.urdf_robot.base_link,
                           'tip': sim.cell.urdf_robot.tip_link},
                'markers': {'coupling': MARKER_COLUMNS},
-               'ball': sim.cell.spheres.coupling_offset[:3, 3].tolist()}
+               'ball': sim.cell.spheres.T_flange_coupling[:3, 3].tolist()}
     csv_path.with_suffix('.yaml').write_text(yaml.safe_dump(sidecar, sort_keys=False))
     urdf = Path(cell_file(CELL)).parent / sim.cell.urdf_robot.urdf_file
     return csv_path, urdf

@@ -128,7 +128,7 @@ class FirstDay:
         task = plans.tracker_plan(self.cell, self.model, 'volume', plans.TRACKER_CONFIGS,
                                   PLANNING_TASK_SEED)
         planner = SpherePlanner(self.model, pool, spheres.known_distances(),
-                                spheres.coupling_offset[:3, 3], [s['q'] for s in task],
+                                spheres.T_flange_coupling[:3, 3], [s['q'] for s in task],
                                 PlanSettings())
         planner.start()
         collect_planned(planner, self.port, lambda record: None, hold=IDENTIFY_HOLD)
@@ -150,7 +150,7 @@ class FirstDay:
                                locate=locate)
         self.tcp_plan, self.tcp_touches = plan, touches
         solution = solve_touches(plan, touches, TOUCH_SIGMA)
-        gate = gate_problem(solution, GateLimits(touch_sigma=TOUCH_SIGMA), self.cell.tool_offset)
+        gate = gate_problem(solution, GateLimits(touch_sigma=TOUCH_SIGMA), self.cell.T_flange_tool)
         gate = '' if gate is None else gate.message
         record = TcpRecord.from_solution(solution, self.cell.tool_frame, point, touches.labels,
                                          touches.joints, touches.flange, 0,
@@ -255,13 +255,13 @@ def swapped_chain(day: FirstDay, swap: str):
         return day.arm.true, reference_frame(day.sim)
     if swap.startswith('nominal'):      # the nominal results, one made true
         params = day.arm.true_parameters if swap == 'nominal_kinematics' else None
-        tool = day.sim.true_tool_offset if swap == 'nominal_tcp' else day.cell.tool_offset
+        tool = day.sim.T_flange_tool_true if swap == 'nominal_tcp' else day.cell.T_flange_tool
         return _touched(day, day.model.chain(params, tool=tool), day.frame_joints)
     active = rig_of(day.calibrated, day.cell, 'latest', day.model)
     params = (day.arm.true_parameters if swap == 'kinematics'
               else active.active.kinematics.params)
     if swap == 'tcp':
-        tool = day.sim.true_tool_offset
+        tool = day.sim.T_flange_tool_true
     elif swap == 'kinematics':
         tool = tcp_through(day, params)
     else:
@@ -278,14 +278,14 @@ def _touched(day: FirstDay, chain, joints: np.ndarray):
 
 
 def tcp_through(day: FirstDay, params: np.ndarray) -> np.ndarray:
-    """T_flange_tcp solved from the TCP calibration's joints through the arm ``params``, as
+    """T_flange_tool solved from the TCP calibration's joints through the arm ``params``, as
     the rig uses it (the cell tool's orientation, the position measured)."""
     from cobot_calib_ros.core.tcp.touches import TcpTouches
     touches = day.tcp_touches
     flange = kinematics.fk(day.model.chain(params), np.array(touches.joints))
     again = TcpTouches(list(touches.labels), list(touches.joints), list(flange),
                        touches.approaches)
-    T = np.array(day.cell.tool_offset, dtype=float)
+    T = np.array(day.cell.T_flange_tool, dtype=float)
     T[:3, 3] = solve_touches(day.tcp_plan, again, TOUCH_SIGMA).position.t
     return T
 
@@ -342,7 +342,7 @@ def result_errors(day: FirstDay, goals: np.ndarray) -> Figures:
     T_ref = reference_frame(day.sim)
     q = np.array([_solved(active.chain('tcp'), active.T_base_user() @ T, day.cell.home)
                   for T in goals])
-    tool = day.sim.true_tool_offset
+    tool = day.sim.T_flange_tool_true
     calibrated_k = day.model.chain(active.active.kinematics.params, tool=tool)
     p_model = kinematics.fk(calibrated_k, q)[:, :3, 3]
     p_true = kinematics.fk(day.arm.true, q)[:, :3, 3]

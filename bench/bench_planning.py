@@ -81,7 +81,7 @@ class Bench:
         self.cell, self.model = self.sim.cell, self.robot.model
         self.port = DirectRobot(self.robot, self.sim.probe)
         self.distances = self.cell.spheres.known_distances()
-        self.tool0 = self.cell.spheres.coupling_offset[:3, 3].copy()
+        self.tool0 = self.cell.spheres.T_flange_coupling[:3, 3].copy()
         held = plans.tracker_plan(self.cell, self.model, 'volume', plans.TRACKER_CONFIGS, 0)
         self.q_held = np.array([s['q'] for s in held])
         task = plans.tracker_plan(self.cell, self.model, 'volume', plans.TRACKER_CONFIGS, 1)
@@ -110,10 +110,10 @@ class Bench:
         return (np.array(q), np.array(target), seconds,
                 seconds + len(q) * (PAPER_HOLD - HOLD))
 
-    def held_out_mm(self, params, tool_xyz) -> tuple[float, float]:
+    def held_out_mm(self, params, p_flange_tool) -> tuple[float, float]:
         """Max error [mm] at the held-out configurations: against the truth, and against the
         tracker's readings."""
-        tool = frames.make_transform(np.eye(3), tool_xyz)
+        tool = frames.make_transform(np.eye(3), p_flange_tool)
         p = kinematics.fk(self.model.chain(params, tool), self.q_held)[:, :3, 3]
         out = []
         for reference in (self.p_true, self.p_tracker):
@@ -123,8 +123,8 @@ class Bench:
 
     def identify_mm(self, parameter_set, q, target) -> tuple[float, float]:
         data = SphereObservations(q, target, self.distances)
-        params, tool_xyz, _ = fit_spheres(self.model, data, self.tool0, parameter_set.free)
-        return self.held_out_mm(params, tool_xyz)
+        params, p_flange_tool, _ = fit_spheres(self.model, data, self.tool0, parameter_set.free)
+        return self.held_out_mm(params, p_flange_tool)
 
 
 @dataclass
@@ -134,7 +134,7 @@ class Compared:
     planner: SpherePlanner
     robot_time: RobotTime           # the planned collection's
     moves: np.ndarray               # each planned pose's move [s]
-    estimates: list                 # (params, tool_xyz) after each planned pose
+    estimates: list                 # (params, p_flange_tool) after each planned pose
     measured: dict                  # checkpoint -> (prediction, held-out max [mm] x2)
     q_full: np.ndarray
     t_full: np.ndarray
@@ -166,10 +166,10 @@ def compare(bench: Bench, grid, pool, parameter_set=None) -> Compared:
 
     def on_pose(record, capture, run, prediction) -> None:
         seconds.append(bench.port.robot_seconds)
-        estimates.append((planner.params.copy(), planner.tool_xyz.copy()))
+        estimates.append((planner.params.copy(), planner.p_flange_tool.copy()))
         if run.recorded in CHECKPOINTS:
             measured[run.recorded] = (prediction, bench.held_out_mm(planner.params,
-                                                                    planner.tool_xyz))
+                                                                    planner.p_flange_tool))
     before = bench.port.robot_seconds
     _, robot_time = collect_planned(planner, bench.port, lambda record: None, hold=HOLD,
                                     on_pose=on_pose)
@@ -188,7 +188,7 @@ def run() -> Figures:
     planner, n = c.planner, len(c.planner.q)
     figures: Figures = {'planning_candidates': (float(len(pool)), 'poses'),
                         'full_poses': (float(len(c.q_full)), 'poses')}
-    planned_truth, planned_tracker = bench.held_out_mm(planner.params, planner.tool_xyz)
+    planned_truth, planned_tracker = bench.held_out_mm(planner.params, planner.p_flange_tool)
     rng = np.random.default_rng(3)
     random_truth = []
     for _ in range(RANDOM_DRAWS):
@@ -267,7 +267,7 @@ def planned_50_figures(robot: str, cell: str, grid=None, pool=None) -> Figures:
         full = bench.identify_mm(planner.parameter_set, q_full, t_full)[0]
         _, robot_time = collect_planned(planner, bench.port, lambda record: None, hold=HOLD)
         n = len(planner.q)
-        planned = bench.held_out_mm(planner.params, planner.tool_xyz)[0]
+        planned = bench.held_out_mm(planner.params, planner.p_flange_tool)[0]
         # each draw's re-collections their own noise (the draws often choose the same poses)
         planned_mean = recollected_means(bench, planner, [n], 10 * seed)[n]
         full_predicted = planner.predict_for(q_full, t_full).max_m * 1e3
@@ -308,7 +308,7 @@ def seed_figures(grid, pool, parameter_set) -> tuple[Figures, list[float]]:
     for seed in MORE_SEEDS:
         bench = Bench(seed)
         c = compare(bench, grid, pool, parameter_set)
-        planned = bench.held_out_mm(c.planner.params, c.planner.tool_xyz)[0]
+        planned = bench.held_out_mm(c.planner.params, c.planner.p_flange_tool)[0]
         full.append(c.full_truth)
         k, seconds, truth = c.target_stop(bench, TARGET_OVER_FULL)
         rows.append((c.full_paper_s / c.robot_time.at_hold(PAPER_HOLD),
@@ -350,9 +350,9 @@ def recollected_means(bench: Bench, planner: SpherePlanner, counts,
             data = SphereObservations(np.array(q[:count]),
                                       np.array([s['target'] for s in chosen[:count]]),
                                       bench.distances)
-            params, tool_xyz, _ = fit_spheres(bench.model, data, bench.tool0,
+            params, p_flange_tool, _ = fit_spheres(bench.model, data, bench.tool0,
                                               planner.parameter_set.free)
-            repeats[count].append(bench.held_out_mm(params, tool_xyz)[0])
+            repeats[count].append(bench.held_out_mm(params, p_flange_tool)[0])
     return {count: float(np.mean(values)) for count, values in repeats.items()}
 
 

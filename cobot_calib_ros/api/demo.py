@@ -193,7 +193,7 @@ def _reduction(before: list[dict], after: list[dict]) -> dict:
 def _truth_model(truth, cell):
     """The true robot (simulation only): nominal model with the mock's true parameters and
     its real tool."""
-    tool = convert.transform_to_matrix(truth.tool_offset_true)
+    tool = convert.transform_to_matrix(truth.t_flange_tool_true)
     model = kinematics.model_for(cell)
     return model.chain(np.array(truth.true_parameters), tool=tool)
 

@@ -161,6 +161,6 @@ def error_against_truth(node, T_flange_optical: np.ndarray, nominal: np.ndarray,
         node.destroy_client(client)
     if truth is None:
         raise CallError('get_ground_truth did not answer; is mock_robot up?')
-    T_true = convert.transform_to_matrix(truth.hand_eye_true)
+    T_true = convert.transform_to_matrix(truth.t_flange_optical_true)
     return HandEyeError(*frames.transform_error(T_flange_optical, T_true),
                         *frames.transform_error(nominal, T_true))

@@ -88,7 +88,7 @@ def calibrate_and_store(request: TcpRequest, robot: RobotPort, rig, repo, tool: 
     if not run:
         return run
     solution, plan, touches = run.solution, run.plan, run.touches
-    nominal = cell.tool_offset if tool == cell.tool_frame else None
+    nominal = cell.T_flange_tool if tool == cell.tool_frame else None
     gate = gate_problem(solution, GateLimits(touch_sigma=request.touch_sigma), nominal)
     record = TcpRecord.from_solution(
         solution, tool, request.point, touches.labels, touches.joints, touches.flange,
@@ -107,7 +107,7 @@ def calibrate_and_store(request: TcpRequest, robot: RobotPort, rig, repo, tool: 
             f'of {tool} is unchanged): {gate.message}'))
     position = solution.position
     x, y, z = position.t * 1e3
-    angles = ', '.join(f'{math.degrees(a):.3f}' for a in rpy_from_matrix(solution.R_flange_tcp))
+    angles = ', '.join(f'{math.degrees(a):.3f}' for a in rpy_from_matrix(solution.R_flange_tool))
     return TcpOutcome(record, run, bool(activation), ErrorCode.SUCCESS, (
         f'{record.id}: TCP of {tool} x {x:.3f} y {y:.3f} z {z:.3f} mm, rpy ({angles}) deg '
         f'({solution.method}); {len(position.residuals)} approaches, residual mean '

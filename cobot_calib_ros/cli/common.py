@@ -143,7 +143,7 @@ def cell_problem(name_or_path: str, layout: str = '') -> Failure | None:
 
 
 def add_robot_options(p, cell_help: str) -> None:
-    """--robot-cell, or --urdf with --base-link, --tip-link, --home, --tool-offset: the robot
+    """--robot-cell, or --urdf with --base-link, --tip-link, --home, --t-flange-tool: the robot
     of a verb that needs no suite (filter, user-frame, move)."""
     p.add_argument('--robot-cell', default=None, help=cell_help)
     p.add_argument('--urdf', default=None,
@@ -155,10 +155,11 @@ def add_robot_options(p, cell_help: str) -> None:
                                                     'flange or tool0)')
     p.add_argument('--home', type=float, nargs='+', default=None, metavar='RAD',
                    help='--urdf: the joints the inverse kinematics starts from (default 0)')
-    p.add_argument('--tool-offset', type=float, nargs=6, default=None,
+    p.add_argument('--t-flange-tool', '--tool-offset', dest='T_flange_tool',  # legacy name
+                   type=float, nargs=6, default=None,
                    metavar=('X', 'Y', 'Z', 'ROLL', 'PITCH', 'YAW'),
                    help='--urdf: the tool centre point on the tip link [m, rad] (default the '
-                        'tip link itself)')
+                        'tip link itself; --tool-offset is its old name)')  # legacy name
 
 
 def robot_cell(args, default: str | None = None):
@@ -172,10 +173,10 @@ def robot_cell(args, default: str | None = None):
         if not args.tip_link:
             raise ValueError('--urdf needs --tip-link (the flange or tool0)')
         from cobot_calib_ros.core.frames import from_xyz_rpy
-        tool = None if args.tool_offset is None else from_xyz_rpy(args.tool_offset[:3],
-                                                                  args.tool_offset[3:])
+        tool = None if args.T_flange_tool is None else from_xyz_rpy(args.T_flange_tool[:3],
+                                                                    args.T_flange_tool[3:])
         return cell_of_urdf(args.urdf, args.base_link, args.tip_link, args.home, tool)
-    given = [f for f, v in (('--home', args.home), ('--tool-offset', args.tool_offset),
+    given = [f for f, v in (('--home', args.home), ('--t-flange-tool', args.T_flange_tool),
                             ('--tip-link', args.tip_link)) if v is not None]
     if given:
         raise ValueError(f'{", ".join(given)} go with --urdf; a cell file has its own')

@@ -44,11 +44,11 @@ def find_frame(repo, record_id: str):
 
 
 def find_tcp(repo, record_id: str, tool: str | None):
-    """(record, T_flange_tcp) of a stored TCP id (or 'active' of ``tool``), or None."""
+    """(record, T_flange_tool) of a stored TCP id (or 'active' of ``tool``), or None."""
     record = repo.tcp.active(tool or '') if record_id == 'active' else repo.tcp.get(record_id)
     if record is None or (tool and record.get('tool') != tool):
         return None
-    return record, np.array(record['result']['T_flange_tcp'], dtype=float)
+    return record, np.array(record['result']['T_flange_tool'], dtype=float)
 
 
 def _stale(repo, cell_name: str | None, kind: str, record) -> tuple:

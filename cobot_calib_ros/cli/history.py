@@ -113,7 +113,7 @@ def _cell_report(repo, cell: str, start: int) -> dict:
         c, result = step.change, step.record['result']
         tcp.append({'id': step.record['id'], 'tool': tool, 'method': step.record['method'],
                     'previous': step.previous_id,
-                    'xyz_mm': [v * 1e3 for v in np.array(result['T_flange_tcp'])[:3, 3]],
+                    'xyz_mm': [v * 1e3 for v in np.array(result['T_flange_tool'])[:3, 3]],
                     'mean_residual_mm': result.get('mean_residual_mm'),
                     'max_residual_mm': result.get('max_residual_mm'),
                     **_provenance(step.record, active_ids), **_change_fields(c)})

@@ -69,7 +69,7 @@ def run(args) -> int:
             return fail(f'TCP calibration cancelled (Ctrl-C): {e.message}', EXIT_INTERRUPTED)
     if not result.calibration_id:       # nothing solved: no figures to show
         return fail(f'TCP calibration failed: {result.message}', EXIT_FAILED)
-    T = convert.transform_to_matrix(TransformStamped(transform=result.t_flange_tcp))
+    T = convert.transform_to_matrix(TransformStamped(transform=result.t_flange_tool))
     p = result.fixed_point
     out = {'calibration_id': result.calibration_id, 'tool': result.tool,
            'active': result.active, 'xyz_mm': [float(v) * 1e3 for v in T[:3, 3]],
@@ -78,7 +78,7 @@ def run(args) -> int:
            'max_residual_mm': result.max_residual_mm, 'condition': result.condition,
            'orientations_used': result.orientations_used,
            'fixed_point_mm': [p.x * 1e3, p.y * 1e3, p.z * 1e3],
-           'T_flange_tcp': T.tolist(), 'message': result.message}
+           'T_flange_tool': T.tolist(), 'message': result.message}
     if args.json:
         print(json.dumps(out))
     else:

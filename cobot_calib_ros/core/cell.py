@@ -16,6 +16,7 @@ import difflib
 import math
 from pathlib import Path
 from typing import Any
+import warnings
 
 import numpy as np
 from numpy.typing import NDArray
@@ -34,16 +35,27 @@ CELL_KEYS: dict[str, Any] = {
     'name': None, 'robot': {'urdf': None, 'name': None, 'base_link': None, 'tip_link': None,
                                'model': None},
     'base_frame': None, 'tool_frame': None, 'user_frame': None, 'home': None,
-    'tool_offset': _POSE, 'markers': {'size': None}, 'layout': None, 'layouts': None,
-    'spheres': {'diameter': None, 'centres': None, 'plate': _POSE, 'coupling_offset': _POSE,
+    'T_flange_tool': _POSE, 'markers': {'size': None}, 'layout': None, 'layouts': None,
+    'spheres': {'diameter': None, 'centres': None, 'plate': _POSE, 'T_flange_coupling': _POSE,
                 'approach_rpy': None},
-    'camera': {'frame_id': None, 'hand_eye': _POSE, 'resolution': None, 'intrinsics': None,
+    'camera': {'frame_id': None, 'T_flange_optical': _POSE, 'resolution': None, 'intrinsics': None,
                'distortion_model': None, 'distortion': None},
     'landmarks': {'dictionary': None, 'marker_length': None, 'markers': None,
                   'board': {'spec': None, 'pose': None}},
 }
 """The keys of a cell file's ``cell:`` mapping, nested; None: any value (a mapping there holds
 the user's names: layouts, points, spheres, marker ids)."""
+
+RENAMED_KEYS: dict[str, dict[tuple[str, ...], str]] = {
+    'cell': {('tool_offset',): 'T_flange_tool',                       # legacy name
+             ('spheres', 'coupling_offset'): 'T_flange_coupling',     # legacy name
+             ('camera', 'hand_eye'): 'T_flange_optical'},             # legacy name
+    'simulation': {('tool_offset_true',): 'T_flange_tool_true',       # legacy name
+                   ('spheres', 'coupling_offset_true'): 'p_flange_coupling_true',  # legacy name
+                   ('camera', 'hand_eye_true'): 'T_flange_optical_true'},  # legacy name
+}
+"""Per section, a key's path before issue 39.3 (one name per transform) -> its name now; the
+old key still reads, with a FutureWarning."""
 
 
 class CellFileError(ValueError):
@@ -73,7 +85,7 @@ class Cell:
     base_frame: str
     tool_frame: str
     user_frame: str
-    tool_offset: Array          # (4, 4) flange -> tool centre point (the probe tip)
+    T_flange_tool: Array        # (4, 4) flange -> tool centre point (the probe tip)
     home: Array                 # (n,) joint positions [rad]
     layout: str
     layouts: tuple[str, ...]
@@ -121,7 +133,7 @@ class SpherePlate:
     centres_plate: Array       # (k, 3) sphere centres in the plate frame [m]
     diameter: float            # [m] (50.8 mm)
     T_base_plate: Array        # (4, 4) nominal (taught) plate pose in the base frame
-    coupling_offset: Array     # (4, 4) flange -> coupling centre when mated (the sphere centre)
+    T_flange_coupling: Array   # (4, 4) flange -> coupling centre when mated (the sphere centre)
     approach_rpy: Array        # (3,) coupling orientation at a sphere, base frame rpy [rad]
 
     def centres_base(self) -> Array:
@@ -235,6 +247,24 @@ class CellReader:
         if not isinstance(doc, dict) or not isinstance(doc.get(section), dict):
             raise CellFileError(f'{path}: expected a mapping with a top-level "{section}:" key')
         self.data: dict = doc[section]
+        for old, new in RENAMED_KEYS.get(section, {}).items():
+            self._take_renamed_key(old, new)
+
+    def _take_renamed_key(self, old: tuple[str, ...], new: str) -> None:
+        """Read the key at path ``old`` as ``new`` (in the data and for line numbers)."""
+        parent = self.get(*old[:-1], default=None) if old[:-1] else self.data
+        if not isinstance(parent, dict) or old[-1] not in parent:
+            return
+        if new in parent:
+            raise self.fail(old, f'give {new!r} only ({old[-1]!r} is its old name)')
+        parent[new] = parent.pop(old[-1])
+        node = self._root
+        for key in (self.section, *old):
+            name, node = next((k, v) for k, v in node.value if k.value == str(key))
+        name.value = new
+        where = '.'.join((self.section, *old))
+        warnings.warn(f'{self.path}:{name.start_mark.line + 1}: {where} is now called {new}; '
+                      'rename it (the old key still reads)', FutureWarning, stacklevel=2)
 
     def fail(self, keys: tuple[str, ...], expected: str) -> CellFileError:
         where = '.'.join(str(k) for k in (self.section, *keys))
@@ -336,8 +366,8 @@ def parse_cell(text: str, path: str | Path, layout: str | None = None) -> Cell:
     return Cell(
         name=r.name('name', default=Path(path).stem), robot=robot, urdf_robot=urdf_robot,
         **frames_,
-        tool_offset=frames.from_xyz_rpy(r.lengths('tool_offset', 'xyz', length=3),
-                                        r.vector('tool_offset', 'rpy', length=3)),
+        T_flange_tool=frames.from_xyz_rpy(r.lengths('T_flange_tool', 'xyz', length=3),
+                                          r.vector('T_flange_tool', 'rpy', length=3)),
         home=r.vector('home'), layout=chosen, layouts=tuple(layouts or ()),
         markers=_markers(r, chosen) if chosen else (), spheres=_spheres(r), camera=_camera(r),
         landmarks=_landmarks(r))
@@ -381,9 +411,9 @@ def _spheres(r: CellReader) -> SpherePlate | None:
         names=names, centres_plate=points, diameter=diameter,
         T_base_plate=frames.from_xyz_rpy(r.lengths('spheres', 'plate', 'xyz', length=3),
                                          r.vector('spheres', 'plate', 'rpy', length=3)),
-        coupling_offset=frames.from_xyz_rpy(
-            r.lengths('spheres', 'coupling_offset', 'xyz', length=3),
-            r.vector('spheres', 'coupling_offset', 'rpy', length=3)),
+        T_flange_coupling=frames.from_xyz_rpy(
+            r.lengths('spheres', 'T_flange_coupling', 'xyz', length=3),
+            r.vector('spheres', 'T_flange_coupling', 'rpy', length=3)),
         approach_rpy=r.vector('spheres', 'approach_rpy', length=3))
 
 
@@ -413,8 +443,9 @@ def _camera(r: CellReader) -> WristCamera | None:
     D = r.vector('camera', 'distortion', default=[])
     K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
     camera = WristCamera(frame_id, frames.from_xyz_rpy(
-        r.lengths('camera', 'hand_eye', 'xyz', length=3),
-        r.vector('camera', 'hand_eye', 'rpy', length=3)), int(width), int(height), K, D, model)
+        r.lengths('camera', 'T_flange_optical', 'xyz', length=3),
+        r.vector('camera', 'T_flange_optical', 'rpy', length=3)), int(width), int(height), K, D,
+        model)
     try:
         camera.camera_model()
     except ValueError as e:

@@ -63,7 +63,7 @@ class Stale:
 
 
 def tcp_change(was_T: ArrayLike, now_T: ArrayLike) -> float:
-    """[m] between two T_flange_tcp's tool points."""
+    """[m] between two T_flange_tool's tool points."""
     return float(np.linalg.norm(np.asarray(now_T, float)[:3, 3] - np.asarray(was_T, float)[:3, 3]))
 
 

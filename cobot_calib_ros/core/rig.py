@@ -4,7 +4,7 @@ One place answers "which chain, with which tool" (issue 29): the arm's parameter
 nominal model's, or a kinematic calibration's (:class:`Kinematics`); the tool is one of
 :data:`TOOLS`, each from the cell or from the result that identified it:
 - ``tcp``: the tool centre point (the probe tip): the active :class:`Tcp`'s (its position;
-  its orientation when it measured one, else the cell's), else the cell's ``tool_offset``;
+  its orientation when it measured one, else the cell's), else the cell's ``T_flange_tool``;
 - ``flange``: no tool;
 - ``camera``: the wrist camera's optical frame, the :class:`HandEye`'s if given, else the
   cell's nominal hand-eye;
@@ -17,7 +17,7 @@ result's id and ``measured_through``: kind -> the id of the result it was measur
 'nominal' for the cell's own value); store.rigs builds them from the stored records and
 :func:`store.rigs.active_set` gathers a cell's :class:`ActiveSet`. A new kind of result is one
 more record type here, one more :class:`ActiveSet` field and, if it is a tool, one more rule
-in :func:`tool_offset`. A target pose given in a user frame is solved by :func:`solve_target`.
+in :func:`T_flange_tool`. A target pose given in a user frame is solved by :func:`solve_target`.
 """
 from __future__ import annotations
 
@@ -48,19 +48,19 @@ class Kinematics:
     robot: str
     parameter_names: tuple[str, ...]
     params: Array                          # (P,) [m, rad]
-    tool_xyz: Array | None = None          # (3,) [m] on the flange
+    p_flange_tool: Array | None = None     # (3,) [m] on the flange
     measured_through: Mapping[str, str] = field(default_factory=dict)
     unseen_tool_note: str = ''   # what the measurement could not see that every tool carries
 
 
 @dataclass(frozen=True, eq=False)
 class Tcp:
-    """A TCP calibration of ``tool``: T_flange_tcp [m], its rotation a measured one only when
+    """A TCP calibration of ``tool``: T_flange_tool [m], its rotation a measured one only when
     ``orientation_measured``."""
 
     id: str
     tool: str
-    T_flange_tcp: Array                    # (4, 4)
+    T_flange_tool: Array                   # (4, 4)
     orientation_measured: bool = False
     measured_through: Mapping[str, str] = field(default_factory=dict)
 
@@ -108,14 +108,14 @@ def model_chain(kinematics: Kinematics | None, model: KinematicModel,
     return model.chain(np.array(kinematics.params, dtype=float), tool=tool)
 
 
-def tool_offset(cell: Cell, tool: str, kinematics: Kinematics | None = None,
+def T_flange_tool(cell: Cell, tool: str, kinematics: Kinematics | None = None,
                 hand_eye: HandEye | None = None, tcp: Tcp | None = None) -> Array:
     """(4, 4) T_flange_tool of ``tool`` (one of :data:`TOOLS`); ``tcp``: the tool's active TCP
     calibration. ValueError naming what the cell lacks or the tools there are."""
     if tool == 'tcp':
-        T = np.array(cell.tool_offset, dtype=float)
+        T = np.array(cell.T_flange_tool, dtype=float)
         if tcp is not None:
-            measured = np.asarray(tcp.T_flange_tcp, dtype=float)
+            measured = np.asarray(tcp.T_flange_tool, dtype=float)
             T[:3, 3] = measured[:3, 3]
             if tcp.orientation_measured:
                 T[:3, :3] = measured[:3, :3]
@@ -133,9 +133,9 @@ def tool_offset(cell: Cell, tool: str, kinematics: Kinematics | None = None,
         if cell.spheres is None:
             raise ValueError(f'cell {cell.name!r} has no spheres: section (its coupling); use '
                              f'another tool ({", ".join(TOOLS)})')
-        T = np.array(cell.spheres.coupling_offset, dtype=float)
-        if kinematics is not None and kinematics.tool_xyz is not None:
-            T[:3, 3] = kinematics.tool_xyz      # the centre only is identified
+        T = np.array(cell.spheres.T_flange_coupling, dtype=float)
+        if kinematics is not None and kinematics.p_flange_tool is not None:
+            T[:3, 3] = kinematics.p_flange_tool # the centre only is identified
         return T
     raise ValueError(f'unknown tool {tool!r}; use one of {", ".join(TOOLS)}')
 
@@ -206,7 +206,7 @@ class Rig:
 
     def tool(self, tool: str = 'tcp') -> Array:
         """(4, 4) T_flange_tool of ``tool`` (one of :data:`TOOLS`)."""
-        return tool_offset(self.cell, tool, self.active.kinematics, self.active.hand_eye,
+        return T_flange_tool(self.cell, tool, self.active.kinematics, self.active.hand_eye,
                            self.active.tcp)
 
     def chain(self, tool: str = 'tcp') -> Chain:

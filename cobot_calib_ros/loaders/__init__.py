@@ -89,10 +89,10 @@ def _numeric_table(path: Path):
 
 
 def cell_of_urdf(urdf: str | Path, base_link: str, tip_link: str, home=None,
-                 tool_offset=None) -> Cell:
+                 T_flange_tool=None) -> Cell:
     """A real cell given by its robot's URDF alone (no cell file): the chain from ``base_link``
     to ``tip_link``, named by the URDF's file name (as identify stores a result with no
-    --cell), the tool centre ``tool_offset`` (4, 4) on the tip (default the tip), ``home``
+    --cell), the tool centre ``T_flange_tool`` (4, 4) on the tip (default the tip), ``home``
     [rad] the inverse kinematics' seed (default every joint at 0), no layouts, spheres or
     camera. ValueError naming the URDF when it cannot be read or has no such chain."""
     import numpy as np
@@ -113,5 +113,5 @@ def cell_of_urdf(urdf: str | Path, base_link: str, tip_link: str, home=None,
                          f'{tip_link} has {joints} joints), got {home.size}')
     return Cell(name=path.stem, robot=path.stem, base_frame=base_link, tool_frame=tip_link,
                 user_frame='user_frame',
-                tool_offset=np.eye(4) if tool_offset is None else np.asarray(tool_offset),
+                T_flange_tool=np.eye(4) if T_flange_tool is None else np.asarray(T_flange_tool),
                 home=home, layout='', layouts=(), markers=(), urdf_robot=robot)

@@ -515,10 +515,10 @@ class MockRobot(Node):
         response.true_parameters = self._robot.true_parameters.tolist()
         response.repeatability_sigma = self._sim.layout_repeatability_sigma()
         response.touch_sigma = self._sim.noise.touch_sigma
-        response.tool_offset_true = convert.matrix_to_transform(
-            self._sim.true_tool_offset, 'flange', cell.tool_frame)
+        response.t_flange_tool_true = convert.matrix_to_transform(
+            self._sim.T_flange_tool_true, 'flange', cell.tool_frame)
         if self._sim.camera is not None:
-            response.hand_eye_true = convert.matrix_to_transform(
+            response.t_flange_optical_true = convert.matrix_to_transform(
                 self._sim.camera.T_flange_optical, 'flange', cell.camera.frame_id)
         return response
 

@@ -14,7 +14,7 @@ TOO_ALIKE, named), the robust refinement, the orientation from the elongator poi
 
 The result is stored per tool (``<data_dir>`` repository, kind tcp, store.records.TcpRecord)
 and made the tool's active TCP only if it passes core.tcp.gate_problem (its residual explained
-by ``touch_sigma``, a plausible tool length, near the cell's tool_offset for the cell's own
+by ``touch_sigma``, a plausible tool length, near the cell's T_flange_tool for the cell's own
 tool); otherwise it is kept as rejected and the goal ends with REJECTED saying why. A cancel is
 honoured between touches (nothing stored). Feedback after every touch: its index and the RMS
 tip residual of the approaches so far (from the fourth).
@@ -48,7 +48,7 @@ METHODS = {Action.Goal.ORIENTATION_NONE: 'none', Action.Goal.ORIENTATION_Z: 'z',
 class TcpCalibrator(JobNode):
     def __init__(self, **kwargs) -> None:
         super().__init__('tcp_calibrator', job='a TCP calibration',
-                         cell_help='Cell YAML (path or name): robot, tool_offset, the fixed '
+                         cell_help='Cell YAML (path or name): robot, T_flange_tool, the fixed '
                          'points', data_help='Results repository (kind tcp)', **kwargs)
         self._declare_parameters()
         self._robot = RobotCalls(self._answers, operator=self.get_name())
@@ -115,7 +115,7 @@ def _fill(result, outcome: TcpOutcome) -> None:
     """The result fields of a stored TCP calibration ([m]; the _mm fields in mm)."""
     position = outcome.run.solution.position
     result.calibration_id, result.active = outcome.record.id, outcome.active
-    result.t_flange_tcp = convert.matrix_to_transform(outcome.run.solution.T_flange_tcp, '',
+    result.t_flange_tool = convert.matrix_to_transform(outcome.run.solution.T_flange_tool, '',
                                                       '').transform
     result.fixed_point.x, result.fixed_point.y, result.fixed_point.z = (
         float(v) for v in position.c)

@@ -34,11 +34,11 @@ class SimRobot:
         self.sim, self.cell = sim, sim.cell
         self.model = kinematics.model_for(self.cell)
         self.true_parameters = sim.true_parameters(self.model)
-        self.nominal = self.model.chain(tool=self.cell.tool_offset)
-        self.true = self.model.chain(self.true_parameters, tool=sim.true_tool_offset)
+        self.nominal = self.model.chain(tool=self.cell.T_flange_tool)
+        self.true = self.model.chain(self.true_parameters, tool=sim.T_flange_tool_true)
         spheres = sim.spheres
         self.coupling = None if spheres is None else self.model.chain(
-            self.true_parameters, tool=spheres.coupling_offset)   # true chain to the coupling
+            self.true_parameters, tool=spheres.T_flange_coupling) # true chain to the coupling
         streams = np.random.SeedSequence(sim.seed + seed_offset).spawn(2)
         self._motion_rng = np.random.default_rng(streams[MOTION_STREAM])
         self._sensor_rng = np.random.default_rng(streams[SENSOR_STREAM])

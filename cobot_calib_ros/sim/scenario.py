@@ -77,13 +77,13 @@ class Simulation:
     probe_hz: float
     spheres: SphereTruth | None = None   # the sphere plate, if the cell has one
     camera: CameraTruth | None = None    # the wrist camera, if the cell has one
-    tool_offset_true: Array | None = None   # (4, 4) the real flange -> tool tip; None: the
-    #                                         cell's tool_offset is exact
+    T_flange_tool_true: Array | None = None   # (4, 4) where the tool tip really is on the
+    #                                           flange (what a TCP calibration finds); given
+    #                                           None: the cell's T_flange_tool is exact
 
-    @property
-    def true_tool_offset(self) -> Array:
-        """(4, 4) where the tool tip really is on the flange (what a TCP calibration finds)."""
-        return self.cell.tool_offset if self.tool_offset_true is None else self.tool_offset_true
+    def __post_init__(self) -> None:
+        if self.T_flange_tool_true is None:
+            object.__setattr__(self, 'T_flange_tool_true', self.cell.T_flange_tool)
 
     def true_parameters(self, model: KinematicModel) -> Array:
         """Nominal parameters plus the explicit and seeded random kinematic errors."""
@@ -147,15 +147,15 @@ def load_simulation(path: str | Path, layout: str | None = None) -> Simulation:
         world=world, noise=_noise(r), probe=_probe(r),
         joint_states_hz=r.number('rates', 'joint_states_hz', default=1000.0),
         probe_hz=r.number('rates', 'probe_hz', default=200.0),
-        spheres=_spheres(r, cell), camera=_camera(r, cell), tool_offset_true=_tool(r))
+        spheres=_spheres(r, cell), camera=_camera(r, cell), T_flange_tool_true=_tool(r))
 
 
 def _tool(r: CellReader) -> Array | None:
-    """The real tool (``tool_offset_true: {xyz, rpy}``), None: the nominal one is exact."""
-    if r.get('tool_offset_true', default=None) is None:
+    """The real tool (``T_flange_tool_true: {xyz, rpy}``), None: the nominal one is exact."""
+    if r.get('T_flange_tool_true', default=None) is None:
         return None
-    return frames.from_xyz_rpy(r.vector('tool_offset_true', 'xyz', length=3),
-                               r.vector('tool_offset_true', 'rpy', length=3))
+    return frames.from_xyz_rpy(r.vector('T_flange_tool_true', 'xyz', length=3),
+                               r.vector('T_flange_tool_true', 'rpy', length=3))
 
 
 def _spheres(r: CellReader, cell: Cell) -> SphereTruth | None:
@@ -169,9 +169,9 @@ def _spheres(r: CellReader, cell: Cell) -> SphereTruth | None:
     else:
         T_plate = frames.from_xyz_rpy(r.vector(*keys, 'plate_true', 'xyz', length=3),
                                       r.vector(*keys, 'plate_true', 'rpy', length=3))
-    coupling = plate.coupling_offset.copy()
-    coupling[:3, 3] = r.vector(*keys, 'coupling_offset_true', length=3,
-                               default=plate.coupling_offset[:3, 3])
+    coupling = plate.T_flange_coupling.copy()
+    coupling[:3, 3] = r.vector(*keys, 'p_flange_coupling_true', length=3,
+                               default=plate.T_flange_coupling[:3, 3].tolist())
     tracker = LaserTracker(
         frames.from_xyz_rpy(r.vector(*keys, 'laser_tracker', 'xyz', length=3, default=[2, 0, 0]),
                             r.vector(*keys, 'laser_tracker', 'rpy', length=3, default=[0, 0, 0])),
@@ -186,11 +186,11 @@ def _camera(r: CellReader, cell: Cell) -> CameraTruth | None:
     if cell.camera is None:
         return None
     keys = ('camera',)
-    if r.get(*keys, 'hand_eye_true', default=None) is None:
+    if r.get(*keys, 'T_flange_optical_true', default=None) is None:
         T = cell.camera.T_flange_optical
     else:
-        T = frames.from_xyz_rpy(r.vector(*keys, 'hand_eye_true', 'xyz', length=3),
-                                r.vector(*keys, 'hand_eye_true', 'rpy', length=3))
+        T = frames.from_xyz_rpy(r.vector(*keys, 'T_flange_optical_true', 'xyz', length=3),
+                                r.vector(*keys, 'T_flange_optical_true', 'rpy', length=3))
     defaults = CameraTruth(T)
     K = D = None
     model = 'plumb_bob'

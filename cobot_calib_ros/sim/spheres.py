@@ -32,7 +32,7 @@ class LaserTracker:
 @dataclass(frozen=True)
 class SphereTruth:
     centres_base: Array        # (k, 3) true sphere centres in the base frame [m]
-    coupling_offset: Array     # (4, 4) true flange -> coupling centre
+    T_flange_coupling: Array   # (4, 4) true flange -> coupling centre
     capture_radius: float      # the coupling self-centres from up to this far [m]
     compliance_sigma: float    # residual centring error per axis [m]
     tracker: LaserTracker

@@ -38,7 +38,7 @@ def calibrate_tcp(sim: Simulation, seed: int, count: int = 6, tilt: float = DEFA
     # as tcp_calibrator without a user frame: the touches checked from where the first found
     # the point, through the arm and the cell's nominal tool
     tool_chain = arm.model.chain(arm.true_parameters if exact_kinematics else None,
-                                 tool=sim.cell.tool_offset)
+                                 tool=sim.cell.T_flange_tool)
     request = TcpRequest(point or sim.cell.point_names[0], count, tilt, method, elongation,
                          HOLD_S)
     run = run_procedure(request, robot, chain, tool_chain, sim.cell.home)
@@ -49,6 +49,6 @@ def calibrate_tcp(sim: Simulation, seed: int, count: int = 6, tilt: float = DEFA
 
 def moved_tool(sim: Simulation, offset_m: Sequence[float]) -> Simulation:
     """The same cell with its real tool tip moved by ``offset_m`` (3,) in the flange frame."""
-    T = sim.true_tool_offset.copy()
+    T = sim.T_flange_tool_true.copy()
     T[:3, 3] += np.asarray(offset_m, dtype=float)
-    return replace(sim, tool_offset_true=T)
+    return replace(sim, T_flange_tool_true=T)

@@ -33,7 +33,7 @@ def calibrate_user_frame(sim: Simulation, seed: int, names: Sequence[str] = (),
     names = list(names) or [m.name for m in cell.markers]
     arm = SimRobot(sim, seed_offset=seed)
     robot = DirectRobot(arm, sim.probe)
-    chain = arm.model.chain(tool=cell.tool_offset)
+    chain = arm.model.chain(tool=cell.T_flange_tool)
     p_base = procedure.points_of_joints(chain, procedure.touch_joints(robot, names, HOLD_S))
     p_user = np.array([cell.marker(n).nominal_top for n in names])
     fit = user_frame.calibrate(method, p_user, p_base, names=names)

@@ -21,6 +21,7 @@ from cobot_calib_ros.core.errors import ErrorCode, Failure
 from cobot_calib_ros.store.cells import foreign_result, LEGACY_CELL, legacy_note, ResultsCell
 from cobot_calib_ros.store.files import (atomic_write_text, check_id, ensure_dir, ID_PATTERN,
                                          is_int, read_mapping, to_plain, WarningLog)
+from cobot_calib_ros.store.renamed import with_current_names
 
 RECORD_KEYS = ('id', 'stamp_ns', 'method', 'inputs', 'result')
 ACTIVE_FILE = 'active.json'
@@ -423,4 +424,4 @@ class CalibrationStore(WarningLog):
         if problem is not None:
             self._warn(f'{path}: skipped, {problem.message}')
             return None
-        return record
+        return with_current_names(record)

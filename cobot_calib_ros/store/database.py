@@ -46,6 +46,7 @@ from cobot_calib_ros.store.calibrations import _record_problem, CalibrationStore
 from cobot_calib_ros.store.cells import LEGACY_CELL, ResultsCell
 from cobot_calib_ros.store.files import to_plain
 from cobot_calib_ros.store.kinematics import KinematicHistory
+from cobot_calib_ros.store.renamed import with_current_names
 
 SQLITE_FILE = 'cobot_calib.sqlite'
 DB_ENV = 'COBOT_CALIB_DB'            # a database URL for every node and command
@@ -327,7 +328,7 @@ class DbCalibrationHistory(CalibrationStore):
                                                                         LEGACY_CELL)))
         for cell in cells:
             for row in self.database.rows(cell, self.kind):
-                record = json.loads(row['body'])
+                record = with_current_names(json.loads(row['body']))
                 problem = _record_problem(record)
                 if problem is not None:
                     self._warn(f'{self}: {row["id"]} skipped, {problem.message}')

@@ -87,7 +87,7 @@ def tcp_steps(records: Sequence[Mapping[str, Any]],
 
 
 def _tcp(record) -> np.ndarray:
-    return np.array(record['result']['T_flange_tcp'], dtype=float)
+    return np.array(record['result']['T_flange_tool'], dtype=float)
 
 
 def _tcp_covariance(record) -> np.ndarray:

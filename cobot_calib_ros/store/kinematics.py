@@ -129,7 +129,7 @@ def calibrated_descriptions(record: KinematicRecord, model: KinematicModel,
     if unseen:
         note += '\n' + unseen_note(unseen)
     if description is None or not description.urdf:
-        tool = record.result.tool_xyz
+        tool = record.result.p_flange_tool
         return {'urdf': calibrated_urdf(model, params, None if tool is None else np.array(tool),
                                         robot_name=f'{model.name}_calibrated')}
     urdf = rewrite_urdf(description.urdf, model, params, base_link=description.base_link,

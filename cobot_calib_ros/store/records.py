@@ -33,6 +33,7 @@ from cobot_calib_ros.core import user_frame
 from cobot_calib_ros.core.errors import ErrorCode
 from cobot_calib_ros.core.ids import record_id
 from cobot_calib_ros.store.files import to_plain
+from cobot_calib_ros.store.renamed import with_current_names
 
 OMITTED_WHEN_EMPTY = ('gate_problem', 'hand_eye', 'tcp', 'cell', 'robot')  # keys older files lack
 OMITTED_WHEN_NONE = frozenset({'converged', 'measured_through'})   # keys older records lack
@@ -61,6 +62,7 @@ class Record:
         """The record of a stored mapping; ValueError naming the keys it lacks."""
         if not isinstance(data, Mapping):
             raise ValueError(f'{cls.__name__}: expected a mapping, got {type(data).__name__}')
+        data = with_current_names(data)
         known = {f.name: f for f in fields(cls) if f.name != 'extra'}
         required = [name for name, f in known.items() if _required(f)]
         missing = [name for name in required if name not in data]
@@ -138,7 +140,7 @@ class UserFrameRecord(Record):
     kinematics: str = ''       # the kinematic model that measured the points ('' : unknown)
     hand_eye: str = ''         # landmark methods: the hand-eye calibration used
     tcp: str = ''              # touched points: the TCP calibration of the tool that touched
-    #                            them ('nominal': the cell's tool_offset; '' : not touched, or
+    #                            them ('nominal': the cell's T_flange_tool; '' : not touched, or
     #                            stored before records named it)
     base_frame: str
     user_frame: str
@@ -236,7 +238,7 @@ class TcpInputs(Record):
 class TcpResult(Record):
     """A core.tcp.TcpSolution as stored."""
 
-    T_flange_tcp: Any          # (4, 4) rotation identity for orientation_method 'none'
+    T_flange_tool: Any         # (4, 4) rotation identity for orientation_method 'none'
     fixed_point: Any           # (3,) in the base frame [m]
     orientation_method: str    # 'none' (position only), 'z', 'zx'
     mean_residual_mm: float
@@ -282,7 +284,7 @@ class TcpRecord(Record):
             measured_through=dict(measured_through or {'kinematics': kinematics}),
             inputs=TcpInputs(point_name=point_name, labels=list(labels), joints=joints,
                              T_base_flange=flange, tilt=tilt, elongation=elongation),
-            result=TcpResult(T_flange_tcp=solution.T_flange_tcp, fixed_point=position.c,
+            result=TcpResult(T_flange_tool=solution.T_flange_tool, fixed_point=position.c,
                              orientation_method=solution.method,
                              mean_residual_mm=position.mean_residual_m * 1e3,
                              max_residual_mm=position.max_residual_m * 1e3,
@@ -392,7 +394,7 @@ class KinematicResult(Record):
 
     parameter_names: list[str]
     params: Any                # (P,) the full parameter vector of the model
-    tool_xyz: Any = None       # (3,) [m]
+    p_flange_tool: Any = None  # (3,) [m]
     free: list[str] = field(default_factory=list)
     values: Any = None
     std: Any = None
@@ -442,7 +444,8 @@ class KinematicRecord(Record):
                                    loss=job.loss, objective=job.objective),
             result=KinematicResult(
                 parameter_names=list(outcome.model.parameter_names), params=result.params,
-                tool_xyz=result.tool_xyz, free=list(result.free), values=outcome.free_values,
+                p_flange_tool=result.p_flange_tool, free=list(result.free),
+                values=outcome.free_values,
                 std=result.std,
                 dropped=[{'name': d.name, 'reason': d.reason}
                          for d in outcome.identifiability.dropped],

@@ -21,6 +21,7 @@ from cobot_calib_ros.core.errors import Refusal
 from cobot_calib_ros.core.kinematics.robots import model_for
 from cobot_calib_ros.core.rig import ActiveSet, NOMINAL, Rig
 from cobot_calib_ros.store.kinematics import unseen_tool_note
+from cobot_calib_ros.store.renamed import with_current_names
 
 ACTIVE = ('active', 'latest')
 Stored = Mapping[str, Any]
@@ -45,7 +46,7 @@ def kinematics_of(record: Stored | None) -> rig.Kinematics | None:
     if record is None:
         return None
     result = record['result']
-    tool = result.get('tool_xyz')
+    tool = result.get('p_flange_tool')
     return rig.Kinematics(record['id'], str(record.get('robot', '')),
                           tuple(result['parameter_names']),
                           np.array(result['params'], dtype=float),
@@ -55,8 +56,8 @@ def kinematics_of(record: Stored | None) -> rig.Kinematics | None:
 
 def tcp_of(record: Stored | None) -> rig.Tcp | None:
     """The typed TCP of a stored record; None when there is none or it does not read as a
-    transform (the cell's tool_offset is used then)."""
-    T = None if record is None else _matrix(record['result'].get('T_flange_tcp'))
+    transform (the cell's T_flange_tool is used then)."""
+    T = None if record is None else _matrix(record['result'].get('T_flange_tool'))
     if T is None:
         return None
     return rig.Tcp(record['id'], str(record.get('tool', '')), T,
@@ -122,7 +123,8 @@ def kinematic_record(repository, model, choice: str = 'active') -> dict[str, Any
     ValueError saying what to do."""
     if choice.endswith('.json'):
         try:
-            return json.loads(Path(choice).expanduser().read_text(encoding='utf-8'))
+            return with_current_names(json.loads(Path(choice).expanduser().read_text(
+                encoding='utf-8')))
         except (OSError, UnicodeDecodeError, ValueError) as exc:
             raise ValueError(f'--kinematics {choice}: cannot read a calibration record '
                              f'({exc})') from None
@@ -209,11 +211,11 @@ def _stale(repository, cell, model, active: ActiveSet, kind: str, result, throug
     sizes: dict[str, Any] = {}
     if through == 'tcp':
         sizes = {'change_mm': provenance.tcp_change(
-            rig.tool_offset(cell, 'tcp', tcp=before), rig.tool_offset(cell, 'tcp', tcp=now))
+            rig.T_flange_tool(cell, 'tcp', tcp=before), rig.T_flange_tool(cell, 'tcp', tcp=now))
             * 1e3, 'where': 'at the tool'}
     elif through == 'kinematics':
         joints = _joints(repository, kind, result.id)
-        tool = rig.tool_offset(cell, 'tcp', tcp=active.tcp) if kind == 'user_frame' else \
+        tool = rig.T_flange_tool(cell, 'tcp', tcp=active.tcp) if kind == 'user_frame' else \
             np.eye(4)
         try:
             change = provenance.kinematics_change(before, now, model, tool,

@@ -21,7 +21,7 @@ MODEL = model_for(CELL)
 PARAMS = MODEL.nominal + np.random.default_rng(5).choice([-1, 1], MODEL.nominal.size) * 4e-4
 KINEMATIC = {'id': 'k-move', 'robot': MODEL.name, 'stamp_ns': 1, 'method': 'test', 'inputs': {},
              'result': {'parameter_names': list(MODEL.parameter_names),
-                        'params': PARAMS.tolist(), 'tool_xyz': [0.0, 0.0, 0.1]}}
+                        'params': PARAMS.tolist(), 'p_flange_tool': [0.0, 0.0, 0.1]}}
 T_BASE_USER = from_xyz_rpy([0.6, -0.2, 0.05], [0.0, 0.0, 0.4])
 FRAME = {'id': 'uf-move', 'stamp_ns': 1, 'method': 'rigid', 'inputs': {},
          'result': {'T_base_user': T_BASE_USER.tolist()}}
@@ -61,7 +61,7 @@ def test_the_active_calibration_and_a_user_frame_give_the_joints_that_reach_the_
 ])
 def test_a_choice_that_cannot_be_met_says_what_to_do(repo, options, words):
     with pytest.raises(ValueError, match=words):
-        move.solve(CELL, repo, fk(MODEL.chain(tool=CELL.tool_offset), Q), Q, **options)
+        move.solve(CELL, repo, fk(MODEL.chain(tool=CELL.T_flange_tool), Q), Q, **options)
 
 
 def test_an_unreachable_target_names_the_model(repo):
@@ -70,18 +70,18 @@ def test_an_unreachable_target_names_the_model(repo):
 
 
 def _tcp(record_id: str, xyz, through: dict) -> dict:
-    T = np.array(CELL.tool_offset, dtype=float)
+    T = np.array(CELL.T_flange_tool, dtype=float)
     T[:3, 3] = xyz
     return {'id': record_id, 'stamp_ns': 1, 'method': 'tcp-4-point', 'tool': CELL.tool_frame,
             'inputs': {}, 'measured_through': through,
-            'result': {'T_flange_tcp': T.tolist(), 'orientation_method': 'none'}}
+            'result': {'T_flange_tool': T.tolist(), 'orientation_method': 'none'}}
 
 
 def test_move_uses_the_active_tcp_names_it_and_says_a_frame_touched_with_another_is_stale(repo):
     """Issue 36 items 1 and 2: the TCP of the active set is the tool move solves for (the JSON
     names its record); a user frame touched with an older TCP is reported stale, with both
     ids and the TCPs' distance at the tool."""
-    tip = np.array(CELL.tool_offset)[:3, 3]
+    tip = np.array(CELL.T_flange_tool)[:3, 3]
     repo.tcp.save_and_activate(_tcp('tcp-old', tip + [2e-4, 0, 0], {'kinematics': 'nominal'}))
     repo.user_frames.save_and_activate({**FRAME, 'measured_through': {'kinematics': 'nominal',
                                                                       'tcp': 'tcp-old'}})
@@ -91,7 +91,7 @@ def test_move_uses_the_active_tcp_names_it_and_says_a_frame_touched_with_another
     repo.tcp.save_and_activate(_tcp('tcp-new', tip + [2e-4, 0, 1e-4], {'kinematics': 'nominal'}))
     solved = move.solve(CELL, repo, T_user_tool, Q, frame='user')
     assert solved.summary()['tool_record'] == 'tcp-new'
-    new_tool = np.array(CELL.tool_offset)
+    new_tool = np.array(CELL.T_flange_tool)
     new_tool[:3, 3] = tip + [2e-4, 0, 1e-4]
     assert_allclose(fk(MODEL.chain(tool=new_tool), solved.q), T_BASE_USER @ T_user_tool,
                     atol=1e-9)
@@ -113,7 +113,7 @@ def test_move_names_what_the_calibration_could_not_see_and_how_far_a_target_is(r
     unseen = {'name': 'yaw_wrist_3_joint', 'affects': 'tool',
               'reason': 'one point on the tool cannot see it'}
     repo.kinematics.save_and_activate({**KINEMATIC, 'unseen': [unseen]})
-    solved = move.solve(CELL, repo, fk(MODEL.chain(PARAMS, tool=CELL.tool_offset), Q), Q)
+    solved = move.solve(CELL, repo, fk(MODEL.chain(PARAMS, tool=CELL.T_flange_tool), Q), Q)
     assert solved.note == ('k-move: not seen by the measurement, kept nominal: '
                            'yaw_wrist_3_joint (one point on the tool cannot see it)')
     with pytest.raises(ValueError, match=r"cannot be reached by the k-move model: 5.003 m from "

@@ -60,10 +60,10 @@ def test_the_tcp_found_is_the_mocks_true_tool_stored_and_active(tmp_path):
                                                  elongation=ELONGATION_M),
                                 progress=lambda i, total, rms: seen.append((i, total, rms)))
     assert outcome and outcome.code == ErrorCode.SUCCESS, outcome.message
-    T, truth = outcome.run.solution.T_flange_tcp, SIM.true_tool_offset
+    T, truth = outcome.run.solution.T_flange_tool, SIM.T_flange_tool_true
     error = np.linalg.norm(T[:3, 3] - truth[:3, 3])
     z_error = math.acos(min(1.0, T[:3, 2] @ truth[:3, 2]))
-    nominal_error = np.linalg.norm(SIM.cell.tool_offset[:3, 3] - truth[:3, 3])
+    nominal_error = np.linalg.norm(SIM.cell.T_flange_tool[:3, 3] - truth[:3, 3])
     std = math.sqrt(np.trace(outcome.run.solution.position.covariance[:3, :3]))
     print(f'TCP error {error * 1e3:.4f} mm (1 sigma {std * 1e3:.4f} mm, nominal '
           f'{nominal_error * 1e3:.3f} mm), z {z_error * 1e3:.3f} mrad; {outcome.message}')
@@ -122,5 +122,5 @@ def test_the_record_names_the_nominal_kinematics_when_none_is_active(tmp_path):
     assert repo.tcp.get(outcome.record.id)['measured_through'] == {'kinematics': 'nominal'}
     assert warned and 'measured through the nominal kinematics' in warned[0]
     assert outcome.message.endswith(warned[0])
-    assert frames.transform_error(outcome.run.solution.T_flange_tcp,
-                                  SIM.true_tool_offset)[0] < 0.3e-3
+    assert frames.transform_error(outcome.run.solution.T_flange_tool,
+                                  SIM.T_flange_tool_true)[0] < 0.3e-3

@@ -33,7 +33,8 @@ def test_identify_from_the_bag_reproduces_the_live_identification(capsys):
     cell = load_cell(cell_file('iiwa7_close'))
     model = model_for(cell)
     names = [p['name'] for p in got['identified']]
-    nominal = ParameterSet(model, names).values(model.nominal, cell.spheres.coupling_offset[:3, 3])
+    nominal = ParameterSet(model, names).values(model.nominal,
+                                                cell.spheres.T_flange_coupling[:3, 3])
     np.testing.assert_array_equal([p['nominal'] for p in got['identified']], nominal)
     deviation = np.array([p['value'] - p['nominal'] for p in got['identified']])
     assert 0.0 < np.abs(deviation).max() < 0.01          # identified near nominal, not equal

@@ -47,7 +47,7 @@ cell:
   tool_frame: tool0
   user_frame: fixture
   home: [0.0, -1.9, 1.9, -1.5708, -1.5708, 0.0]
-  tool_offset: {xyz: [0.0, 0.0, 0.12], rpy: [0.0, 0.0, 0.0]}
+  T_flange_tool: {xyz: [0.0, 0.0, 0.12], rpy: [0.0, 0.0, 0.0]}
 """
 
 

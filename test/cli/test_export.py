@@ -78,7 +78,7 @@ def _stored_tcp(tmp_path):
     T = frames.from_xyz_rpy([0.00012, -0.00019, 0.10021], [0.0028, -0.0022, 0.0])
     store.open(root).tcp.save_and_activate({
         'id': 'tcp-probe', 'stamp_ns': 1, 'method': 'tcp-6-point-z', 'tool': 'tool0',
-        'inputs': {}, 'result': {'T_flange_tcp': T.tolist(), 'orientation_method': 'z'}})
+        'inputs': {}, 'result': {'T_flange_tool': T.tolist(), 'orientation_method': 'z'}})
     return root, T
 
 
@@ -144,12 +144,12 @@ def test_export_of_a_frame_touched_with_another_tcp_says_it_is_stale(tmp_path, c
     cell = load_cell(cell_file('sawyer_close'))
     repo = store.open(tmp_path, cell=ResultsCell.of(cell))
     for tcp_id, dy in (('t1', 0.0), ('t2', 2e-4)):
-        T = np.array(cell.tool_offset)
+        T = np.array(cell.T_flange_tool)
         T[1, 3] += dy
         repo.tcp.save_and_activate({
             'id': tcp_id, 'stamp_ns': 1 + int(dy > 0), 'method': 'tcp-4-point',
             'tool': cell.tool_frame, 'inputs': {}, 'measured_through': {'kinematics': 'nominal'},
-            'result': {'T_flange_tcp': T.tolist(), 'orientation_method': 'none'}})
+            'result': {'T_flange_tool': T.tolist(), 'orientation_method': 'none'}})
         if tcp_id == 't1':
             repo.user_frames.save_and_activate({
                 'id': 'F', 'stamp_ns': 1, 'method': 'rigid', 'inputs': {},

@@ -24,13 +24,13 @@ RECORD = KinematicRecord(
     id='k-filter-test', stamp_ns=1, method='relative-lm', robot=MODEL.name,
     inputs=KinematicInputs(source='test'),
     result=KinematicResult(parameter_names=list(MODEL.parameter_names), params=list(PARAMS),
-                           tool_xyz=[0.0, 0.0, 0.1], rms_m=1e-5, converged=True))
+                           p_flange_tool=[0.0, 0.0, 0.1], rms_m=1e-5, converged=True))
 HEADER = 'name,x,y,z,qx,qy,qz,qw\n'
 
 
 def program(tmp_path, far: bool) -> tuple:
     q = CELL.home + np.random.default_rng(3).normal(0, 0.2, (6, 6))
-    poses = fk(MODEL.chain(PARAMS, tool=CELL.tool_offset), q)
+    poses = fk(MODEL.chain(PARAMS, tool=CELL.T_flange_tool), q)
     lines = [f'wp{k},' + ','.join(repr(float(v)) for v in np.concatenate(to_pose(T)))
              for k, T in enumerate(poses)]
     if far:
@@ -59,7 +59,7 @@ def test_filter_writes_corrected_targets_and_joints(tmp_path, capsys):
     assert header == HEADER.strip() + ',' + ','.join(MODEL.joint_names)
     values = np.array([[float(v) for v in row.split(',')[1:]] for row in rows])
     assert_allclose(values[:, 7:], q, rtol=0, atol=1e-6)
-    nominal = fk(MODEL.chain(tool=CELL.tool_offset), q)
+    nominal = fk(MODEL.chain(tool=CELL.T_flange_tool), q)
     assert_allclose(values[:, :3], nominal[:, :3, 3], rtol=0, atol=1e-9)
 
 

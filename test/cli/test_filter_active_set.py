@@ -21,7 +21,7 @@ PARAMS = MODEL.nominal + np.random.default_rng(8).choice([-1, 1], MODEL.nominal.
 
 
 def _tool(dz: float) -> np.ndarray:
-    T = np.array(CELL.tool_offset)
+    T = np.array(CELL.T_flange_tool)
     T[2, 3] += dz
     return T
 
@@ -37,7 +37,7 @@ def test_filter_uses_the_active_tcp_and_says_the_frame_touched_with_another_is_s
         repo.tcp.save_and_activate({
             'id': tcp_id, 'stamp_ns': 2 + int(dz > 0), 'method': 'tcp-4-point',
             'tool': CELL.tool_frame, 'inputs': {}, 'measured_through': {'kinematics': 'k1'},
-            'result': {'T_flange_tcp': _tool(dz).tolist(), 'orientation_method': 'none'}})
+            'result': {'T_flange_tool': _tool(dz).tolist(), 'orientation_method': 'none'}})
         if tcp_id == 't1':
             repo.user_frames.save_and_activate({
                 'id': 'F', 'stamp_ns': 2, 'method': 'rigid', 'inputs': {},

@@ -177,12 +177,12 @@ def test_history_lists_every_kind_and_says_which_active_result_is_stale(tmp_path
         'measured_through': {}, 'result': {'parameter_names': list(model.parameter_names),
                                            'params': list(model.nominal), 'rms_m': 1e-5}})
     for day, (tcp_id, dz) in enumerate((('t1', 0.0), ('t2', 1e-4))):
-        T = np.array(cell.tool_offset)
+        T = np.array(cell.T_flange_tool)
         T[2, 3] += dz
         repo.tcp.save_and_activate({
             'id': tcp_id, 'stamp_ns': NOV_1 + (2 * day + 1) * DAY_NS, 'method': 'tcp-4-point',
             'tool': cell.tool_frame, 'inputs': {}, 'measured_through': {'kinematics': 'k1'},
-            'result': {'T_flange_tcp': T.tolist(), 'orientation_method': 'none',
+            'result': {'T_flange_tool': T.tolist(), 'orientation_method': 'none',
                        'mean_residual_mm': 0.02, 'max_residual_mm': 0.03}})
         if tcp_id == 't1':
             run = calibrate_user_frame(SIM, 10)

@@ -132,7 +132,7 @@ def test_without_a_cell_the_result_is_stored_under_the_arm(plant, capsys):
     assert_allclose(report['validation_max_mm']['held_out']['calibrated'],
                     report['held_out']['calibrated']['max_mm'])
     # no cell file at all: the URDF, its links, the probe and home on the command line
-    robot = ['--urdf', str(files['urdf']), '--tip-link', 'tool0', '--tool-offset', '0', '0',
+    robot = ['--urdf', str(files['urdf']), '--tip-link', 'tool0', '--t-flange-tool', '0', '0',
              '0.12', '0', '0', '0', '--data-dir', data]
     frame = run_json(capsys, ['user-frame', '--points', str(files['points']), *robot])
     assert frame['measured_through']['kinematics'] == again['calibration_id']

@@ -142,7 +142,7 @@ def test_demo_without_attach_stores_in_a_temporary_data_dir(monkeypatch, tmp_pat
                    'robot': 'sawyer', 'inputs': {'source': 'test'},
                    'result': {'parameter_names': list(model.parameter_names),
                               'params': np.asarray(model.nominal).tolist(),
-                              'tool_xyz': [0.0, 0.0, 0.0]}})
+                              'p_flange_tool': [0.0, 0.0, 0.0]}})
     user.activate('k1', 'sawyer')
     started = {}
 

@@ -36,7 +36,7 @@ def _broken(tmp_path, old: str, new: str):
     ('  robot: {model: sawyer, urdf: sawyer.urdf, base_link: right_arm_base_link, '
      'tip_link: right_hand}', '  robot: ur5', ['cell.robot', "unknown robot 'ur5'"]),
     ('  layout: close', '  layout: narrow', ['cell.layout', 'close, wide']),
-    ('    xyz: [0.0, 0.0, 0.100]', '    xyz: [0.0, 0.1]', ['cell.tool_offset.xyz', '3 finite']),
+    ('    xyz: [0.0, 0.0, 0.100]', '    xyz: [0.0, 0.1]', ['cell.T_flange_tool.xyz', '3 finite']),
     ('  user_frame: user_frame', "  user_frame: 'bad frame!'", ['cell.user_frame', 'tf2']),
     ('      P2: [0.35, 0.10]', '      P2: [0.35, x]', ['cell.layouts.close.P2']),
     ('cell:\n', 'cell: [\n', ['not valid YAML']),
@@ -52,7 +52,7 @@ def test_a_broken_cell_file_names_file_line_key_and_fix(tmp_path, old, new, word
     ('  base_frame: base_link', '  base_frme: base_link',
      ['cell.base_frme', "unknown key 'base_frme'; did you mean 'base_frame'?"]),
     ('    rpy: [0.0, 0.0, 0.0]', '    rpz: [0.0, 0.0, 0.0]',
-     ['cell.tool_offset.rpz', "did you mean 'rpy'?", 'known here: xyz, rpy']),
+     ['cell.T_flange_tool.rpz', "did you mean 'rpy'?", 'known here: xyz, rpy']),
     ('    diameter: 0.0508', '    diametre: 0.0508', ["cell.spheres.diametre", "'diameter'"]),
     ('  camera: ', '  camra: ', ["unknown key 'camra'; did you mean 'camera'?"]),
 ])
@@ -76,7 +76,7 @@ def test_every_key_of_the_shipped_cells_is_known():
 
 @pytest.mark.parametrize('old, new, key, far', [
     ('      P1: [0.15, 0.10]', '      P1: [150, 100]', 'cell.layouts.close.P1', '150'),
-    ('    xyz: [0.0, 0.0, 0.100]', '    xyz: [0.0, 0.0, 100.0]', 'cell.tool_offset.xyz', '100'),
+    ('    xyz: [0.0, 0.0, 0.100]', '    xyz: [0.0, 0.0, 100.0]', 'cell.T_flange_tool.xyz', '100'),
     ('      S2: [0.300009, 0.0, 0.0]', '      S2: [300.009, 0.0, 0.0]',
      'cell.spheres.centres.S2', '300.009'),
     ('      1: [0.42, 0.175, 0.35]', '      1: [420, 175, 0.35]', 'cell.landmarks.markers.1',
@@ -110,3 +110,62 @@ def test_a_missing_file_says_where_cells_are(tmp_path):
     ('/user_frame', False)])
 def test_frame_ids_are_checked_as_tf2_accepts_them(frame_id, ok):
     assert (check_frame_id(frame_id) is None) == ok
+
+
+# the keys before issue 39.3 (one name per transform): each line names an old key
+OLD_KEYS = [('  T_flange_tool:', '  tool_offset:'),                 # legacy name
+            ('    T_flange_coupling:', '    coupling_offset:'),     # legacy name
+            ('    T_flange_optical:', '    hand_eye:'),             # legacy name
+            ('  T_flange_tool_true:', '  tool_offset_true:'),       # legacy name
+            ('    p_flange_coupling_true:', '    coupling_offset_true:'),  # legacy name
+            ('    T_flange_optical_true:', '    hand_eye_true:')]   # legacy name
+
+
+def _with_old_keys(tmp_path):
+    path = SAWYER
+    for new, old in OLD_KEYS:
+        path = _broken(tmp_path, new, old) if path == SAWYER else _rewritten(path, new, old)
+    return path
+
+
+def _rewritten(path, old: str, new: str):
+    text = path.read_text()
+    assert old in text
+    path.write_text(text.replace(old, new, 1))
+    return path
+
+
+def test_a_cell_file_with_the_old_key_names_reads_the_same_with_a_note(tmp_path):
+    from cobot_calib_ros.sim.scenario import load_simulation
+    now = load_simulation(SAWYER)
+    with pytest.warns(FutureWarning) as notes:
+        before = load_simulation(_with_old_keys(tmp_path))
+    said = ' '.join(str(n.message) for n in notes)
+    for words in ('cell.tool_offset is now called T_flange_tool',                   # legacy name
+                  'cell.spheres.coupling_offset is now called T_flange_coupling',   # legacy name
+                  'simulation.tool_offset_true is now called T_flange_tool_true',   # legacy name
+                  'broken.yaml:16:'):
+        assert words in said
+    assert not np.allclose(now.T_flange_tool_true, now.cell.T_flange_tool)   # the truth read
+    for got, want in ((before.cell.T_flange_tool, now.cell.T_flange_tool),
+                      (before.cell.spheres.T_flange_coupling, now.cell.spheres.T_flange_coupling),
+                      (before.cell.camera.T_flange_optical, now.cell.camera.T_flange_optical),
+                      (before.T_flange_tool_true, now.T_flange_tool_true),
+                      (before.spheres.T_flange_coupling, now.spheres.T_flange_coupling),
+                      (before.camera.T_flange_optical, now.camera.T_flange_optical)):
+        np.testing.assert_array_equal(got, want)
+
+
+def test_a_key_given_under_its_old_and_new_name_is_refused(tmp_path):
+    old = '  tool_offset: {xyz: [0, 0, 0.1], rpy: [0, 0, 0]}\n'      # legacy name
+    both = _broken(tmp_path, '  T_flange_tool:', old + '  T_flange_tool:')
+    refusal = "cell.tool_offset: give 'T_flange_tool' only"          # legacy name
+    with pytest.raises(CellFileError, match=refusal):
+        load_cell(both)
+
+
+def test_a_simulation_without_a_true_coupling_takes_the_nominal_one(tmp_path):
+    from cobot_calib_ros.sim.scenario import load_simulation
+    sim = load_simulation(_broken(tmp_path, '    p_flange_coupling_true: [0.0204, -0.0003, 0.1006]',
+                                  ''))
+    np.testing.assert_array_equal(sim.spheres.T_flange_coupling, sim.cell.spheres.T_flange_coupling)

@@ -30,7 +30,7 @@ def _check(sim, record, seed):
     robot = DirectRobot(arm, sim.probe)
     p_user = np.array([SIM.cell.marker(n).nominal_top for n in CHECKED])
     predicted = predicted_points(record['inputs'], record['result'], CHECKED, p_user)
-    return check_user_frame(robot, arm.model.chain(tool=SIM.cell.tool_offset), predicted,
+    return check_user_frame(robot, arm.model.chain(tool=SIM.cell.T_flange_tool), predicted,
                             CHECKED)
 
 
@@ -84,7 +84,7 @@ def test_check_kinematics_tells_a_right_model_from_a_stale_one():
     check = check_kinematics(robot, arm.coupling, plan)          # the true model
     assert check.verdict == PASS and check.spread_rms_m < 0.02e-3
     assert (check.poses, check.spheres) == (16, 3) and 0 < check.robot_seconds < 120.0
-    nominal = model.chain(tool=sim.cell.spheres.coupling_offset)
+    nominal = model.chain(tool=sim.cell.spheres.T_flange_coupling)
     again = check_kinematics(DirectRobot(SimRobot(sim, seed_offset=4), sim.probe), nominal, plan)
     assert again.verdict == RECALIBRATE and again.spread_rms_m > 0.15e-3
     # the spread itself: the same pose twice on one sphere is no spread

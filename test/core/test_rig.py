@@ -25,14 +25,14 @@ def test_each_tool_ends_the_chain_where_the_cell_or_the_result_puts_it():
     flange = fk(rig.Rig(CELL, rig.ActiveSet(RECORD), MODEL).chain('flange'), Q)
     assert_allclose(flange, fk(MODEL.chain(PARAMS), Q), atol=1e-15)
     assert_allclose(fk(rig.Rig(CELL, rig.ActiveSet(RECORD), MODEL).chain('tcp'), Q),
-                    flange @ CELL.tool_offset, atol=1e-12)
+                    flange @ CELL.T_flange_tool, atol=1e-12)
     coupling = fk(rig.Rig(CELL, rig.ActiveSet(RECORD), MODEL).chain('coupling'), Q)
     assert_allclose(coupling[:3, 3], flange[:3, :3] @ [0.001, -0.002, 0.103] + flange[:3, 3],
                     atol=1e-12)      # the identified centre
-    assert_allclose(coupling[:3, :3], flange[:3, :3] @ CELL.spheres.coupling_offset[:3, :3],
+    assert_allclose(coupling[:3, :3], flange[:3, :3] @ CELL.spheres.T_flange_coupling[:3, :3],
                     atol=1e-12)      # the cell's orientation
     nominal = fk(rig.Rig(CELL, model=MODEL).chain('coupling'), Q)
-    assert_allclose(nominal, fk(MODEL.chain(tool=CELL.spheres.coupling_offset), Q), atol=1e-12)
+    assert_allclose(nominal, fk(MODEL.chain(tool=CELL.spheres.T_flange_coupling), Q), atol=1e-12)
     hand_eye = rig.HandEye('h-0', from_xyz_rpy([0.05, 0, 0.02], [0, 0, 1]))
     assert_allclose(fk(rig.Rig(CELL, rig.ActiveSet(None, hand_eye), MODEL).chain('camera'), Q),
                     fk(MODEL.chain(), Q) @ from_xyz_rpy([0.05, 0, 0.02], [0, 0, 1]), atol=1e-12)
@@ -42,7 +42,7 @@ def test_a_tool_the_cell_lacks_or_does_not_know_is_refused_with_the_choices():
     with pytest.raises(ValueError, match='has no camera: section.*tcp, flange, camera, coupling'):
         rig.Rig(CELL, model=MODEL).chain('camera')
     with pytest.raises(ValueError, match="unknown tool 'gripper'"):
-        rig.tool_offset(CELL, 'gripper')
+        rig.T_flange_tool(CELL, 'gripper')
     with pytest.raises(ValueError, match="is for robot 'sawyer', not 'iiwa7'"):
         rig.Rig(CELL, rig.ActiveSet(replace(RECORD, robot='sawyer')), MODEL)
 
@@ -60,15 +60,15 @@ def test_a_target_in_a_user_frame_is_solved_in_the_base():
 def test_the_tcp_is_the_active_tcp_records_else_the_cells():
     """Issue 30.3: a TCP record gives the tool's position, and its orientation only when it
     measured one (elongator points)."""
-    assert_allclose(rig.tool_offset(CELL, 'tcp'), CELL.tool_offset, atol=0)
+    assert_allclose(rig.T_flange_tool(CELL, 'tcp'), CELL.T_flange_tool, atol=0)
     T = from_xyz_rpy([0.0003, -0.0002, 0.1004], [0.003, -0.002, 0.01])
     position_only = rig.Tcp('tcp-0', 'tool0', from_xyz_rpy(T[:3, 3], [0, 0, 0]))
-    expected = CELL.tool_offset.copy()
+    expected = CELL.T_flange_tool.copy()
     expected[:3, 3] = T[:3, 3]
-    assert_allclose(rig.tool_offset(CELL, 'tcp', tcp=position_only), expected, atol=1e-15)
+    assert_allclose(rig.T_flange_tool(CELL, 'tcp', tcp=position_only), expected, atol=1e-15)
     oriented = rig.Tcp('tcp-1', 'tool0', T, orientation_measured=True)
-    assert_allclose(rig.tool_offset(CELL, 'tcp', tcp=oriented), T, atol=1e-15)
-    assert_allclose(rig.tool_offset(CELL, 'flange', tcp=oriented), np.eye(4), atol=0)
+    assert_allclose(rig.T_flange_tool(CELL, 'tcp', tcp=oriented), T, atol=1e-15)
+    assert_allclose(rig.T_flange_tool(CELL, 'flange', tcp=oriented), np.eye(4), atol=0)
     calibrated = rig.Rig(CELL, rig.ActiveSet(RECORD, tcp=oriented), MODEL)
     assert_allclose(fk(calibrated.chain('tcp'), Q), fk(MODEL.chain(PARAMS), Q) @ T, atol=1e-12)
     assert calibrated.active.tcp_label == 'tcp-1'

@@ -12,13 +12,13 @@ from cobot_calib_ros.core.tcp import GateLimits, gate_problem, solve_position, s
 from cobot_calib_ros.core.kinematics.urdf import rpy_from_matrix
 from cobot_calib_ros.core.tcp.touches import plan_touches
 
-T_FLANGE_TCP = frames.from_xyz_rpy([0.0123, -0.0041, 0.1532], [0.012, -0.021, 0.3])
+T_FLANGE_TOOL = frames.from_xyz_rpy([0.0123, -0.0041, 0.1532], [0.012, -0.021, 0.3])
 FIXED_POINT = np.array([0.52, 0.11, 0.08])
 
 
 def _flange(R_tool: np.ndarray, tip: np.ndarray = FIXED_POINT) -> np.ndarray:
-    """The flange pose that puts the tool (T_FLANGE_TCP) at ``tip`` in orientation R_tool."""
-    return frames.make_transform(R_tool, tip) @ frames.invert(T_FLANGE_TCP)
+    """The flange pose that puts the tool (T_FLANGE_TOOL) at ``tip`` in orientation R_tool."""
+    return frames.make_transform(R_tool, tip) @ frames.invert(T_FLANGE_TOOL)
 
 
 def _approaches(count: int, tilt: float = 0.52, noise: float = 0.0, seed: int = 3):
@@ -30,9 +30,9 @@ def _approaches(count: int, tilt: float = 0.52, noise: float = 0.0, seed: int = 
 
 def test_noise_free_approaches_give_the_tool_and_the_point_exactly():
     position = solve_position(_approaches(4))
-    assert np.allclose(position.t, T_FLANGE_TCP[:3, 3], atol=1e-12)
+    assert np.allclose(position.t, T_FLANGE_TOOL[:3, 3], atol=1e-12)
     assert np.allclose(position.c, FIXED_POINT, atol=1e-12)
-    assert np.allclose(position.linear, [*T_FLANGE_TCP[:3, 3], *FIXED_POINT], atol=1e-12)
+    assert np.allclose(position.linear, [*T_FLANGE_TOOL[:3, 3], *FIXED_POINT], atol=1e-12)
     assert position.max_residual_m < 1e-12
     assert 2.0 < position.condition < 20.0
 
@@ -40,13 +40,13 @@ def test_noise_free_approaches_give_the_tool_and_the_point_exactly():
 def test_noisy_touches_give_the_tool_within_their_noise_and_pass_the_gate():
     sigma = 2e-5
     position = solve_position(_approaches(8, noise=sigma))
-    error = np.linalg.norm(position.t - T_FLANGE_TCP[:3, 3])
+    error = np.linalg.norm(position.t - T_FLANGE_TOOL[:3, 3])
     std = np.sqrt(np.trace(position.covariance[:3, :3]))
     assert error < 4 * std and std < 5 * sigma
     assert 0.0 < position.mean_residual_m <= position.max_residual_m < 5 * sigma
     assert position.rms_per_axis == pytest.approx(sigma, rel=0.5)
     solution = solve_tcp(_approaches(8, noise=sigma))
-    assert gate_problem(solution, GateLimits(touch_sigma=sigma), nominal=T_FLANGE_TCP) is None
+    assert gate_problem(solution, GateLimits(touch_sigma=sigma), nominal=T_FLANGE_TOOL) is None
 
 
 def test_three_nearly_parallel_orientations_are_refused_naming_them():
@@ -93,8 +93,8 @@ def test_the_refinement_keeps_one_slipped_touch_from_pulling_the_tool():
     flange = _approaches(8, noise=1e-5)
     flange[5, :3, 3] += [3e-4, -2e-4, 0.0]          # one touch slipped by 0.36 mm
     position = solve_position(flange, robust_scale=2e-5)
-    linear_error = np.linalg.norm(position.linear[:3] - T_FLANGE_TCP[:3, 3])
-    refined_error = np.linalg.norm(position.t - T_FLANGE_TCP[:3, 3])
+    linear_error = np.linalg.norm(position.linear[:3] - T_FLANGE_TOOL[:3, 3])
+    refined_error = np.linalg.norm(position.t - T_FLANGE_TOOL[:3, 3])
     assert refined_error < 0.5 * linear_error
     assert position.distances.argmax() == 5
 
@@ -114,25 +114,25 @@ def test_z_and_x_elongator_points_give_the_tool_orientation():
     approaches, elongators = _elongators('zx')
     solution = solve_tcp(approaches, elongators)
     assert solution.method == 'zx' and solution.turn_rad < 1e-9
-    assert np.allclose(solution.T_flange_tcp, T_FLANGE_TCP, atol=1e-9)
-    assert rpy_from_matrix(solution.R_flange_tcp) == pytest.approx((0.012, -0.021, 0.3),
+    assert np.allclose(solution.T_flange_tool, T_FLANGE_TOOL, atol=1e-9)
+    assert rpy_from_matrix(solution.R_flange_tool) == pytest.approx((0.012, -0.021, 0.3),
                                                                    abs=1e-9)
 
 
 def test_a_z_elongator_alone_gives_z_and_the_flange_x_made_orthogonal():
     approaches, elongators = _elongators('z')
     solution = solve_tcp(approaches, elongators)
-    z_true = T_FLANGE_TCP[:3, 2]
-    assert np.allclose(solution.R_flange_tcp[:, 2], z_true, atol=1e-9)
+    z_true = T_FLANGE_TOOL[:3, 2]
+    assert np.allclose(solution.R_flange_tool[:, 2], z_true, atol=1e-9)
     x_expected = np.array([1.0, 0.0, 0.0]) - z_true[0] * z_true
-    assert np.allclose(solution.R_flange_tcp[:, 0], x_expected / np.linalg.norm(x_expected),
+    assert np.allclose(solution.R_flange_tool[:, 0], x_expected / np.linalg.norm(x_expected),
                        atol=1e-9)
 
 
 def test_elongator_noise_turns_z_by_about_noise_over_elongation():
     approaches, elongators = _elongators('z', noise=2e-5)
     solution = solve_tcp(approaches, elongators)
-    angle = math.acos(min(1.0, solution.R_flange_tcp[:, 2] @ T_FLANGE_TCP[:3, 2]))
+    angle = math.acos(min(1.0, solution.R_flange_tool[:, 2] @ T_FLANGE_TOOL[:3, 2]))
     assert 0.0 < angle < 5 * math.sqrt(2) * 2e-5 / 0.05
 
 
@@ -145,9 +145,9 @@ def test_the_gate_names_a_slipped_touch_a_far_tool_and_a_turned_elongator():
     assert 'more than the touch noise (0.020 mm) explains' in problem
     assert 'touch again' in problem
     solution = solve_tcp(_approaches(6))
-    nominal = T_FLANGE_TCP.copy()
+    nominal = T_FLANGE_TOOL.copy()
     nominal[:3, 3] += [0.0, 0.0, 0.03]
-    assert "30.0 mm from the cell's tool_offset" in gate_problem(solution, nominal=nominal).message
+    assert "30.0 mm from the cell's T_flange_tool" in gate_problem(solution, nominal=nominal).message
     assert 'beyond 100 mm' in gate_problem(solution, GateLimits(max_tool_length=0.1)).message
     approaches, elongators = _elongators('z')
     T, d = elongators['z']

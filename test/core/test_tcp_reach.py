@@ -52,7 +52,7 @@ def test_checked_touches_of_every_point_are_all_taken_and_give_the_true_tool(cel
     sim = load_simulation(cell_file(cell))
     for point in sim.cell.point_names:
         result = calibrate_tcp(sim, 3, 6, method='z', exact_kinematics=True, point=point)
-        error = result.solution.position.t - sim.true_tool_offset[:3, 3]
+        error = result.solution.position.t - sim.T_flange_tool_true[:3, 3]
         assert np.linalg.norm(error) < 0.1e-3, (cell, point, error)
         assert len(result.touches.joints) == 7
 
@@ -62,7 +62,7 @@ def test_a_plan_with_the_point_known_is_checked_before_the_arm_moves():
     JOINT_MARGIN inside them; the robot then takes every one; an unreachable alternative is
     replaced by a tilt at another azimuth of the same size."""
     arm, robot = _robot(IIWA)
-    chain = arm.model.chain(tool=IIWA.cell.tool_offset)
+    chain = arm.model.chain(tool=IIWA.cell.T_flange_tool)
     p = frames.apply(IIWA.world.T_base_user, IIWA.cell.marker('P1').nominal_top)
     planned = plan_touches('P1', 6)
     plan, locate = checked_plan(planned, chain, IIWA.cell.home, point_base=p)
@@ -79,7 +79,7 @@ def test_a_plan_with_the_point_known_is_checked_before_the_arm_moves():
 
 def test_a_point_out_of_reach_is_refused_before_any_motion_naming_the_touch_and_limit():
     arm, robot = _robot(IIWA)
-    chain = arm.model.chain(tool=IIWA.cell.tool_offset)
+    chain = arm.model.chain(tool=IIWA.cell.T_flange_tool)
     far = np.array([1.5, 0.0, 0.2])
     with pytest.raises(Refusal, match=r'approach 1: .*no convergence.*nothing moved') as e:
         checked_plan(plan_touches('P1', 6), chain, IIWA.cell.home, point_base=far)
@@ -104,7 +104,7 @@ def test_a_touch_closer_than_the_margin_to_a_joint_limit_is_named():
 
 def test_touches_already_taken_are_kept():
     arm, _ = _robot(IIWA)
-    chain = arm.model.chain(tool=IIWA.cell.tool_offset)
+    chain = arm.model.chain(tool=IIWA.cell.T_flange_tool)
     planned = plan_touches('P1', 6)
     q = IIWA.cell.home
     p = kinematics.fk(chain, q)[:3, 3]

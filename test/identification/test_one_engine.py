@@ -50,7 +50,7 @@ def write_measurement_file(folder, sim, model, data: SphereObservations,
     lines += [','.join([repr(float(v)) for v in row] + [str(int(s))])
               for row, s in zip(data.q, data.sphere)]
     csv.write_text('\n'.join(lines) + '\n')
-    ball = sim.cell.spheres.coupling_offset[:3, 3] * length_scale
+    ball = sim.cell.spheres.T_flange_coupling[:3, 3] * length_scale
     distances = [[i, j, repr(d * length_scale)] for i, j, d in data.known_distances]
     robot = sim.cell.urdf_robot
     (folder / 'spheres.yaml').write_text(
@@ -106,7 +106,7 @@ def test_live_sphere_data_and_their_measurement_file_identify_the_same(live, tmp
     assert list(file_values) == list(outcome.result.free[:-3]) and len(file_values) >= 15
     for name, value in file_values.items():
         assert live_values[name] == pytest.approx(value, rel=1e-9, abs=1e-12), name
-    assert outcome.result.tool_xyz == pytest.approx(c_file.fit.nuisance[:3], rel=1e-9,
+    assert outcome.result.p_flange_tool == pytest.approx(c_file.fit.nuisance[:3], rel=1e-9,
                                                     abs=1e-12)
     assert [d.name for d in outcome.identifiability.dropped] == \
         [d['name'] for d in report['dropped']]
@@ -128,7 +128,7 @@ def test_the_gates_refuse_live_data_and_their_file_the_same_way(live, tmp_path):
                             tuple((i, j, d * 1000.0) for i, j, d in data.known_distances))
     with pytest.raises(Refusal) as live_refusal:
         CalibrationJob(sim.cell, model, mm,
-                       tool_xyz0=sim.cell.spheres.coupling_offset[:3, 3] * 1000.0).run()
+                       p_flange_tool0=sim.cell.spheres.T_flange_coupling[:3, 3] * 1000.0).run()
     with pytest.raises(Refusal) as file_refusal:
         identify_source(csv, measurement='spheres', urdf=urdf, folds=3)
     assert str(live_refusal.value) == str(file_refusal.value)

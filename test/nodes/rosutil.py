@@ -25,7 +25,7 @@ def true_gap(truth, positions, point: str) -> float:
     from cobot_calib_ros.core.kinematics import fk, model_by_name
     from cobot_calib_ros.ros import convert
     chain = model_by_name(truth.robot).chain(
-        np.array(truth.true_parameters), tool=convert.transform_to_matrix(truth.tool_offset_true))
+        np.array(truth.true_parameters), tool=convert.transform_to_matrix(truth.t_flange_tool_true))
     tip = fk(chain, np.array(positions, dtype=float))[:3, 3]
     top = convert.points_to_array(truth.points_base)[truth.point_names.index(point)]
     return float((tip - top) @ convert.transform_to_matrix(truth.user_frame)[:3, 2])

@@ -351,7 +351,7 @@ def test_an_iiwa7_calibration_in_the_data_dir_leaves_the_sawyer_working(ros, tri
         'id': 'iiwa7-elsewhere-nelder-mead', 'stamp_ns': time.time_ns(), 'robot': 'iiwa7',
         'method': 'relative-nelder-mead', 'inputs': {'source': 'another cell'},
         'result': {'parameter_names': list(iiwa.parameter_names),
-                   'params': list(iiwa.nominal), 'tool_xyz': [0.0, 0.0, 0.1]}})
+                   'params': list(iiwa.nominal), 'p_flange_tool': [0.0, 0.0, 0.1]}})
     res = call(ros, CalibrateUserFrame, 'calibrate_user_frame', 120.0, method='rigid',
                point_names=['P1', 'P2', 'P3'])
     try:

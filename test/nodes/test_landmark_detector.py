@@ -90,7 +90,7 @@ def move_camera_above(client: Client, camera: SimCamera, xy, height: float) -> n
     sim = camera.sim
     T_user_optical = frames.make_transform(frames.rot_x(np.pi), [*xy, height])
     T_base_tool = (sim.world.T_base_user @ T_user_optical
-                   @ frames.invert(sim.cell.camera.T_flange_optical) @ sim.cell.tool_offset)
+                   @ frames.invert(sim.cell.camera.T_flange_optical) @ sim.cell.T_flange_tool)
     action = ActionClient(client.node, MoveTo, 'move_to')
     try:
         if not client.spin_until(action.server_is_ready, STARTUP_TIMEOUT):

@@ -29,24 +29,24 @@ def _move(xyz, rpy, *extra):
     return json.loads(out.stdout)
 
 
-def _exact_tcp(data, T_flange_tcp) -> str:
+def _exact_tcp(data, T_flange_tool) -> str:
     """Store and activate, in the results ``data``, what an exact TCP calibration of the
     cell's tool would: the mock's true tool (position and orientation)."""
     record = {'id': 'tcp-true', 'stamp_ns': 1, 'method': 'tcp-test', 'tool': CELL.tool_frame,
               'inputs': {}, 'measured_through': {'kinematics': 'k-true'},
-              'result': {'T_flange_tcp': T_flange_tcp.tolist(), 'orientation_method': 'zx'}}
+              'result': {'T_flange_tool': T_flange_tool.tolist(), 'orientation_method': 'zx'}}
     assert store.open(data, cell=ResultsCell.of(CELL)).tcp.save_and_activate(record)
     return record['id']
 
 
 def test_a_compensated_move_lands_on_the_target_where_the_nominal_one_is_off(ros, tmp_path):
     """The true tool tip (the mock's true arm AND its true tool, 0.25 mm / 3.6 mrad off the
-    cell's nominal tool_offset) lands on the target when move uses an exact kinematic
+    cell's nominal T_flange_tool) lands on the target when move uses an exact kinematic
     calibration and the active TCP (an exact one); the JSON names that TCP."""
     truth = call(ros, GetGroundTruth, 'get_ground_truth')
     true_params = np.array(truth.true_parameters)
-    true_tool = convert.transform_to_matrix(truth.tool_offset_true)
-    assert np.linalg.norm(true_tool[:3, 3] - CELL.tool_offset[:3, 3]) > 1e-4  # not the cell's
+    true_tool = convert.transform_to_matrix(truth.t_flange_tool_true)
+    assert np.linalg.norm(true_tool[:3, 3] - CELL.T_flange_tool[:3, 3]) > 1e-4 # not the cell's
     # what an exact calibration would store: the mock's true arm
     record = tmp_path / 'k-true.json'
     record.write_text(json.dumps({

@@ -254,7 +254,7 @@ def test_a_pose_goal_is_solved_with_the_active_kinematic_calibration(driver_suit
     target = fk(rig.Rig(cell, model=model).chain('tcp'), cell.home + 0.15)
     # the mock's truth: its true arm and its TRUE tool (0.25 mm / 3.6 mrad off the cell's),
     # which the active TCP (an exact one) gives the adapter
-    true_tool = convert.transform_to_matrix(truth.tool_offset_true)
+    true_tool = convert.transform_to_matrix(truth.t_flange_tool_true)
     true_tcp = model.chain(true_params, tool=true_tool)
     repo = store.open(data / 'adapter', cell=ResultsCell.of(cell))
     record = {'id': 'k-true', 'robot': model.name, 'stamp_ns': 1, 'method': 'test',
@@ -262,7 +262,7 @@ def test_a_pose_goal_is_solved_with_the_active_kinematic_calibration(driver_suit
                                        'params': true_params.tolist()}}
     assert repo.tcp.save_and_activate({
         'id': 'tcp-true', 'stamp_ns': 1, 'method': 'tcp-test', 'tool': cell.tool_frame,
-        'inputs': {}, 'result': {'T_flange_tcp': true_tool.tolist(),
+        'inputs': {}, 'result': {'T_flange_tool': true_tool.tolist(),
                                  'orientation_method': 'zx'}})
     client = ActionClient(node, MoveTo, 'move_to')
     errors = {}

@@ -70,7 +70,7 @@ def test_the_tcp_calibrated_on_the_suite_is_the_stored_record_and_becomes_active
     assert active['id'] == result['calibration_id']
     assert active['method'] == 'tcp-6-point-z' and active['kinematics'] == 'nominal'
     stored = active['result']
-    np.testing.assert_allclose(result['T_flange_tcp'], stored['T_flange_tcp'], atol=1e-12)
+    np.testing.assert_allclose(result['T_flange_tool'], stored['T_flange_tool'], atol=1e-12)
     np.testing.assert_allclose(result['fixed_point_mm'], np.array(stored['fixed_point']) * 1e3,
                                atol=1e-9)
     assert result['mean_residual_mm'] == pytest.approx(stored['mean_residual_mm'], abs=1e-12)
@@ -78,8 +78,8 @@ def test_the_tcp_calibrated_on_the_suite_is_the_stored_record_and_becomes_active
     assert result['orientations_used'] == 6 and result['condition'] == stored['condition']
     # mm in the _mm fields: the mock's touches leave tens of micrometres, not metres
     assert 1e-3 < result['mean_residual_mm'] < 0.3
-    truth = SIM.true_tool_offset                 # the TCP is metres in the transform
-    assert np.linalg.norm(np.array(result['T_flange_tcp'])[:3, 3] - truth[:3, 3]) < 1e-3
+    truth = SIM.T_flange_tool_true               # the TCP is metres in the transform
+    assert np.linalg.norm(np.array(result['T_flange_tool'])[:3, 3] - truth[:3, 3]) < 1e-3
 
 
 def test_a_user_frame_touched_after_names_the_tcp_it_was_touched_with(tcp_suite):
@@ -114,10 +114,10 @@ def test_a_new_active_tcp_makes_the_frame_touched_with_the_old_one_stale_and_mov
     old, frame = repo.tcp.active('tool0'), repo.user_frames.active()
     assert old is not None and frame is not None, 'run with the two tests above'
     assert frame['measured_through'] == {'kinematics': 'nominal', 'tcp': old['id']}
-    T_new = np.array(old['result']['T_flange_tcp'])
+    T_new = np.array(old['result']['T_flange_tool'])
     T_new[0, 3] += 1e-4
     new = {**old, 'id': 'tcp-tool0-recalibrated', 'stamp_ns': old['stamp_ns'] + 1,
-           'result': {**old['result'], 'T_flange_tcp': T_new.tolist()}}
+           'result': {**old['result'], 'T_flange_tool': T_new.tolist()}}
     assert repo.tcp.save_and_activate(new)
     try:
         words = (f'user frame {frame["id"]} was touched with TCP {old["id"]}; the active TCP '
@@ -147,7 +147,7 @@ def test_a_new_active_tcp_makes_the_frame_touched_with_the_old_one_stale_and_mov
         assert code == 0, text
         assert moved['tool_record'] == new['id'] and moved['kinematics'] == 'nominal', text
         check_stale(moved['stale'], text)
-        tool = np.array(SIM.cell.tool_offset)
+        tool = np.array(SIM.cell.T_flange_tool)
         tool[:3, 3] = T_new[:3, 3]
         if new['result']['orientation_method'] != 'none':   # z measured (the test above)
             tool = T_new

@@ -26,7 +26,7 @@ def _robot(seed: int = 5):
 
 
 def test_the_mock_tool_is_off_the_nominal_one_by_a_realistic_error():
-    distance, angle = frames.transform_error(SIM.true_tool_offset, SIM.cell.tool_offset)
+    distance, angle = frames.transform_error(SIM.T_flange_tool_true, SIM.cell.T_flange_tool)
     assert 1e-4 < distance < 1e-3 and 1e-3 < angle < 1e-2
 
 
@@ -71,16 +71,16 @@ def test_the_procedure_finds_the_true_tool_where_the_nominal_one_is_off():
     touches = take_touches(plan, robot, arm.model.chain(arm.true_parameters), hold=0.1)
     assert touches.labels[-1] == 'z elongator' and touches.approaches == 8
     solution = solve_touches(plan, touches)
-    truth = SIM.true_tool_offset
+    truth = SIM.T_flange_tool_true
     error = np.linalg.norm(solution.position.t - truth[:3, 3])
-    nominal_error = np.linalg.norm(SIM.cell.tool_offset[:3, 3] - truth[:3, 3])
-    z_error = math.acos(min(1.0, solution.R_flange_tcp[:, 2] @ truth[:3, 2]))
+    nominal_error = np.linalg.norm(SIM.cell.T_flange_tool[:3, 3] - truth[:3, 3])
+    z_error = math.acos(min(1.0, solution.R_flange_tool[:, 2] @ truth[:3, 2]))
     print(f'TCP error {error * 1e3:.4f} mm (nominal {nominal_error * 1e3:.3f} mm), '
           f'z {z_error * 1e3:.3f} mrad; residual mean '
           f'{solution.position.mean_residual_m * 1e3:.4f} max '
           f'{solution.position.max_residual_m * 1e3:.4f} mm')
-    nominal_z_error = frames.rotation_angle(SIM.cell.tool_offset[:3, :3].T @ truth[:3, :3])
+    nominal_z_error = frames.rotation_angle(SIM.cell.T_flange_tool[:3, :3].T @ truth[:3, :3])
     assert error < 0.25 * nominal_error
     assert z_error < 0.5 * nominal_z_error
-    assert gate_problem(solution, GateLimits(), nominal=SIM.cell.tool_offset) is None
+    assert gate_problem(solution, GateLimits(), nominal=SIM.cell.T_flange_tool) is None
     assert robot.moves == 9

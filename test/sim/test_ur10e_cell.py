@@ -46,7 +46,7 @@ def test_noise_free_mock_data_recover_the_true_joint_origins_held_out(scene):
     sim, _, model, q, target = scene
     spheres = sim.cell.spheres
     data = Measurements('spheres', q, target, distances=spheres.known_distances(),
-                        ball=spheres.coupling_offset[:3, 3])
+                        ball=spheres.T_flange_coupling[:3, 3])
     cv = mf.cross_validate(mf.ErrorModel(model, 'full'), data, mf.kfold(len(data), 3))
     assert cv.nominal['max_mm'] > 0.05
     assert cv.calibrated['max_mm'] < TOLERANCE_MM
@@ -61,11 +61,11 @@ def test_the_sphere_identification_recovers_the_true_robot(scene):
     outcome = CalibrationJob(sim.cell, model, data, loss='linear').run()
     Q = uniform_configurations(model, 200, 9)
     p_true = fk(robot.coupling, Q)[:, :3, 3]
-    errors = absolute_errors(model, outcome.result.params, outcome.result.tool_xyz, Q, p_true)
+    errors = absolute_errors(model, outcome.result.params, outcome.result.p_flange_tool, Q, p_true)
     nominal = absolute_errors(model, model.nominal, spheres_tool(sim), Q, p_true)
     assert nominal.max() * 1e3 > 0.5
     assert errors.max() * 1e3 < TOLERANCE_MM
 
 
 def spheres_tool(sim) -> np.ndarray:
-    return sim.cell.spheres.coupling_offset[:3, 3]
+    return sim.cell.spheres.T_flange_coupling[:3, 3]

@@ -30,7 +30,7 @@ def _kinematics(record_id: str) -> dict:
 def _tcp(record_id: str, through: dict | None) -> dict:
     record = {'id': record_id, 'stamp_ns': 2, 'method': 'tcp-5-point', 'tool': CELL.tool_frame,
               'inputs': {'joints': JOINTS.tolist()},
-              'result': {'T_flange_tcp': np.array(CELL.tool_offset).tolist(),
+              'result': {'T_flange_tool': np.array(CELL.T_flange_tool).tolist(),
                          'orientation_method': 'none'}}
     return record if through is None else {**record, 'measured_through': through}
 

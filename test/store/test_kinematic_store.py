@@ -19,7 +19,7 @@ def _kinematic_record(robot: str, record_id: str, stamp_ns: int, offset: float =
             'inputs': {'source': 'test'},
             'result': {'parameter_names': list(model.parameter_names),
                        'params': (np.asarray(model.nominal) + offset).tolist(),
-                       'tool_xyz': [0.0, 0.0, 0.0]}}
+                       'p_flange_tool': [0.0, 0.0, 0.0]}}
 
 
 def test_an_iiwa7_calibration_leaves_the_sawyer_on_nominal(tmp_path):

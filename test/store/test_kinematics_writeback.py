@@ -22,7 +22,7 @@ def record_of(model, params) -> KinematicRecord:
         id='k-20261127-101500', stamp_ns=1_795_774_500_000_000_000, method='relative-lm',
         robot=model.name, inputs=KinematicInputs(source='collection-7'),
         result=KinematicResult(parameter_names=list(model.parameter_names),
-                               params=list(params), tool_xyz=[0.02, 0.0, 0.1]))
+                               params=list(params), p_flange_tool=[0.02, 0.0, 0.1]))
 
 
 @pytest.mark.parametrize('cell_name, base, tip, files', [

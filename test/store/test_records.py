@@ -15,6 +15,7 @@ from cobot_calib_ros import store
 from cobot_calib_ros.core import user_frame
 from cobot_calib_ros.store.records import (HandEyeRecord, KinematicRecord, Record, TrialSetup,
                                            UserFrameRecord)
+from cobot_calib_ros.store.renamed import with_current_names
 
 DATA = Path(__file__).resolve().parents[1] / 'data' / 'store-5252a67'
 KINDS = {'calibrations': UserFrameRecord, 'hand_eye': HandEyeRecord,
@@ -34,12 +35,24 @@ def data_dir(tmp_path) -> Path:
 
 @pytest.mark.parametrize('kind', sorted(KINDS))
 def test_files_written_by_5252a67_load_and_round_trip_unchanged(kind):
+    """Unchanged but for the keys renamed since (issue 39.3, store.renamed)."""
     stored = _stored(kind)
     assert stored
     for data in stored:
         record = KINDS[kind].from_dict(data)
         assert record.id == data['id'] and record.extra == {}
-        assert record.to_dict() == data
+        assert record.to_dict() == with_current_names(data)
+
+
+def test_a_kinematics_record_of_5252a67_gives_its_tool_position_as_p_flange_tool(data_dir):
+    old = _stored('kinematics')[0]['result']['tool_xyz']     # legacy name
+    assert len(old) == 3
+    record = KinematicRecord.from_dict(_stored('kinematics')[0])
+    assert record.result.p_flange_tool == old
+    repo = store.open(data_dir)
+    stored = repo.kinematics.get(_stored('kinematics')[0]['id'])
+    assert stored['result']['p_flange_tool'] == old
+    assert 'tool_xyz' not in stored['result']                  # legacy name
 
 
 def test_the_user_frame_builder_writes_what_5252a67_wrote():

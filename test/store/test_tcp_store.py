@@ -16,12 +16,12 @@ from cobot_calib_ros.store.cells import ResultsCell
 from cobot_calib_ros.store.repository import FolderRepository
 from cobot_calib_ros.store.records import TcpRecord
 
-T_FLANGE_TCP = frames.from_xyz_rpy([0.0003, -0.0002, 0.1004], [0.0, 0.0, 0.0])
+T_FLANGE_TOOL = frames.from_xyz_rpy([0.0003, -0.0002, 0.1004], [0.0, 0.0, 0.0])
 _plants = itertools.count()
 
 
 def _record(tool: str, stamp_ns: int, gate_problem: str = '', dz: float = 0.0) -> dict:
-    T = T_FLANGE_TCP.copy()
+    T = T_FLANGE_TOOL.copy()
     T[2, 3] += dz
     plan = plan_touches('P1', 4)
     flange = np.array([frames.make_transform(R, [0.5, 0.1, 0.1]) @ frames.invert(T)
@@ -72,10 +72,24 @@ def test_a_tcp_record_reads_back_as_written():
     record = _record('tool0', 7)
     back = TcpRecord.from_dict(record)
     assert back.tool == 'tool0' and back.method == 'tcp-4-point'
-    assert np.allclose(back.result.T_flange_tcp, T_FLANGE_TCP, atol=1e-12)
+    assert np.allclose(back.result.T_flange_tool, T_FLANGE_TOOL, atol=1e-12)
     assert back.result.orientation_method == 'none' and back.result.approaches == 4
     assert back.inputs.labels == ['approach 1', 'approach 2', 'approach 3', 'approach 4']
     assert back.to_dict() == record
+
+
+def test_a_tcp_record_stored_with_the_old_key_reads_with_the_new_one(repo):
+    """Issue 39.3: T_flange_tool, a TCP record's key before T_flange_tool, still reads."""
+    record = _record('tool0', 3, dz=0.01)
+    result = dict(record['result'])
+    result['T_flange_tcp'] = result.pop('T_flange_tool')   # legacy name: as written before
+    assert repo.tcp.save_and_activate({**record, 'result': result})
+    again = _reopen(repo).tcp.get(record['id'])
+    assert 'T_flange_tcp' not in again['result']                # legacy name
+    assert np.allclose(again['result']['T_flange_tool'], record['result']['T_flange_tool'],
+                       atol=0)
+    assert np.allclose(np.asarray(TcpRecord.from_dict(again).result.T_flange_tool)[2, 3],
+                       T_FLANGE_TOOL[2, 3] + 0.01, atol=1e-9)
 
 
 def test_the_rig_of_a_repository_ends_its_tcp_chain_at_the_active_tcp(repo):
@@ -91,4 +105,4 @@ def test_the_rig_of_a_repository_ends_its_tcp_chain_at_the_active_tcp(repo):
     assert repo.tcp.save_and_activate(_record(cell.tool_frame, 2, dz=2e-4))
     rig = rig_of(repo, cell)
     assert rig.active.tcp_label == f'tcp-{cell.tool_frame}-2'
-    assert np.allclose(rig.tool('tcp')[:3, 3], T_FLANGE_TCP[:3, 3] + [0, 0, 2e-4], atol=1e-9)
+    assert np.allclose(rig.tool('tcp')[:3, 3], T_FLANGE_TOOL[:3, 3] + [0, 0, 2e-4], atol=1e-9)

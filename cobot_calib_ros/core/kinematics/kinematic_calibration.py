@@ -66,7 +66,7 @@ class JobInputs:
 class IdentificationResult:
     """Identified parameters and how the fit went.
 
-    ``params`` (P,) the whole model [m, rad], ``tool_xyz`` (3,) the identified tool centre in
+    ``params`` (P,) the whole model [m, rad], ``p_flange_tool`` (3,) the identified tool centre in
     the flange [m]; ``free`` the identified names (the model's, then tool_x, tool_y, tool_z),
     ``std`` their standard deviations sqrt(diag(s^2 (J^T J)^-1)) [m or rad] (inf: not
     determined). ``cost`` 0.5 f^2 sum(rho((r/f)^2)) [m^2], ``rms_m`` the RMS of the residuals
@@ -77,7 +77,7 @@ class IdentificationResult:
     """
 
     params: Array
-    tool_xyz: Array
+    p_flange_tool: Array
     free: tuple[str, ...]
     std: Array
     iterations: int
@@ -118,7 +118,7 @@ class Outcome:
 
 @dataclass
 class CalibrationJob:
-    cell: Cell | None                 # for the nominal coupling offset (None: give tool_xyz0)
+    cell: Cell | None                 # for the nominal coupling offset (None: give p_flange_tool0)
     model: KinematicModel
     data: Observations
     source: str = ''                  # where the data came from (for the record)
@@ -127,17 +127,17 @@ class CalibrationJob:
     objective: str | None = None      # from the data when None
     max_configs: int = 0              # 0: all rows; else an even subset
     validation: dict[str, PositionObservations] = field(default_factory=dict)
-    tool_xyz0: Array | None = None    # nominal tool centre in the flange [m]
+    p_flange_tool0: Array | None = None # nominal tool centre in the flange [m]
     solver_options: dict[str, Any] = field(default_factory=dict)
     bounds: DeviationBounds = field(default_factory=DeviationBounds)
 
     def __post_init__(self) -> None:
-        if self.tool_xyz0 is None:
+        if self.p_flange_tool0 is None:
             if self.cell is None or self.cell.spheres is None:
-                raise ValueError('no nominal tool centre: give tool_xyz0 or a cell with '
-                                 'a spheres: coupling_offset')
-            self.tool_xyz0 = self.cell.spheres.coupling_offset[:3, 3].copy()
-        self.tool_xyz0 = np.asarray(self.tool_xyz0, dtype=float)
+                raise ValueError('no nominal tool centre: give p_flange_tool0 or a cell with '
+                                 'a spheres: T_flange_coupling')
+            self.p_flange_tool0 = self.cell.spheres.T_flange_coupling[:3, 3].copy()
+        self.p_flange_tool0 = np.asarray(self.p_flange_tool0, dtype=float)
         self.data = _subset(self.data, self.max_configs)
 
     def run(self, callback: Callable[[int, float, float], bool] | None = None) -> Outcome:
@@ -151,8 +151,8 @@ class CalibrationJob:
         result = self._result(calibration)
         validation = {region: self.validate(result, data)
                       for region, data in self.validation.items()}
-        free_values = np.concatenate([calibration.fit.values, result.tool_xyz])
-        nominal_values = np.concatenate([errors.start(calibration.fit.names), self.tool_xyz0])
+        free_values = np.concatenate([calibration.fit.values, result.p_flange_tool])
+        nominal_values = np.concatenate([errors.start(calibration.fit.names), self.p_flange_tool0])
         verdict = Verdict(calibration.problems + tuple(
             p for region, t in validation.items() for p in gates.result_problems(
                 True, t['nominal']['mean_m'], t['calibrated']['mean_m'],
@@ -176,9 +176,9 @@ class CalibrationJob:
             need = 'SphereObservations' if wanted == 'relative' else 'PositionObservations'
             raise ValueError(f'objective {wanted!r} needs {need}, got {type(data).__name__}')
         if relative:
-            return sphere_measurements(data, self.tool_xyz0)
+            return sphere_measurements(data, self.p_flange_tool0)
         return Measurements('points', data.q, np.zeros(len(data.q), int), data.p,
-                            ball=self.tool_xyz0)
+                            ball=self.p_flange_tool0)
 
     def _result(self, calibration: mf.Calibration) -> IdentificationResult:
         fit, errors = calibration.fit, self.error_model()
@@ -198,12 +198,14 @@ class CalibrationJob:
     def validate(self, result: IdentificationResult, data: PositionObservations) -> dict:
         """Table 5 rows for ``data``: nominal and calibrated, each registered by its best
         rigid fit to the tracker frame."""
-        nominal = absolute_errors(self.model, self.model.nominal, self.tool_xyz0, data.q, data.p)
-        calibrated = absolute_errors(self.model, result.params, result.tool_xyz, data.q, data.p)
+        nominal = absolute_errors(self.model, self.model.nominal, self.p_flange_tool0, data.q,
+                                  data.p)
+        calibrated = absolute_errors(self.model, result.params, result.p_flange_tool, data.q,
+                                     data.p)
         return {'nominal': {**error_stats(nominal), 'count': len(nominal)},
                 'calibrated': {**error_stats(calibrated), 'count': len(calibrated)},
                 'spread_mm': _spread_mm(
-                    tool_frames(self.model, None, self.tool_xyz0, data.q)[:, :3, 3])}
+                    tool_frames(self.model, None, self.p_flange_tool0, data.q)[:, :3, 3])}
 
     def _objective(self) -> str:
         return 'relative' if isinstance(self.data, SphereObservations) else 'absolute'
@@ -218,29 +220,29 @@ def error_model(model: KinematicModel) -> mf.ErrorModel:
     return mf.ErrorModel(model, 'mdh' if model.kind == 'mdh' else 'full')
 
 
-def sphere_measurements(data: SphereObservations, tool_xyz0: Array) -> Measurements:
+def sphere_measurements(data: SphereObservations, p_flange_tool0: Array) -> Measurements:
     """Sphere couplings as the measurement kind ``spheres``, the coupling's centre the ball;
     distances between spheres the data touch."""
     present = set(data.spheres)
-    return Measurements('spheres', data.q, data.sphere, ball=tool_xyz0, distances=tuple(
+    return Measurements('spheres', data.q, data.sphere, ball=p_flange_tool0, distances=tuple(
         d for d in data.known_distances if d[0] in present and d[1] in present))
 
 
 def free_parameters(model: KinematicModel, data: SphereObservations,
-                    tool_xyz0: Array) -> tuple[str, ...]:
+                    p_flange_tool0: Array) -> tuple[str, ...]:
     """What a CalibrationJob on ``data`` identifies: the identifiable parameters
     (:func:`measurement_fit.identifiable`), then tool_x, tool_y, tool_z (the ball)."""
-    return mf.identifiable(error_model(model), sphere_measurements(data, tool_xyz0)).kept \
+    return mf.identifiable(error_model(model), sphere_measurements(data, p_flange_tool0)).kept \
         + TOOL_NAMES
 
 
-def fit_spheres(model: KinematicModel, data: SphereObservations, tool_xyz0: Array,
+def fit_spheres(model: KinematicModel, data: SphereObservations, p_flange_tool0: Array,
                 free: tuple[str, ...]) -> tuple[Array, Array, mf.Fit]:
     """Least squares of the parameters named in ``free`` on sphere data, from the nominal
     model (tool_x, tool_y, tool_z: the ball, a nuisance unknown, always fitted), without the
-    gates: (params (P,), tool_xyz (3,), the fit). For planning and its benches."""
+    gates: (params (P,), p_flange_tool (3,), the fit). For planning and its benches."""
     errors = error_model(model)
-    fit = mf.fit(errors, sphere_measurements(data, tool_xyz0),
+    fit = mf.fit(errors, sphere_measurements(data, p_flange_tool0),
                  tuple(n for n in free if n not in TOOL_NAMES))
     return errors.parameters(fit.names, fit.values)[0], fit.nuisance[:3].copy(), fit
 

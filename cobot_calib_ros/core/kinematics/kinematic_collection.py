@@ -137,15 +137,15 @@ def new_collection(cell: Cell, model: KinematicModel, request: CollectionRequest
     if cell.spheres is None:
         return Failure(ErrorCode.NOT_AVAILABLE, f'cell {cell.name} has no spheres: section '
                        '(sphere plate and coupling); add it to the cell file')
-    coupling = cell.spheres.coupling_offset[:3, 3]
+    coupling = cell.spheres.T_flange_coupling[:3, 3]
     if source == 'laser_tracker':
         region = request.region or 'volume'
         plan = plans.tracker_plan(cell, model, region,
                                   request.max_configs or plans.TRACKER_CONFIGS, request.seed)
         return NewCollection(source, f'tracker-{region}', [], plan, {
-            'region': region, 'seed': request.seed, 'coupling_offset_xyz': coupling})
+            'region': region, 'seed': request.seed, 'p_flange_coupling': coupling})
     extra: dict[str, Any] = {'known_distances': cell.spheres.known_distances(),
-                             'coupling_offset_xyz': coupling}
+                             'p_flange_coupling': coupling}
     if request.planned:
         step_deg = math.degrees(request.tilt_step_rad)
         try:
@@ -204,8 +204,9 @@ def _planned(model: KinematicModel, meta: Mapping[str, Any], resume: Resume,
              cancelled: Cancelled, progress: OnProgress | None) -> Collected | Unfinished:
     """The planned collection, from the poses stored so far; its planning state to store."""
     planning = meta['planning']
-    planner = SpherePlanner(model, meta['plan'], meta['known_distances'],
-                            meta['coupling_offset_xyz'], planning['task_q'],
+    coupling = meta.get('p_flange_coupling', meta.get('coupling_offset_xyz'))  # legacy name
+    planner = SpherePlanner(model, meta['plan'], meta['known_distances'], coupling,
+                            planning['task_q'],
                             PlanSettings(**planning['settings']))
     planner.resume(list(resume.index), resume.q, list(resume.skipped))
     before = planning.get('state')

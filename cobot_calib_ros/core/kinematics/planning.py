@@ -106,7 +106,7 @@ def sphere_candidates(cell: Cell, model: KinematicModel,
                                  arm_angles_deg=tuple(arm_deg))
     if not steps:
         return steps, skipped
-    chain = model.chain(tool=cell.spheres.coupling_offset)
+    chain = model.chain(tool=cell.spheres.T_flange_coupling)
     origin, q, names = flipped_configurations(chain, np.array([s['q'] for s in steps]))
     return steps + [{'q': row.tolist(), 'target': steps[k]['target'],
                      'label': f"{steps[k]['label']} flip {name}"}
@@ -185,7 +185,7 @@ def too_few_poses(cell: Cell, model: KinematicModel, max_poses: int) -> str:
     data = SphereObservations(np.array([step['q'] for step in plan], dtype=float),
                               np.array([int(step['target']) for step in plan]),
                               cell.spheres.known_distances())
-    free = len(free_parameters(model, data, cell.spheres.coupling_offset[:3, 3]))
+    free = len(free_parameters(model, data, cell.spheres.T_flange_coupling[:3, 3]))
     spheres, distances = len(cell.spheres.names), len(cell.spheres.known_distances())
     fewest = fewest_poses(free, spheres, distances)
     if max_poses >= fewest:
@@ -266,8 +266,8 @@ class Linearisation:
 
     def __init__(self, parameter_set: ParameterSet, spheres: Sequence[int],
                  known_distances: Sequence[tuple[int, int, float]], params: Array,
-                 tool_xyz: Array) -> None:
-        self.parameter_set, self.params, self.tool_xyz = parameter_set, params, tool_xyz
+                 p_flange_tool: Array) -> None:
+        self.parameter_set, self.params, self.p_flange_tool = parameter_set, params, p_flange_tool
         self.spheres = tuple(spheres)
         self.F = len(parameter_set.free)
         self.D = self.F + 3 * len(self.spheres)
@@ -277,7 +277,7 @@ class Linearisation:
         """(m, 3, D) blocks A_i of poses q (m, n) on spheres ``target`` (m,), and the tool
         positions (m, 3) [m]."""
         q = np.atleast_2d(np.asarray(q, dtype=float))
-        p, Jp = self.parameter_set.positions_and_jacobian(self.params, self.tool_xyz, q)
+        p, Jp = self.parameter_set.positions_and_jacobian(self.params, self.p_flange_tool, q)
         A = np.zeros((len(q), 3, self.D))
         A[:, :, :self.F] = Jp
         column = self.F + 3 * np.searchsorted(self.spheres, np.asarray(target))
@@ -298,7 +298,7 @@ class Linearisation:
 
     def task_matrix(self, test_q: Array) -> Array:
         """(3k, F) d p_test / d free with the best rigid registration projected out."""
-        p, Jp = self.parameter_set.positions_and_jacobian(self.params, self.tool_xyz, test_q)
+        p, Jp = self.parameter_set.positions_and_jacobian(self.params, self.p_flange_tool, test_q)
         B = base_motion_columns(p)
         T = Jp.reshape(-1, self.F)
         return T - B @ np.linalg.lstsq(B, T, rcond=None)[0]
@@ -384,7 +384,7 @@ class SpherePlanner:
     """
 
     def __init__(self, model: KinematicModel, candidates: Sequence[Mapping[str, Any]],
-                 known_distances: Sequence[tuple[int, int, float]], tool_xyz0: ArrayLike,
+                 known_distances: Sequence[tuple[int, int, float]], p_flange_tool0: ArrayLike,
                  test_q: ArrayLike, settings: PlanSettings = PlanSettings(),
                  rng: np.random.Generator | None = None,
                  parameter_set: ParameterSet | None = None) -> None:
@@ -396,14 +396,14 @@ class SpherePlanner:
         self.pool_q = np.array([c['q'] for c in candidates], dtype=float)
         self.pool_target = np.array([int(c['target']) for c in candidates])
         self.test_q = np.asarray(test_q, dtype=float)
-        self.tool_xyz0 = np.asarray(tool_xyz0, dtype=float)
+        self.p_flange_tool0 = np.asarray(p_flange_tool0, dtype=float)
         self.known_distances = tuple((int(a), int(b), float(d)) for a, b, d in known_distances)
         spheres = tuple(int(s) for s in np.unique(self.pool_target))
         subset = even_subset(len(self.pool_q), IDENTIFIABILITY_ROWS)
         self.parameter_set = parameter_set or ParameterSet(model, free_parameters(
             model, SphereObservations(self.pool_q[subset], self.pool_target[subset],
-                                      self.known_distances), self.tool_xyz0))
-        self.params, self.tool_xyz = model.nominal.copy(), self.tool_xyz0.copy()
+                                      self.known_distances), self.p_flange_tool0))
+        self.params, self.p_flange_tool = model.nominal.copy(), self.p_flange_tool0.copy()
         self.sigma = settings.sigma_prior
         self.draws = (rng or np.random.default_rng(0)).standard_normal(
             (len(self.parameter_set.free), DRAWS))
@@ -412,7 +412,7 @@ class SpherePlanner:
         self.state = PlanState()
         self.available = np.ones(len(self.pool_q), dtype=bool)
         self.lin = Linearisation(self.parameter_set, spheres, self.known_distances,
-                                 self.params, self.tool_xyz)
+                                 self.params, self.p_flange_tool)
         self._centres = self._nominal_centres()
         self._relinearise()
 
@@ -423,7 +423,7 @@ class SpherePlanner:
 
     def _relinearise(self) -> None:
         self.lin = Linearisation(self.parameter_set, self.lin.spheres, self.known_distances,
-                                 self.params, self.tool_xyz)
+                                 self.params, self.p_flange_tool)
         self.pool_A, _ = self.lin.pose_blocks(self.pool_q, self.pool_target)
         self.task = self.lin.task_matrix(self.test_q)
         weight = np.zeros((self.lin.D, self.lin.D))
@@ -547,8 +547,8 @@ class SpherePlanner:
         try:    # too few rows on a sphere, or a known distance's sphere not yet visited
             data = SphereObservations(np.array(self.q), np.array(self.target),
                                       self.known_distances)
-            self.params, self.tool_xyz, fit = fit_spheres(self.model, data, self.tool_xyz0,
-                                                          self.parameter_set.free)
+            self.params, self.p_flange_tool, fit = fit_spheres(
+                self.model, data, self.p_flange_tool0, self.parameter_set.free)
         except ValueError:
             return
         centres = dict(zip(fit.problem.kind.spheres, fit.nuisance[3:].reshape(-1, 3)))

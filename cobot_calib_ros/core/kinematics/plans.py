@@ -47,7 +47,7 @@ def sphere_plan(cell: Cell, model: KinematicModel, max_configs: int = 0,
     if plate is None:
         raise ValueError(f'cell {cell.name!r} has no spheres: section; see '
                          'config/cells/iiwa7_close.yaml')
-    chain = model.chain(tool=plate.coupling_offset)
+    chain = model.chain(tool=plate.T_flange_coupling)
     R0 = frames.rpy_to_matrix(*plate.approach_rpy)
     arm = (angles_deg if arm_angles_deg is None else arm_angles_deg) \
         if model.chain().dof == 7 else (0.0,)
@@ -118,7 +118,7 @@ def tracker_plan(cell: Cell, model: KinematicModel, region: str, count: int = TR
         raise ValueError(f'cell {cell.name!r} has no spheres: section (it places the coupling '
                          'that carries the retro-reflector)')
     rng = np.random.default_rng(seed)
-    chain = model.chain(tool=cell.spheres.coupling_offset)
+    chain = model.chain(tool=cell.spheres.T_flange_coupling)
     draw = _volume_draw(cell, chain) if region == 'volume' else _workspace_draw(chain)
     steps, attempts = [], 0
     while len(steps) < count:

@@ -16,7 +16,7 @@ of ``tip_link`` in ``base_link``.
 origins changed to a calibrated model's (of either kind: a modified-DH model's frames are tied to
 the URDF link frames by fixed transforms found at the nominal parameters). :func:`calibrated_urdf`
 writes a URDF whose chain from ``base_link`` to ``tool_link`` reproduces
-``fk(model.chain(params, Trans(tool_xyz)), q)``: the rewrite plus a tool link, or a minimal
+``fk(model.chain(params, Trans(p_flange_tool)), q)``: the rewrite plus a tool link, or a minimal
 kinematic URDF when there is no original.
 
 Only ``xml.etree``; lengths in metres, angles in radians.
@@ -329,12 +329,12 @@ def model_from_urdf(text: str, base_link: str, tip_link: str, name: str, *,
                   [j.type == 'prismatic' for j in serial.moving])
 
 
-def _tool_matrix(tool_xyz: ArrayLike | None) -> Array:
+def _tool_matrix(p_flange_tool: ArrayLike | None) -> Array:
     T = np.eye(4)
-    if tool_xyz is not None:
-        xyz = np.asarray(tool_xyz, dtype=float)
+    if p_flange_tool is not None:
+        xyz = np.asarray(p_flange_tool, dtype=float)
         if xyz.shape != (3,) or not np.all(np.isfinite(xyz)):
-            raise ValueError(f'tool_xyz: expected 3 finite numbers [m], got {tool_xyz!r}')
+            raise ValueError(f'p_flange_tool: expected 3 finite numbers [m], got {p_flange_tool!r}')
         T[:3, 3] = xyz
     return T
 
@@ -351,10 +351,11 @@ def _set_origin(joint: ET.Element, T: Array | None = None, *,
     origin.set('rpy', _fmt(rpy))
 
 
-def calibrated_urdf(model: KinematicModel, params: ArrayLike, tool_xyz: ArrayLike | None = None,
-                    *, robot_name: str, base_link: str = 'base_link', tool_link: str = 'tool0',
+def calibrated_urdf(model: KinematicModel, params: ArrayLike,
+                    p_flange_tool: ArrayLike | None = None, *, robot_name: str, base_link: str = 'base_link', tool_link: str = 'tool0',
                     original_text: str | None = None) -> str:
-    """URDF text whose chain base_link -> tool_link is fk(model.chain(params, Trans(tool_xyz))).
+    """URDF text whose chain base_link -> tool_link is
+    fk(model.chain(params, Trans(p_flange_tool))).
 
     With ``original_text``: :func:`rewrite_urdf` of it (links, meshes, limits kept), and the
     tool: ``tool_link``, if it exists, must hang below the last model joint through fixed
@@ -370,7 +371,7 @@ def calibrated_urdf(model: KinematicModel, params: ArrayLike, tool_xyz: ArrayLik
     rows = model.rows(params)  # ValueError on a wrong size
     if not np.all(np.isfinite(rows)):
         raise ValueError('params must be finite')
-    tool = _tool_matrix(tool_xyz)
+    tool = _tool_matrix(p_flange_tool)
     if original_text is None:
         return _minimal_urdf(model, model.chain(params).placements, model.flange @ tool,
                              robot_name, base_link, tool_link)

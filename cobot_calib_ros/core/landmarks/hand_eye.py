@@ -125,9 +125,10 @@ def board_view_setup(cell, model, T_base_user: ArrayLike,
     from cobot_calib_ros.core.landmarks.targets import BoardSpec
     size = BoardSpec.parse(cell.landmarks.board).size
     T_base_board = np.asarray(T_base_user, dtype=float) @ cell.landmarks.T_user_board()
-    X = np.asarray(cell.camera.T_flange_optical if T_flange_optical is None
-                   else T_flange_optical, dtype=float)
-    return size, T_base_board, model.chain(tool=X), cell.camera.camera_model()
+    if T_flange_optical is None:
+        T_flange_optical = cell.camera.T_flange_optical
+    return (size, T_base_board, model.chain(tool=np.asarray(T_flange_optical, dtype=float)),
+            cell.camera.camera_model())
 
 
 def hand_eye_views(cell, model, count: int = 12, seed: int = 0, *,
@@ -307,6 +308,8 @@ def solve_hand_eye(T_base_flange: Sequence[ArrayLike], T_optical_board: Sequence
 
 
 def _solve(F: Array, M: Array, W: Array, method: str) -> HandEyeResult | Failure:
+    # X is T_flange_optical and B T_base_board, the paper's symbols (F_i X M_i = B, AX = XB);
+    # only this solver and its helpers use them
     if len(F) < MIN_VIEWS:
         return Failure(ErrorCode.TOO_FEW_POINTS, (
             f'hand-eye calibration needs at least {MIN_VIEWS} views, got {len(F)}; take more '

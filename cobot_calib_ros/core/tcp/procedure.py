@@ -113,7 +113,7 @@ def calibrate_tcp(request: TcpRequest, robot: RobotPort, flange_chain: kinematic
         return e.failure
     except (ValueError, np.linalg.LinAlgError) as e:
         return Failure(ErrorCode.SOLVER_FAILED, str(e))
-    if not np.all(np.isfinite(solution.T_flange_tcp)) or math.isnan(solution.turn_rad):
+    if not np.all(np.isfinite(solution.T_flange_tool)) or math.isnan(solution.turn_rad):
         return Failure(ErrorCode.SOLVER_FAILED, 'the TCP solve gave no finite result; touch '
                        'again')
     return TcpRun(plan, touches, solution)

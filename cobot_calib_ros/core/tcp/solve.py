@@ -76,17 +76,17 @@ class TcpPosition:
 
 @dataclass(frozen=True)
 class TcpSolution:
-    """Position and orientation of one tool: T_flange_tcp, and how it was found."""
+    """Position and orientation of one tool: T_flange_tool, and how it was found."""
 
     position: TcpPosition
-    R_flange_tcp: Array      # (3, 3) identity when no orientation method was used
+    R_flange_tool: Array     # (3, 3) identity when no orientation method was used
     method: str              # one of ORIENTATION_METHODS
     turn_rad: float = 0.0    # largest turn of the flange between the reference and an
     #                          elongator touch (they must keep the orientation) [rad]
 
     @property
-    def T_flange_tcp(self) -> Array:
-        return frames.make_transform(self.R_flange_tcp, self.position.t)
+    def T_flange_tool(self) -> Array:
+        return frames.make_transform(self.R_flange_tool, self.position.t)
 
 
 def _system(R: Array, p: Array) -> tuple[Array, Array]:
@@ -172,7 +172,7 @@ def _direction(T_ref: Array, t: Array, elongator: tuple[ArrayLike, float], axis:
 
 def tool_orientation(T_ref: ArrayLike, t: ArrayLike, z: tuple[ArrayLike, float],
                      x: tuple[ArrayLike, float] | None = None) -> Array:
-    """(3, 3) R_flange_tcp from the reference flange pose (4, 4, base frame), the tip ``t``
+    """(3, 3) R_flange_tool from the reference flange pose (4, 4, base frame), the tip ``t``
     and the elongator touches along z (and x): each (flange pose, signed distance along that
     tool axis [m]). Without x, the flange x made orthogonal to z. ValueError when an
     elongator point is too near the reference or x lies along z."""
@@ -215,7 +215,7 @@ class GateLimits:
     touch_sigma: float = 5e-5        # [m] per axis: the operator's centring and the arm
     confidence: float = 0.999        # of the chi-square test of the residuals
     max_tool_length: float = 1.0     # [m] no cobot tool reaches further from the flange
-    max_nominal_difference: float = 0.02   # [m] from the cell's tool_offset (its own tool)
+    max_nominal_difference: float = 0.02   # [m] from the cell's T_flange_tool (its own tool)
     max_turn_rad: float = math.radians(1.0)  # elongator touches keep the orientation
 
 
@@ -223,7 +223,7 @@ def gate_problem(solution: TcpSolution, limits: GateLimits = GateLimits(),
                  nominal: ArrayLike | None = None) -> Failure | None:
     """None when ``solution`` may become the tool's active TCP, else an IMPLAUSIBLE_FIT
     Failure saying why not (and what to do).
-    ``nominal``: the cell's (4, 4) tool_offset when this is the cell's tool."""
+    ``nominal``: the cell's (4, 4) T_flange_tool when this is the cell's tool."""
     pos = solution.position
     dof = pos.residuals.size - 6
     if dof > 0:
@@ -247,10 +247,10 @@ def gate_problem(solution: TcpSolution, limits: GateLimits = GateLimits(),
         off = float(np.linalg.norm(pos.t - np.asarray(nominal, dtype=float)[:3, 3]))
         if off > limits.max_nominal_difference:
             return Failure(ErrorCode.IMPLAUSIBLE_FIT,
-                           f'the TCP is {off * 1e3:.1f} mm from the cell\'s tool_offset (more '
+                           f'the TCP is {off * 1e3:.1f} mm from the cell\'s T_flange_tool (more '
                            'than '
                     f'{limits.max_nominal_difference * 1e3:.0f} mm): another tool? calibrate '
-                    'it under its own name, or correct tool_offset in the cell file')
+                    'it under its own name, or correct T_flange_tool in the cell file')
     if solution.turn_rad > limits.max_turn_rad:
         return Failure(ErrorCode.IMPLAUSIBLE_FIT,
                        f'the tool turned {math.degrees(solution.turn_rad):.2f} deg between the '

@@ -26,7 +26,7 @@ from cobot_calib_ros.sim.scenario import load_simulation
 SIM = load_simulation(cell_file('iiwa7_close'))
 MODEL = kinematics.model_by_name('iiwa7')
 HOLD = 0.02      # [s]
-TOOL0 = SIM.cell.spheres.coupling_offset[:3, 3]
+TOOL0 = SIM.cell.spheres.T_flange_coupling[:3, 3]
 DISTANCES = SIM.cell.spheres.known_distances()
 
 
@@ -60,9 +60,9 @@ def _robot(seed: int = 1) -> DirectRobot:
     return DirectRobot(SimRobot(SIM, seed_offset=seed), SIM.probe)
 
 
-def _held_out_max_mm(robot: DirectRobot, params, tool_xyz, q_held) -> float:
+def _held_out_max_mm(robot: DirectRobot, params, p_flange_tool, q_held) -> float:
     """Max error [mm] against the true robot after the best rigid registration."""
-    tool = frames.make_transform(np.eye(3), tool_xyz)
+    tool = frames.make_transform(np.eye(3), p_flange_tool)
     p = kinematics.fk(MODEL.chain(params, tool), q_held)[:, :3, 3]
     true = kinematics.fk(robot.sim.coupling, q_held)[:, :3, 3]
     fitted = frames.apply(register_rigid(p, true), p)
@@ -80,7 +80,7 @@ def test_planned_poses_beat_the_random_median_of_the_same_pool(planned_30, pool,
     planner, robot, log, run, _, _ = planned_30
     assert run.ending is Ending.DONE and run.recorded == 30 == len(planner.q)
     assert planner.state.stop == 'max_poses: 30 poses measured'
-    planned = _held_out_max_mm(robot, planner.params, planner.tool_xyz, volume[1])
+    planned = _held_out_max_mm(robot, planner.params, planner.p_flange_tool, volume[1])
     rng, random = np.random.default_rng(4), []
     for _ in range(10):
         pick = np.sort(rng.choice(len(pool), 30, replace=False))
@@ -90,8 +90,8 @@ def test_planned_poses_beat_the_random_median_of_the_same_pool(planned_30, pool,
             q.append(robot.capture(HOLD).q)
         data = SphereObservations(np.array(q), np.array([pool[i]['target'] for i in pick]),
                                   DISTANCES)
-        params, tool_xyz, _ = fit_spheres(MODEL, data, TOOL0, planner.parameter_set.free)
-        random.append(_held_out_max_mm(robot, params, tool_xyz, volume[1]))
+        params, p_flange_tool, _ = fit_spheres(MODEL, data, TOOL0, planner.parameter_set.free)
+        random.append(_held_out_max_mm(robot, params, p_flange_tool, volume[1]))
     print(f'\nheld-out max, 30 poses: planned {planned * 1e3:.2f} um, random median '
           f'{np.median(random) * 1e3:.2f} um, worst {np.max(random) * 1e3:.2f} um')
     assert planned < 0.8 * np.median(random)
@@ -101,7 +101,7 @@ def test_planned_poses_beat_the_random_median_of_the_same_pool(planned_30, pool,
 def test_the_prediction_agrees_with_the_measured_held_out_error(planned_30, volume):
     planner, robot, _, _, _, _ = planned_30
     prediction = planner.state.predictions[-1]
-    measured = _held_out_max_mm(robot, planner.params, planner.tool_xyz, volume[1])
+    measured = _held_out_max_mm(robot, planner.params, planner.p_flange_tool, volume[1])
     print(f'\n30 poses: predicted max {prediction.max_m * 1e6:.2f} um (RMS '
           f'{prediction.rms_m * 1e6:.2f} um, sigma {prediction.sigma_m * 1e6:.2f} um), '
           f'measured {measured * 1e3:.2f} um')
@@ -184,7 +184,7 @@ def test_a_flipped_configuration_is_the_same_pose_inside_the_limits():
     """The iiwa 7's shoulder, elbow and wrist (q_a + pi, -q_b, q_c + pi) turns and their
     combinations: 7 more configurations of a pose where the limits allow; the UR10e's
     parallel shoulder-elbow-wrist joints have none."""
-    chain = MODEL.chain(tool=SIM.cell.spheres.coupling_offset)
+    chain = MODEL.chain(tool=SIM.cell.spheres.T_flange_coupling)
     rng = np.random.default_rng(3)
     q = rng.uniform(0.5 * chain.lower, 0.5 * chain.upper, (20, 7))
     origin, flipped, names = flipped_configurations(chain, q)
@@ -198,7 +198,7 @@ def test_a_flipped_configuration_is_the_same_pose_inside_the_limits():
     np.testing.assert_allclose(flipped[wrist][:, :4], q[origin[wrist]][:, :4])
     np.testing.assert_allclose(flipped[wrist][:, 5], -q[origin[wrist]][:, 5])
     ur = load_simulation(cell_file('ur10e_close'))
-    ur_chain = SimRobot(ur).model.chain(tool=ur.cell.spheres.coupling_offset)
+    ur_chain = SimRobot(ur).model.chain(tool=ur.cell.spheres.T_flange_coupling)
     ur_q = rng.uniform(-1.0, 1.0, (10, 6))
     assert len(flipped_configurations(ur_chain, ur_q)[1]) == 0
 

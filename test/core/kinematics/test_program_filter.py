@@ -29,8 +29,8 @@ def ur10e():
     lengths = np.array([n.split('_')[0] in 'xyz' for n in model.parameter_names])
     deviation = np.where(lengths, rng.uniform(1e-4, 5e-4, lengths.size),
                          rng.uniform(5e-4, 2e-3, lengths.size))
-    calibrated = model.chain(model.nominal + sign * deviation, tool=cell.tool_offset)
-    return cell, model.chain(tool=cell.tool_offset), calibrated
+    calibrated = model.chain(model.nominal + sign * deviation, tool=cell.T_flange_tool)
+    return cell, model.chain(tool=cell.T_flange_tool), calibrated
 
 
 def program(home, rng, m) -> np.ndarray:

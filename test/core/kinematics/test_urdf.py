@@ -371,7 +371,7 @@ def test_calibrated_urdf_errors():
                         robot_name='x', original_text=text)
     with pytest.raises(ValueError, match='expected'):
         calibrated_urdf(model, model.nominal[:-1], robot_name='x')
-    with pytest.raises(ValueError, match='tool_xyz'):
+    with pytest.raises(ValueError, match='p_flange_tool'):
         calibrated_urdf(model, model.nominal, [0, 0], robot_name='x')
     with pytest.raises(ValueError, match="tool_link 'base' exists but is not attached"):
         calibrated_urdf(model, model.nominal, robot_name='x', original_text=text,

@@ -34,7 +34,7 @@ def robot(seed: int, sim=SIM) -> PortRobot:
     X = cell.camera.T_flange_optical
     rig = LandmarkRig(DirectCamera(SimCamera(sim, arm), arm), cell, model.chain(tool=X),
                       model.chain(tool=X))
-    return PortRobot(DirectRobot(arm, sim.probe), model.chain(tool=cell.tool_offset),
+    return PortRobot(DirectRobot(arm, sim.probe), model.chain(tool=cell.T_flange_tool),
                      cell.home, CAPTURE_DURATION, rig)
 
 

@@ -134,10 +134,10 @@ def mukca_metrics(positions: ArrayLike, socket_ids: ArrayLike,
             'centroid_distances_mm': tuple(1e3 * d for d in distances)}
 
 
-def location_metrics(model: KinematicModel, params: ArrayLike | None, tool_xyz: ArrayLike,
+def location_metrics(model: KinematicModel, params: ArrayLike | None, p_flange_tool: ArrayLike,
                      data: SocketData, locations: Sequence[str | int] | None = None) -> dict:
-    """:func:`mukca_metrics` of the ball centres (tool at ``tool_xyz`` [m] in the flange) on
+    """:func:`mukca_metrics` of the ball centres (tool at ``p_flange_tool`` [m] in the flange) on
     ``locations`` together (default all; one pair of sockets per location)."""
     obs = data.observations(locations)
-    p, _, _ = tool_kinematics(model, params, tool_xyz, obs.q)
+    p, _, _ = tool_kinematics(model, params, p_flange_tool, obs.q)
     return mukca_metrics(p, obs.sphere, obs.known_distances)

@@ -38,7 +38,7 @@ def register_rigid(p_model: ArrayLike, p_measured: ArrayLike) -> Array:
     return kabsch(pm, pw)
 
 
-def absolute_errors(model: KinematicModel, params: ArrayLike, tool_xyz: ArrayLike,
+def absolute_errors(model: KinematicModel, params: ArrayLike, p_flange_tool: ArrayLike,
                     q: ArrayLike, p_measured: ArrayLike,
                     T_world_base: ArrayLike | None = None) -> Array:
     """(m,) distances [m] between modelled and measured tool positions (the paper's eq 13).
@@ -48,7 +48,7 @@ def absolute_errors(model: KinematicModel, params: ArrayLike, tool_xyz: ArrayLik
     world frame, so comparing it with a tracker needs this best-fit registration, which absorbs
     6 dof of the error (report that alongside the figures).
     """
-    p_model = tool_frames(model, params, tool_xyz, q)[:, :3, 3]
+    p_model = tool_frames(model, params, p_flange_tool, q)[:, :3, 3]
     pw = np.asarray(p_measured, dtype=float)
     T = register_rigid(p_model, pw) if T_world_base is None else np.asarray(T_world_base)
     return np.linalg.norm(apply(T, p_model) - pw, axis=1)

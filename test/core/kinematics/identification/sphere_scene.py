@@ -33,7 +33,7 @@ ERROR_SCALE = {'alpha': 1e-3, 'a': 2e-4, 'theta': 5e-4, 'd': 5e-4, 'tool': 3e-4}
 
 
 def true_robot(free: tuple[str, ...], seed: int) -> tuple[np.ndarray, np.ndarray]:
-    """(params, tool_xyz) of a robot differing from nominal on ``free`` (uniform errors)."""
+    """(params, p_flange_tool) of a robot differing from nominal on ``free`` (uniform errors)."""
     ps = ParameterSet(MODEL, free)
     rng = np.random.default_rng(seed)
     errors = [ERROR_SCALE[n.split('_')[0]] * rng.uniform(-1.0, 1.0) for n in free]
@@ -58,10 +58,10 @@ def home_for(chain, centre: np.ndarray, R: np.ndarray) -> np.ndarray:
     return np.insert(result.q, 2, 0.0)
 
 
-def sphere_data(params: np.ndarray, tool_xyz: np.ndarray, angles_deg, arm_angles_deg,
+def sphere_data(params: np.ndarray, p_flange_tool: np.ndarray, angles_deg, arm_angles_deg,
                 known_distances=KNOWN_DISTANCES) -> SphereObservations:
-    """Grid poses on the three spheres, solved on the chain of (params, tool_xyz)."""
-    chain = MODEL.chain(params, tool_transform(tool_xyz))
+    """Grid poses on the three spheres, solved on the chain of (params, p_flange_tool)."""
+    chain = MODEL.chain(params, tool_transform(p_flange_tool))
     q, sphere = [], []
     for s, centre in enumerate(CENTRES_BASE):
         R = approach(chain, centre)

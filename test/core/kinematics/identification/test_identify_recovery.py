@@ -45,7 +45,7 @@ def data(truth):
 def held_out_errors(result, truth) -> tuple[np.ndarray, np.ndarray]:
     """(identified, nominal) position errors [m] on HELD_OUT after rigid registration."""
     p_true = tool_frames(MODEL, *truth, HELD_OUT)[:, :3, 3]
-    return (absolute_errors(MODEL, result.params, result.tool_xyz, HELD_OUT, p_true),
+    return (absolute_errors(MODEL, result.params, result.p_flange_tool, HELD_OUT, p_true),
             absolute_errors(MODEL, MODEL.nominal, TOOL, HELD_OUT, p_true))
 
 
@@ -60,7 +60,7 @@ def check_recovery(outcome, truth, free) -> None:
     assert nominal.max() > 1e-3  # the errors matter: over 1 mm with the nominal model
     assert errors.max() < TOLERANCE_M
     ps = ParameterSet(MODEL, free)
-    assert ps.values(result.params, result.tool_xyz) == pytest.approx(
+    assert ps.values(result.params, result.p_flange_tool) == pytest.approx(
         ps.values(*truth), abs=1e-9)
     assert np.all(np.isfinite(result.std)) and result.std.max() < 1e-8
 
@@ -72,7 +72,7 @@ def test_grid_data_sit_on_the_spheres(data, truth):
 
 
 def test_sphere_data_recover_the_true_robot(free, truth, data):
-    outcome = CalibrationJob(None, MODEL, data, tool_xyz0=TOOL, loss='linear').run()
+    outcome = CalibrationJob(None, MODEL, data, p_flange_tool0=TOOL, loss='linear').run()
     check_recovery(outcome, truth, free)
     assert outcome.result.extra['objective'] == 'relative'
     centres = outcome.result.extra['nuisance']
@@ -86,10 +86,10 @@ def test_tracker_data_recover_the_robot_in_a_world_frame(free, truth):
     T_world_base = frames.from_xyz_rpy([1.2, -0.4, 0.3], [0.05, -0.1, 2.0])
     q = uniform_configurations(MODEL, 60, 5)
     p = frames.apply(T_world_base, tool_frames(MODEL, *truth, q)[:, :3, 3])
-    outcome = CalibrationJob(None, MODEL, PositionObservations(q, p), tool_xyz0=TOOL,
+    outcome = CalibrationJob(None, MODEL, PositionObservations(q, p), p_flange_tool0=TOOL,
                              loss='linear').run()
     assert outcome.result.extra['objective'] == 'absolute' and outcome.verdict.passed
     p_held = frames.apply(T_world_base, tool_frames(MODEL, *truth, HELD_OUT)[:, :3, 3])
-    errors = absolute_errors(MODEL, outcome.result.params, outcome.result.tool_xyz, HELD_OUT,
+    errors = absolute_errors(MODEL, outcome.result.params, outcome.result.p_flange_tool, HELD_OUT,
                              p_held)
     assert errors.max() < TOLERANCE_M

@@ -118,8 +118,8 @@ def test_nominal_model_reproduces_the_readme_table(data, model):
 
 def test_fitting_only_the_ball_reproduces_the_readme(data, model):
     """README: ball-only fit, MAE 0.704 mm, ball (-0.11, -0.23, 166.61) mm in the A7 frame."""
-    _, tool_xyz, _ = fit_spheres(model, data.observations(), BALL, TOOL_NAMES)
+    _, p_flange_tool, _ = fit_spheres(model, data.observations(), BALL, TOOL_NAMES)
     a7_to_tool0 = np.array([0.0, 0.0, 0.126])  # joint_a7-tool0 [m]
-    assert_allclose((tool_xyz + a7_to_tool0) * 1e3, [-0.11, -0.23, 166.61], atol=5e-3)
-    mae = location_metrics(model, None, tool_xyz, data)['mae_mm']
+    assert_allclose((p_flange_tool + a7_to_tool0) * 1e3, [-0.11, -0.23, 166.61], atol=5e-3)
+    mae = location_metrics(model, None, p_flange_tool, data)['mae_mm']
     assert mae == pytest.approx(0.704, abs=1e-3)
