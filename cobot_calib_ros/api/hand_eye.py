@@ -24,7 +24,7 @@ from cobot_calib_ros.core.landmarks.hand_eye_capture import (calibrate_hand_eye 
                                                              ViewDone)
 from cobot_calib_ros.core.provenance import missing_prerequisites
 from cobot_calib_ros.core.robot_port import CameraPort, Cancelled, never, RobotPort
-from cobot_calib_ros.ros.calls import call_service, CallError, run_action
+from cobot_calib_ros.ros.calls import call_service, CallError, run_action_once
 from cobot_calib_ros.store.records import HandEyeInputs, HandEyeRecord, HandEyeResult
 
 HAND_EYE_TIMEOUT = 600.0    # [s] for the whole calibration (12 views take 5-60 s here)
@@ -138,14 +138,8 @@ def calibrate_hand_eye(node, views: int = 0, timeout: float = HAND_EYE_TIMEOUT,
     """Run calibrate_hand_eye to its end; the result (CallError if the action is missing or
     does not finish in time; a failed calibration comes back with its error_code)."""
     from cobot_calib_msgs.action import CalibrateHandEye
-    from cobot_calib_ros.ros.action_client import ActionClient
-    client = ActionClient(node, CalibrateHandEye, 'calibrate_hand_eye')
-    try:
-        _, result = run_action(node, client, CalibrateHandEye.Goal(views=views), timeout,
-                               feedback, executor)
-    finally:
-        client.destroy()
-    return result
+    return run_action_once(node, CalibrateHandEye, 'calibrate_hand_eye',
+                           CalibrateHandEye.Goal(views=views), timeout, feedback, executor)
 
 
 def error_against_truth(node, T_flange_optical: np.ndarray, nominal: np.ndarray,

@@ -157,11 +157,6 @@ def calibrate_on_suite(node, goal, feedback=None, timeout: float = SUITE_TIMEOUT
     """Run camera_calibrator's calibrate_intrinsics with ``goal`` to its end; the result
     (CallError if the action is missing or does not finish in time)."""
     from cobot_calib_msgs.action import CalibrateIntrinsics
-    from cobot_calib_ros.ros.action_client import ActionClient
-    from cobot_calib_ros.ros.calls import run_action
-    client = ActionClient(node, CalibrateIntrinsics, 'calibrate_intrinsics')
-    try:
-        _, result = run_action(node, client, goal, timeout, feedback, executor)
-    finally:
-        client.destroy()
-    return result
+    from cobot_calib_ros.ros.calls import run_action_once
+    return run_action_once(node, CalibrateIntrinsics, 'calibrate_intrinsics', goal, timeout,
+                           feedback, executor)

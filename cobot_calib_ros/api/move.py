@@ -107,12 +107,7 @@ def move_joints(node, q: np.ndarray, speed_scale: float = 0.0, executor=None,
     """Send q [rad] to move_to (TARGET_JOINTS) and wait: its MoveTo result; CallError when
     the action is not there or does not finish."""
     from cobot_calib_msgs.action import MoveTo
-    from cobot_calib_ros.ros.action_client import ActionClient
-    from cobot_calib_ros.ros.calls import run_action
-    client = ActionClient(node, MoveTo, 'move_to')
-    try:
-        goal = MoveTo.Goal(target_type=MoveTo.Goal.TARGET_JOINTS,
-                           positions=[float(v) for v in q], speed_scale=float(speed_scale))
-        return run_action(node, client, goal, timeout, executor=executor)[1]
-    finally:
-        client.destroy()
+    from cobot_calib_ros.ros.calls import run_action_once
+    goal = MoveTo.Goal(target_type=MoveTo.Goal.TARGET_JOINTS,
+                       positions=[float(v) for v in q], speed_scale=float(speed_scale))
+    return run_action_once(node, MoveTo, 'move_to', goal, timeout, executor=executor)

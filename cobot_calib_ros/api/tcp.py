@@ -121,11 +121,6 @@ def calibrate_tcp(node, goal, timeout: float = TCP_TIMEOUT, feedback=None, execu
     if the action is missing or does not finish in time; a failed calibration comes back with
     its error_code)."""
     from cobot_calib_msgs.action import CalibrateTcp
-    from cobot_calib_ros.ros.action_client import ActionClient
-    from cobot_calib_ros.ros.calls import run_action
-    client = ActionClient(node, CalibrateTcp, 'calibrate_tcp')
-    try:
-        _, result = run_action(node, client, goal, timeout, feedback, executor)
-    finally:
-        client.destroy()
-    return result
+    from cobot_calib_ros.ros.calls import run_action_once
+    return run_action_once(node, CalibrateTcp, 'calibrate_tcp', goal, timeout, feedback,
+                           executor)

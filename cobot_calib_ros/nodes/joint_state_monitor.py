@@ -145,11 +145,11 @@ class JointStateMonitor(Node):
                                                   FIRST_SAMPLE_TIMEOUT)
         fraction = self.get_parameter('min_sample_fraction').value
         needed = samples_needed(duration, self._rate, fraction)
-        t0 = now_ns(self) * 1e-9
-        times, positions, names, t1 = self._hold(t0, duration, needed, streaming)
+        times, positions, names, windows = self._hold(now_ns(self) * 1e-9, duration, needed,
+                                                      streaming)
         capture = hold_statistics(
             times, positions, duration, self._rate, fraction,
-            self.get_parameter('max_joint_std').value, names, window_s=t1 - t0)
+            self.get_parameter('max_joint_std').value, names, window_s=windows * duration)
         results.answer(response, capture.code, capture.message)
         response.name, response.position = names, capture.mean.tolist()
         response.std = capture.std.tolist()
@@ -160,13 +160,12 @@ class JointStateMonitor(Node):
         return response
 
     def _hold(self, t0: float, duration: float, needed: int, streaming: bool):
-        """(times, positions, joint names, end [s]) of the samples stamped from ``t0`` over
-        ``duration`` [s], the hold going on by whole windows (HOLD_EXTENSIONS at most) while
-        it has fewer than ``needed``."""
-        t1 = t0 + duration
+        """(times, positions, joint names, windows held) of the samples stamped from ``t0``
+        over ``duration`` [s], the hold going on by whole windows (HOLD_EXTENSIONS at most)
+        while it has fewer than ``needed``."""
         with self._lock:
-            for extension in range(HOLD_EXTENSIONS + 1 if streaming else 1):
-                t1 += duration if extension else 0.0
+            for windows in range(1, HOLD_EXTENSIONS + 2 if streaming else 2):
+                t1 = t0 + windows * duration
                 received = self._buffer.count
                 if streaming:
                     wait_past(self._new_sample,
@@ -175,7 +174,7 @@ class JointStateMonitor(Node):
                 times, positions = self._buffer.window(t0, t1)
                 if len(times) >= needed or self._buffer.count == received:
                     break                   # enough, or the stream has stopped
-            return times, positions, list(self._buffer.joint_names or []), t1
+            return times, positions, list(self._buffer.joint_names or []), windows
 
     def _diagnose(self) -> None:
         """The /diagnostics status, just before each publication (receiver thread)."""

@@ -106,6 +106,17 @@ WATCH_PERIOD = 0.25       # [s] between two looks at the graph while a goal runs
 UNKNOWN_NODE = '_NODE_NAME_UNKNOWN_'    # rmw's node name of an endpoint before its node's info
 
 
+def run_action_once(node: Node, action_type, name: str, goal, timeout: float = 60.0,
+                    feedback=None, executor=None):
+    """:func:`run_action` of ``goal`` on action ``name`` through a client made for this one
+    goal (and destroyed after it); the result."""
+    client = ActionClient(node, action_type, name)
+    try:
+        return run_action(node, client, goal, timeout, feedback, executor)[1]
+    finally:
+        client.destroy()
+
+
 class ServerWatch:
     """Whether the action server instance that accepted a goal still serves it, for a client
     waiting on that goal.

@@ -158,10 +158,10 @@ def test_the_slack_choice_moves_less_for_nearly_the_per_pose_accuracy(planner_te
         planner = _planner(planner_template, max_poses=50, **settings)
         chosen, predictions = planner.plan(50)
         moves = np.abs(np.diff(planner.pool_q[chosen], axis=0)).max(axis=1).sum()
-        plans_[bool(settings)] = (moves, predictions[-1].max_mm)
+        plans_[bool(settings)] = (moves, predictions[-1].max_m)
     (slack_moves, slack_max), (pose_moves, pose_max) = plans_[False], plans_[True]
     print(f'\nmoves {slack_moves:.1f} s against {pose_moves:.1f} s, predicted max '
-          f'{slack_max * 1e3:.2f} um against {pose_max * 1e3:.2f} um')
+          f'{slack_max * 1e6:.2f} um against {pose_max * 1e6:.2f} um')
     assert slack_moves < 0.8 * pose_moves
     assert slack_max < 1.1 * pose_max
 
