@@ -325,8 +325,10 @@ class BagPlayer(Node):
         return result
 
     def _play_pass(self, result: PlayResult) -> int | None:
-        """One pass over the bag; the wall time [ns] of its first message (None if stopped
-        before one)."""
+        """One pass over the bag; the wall time [ns] its pacing started from, just before its
+        first message (None if stopped before one). Not the time after that message's publish:
+        the pass's speed is measured from where it is paced from, or a slow first publish
+        made a 4x replay read 4.12x."""
         rate = self.rate
         first_stamp = base_wall = first_wall = None
         self._last_clock_ns = -1
@@ -344,6 +346,7 @@ class BagPlayer(Node):
             now = time.monotonic_ns()
             if first_stamp is None:
                 first_stamp, base_wall = stamp, now
+                paced_from = now
             while rate > 0 and not self._stop.is_set():
                 target = base_wall + int((stamp - first_stamp) / rate)
                 if now >= target - 100_000:             # 0.1 ms early at most: no spin-wait
@@ -377,7 +380,7 @@ class BagPlayer(Node):
                 self._sent += 1
             self._last_publish_wall = time.monotonic_ns()
             if first_wall is None:
-                first_wall = self._last_publish_wall
+                first_wall = paced_from
             result.published += 1
             if previous is not None and stamp > previous:
                 result.bag_s += (stamp - previous) / NS_PER_S
