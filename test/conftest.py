@@ -67,3 +67,18 @@ def domain_id():
     with domain_coordinator.domain_id() as domain:
         os.environ['ROS_DOMAIN_ID'] = str(domain)
         yield domain
+
+
+def pytest_sessionstart(session):
+    """The Fast DDS segments of processes killed before this session (api.fastdds_shm): a
+    killed suite leaves 16 MB each, and once they filled the machine's memory."""
+    if not hasattr(session.config, 'workerinput'):       # once, in the controlling process
+        from cobot_calib_ros.api.fastdds_shm import remove_stale_segments
+        remove_stale_segments()
+
+
+def pytest_sessionfinish(session):
+    """And those of the processes this session's tests killed on purpose or at a timeout."""
+    if not hasattr(session.config, 'workerinput'):
+        from cobot_calib_ros.api.fastdds_shm import remove_stale_segments
+        remove_stale_segments(min_age=5.0)

@@ -20,6 +20,7 @@ import time
 from cobot_calib_ros import paths
 from cobot_calib_ros.nodes import DRIVER_NODES, NODES
 from cobot_calib_ros.api.dds_profile import large_data_env
+from cobot_calib_ros.api.fastdds_shm import remove_stale_segments
 from cobot_calib_ros.ros.spin import LAUNCHER_PID_ENV
 
 SUITE = tuple(n for n in NODES if n not in DRIVER_NODES)   # the suite, in launch order
@@ -74,6 +75,7 @@ class Suite:
 
     def start(self, specs: list[NodeSpec], env: dict[str, str] | None = None) -> None:
         self.log_dir.mkdir(parents=True, exist_ok=True)
+        remove_stale_segments()     # of suites killed before: 16 MB of memory each
         self._env = env
         for spec in specs:
             self.specs[spec.key] = spec

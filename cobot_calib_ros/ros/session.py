@@ -41,6 +41,7 @@ def session(name: str, *, domain_id: int | None = None, sim_time: bool = False,
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.parameter import Parameter
     from rclpy.signals import SignalHandlerOptions
+    from cobot_calib_ros.ros.spin import destroy
     context = None if domain_id is None else Context()
     rclpy.init(args=client_ros_args(), context=context, domain_id=domain_id,
                signal_handler_options=SignalHandlerOptions.NO)
@@ -55,5 +56,5 @@ def session(name: str, *, domain_id: int | None = None, sim_time: bool = False,
         yield node, executor
     finally:
         if node is not None:
-            node.destroy_node()
+            destroy(node)
         rclpy.try_shutdown(context=context)

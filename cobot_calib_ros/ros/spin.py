@@ -273,9 +273,23 @@ def _teardown(node: Node | None) -> None:
     faulthandler.dump_traceback_later(TEARDOWN_DUMP)
     watchdog = teardown_watchdog()
     if node is not None:
-        node.destroy_node()
+        destroy(node)
     rclpy.try_shutdown()
     watchdog.cancel()
+
+
+def destroy(node: Node) -> None:
+    """``node.destroy_node()`` after destroying its action servers and clients.
+
+    rclpy's destroy_node leaves them (its waitables), and each holds the node's handle, so the
+    rmw node outlived it and with it the process's DDS participant: a process ending in
+    os._exit (_exit_now) then left its Fast DDS shared-memory segments in /dev/shm, 16 MB each
+    with config/fastdds_large_images.xml (2 per process of five node kinds; a day of test runs
+    filled /dev/shm's 24 GB and the machine ran out of memory)."""
+    for waitable in list(node.waitables):
+        with contextlib.suppress(Exception):    # one that cannot be destroyed keeps the rest
+            waitable.destroy()
+    node.destroy_node()
 
 
 def teardown_watchdog() -> threading.Timer:
@@ -370,7 +384,7 @@ class Companion:
         if self._thread.is_alive():
             return                      # still blocked: leave the rest to process exit
         self._executor.shutdown(timeout_sec=1.0)
-        self.node.destroy_node()
+        destroy(self.node)
 
 
 def log_info(logger, message: str) -> None:
