@@ -59,15 +59,17 @@ def stamp_or_now_ns(node: Node, stamp: Time) -> int:
 
 
 def wait_past(condition: threading.Condition, newest: Callable[[], tuple[float, int]],
-              t1: float, stall: float) -> None:
+              t1: float, stall: float) -> bool:
     """With ``condition`` held: wait until a sample stamped at or after ``t1`` [s] has arrived
-    (the window is over in ROS time, whatever its rate to wall time), or nothing new arrived
-    for ``stall`` [s] of wall time. ``newest()`` gives (the newest stamp [s], the number of
-    samples received so far); the receiver notifies ``condition`` after each sample."""
+    (the window is over in ROS time, whatever its rate to wall time; True, also when one had
+    arrived before the call), or nothing new arrived for ``stall`` [s] of wall time (False:
+    the stream has stopped). ``newest()`` gives (the newest stamp [s], the number of samples
+    received so far); the receiver notifies ``condition`` after each sample."""
     stamp, count = newest()
     while stamp < t1:
         condition.wait(timeout=stall)
         stamp, latest = newest()
         if latest == count:
-            return                      # the stream has stopped: the caller finds no data
+            return False
         count = latest
+    return True

@@ -28,7 +28,7 @@ class ScriptedArrivals:
 
 def test_wait_past_ends_on_the_first_sample_stamped_at_or_after_t1():
     stream = ScriptedArrivals([0.5, 1.0, 1.5, 2.0])
-    wait_past(stream, stream.newest, 1.5, stall=1.0)
+    assert wait_past(stream, stream.newest, 1.5, stall=1.0) is True
     assert stream.stamp == 1.5 and stream.arrivals == [2.0]
     assert stream.timeouts == [1.0, 1.0, 1.0]       # each wait bounded by the stall
 
@@ -37,16 +37,17 @@ def test_wait_past_gives_up_after_one_stall_not_after_a_fixed_time():
     """A slow clock (samples keep coming, stamps short of t1) keeps it waiting; one wait
     with nothing new ends it (the caller then finds no data)."""
     stream = ScriptedArrivals([0.5, 1.0, 1.5, 2.0, None, 9.5])
-    wait_past(stream, stream.newest, 9.0, stall=0.3)
+    assert wait_past(stream, stream.newest, 9.0, stall=0.3) is False
     assert stream.stamp == 2.0 and stream.arrivals == [9.5]
     assert stream.timeouts == [0.3] * 5
 
 
 def test_wait_past_returns_at_once_when_the_window_is_already_over():
+    """Not a stopped stream (a waiter woken late finds the next window's samples there)."""
     stream = ScriptedArrivals([3.0])
     stream.wait()
     stream.timeouts.clear()
-    wait_past(stream, stream.newest, 2.0, stall=1.0)
+    assert wait_past(stream, stream.newest, 2.0, stall=1.0) is True
     assert stream.timeouts == []
 
 
