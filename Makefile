@@ -54,7 +54,7 @@ demo: setup
 	$(VENV)/bin/cobot-calib demo
 
 test: setup
-	$(PY) -m pytest -q --durations=20 -n $(TEST_WORKERS) --dist loadfile test
+	$(PY) -m pytest -q --durations=20 -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder test
 
 bench: setup
 	$(PY) bench/run_all.py
