@@ -292,20 +292,90 @@ def destroy(node: Node) -> None:
     node.destroy_node()
 
 
-def teardown_watchdog() -> threading.Timer:
-    """A started timer that ends the process (exit 0, said on stderr) if it is still running
-    TEARDOWN_EXIT s from now; cancel it when the teardown is done. For a process whose work
-    has ended and whose rclpy teardown is all that is left."""
-    watchdog = threading.Timer(TEARDOWN_EXIT, _teardown_hung)
-    watchdog.daemon = True
-    watchdog.start()
-    return watchdog
+class TeardownWatchdog:
+    """Ends the process (exit 0) if it is still running TEARDOWN_EXIT s from its start; cancel
+    it when the teardown is done. For a process whose work has ended and whose rclpy teardown
+    is all that is left.
+
+    Two timers: a Python one that says so on stderr first, and a native one EXIT_BACKSTOP s
+    later that needs no Python: the hang seen is inside rclpy's C++ destroy of the node (Fast
+    DDS deleting the participant) with the GIL held, where no Python thread runs (a suite's
+    joint_state_monitor stopped by SIGINT hung there, its stacks dumped at TEARDOWN_DUMP s,
+    the Python timer silent, until the launcher's SIGKILL)."""
+
+    EXIT_BACKSTOP = 1.0     # [s] after TEARDOWN_EXIT
+
+    def __init__(self) -> None:
+        self._timer = threading.Timer(TEARDOWN_EXIT, _teardown_hung)
+        self._timer.daemon = True
+        self._timer.start()
+        self._native = native_exit_timer(TEARDOWN_EXIT + self.EXIT_BACKSTOP)
+
+    def cancel(self) -> None:
+        self._timer.cancel()
+        self._native.cancel()
+
+
+def teardown_watchdog() -> TeardownWatchdog:
+    return TeardownWatchdog()
 
 
 def _teardown_hung() -> None:
     print(f'teardown still running after {TEARDOWN_EXIT:g} s (rclpy destroy_node; stacks '
           'above): exiting', file=sys.stderr, flush=True)
     os._exit(0)
+
+
+class _SigEvent(ctypes.Structure):
+    """glibc's struct sigevent (x86-64 and aarch64 Linux: 64 bytes) for SIGEV_THREAD."""
+    _fields_ = [('value', ctypes.c_void_p), ('signo', ctypes.c_int), ('notify', ctypes.c_int),
+                ('function', ctypes.c_void_p), ('attribute', ctypes.c_void_p),
+                ('_pad', ctypes.c_int * 8)]
+
+
+class _ITimerSpec(ctypes.Structure):
+    _fields_ = [('interval_s', ctypes.c_long), ('interval_ns', ctypes.c_long),
+                ('value_s', ctypes.c_long), ('value_ns', ctypes.c_long)]
+
+
+class NativeExitTimer:
+    """A POSIX timer whose expiry runs libc's _exit(0) on a thread glibc starts: no Python, no
+    GIL (timer_create with SIGEV_THREAD, its function _exit and its value 0, the exit code)."""
+
+    SIGEV_THREAD, CLOCK_MONOTONIC = 2, 1
+
+    def __init__(self, seconds: float) -> None:
+        libc = ctypes.CDLL(None, use_errno=True)
+        self._delete = libc.timer_delete
+        self._id = ctypes.c_void_p()
+        event = _SigEvent(value=None, notify=self.SIGEV_THREAD,
+                          function=ctypes.cast(libc._exit, ctypes.c_void_p).value)
+        if libc.timer_create(self.CLOCK_MONOTONIC, ctypes.byref(event),
+                             ctypes.byref(self._id)) != 0:
+            raise OSError(ctypes.get_errno(), 'timer_create failed')
+        whole = int(seconds)
+        spec = _ITimerSpec(0, 0, whole, int((seconds - whole) * 1e9))
+        if libc.timer_settime(self._id, 0, ctypes.byref(spec), None) != 0:
+            self.cancel()
+            raise OSError(ctypes.get_errno(), 'timer_settime failed')
+
+    def cancel(self) -> None:
+        if self._id is not None:
+            self._delete(self._id)
+            self._id = None
+
+
+class _NoTimer:
+    def cancel(self) -> None:
+        pass
+
+
+def native_exit_timer(seconds: float) -> NativeExitTimer | _NoTimer:
+    """A NativeExitTimer, or nothing where libc has no timer_create (the Python timer stays)."""
+    try:
+        return NativeExitTimer(seconds)
+    except (OSError, AttributeError):
+        return _NoTimer()
 
 
 class Companion:

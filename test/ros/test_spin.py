@@ -182,3 +182,26 @@ def test_a_bad_parameter_value_at_start_ends_the_node_with_one_line(domain, valu
     assert reason in lines[0] and 'joint_velocity' in lines[0]
     assert lines[0].endswith("fix the -p value or config/<node>.yaml (the README's "
                              "Configuration section gives each parameter's unit)")
+
+
+NATIVE_EXIT = '''
+import ctypes, sys, time
+from cobot_calib_ros.ros import spin
+timer = spin.NativeExitTimer(0.3)
+if sys.argv[1] == 'cancel':
+    timer.cancel()
+    time.sleep(0.6)
+    sys.exit(3)
+ctypes.PyDLL(None).sleep(60)      # a C call that keeps the GIL: no Python thread runs
+'''
+
+
+def test_the_native_exit_timer_ends_a_process_stuck_in_c_with_the_gil_held_with_exit_0():
+    start = time.monotonic()
+    out = subprocess.run([sys.executable, '-c', NATIVE_EXIT, 'hang'], timeout=60)
+    assert out.returncode == 0 and time.monotonic() - start < 30
+
+
+def test_a_cancelled_native_exit_timer_leaves_the_process_alone():
+    out = subprocess.run([sys.executable, '-c', NATIVE_EXIT, 'cancel'], timeout=60)
+    assert out.returncode == 3
