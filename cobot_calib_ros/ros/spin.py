@@ -44,6 +44,8 @@ from rclpy.logging import LoggingSeverity
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
+from cobot_calib_ros.ros.time import s_to_ns, split_ns
+
 EXECUTOR_ENV = 'COBOT_CALIB_EXECUTOR'
 EXECUTORS = ('events', 'single')
 DEFAULT_EXECUTOR = 'single'
@@ -353,8 +355,7 @@ class NativeExitTimer:
         if libc.timer_create(self.CLOCK_MONOTONIC, ctypes.byref(event),
                              ctypes.byref(self._id)) != 0:
             raise OSError(ctypes.get_errno(), 'timer_create failed')
-        whole = int(seconds)
-        spec = _ITimerSpec(0, 0, whole, int((seconds - whole) * 1e9))
+        spec = _ITimerSpec(0, 0, *split_ns(s_to_ns(seconds)))
         if libc.timer_settime(self._id, 0, ctypes.byref(spec), None) != 0:
             self.cancel()
             raise OSError(ctypes.get_errno(), 'timer_settime failed')

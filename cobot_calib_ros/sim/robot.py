@@ -24,7 +24,7 @@ from cobot_calib_ros.core.sensors.probe import (average, ProbeCurve, Reading, re
 from cobot_calib_ros.sim.scenario import Simulation
 
 Array = NDArray[np.float64]
-MOTION_STREAM, SENSOR_STREAM = 0, 1
+MOTION_STREAM, SENSOR_STREAM, IMAGE_STREAM = 0, 1, 2
 
 
 class SimRobot:
@@ -39,9 +39,12 @@ class SimRobot:
         spheres = sim.spheres
         self.coupling = None if spheres is None else self.model.chain(
             self.true_parameters, tool=spheres.T_flange_coupling) # true chain to the coupling
-        streams = np.random.SeedSequence(sim.seed + seed_offset).spawn(2)
+        streams = np.random.SeedSequence(sim.seed + seed_offset).spawn(3)
         self._motion_rng = np.random.default_rng(streams[MOTION_STREAM])
         self._sensor_rng = np.random.default_rng(streams[SENSOR_STREAM])
+        # the wrist camera's sensor noise (sim.camera.SimCamera): its own stream, so an image's
+        # noise depends on the seed and the images drawn before it, not on the process
+        self.image_rng = np.random.default_rng(streams[IMAGE_STREAM])
         self._lock = threading.Lock()
         self._q = self.cell.home.copy()
         self._tool_noise = np.zeros(3)

@@ -269,10 +269,8 @@ def test_landmark_methods_on_the_wide_layout_rank_as_issue_11_asks(tmp_path):
     than landmark_single (one marker's plane) and within 1.5x of five_point_lsq. Camera poses
     come from the nominal hand-eye, as before a hand-eye calibration. The paper's close-layout
     figures: RPS 1.42 mm (z), five points 0.12 mm."""
-    import cv2
     from cobot_calib_ros.core.repeatability import point_statistics
     from cobot_calib_ros.core.repeatability.trial import mean_calibration_seconds
-    cv2.setRNGSeed(11)                  # the renderer's sensor noise
     wide = load_simulation(cell_file('sawyer_close'), 'wide')
     rp, seconds = {}, {}
     for method in ('five_point_lsq', 'landmark_single', 'landmark_multi'):
