@@ -23,19 +23,34 @@ _PARAMETER_SERVICES = ('_parameters', '_parameter_types', 'describe_parameters',
 def graph(node: Node, max_wait: float = 10.0, min_wait: float = DISCOVERY_MIN_WAIT,
           settle: float = GRAPH_SETTLE, done=None) -> dict[str, dict[str, list[str]]]:
     """Nodes, topics, services and actions with their types, once discovery is over: the
-    graph has been unchanged for `settle` s after at least `min_wait` s (or done(graph)),
-    at most `max_wait` s."""
+    graph has been unchanged for `settle` s after at least `min_wait` s and names every node
+    whose parameter services it has found (unlisted_nodes), or done(graph); at most
+    `max_wait` s."""
     start = time.monotonic()
     current, changed = graph_now(node), start
     while not (done is not None and done(current)):
         now = time.monotonic()
-        if now - start >= max_wait or (now - start >= min_wait and now - changed >= settle):
+        if now - start >= max_wait or (now - start >= min_wait and now - changed >= settle
+                                       and not unlisted_nodes(node, current)):
             break
         spin_until(node, lambda: False, min(GRAPH_POLL, max_wait - (now - start)))
         latest = graph_now(node)
         if latest != current:
             current, changed = latest, time.monotonic()
     return current
+
+
+def unlisted_nodes(node: Node, found: dict) -> list[str]:
+    """Nodes whose parameter services discovery has found but that ``found`` (a graph_now)
+    does not name yet: a node's name comes from its participant's ros_discovery_info sample,
+    its services from endpoint discovery, and either can come seconds after the other on a
+    loaded machine (a `list` once missed /user_frame_solver after its 6 s wait)."""
+    own = node.get_fully_qualified_name()
+    suffix = '/get_parameters'
+    named = {n[:-len(suffix)] for n, _ in node.get_service_names_and_types()
+             if n.endswith(suffix)}
+    return sorted(n for n in named - set(found['nodes']) - {own}
+                  if not n.rsplit('/', 1)[-1].startswith('_'))
 
 
 def graph_now(node: Node) -> dict[str, dict[str, list[str]]]:

@@ -122,11 +122,17 @@ def test_demo_and_experiment_help_say_which_domain_they_use(verb, capsys):
 class _Timeline:
     """A fake clock and graph: graph_now(node) returns the graph of the current time."""
 
-    def __init__(self, monkeypatch, changes: dict[float, str]):
-        self.now, self.changes = 0.0, changes
+    def __init__(self, monkeypatch, changes: dict[float, str],
+                 services: dict[float, str] | None = None):
+        """``services``: when each node's parameter services are found (default: never)."""
+        self.now, self.changes, self.services = 0.0, changes, services or {}
         monkeypatch.setattr(ros_graph.time, 'monotonic', lambda: self.now)
         monkeypatch.setattr(ros_graph, 'spin_until', self._spin)
         monkeypatch.setattr(ros_graph, 'graph_now', self._graph)
+        self.get_fully_qualified_name = lambda: '/cobot_calib_list'
+        self.get_service_names_and_types = lambda: [
+            (f'{n}/get_parameters', ['rcl_interfaces/srv/GetParameters'])
+            for t, n in self.services.items() if t <= self.now]
 
     def _spin(self, node, done, timeout, executor=None):
         self.now += timeout
@@ -140,25 +146,38 @@ class _Timeline:
 def test_graph_waits_past_a_quiet_gap_before_a_late_node(monkeypatch):
     """As measured: most nodes at once, the last one 2.4 s later."""
     clock = _Timeline(monkeypatch, {0.0: '/a', 0.1: '/b', 2.5: '/late'})
-    assert list(ros_graph.graph(None, max_wait=10.0)['nodes']) == ['/a', '/b', '/late']
+    assert list(ros_graph.graph(clock, max_wait=10.0)['nodes']) == ['/a', '/b', '/late']
     assert ros_graph.DISCOVERY_MIN_WAIT <= clock.now < ros_graph.DISCOVERY_MIN_WAIT + 0.2
 
 
 def test_graph_waits_for_a_change_to_settle_and_stops_at_the_max(monkeypatch):
     clock = _Timeline(monkeypatch, {0.0: '/a', 3.9: '/b'})
-    assert list(ros_graph.graph(None, max_wait=10.0, min_wait=1.0)['nodes']) == ['/a']
+    assert list(ros_graph.graph(clock, max_wait=10.0, min_wait=1.0)['nodes']) == ['/a']
     assert clock.now == pytest.approx(1.0, abs=0.15)
     clock = _Timeline(monkeypatch, {0.0: '/a', 3.9: '/b'})
-    assert list(ros_graph.graph(None, max_wait=10.0, min_wait=4.0)['nodes']) == ['/a', '/b']
+    assert list(ros_graph.graph(clock, max_wait=10.0, min_wait=4.0)['nodes']) == ['/a', '/b']
     assert clock.now == pytest.approx(3.9 + ros_graph.GRAPH_SETTLE, abs=0.15)
     clock = _Timeline(monkeypatch, {t / 10: f'/n{t}' for t in range(100)})
-    ros_graph.graph(None, max_wait=2.0)
+    ros_graph.graph(clock, max_wait=2.0)
     assert clock.now == pytest.approx(2.0, abs=0.15)
+
+
+def test_graph_waits_for_a_node_whose_services_are_seen_before_its_name(monkeypatch):
+    """/late's parameter services are found at 1 s, its name (ros_discovery_info) at 8 s:
+    past the minimum wait and settled, the graph is not over while it misses /late; hidden
+    nodes and the caller itself do not count."""
+    clock = _Timeline(monkeypatch, {0.0: '/a', 8.0: '/late'},
+                      {0.0: '/a', 0.5: '/_hidden', 0.6: '/cobot_calib_list', 1.0: '/late'})
+    assert list(ros_graph.graph(clock, max_wait=10.0)['nodes']) == ['/a', '/late']
+    assert clock.now == pytest.approx(8.0 + ros_graph.GRAPH_SETTLE, abs=0.25)
+    clock = _Timeline(monkeypatch, {0.0: '/a'}, {1.0: '/never'})
+    assert list(ros_graph.graph(clock, max_wait=10.0)['nodes']) == ['/a']
+    assert clock.now == pytest.approx(10.0, abs=0.15)
 
 
 def test_graph_stops_early_when_done(monkeypatch):
     clock = _Timeline(monkeypatch, {0.0: '/a', 0.3: '/b'})
-    ros_graph.graph(None, max_wait=10.0, done=lambda g: '/b' in g['nodes'])
+    ros_graph.graph(clock, max_wait=10.0, done=lambda g: '/b' in g['nodes'])
     assert clock.now == pytest.approx(0.3, abs=0.15)
 
 
