@@ -262,7 +262,9 @@ def _queued(executor) -> bool:
 
 
 def _teardown(node: Node | None) -> None:
-    """Destroy the node and shut rclpy down, deaf to Ctrl-C meanwhile (SIGTERM still ends it).
+    """Destroy the node and shut rclpy down, deaf to Ctrl-C meanwhile; a teardown that hangs
+    is ended by the TeardownWatchdog (a SIGTERM only sets the stop flag again here, and runs
+    no Python at all while the C++ destroy holds the GIL).
 
     The EventsExecutor stops on SIGINT by itself, so the KeyboardInterrupt Python raises for
     the same signal can come later, in the middle of destroy_node (exit code 130 instead of 0,
