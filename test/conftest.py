@@ -115,13 +115,15 @@ def pytest_collection_modifyitems(session, config, items):
 def pytest_sessionstart(session):
     """The Fast DDS segments of processes killed before this session (api.fastdds_shm): a
     killed suite leaves 16 MB each, and once they filled the machine's memory."""
-    if not hasattr(session.config, 'workerinput'):       # once, in the controlling process
-        from cobot_calib_ros.api.fastdds_shm import remove_stale_segments
-        remove_stale_segments()
+    _remove_stale_segments(session)
 
 
 def pytest_sessionfinish(session):
     """And those of the processes this session's tests killed on purpose or at a timeout."""
-    if not hasattr(session.config, 'workerinput'):
+    _remove_stale_segments(session, min_age=5.0)
+
+
+def _remove_stale_segments(session, **kwargs) -> None:
+    if not hasattr(session.config, 'workerinput'):       # once, in the controlling process
         from cobot_calib_ros.api.fastdds_shm import remove_stale_segments
-        remove_stale_segments(min_age=5.0)
+        remove_stale_segments(**kwargs)

@@ -207,7 +207,7 @@ def _serve(suite, specs, env: dict[str, str] | None = None, namespace: str = '')
                 # hangs (as rclpy's destroy_node has in nodes), which the watchdog then ends
                 _stop(suite)
                 stopped = True
-                spin.teardown_watchdog()
+                spin.TeardownWatchdog()
     except KeyboardInterrupt:
         pass
     if not stopped:

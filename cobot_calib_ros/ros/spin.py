@@ -275,7 +275,7 @@ def _teardown(node: Node | None) -> None:
     # its log; if it happens again, the log shows where each thread stood (not cancelled: it
     # fires only while the process is still alive, in the teardown or at interpreter exit)
     faulthandler.dump_traceback_later(TEARDOWN_DUMP)
-    watchdog = teardown_watchdog()
+    watchdog = TeardownWatchdog()
     if node is not None:
         destroy(node)
     rclpy.try_shutdown()
@@ -318,10 +318,6 @@ class TeardownWatchdog:
     def cancel(self) -> None:
         self._timer.cancel()
         self._native.cancel()
-
-
-def teardown_watchdog() -> TeardownWatchdog:
-    return TeardownWatchdog()
 
 
 def _teardown_hung() -> None:

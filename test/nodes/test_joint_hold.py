@@ -23,7 +23,8 @@ def monitor_with(stamps) -> SimpleNamespace:
 
 def test_samples_already_there_for_later_windows_let_the_hold_go_on():
     t0 = 100.0
-    stamps = t0 + (np.arange(200) + 0.5) / THINNED_HZ      # mid-period: none on an edge          # all of them buffered
+    # all of them buffered, mid-period (none on a window's edge)
+    stamps = t0 + (np.arange(200) + 0.5) / THINNED_HZ
     needed = samples_needed(DURATION, RATE_HZ, 0.5)
     times, positions, names, windows = JointStateMonitor._hold(
         monitor_with(stamps), t0, DURATION, needed, streaming=True)
