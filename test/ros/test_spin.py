@@ -205,3 +205,46 @@ def test_the_native_exit_timer_ends_a_process_stuck_in_c_with_the_gil_held_with_
 def test_a_cancelled_native_exit_timer_leaves_the_process_alone():
     out = subprocess.run([sys.executable, '-c', NATIVE_EXIT, 'cancel'], timeout=60)
     assert out.returncode == 3
+
+
+HUNG_TEARDOWN = '''
+import ctypes, sys
+from rclpy.node import Node
+from cobot_calib_ros.ros import spin
+
+
+class Hangs(Node):
+    """Its destroy blocks in C with the GIL held, as rclpy's did in Fast DDS's node delete."""
+
+    def __init__(self):
+        super().__init__('spin_test_hangs')
+        print('up', flush=True)
+
+    def destroy_node(self):
+        print('tearing down', flush=True)
+        ctypes.PyDLL(None).sleep(60)
+
+
+spin.run(Hangs, sys.argv)
+'''
+
+
+def test_a_sigterm_ends_a_teardown_hung_in_c_at_once(domain):
+    """`up` stops a node with SIGINT, then SIGTERM 6 s later: a teardown hung in rclpy's C++
+    destroy (GIL held, no Python handler can run) ends on that SIGTERM (-15), long before the
+    TeardownWatchdog (exit 0 at TEARDOWN_EXIT) and before `up`'s SIGKILL (-9)."""
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
+    proc = subprocess.Popen([sys.executable, '-c', HUNG_TEARDOWN], stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True, env=env,
+                            cwd=Path(__file__).resolve().parents[2])
+    try:
+        assert _printed(proc, 'up', TIMEOUT)
+        proc.send_signal(signal.SIGINT)
+        assert _printed(proc, 'tearing down', TIMEOUT)
+        proc.send_signal(signal.SIGTERM)
+        proc.wait(timeout=spin.TEARDOWN_EXIT / 2)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        proc.communicate()
+    assert proc.returncode == -signal.SIGTERM
