@@ -7,9 +7,11 @@ reprojection error, IPPE ambiguity ratio and corners), stamped with the image's 
 every image it processes (empty when it found nothing).
 
 It rests while nobody subscribes to ``landmarks``: then it does not subscribe to the images
-either (checked every DEMAND_PERIOD), so a camera driver that publishes only to subscribers
-(mock_camera) rests too; an idle suite cost 14 % of a core in rendering and detecting images
-nobody used (issue 23).
+either (the publisher's matched event says when that changes; a look every DEMAND_PERIOD backs
+it up), so a camera driver that publishes only to subscribers (mock_camera) rests too; an idle
+suite cost 14 % of a core in rendering and detecting images nobody used (issue 23). At rest
+its threads wake about once a second (a 10 Hz look and 10 Hz worker polls were 2.6 % of a
+core of an idle suite, issue 38).
 
 Detection (core.landmarks) runs on two worker threads, so the executor keeps taking images: a
 queue of up to FRAME_QUEUE_DEPTH images waits for them, and when it is full its oldest image is
@@ -57,7 +59,8 @@ import cv2
 from geometry_msgs.msg import Point, Pose, PoseWithCovariance, Quaternion
 import numpy as np
 from rclpy.clock import Clock, ClockType
-from rclpy.event_handler import QoSMessageLostInfo, SubscriptionEventCallbacks
+from rclpy.event_handler import (PublisherEventCallbacks, QoSMessageLostInfo,
+                                 SubscriptionEventCallbacks)
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data, QoSProfile
 from sensor_msgs.msg import CameraInfo, Image
@@ -78,7 +81,8 @@ from cobot_calib_ros.ros.images import camera_info_to_model, image_to_gray, Imag
 from cobot_calib_ros.ros.params import read_once
 
 NO_IMAGE_TIMEOUT = 2.0      # [s] of wall time without an image: /diagnostics warns
-DEMAND_PERIOD = 0.1         # [s] between looks at whether anyone subscribes to landmarks
+# [s] between looks at whether anyone subscribes to landmarks, beside the matched event
+DEMAND_PERIOD = 2.0
 INTRINSICS_CHECK_PERIOD = 2.0   # [s] between looks at which intrinsics are active
 LIVE_REFINE = tuple(r for r in REFINE_METHODS if r != 'apriltag')   # apriltag: ~2 fps
 # Best effort, as cameras publish; the reader keeps IMAGE_QUEUE_DEPTH images so that a late
@@ -179,7 +183,14 @@ class FrameQueue:
         self._cond = threading.Condition()
         self._items: deque = deque()
         self._depth = depth
+        self._closed = False
         self.dropped = 0
+
+    def close(self) -> None:
+        """A ``take`` waiting now, or later, returns at once."""
+        with self._cond:
+            self._closed = True
+            self._cond.notify_all()
 
     def put(self, item) -> None:
         with self._cond:
@@ -191,7 +202,7 @@ class FrameQueue:
 
     def take(self, timeout: float):
         with self._cond:
-            if not self._items:
+            if not self._items and not self._closed:
                 self._cond.wait(timeout)
             return self._items.popleft() if self._items else None
 
@@ -203,6 +214,13 @@ class Handoff:
     def __init__(self) -> None:
         self._cond = threading.Condition()
         self._item = None
+        self._closed = False
+
+    def close(self) -> None:
+        """A ``take`` waiting now, or later, returns at once."""
+        with self._cond:
+            self._closed = True
+            self._cond.notify_all()
 
     def put(self, item, timeout: float) -> bool:
         with self._cond:
@@ -216,7 +234,7 @@ class Handoff:
 
     def take(self, timeout: float):
         with self._cond:
-            if self._item is None:
+            if self._item is None and not self._closed:
                 self._cond.wait(timeout)
             item, self._item = self._item, None
             self._cond.notify_all()
@@ -315,8 +333,10 @@ class LandmarkDetector(Node):
         self._last_image = self._started = time.monotonic()
         self._queue = FrameQueue()
         self._handoff = Handoff()
-        self._pub = self.create_publisher(Landmarks, 'landmarks', 10)
         self._image_sub = None              # only while someone subscribes to landmarks
+        self._pub = self.create_publisher(
+            Landmarks, 'landmarks', 10,
+            event_callbacks=PublisherEventCallbacks(matched=lambda _: self._follow_demand()))
         # camera_info comes with every image and rarely changes: it waits in a depth-1 queue
         # of a helper node no executor spins, and each image takes the newest (one executor
         # round per image instead of two)
@@ -343,6 +363,8 @@ class LandmarkDetector(Node):
 
     def destroy_node(self):
         self._running = False
+        self._queue.close()
+        self._handoff.close()
         for worker in self._workers:
             worker.join(timeout=5.0)
         self._info_node.destroy_node()
@@ -508,7 +530,7 @@ class LandmarkDetector(Node):
     # second than one thread doing both (measured in one process, 2 cores).
     def _search(self) -> None:
         while self._running and self.context.ok():
-            item = self._queue.take(timeout=spin.WAKE_PERIOD)
+            item = self._queue.take(timeout=spin.IDLE_WAKE)
             if item is None:
                 continue
             header, gray, camera = item
@@ -524,7 +546,7 @@ class LandmarkDetector(Node):
 
     def _finish(self) -> None:
         while self._running and self.context.ok():
-            item = self._handoff.take(timeout=spin.WAKE_PERIOD)
+            item = self._handoff.take(timeout=spin.IDLE_WAKE)
             if item is None:
                 continue
             header, camera, found, search_s = item

@@ -278,6 +278,19 @@ def test_the_handoff_between_the_stages_waits_instead_of_dropping():
     assert (handoff.take(0.0), handoff.take(0.0)) == (3, None)
 
 
+@pytest.mark.parametrize('stage', [FrameQueue, Handoff])
+def test_a_closed_stage_ends_a_long_wait_of_its_worker_at_once(stage):
+    """The workers wait long at rest (spin.IDLE_WAKE); the node's destroy closes their stages,
+    so its stop does not wait one out."""
+    slot, got = stage(), []
+    worker = threading.Thread(target=lambda: got.append(slot.take(600.0)))
+    worker.start()
+    slot.close()
+    worker.join(timeout=30.0)
+    assert not worker.is_alive() and got == [None]
+    assert slot.take(600.0) is None                     # and every take after it
+
+
 def test_an_unknown_dictionary_is_an_error_on_diagnostics_not_a_crash(camera_suite):
     """In this process, in its own namespace (its own topics and status name)."""
     client = camera_suite
