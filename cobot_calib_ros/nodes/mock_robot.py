@@ -51,9 +51,10 @@ from cobot_calib_ros.core.sensors.joint_buffer import StampGaps, StampMarks
 from cobot_calib_ros.core.sensors.sample_clock import SampleClock
 from cobot_calib_ros.ros import convert, qos, results, spin
 from cobot_calib_ros.ros.joint_state_bytes import JointStateBytes
+from cobot_calib_ros.ros.probe_voltage_bytes import ProbeVoltageBytes
 from cobot_calib_ros.ros.diagnostics import Diagnostics, ERROR, OK, RateMeter, WARN
 from cobot_calib_ros.ros.params import declare, read_once
-from cobot_calib_ros.ros.time import ns_to_s, ns_to_stamp, NS_PER_S, s_to_ns, stamp_to_ns
+from cobot_calib_ros.ros.time import ns_to_s, NS_PER_S, s_to_ns, stamp_to_ns
 from cobot_calib_ros.sim.robot import SimRobot
 from cobot_calib_ros.sim.scenario import load_simulation
 
@@ -140,8 +141,7 @@ class MockRobot(Node):
         self._probe_published = 0
         self._rate_meter = RateMeter()
         self._joint_states = JointStateBytes(list(self._robot.model.joint_names))
-        self._probe_msg = ProbeVoltage()
-        self._probe_msg.header.frame_id = 'probe'
+        self._probe_bytes = ProbeVoltageBytes('probe')
         self._js_pub = self.create_publisher(JointState, 'joint_states', qos.JOINT_STATES)
         self._probe_pub = self.create_publisher(ProbeVoltage, 'probe/voltage',
                                                 qos.PROBE_READINGS)
@@ -229,9 +229,7 @@ class MockRobot(Node):
             self._marks.add(stamp_ns // NS_PER_S)
             self._gaps.add(ns_to_s(stamp_ns))
         for stamp_ns in self._probe_clock.due(now_ns):
-            self._probe_msg.header.stamp = ns_to_stamp(stamp_ns)
-            self._probe_msg.voltage = self._robot.probe_voltage()
-            self._probe_pub.publish(self._probe_msg)
+            self._probe_pub.publish(self._probe_bytes.pack(stamp_ns, self._robot.probe_voltage()))
             self._probe_published += 1
 
     def _diagnose(self) -> None:
