@@ -43,6 +43,6 @@ def wait_for_suite(node: Node, timeout: float = 60.0, executor=None,
 def _flows(node: Node, client, no_data: int, executor) -> bool:
     with contextlib.suppress(CallError):
         response = call_service(node, client, client.srv_type.Request(duration=0.1), 10.0,
-                                executor)
+                                executor, idempotent=True)
         return response.error_code not in (no_data, getattr(response, 'BAD_REQUEST', -1))
     return False

@@ -46,7 +46,8 @@ class DemoClient:
 
     def ground_truth(self):
         from cobot_calib_ros.ros.calls import call_service
-        return call_service(self.node, self._truth, self._truth.srv_type.Request(), 30.0)
+        return call_service(self.node, self._truth, self._truth.srv_type.Request(), 30.0,
+                            idempotent=True)
 
     def calibrate(self, method: str, names=(), p_user=None, p_base=None, captures=(),
                   kinematics: str = ''):

@@ -150,7 +150,8 @@ def error_against_truth(node, T_flange_optical: np.ndarray, nominal: np.ndarray,
     from cobot_calib_ros.ros import convert
     client = node.create_client(GetGroundTruth, 'get_ground_truth')
     try:
-        truth = call_service(node, client, GetGroundTruth.Request(), 10.0, executor)
+        truth = call_service(node, client, GetGroundTruth.Request(), 10.0, executor,
+                             idempotent=True)
     finally:
         node.destroy_client(client)
     if truth is None:

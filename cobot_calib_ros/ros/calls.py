@@ -41,16 +41,46 @@ def spin_until(node: Node, done, timeout: float, executor=None) -> bool:
     return True
 
 
-def call_service(node: Node, client, request, timeout: float = 10.0, executor=None):
-    """Call and wait; raises CallError with what to check."""
+# [s] an unanswered idempotent request is sent again this often: a server that has matched a
+# new client's request but not yet its reply reader drops the answer ("failed to send response
+# (timeout): client will not receive response"), and the client waited out its whole timeout
+# (one process's `demo --attach`, 15 s, in a loaded test run)
+ASK_AGAIN = 2.0
+
+
+def call_service(node: Node, client, request, timeout: float = 10.0, executor=None,
+                 idempotent: bool = False):
+    """Call and wait; raises CallError with what to check. ``idempotent``: the request may be
+    served twice (a query), so it is sent again every ASK_AGAIN s while unanswered."""
     if not spin_until(node, client.service_is_ready, min(timeout, 10.0), executor):
         raise CallError(f'service {client.srv_name} is not available; is the node suite up '
                         '(cobot-calib up) and ROS_DOMAIN_ID the same?')
-    future = client.call_async(request)
-    if not spin_until(node, future.done, timeout, executor):
-        client.remove_pending_request(future)
+    future = first_answer(node, lambda: client.call_async(request), timeout,
+                          ASK_AGAIN if idempotent else timeout, executor,
+                          forget=client.remove_pending_request)
+    if future is None:
         raise CallError(f'service {client.srv_name} did not answer within {timeout:.1f} s')
     return future.result()
+
+
+def first_answer(node: Node, send, timeout: float, ask_again: float, executor=None,
+                 forget=lambda future: None):
+    """``send()`` (a future of a request) again every ``ask_again`` [s] until one is answered
+    or ``timeout`` [s] has passed: the answered future, or None. ``forget(future)`` is called
+    for each one left unanswered."""
+    deadline = time.monotonic() + timeout
+    sent = []
+    try:
+        while (remaining := deadline - time.monotonic()) > 0:
+            sent.append(send())
+            if spin_until(node, lambda: any(f.done() for f in sent), min(ask_again, remaining),
+                          executor):
+                return next(f for f in sent if f.done())
+        return None
+    finally:
+        for future in sent:
+            if not future.done():
+                forget(future)
 
 
 CANCEL_WAIT = 10.0        # [s] after a Ctrl-C, for the goal to end (servers stop between steps)

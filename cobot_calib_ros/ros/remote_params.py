@@ -5,7 +5,8 @@ from __future__ import annotations
 import time
 from typing import Any
 
-from cobot_calib_ros.ros.calls import CallError, spin_until
+from cobot_calib_ros.ros import calls
+from cobot_calib_ros.ros.calls import CallError, first_answer, spin_until
 
 
 class RemoteParameters:
@@ -35,24 +36,17 @@ class RemoteParameters:
                                 f'set {name}')
         return response.results[0].successful, response.results[0].reason
 
-    # [s] an unanswered request is sent again this often (parameter requests are idempotent):
-    # a server that has matched the request but not yet the client's reply reader drops its
-    # answer ("failed to send response"), and one new process's `demo --attach` waited its
-    # whole 15 s for user_frame_solver's answer to `get cell_file` in a loaded test run
-    ASK_AGAIN = 2.0
-
     def _answer(self, send, what: str):
         deadline = time.monotonic() + self.timeout
         if not spin_until(self.node, self._client.services_are_ready, self.timeout):
             raise CallError(f'node {self.target} offers no parameter services within '
                             f'{self.timeout:g} s (is it running? see `cobot-calib list`)')
-        sent = []
-        while (remaining := deadline - time.monotonic()) > 0:
-            sent.append(send(self._client))
-            if spin_until(self.node, lambda: any(f.done() for f in sent),
-                          min(self.ASK_AGAIN, remaining)):
-                return next(f for f in sent if f.done()).result()
-        raise CallError(f'{self.target} did not answer {what} within {self.timeout:g} s')
+        # parameter requests are idempotent: sent again while unanswered (calls.ASK_AGAIN)
+        answered = first_answer(self.node, lambda: send(self._client),
+                                deadline - time.monotonic(), calls.ASK_AGAIN)
+        if answered is None:
+            raise CallError(f'{self.target} did not answer {what} within {self.timeout:g} s')
+        return answered.result()
 
 
 def read_parameter(node, target: str, name: str, timeout: float = 5.0):

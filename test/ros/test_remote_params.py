@@ -8,7 +8,7 @@ import pytest
 import rclpy.parameter_client
 from rcl_interfaces.msg import ParameterType, ParameterValue
 
-from cobot_calib_ros.ros import remote_params
+from cobot_calib_ros.ros import calls, remote_params
 from cobot_calib_ros.ros.calls import CallError
 
 
@@ -49,7 +49,7 @@ class Executor:
 @pytest.fixture
 def remote(monkeypatch):
     monkeypatch.setattr(rclpy.parameter_client, 'AsyncParameterClient', ScriptedClient)
-    monkeypatch.setattr(remote_params.RemoteParameters, 'ASK_AGAIN', 0.1)
+    monkeypatch.setattr(calls, 'ASK_AGAIN', 0.1)
     node = type('Node', (), {'executor': Executor()})()
     return remote_params.RemoteParameters(node, 'user_frame_solver', timeout=2.0)
 
@@ -68,3 +68,39 @@ def test_a_node_that_never_answers_is_refused_at_the_timeout(remote, monkeypatch
         remote.get('cell_file')
     assert 1.9 <= time.monotonic() - start < 10.0
     assert remote._client.requests >= 2
+
+
+class ScriptedService:
+    """A service client whose requests listed in ``answered`` (0-based) get an answer."""
+
+    srv_name = '/get_ground_truth'
+
+    def __init__(self, answered) -> None:
+        self.answered, self.requests, self.forgotten = answered, 0, []
+
+    def service_is_ready(self) -> bool:
+        return True
+
+    def call_async(self, request):
+        index, self.requests = self.requests, self.requests + 1
+        return Future(f'answer {index}') if index in self.answered else Future()
+
+    def remove_pending_request(self, future) -> None:
+        self.forgotten.append(future)
+
+
+@pytest.mark.parametrize('idempotent, answer, requests', [(True, 'answer 1', 2),
+                                                            (False, None, 1)])
+def test_an_idempotent_call_whose_answer_was_dropped_is_sent_again(monkeypatch, idempotent,
+                                                                   answer, requests):
+    """The first answer is dropped: a query is asked again and answered; any other request is
+    sent once and refused at the timeout, its pending request removed."""
+    monkeypatch.setattr(calls, 'ASK_AGAIN', 0.1)
+    client = ScriptedService(answered={1})
+    node = type('Node', (), {'executor': Executor()})()
+    if answer is None:
+        with pytest.raises(CallError, match='did not answer within 1.0 s'):
+            calls.call_service(node, client, object(), 1.0, idempotent=idempotent)
+    else:
+        assert calls.call_service(node, client, object(), 1.0, idempotent=idempotent) == answer
+    assert client.requests == requests and len(client.forgotten) == 1
