@@ -3,9 +3,12 @@ SHELL := /bin/bash
 PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
-# pytest-xdist workers for `make test`: 2 (3 ran 538-591 s against 648 s, but on 2 cores their
-# load made fresh-clone runs fail: a hand-eye view without the board, a node past its stop grace)
-TEST_WORKERS ?= 2
+# pytest-xdist workers for `make test`: 3 on 2 cores, since about half of a 2-worker run's
+# time was waiting (fresh-clone run 17: 12 min of CPU in 10.7 min). The load failures 3 once
+# had (a hand-eye view without the board, a node past its stop grace) were fixed at their
+# causes; beside another session's load 8-9: 3 workers 10 min 28 s and 10 min 50 s, both green,
+# 2 workers 13 min 2 s (runs 19-21)
+TEST_WORKERS ?= 3
 STAMP := $(VENV)/.stamps
 
 # Keep DDS traffic on this machine (ros2-from-pypi notes).
