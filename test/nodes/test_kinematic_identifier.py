@@ -84,6 +84,9 @@ def test_a_canceled_collection_resumes_where_it_stopped(ros, actions, trial_data
         got.append(message.feedback)
 
     client = actions[0]
+    # its first goal: a request sent before the client has found the server is lost (two
+    # fresh-clone runs with 3 workers waited out the 10 s for its answer)
+    assert spin_until(ros, client.server_is_ready, 30.0, ros.executor_for_tests)
     send = client.send_goal_async(Collect(max_configs=12, hold=0.02),
                                   feedback_callback=cancel_after_five)
     assert spin_until(ros, send.done, 10.0, ros.executor_for_tests)
