@@ -46,7 +46,8 @@ PLANNING_TASK_SEED = 1      # the task volume's configurations (the validation s
 class CollectionRequest:
     """What to collect, in SI. ``max_configs``: poses of the grid or tracker set (0: all);
     planned (spheres only): up to ``max_poses``, stopping at a predicted max error of
-    ``target_error_m`` or a gain under ``min_gain``, candidates tilted in ``tilt_step_rad``."""
+    ``target_error_m`` or a gain under ``min_gain``, candidates in ``tilt_step_rad`` steps
+    (tilts, turns about the approach axis, arm angles)."""
 
     source: str = 'spheres'
     region: str = 'volume'

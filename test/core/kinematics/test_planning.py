@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 
 from cobot_calib_ros.core import frames, kinematics
+from cobot_calib_ros.core.driver import move_seconds
 from cobot_calib_ros.core.kinematics import plans
 from cobot_calib_ros.core.kinematics.collection import Ending
 from cobot_calib_ros.core.kinematics.identification import register_rigid, SphereObservations
 from cobot_calib_ros.core.kinematics.kinematic_calibration import fit_spheres
 from cobot_calib_ros.core.kinematics.planned_collection import collect_planned, PAPER_HOLD
-from cobot_calib_ros.core.driver import move_seconds
 from cobot_calib_ros.core.kinematics.planning import (_criterion, _pick, arm_grid_deg,
                                                       exchange, fewest_poses,
                                                       flipped_configurations, PlanSettings,
@@ -175,9 +175,10 @@ def test_the_planned_set_is_the_greedy_one_exchanged_and_routed(planner_template
 
 
 def test_every_sphere_gets_two_poses_within_max_poses(planner_template):
-    """The fewest poses that can cover the spheres (two each): the greedy choice alone
-    leaves one out (a pose on a sphere of unknown centre teaches little until the next one
-    there), the planner keeps the last picks for it, greedy or as a set."""
+    """The fewest poses that can cover the spheres (two each): the greedy choice alone can
+    leave one out (a pose on a sphere of unknown centre teaches little until the next one
+    there; the mock Sawyer's 12 did, test_kinematic_collection), so the planner keeps the
+    last picks for the spheres short of two, greedy or as a set."""
     for exchange_ in (False, True):
         planner = _planner(planner_template, max_poses=6, exchange=exchange_)
         state = planner.start()
