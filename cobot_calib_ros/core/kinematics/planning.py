@@ -53,7 +53,8 @@ then the fit's residual estimate).
   configurations or on the held-out ones themselves (1.10x either, greedy: the criterion's
   configurations are not the limit); the gates' prior (1 mm, 10 mrad) in M (~1e-5 of a
   pose's information). The plan is made before any data (at the nominal model: 1.01x
-  against 1.00x planned at the truth) and planned again only when a pose of it is skipped.
+  against 1.00x planned at the truth); a skipped pose of it is replaced by the greedy choice
+  given the rest, which is routed again.
   The planned set's rest is kept in :class:`PlanState` (``route``), so a resumed collection
   goes on with it. Measured (bench_planning --planned-50, six noise draws, 30 re-collections
   of the planned poses): the iiwa 7's 50 poses 1.15x the six grids' mean expected max error
@@ -592,21 +593,25 @@ class SpherePlanner:
         return predict(M, self.lin.F, self.task, self.sigma, self.draws, len(q))
 
     # -- planning -------------------------------------------------------------------------
-    def plan(self, count: int) -> tuple[list[int], list[Prediction]]:
-        """The next ``count`` candidates, greedy given the data so far, and the prediction
-        after each (at the current noise estimate). Once the poses left to max_poses are
+    def plan(self, count: int, planned: Sequence[int] = ()) -> tuple[list[int],
+                                                                   list[Prediction]]:
+        """The next ``count`` candidates, greedy given the data so far and the candidates
+        ``planned`` already, and the prediction after each (at the current noise estimate,
+        the planned ones counted in). Once the poses left to max_poses are
         only just enough to bring every sphere to POSES_PER_SPHERE, the choice is among the
         spheres short of it (the greedy choice alone can leave a sphere out: a pose on a
         sphere whose centre is unknown teaches little until the next one there)."""
-        M = self.information(q=self.q, target=self.target)
+        planned = list(planned)
+        M = self.information(planned, q=self.q, target=self.target)
         available = self.available.copy()
+        available[planned] = False
         chosen, predictions = [], []
         G2 = self.distance_G.T @ self.distance_G
         weight = None if self.settings.criterion == 'D' else self.task_weight
         here = self.q[-1] if self.q else None
         for _ in range(count):
-            short = self._short_spheres(chosen)
-            left = self.settings.max_poses - len(self.q) - len(chosen)
+            short = self._short_spheres(planned + chosen)
+            left = self.settings.max_poses - len(self.q) - len(planned) - len(chosen)
             within = available
             if short and left <= sum(short.values()):
                 within = available & np.isin(self.pool_target, list(short))
@@ -621,7 +626,7 @@ class SpherePlanner:
             M = M + A.T @ A + G2
             chosen.append(pick)
             predictions.append(predict(M, self.lin.F, self.task, self.sigma, self.draws,
-                                       len(self.q) + len(chosen)))
+                                       len(self.q) + len(planned) + len(chosen)))
         return chosen, predictions
 
     def _short_spheres(self, planned: Sequence[int]) -> dict[int, int]:
@@ -685,13 +690,20 @@ class SpherePlanner:
         return self.state
 
     def next_pose(self) -> int | None:
-        """The candidate to measure next (None: none left): the next of the planned set
-        (planned again when a pose of it was skipped), or the greedy choice."""
+        """The candidate to measure next (None: none left): the next of the planned set (a
+        skipped pose of it replaced by the greedy choice given the rest, the rest routed
+        again from here), or the greedy choice."""
         if not self.plans_a_set:
             chosen, _ = self.plan(1)
             return chosen[0] if chosen else None
+        left = max(self.settings.max_poses - len(self.q), 1)
         if not self.state.route:
-            self.state.route, _ = self.plan_set(max(self.settings.max_poses - len(self.q), 1))
+            self.state.route, _ = self.plan_set(left)
+        elif len(self.state.route) < left:
+            more, _ = self.plan(left - len(self.state.route), self.state.route)
+            rest = self.state.route + more
+            self.state.route = [rest[k] for k in route(
+                self.pool_q[rest], self.q[-1] if self.q else None, self.settings.joint_speed)]
         return self.state.route[0] if self.state.route else None
 
     def measured(self, index: int, q: ArrayLike) -> Prediction:
@@ -731,11 +743,11 @@ class SpherePlanner:
 
     def skipped(self, index: int) -> None:
         """Candidate ``index`` could not be measured; it is not offered again (a planned
-        set is planned again without it)."""
+        set has another in its place, :meth:`next_pose`)."""
         self.available[index] = False
         self.state.skipped.append(int(index))
         if index in self.state.route:
-            self.state.route = []
+            self.state.route.remove(index)
 
     def _refit(self, relinearise: bool = True) -> None:
         """Identify on the data so far once they determine every unknown with some margin

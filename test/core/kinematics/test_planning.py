@@ -326,11 +326,16 @@ class FailingRobot(DirectRobot):
 
 
 def test_a_skipped_pose_is_logged_and_never_offered_again(planner_template):
+    """... and in a planned set, the others stay: each skipped one has another in its
+    place."""
     planner, log = _planner(planner_template, max_poses=6), []
+    first = planner.start().initial_plan
     robot = FailingRobot(SimRobot(SIM, seed_offset=5), SIM.probe)
     run, time = collect_planned(planner, robot, log.append, hold=HOLD)
     skipped = [r.index for r in log if r.q is None]
     assert run.recorded == 6 and run.skipped == 2 == len(skipped)
+    assert set(skipped) <= set(first) and len(set(planner.state.chosen) & set(first)) == 4
+    assert np.bincount(planner.pool_target[planner.state.chosen]).tolist() == [2, 2, 2]
     assert planner.state.skipped == skipped and not set(skipped) & set(planner.state.chosen)
     assert [r.index for r in log if r.q is not None] == planner.state.chosen
     assert time.poses == 6 and time.hold == pytest.approx(6 * HOLD)
