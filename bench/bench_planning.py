@@ -16,8 +16,9 @@ tracker's own noise dominates. The planner's task volume is another draw of the 
 - full: the paper's 3 x 625 grid, every pose;
 - planned: core.kinematics.planned_collection.collect_planned (the loop the node runs) with
   greedy V-optimal choice from the candidate pool (planning.sphere_candidates: tilt -60..60
-  deg in 15 deg steps, arm angle -90..90 deg in 30 deg steps), re-planned after every pose,
-  up to 100 poses;
+  deg, a full turn about the approach axis, arm angle -150..150 deg, all in 30 deg steps,
+  and the flipped configurations), re-planned after every pose, up to 100 poses; the
+  greedy order (PlanSettings.exchange off), the one a --target-mm run takes;
 - random: 20 draws of the same size from the same pool;
 - target: where ``--target-mm`` at 1.2x the full grid's predicted max (predicted with the
   noise this run estimated; no truth used) would have stopped the same planned run.
@@ -32,9 +33,13 @@ the planned collection as ``identify --planned`` runs it by default (50 poses), 
 draws of the sim robot (PLANNED_50_SEEDS), each its own full grid beside it: poses, robot time
 at the paper's hold, held-out max over the full grid's on the same draw
 (``over_full_max_error_ratio``) and in expectation (``mean_over_full_mean_max_error_ratio``:
-REPEATS re-collections of each draw's 50 planned poses over the mean of the six grids; one
-draw of the grid's max scattered 1.2-4.3 um on the UR10e), and each draw's last prediction
-against its planned poses' expected held-out max; medians over the draws and the worst.
+PLANNED_50_REPEATS re-collections of each draw's 50 planned poses over the mean of the six
+grids; one draw of the grid's max scattered 1.2-4.3 um on the UR10e), the same over the
+grid's own expectation (``mean_over_full_expected_max_error_ratio``: the grid re-collected
+PLANNED_50_REPEATS times; on the iiwa 7 the six draws' mean, 1.044 um, is 11 % under that,
+1.174 um, and 18 % under 40 more re-collections offline, 1.271 um), and each
+draw's last prediction against its planned poses' expected held-out max; medians over the
+draws and the worst. ``--planned-50`` runs this part alone.
 """
 from __future__ import annotations
 
@@ -72,6 +77,9 @@ MORE_SEEDS = (1100, 1200, 1300, 1400, 1500)     # the same comparison on other n
 # issue 38.5: the planned collection stopped at 50 poses, on these robots' cells
 PLANNED_50_CELLS = {'iiwa7': CELL, 'ur10e': 'ur10e_close'}
 PLANNED_50_SEEDS = (SEED, *MORE_SEEDS)      # noise draws, each its own grid and planned run
+PLANNED_50_REPEATS = 30     # re-collections of each draw's planned poses: the draws plan the
+#                             same 50 (the set is planned before any data), and ten gave the
+#                             UR10e's one expectation as 1.69-2.51 um across the six draws
 
 
 class Bench:
@@ -157,8 +165,11 @@ class Compared:
 
 def compare(bench: Bench, grid, pool, parameter_set=None) -> Compared:
     """Collect the full grid, then the planned collection, on ``bench``'s robot."""
+    # the greedy order (exchange off): the one a --target-mm run takes, which target_stop
+    # reads off this run's prediction curve
     planner = SpherePlanner(bench.model, pool, bench.distances, bench.tool0, bench.q_task,
-                            PlanSettings(max_poses=MAX_POSES, pose_seconds=PAPER_HOLD),
+                            PlanSettings(max_poses=MAX_POSES, pose_seconds=PAPER_HOLD,
+                                         exchange=False),
                             parameter_set=parameter_set)
     q_full, t_full, full_s, full_paper_s = bench.measure(grid)
     full_truth, full_tracker = bench.identify_mm(planner.parameter_set, q_full, t_full)
@@ -269,7 +280,8 @@ def planned_50_figures(robot: str, cell: str, grid=None, pool=None) -> Figures:
         n = len(planner.q)
         planned = bench.held_out_mm(planner.params, planner.p_flange_tool)[0]
         # each draw's re-collections their own noise (the draws often choose the same poses)
-        planned_mean = recollected_means(bench, planner, [n], 10 * seed)[n]
+        planned_mean = recollected_means(bench, planner, [n], 10 * seed,
+                                         PLANNED_50_REPEATS)[n]
         full_predicted = planner.predict_for(q_full, t_full).max_m * 1e3
         rows.append((n, robot_time.at_hold(PAPER_HOLD), planned, full, planned_mean,
                      planner.state.predictions[-1].max_m * 1e3, full_predicted))
@@ -281,8 +293,16 @@ def planned_50_figures(robot: str, cell: str, grid=None, pool=None) -> Figures:
     full_mean = float(np.mean(r[:, 3]))
     single, expected = r[:, 2] / r[:, 3], r[:, 4] / full_mean
     prediction = (r[:, 5] / r[:, 4] - 1.0) * 100.0
+    # the grid's expectation itself: six draws' mean scatters by +-14 % (one draw's max by
+    # +-35 %), more than the goal's margin
+    full_expected = recollected_grid_mean(bench, grid, planner.parameter_set, 100000)
     name = f'planned_50_{robot}_'
     return {
+        name + 'full_expected_heldout_max_um': (full_expected * 1e3, 'um'),
+        name + 'mean_over_full_expected_max_error_ratio': (
+            float(np.median(r[:, 4])) / full_expected, 'x'),
+        name + 'mean_over_full_expected_max_error_ratio_worst': (
+            float(np.max(r[:, 4])) / full_expected, 'x'),
         name + 'draws': (float(len(r)), 'draws'),
         name + 'poses': (float(np.max(r[:, 0])), 'poses'),
         name + 'robot_s': (float(np.median(r[:, 1])), 's'),
@@ -333,27 +353,41 @@ def seed_figures(grid, pool, parameter_set) -> tuple[Figures, list[float]]:
 
 
 def recollected_means(bench: Bench, planner: SpherePlanner, counts,
-                      first_seed: int = 2000) -> dict[int, float]:
+                      first_seed: int = 2000, repeats: int = REPEATS) -> dict[int, float]:
     """The expected held-out max [mm] of the first ``count`` planned poses, for each of
-    ``counts``: the mean over REPEATS re-collections of them with fresh noise (the sim
+    ``counts``: the mean over ``repeats`` re-collections of them with fresh noise (the sim
     robot's seed offsets from ``first_seed``)."""
     chosen = [planner.candidates[i] for i in planner.state.chosen]
-    repeats = {count: [] for count in counts}
-    for seed in range(REPEATS):
+    values = {count: [] for count in counts}
+    for seed in range(repeats):
         port = DirectRobot(SimRobot(bench.sim, seed_offset=first_seed + seed),
                            bench.sim.probe)
         q = []
         for step in chosen:
             port.move_joints(np.asarray(step['q']), compliant=True)
             q.append(port.capture(HOLD).q)
-        for count in repeats:
+        for count in values:
             data = SphereObservations(np.array(q[:count]),
                                       np.array([s['target'] for s in chosen[:count]]),
                                       bench.distances)
             params, p_flange_tool, _ = fit_spheres(bench.model, data, bench.tool0,
                                               planner.parameter_set.free)
-            repeats[count].append(bench.held_out_mm(params, p_flange_tool)[0])
-    return {count: float(np.mean(values)) for count, values in repeats.items()}
+            values[count].append(bench.held_out_mm(params, p_flange_tool)[0])
+    return {count: float(np.mean(v)) for count, v in values.items()}
+
+
+def recollected_grid_mean(bench: Bench, grid, parameter_set, first_seed: int,
+                          repeats: int = PLANNED_50_REPEATS) -> float:
+    """The full grid's expected held-out max [mm]: the mean over ``repeats`` collections
+    of it with fresh noise (the sim robot's seed offsets from ``first_seed``)."""
+    port, values = bench.port, []
+    for seed in range(repeats):
+        bench.port = DirectRobot(SimRobot(bench.sim, seed_offset=first_seed + seed),
+                                 bench.sim.probe)
+        q, target, _, _ = bench.measure(grid)
+        values.append(bench.identify_mm(parameter_set, q, target)[0])
+    bench.port = port
+    return float(np.mean(values))
 
 
 def prediction_figures(measured: dict, means: dict[int, float]) -> Figures:
@@ -373,5 +407,14 @@ def prediction_figures(measured: dict, means: dict[int, float]) -> Figures:
     return figures
 
 
+def run_planned_50() -> Figures:
+    """The planned_50 figures alone (``--planned-50``)."""
+    start, figures = time.perf_counter(), {}
+    for robot, cell in PLANNED_50_CELLS.items():
+        figures.update(planned_50_figures(robot, cell))
+    figures['planning_bench_seconds'] = (time.perf_counter() - start, 's')
+    return figures
+
+
 if __name__ == '__main__':
-    raise SystemExit(benchlib.main(run))
+    raise SystemExit(benchlib.main(run_planned_50 if '--planned-50' in sys.argv[1:] else run))

@@ -104,8 +104,9 @@ class KinematicIdentifier(JobNode):
         declare(self, 'speed_scale', 1.0, 'Fraction of the joint velocity limits [1]',
                 0.01, 1.0)
         declare(self, 'candidate_tilt_step', math.radians(TILT_STEP_DEG),
-                'Planned collections: step of the candidate tilts on a sphere [rad] (coarser: '
-                'fewer candidates to solve IK for and choose from, longer moves)', 0.05, 1.05)
+                'Planned collections: step of the candidate tilts, turns and arm angles on a '
+                'sphere [rad] (coarser: fewer candidates to solve IK for and choose from)',
+                0.05, 1.05)
         declare(self, 'max_deviation_length', MAX_DEVIATION_M,
                 'Identification gate: the most a length of the model (and the tool centre) '
                 'may be off nominal [m]; a result with a parameter beyond is refused, nothing '

@@ -30,10 +30,10 @@ from cobot_calib_ros.core.kinematics import plans
 from cobot_calib_ros.core.kinematics.collection import collect, CollectionRun, Ending, PoseRecord
 from cobot_calib_ros.core.kinematics.model import KinematicModel
 from cobot_calib_ros.core.kinematics.planned_collection import collect_planned, RobotTime
-from cobot_calib_ros.core.kinematics.planning import (PlanSettings, Prediction,
+from cobot_calib_ros.core.kinematics.planning import (arm_grid_deg, PlanSettings, Prediction,
                                                       sphere_candidates, SpherePlanner,
                                                       tilt_grid_deg, TILT_STEP_DEG,
-                                                      too_few_poses)
+                                                      too_few_poses, turn_grid_deg)
 from cobot_calib_ros.core.robot_port import Cancelled, Capture, never, RobotPort
 
 Array = NDArray[np.float64]
@@ -46,7 +46,8 @@ PLANNING_TASK_SEED = 1      # the task volume's configurations (the validation s
 class CollectionRequest:
     """What to collect, in SI. ``max_configs``: poses of the grid or tracker set (0: all);
     planned (spheres only): up to ``max_poses``, stopping at a predicted max error of
-    ``target_error_m`` or a gain under ``min_gain``, candidates tilted in ``tilt_step_rad``."""
+    ``target_error_m`` or a gain under ``min_gain``, candidates in ``tilt_step_rad`` steps
+    (tilts, turns about the approach axis, arm angles)."""
 
     source: str = 'spheres'
     region: str = 'volume'
@@ -158,7 +159,8 @@ def new_collection(cell: Cell, model: KinematicModel, request: CollectionRequest
             return Failure(ErrorCode.INVALID_INPUT, problem)
         say(f'planned collection: solving IK for the candidate poses (tilts in '
             f'{step_deg:.4g} deg steps)')
-        plan, unreachable = sphere_candidates(cell, model, tilts)
+        plan, unreachable = sphere_candidates(cell, model, tilts, arm_grid_deg(step_deg),
+                                              turn_grid_deg(step_deg))
         say(f'{len(plan)} candidates reachable, {len(unreachable)} not')
         settings = PlanSettings(max_poses=max_poses, target_mm=request.target_error_m * 1e3,
                                 min_gain=request.min_gain)
@@ -214,6 +216,8 @@ def _planned(model: KinematicModel, meta: Mapping[str, Any], resume: Resume,
         planner.state.initial_plan = before['initial_plan']
         planner.state.initial_predictions = [Prediction.from_dict(p)
                                              for p in before['initial_predictions']]
+        # ... and the rest of its planned set, in its order (stored since issue 38.5)
+        planner.state.route = [i for i in before.get('route', []) if planner.available[i]]
     else:
         planner.start()
     start = robot.robot_seconds

@@ -24,28 +24,48 @@ then the fit's residual estimate).
   tilt steps: per pose 362 s of robot time; per second with travel_weight 1: 188 s,
   predicted max 1.05x the full paper grid's (2425 s); travel_weight 16: 164 s, 1.03x (2, 4,
   8, 32, 100: 177, 169, 164, 162, 156 s at 1.00, 1.03, 1.08, 1.08, 1.19x). Tilts in 15 deg
-  steps (the default, :data:`TILT_STEP_DEG`) let the moves be shorter; there, three noise
-  draws each, travel_weight 4: 152.8 s at 0.90-1.03x; 8: 149.2 s at 0.94-1.11x; 16: 144-145 s
-  at 1.02-1.14x. Weight 4 (the default) reaches a given predicted max soonest in robot time
-  (bench_planning: a target of 1.2x the grid's predicted max after 128 s with weight 4,
+  steps (the default until issue 38.5's pool, below) let the moves be shorter; there, three
+  noise draws each, travel_weight 4: 152.8 s at 0.90-1.03x; 8: 149.2 s at 0.94-1.11x; 16:
+  144-145 s at 1.02-1.14x. Weight 4 (the default) reaches a given predicted max soonest in
+  robot time (bench_planning: a target of 1.2x the grid's predicted max after 128 s with weight 4,
   134 s with 2, 132 s with 16). Tried and not kept (within the run-to-run scatter of +-4 s):
   planning the remaining poses as a route by cheapest insertion (135-143 s), visiting a
   planned batch in 2-opt order, staying on one sphere for blocks of poses.
 - **50 poses (issue 38.5).** The per-second rule above spends few seconds on each pose, not
-  few poses: at 50 poses on the iiwa 7 it predicts 1.67x the full grid's max error. Two
-  levers bring 50 near the grid (offline, iiwa 7, predicted max at 50 over the grid's):
-  each candidate's :func:`flipped_configurations` in the pool (the same coupling pose with
-  the shoulder, elbow or wrist turned over: 9,382 -> 59,177 candidates; per pose 1.31x ->
-  1.14x), and the choice by gain per pose, the quickest of the poses within ``gain_slack``
-  (10 %) of the largest gain (1.16x in 145 s of robot time, against 1.14x in 205 s per
-  pose; 20 %: 1.24x in 129 s). UR10e (no exact flips): 0.55x in 116 s (per second: 0.61x
-  in 77 s). Tried and not kept: an exchange pass over the greedy 50 (V criterion 5 %
-  lower, predicted max 1.10-1.13x, 30 s a sweep over the pool); the gates' prior (1 mm,
-  10 mrad) in M (no change beyond the expected max's draw scatter: its information is
-  ~1e-5 of a pose's). Measured (bench_planning, six noise draws): the iiwa 7's 50 poses
-  1.44x the grid's expected max error (the goal 1.2x missed), the UR10e's 0.86x.
+  few poses: at 50 poses on the iiwa 7 it predicts 1.67x the full grid's max error. What
+  brings 50 to the grid: each candidate's :func:`flipped_configurations` in the pool (the
+  same coupling pose with the shoulder, elbow or wrist turned over; per pose 1.31x ->
+  1.14x), and, without a stopping rule that ends the collection part-way (``target_mm``,
+  ``min_gain``), the ``max_poses`` poses planned as one set (:meth:`SpherePlanner.plan_set`):
+  the greedy choice (by gain per pose, the quickest of the poses within ``gain_slack`` of the
+  largest gain), then Fedorov's :func:`exchange` until no single swap with the pool lowers
+  the criterion, visited in a short :func:`route` (nearest first, 2-opt). Offline on the
+  iiwa 7 at its true parameters, expected max at the 125 held-out configurations over the
+  grid's (1.28 um), 50 poses: the old pool (tilts in 15 deg steps, turns about the approach
+  axis +-60 deg, arm angles +-90 deg; 59,177 candidates) greedy 1.11x in 145 s of robot
+  time, per pose 1.04x in 208 s, exchanged 1.00x in 133 s (routed); the default pool
+  (:func:`tilt_grid_deg`, :func:`turn_grid_deg` a full turn, :func:`arm_grid_deg` +-150
+  deg, all in 30 deg steps; 37,670 candidates) exchanged 0.98x. That is the pool's limit:
+  the best weighted design over it (the multiplicative algorithm, 50 poses' weight) is
+  0.97x, over 154k candidates (15 deg tilts and turns) too. Tried and not kept: V-optimal
+  weighted towards the task configurations of the largest predicted variance (a step to
+  minimax; powers 1-8, greedy or exchanged: 0.98-1.16x, no better); planning on 625 task
+  configurations or on the held-out ones themselves (1.10x either, greedy: the criterion's
+  configurations are not the limit); the gates' prior (1 mm, 10 mrad) in M (~1e-5 of a
+  pose's information). The plan is made before any data (at the nominal model: 1.01x
+  against 1.00x planned at the truth); a skipped pose of it is replaced by the greedy choice
+  given the rest, which is routed again.
+  The planned set's rest is kept in :class:`PlanState` (``route``), so a resumed collection
+  goes on with it. Measured (bench_planning --planned-50, six noise draws, 30 re-collections
+  of the planned poses): the iiwa 7's 50 poses 1.15x the six grids' mean expected max error
+  (1.03x the grid's own expectation), 138.6 s of robot time; the UR10e's 0.77x, 86.6 s
+  (before: 1.44x in 153 s, 0.86x in 118 s). The six draws' grids measured under the
+  grid's expectation (iiwa 7: 1.044 against 1.17-1.27 um): that, not a bias nor the
+  criterion, was most of the 1.44x.
 - **Sequential.** :class:`SpherePlanner` is told each measured pose (its measured joints, or
-  that it was skipped), refits, and re-plans the next pose with the data so far; its
+  that it was skipped), refits, and (greedy) re-plans the next pose with the data so far;
+  once the poses left are only just enough to give every sphere POSES_PER_SPHERE, the
+  choice is among the spheres short of them (the exchange keeps them too). Its
   :meth:`SpherePlanner.stop_reason` is the stopping rule: the predicted max error at or under
   ``target_mm``, the predicted gain per pose under ``min_gain`` over ``gain_window`` poses,
   ``max_poses``, or no candidate left.
@@ -74,12 +94,14 @@ CRITERIA = ('D', 'V')
 SIGMA_PRIOR = 5e-6          # coupling noise per axis before the first fit [m]
 PRIOR_WEIGHT = 1e-6         # ridge on M before it has full rank, times its mean diagonal
 DRAWS = 256                 # normal draws for the expected max error
+EXCHANGE_SWEEPS = 6         # at most this many exchange passes over a planned set
+POSES_PER_SPHERE = 2        # a sphere's centre needs two poses (SphereObservations' rule)
+EXCHANGE_TOLERANCE = 1e-6   # a swap must lower the criterion by this fraction
 TILT_LIMIT_DEG = 60.0      # the candidate grid's tilts: wider than the paper's +-20 deg (the
 #                            coupling must allow +-60 deg of tilt on its sphere)
-TILT_STEP_DEG = 15.0       # on the mock iiwa 7, 100 poses at travel_weight 16: 15 deg steps
-#                            (9,382 candidates) ~145 s of robot time at a predicted max of
-#                            1.17-1.30 um, 30 deg steps (1,527) ~168 s at 1.03-1.05 um
-CANDIDATE_ARM_DEG = (-90.0, -60.0, -30.0, 0.0, 30.0, 60.0, 90.0)
+TILT_STEP_DEG = 30.0       # the candidate grid's step: tilts, turns and arm angles (module
+#                            doc: 50 poses)
+ARM_LIMIT_DEG = 150.0      # the candidate arm angles of a 7-joint arm: within +- this
 
 
 def tilt_grid_deg(step_deg: float = TILT_STEP_DEG) -> tuple[float, ...]:
@@ -92,18 +114,37 @@ def tilt_grid_deg(step_deg: float = TILT_STEP_DEG) -> tuple[float, ...]:
     return tuple(float(i * step_deg) for i in range(-k, k + 1))
 
 
+def turn_grid_deg(step_deg: float = TILT_STEP_DEG) -> tuple[float, ...]:
+    """The candidate turns about the approach axis: a full turn, -180 (included) to 180
+    (not), in ``step_deg`` steps, 0 among them [deg] (a turn of the coupling on its sphere
+    tilts nothing)."""
+    tilt_grid_deg(step_deg)             # the same steps allowed
+    k = int(180.0 // step_deg + 1e-9)
+    return tuple(float(i * step_deg) for i in range(-k, k + 1) if -180.0 <= i * step_deg < 180.0)
+
+
+def arm_grid_deg(step_deg: float = TILT_STEP_DEG) -> tuple[float, ...]:
+    """The candidate arm angles of a 7-joint arm: -ARM_LIMIT_DEG..ARM_LIMIT_DEG in
+    ``step_deg`` steps, 0 among them [deg]."""
+    tilt_grid_deg(step_deg)
+    k = int(ARM_LIMIT_DEG // step_deg + 1e-9)
+    return tuple(float(i * step_deg) for i in range(-k, k + 1))
+
+
 IDENTIFIABILITY_ROWS = 300  # an even subset of the pool decides the identifiable parameters
 
 
 def sphere_candidates(cell: Cell, model: KinematicModel,
                       tilt_deg: Sequence[float] = tilt_grid_deg(),
-                      arm_deg: Sequence[float] = CANDIDATE_ARM_DEG
+                      arm_deg: Sequence[float] = arm_grid_deg(),
+                      rz_deg: Sequence[float] = turn_grid_deg()
                       ) -> tuple[list[dict], list[str]]:
-    """The candidate pool: :func:`plans.sphere_plan`'s grid over ``tilt_deg`` about x, y, z
-    and ``arm_deg`` arm angles (the null space of a 7-joint arm), then each pose's
-    :func:`flipped_configurations` after them; steps and skipped poses."""
+    """The candidate pool: :func:`plans.sphere_plan`'s grid over ``tilt_deg`` about x and
+    y, ``rz_deg`` about the approach axis and ``arm_deg`` arm angles (the null space of a
+    7-joint arm), then each pose's :func:`flipped_configurations` after them; steps and
+    skipped poses."""
     steps, skipped = sphere_plan(cell, model, angles_deg=tuple(tilt_deg),
-                                 arm_angles_deg=tuple(arm_deg))
+                                 arm_angles_deg=tuple(arm_deg), rz_angles_deg=tuple(rz_deg))
     if not steps:
         return steps, skipped
     chain = model.chain(tool=cell.spheres.T_flange_coupling)
@@ -242,6 +283,9 @@ class PlanSettings:
     gain_slack: float = 0.1     # > 0 (with joint_speed > 0): instead of the gain per second,
     #                             the quickest pose of those within this fraction of the
     #                             largest gain (travel_weight then unused)
+    exchange: bool = True       # without a target_mm or min_gain: the max_poses poses planned
+    #                             as one set (the greedy choice, then Fedorov's exchange),
+    #                             visited in a short route (module doc)
 
     def __post_init__(self) -> None:
         if self.criterion not in CRITERIA:
@@ -329,27 +373,119 @@ def predict(M: Array, F: int, task: Array, sigma: float, draws: Array, poses: in
     return Prediction(poses, rms, worst, sigma)
 
 
+def _gains(A: Array, M: Array, task_weight: Array | None, ridge: float) -> Array:
+    """(C,) what adding each candidate block of A (C, 3, D) to M gains: the increase of
+    log det M (task_weight None) or the decrease of trace(W M^-1) (W (D, D)); M regularised
+    by ``ridge``."""
+    D = M.shape[0]
+    Minv = np.linalg.inv(M + ridge * np.eye(D))
+    G = A @ Minv                                          # (C, 3, D)
+    S = np.eye(3) + G @ A.transpose(0, 2, 1)              # (C, 3, 3)
+    if task_weight is None:
+        return np.linalg.slogdet(S)[1]
+    GW = G @ task_weight
+    return np.einsum('cii->c', np.linalg.solve(S, GW @ G.transpose(0, 2, 1)))
+
+
+def _criterion(M: Array, task_weight: Array | None, ridge: float) -> float:
+    """What :func:`_gains` lowers: -log det M, or trace(W M^-1)."""
+    R = M + ridge * np.eye(M.shape[0])
+    if task_weight is None:
+        return -float(np.linalg.slogdet(R)[1])
+    return float(np.trace(task_weight @ np.linalg.inv(R)))
+
+
 def _pick(A: Array, M: Array, task_weight: Array | None, ridge: float,
           seconds: Array | None = None, slack: float = 0.0) -> int:
     """Index of the candidate block (C, 3, D) that most increases log det M (task_weight
     None) or most decreases trace(W M^-1) (W (D, D)), per its robot ``seconds`` (C,) if
     given, or with ``slack`` > 0 the quickest of those within that fraction of the largest
     gain; M regularised by ``ridge``."""
-    D = M.shape[0]
-    Minv = np.linalg.inv(M + ridge * np.eye(D))
-    G = A @ Minv                                          # (C, 3, D)
-    S = np.eye(3) + G @ A.transpose(0, 2, 1)              # (C, 3, 3)
-    if task_weight is None:
-        gain = np.linalg.slogdet(S)[1]
-    else:
-        GW = G @ task_weight
-        gain = np.einsum('cii->c', np.linalg.solve(S, GW @ G.transpose(0, 2, 1)))
+    gain = _gains(A, M, task_weight, ridge)
     if seconds is None:
         return int(np.argmax(gain))
     if slack > 0.0:
         best = gain.max()
         return int(np.argmin(np.where(gain >= best - slack * abs(best), seconds, np.inf)))
     return int(np.argmax(gain / seconds))
+
+
+def exchange(pool_A: Array, M: Array, chosen: Sequence[int], available: Array,
+             task_weight: Array | None, ridge: float, sweeps: int,
+             pool_target: Array | None = None, kept: Mapping[int, int] | None = None
+             ) -> list[int]:
+    """Fedorov's exchange over ``chosen`` (indices into pool_A (C, 3, D), whose information
+    with the rest's is M (D, D)): each chosen pose in turn is replaced by the ``available``
+    (C,) bool candidate that lowers the criterion (:func:`_criterion`) most with it out,
+    where that lowers it; up to ``sweeps`` passes, until one swaps nothing. The known
+    distances' share of M goes with the pose count, which a swap keeps. With
+    ``pool_target`` (C,) and ``kept`` {sphere: poses}: a chosen pose on a sphere with no
+    more than ``kept`` of them (the measured ones counted in) is replaced only by another
+    on that sphere."""
+    chosen, available = list(chosen), available.copy()
+    available[chosen] = False
+    current = _criterion(M, task_weight, ridge)
+    for _ in range(sweeps):
+        swaps = 0
+        for k, i in enumerate(chosen):
+            without = M - pool_A[i].T @ pool_A[i]
+            within = available
+            if kept is not None and pool_target is not None:
+                sphere = int(pool_target[i])
+                if sphere in kept and np.sum(pool_target[chosen] == sphere) <= kept[sphere]:
+                    within = available & (pool_target == sphere)
+            idx = np.flatnonzero(within)
+            if not len(idx):
+                continue
+            gain = _gains(pool_A[idx], without, task_weight, ridge)
+            best = int(np.argmax(gain))
+            value = _criterion(without, task_weight, ridge) - float(gain[best])
+            if value < current - EXCHANGE_TOLERANCE * abs(current):
+                j = int(idx[best])
+                available[i], available[j] = True, False
+                chosen[k], current, swaps = j, value, swaps + 1
+                M = without + pool_A[j].T @ pool_A[j]
+        if not swaps:
+            break
+    return chosen
+
+
+def route(q: Array, start: Array | None, speed: float) -> list[int]:
+    """A short visiting order of configurations q (m, n) [rad] from joints ``start`` (None:
+    from whichever is best to begin with): nearest first, then 2-opt; a move taking its
+    largest joint step over ``speed`` [rad/s] (core.driver.move_seconds; 0: the step)."""
+    m = len(q)
+    if m < 2:
+        return list(range(m))
+    points = q if start is None else np.vstack([start, q])
+    cost = move_seconds(points[:, None, :], points[None, :, :], speed if speed > 0.0 else 1.0)
+    offset = 0 if start is None else 1
+
+    def nearest_first(first: int) -> list[int]:
+        order, left = [first], set(range(offset, len(points))) - {first}
+        while left:
+            order.append(min(left, key=lambda j: cost[order[-1], j]))
+            left.remove(order[-1])
+        return order
+
+    def length(order: list[int]) -> float:
+        return float(sum(cost[a, b] for a, b in zip(order, order[1:])))
+
+    order = nearest_first(0) if start is not None else min(
+        (nearest_first(first) for first in range(m)), key=length)
+    improved = True
+    while improved:         # 2-opt on the open path; its first point stays (the start)
+        improved = False
+        for i in range(1, len(order) - 1):
+            for j in range(i + 1, len(order)):
+                a, b, c = order[i - 1], order[i], order[j]
+                d = order[j + 1] if j + 1 < len(order) else None
+                before = cost[a, b] + (cost[c, d] if d is not None else 0.0)
+                after = cost[a, c] + (cost[b, d] if d is not None else 0.0)
+                if after < before - 1e-12:
+                    order[i:j + 1] = order[i:j + 1][::-1]
+                    improved = True
+    return [k - offset for k in order[offset:]]
 
 
 @dataclass
@@ -362,6 +498,7 @@ class PlanState:
     predictions: list[Prediction] = field(default_factory=list)
     initial_plan: list[int] = field(default_factory=list)
     initial_predictions: list[Prediction] = field(default_factory=list)
+    route: list[int] = field(default_factory=list)  # a planned set's poses still to visit
     stop: str | None = None
 
     def as_dict(self) -> dict[str, Any]:
@@ -369,7 +506,7 @@ class PlanState:
                 'predictions': [p.as_dict() for p in self.predictions],
                 'initial_plan': list(self.initial_plan),
                 'initial_predictions': [p.as_dict() for p in self.initial_predictions],
-                'stop': self.stop}
+                'route': list(self.route), 'stop': self.stop}
 
 
 class SpherePlanner:
@@ -456,17 +593,29 @@ class SpherePlanner:
         return predict(M, self.lin.F, self.task, self.sigma, self.draws, len(q))
 
     # -- planning -------------------------------------------------------------------------
-    def plan(self, count: int) -> tuple[list[int], list[Prediction]]:
-        """The next ``count`` candidates, greedy given the data so far, and the prediction
-        after each (at the current noise estimate)."""
-        M = self.information(q=self.q, target=self.target)
+    def plan(self, count: int, planned: Sequence[int] = ()) -> tuple[list[int],
+                                                                   list[Prediction]]:
+        """The next ``count`` candidates, greedy given the data so far and the candidates
+        ``planned`` already, and the prediction after each (at the current noise estimate,
+        the planned ones counted in). Once the poses left to max_poses are
+        only just enough to bring every sphere to POSES_PER_SPHERE, the choice is among the
+        spheres short of it (the greedy choice alone can leave a sphere out: a pose on a
+        sphere whose centre is unknown teaches little until the next one there)."""
+        planned = list(planned)
+        M = self.information(planned, q=self.q, target=self.target)
         available = self.available.copy()
+        available[planned] = False
         chosen, predictions = [], []
         G2 = self.distance_G.T @ self.distance_G
         weight = None if self.settings.criterion == 'D' else self.task_weight
         here = self.q[-1] if self.q else None
         for _ in range(count):
-            idx = np.flatnonzero(available)
+            short = self._short_spheres(planned + chosen)
+            left = self.settings.max_poses - len(self.q) - len(planned) - len(chosen)
+            within = available
+            if short and left <= sum(short.values()):
+                within = available & np.isin(self.pool_target, list(short))
+            idx = np.flatnonzero(within if within.any() else available)
             if not len(idx):
                 break
             pick = int(idx[_pick(self.pool_A[idx], M, weight, self.ridge,
@@ -477,8 +626,17 @@ class SpherePlanner:
             M = M + A.T @ A + G2
             chosen.append(pick)
             predictions.append(predict(M, self.lin.F, self.task, self.sigma, self.draws,
-                                       len(self.q) + len(chosen)))
+                                       len(self.q) + len(planned) + len(chosen)))
         return chosen, predictions
+
+    def _short_spheres(self, planned: Sequence[int]) -> dict[int, int]:
+        """{sphere: poses it still needs} for the spheres with fewer than POSES_PER_SPHERE
+        among the measured and the ``planned`` candidates."""
+        counts = np.zeros(len(self.lin.spheres), dtype=int)
+        for target in [*self.target, *self.pool_target[list(planned)]]:
+            counts[self.lin.spheres.index(int(target))] += 1
+        return {s: POSES_PER_SPHERE - int(c) for s, c in zip(self.lin.spheres, counts)
+                if c < POSES_PER_SPHERE}
 
     def _seconds(self, here: Array | None, idx: Array) -> Array | None:
         """Robot time [s] of candidates ``idx`` from joints ``here``, the move weighted by
@@ -489,20 +647,70 @@ class SpherePlanner:
         move = 0.0 if here is None else move_seconds(here, self.pool_q[idx], s.joint_speed)
         return s.pose_seconds + s.travel_weight * move
 
+    @property
+    def plans_a_set(self) -> bool:
+        """Whether the poses left are planned as one set (:meth:`plan_set`): ``exchange`` on
+        and no stopping rule that ends the collection part-way (target_mm, min_gain), where
+        each pose the best given those before it is what counts."""
+        s = self.settings
+        return s.exchange and s.target_mm <= 0.0 and s.min_gain <= 0.0
+
+    def plan_set(self, count: int) -> tuple[list[int], list[Prediction]]:
+        """The next ``count`` candidates as one set: :meth:`plan`'s greedy choice, then
+        :func:`exchange` over it given the data so far, in :func:`route`'s order from the
+        last measured pose; the prediction after each (at the current noise estimate)."""
+        chosen, _ = self.plan(count)
+        M = self.information(q=self.q, target=self.target)
+        G2 = self.distance_G.T @ self.distance_G
+        for i in chosen:
+            M = M + self.pool_A[i].T @ self.pool_A[i] + G2
+        weight = None if self.settings.criterion == 'D' else self.task_weight
+        measured = {s: self.target.count(s) for s in self.lin.spheres}
+        chosen = exchange(self.pool_A, M, chosen, self.available, weight, self.ridge,
+                          EXCHANGE_SWEEPS, self.pool_target,
+                          {s: POSES_PER_SPHERE - n for s, n in measured.items()})
+        here = self.q[-1] if self.q else None
+        chosen = [chosen[k] for k in route(self.pool_q[chosen], here,
+                                           self.settings.joint_speed)]
+        M = self.information(q=self.q, target=self.target)
+        predictions = []
+        for k, i in enumerate(chosen):
+            M = M + self.pool_A[i].T @ self.pool_A[i] + G2
+            predictions.append(predict(M, self.lin.F, self.task, self.sigma, self.draws,
+                                       len(self.q) + k + 1))
+        return chosen, predictions
+
     def start(self) -> PlanState:
         """The plan before the robot moves: up to max_poses poses and their predictions."""
-        self.state.initial_plan, self.state.initial_predictions = self.plan(
+        plan = self.plan_set if self.plans_a_set else self.plan
+        self.state.initial_plan, self.state.initial_predictions = plan(
             self.settings.max_poses)
+        if self.plans_a_set:
+            self.state.route = list(self.state.initial_plan)
         return self.state
 
     def next_pose(self) -> int | None:
-        """The candidate to measure next (None: none left)."""
-        chosen, _ = self.plan(1)
-        return chosen[0] if chosen else None
+        """The candidate to measure next (None: none left): the next of the planned set (a
+        skipped pose of it replaced by the greedy choice given the rest, the rest routed
+        again from here), or the greedy choice."""
+        if not self.plans_a_set:
+            chosen, _ = self.plan(1)
+            return chosen[0] if chosen else None
+        left = max(self.settings.max_poses - len(self.q), 1)
+        if not self.state.route:
+            self.state.route, _ = self.plan_set(left)
+        elif len(self.state.route) < left:
+            more, _ = self.plan(left - len(self.state.route), self.state.route)
+            rest = self.state.route + more
+            self.state.route = [rest[k] for k in route(
+                self.pool_q[rest], self.q[-1] if self.q else None, self.settings.joint_speed)]
+        return self.state.route[0] if self.state.route else None
 
     def measured(self, index: int, q: ArrayLike) -> Prediction:
         """Candidate ``index`` was measured at joints ``q`` [rad]: refit, predict, store."""
         self.available[index] = False
+        if index in self.state.route:
+            self.state.route.remove(index)
         self.q.append(np.asarray(q, dtype=float))
         self.target.append(int(self.pool_target[index]))
         self.state.chosen.append(int(index))
@@ -534,9 +742,12 @@ class SpherePlanner:
         return prediction
 
     def skipped(self, index: int) -> None:
-        """Candidate ``index`` could not be measured; it is not offered again."""
+        """Candidate ``index`` could not be measured; it is not offered again (a planned
+        set has another in its place, :meth:`next_pose`)."""
         self.available[index] = False
         self.state.skipped.append(int(index))
+        if index in self.state.route:
+            self.state.route.remove(index)
 
     def _refit(self, relinearise: bool = True) -> None:
         """Identify on the data so far once they determine every unknown with some margin

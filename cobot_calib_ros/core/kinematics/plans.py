@@ -39,10 +39,11 @@ def even_subset(count: int, limit: int) -> NDArray[np.int64]:
 
 def sphere_plan(cell: Cell, model: KinematicModel, max_configs: int = 0,
                 angles_deg=(-20.0, -10.0, 0.0, 10.0, 20.0),
-                arm_angles_deg=None) -> tuple[list[dict], list[str]]:
+                arm_angles_deg=None, rz_angles_deg=None) -> tuple[list[dict], list[str]]:
     """Steps that bring the coupling onto every sphere in the pose grid, and why poses were
     left out (unreachable on the nominal model). ``max_configs`` > 0 keeps an even subset.
-    ``arm_angles_deg``: the arm angles of a 7-joint arm (default: ``angles_deg``)."""
+    ``arm_angles_deg``: the arm angles of a 7-joint arm, ``rz_angles_deg`` the turns about
+    the approach axis (both default: ``angles_deg``)."""
     plate = cell.spheres
     if plate is None:
         raise ValueError(f'cell {cell.name!r} has no spheres: section; see '
@@ -58,7 +59,7 @@ def sphere_plan(cell: Cell, model: KinematicModel, max_configs: int = 0,
             skipped.append(f'{name}: the approach pose itself is unreachable')
             continue
         grid = sphere_pose_grid(chain, centre, R, home, angles_deg=angles_deg,
-                                arm_angles_deg=arm)
+                                arm_angles_deg=arm, rz_angles_deg=rz_angles_deg)
         for pose in grid:
             steps.append({'q': pose.q.tolist(), 'target': k,
                           'label': f'{name} rx{pose.rx_deg:+.0f} ry{pose.ry_deg:+.0f} '

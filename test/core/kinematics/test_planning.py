@@ -8,16 +8,18 @@ import numpy as np
 import pytest
 
 from cobot_calib_ros.core import frames, kinematics
+from cobot_calib_ros.core.driver import move_seconds
 from cobot_calib_ros.core.kinematics import plans
 from cobot_calib_ros.core.kinematics.collection import Ending
 from cobot_calib_ros.core.kinematics.identification import register_rigid, SphereObservations
 from cobot_calib_ros.core.kinematics.kinematic_calibration import fit_spheres
 from cobot_calib_ros.core.kinematics.planned_collection import collect_planned, PAPER_HOLD
-from cobot_calib_ros.core.kinematics.planning import (_pick, fewest_poses,
+from cobot_calib_ros.core.kinematics.planning import (_criterion, _pick, arm_grid_deg,
+                                                      exchange, fewest_poses,
                                                       flipped_configurations, PlanSettings,
-                                                      predict, sphere_candidates,
+                                                      predict, route, sphere_candidates,
                                                       SpherePlanner, tilt_grid_deg,
-                                                      too_few_poses)
+                                                      too_few_poses, turn_grid_deg)
 from cobot_calib_ros.core.robot_port import MoveFailed
 from cobot_calib_ros.paths import cell_file
 from cobot_calib_ros.sim.robot import DirectRobot, SimRobot
@@ -33,7 +35,8 @@ DISTANCES = SIM.cell.spheres.known_distances()
 @pytest.fixture(scope='module')
 def pool():
     steps, _ = sphere_candidates(SIM.cell, MODEL, tilt_deg=(-40.0, 0.0, 40.0),
-                                 arm_deg=(-60.0, -20.0, 20.0, 60.0))
+                                 arm_deg=(-60.0, -20.0, 20.0, 60.0),
+                                 rz_deg=(-40.0, 0.0, 40.0))
     return steps
 
 
@@ -69,6 +72,18 @@ def _held_out_max_mm(robot: DirectRobot, params, p_flange_tool, q_held) -> float
     return float(np.linalg.norm(fitted - true, axis=1).max() * 1e3)
 
 
+def _collected_held_out_max_mm(robot: DirectRobot, steps, parameter_set, q_held) -> float:
+    """Collect ``steps`` on ``robot``, identify, and the held-out max [mm]."""
+    q = []
+    for step in steps:
+        robot.move_joints(np.array(step['q']), compliant=True)
+        q.append(robot.capture(HOLD).q)
+    data = SphereObservations(np.array(q), np.array([step['target'] for step in steps]),
+                              DISTANCES)
+    params, p_flange_tool, _ = fit_spheres(MODEL, data, TOOL0, parameter_set.free)
+    return _held_out_max_mm(robot, params, p_flange_tool, q_held)
+
+
 @pytest.fixture(scope='module')
 def planned_30(planner_template):
     planner, robot, log = _planner(planner_template, max_poses=30), _robot(), []
@@ -81,17 +96,10 @@ def test_planned_poses_beat_the_random_median_of_the_same_pool(planned_30, pool,
     assert run.ending is Ending.DONE and run.recorded == 30 == len(planner.q)
     assert planner.state.stop == 'max_poses: 30 poses measured'
     planned = _held_out_max_mm(robot, planner.params, planner.p_flange_tool, volume[1])
-    rng, random = np.random.default_rng(4), []
-    for _ in range(10):
-        pick = np.sort(rng.choice(len(pool), 30, replace=False))
-        q = []
-        for i in pick:
-            robot.move_joints(np.array(pool[i]['q']), compliant=True)
-            q.append(robot.capture(HOLD).q)
-        data = SphereObservations(np.array(q), np.array([pool[i]['target'] for i in pick]),
-                                  DISTANCES)
-        params, p_flange_tool, _ = fit_spheres(MODEL, data, TOOL0, planner.parameter_set.free)
-        random.append(_held_out_max_mm(robot, params, p_flange_tool, volume[1]))
+    rng = np.random.default_rng(4)
+    random = [_collected_held_out_max_mm(robot, [pool[i] for i in np.sort(
+        rng.choice(len(pool), 30, replace=False))], planner.parameter_set, volume[1])
+        for _ in range(10)]
     print(f'\nheld-out max, 30 poses: planned {planned * 1e3:.2f} um, random median '
           f'{np.median(random) * 1e3:.2f} um, worst {np.max(random) * 1e3:.2f} um')
     assert planned < 0.8 * np.median(random)
@@ -99,19 +107,30 @@ def test_planned_poses_beat_the_random_median_of_the_same_pool(planned_30, pool,
 
 
 def test_the_prediction_agrees_with_the_measured_held_out_error(planned_30, volume):
+    """The prediction is of the expected max over noise draws: against the mean of eight
+    re-collections of the planned poses (one collection's max scatters by +-35 % and more:
+    this one measured 0.92 um where the prediction says 1.35 um and the re-collections'
+    mean 1.62 um)."""
     planner, robot, _, _, _, _ = planned_30
     prediction = planner.state.predictions[-1]
     measured = _held_out_max_mm(robot, planner.params, planner.p_flange_tool, volume[1])
+    steps = [planner.candidates[i] for i in planner.state.chosen]
+    expected = np.mean([_collected_held_out_max_mm(_robot(100 + k), steps,
+                                                   planner.parameter_set, volume[1])
+                        for k in range(8)])
     print(f'\n30 poses: predicted max {prediction.max_m * 1e6:.2f} um (RMS '
           f'{prediction.rms_m * 1e6:.2f} um, sigma {prediction.sigma_m * 1e6:.2f} um), '
-          f'measured {measured * 1e3:.2f} um')
+          f'measured {measured * 1e3:.2f} um, mean of 8 re-collections '
+          f'{expected * 1e3:.2f} um')
     # the fit's noise estimate: the coupling's 3 um per axis plus the encoders' share
     assert 2.5e-6 < prediction.sigma_m < 4.0e-6
-    assert abs(prediction.max_m * 1e3 / measured - 1.0) < 0.35
+    assert abs(prediction.max_m * 1e3 / expected - 1.0) < 0.25
 
 
 def test_the_plan_before_the_robot_moves_predicts_a_falling_error(planner_template):
-    planner = _planner(planner_template, max_poses=40)
+    """The greedy order (exchange off, as with a target_mm): each pose the best given those
+    before it."""
+    planner = _planner(planner_template, max_poses=40, exchange=False)
     state = planner.start()
     assert len(state.initial_plan) == 40 == len(set(state.initial_plan))
     rms = [p.rms_m for p in state.initial_predictions]
@@ -128,6 +147,82 @@ def test_the_plan_before_the_robot_moves_predicts_a_falling_error(planner_templa
     worst = [p.max_m for p in state.initial_predictions]
     assert 2e-6 < worst[-1] < 0.8 * worst[24] < 1e-5         # [m], at the 5 um prior sigma
     assert not planner.q                                     # planning moves nothing
+
+
+def test_the_planned_set_is_the_greedy_one_exchanged_and_routed(planner_template):
+    """By default (no target_mm or min_gain) the max_poses poses are planned as one set:
+    a lower task-volume mean square error (the RMS prediction) than the greedy order's, no
+    single swap with the pool lowering it further, visited in a shorter route."""
+    greedy = _planner(planner_template, max_poses=40, exchange=False)
+    chosen, predictions = greedy.plan(40)
+    planner = _planner(planner_template, max_poses=40)
+    assert planner.plans_a_set and not greedy.plans_a_set
+    assert not _planner(planner_template, max_poses=40, target_mm=0.001).plans_a_set
+    state = planner.start()
+    assert len(state.initial_plan) == 40 == len(set(state.initial_plan))
+    assert state.route == state.initial_plan and planner.next_pose() == state.route[0]
+    final = state.initial_predictions[-1]
+    print(f'\nRMS {final.rms_m * 1e6:.3f} um against the greedy order\'s '
+          f'{predictions[-1].rms_m * 1e6:.3f} um')
+    assert final.rms_m < 0.97 * predictions[-1].rms_m
+    rms = [p.rms_m for p in state.initial_predictions if math.isfinite(p.rms_m)]
+    assert all(b < a for a, b in zip(rms, rms[1:]))
+
+    def moves(order):
+        q = planner.pool_q[order]
+        return float(np.sum(move_seconds(q[:-1], q[1:], 1.0)))
+    assert moves(state.initial_plan) < 0.9 * moves(chosen)
+
+
+def test_every_sphere_gets_two_poses_within_max_poses(planner_template):
+    """The fewest poses that can cover the spheres (two each): the greedy choice alone can
+    leave one out (a pose on a sphere of unknown centre teaches little until the next one
+    there; the mock Sawyer's 12 did, test_kinematic_collection), so the planner keeps the
+    last picks for the spheres short of two, greedy or as a set."""
+    for exchange_ in (False, True):
+        planner = _planner(planner_template, max_poses=6, exchange=exchange_)
+        state = planner.start()
+        assert np.bincount(planner.pool_target[state.initial_plan]).tolist() == [2, 2, 2]
+
+
+def test_an_exchange_leaves_no_single_swap_that_lowers_the_criterion():
+    rng = np.random.default_rng(5)
+    A = rng.normal(size=(60, 3, 6))
+    W = np.diag([1.0, 2.0, 0.5, 3.0, 0.0, 0.0])
+    for weight in (W, None):
+        start = list(range(8))
+        M = np.einsum('cij,cik->jk', A[start], A[start])
+        chosen = exchange(A, M, start, np.ones(60, dtype=bool), weight, 0.0, 50)
+        assert len(set(chosen)) == 8
+
+        def value(design):
+            return _criterion(np.einsum('cij,cik->jk', A[design], A[design]), weight, 0.0)
+        best = value(chosen)
+        assert best < value(start)
+        for k in range(8):
+            for j in set(range(60)) - set(chosen):
+                assert value([*chosen[:k], j, *chosen[k + 1:]]) >= best * (1 - 1e-9)
+
+
+def test_a_route_visits_each_once_and_no_longer_than_nearest_first():
+    rng = np.random.default_rng(6)
+    q = rng.uniform(-2.0, 2.0, (25, 7))
+    start = np.zeros(7)
+    order = route(q, start, 1.0)
+    assert sorted(order) == list(range(25))
+
+    def length(order, first=start):
+        path = np.vstack([first, q[order]]) if first is not None else q[order]
+        return float(np.sum(move_seconds(path[:-1], path[1:], 1.0)))
+    here, left, nearest = start, set(range(25)), []
+    while left:
+        nearest.append(min(left, key=lambda j: move_seconds(here, q[j], 1.0)))
+        left.remove(nearest[-1])
+        here = q[nearest[-1]]
+    assert length(order) <= length(nearest) + 1e-12
+    free = route(q, None, 1.0)
+    assert sorted(free) == list(range(25)) and length(free, None) <= length(order) + 1e-12
+    assert route(q[:1], start, 1.0) == [0] and route(q[:0], None, 1.0) == []
 
 
 def test_weighting_travel_saves_robot_time_for_little_accuracy(planner_template):
@@ -231,11 +326,16 @@ class FailingRobot(DirectRobot):
 
 
 def test_a_skipped_pose_is_logged_and_never_offered_again(planner_template):
+    """... and in a planned set, the others stay: each skipped one has another in its
+    place."""
     planner, log = _planner(planner_template, max_poses=6), []
+    first = planner.start().initial_plan
     robot = FailingRobot(SimRobot(SIM, seed_offset=5), SIM.probe)
     run, time = collect_planned(planner, robot, log.append, hold=HOLD)
     skipped = [r.index for r in log if r.q is None]
     assert run.recorded == 6 and run.skipped == 2 == len(skipped)
+    assert set(skipped) <= set(first) and len(set(planner.state.chosen) & set(first)) == 4
+    assert np.bincount(planner.pool_target[planner.state.chosen]).tolist() == [2, 2, 2]
     assert planner.state.skipped == skipped and not set(skipped) & set(planner.state.chosen)
     assert [r.index for r in log if r.q is not None] == planner.state.chosen
     assert time.poses == 6 and time.hold == pytest.approx(6 * HOLD)
@@ -247,6 +347,8 @@ def test_a_resumed_collection_goes_on_as_the_uninterrupted_one(planned_30, plann
     rows = [r for r in log[:25]]
     prediction = planner.resume([r.index for r in rows], np.array([r.q for r in rows]))
     assert prediction.max_m == pytest.approx(whole.state.predictions[24].max_m, rel=1e-3)
+    # the planned set's rest, as the store keeps it (kinematic_collection), no skips here
+    planner.state.route = [i for i in whole.state.chosen[25:] if planner.available[i]]
     assert planner.next_pose() == whole.state.chosen[25]
 
 
@@ -331,12 +433,21 @@ def test_the_greedy_pick_is_the_best_rank_3_update():
 
 
 def test_the_candidate_tilts_span_60_deg_each_way_in_the_step():
-    assert tilt_grid_deg() == (-60.0, -45.0, -30.0, -15.0, 0.0, 15.0, 30.0, 45.0, 60.0)
+    """Tilts +-60 deg, turns about the approach axis a full turn, arm angles +-150 deg; the
+    default step 30 deg (issue 38.5: 37,670 candidates on the iiwa 7)."""
+    assert tilt_grid_deg() == (-60.0, -30.0, 0.0, 30.0, 60.0)
+    assert tilt_grid_deg(15.0) == (-60.0, -45.0, -30.0, -15.0, 0.0, 15.0, 30.0, 45.0, 60.0)
+    assert turn_grid_deg() == tuple(float(a) for a in range(-180, 180, 30))
+    assert turn_grid_deg(45.0) == (-180.0, -135.0, -90.0, -45.0, 0.0, 45.0, 90.0, 135.0)
+    assert turn_grid_deg(25.0)[0] == -175.0 and turn_grid_deg(25.0)[-1] == 175.0
+    assert arm_grid_deg() == tuple(float(a) for a in range(-150, 151, 30))
+    assert arm_grid_deg(45.0) == (-135.0, -90.0, -45.0, 0.0, 45.0, 90.0, 135.0)
     assert tilt_grid_deg(25.0) == (-50.0, -25.0, 0.0, 25.0, 50.0)
     assert tilt_grid_deg(60.0) == (-60.0, 0.0, 60.0)
     for bad in (0.0, -15.0, 61.0):
-        with pytest.raises(ValueError, match=r'tilt step must be in \(0, 60\] deg'):
-            tilt_grid_deg(bad)
+        for grid in (tilt_grid_deg, turn_grid_deg, arm_grid_deg):
+            with pytest.raises(ValueError, match=r'tilt step must be in \(0, 60\] deg'):
+                grid(bad)
 
 
 def test_bad_settings_say_what_to_give():

@@ -74,12 +74,14 @@ def sphere_pose_grid(chain: Chain, sphere_centre_base: ArrayLike,
                      R_base_tool_approach: ArrayLike, home: ArrayLike,
                      angles_deg: Sequence[float] = PAPER_ANGLES_DEG,
                      arm_angles_deg: Sequence[float] = PAPER_ANGLES_DEG,
-                     redundant_joint: int = 2) -> PoseGrid:
+                     redundant_joint: int = 2,
+                     rz_angles_deg: Sequence[float] | None = None) -> PoseGrid:
     """Joint angles for every grid pose around one sphere, solved by IK on ``chain``.
 
     sphere_centre_base (3,) [m]; R_base_tool_approach (3, 3); home (n,) [rad], the IK seed and
     the locked joint's reference. Orientation R_approach @ Rx(rx) @ Ry(ry) @ Rz(rz), tool
-    centre (``chain.tool``) at the sphere centre. 6-joint chains use arm angle 0 only.
+    centre (``chain.tool``) at the sphere centre; rz over ``rz_angles_deg`` (default:
+    ``angles_deg``). 6-joint chains use arm angle 0 only.
     Unreachable poses (IK failure, locked joint outside its limits) are skipped and listed in
     the result's ``unreachable``. Each pose is seeded with the previous solution (the grid
     order keeps neighbours close), then with home.
@@ -91,21 +93,22 @@ def sphere_pose_grid(chain: Chain, sphere_centre_base: ArrayLike,
         raise ValueError(f'need a 6- or 7-joint chain and home of shape ({chain.dof},), got '
                          f'{chain.dof} joints and {home.shape}')
     arms = tuple(arm_angles_deg) if chain.dof == 7 else (0.0,)
+    rzs = tuple(angles_deg if rz_angles_deg is None else rz_angles_deg)
     poses, unreachable = [], []
     for arm in arms:
         if chain.dof == 7:
             locked = home[redundant_joint] + math.radians(arm)
             if not chain.lower[redundant_joint] <= locked <= chain.upper[redundant_joint]:
                 reason = f'{chain.joint_names[redundant_joint]} at {locked:.3f} rad beyond limits'
-                unreachable += [Unreachable(*a, arm, reason)
-                                for a in itertools.product(angles_deg, repeat=3)]
+                unreachable += [Unreachable(*a, arm, reason) for a in
+                                itertools.product(angles_deg, angles_deg, rzs)]
                 continue
             sub = lock_joint(chain, redundant_joint, locked)
             keep = np.arange(chain.dof) != redundant_joint
         else:
             sub, keep, locked = chain, np.ones(chain.dof, dtype=bool), 0.0
         seed = home[keep]
-        for rx, ry, rz in itertools.product(angles_deg, repeat=3):
+        for rx, ry, rz in itertools.product(angles_deg, angles_deg, rzs):
             R = R_approach @ rot_x(math.radians(rx)) @ rot_y(math.radians(ry)) \
                 @ rot_z(math.radians(rz))
             target = make_transform(R, centre)
