@@ -27,10 +27,15 @@ from cobot_calib_ros.core.robot_port import (Approach, Capture, CaptureFailed, M
 from cobot_calib_ros.core.sensors.probe import Reading, ReadingStatus
 from cobot_calib_ros.ros.action_client import ActionClient
 from cobot_calib_ros.ros.convert import matrix_to_pose
+from cobot_calib_ros.ros.calls import ASK_AGAIN
 from cobot_calib_ros.ros.spin import (absent_after, Companion, pause, ServerLost, Stopping, until,
-                                     wait)
+                                     wait, wait_answer)
 
 SERVER_WAIT = 5.0       # [s] for move_to / capture_joints to be discovered
+# [s] a capture_joints or probe/average may take beyond its window (a stalled stream: the
+# nodes' STALL_TIMEOUT, 3 s) before it is asked again (ros.spin.wait_answer: a dropped
+# answer); sooner, a slow answer's duplicate queued behind it and delayed the next request
+WINDOW_GRACE = 5.0
 MOVE_TIMEOUT = 120.0    # [s] for one move_to to finish (every caller's bound on a hung move)
 TOUCH_TIMEOUT = 600.0   # [s] for the operator to guide the tool onto a point and confirm
 HAND_GUIDE = 'mock_robot/hand_guide'
@@ -201,7 +206,10 @@ class RobotCalls:
             req = CaptureJoints.Request(duration=duration)
             for attempt in range(1, CAPTURE_ATTEMPTS + 1):
                 try:
-                    res = wait(self.capture_client.call_async(req), req.duration + 10.0)
+                    res = wait_answer(lambda: self.capture_client.call_async(req),
+                                      req.duration + 2 * WINDOW_GRACE,
+                                      req.duration + WINDOW_GRACE,
+                                      self.capture_client.remove_pending_request)
                 except Stopping:
                     raise
                 except TimeoutError as e:
@@ -231,7 +239,8 @@ class RobotCalls:
             if not until(self._laser_client.service_is_ready, SERVER_WAIT):
                 raise CaptureFailed('laser_tracker/measure not available (no tracker driver '
                                     'up?)')
-            res = wait(self._laser_client.call_async(MeasurePosition.Request()), 10.0)
+            res = wait_answer(lambda: self._laser_client.call_async(MeasurePosition.Request()),
+                              10.0, ASK_AGAIN, self._laser_client.remove_pending_request)
         except TimeoutError as e:        # Stopping too
             raise CaptureFailed(f'laser_tracker/measure: {e}')
         if res.error_code != MeasurePosition.Response.SUCCESS:
@@ -271,6 +280,8 @@ class RobotCalls:
     def _average(self, window: float):
         req = AverageProximity.Request(duration=window)
         try:
-            return wait(self.probe_client.call_async(req), window + 5.0)
+            return wait_answer(lambda: self.probe_client.call_async(req),
+                               window + 2 * WINDOW_GRACE, window + WINDOW_GRACE,
+                               self.probe_client.remove_pending_request)
         except TimeoutError as e:
             raise CaptureFailed(f'probe/average: {e}; is the node suite up?')

@@ -549,6 +549,39 @@ def wait(future, timeout: float, lost: Callable[[], str] | None = None):
     """
     done = threading.Event()
     future.add_done_callback(lambda _: done.set())
+    if not _wait_event(done, timeout, lost):
+        raise TimeoutError(f'no answer within {timeout:.0f} s')
+    return future.result()
+
+
+def wait_answer(send: Callable[[], object], timeout: float, ask_again: float,
+                forget: Callable[[object], None] = lambda future: None):
+    """:func:`wait` for a query: ``send()`` (its future) again every ``ask_again`` [s] while
+    none is answered, up to ``timeout`` [s]; the first answer's result. A server that has not
+    yet matched a new client's reply reader drops its answer (ros.calls.ASK_AGAIN): a
+    tcp_calibrator's first capture_joints got none in 10 s in a fresh-clone test run.
+    ``forget(future)`` for each one left unanswered."""
+    done = threading.Event()
+    deadline = time.monotonic() + timeout
+    sent = []
+    try:
+        while (remaining := deadline - time.monotonic()) > 0:
+            future = send()
+            future.add_done_callback(lambda _: done.set())
+            sent.append(future)
+            if _wait_event(done, min(ask_again, remaining)):
+                return next(f for f in sent if f.done()).result()
+        raise TimeoutError(f'no answer within {timeout:.0f} s')
+    finally:
+        for future in sent:
+            if not future.done():
+                forget(future)
+
+
+def _wait_event(done: threading.Event, timeout: float,
+                lost: Callable[[], str] | None = None) -> bool:
+    """Whether ``done`` was set within ``timeout`` [s]; Stopping and ServerLost as in
+    :func:`wait`."""
     deadline = time.monotonic() + timeout
     looked = time.monotonic()
     while not done.wait(min(WAKE_PERIOD, max(0.0, deadline - time.monotonic()))):
@@ -560,5 +593,5 @@ def wait(future, timeout: float, lost: Callable[[], str] | None = None):
             if why:
                 raise ServerLost(why)
         if time.monotonic() >= deadline:
-            raise TimeoutError(f'no answer within {timeout:.0f} s')
-    return future.result()
+            return False
+    return True

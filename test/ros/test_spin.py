@@ -248,3 +248,53 @@ def test_a_sigterm_ends_a_teardown_hung_in_c_at_once(domain):
             proc.kill()
         proc.communicate()
     assert proc.returncode == -signal.SIGTERM
+
+
+class _Future:
+    """A future that another thread may complete (as a client's executor does)."""
+
+    def __init__(self) -> None:
+        self._callbacks, self.value = [], None
+
+    def done(self) -> bool:
+        return self.value is not None
+
+    def result(self):
+        return self.value
+
+    def add_done_callback(self, callback) -> None:
+        self._callbacks.append(callback)
+
+    def set_result(self, value) -> None:
+        self.value = value
+        for callback in self._callbacks:
+            callback(self)
+
+
+def _sender(answered: set):
+    """send() for wait_answer: the requests whose index is in ``answered`` get their answer
+    from another thread 0.05 s later; (send, the futures sent)."""
+    futures = []
+
+    def send():
+        future = _Future()
+        if len(futures) in answered:
+            threading.Timer(0.05, future.set_result, args=(f'answer {len(futures)}',)).start()
+        futures.append(future)
+        return future
+    return send, futures
+
+
+def test_a_query_whose_answer_was_dropped_is_sent_again():
+    send, futures = _sender({1})
+    forgotten = []
+    assert spin.wait_answer(send, 30.0, 1.0, forgotten.append) == 'answer 1'
+    assert len(futures) == 2 and forgotten == [futures[0]]
+
+
+def test_a_query_never_answered_ends_at_its_timeout_every_request_forgotten():
+    send, futures = _sender(set())
+    forgotten = []
+    with pytest.raises(TimeoutError):
+        spin.wait_answer(send, 0.5, 0.2, forgotten.append)
+    assert len(futures) >= 2 and forgotten == futures
