@@ -6,8 +6,9 @@ PY := $(VENV)/bin/python
 # pytest-xdist workers for `make test`: 3 on 2 cores, since about half of a 2-worker run's
 # time was waiting (fresh-clone run 17: 12 min of CPU in 10.7 min). The load failures 3 once
 # had (a hand-eye view without the board, a node past its stop grace) were fixed at their
-# causes; beside another session's load 8-9: 3 workers 10 min 28 s and 10 min 50 s, both green,
-# 2 workers 13 min 2 s (runs 19-21)
+# causes. Fresh-clone runs beside a CPU-heavy bench (load 8-9): 3 workers 10 min 28 s and
+# 10 min 50 s, both green, 2 workers 13 min 2 s; quiet: 3 workers 8 min 37 s to 10 min 2 s,
+# 4 workers 8 min 41 s (no faster, more CPU)
 TEST_WORKERS ?= 3
 STAMP := $(VENV)/.stamps
 
