@@ -175,22 +175,29 @@ def configure(cell_file: str, dictionary: str, marker_length: float, board: str,
     return Config(name, float(length), spec, refine)
 
 
-class FrameQueue:
-    """Images between the executor and the search, oldest first; a full queue drops its oldest
-    (counted in ``dropped``)."""
+class _Stage:
+    """A hand-over between the pipeline's threads whose ``take`` a ``close`` ends at once."""
 
-    def __init__(self, depth: int = FRAME_QUEUE_DEPTH) -> None:
+    def __init__(self) -> None:
         self._cond = threading.Condition()
-        self._items: deque = deque()
-        self._depth = depth
         self._closed = False
-        self.dropped = 0
 
     def close(self) -> None:
         """A ``take`` waiting now, or later, returns at once."""
         with self._cond:
             self._closed = True
             self._cond.notify_all()
+
+
+class FrameQueue(_Stage):
+    """Images between the executor and the search, oldest first; a full queue drops its oldest
+    (counted in ``dropped``)."""
+
+    def __init__(self, depth: int = FRAME_QUEUE_DEPTH) -> None:
+        super().__init__()
+        self._items: deque = deque()
+        self._depth = depth
+        self.dropped = 0
 
     def put(self, item) -> None:
         with self._cond:
@@ -207,20 +214,13 @@ class FrameQueue:
             return self._items.popleft() if self._items else None
 
 
-class Handoff:
+class Handoff(_Stage):
     """One-slot hand-over between the pipeline's threads that loses nothing: ``put`` waits
     while the slot is full (the next stage is busy), up to ``timeout``."""
 
     def __init__(self) -> None:
-        self._cond = threading.Condition()
+        super().__init__()
         self._item = None
-        self._closed = False
-
-    def close(self) -> None:
-        """A ``take`` waiting now, or later, returns at once."""
-        with self._cond:
-            self._closed = True
-            self._cond.notify_all()
 
     def put(self, item, timeout: float) -> bool:
         with self._cond:

@@ -660,10 +660,8 @@ class SpherePlanner:
         :func:`exchange` over it given the data so far, in :func:`route`'s order from the
         last measured pose; the prediction after each (at the current noise estimate)."""
         chosen, _ = self.plan(count)
-        M = self.information(q=self.q, target=self.target)
+        M = self.information(chosen, q=self.q, target=self.target)
         G2 = self.distance_G.T @ self.distance_G
-        for i in chosen:
-            M = M + self.pool_A[i].T @ self.pool_A[i] + G2
         weight = None if self.settings.criterion == 'D' else self.task_weight
         measured = {s: self.target.count(s) for s in self.lin.spheres}
         chosen = exchange(self.pool_A, M, chosen, self.available, weight, self.ridge,
