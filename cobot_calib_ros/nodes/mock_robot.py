@@ -52,13 +52,17 @@ from cobot_calib_ros.core.sensors.sample_clock import SampleClock
 from cobot_calib_ros.ros import convert, qos, results, spin
 from cobot_calib_ros.ros.joint_state_bytes import JointStateBytes
 from cobot_calib_ros.ros.probe_voltage_bytes import ProbeVoltageBytes
+from cobot_calib_ros.ros.robot_calls import MOVE_RESULT_KEEP
 from cobot_calib_ros.ros.diagnostics import Diagnostics, ERROR, OK, RateMeter, WARN
 from cobot_calib_ros.ros.params import declare, read_once
 from cobot_calib_ros.ros.time import ns_to_s, NS_PER_S, s_to_ns, stamp_to_ns
 from cobot_calib_ros.sim.robot import SimRobot
 from cobot_calib_ros.sim.scenario import load_simulation
 
-FEEDBACK_PERIOD = 0.02  # [s] of wall time between motion steps (each with a feedback message)
+FEEDBACK_PERIOD = 0.02  # [s] of wall time between motion steps
+# a motion's feedback after every this many steps (10 Hz) and after its last: every job node's
+# move_to client takes each feedback message of every move (and drops what is not its own)
+FEEDBACK_EVERY_STEPS = 5
 INTERFACES = ('move_to', 'driver')
 DRIVER_FAULTS = ('', 'reject', 'abort', 'ring')
 TRAJECTORY_ACTION = 'joint_trajectory_controller/follow_joint_trajectory'
@@ -153,13 +157,13 @@ class MockRobot(Node):
                 execute_callback=lambda handle, comply=comply: self._follow(handle, comply),
                 goal_callback=self._accept_trajectory,
                 cancel_callback=lambda _: CancelResponse.ACCEPT,
-                callback_group=MutuallyExclusiveCallbackGroup())
+                callback_group=MutuallyExclusiveCallbackGroup(), result_timeout=MOVE_RESULT_KEEP)
                 for name, comply in ((TRAJECTORY_ACTION, False), (COMPLIANT_ACTION, True))]
         else:
             self._action = ActionServer(
                 self, MoveTo, 'move_to', execute_callback=self._execute_move,
                 goal_callback=self._accept_goal, cancel_callback=lambda _: CancelResponse.ACCEPT,
-                callback_group=MutuallyExclusiveCallbackGroup())
+                callback_group=MutuallyExclusiveCallbackGroup(), result_timeout=MOVE_RESULT_KEEP)
         self.create_service(GetGroundTruth, 'get_ground_truth', self._on_ground_truth,
                             callback_group=ReentrantCallbackGroup())
         self.create_service(MeasurePosition, 'laser_tracker/measure', self._on_laser,
@@ -368,7 +372,7 @@ class MockRobot(Node):
     def _travel(self, cancel_requested, step, q_start: np.ndarray, q_target: np.ndarray,
                 seconds: float, stop_at: float = 1.0) -> bool:
         """Along a joint-space line in ``seconds`` of simulated time (smooth start and stop),
-        ``step(q, progress)`` after each step; stops at ``stop_at`` of the way (the arm is left
+        ``step(q, progress)`` after every FEEDBACK_EVERY_STEPS steps and the last; stops at ``stop_at`` of the way (the arm is left
         there). True when canceled (the arm comes to rest where it is). Raises spin.Stopping
         when the node shuts down (Ctrl-C): the arm rests where it is and the caller ends its
         goal within spin.STOP_GRACE, before the action server is destroyed."""
@@ -382,7 +386,8 @@ class MockRobot(Node):
             s = s * s * (3.0 - 2.0 * s)  # smooth start and stop
             q = q_start + s * (q_target - q_start)
             self._robot.set_joints(q)
-            step(q, k / steps)
+            if k % FEEDBACK_EVERY_STEPS == 0 or k == steps:
+                step(q, k / steps)
             try:
                 spin.pause(duration / steps)
             except spin.Stopping:

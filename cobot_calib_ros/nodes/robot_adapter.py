@@ -44,6 +44,7 @@ from cobot_calib_ros.ros.action_client import ActionClient
 from cobot_calib_ros.store.rigs import rig_of
 from cobot_calib_ros.ros import convert, qos, results, spin
 from cobot_calib_ros.ros.params import declare, read_once
+from cobot_calib_ros.ros.robot_calls import MOVE_RESULT_KEEP
 from cobot_calib_ros.ros.time import header_ns, ns_to_s, s_to_ns, split_ns
 
 ACCEPT_TIMEOUT = 10.0   # [s] for the controller to accept or reject a trajectory goal
@@ -84,7 +85,8 @@ class RobotAdapter(Node):
         self._busy = False
         ActionServer(self, MoveTo, 'move_to', execute_callback=self._execute,
                      goal_callback=self._accept, cancel_callback=lambda _: CancelResponse.ACCEPT,
-                     callback_group=MutuallyExclusiveCallbackGroup())
+                     callback_group=MutuallyExclusiveCallbackGroup(),
+                     result_timeout=MOVE_RESULT_KEEP)
         self.get_logger().info(
             f'driver {self._preset.name}: move_to -> {self._preset.action} '
             f'({", ".join(self._names)}), settled below {self._preset.settle_speed} rad/s over '

@@ -37,6 +37,12 @@ SERVER_WAIT = 5.0       # [s] for move_to / capture_joints to be discovered
 # answer); sooner, a slow answer's duplicate queued behind it and delayed the next request
 WINDOW_GRACE = 5.0
 MOVE_TIMEOUT = 120.0    # [s] for one move_to to finish (every caller's bound on a hung move)
+# [s] a move server (mock_robot, robot_adapter) keeps a finished move's result (rclpy's
+# result_timeout, default 900): longer than the 10 s this client waits for a goal's acceptance,
+# after which it asks for the result at once. Every status message of an action lists each goal
+# still kept, and every job node's move_to client decodes each one: with 900 s an idle job node
+# spent ~6 % of a core on them while a collection ran (~3 % with this and 10 Hz feedback)
+MOVE_RESULT_KEEP = 15
 TOUCH_TIMEOUT = 600.0   # [s] for the operator to guide the tool onto a point and confirm
 HAND_GUIDE = 'mock_robot/hand_guide'
 # mock_robot's real tool, [x y z roll pitch yaw] [m, rad]: a parameter, as GetGroundTruth has
