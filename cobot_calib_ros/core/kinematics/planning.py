@@ -61,7 +61,9 @@ then the fit's residual estimate).
   (1.03x the grid's own expectation), 138.6 s of robot time; the UR10e's 0.77x, 86.6 s
   (before: 1.44x in 153 s, 0.86x in 118 s). The six draws' grids measured under the
   grid's expectation (iiwa 7: 1.044 against 1.17-1.27 um): that, not a bias nor the
-  criterion, was most of the 1.44x.
+  criterion, was most of the 1.44x. Since session 20 the pool holds each configuration once:
+  44 % of the iiwa 7's 40,491 candidates were another label's configuration (a flip of one
+  arm angle is another arm angle's pose), and a set could hold one twice.
 - **Sequential.** :class:`SpherePlanner` is told each measured pose (its measured joints, or
   that it was skipped), refits, and (greedy) re-plans the next pose with the data so far;
   once the poses left are only just enough to give every sphere POSES_PER_SPHERE, the
@@ -141,17 +143,24 @@ def sphere_candidates(cell: Cell, model: KinematicModel,
                       ) -> tuple[list[dict], list[str]]:
     """The candidate pool: :func:`plans.sphere_plan`'s grid over ``tilt_deg`` about x and
     y, ``rz_deg`` about the approach axis and ``arm_deg`` arm angles (the null space of a
-    7-joint arm), then each pose's :func:`flipped_configurations` after them; steps and
-    skipped poses."""
+    7-joint arm), then each pose's :func:`flipped_configurations` after them, each
+    configuration once (the first of its labels: on the iiwa 7, 44 % of the flips are another
+    arm angle's pose or flip); steps and skipped poses."""
     steps, skipped = sphere_plan(cell, model, angles_deg=tuple(tilt_deg),
                                  arm_angles_deg=tuple(arm_deg), rz_angles_deg=tuple(rz_deg))
     if not steps:
         return steps, skipped
     chain = model.chain(tool=cell.spheres.T_flange_coupling)
     origin, q, names = flipped_configurations(chain, np.array([s['q'] for s in steps]))
-    return steps + [{'q': row.tolist(), 'target': steps[k]['target'],
-                     'label': f"{steps[k]['label']} flip {name}"}
-                    for k, row, name in zip(origin, q, names)], skipped
+    steps += [{'q': row.tolist(), 'target': steps[k]['target'],
+               'label': f"{steps[k]['label']} flip {name}"}
+              for k, row, name in zip(origin, q, names)]
+    _, first = np.unique(np.round(np.array([s['q'] for s in steps]), SAME_CONFIGURATION_DECIMALS),
+                         axis=0, return_index=True)
+    return [steps[i] for i in np.sort(first)], skipped
+
+
+SAME_CONFIGURATION_DECIMALS = 9     # [rad] configurations equal to this many decimals are one
 
 
 FLIP_TOLERANCE = 1e-9       # [m] and [1]: a flipped configuration's tool pose off the original's
@@ -377,14 +386,79 @@ def _gains(A: Array, M: Array, task_weight: Array | None, ridge: float) -> Array
     """(C,) what adding each candidate block of A (C, 3, D) to M gains: the increase of
     log det M (task_weight None) or the decrease of trace(W M^-1) (W (D, D)); M regularised
     by ``ridge``."""
-    D = M.shape[0]
-    Minv = np.linalg.inv(M + ridge * np.eye(D))
-    G = A @ Minv                                          # (C, 3, D)
-    S = np.eye(3) + G @ A.transpose(0, 2, 1)              # (C, 3, 3)
+    return _gains_of(*_block_terms(A, np.linalg.inv(M + ridge * np.eye(M.shape[0])),
+                                   task_weight))
+
+
+_PAIRS = ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))   # a symmetric 3 x 3's entries
+
+
+def _pair_products(X: Array, Y: Array) -> Array:
+    """(6, C): the _PAIRS entries of X_c Y_c^T for X, Y (C, 3, m), a symmetric 3 x 3 each
+    (elementwise over the candidates: numpy's stacked 3 x 3 products and solves cost more)."""
+    return np.stack([np.einsum('ck,ck->c', X[:, i], Y[:, j]) for i, j in _PAIRS])
+
+
+def _times(X: Array, F: Array) -> Array:
+    """X (C, 3, m) @ F (m, k) as one (3 C, m) product."""
+    return (X.reshape(-1, X.shape[2]) @ F).reshape(len(X), 3, F.shape[1])
+
+
+def _block_terms(A: Array, R_inv: Array,
+                 task_weight: Array | None) -> tuple[Array, Array | None]:
+    """Each candidate block's 3 x 3 terms of its gain given R_inv = (M + ridge I)^-1, as (6, C)
+    (_PAIRS): A R_inv A^T, and A R_inv W R_inv A^T (task_weight W given, else None);
+    A (C, 3, D)."""
+    G = _times(A, R_inv)                                  # (C, 3, D)
+    Q = _pair_products(G, A)
     if task_weight is None:
-        return np.linalg.slogdet(S)[1]
-    GW = G @ task_weight
-    return np.einsum('cii->c', np.linalg.solve(S, GW @ G.transpose(0, 2, 1)))
+        return Q, None
+    return Q, _pair_products(_times(G, task_weight), G)
+
+
+def _gains_of(Q: Array, T: Array | None) -> Array:
+    """:func:`_gains` from the blocks' terms (:func:`_block_terms`): S = I + Q, a symmetric
+    positive definite 3 x 3 each, by its cofactors."""
+    s00, s11, s22 = Q[0] + 1.0, Q[1] + 1.0, Q[2] + 1.0
+    s01, s02, s12 = Q[3], Q[4], Q[5]
+    c00, c11, c22 = s11 * s22 - s12 * s12, s00 * s22 - s02 * s02, s00 * s11 - s01 * s01
+    c01, c02, c12 = s02 * s12 - s01 * s22, s01 * s12 - s02 * s11, s01 * s02 - s00 * s12
+    det = s00 * c00 + s01 * c01 + s02 * c02
+    if T is None:
+        return np.log(det)
+    return (c00 * T[0] + c11 * T[1] + c22 * T[2]
+            + 2.0 * (c01 * T[3] + c02 * T[4] + c12 * T[5])) / det
+
+
+# the smallest singular value of s I + B U (_changed_terms) below which the update would
+# amplify rounding (~1e-16 / it, relative) past use: a removed pose the only one to show some
+# parameter; its terms are then computed anew
+WOODBURY_MIN_SINGULAR = 1e-6
+
+
+def _changed_terms(A: Array, R_inv: Array, task_weight: Array | None, B: Array, sign: float,
+                   Q: Array, T: Array | None) -> tuple[Array, Array | None] | None:
+    """:func:`_block_terms` of A (C, 3, D) after M changes by sign * B^T B (B (3, D), sign
+    +1 adding a pose, -1 removing it), from Q, T before it, R_inv = (M + ridge I)^-1 before it:
+    the Woodbury identity, (R + s B^T B)^-1 = R^-1 - U K U^T with U = R^-1 B^T and
+    K = (s I + B U)^-1, so each block's terms change by 3 x 3 products (C x 3 x D x 3
+    multiply-adds, against C x 3 x D x D anew). None when s I + B U is nearly singular
+    (WOODBURY_MIN_SINGULAR; compute anew)."""
+    U = R_inv @ B.T                                       # (D, 3)
+    K_inv = sign * np.eye(3) + B @ U
+    if np.linalg.svd(K_inv, compute_uv=False).min() < WOODBURY_MIN_SINGULAR:
+        return None
+    K = np.linalg.inv(K_inv)
+    K = 0.5 * (K + K.T)
+    if task_weight is None:
+        H = _times(A, U)                                  # (C, 3, 3): A_c U
+        return Q - _pair_products(_times(H, K), H), None
+    # A R'^-1 W R'^-1 A^T = T + Z M6 Z^T with Z = [H E], E = A R^-1 W U and
+    # M6 = [[K U^T W U K, -K], [-K, 0]]; H and E in one pass over A (its size bounds the time)
+    Z = _times(A, np.concatenate([U, R_inv @ task_weight @ U], axis=1))   # (C, 3, 6)
+    H = Z[:, :, :3]
+    M6 = np.block([[K @ (U.T @ task_weight @ U) @ K, -K], [-K, np.zeros((3, 3))]])
+    return Q - _pair_products(_times(H, K), H), T + _pair_products(_times(Z, M6), Z)
 
 
 def _criterion(M: Array, task_weight: Array | None, ridge: float) -> float:
@@ -425,8 +499,20 @@ def exchange(pool_A: Array, M: Array, chosen: Sequence[int], available: Array,
     chosen, available = list(chosen), available.copy()
     available[chosen] = False
     current = _criterion(M, task_weight, ridge)
+    eye = ridge * np.eye(M.shape[0])
+
+    def terms(M: Array, B: Array | None = None, sign: float = 0.0, before=None):
+        """Every candidate's terms given M, or (B given) given M + sign B^T B from ``before``
+        (:func:`_changed_terms`, anew where it cannot)."""
+        if B is not None:
+            changed = _changed_terms(pool_A, np.linalg.inv(M + eye), task_weight, B, sign,
+                                     *before)
+            if changed is not None:
+                return changed
+            M = M + sign * B.T @ B
+        return _block_terms(pool_A, np.linalg.inv(M + eye), task_weight)
     for _ in range(sweeps):
-        swaps = 0
+        swaps, current_terms = 0, terms(M)      # anew each sweep: no drift from the updates
         for k, i in enumerate(chosen):
             without = M - pool_A[i].T @ pool_A[i]
             within = available
@@ -437,7 +523,8 @@ def exchange(pool_A: Array, M: Array, chosen: Sequence[int], available: Array,
             idx = np.flatnonzero(within)
             if not len(idx):
                 continue
-            gain = _gains(pool_A[idx], without, task_weight, ridge)
+            Q, T = terms(M, pool_A[i], -1.0, current_terms)
+            gain = _gains_of(Q[:, idx], None if T is None else T[:, idx])
             best = int(np.argmax(gain))
             value = _criterion(without, task_weight, ridge) - float(gain[best])
             if value < current - EXCHANGE_TOLERANCE * abs(current):
@@ -445,6 +532,7 @@ def exchange(pool_A: Array, M: Array, chosen: Sequence[int], available: Array,
                 available[i], available[j] = True, False
                 chosen[k], current, swaps = j, value, swaps + 1
                 M = without + pool_A[j].T @ pool_A[j]
+                current_terms = terms(without, pool_A[j], 1.0, (Q, T))
         if not swaps:
             break
     return chosen

@@ -14,7 +14,8 @@ from cobot_calib_ros.core.kinematics.collection import Ending
 from cobot_calib_ros.core.kinematics.identification import register_rigid, SphereObservations
 from cobot_calib_ros.core.kinematics.kinematic_calibration import fit_spheres
 from cobot_calib_ros.core.kinematics.planned_collection import collect_planned, PAPER_HOLD
-from cobot_calib_ros.core.kinematics.planning import (_criterion, _pick, arm_grid_deg,
+from cobot_calib_ros.core.kinematics.planning import (_block_terms, _changed_terms,
+                                                      _criterion, _gains, _pick, arm_grid_deg,
                                                       exchange, fewest_poses,
                                                       flipped_configurations, PlanSettings,
                                                       predict, route, sphere_candidates,
@@ -183,6 +184,33 @@ def test_every_sphere_gets_two_poses_within_max_poses(planner_template):
         planner = _planner(planner_template, max_poses=6, exchange=exchange_)
         state = planner.start()
         assert np.bincount(planner.pool_target[state.initial_plan]).tolist() == [2, 2, 2]
+
+
+def test_gains_are_the_criterion_s_change_and_a_pose_s_removal_updates_them_exactly():
+    """_gains against the criterion's definition (log det, trace(W M^-1)) before and after
+    adding each block; the exchange's Woodbury update of the blocks' terms against the terms
+    computed anew; a removal that leaves M singular is refused (None: computed anew)."""
+    rng = np.random.default_rng(9)
+    A = rng.normal(size=(40, 3, 7))
+    B = rng.normal(size=(12, 7))
+    M, ridge = B.T @ B, 1e-9
+    W = np.diag(rng.uniform(0.0, 2.0, 7))
+    for weight in (None, W):
+        expected = [_criterion(M, weight, ridge) - _criterion(M + a.T @ a, weight, ridge)
+                    for a in A]
+        assert _gains(A, M, weight, ridge) == pytest.approx(expected, rel=1e-9, abs=1e-12)
+        added = M + A[0].T @ A[0]
+        before = _block_terms(A, np.linalg.inv(M + ridge * np.eye(7)), weight)
+        after = _block_terms(A, np.linalg.inv(added + ridge * np.eye(7)), weight)
+        for terms, R, sign, want in ((before, M, 1.0, after), (after, added, -1.0, before)):
+            got = _changed_terms(A, np.linalg.inv(R + ridge * np.eye(7)), weight, A[0], sign,
+                                 *terms)
+            for g, w in zip(got, want):
+                if w is not None:
+                    assert np.abs(g - w).max() < 1e-9 * np.abs(w).max()
+    only = A[1].T @ A[1]
+    assert _changed_terms(A, np.linalg.inv(only + ridge * np.eye(7)), None, A[1], -1.0,
+                          *_block_terms(A, np.linalg.inv(only + ridge * np.eye(7)), None)) is None
 
 
 def test_an_exchange_leaves_no_single_swap_that_lowers_the_criterion():
