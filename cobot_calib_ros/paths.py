@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import Mapping
 
 PACKAGE = 'cobot_calib_ros'
 
@@ -31,10 +32,10 @@ def cell_file(name_or_path: str = DEFAULT_CELL) -> Path:
     return config_dir() / 'cells' / f'{name_or_path}.yaml'
 
 
-def data_dir(given: str | None = None) -> Path:
+def data_dir(given: str | None = None, environ: Mapping[str, str] | None = None) -> Path:
     """Results root: ``given`` (a data_dir parameter or --data-dir) when not empty, else
-    $COBOT_CALIB_DATA, else ~/.ros/cobot_calib."""
+    $COBOT_CALIB_DATA (of ``environ``, default this process's), else ~/.ros/cobot_calib."""
     if given:
         return Path(given)
-    env = os.environ.get('COBOT_CALIB_DATA')
+    env = (os.environ if environ is None else environ).get('COBOT_CALIB_DATA')
     return Path(env).expanduser() if env else Path.home() / '.ros' / 'cobot_calib'

@@ -76,6 +76,7 @@ class Suite:
     def start(self, specs: list[NodeSpec], env: dict[str, str] | None = None) -> None:
         self.log_dir.mkdir(parents=True, exist_ok=True)
         remove_stale_segments()     # of suites killed before: 16 MB of memory each
+        prepare_stores(specs, env)
         self._env = env
         for spec in specs:
             self.specs[spec.key] = spec
@@ -119,6 +120,23 @@ class Suite:
                 except subprocess.TimeoutExpired:
                     pass
         return {n: p.returncode for n, p in self.processes.items()}
+
+
+def prepare_stores(specs: list[NodeSpec], env: dict[str, str] | None = None) -> None:
+    """The SQLite databases the nodes of ``specs`` will store in (each one's data_dir
+    parameter, else ``env``'s data dir), brought to the newest migration before they start
+    (store.database.prepare). A server database is left to the nodes (an unreachable host
+    would hold every node back here), as is whatever cannot be prepared: they say why."""
+    from cobot_calib_ros.store.database import DB_ENV, prepare
+    from cobot_calib_ros.store.repository import database_url
+    environ = os.environ if env is None else env
+    for given in {spec.params.get('data_dir', '') for spec in specs}:
+        try:
+            url = database_url(paths.data_dir(given, environ), environ.get(DB_ENV) or None)
+            if url.startswith('sqlite'):
+                prepare(url)
+        except Exception:  # noqa: BLE001 - the node's own open says what is wrong, and how
+            pass
 
 
 class AnswerCheck:

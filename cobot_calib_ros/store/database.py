@@ -153,6 +153,17 @@ def _create_engine(url: str):
     return engine
 
 
+def prepare(url: str) -> None:
+    """Bring the database at ``url`` to the newest migration and let it go: what a launcher
+    does before its nodes start, which would otherwise each run the migrations of a new data
+    dir at once (~0.15 s of CPU apiece)."""
+    engine = _create_engine(url)
+    try:
+        upgrade(engine)
+    finally:
+        engine.dispose()
+
+
 def upgrade(engine) -> None:
     """Apply the alembic migrations up to the newest (store/migrations), unless the database
     is there already (a one-row read: alembic itself costs ~1 s of CPU per process)."""

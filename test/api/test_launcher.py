@@ -1,7 +1,9 @@
 """launcher: a node it started does not outlive it (killed launcher, or one gone before the
 node's start)."""
+import contextlib
 import os
 import signal
+import sqlite3
 import subprocess
 import sys
 import time
@@ -9,7 +11,9 @@ import time
 import domain_coordinator
 import pytest
 
+from cobot_calib_ros.api import launcher
 from cobot_calib_ros.ros import spin
+from cobot_calib_ros.store.database import HEAD_REVISION, SQLITE_FILE
 
 LAUNCHER_SCRIPT = '''
 import sys, time
@@ -64,3 +68,20 @@ def test_a_node_whose_launcher_is_gone_before_its_start_exits():
                           capture_output=True, text=True, env=env, timeout=60)
     assert done.returncode == 1 and 'ran on' not in done.stdout
     assert f'the launcher (pid {os.getppid()}) that started this node is gone' in done.stderr
+
+
+def test_a_suite_s_databases_are_at_the_newest_migration_before_its_nodes_start(tmp_path):
+    """prepare_stores (Suite.start, before any node): the data_dir parameter's database and
+    the environment's data dir's; a data dir it cannot write is left to the nodes."""
+    own, shared = tmp_path / 'own', tmp_path / 'shared'
+    launcher.prepare_stores([launcher.NodeSpec('user_frame_solver', {'data_dir': str(own)}),
+                             launcher.NodeSpec('mock_robot')],
+                            {'COBOT_CALIB_DATA': str(shared)})
+    for root in (own, shared):      # read without the store, which would migrate it itself
+        with contextlib.closing(sqlite3.connect(root / SQLITE_FILE)) as db:
+            assert db.execute('SELECT version_num FROM alembic_version').fetchall() == [
+                (HEAD_REVISION,)]
+    blocked = tmp_path / 'file'
+    blocked.write_text('not a directory')
+    launcher.prepare_stores([launcher.NodeSpec('user_frame_solver', {'data_dir': str(blocked)})])
+
