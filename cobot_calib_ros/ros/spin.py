@@ -33,6 +33,7 @@ import threading
 import time
 from typing import Callable
 
+from action_msgs.msg import GoalStatus
 import rclpy
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.exceptions import (InvalidHandle, InvalidParameterTypeException,
@@ -418,7 +419,9 @@ class Companion:
     def run_action(self, client, goal, accept_timeout: float, result_timeout: float):
         """Send ``goal`` from any thread and block until its result; None if rejected;
         ServerLost when its server node exits, restarts or leaves the graph meanwhile
-        (ros.calls.ServerWatch).
+        (ros.calls.ServerWatch), or answers that it does not know the goal (a result kept past
+        the server's result_timeout, or a server that restarted: its answer's result would be
+        a default one, error code 0 included).
 
         rclpy's ActionClient is not thread-safe: a goal response can arrive on this executor
         before send_goal_async (called from another thread) has registered its sequence
@@ -433,7 +436,11 @@ class Companion:
         if sent is None:
             return None
         watch = ServerWatch(self.node, client, sent_at)     # its server exits: goal lost
-        return wait(sent[1], result_timeout, watch.ended).result
+        answer = wait(sent[1], result_timeout, watch.ended)
+        if answer.status == GoalStatus.STATUS_UNKNOWN:
+            raise ServerLost(f'{client._action_name}: the server does not know the goal (it '
+                             'restarted, or kept its result less long than this wait)')
+        return answer.result
 
     def send_goal(self, client, goal, accept_timeout: float):
         """Send ``goal`` on the companion's thread (:meth:`run_action` says why): its goal

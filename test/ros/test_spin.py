@@ -13,14 +13,17 @@ import sys
 import threading
 import time
 
+from cobot_calib_msgs.action import MoveTo
 import domain_coordinator
 import pytest
 import rclpy
+from rclpy.action import ActionServer
 from rclpy.context import Context
 from rclpy.executors import MultiThreadedExecutor, SingleThreadedExecutor
 from rclpy.node import Node
 
 from cobot_calib_ros.ros import spin
+from cobot_calib_ros.ros.action_client import ActionClient
 
 TIMEOUT = 30.0          # [s] for a node process to start (cold imports on a loaded machine)
 NODE_SCRIPT = '''
@@ -122,6 +125,40 @@ def test_a_destroyed_companion_stops_at_once_with_a_long_idle_wait(context, monk
         assert not companion._thread.is_alive()
     finally:
         owner.destroy_node()
+
+
+def test_a_goal_the_server_no_longer_knows_ends_as_lost_not_with_a_default_result(
+        context, monkeypatch):
+    """Companion.run_action: a server asked for the result of a goal it no longer keeps (past
+    its result_timeout; mock_robot keeps a move's MOVE_RESULT_KEEP s) answers STATUS_UNKNOWN
+    with a default result, whose error code 0 reads as success: ServerLost instead. The
+    result is asked for here 2 s after the goal ended, against a 1 s result_timeout."""
+    server = Node('result_keeper', context=context)
+    ActionServer(server, MoveTo, 'result_keep_test', result_timeout=1,
+                 execute_callback=lambda handle: (handle.succeed(), MoveTo.Result())[1])
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(server)
+    spinning = threading.Thread(target=executor.spin, daemon=True)
+    spinning.start()
+    owner = Node('result_asker', context=context)
+    companion = spin.Companion(owner, 'asker')
+    client = ActionClient(companion.node, MoveTo, 'result_keep_test')
+
+    def asked_late(client, goal, accept_timeout):
+        handle = spin.wait(spin.wait(companion.submit(client.send_goal_async, goal),
+                                     accept_timeout), accept_timeout)
+        time.sleep(3.0)
+        return handle, spin.wait(companion.submit(handle.get_result_async), accept_timeout)
+    monkeypatch.setattr(companion, 'send_goal', asked_late)
+    try:
+        assert spin.until(client.server_is_ready, 10.0)
+        with pytest.raises(spin.ServerLost, match='does not know the goal'):
+            companion.run_action(client, MoveTo.Goal(), 10.0, 10.0)
+    finally:
+        companion.destroy()
+        owner.destroy_node()
+        executor.shutdown(timeout_sec=1.0)
+        server.destroy_node()
 
 
 def _printed(proc: subprocess.Popen, line: str, timeout: float) -> bool:
