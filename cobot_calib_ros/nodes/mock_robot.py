@@ -372,8 +372,9 @@ class MockRobot(Node):
     def _travel(self, cancel_requested, step, q_start: np.ndarray, q_target: np.ndarray,
                 seconds: float, stop_at: float = 1.0) -> bool:
         """Along a joint-space line in ``seconds`` of simulated time (smooth start and stop),
-        ``step(q, progress)`` after every FEEDBACK_EVERY_STEPS steps and the last; stops at ``stop_at`` of the way (the arm is left
-        there). True when canceled (the arm comes to rest where it is). Raises spin.Stopping
+        ``step(q, progress)`` after every FEEDBACK_EVERY_STEPS steps and the last; stops at
+        ``stop_at`` of the way (the arm is left there). True when canceled (the arm comes to
+        rest where it is). Raises spin.Stopping
         when the node shuts down (Ctrl-C): the arm rests where it is and the caller ends its
         goal within spin.STOP_GRACE, before the action server is destroyed."""
         duration = seconds * self._time_scale

@@ -133,6 +133,7 @@ def arm_grid_deg(step_deg: float = TILT_STEP_DEG) -> tuple[float, ...]:
     return tuple(float(i * step_deg) for i in range(-k, k + 1))
 
 
+SAME_CONFIGURATION_DECIMALS = 9     # [rad] configurations equal to this many decimals are one
 IDENTIFIABILITY_ROWS = 300  # an even subset of the pool decides the identifiable parameters
 
 
@@ -159,8 +160,6 @@ def sphere_candidates(cell: Cell, model: KinematicModel,
                          axis=0, return_index=True)
     return [steps[i] for i in np.sort(first)], skipped
 
-
-SAME_CONFIGURATION_DECIMALS = 9     # [rad] configurations equal to this many decimals are one
 
 
 FLIP_TOLERANCE = 1e-9       # [m] and [1]: a flipped configuration's tool pose off the original's
