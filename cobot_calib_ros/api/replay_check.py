@@ -19,10 +19,11 @@ Two modes:
   on the sample bag), at any --rate (max: about 5 s in all).
 - ``recapture``: each hold is averaged again by joint_state_monitor's ``capture_joints`` from
   the REPLAYED joint_states on sim time: the request goes out when the replayed /clock (1 kHz
-  by default here) reaches the hold's start (mark stamp minus ``hold_s``). capture_joints opens
-  its window when the request arrives, so the window can be off by a sample or two: the means
-  differ from the recorded ones by up to ~7e-8 rad and the frame by ~3e-8 m / ~1.6e-7 rad on
-  the sample bag (rate 1 and 2), within the tolerance but not to the bit. Needs a finite rate.
+  by default here) reaches the hold's start (mark stamp minus ``hold_s``), with that start
+  in the request: capture_joints averages the window the recording held, however late the
+  request arrives (it opened its window on arrival until session 20; a run at twice the
+  usual CPU per test, 1,931 tests in 16 min, then put the frame 1.3e-6 rad off and the check
+  failed). Needs a finite rate.
 """
 from __future__ import annotations
 
@@ -39,7 +40,7 @@ from cobot_calib_ros.api import replay_harness
 from cobot_calib_ros.core.errors import ErrorCode
 from cobot_calib_ros.core.frames import transform_error
 from cobot_calib_ros.ros.marks import CAPTURES_TOPIC
-from cobot_calib_ros.ros.time import header_ns, s_to_ns
+from cobot_calib_ros.ros.time import header_ns, ns_to_stamp, s_to_ns
 
 EXPECTED_FILE = 'expected.yaml'
 TOL_M = 1e-6
@@ -244,7 +245,8 @@ def _recapture(node, holds: list[int], hold_s: float, playing, say) -> list:
                 raise CheckError('the replay ended before a hold window started; '
                                  'use a finite --rate for --recapture')
             time.sleep(0.0005)
-        future = client.call_async(CaptureJoints.Request(duration=hold_s))
+        future = client.call_async(CaptureJoints.Request(duration=hold_s,
+                                                         start=ns_to_stamp(start_ns)))
         deadline = time.monotonic() + 30.0
         while not future.done():
             if time.monotonic() > deadline:

@@ -145,7 +145,8 @@ class JointStateMonitor(Node):
                                                   FIRST_SAMPLE_TIMEOUT)
         fraction = self.get_parameter('min_sample_fraction').value
         needed = samples_needed(duration, self._rate, fraction)
-        times, positions, names, windows = self._hold(now_ns(self) * 1e-9, duration, needed,
+        start_ns = stamp_to_ns(request.start) or now_ns(self)
+        times, positions, names, windows = self._hold(start_ns * 1e-9, duration, needed,
                                                       streaming)
         capture = hold_statistics(
             times, positions, duration, self._rate, fraction,

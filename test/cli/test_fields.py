@@ -91,7 +91,7 @@ def test_fixed_arrays_and_integer_sequences():
     (CaptureJoints.Request, '{duration: true}', 'duration: expected a float, got True'),
     (CaptureJoints.Request, '{duration: 0.5 s}', "duration: expected a float, got '0.5 s'"),
     (CaptureJoints.Request, '{durations: 1}', 'durations: no such field; CaptureJoints request '
-                                              'has: duration'),
+                                              'has: duration, start'),
     (CaptureJoints.Request, '[1, 2]', 'request: expected a mapping of CaptureJoints request'),
     (ListCalibrations.Request, '{max_count: -1}',
      'max_count: expected a uint32 in [0, 4294967295], got -1'),
