@@ -145,7 +145,14 @@ class JointStateMonitor(Node):
                                                   FIRST_SAMPLE_TIMEOUT)
         fraction = self.get_parameter('min_sample_fraction').value
         needed = samples_needed(duration, self._rate, fraction)
-        start_ns = stamp_to_ns(request.start) or now_ns(self)
+        now, start_ns = now_ns(self), stamp_to_ns(request.start)
+        ahead = (start_ns - now) * 1e-9
+        if ahead > self.get_parameter('buffer_duration').value:
+            return results.answer(response, ErrorCode.INVALID_INPUT, (
+                f'start is {ahead:.3f} s ahead of this node\'s clock (more than its buffer, '
+                f'{self.get_parameter("buffer_duration").value} s): give a start already reached, '
+                'or none (zero) for the request\'s arrival'))
+        start_ns = start_ns or now
         times, positions, names, windows = self._hold(start_ns * 1e-9, duration, needed,
                                                       streaming)
         capture = hold_statistics(

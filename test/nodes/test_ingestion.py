@@ -86,6 +86,20 @@ def test_capture_rejects_a_bad_duration(ros):
     assert 'duration' in res.message
 
 
+def test_capture_over_a_given_start_a_past_window_or_one_too_far_ahead(ros):
+    """CaptureJoints.start: a window already past is averaged from the buffer; a start further
+    ahead than the buffer is refused saying what to give (replay --recapture: the recorded
+    window's means to the bit, test_replay_check)."""
+    past = now_ns(ros) - 2 * 10**9
+    res = call(ros, CaptureJoints, 'capture_joints', duration=0.5, start=ns_to_stamp(past))
+    assert res.error_code == CaptureJoints.Response.SUCCESS, res.message
+    assert res.sample_count > 0
+    ahead = call(ros, CaptureJoints, 'capture_joints', duration=0.5,
+                 start=ns_to_stamp(now_ns(ros) + 3600 * 10**9))
+    assert ahead.error_code == CaptureJoints.Response.BAD_REQUEST
+    assert 'ahead of this node' in ahead.message and 'zero' in ahead.message
+
+
 def _monitor_counts(ros, done=lambda counts: True, timeout=10.0) -> dict:
     """The monitor's latest /diagnostics counters, once `done(counts)` holds (or timeout)."""
     latest = {}
