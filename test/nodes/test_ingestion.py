@@ -92,7 +92,10 @@ def test_capture_over_a_given_start_a_past_window_or_one_too_far_ahead(ros):
     window's means to the bit, test_replay_check)."""
     past = now_ns(ros) - 2 * 10**9
     res = call(ros, CaptureJoints, 'capture_joints', duration=0.5, start=ns_to_stamp(past))
-    assert res.error_code == CaptureJoints.Response.SUCCESS, res.message
+    # the arm may have been moving then (the test before moves it): MOVING is that window's
+    # verdict too; either way its samples, from the buffer
+    assert res.error_code in (CaptureJoints.Response.SUCCESS,
+                              CaptureJoints.Response.MOVING), res.message
     assert res.sample_count > 0
     ahead = call(ros, CaptureJoints, 'capture_joints', duration=0.5,
                  start=ns_to_stamp(now_ns(ros) + 3600 * 10**9))
