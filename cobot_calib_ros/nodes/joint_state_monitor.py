@@ -145,14 +145,9 @@ class JointStateMonitor(Node):
                                                   FIRST_SAMPLE_TIMEOUT)
         fraction = self.get_parameter('min_sample_fraction').value
         needed = samples_needed(duration, self._rate, fraction)
-        now, start_ns = now_ns(self), stamp_to_ns(request.start)
-        ahead = (start_ns - now) * 1e-9
-        if ahead > self.get_parameter('buffer_duration').value:
-            return results.answer(response, ErrorCode.INVALID_INPUT, (
-                f'start is {ahead:.3f} s ahead of this node\'s clock (more than its buffer, '
-                f'{self.get_parameter("buffer_duration").value} s): give a start already reached, '
-                'or none (zero) for the request\'s arrival'))
-        start_ns = start_ns or now
+        start_ns = self._window_start(request.start)
+        if isinstance(start_ns, str):
+            return results.answer(response, ErrorCode.INVALID_INPUT, start_ns)
         times, positions, names, windows = self._hold(start_ns * 1e-9, duration, needed,
                                                       streaming)
         capture = hold_statistics(
@@ -166,6 +161,18 @@ class JointStateMonitor(Node):
         if not capture.ok:
             self.get_logger().warning(f'capture_joints refused: {capture.message}')
         return response
+
+    def _window_start(self, start) -> int | str:
+        """A capture's window start [ns]: the request's ``start`` stamp, or now when it is
+        zero; why not (a str) when it is further ahead of this node's clock than its buffer
+        (the hold would wait that long)."""
+        now, start_ns = now_ns(self), stamp_to_ns(start)
+        ahead, buffer_s = (start_ns - now) * 1e-9, self.get_parameter('buffer_duration').value
+        if ahead > buffer_s:
+            return (f'start is {ahead:.3f} s ahead of this node\'s clock (more than its buffer, '
+                    f'{buffer_s} s): give a start already reached, or none (zero) for the '
+                    'request\'s arrival')
+        return start_ns or now
 
     def _hold(self, t0: float, duration: float, needed: int, streaming: bool):
         """(times, positions, joint names, windows held) of the samples stamped from ``t0``
