@@ -2,13 +2,15 @@
 
 Poses are solved on the raw image with ``camera_matrix`` (K) and ``distortion_coefficients`` (D);
 ``projection_matrix`` (P) describes the *rectified* image and is not used here.
+
+OpenCV is imported where it is used: every node reads its cell's camera at start, and most
+never project a point (cv2's import is ~60 ms of CPU per process).
 """
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -22,7 +24,8 @@ DISTORTION_MODELS = {
 }
 
 # undistortPoints' default (5 iterations) leaves ~0.1 px on strong lenses
-_UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
+_UNDISTORT_ITERATIONS = 100
+_UNDISTORT_EPS = 1e-12
 
 
 class CameraInfoError(ValueError):
@@ -98,11 +101,13 @@ class CameraModel:
         pts = np.asarray(pixels, dtype=np.float64).reshape(-1, 1, 2)
         if not self.has_distortion:
             return pts.reshape(-1, 2).copy()
+        import cv2
+        criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, _UNDISTORT_ITERATIONS,
+                    _UNDISTORT_EPS)
         if self.is_fisheye:
-            out = cv2.fisheye.undistortPoints(pts, self.K, self.D, P=self.K,
-                                              criteria=_UNDISTORT_CRITERIA)
+            out = cv2.fisheye.undistortPoints(pts, self.K, self.D, P=self.K, criteria=criteria)
         else:
-            out = cv2.undistortPoints(pts, self.K, self.D, P=self.K, criteria=_UNDISTORT_CRITERIA)
+            out = cv2.undistortPoints(pts, self.K, self.D, P=self.K, criteria=criteria)
         return np.asarray(out, dtype=np.float64).reshape(-1, 2)
 
     def distort_pixels(self, pixels: ArrayLike) -> NDArray[np.float64]:
@@ -128,6 +133,7 @@ class CameraModel:
         obj = np.asarray(points, dtype=np.float64).reshape(-1, 1, 3)
         rvec = np.ascontiguousarray(rvec, dtype=np.float64).reshape(3, 1)
         tvec = np.ascontiguousarray(tvec, dtype=np.float64).reshape(3, 1)
+        import cv2
         if self.is_fisheye:
             px, _ = cv2.fisheye.projectPoints(obj, rvec, tvec, self.K, self.D)
         else:
@@ -240,6 +246,7 @@ def _from_ros_yaml(path: str | Path, text: str) -> CameraModel:
 
 
 def _from_opencv_storage(path: str | Path, text: str) -> CameraModel:
+    import cv2
     try:
         fs = cv2.FileStorage(text, cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY)
     except cv2.error as e:
