@@ -103,13 +103,37 @@ SLOWEST_FILES = (
     'test/cli/test_up.py',
     'test/cli/test_identify_faults.py',
 )
-# (the slow files of test/nodes that use its session suite stay with the others there: the
-# suite stops when a worker's next file does not use it, and starts again for the next one)
+# test/nodes' session suite (its conftest) stops when a worker's next test does not use it, and
+# starts again for the next one that does: 9 node processes, ~10 s of CPU and 15-40 s of the
+# worker's time on a loaded machine. Fresh-clone run G started it 10 times, once because
+# test_repeatability_trial has five tests of its own suites in the middle.
+SESSION_SUITE_DIR = 'test/nodes/'
+
+
+def _file(item) -> str:
+    return item.nodeid.split('::', 1)[0]
+
+
+def _uses_session_suite(item) -> bool:
+    return _file(item).startswith(SESSION_SUITE_DIR) and 'suite' in item.fixturenames
 
 
 def pytest_collection_modifyitems(session, config, items):
-    rank = {path: i for i, path in enumerate(SLOWEST_FILES)}
-    items.sort(key=lambda item: rank.get(item.nodeid.split('::', 1)[0], len(rank)))
+    """SLOWEST_FILES first; then every other file in collection order, except that the files
+    with tests of test/nodes' session suite come as one block where the first of them is, each
+    with those tests first: a worker then runs them one after the other on one suite."""
+    slow = {path: i for i, path in enumerate(SLOWEST_FILES)}
+    suite_files = {_file(item) for item in items if _uses_session_suite(item)}
+    first: dict[str, int] = {}
+    for item in items:
+        first.setdefault(_file(item), len(first))
+    block = min((first[path] for path in suite_files), default=0)
+
+    def key(item) -> tuple:
+        path = _file(item)
+        return (slow.get(path, len(slow)), block if path in suite_files else first[path],
+                first[path], not _uses_session_suite(item))
+    items.sort(key=key)        # stable: the collection order within equal keys
 
 
 def pytest_sessionstart(session):
