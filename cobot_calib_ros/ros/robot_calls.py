@@ -51,6 +51,12 @@ MOVE_RESULT_KEEP = 15
 # to stop, each idle job node spent ~4 % of a core on another node's collection (UR10e
 # `identify --planned`, 5 idle job nodes: ~20 % of a core)
 MOVE_CLIENT_LINGER = 10.0
+# [s] from a new move_to client to its first goal. The server sees the client ~0.1 s after it is
+# made, but it answers a goal only to a response reader it has matched by then (rmw_fastrtps
+# waits 100 ms: "client will not receive response"), and on a busy machine it can learn of the
+# client's writers before its readers (a fresh trial client's goal was accepted and its answer
+# lost so at load 8, fresh-clone run I)
+MOVE_CLIENT_SETTLE = 1.0
 TOUCH_TIMEOUT = 600.0   # [s] for the operator to guide the tool onto a point and confirm
 HAND_GUIDE = 'mock_robot/hand_guide'
 # mock_robot's real tool, [x y z roll pitch yaw] [m, rad]: a parameter, as GetGroundTruth has
@@ -77,6 +83,7 @@ class RobotCalls:
                                           # 0 = mock_robot's default
         self.probe_window = probe_window  # [s] of each probe reading
         self._move_client = None          # while a call needs it, and MOVE_CLIENT_LINGER s after
+        self._move_client_made = 0.0      # [s] monotonic
         self._move_users = 0
         self._move_idle_since = time.monotonic()
         self._move_lock = threading.Lock()
@@ -121,6 +128,7 @@ class RobotCalls:
         with self._move_lock:
             if self._move_client is None:
                 self._move_client = ActionClient(self._answers.node, MoveTo, 'move_to')
+                self._move_client_made = time.monotonic()
             self._move_users += 1
             client = self._move_client
         try:
@@ -147,6 +155,7 @@ class RobotCalls:
             with self._move_to() as move_client:
                 if not until(move_client.server_is_ready, SERVER_WAIT):
                     raise MoveFailed(NO_MOVE_TO)
+                pause(max(0.0, self._move_client_made + MOVE_CLIENT_SETTLE - time.monotonic()))
                 result = self._answers.run_action(move_client, goal, 10.0, MOVE_TIMEOUT)
         except (Stopping, ServerLost) as e:
             raise MoveFailed(f'move_to: {e}')
