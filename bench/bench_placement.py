@@ -5,8 +5,8 @@ define.
 In-process over the sim (sim.robot.DirectRobot, no ROS), for the mock Sawyer, iiwa 7 and UR10e
 cells, with the same core calls the nodes make:
 1. identify planned: core.kinematics.planned_collection.collect_planned over the SpherePlanner
-   of planning.sphere_candidates (kinematic_identifier's default candidates, 100 poses), the
-   collection identified by CalibrationJob, stored and activated (KinematicRecord);
+   of planning.sphere_candidates (kinematic_identifier's default candidates, PlanSettings' 50
+   poses), the collection identified by CalibrationJob, stored and activated (KinematicRecord);
 2. TCP: core.tcp.touches plan_touches / checked_plan / take_touches / solve_touches and the
    gate (tcp_calibrator's defaults: 6 approaches of P1, 30 deg, no orientation method), the
    flange poses through the ACTIVE kinematics (store.rigs.rig_of, as the node's ``_chain``),
