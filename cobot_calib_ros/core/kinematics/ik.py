@@ -74,12 +74,12 @@ class _Residual:
     orientation: float  # [rad]
 
 
-def _residual(model: pin.Model, data: pin.Data, q: Array, frame: int, target: pin.SE3,
-              position_only: bool) -> _Residual:
+def _residual(pin, model: pin.Model, data: pin.Data, q: Array, frame: int,
+              target: pin.SE3, position_only: bool) -> _Residual:
     """Task error and its Jacobian at q; LOCAL frame Jacobian, rotated for position only.
-    (The norms as sqrt(v @ v), np.linalg.norm's own arithmetic for a vector without its
-    per-call cost: the candidate pools' IK runs ~10^6 iterations.)"""
-    import pinocchio as pin
+    ``pin`` is the pinocchio module, passed in by solve_ik (imported once per solve, not per
+    iteration). (The norms as sqrt(v @ v), np.linalg.norm's own arithmetic for a vector
+    without its per-call cost: the candidate pools' IK runs ~10^6 iterations.)"""
     pin.computeJointJacobians(model, data, q)  # also runs forward kinematics
     current = pin.updateFramePlacement(model, data, frame)
     J = pin.getFrameJacobian(model, data, frame, pin.LOCAL)
@@ -124,7 +124,7 @@ def solve_ik(chain: Chain, T_base_tool_target: ArrayLike, q_seed: ArrayLike, *,
     q = np.clip(_as_batch(chain, q_seed)[0], chain.lower, chain.upper)
     best, stalled = math.inf, 0
     for iteration in range(max_iter + 1):
-        res = _residual(model, data, q, frame, target, position_only)
+        res = _residual(pin, model, data, q, frame, target, position_only)
         if res.position < tol and (position_only or res.orientation < tol):
             return IkResult(q, ErrorCode.SUCCESS, res.position, res.orientation, iteration,
                             'converged')
