@@ -21,6 +21,7 @@ from cobot_calib_ros import paths
 from cobot_calib_ros.nodes import DRIVER_NODES, NODES
 from cobot_calib_ros.api.dds_profile import large_data_env
 from cobot_calib_ros.api.fastdds_shm import remove_stale_segments
+from cobot_calib_ros.ros.action_client import ASK_AGAIN
 from cobot_calib_ros.ros.spin import LAUNCHER_PID_ENV
 
 SUITE = tuple(n for n in NODES if n not in DRIVER_NODES)   # the suite, in launch order
@@ -146,8 +147,6 @@ class AnswerCheck:
     and started again stays in the graph until DDS's lease ends: a call that went to the dead
     one never answers, so an unanswered call is sent again every ASK_AGAIN s."""
 
-    ASK_AGAIN = 2.0     # [s]
-
     def __init__(self, node, full_name: str) -> None:
         from rcl_interfaces.srv import ListParameters
         self._node, self._request = node, ListParameters.Request(depth=1)
@@ -158,7 +157,7 @@ class AnswerCheck:
         if self._call is not None and self._call.done():
             return True
         now = time.monotonic()
-        if now - self._asked >= self.ASK_AGAIN and self._client.service_is_ready():
+        if now - self._asked >= ASK_AGAIN and self._client.service_is_ready():
             if self._call is not None:
                 self._client.remove_pending_request(self._call)
             self._call, self._asked = self._client.call_async(self._request), now

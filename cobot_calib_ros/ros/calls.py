@@ -13,7 +13,10 @@ import rclpy
 from rclpy.node import Node
 
 from cobot_calib_ros.ros import interrupts
-from cobot_calib_ros.ros.action_client import ActionClient
+# ASK_AGAIN [s]: an unanswered idempotent request is sent again this often: a server that has
+# matched a new client's request but not yet its reply reader drops the answer, and the client
+# waited out its whole timeout (one process's `demo --attach`, 15 s, in a loaded test run)
+from cobot_calib_ros.ros.action_client import ASK_AGAIN, ActionClient
 from cobot_calib_ros.ros.suite_nodes import suite_watch
 
 
@@ -40,12 +43,6 @@ def spin_until(node: Node, done, timeout: float, executor=None) -> bool:
             rclpy.spin_once(node, timeout_sec=min(0.05, remaining))
     return True
 
-
-# [s] an unanswered idempotent request is sent again this often: a server that has matched a
-# new client's request but not yet its reply reader drops the answer ("failed to send response
-# (timeout): client will not receive response"), and the client waited out its whole timeout
-# (one process's `demo --attach`, 15 s, in a loaded test run)
-ASK_AGAIN = 2.0
 
 
 def call_service(node: Node, client, request, timeout: float = 10.0, executor=None,
