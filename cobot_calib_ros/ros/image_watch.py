@@ -22,6 +22,10 @@ from cobot_calib_ros.ros.time import stamp_to_ns
 
 KEEP = 4
 TOPIC = 'wrist_camera/image_raw'
+# [s] added to the wait for the first image after subscribing: a camera that streams only to
+# subscribers starts when discovery has matched the new subscription, and on two loaded cores
+# (load 10-20, a test run) that took over 5 s; the first view of a capture failed
+WAKE_ALLOWANCE = 15.0
 
 
 class ImageWatch:
@@ -33,6 +37,7 @@ class ImageWatch:
         self._cond = threading.Condition()
         self._images: deque[Image] = deque(maxlen=KEEP)
         self._sub = None
+        self._waking = False        # subscribed, no image yet
 
     def release(self) -> None:
         """Unsubscribe (until the next image asked for)."""
@@ -47,15 +52,18 @@ class ImageWatch:
 
     def _on_image(self, msg: Image) -> None:
         with self._cond:
+            self._waking = False
             self._images.append(msg)
             self._cond.notify_all()
 
     def image_after(self, t_ns: int, timeout: float) -> tuple[int, NDArray[np.uint8]]:
         if self._sub is None:
+            self._waking = True
             self._sub = self._node.create_subscription(Image, TOPIC, self._on_image,
                                                        qos_profile_sensor_data)
-        deadline = time.monotonic() + timeout
         with self._cond:
+            timeout += WAKE_ALLOWANCE if self._waking else 0.0
+            deadline = time.monotonic() + timeout
             while True:
                 msg = next((m for m in self._images if stamp_to_ns(m.header.stamp) > t_ns),
                            None)

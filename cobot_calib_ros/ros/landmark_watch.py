@@ -8,7 +8,9 @@ The clock is the node's (ROS time: use_sim_time works), as the images' stamps ar
 
 It subscribes only while a capture is on (a landmarks_after call, and LINGER s after the last
 one, so the views of one capture follow each other without a new subscription): landmark_detector
-and the camera rest while nobody subscribes (issue 23).
+and the camera rest while nobody subscribes (issue 23). Waking them (discovery matches the new
+subscription, the detector subscribes to the images, the camera starts) can take seconds on a
+loaded machine: the first image after subscribing gets image_watch.WAKE_ALLOWANCE s more.
 """
 from __future__ import annotations
 
@@ -23,6 +25,7 @@ from rclpy.clock import Clock, ClockType
 
 from cobot_calib_ros.core.robot_port import CaptureFailed, LandmarkImage, Sighting
 from cobot_calib_ros.ros import convert
+from cobot_calib_ros.ros.image_watch import WAKE_ALLOWANCE
 from cobot_calib_ros.ros.time import stamp_to_ns
 
 KEEP = 60           # images kept (2 s at 30 fps): more than arrive during one capture
@@ -50,6 +53,7 @@ class LandmarkWatch:
         self._node = node
         self._sub = None
         self._capturing = 0                 # landmarks_after calls in progress
+        self._waking = False                # subscribed, no message yet
         self._idle_since = time.monotonic()
         if node is not None:
             node.create_timer(1.0, self._release_when_idle,    # steady: LINGER is wall time
@@ -60,6 +64,7 @@ class LandmarkWatch:
             self._capturing += 1
             if self._sub is not None or self._node is None:
                 return
+            self._waking = True
             self._sub = self._node.create_subscription(Landmarks, 'landmarks',
                                                        self.on_landmarks, 10)
 
@@ -83,6 +88,7 @@ class LandmarkWatch:
     def on_landmarks(self, msg: Landmarks) -> None:
         image = landmarks_to_image(msg)
         with self._cond:
+            self._waking = False
             self.messages += 1
             self._images.append(image)
             self._cond.notify_all()
@@ -98,9 +104,10 @@ class LandmarkWatch:
 
     def _landmarks_after(self, t_ns: int, wanted: Callable[[LandmarkImage], bool],
                          max_images: int, timeout: float) -> LandmarkImage:
-        deadline = time.monotonic() + timeout
         seen, last, after = 0, None, t_ns
         with self._cond:
+            timeout += WAKE_ALLOWANCE if self._waking else 0.0
+            deadline = time.monotonic() + timeout
             while seen < max_images:
                 remaining = deadline - time.monotonic()
                 image = next((im for im in self._images if im.stamp_ns > after), None)
