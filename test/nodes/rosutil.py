@@ -16,10 +16,13 @@ QUERIES = ('GetGroundTruth', 'ListCalibrations', 'CaptureJoints', 'ConvertPoints
 
 
 def call(node, srv_type, name, timeout=10.0, **fields):
-    """One service call with the request fields given; the response."""
+    """One service call with the request fields given; the response. The service may take
+    STARTUP_TIMEOUT s to appear (a node process a test just started: the 10 s call_service
+    gives a user was not enough at load 15)."""
     client = node.create_client(srv_type, name)
     request = srv_type.Request(**fields)
     try:
+        spin_until(node, client.service_is_ready, STARTUP_TIMEOUT, node.executor_for_tests)
         return call_service(node, client, request, timeout, node.executor_for_tests,
                             idempotent=srv_type.__name__ in QUERIES)
     finally:
