@@ -13,12 +13,15 @@ mock_robot serves) is called instead when it answers.
 """
 from __future__ import annotations
 
+from contextlib import contextmanager
 import threading
+import time
 
 from cobot_calib_msgs.action import MoveTo
 from cobot_calib_msgs.msg import ProximityReading
 from cobot_calib_msgs.srv import AverageProximity, CaptureJoints, HandGuide, MeasurePosition
 import numpy as np
+from rclpy.clock import Clock, ClockType
 from std_srvs.srv import Trigger
 
 from cobot_calib_ros.core import frames
@@ -43,6 +46,11 @@ MOVE_TIMEOUT = 120.0    # [s] for one move_to to finish (every caller's bound on
 # still kept, and every job node's move_to client decodes each one: with 900 s an idle job node
 # spent ~6 % of a core on them while a collection ran (~3 % with this and 10 Hz feedback)
 MOVE_RESULT_KEEP = 15
+# [s] the move_to client is kept after the last call that used it. An action client takes every
+# status and feedback message of the server, whoever's goal they are about: with one from start
+# to stop, each idle job node spent ~4 % of a core on another node's collection (UR10e
+# `identify --planned`, 5 idle job nodes: ~20 % of a core)
+MOVE_CLIENT_LINGER = 10.0
 TOUCH_TIMEOUT = 600.0   # [s] for the operator to guide the tool onto a point and confirm
 HAND_GUIDE = 'mock_robot/hand_guide'
 # mock_robot's real tool, [x y z roll pitch yaw] [m, rad]: a parameter, as GetGroundTruth has
@@ -68,7 +76,12 @@ class RobotCalls:
         self.speed_scale = speed_scale    # of every move: 0..1 of the joint velocity limits;
                                           # 0 = mock_robot's default
         self.probe_window = probe_window  # [s] of each probe reading
-        self.move_client = ActionClient(answers.node, MoveTo, 'move_to')
+        self._move_client = None          # while a call needs it, and MOVE_CLIENT_LINGER s after
+        self._move_users = 0
+        self._move_idle_since = time.monotonic()
+        self._move_lock = threading.Lock()
+        answers.node.create_timer(1.0, self._release_move_client,    # steady: LINGER is wall time
+                                  clock=Clock(clock_type=ClockType.STEADY_TIME))
         self.capture_client = answers.node.create_client(CaptureJoints, 'capture_joints')
         self.probe_client = answers.node.create_client(AverageProximity, 'probe/average')
         self._hand_guide = answers.node.create_client(HandGuide, HAND_GUIDE)
@@ -94,18 +107,47 @@ class RobotCalls:
     def absent(self, timeout: float = SERVER_WAIT) -> list[str]:
         """Which of move_to, capture_joints and probe/average are not on the graph after up to
         ``timeout`` s (one wait for all: as soon as all are there); Stopping."""
-        return absent_after(dict(zip(self.CALLS, (self.move_client.server_is_ready,
-                                                  self.capture_client.service_is_ready,
-                                                  self.probe_client.service_is_ready))),
-                            timeout, self._answers.node)
+        with self._move_to() as move_client:
+            return absent_after(dict(zip(self.CALLS, (move_client.server_is_ready,
+                                                      self.capture_client.service_is_ready,
+                                                      self.probe_client.service_is_ready))),
+                                timeout, self._answers.node)
+
+    @contextmanager
+    def _move_to(self):
+        """The move_to client, made when a call needs it (its server sees it ~0.1 s later on a
+        quiet machine, within SERVER_WAIT) and released MOVE_CLIENT_LINGER s after the last
+        call (:meth:`_release_move_client`)."""
+        with self._move_lock:
+            if self._move_client is None:
+                self._move_client = ActionClient(self._answers.node, MoveTo, 'move_to')
+            self._move_users += 1
+            client = self._move_client
+        try:
+            yield client
+        finally:
+            with self._move_lock:
+                self._move_users -= 1
+                self._move_idle_since = time.monotonic()
+
+    def _release_move_client(self) -> None:
+        """Destroy the move_to client MOVE_CLIENT_LINGER s after its last use (the answers
+        node's executor thread, where its callbacks run)."""
+        with self._move_lock:
+            if self._move_client is None or self._move_users or \
+                    time.monotonic() - self._move_idle_since < MOVE_CLIENT_LINGER:
+                return
+            client, self._move_client = self._move_client, None
+        client.destroy()
 
     def move(self, goal: MoveTo.Goal) -> MoveTo.Result:
         """Run a move_to goal to its end (MOVE_TIMEOUT); MoveFailed unless it succeeded (the
         node shutting down included)."""
         try:
-            if not until(self.move_client.server_is_ready, SERVER_WAIT):
-                raise MoveFailed(NO_MOVE_TO)
-            result = self._answers.run_action(self.move_client, goal, 10.0, MOVE_TIMEOUT)
+            with self._move_to() as move_client:
+                if not until(move_client.server_is_ready, SERVER_WAIT):
+                    raise MoveFailed(NO_MOVE_TO)
+                result = self._answers.run_action(move_client, goal, 10.0, MOVE_TIMEOUT)
         except (Stopping, ServerLost) as e:
             raise MoveFailed(f'move_to: {e}')
         except TimeoutError as e:
@@ -125,8 +167,9 @@ class RobotCalls:
         answers, else the operator, who confirms (TOUCH_TIMEOUT). The robot's move_to must be
         up either way (what it moves next, and a sign of a driver)."""
         try:
-            if not until(self.move_client.server_is_ready, SERVER_WAIT):   # no robot at all
-                raise MoveFailed(NO_MOVE_TO)
+            with self._move_to() as move_client:
+                if not until(move_client.server_is_ready, SERVER_WAIT):   # no robot at all
+                    raise MoveFailed(NO_MOVE_TO)
             if self._simulated_operator is None:
                 self._simulated_operator = until(self._hand_guide.service_is_ready,
                                                  SERVER_WAIT)

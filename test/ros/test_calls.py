@@ -108,8 +108,7 @@ def test_a_move_a_node_waits_on_ends_when_the_robot_restarts(server):
     answers = Companion(node, 'answers')
     calls = RobotCalls(answers)
     try:
-        assert spin_until(node, lambda: seen and calls.move_client.server_is_ready(),
-                          START_TIMEOUT, executor)
+        assert spin_until(node, lambda: bool(seen), START_TIMEOUT, executor)
         target = np.array(seen[-1].position)
         target[0] += 1.0                    # 50 s of motion at 2 % of 1 rad/s
         failed = []
@@ -128,5 +127,38 @@ def test_a_move_a_node_waits_on_ends_when_the_robot_restarts(server):
         mover.join(timeout=GOAL_TIMEOUT)
         assert failed, 'the move neither failed nor ended'
         assert failed[0].startswith('move_to: the mock_robot node restarted: goal lost'), failed
+    finally:
+        answers.destroy()
+
+
+def test_the_move_client_is_there_while_moves_need_it_and_made_again_after(server,
+                                                                           monkeypatch):
+    """RobotCalls' move_to client: none at rest (an action client takes every status and
+    feedback message of every goal, another node's collection too), made by a move, released
+    MOVE_CLIENT_LINGER after the last one, and made again by the next move, which works."""
+    import numpy as np
+    from cobot_calib_ros.ros import robot_calls
+    from cobot_calib_ros.ros.spin import Companion
+    monkeypatch.setattr(robot_calls, 'MOVE_CLIENT_LINGER', 1.0)
+    start, node, executor = server
+    start()
+    seen = []
+    node.create_subscription(JointState, 'joint_states', seen.append, qos_profile_sensor_data)
+    answers = Companion(node, 'answers')
+    calls = robot_calls.RobotCalls(answers)
+
+    def status_readers() -> list[str]:
+        return [i.node_name for i in node.get_subscriptions_info_by_topic(
+            '/move_to/_action/status')]
+    try:
+        assert spin_until(node, lambda: bool(seen), START_TIMEOUT, executor)
+        assert status_readers() == []
+        home = np.array(seen[-1].position)
+        for step in (0.01, 0.02):
+            reached = calls.move_joints(home + step)
+            np.testing.assert_allclose(reached, home + step, atol=1e-6)
+            assert status_readers() == ['_run_action_test_answers']
+            assert spin_until(node, lambda: status_readers() == [], 10.0, executor), \
+                'the move_to client was not released'
     finally:
         answers.destroy()
