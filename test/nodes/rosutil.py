@@ -15,14 +15,14 @@ QUERIES = ('GetGroundTruth', 'ListCalibrations', 'CaptureJoints', 'ConvertPoints
            'AverageProximity', 'GetParameters')
 
 
-def call(node, srv_type, name, timeout=10.0, **fields):
-    """One service call with the request fields given; the response. The service may take
-    STARTUP_TIMEOUT s to appear (a node process a test just started: the 10 s call_service
-    gives a user was not enough at load 15)."""
+def call(node, srv_type, name, timeout=10.0, ready_timeout=0.0, **fields):
+    """One service call with the request fields given; the response. ``ready_timeout`` [s]: a
+    longer wait for the service to appear than call_service's 10 s (a node process a test just
+    started: 10 s was not enough at load 15; STARTUP_TIMEOUT)."""
     client = node.create_client(srv_type, name)
     request = srv_type.Request(**fields)
     try:
-        spin_until(node, client.service_is_ready, STARTUP_TIMEOUT, node.executor_for_tests)
+        spin_until(node, client.service_is_ready, ready_timeout, node.executor_for_tests)
         return call_service(node, client, request, timeout, node.executor_for_tests,
                             idempotent=srv_type.__name__ in QUERIES)
     finally:

@@ -8,7 +8,7 @@ import time
 
 import pytest
 
-from rosutil import cli, cli_command, STOP_TIMEOUT
+from rosutil import cli, cli_command, STARTUP_TIMEOUT, STOP_TIMEOUT
 
 from cobot_calib_ros.core.sensors.joint_buffer import HOLD_EXTENSIONS
 
@@ -125,7 +125,8 @@ def test_a_thinned_stream_makes_the_hold_go_on_until_it_has_its_samples(ros, tmp
     thinned = launcher.Suite(tmp_path / 'logs')
     thinned.start([launcher.NodeSpec('joint_state_monitor', namespace='thinned')])
     try:
-        res = call(ros, CaptureJoints, '/thinned/capture_joints', timeout=30.0, duration=0.2)
+        res = call(ros, CaptureJoints, '/thinned/capture_joints', timeout=30.0,
+                   ready_timeout=STARTUP_TIMEOUT, duration=0.2)
     finally:
         ros.destroy_timer(timer)
         ros.destroy_publisher(publisher)
