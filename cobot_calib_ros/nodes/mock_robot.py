@@ -70,9 +70,11 @@ COMPLIANT_ACTION = 'compliant_trajectory_controller/follow_joint_trajectory'
 RING_AMPLITUDE = 2e-3   # [rad] of the first joint's oscillation under driver_fault ring
 RING_HZ = 8.0           # [Hz]
 # joint_states are published this many times a second at most, each time the messages stamped
-# since the previous (a 1 kHz stream: 4 per wake, the newest stamped now): one wake per message
-# cost ~15 % of a core in the publishing thread, nearly all of it Python and numpy overhead
-PUBLISH_WAKES_HZ = 250.0
+# since the previous (a 1 kHz stream: 10 per wake, the newest stamped now): one wake per message
+# cost ~15 % of a core in the publishing thread, nearly all of it Python and numpy overhead;
+# 100 against 250 wakes: mock_robot 5.8-8.9 % against 8.2-9.7 % of a core in an idle ur10e_close
+# suite (four pairs, side by side), its readers a little less too
+PUBLISH_WAKES_HZ = 100.0
 CATCH_UP_NS = 100_000_000   # [ns] a later tick fills its gap evenly (a stall shows as gaps)
 SLOW_RATE_FRACTION = 0.9  # [1] of the nominal joint_states rate: below it, WARN
 # [s] of probe readings the simulated probe buffers while the publisher is starved: they are
