@@ -28,6 +28,19 @@ TOPIC = 'wrist_camera/image_raw'
 WAKE_ALLOWANCE = 15.0
 
 
+def wake_deadline() -> float:
+    """The end of a new subscription's WAKE_ALLOWANCE (monotonic [s]), taken when subscribing;
+    0.0 once a message has come."""
+    return time.monotonic() + WAKE_ALLOWANCE
+
+
+def image_wait(timeout: float, woken_by: float) -> float:
+    """How long [s] to wait for an image: ``timeout``, or until ``timeout`` after ``woken_by``
+    (:func:`wake_deadline`) when that is later. Counted from the subscription, so a camera that
+    never starts costs WAKE_ALLOWANCE once, not at every view."""
+    return max(timeout, woken_by + timeout - time.monotonic())
+
+
 class ImageWatch:
     """The image port on ``node`` (a spin.Companion's node: its executor delivers the images
     while a caller blocks in :meth:`image_after` on another thread)."""
@@ -37,7 +50,7 @@ class ImageWatch:
         self._cond = threading.Condition()
         self._images: deque[Image] = deque(maxlen=KEEP)
         self._sub = None
-        self._waking = False        # subscribed, no image yet
+        self._woken_by = 0.0        # wake_deadline() of the subscription until an image came
 
     def release(self) -> None:
         """Unsubscribe (until the next image asked for)."""
@@ -52,17 +65,17 @@ class ImageWatch:
 
     def _on_image(self, msg: Image) -> None:
         with self._cond:
-            self._waking = False
+            self._woken_by = 0.0
             self._images.append(msg)
             self._cond.notify_all()
 
     def image_after(self, t_ns: int, timeout: float) -> tuple[int, NDArray[np.uint8]]:
         if self._sub is None:
-            self._waking = True
+            self._woken_by = wake_deadline()
             self._sub = self._node.create_subscription(Image, TOPIC, self._on_image,
                                                        qos_profile_sensor_data)
         with self._cond:
-            timeout += WAKE_ALLOWANCE if self._waking else 0.0
+            timeout = image_wait(timeout, self._woken_by)
             deadline = time.monotonic() + timeout
             while True:
                 msg = next((m for m in self._images if stamp_to_ns(m.header.stamp) > t_ns),

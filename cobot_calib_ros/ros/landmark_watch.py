@@ -10,7 +10,8 @@ It subscribes only while a capture is on (a landmarks_after call, and LINGER s a
 one, so the views of one capture follow each other without a new subscription): landmark_detector
 and the camera rest while nobody subscribes (issue 23). Waking them (discovery matches the new
 subscription, the detector subscribes to the images, the camera starts) can take seconds on a
-loaded machine: the first image after subscribing gets image_watch.WAKE_ALLOWANCE s more.
+loaded machine: the first image after subscribing gets image_watch.WAKE_ALLOWANCE s more,
+counted from the subscription (image_watch.image_wait).
 """
 from __future__ import annotations
 
@@ -25,7 +26,7 @@ from rclpy.clock import Clock, ClockType
 
 from cobot_calib_ros.core.robot_port import CaptureFailed, LandmarkImage, Sighting
 from cobot_calib_ros.ros import convert
-from cobot_calib_ros.ros.image_watch import WAKE_ALLOWANCE
+from cobot_calib_ros.ros.image_watch import image_wait, wake_deadline
 from cobot_calib_ros.ros.time import stamp_to_ns
 
 KEEP = 60           # images kept (2 s at 30 fps): more than arrive during one capture
@@ -53,7 +54,7 @@ class LandmarkWatch:
         self._node = node
         self._sub = None
         self._capturing = 0                 # landmarks_after calls in progress
-        self._waking = False                # subscribed, no message yet
+        self._woken_by = 0.0                # image_watch.wake_deadline() until a message came
         self._idle_since = time.monotonic()
         if node is not None:
             node.create_timer(1.0, self._release_when_idle,    # steady: LINGER is wall time
@@ -64,7 +65,7 @@ class LandmarkWatch:
             self._capturing += 1
             if self._sub is not None or self._node is None:
                 return
-            self._waking = True
+            self._woken_by = wake_deadline()
             self._sub = self._node.create_subscription(Landmarks, 'landmarks',
                                                        self.on_landmarks, 10)
 
@@ -88,7 +89,7 @@ class LandmarkWatch:
     def on_landmarks(self, msg: Landmarks) -> None:
         image = landmarks_to_image(msg)
         with self._cond:
-            self._waking = False
+            self._woken_by = 0.0
             self.messages += 1
             self._images.append(image)
             self._cond.notify_all()
@@ -106,7 +107,7 @@ class LandmarkWatch:
                          max_images: int, timeout: float) -> LandmarkImage:
         seen, last, after = 0, None, t_ns
         with self._cond:
-            timeout += WAKE_ALLOWANCE if self._waking else 0.0
+            timeout = image_wait(timeout, self._woken_by)
             deadline = time.monotonic() + timeout
             while seen < max_images:
                 remaining = deadline - time.monotonic()

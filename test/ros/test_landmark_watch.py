@@ -9,6 +9,7 @@ import pytest
 from cobot_calib_msgs.msg import Landmark, Landmarks
 
 from cobot_calib_ros.core.robot_port import CaptureFailed
+from cobot_calib_ros.ros import image_watch
 from cobot_calib_ros.ros.landmark_watch import landmarks_to_image, LandmarkWatch
 
 S = 1_000_000_000
@@ -100,7 +101,7 @@ def test_subscribed_only_during_a_capture_and_a_while_after(monkeypatch):
     rclpy.init(context=context)
     node = rclpy.create_node('landmark_watch_test', context=context)
     try:
-        monkeypatch.setattr(landmark_watch, 'WAKE_ALLOWANCE', 0.0)
+        monkeypatch.setattr(image_watch, 'WAKE_ALLOWANCE', 0.0)
         watch = LandmarkWatch(lambda: 0, node)
         topics = lambda: [s.topic_name for s in node.subscriptions]     # noqa: E731
         assert '/landmarks' not in topics()
@@ -126,9 +127,8 @@ def test_the_first_image_after_subscribing_may_take_the_wake_allowance(monkeypat
     later ones only their own timeout."""
     import rclpy
     from rclpy.context import Context
-    from cobot_calib_ros.ros import landmark_watch
 
-    monkeypatch.setattr(landmark_watch, 'WAKE_ALLOWANCE', 10.0)
+    monkeypatch.setattr(image_watch, 'WAKE_ALLOWANCE', 10.0)
     context = Context()
     rclpy.init(context=context)
     node = rclpy.create_node('landmark_watch_wake_test', context=context)
@@ -143,5 +143,30 @@ def test_the_first_image_after_subscribing_may_take_the_wake_allowance(monkeypat
         assert time.monotonic() - start < 5.0
     finally:
         late.cancel()
+        node.destroy_node()
+        rclpy.shutdown(context=context)
+
+
+def test_a_camera_that_never_starts_costs_the_allowance_once(monkeypatch):
+    """The allowance is counted from the subscription: with no camera at all, the first view
+    waits it out and the next ones only their own timeout (a hand-eye capture skips such views
+    one after the other)."""
+    import rclpy
+    from rclpy.context import Context
+
+    monkeypatch.setattr(image_watch, 'WAKE_ALLOWANCE', 3.0)
+    context = Context()
+    rclpy.init(context=context)
+    node = rclpy.create_node('landmark_watch_dead_camera_test', context=context)
+    try:
+        watch = LandmarkWatch(lambda: 0, node)
+        waits = []
+        for _ in range(2):
+            start = time.monotonic()
+            with pytest.raises(CaptureFailed, match='no landmarks message'):
+                watch.landmarks_after(0, lambda im: True, 1, 0.05)
+            waits.append(time.monotonic() - start)
+        assert waits[0] >= 3.0 and waits[1] < 2.5, waits
+    finally:
         node.destroy_node()
         rclpy.shutdown(context=context)
