@@ -30,7 +30,8 @@ from rclpy.exceptions import InvalidHandle
 from rclpy.task import Future
 
 # [s] an unanswered request is sent again this often (a goal here, an idempotent query in
-# ros.calls and ros.spin): see the module docstring for why answers get lost
+# ros.calls and ros.spin): see the module docstring for why answers get lost (a query's client
+# once waited out its whole timeout: one process's `demo --attach`, 15 s, in a loaded test run)
 ASK_AGAIN = 2.0
 GOAL_ASKS = 5     # a goal request is sent at most this often: callers wait 10 s for it
 
@@ -92,12 +93,10 @@ class _GoalSend:
         self._requests = [first]
         self._status = None             # the goal's entry in the server's status, once seen
         self._rejected_again = None     # a re-send's rejection, until the status says which
-        self._timer = None
         client._sends[self._key] = self
         first.add_done_callback(self._answered)
-        if not self.answer.done():
-            self._timer = client._node.create_timer(ASK_AGAIN, self._tick,
-                                                    callback_group=client.callback_group)
+        self._timer = client._node.create_timer(ASK_AGAIN, self._tick,
+                                                callback_group=client.callback_group)
         self.answer.add_done_callback(lambda _: self.end())   # settled or given up by its caller
 
     def listed(self, status) -> None:

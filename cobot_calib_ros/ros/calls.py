@@ -13,9 +13,6 @@ import rclpy
 from rclpy.node import Node
 
 from cobot_calib_ros.ros import interrupts
-# ASK_AGAIN [s]: an unanswered idempotent request is sent again this often: a server that has
-# matched a new client's request but not yet its reply reader drops the answer, and the client
-# waited out its whole timeout (one process's `demo --attach`, 15 s, in a loaded test run)
 from cobot_calib_ros.ros.action_client import ASK_AGAIN, ActionClient
 from cobot_calib_ros.ros.suite_nodes import suite_watch
 
