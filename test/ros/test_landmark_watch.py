@@ -90,52 +90,54 @@ def test_images_that_keep_coming_without_the_marker_end_at_the_timeout():
     assert image.find('board') is None and image.stamp_ns == 4 * S     # looks at 1..4 s of 5
 
 
-def test_subscribed_only_during_a_capture_and_a_while_after(monkeypatch):
-    """Issue 23.13: the detector and the camera rest while nobody subscribes to landmarks, so
-    the watch subscribes for a capture and LINGER s after it, not all the time."""
+@pytest.fixture
+def node():
+    """A node in a context of its own, for a watch that subscribes (nothing spins it: the
+    tests feed the watch themselves)."""
     import rclpy
     from rclpy.context import Context
-    from cobot_calib_ros.ros import landmark_watch
 
     context = Context()
     rclpy.init(context=context)
     node = rclpy.create_node('landmark_watch_test', context=context)
     try:
-        monkeypatch.setattr(image_watch, 'WAKE_ALLOWANCE', 0.0)
-        watch = LandmarkWatch(lambda: 0, node)
-        topics = lambda: [s.topic_name for s in node.subscriptions]     # noqa: E731
-        assert '/landmarks' not in topics()
-        during = []
-        with pytest.raises(CaptureFailed):
-            watch.landmarks_after(0, lambda im: during.append(topics()) or False, 1, 0.05)
-        watch.on_landmarks(_msg(1, _marker(3)))                 # what the topic would bring
-        assert watch.landmarks_after(0, lambda im: during.append(topics()) or True, 1, 0.05)
-        assert during == [['/landmarks']]
-        watch._release_when_idle()                              # within LINGER: kept
-        assert topics() == ['/landmarks']
-        monkeypatch.setattr(landmark_watch, 'LINGER', 0.0)
-        watch._release_when_idle()
-        assert topics() == []
+        yield node
     finally:
         node.destroy_node()
         rclpy.shutdown(context=context)
 
 
-def test_the_first_image_after_subscribing_may_take_the_wake_allowance(monkeypatch):
+def test_subscribed_only_during_a_capture_and_a_while_after(node, monkeypatch):
+    """Issue 23.13: the detector and the camera rest while nobody subscribes to landmarks, so
+    the watch subscribes for a capture and LINGER s after it, not all the time."""
+    from cobot_calib_ros.ros import landmark_watch
+
+    monkeypatch.setattr(image_watch, 'WAKE_ALLOWANCE', 0.0)
+    watch = LandmarkWatch(lambda: 0, node)
+    topics = lambda: [s.topic_name for s in node.subscriptions]     # noqa: E731
+    assert '/landmarks' not in topics()
+    during = []
+    with pytest.raises(CaptureFailed):
+        watch.landmarks_after(0, lambda im: during.append(topics()) or False, 1, 0.05)
+    watch.on_landmarks(_msg(1, _marker(3)))                 # what the topic would bring
+    assert watch.landmarks_after(0, lambda im: during.append(topics()) or True, 1, 0.05)
+    assert during == [['/landmarks']]
+    watch._release_when_idle()                              # within LINGER: kept
+    assert topics() == ['/landmarks']
+    monkeypatch.setattr(landmark_watch, 'LINGER', 0.0)
+    watch._release_when_idle()
+    assert topics() == []
+
+
+def test_the_first_image_after_subscribing_may_take_the_wake_allowance(node, monkeypatch):
     """Waking the detector and the camera took over 5 s on a loaded machine: the first view of
     a capture failed. The first message after a new subscription gets WAKE_ALLOWANCE s more;
     later ones only their own timeout."""
-    import rclpy
-    from rclpy.context import Context
-
     monkeypatch.setattr(image_watch, 'WAKE_ALLOWANCE', 10.0)
-    context = Context()
-    rclpy.init(context=context)
-    node = rclpy.create_node('landmark_watch_wake_test', context=context)
+    watch = LandmarkWatch(lambda: 0, node)
+    late = threading.Timer(0.5, watch.on_landmarks, (_msg(1, _marker(3)),))
+    late.start()
     try:
-        watch = LandmarkWatch(lambda: 0, node)
-        late = threading.Timer(0.5, watch.on_landmarks, (_msg(1, _marker(3)),))
-        late.start()
         assert watch.landmarks_after(0, lambda im: True, 1, 0.05).stamp_ns == 1_000_000_000
         start = time.monotonic()
         with pytest.raises(CaptureFailed, match='within 0 s'):
@@ -143,30 +145,18 @@ def test_the_first_image_after_subscribing_may_take_the_wake_allowance(monkeypat
         assert time.monotonic() - start < 5.0
     finally:
         late.cancel()
-        node.destroy_node()
-        rclpy.shutdown(context=context)
 
 
-def test_a_camera_that_never_starts_costs_the_allowance_once(monkeypatch):
+def test_a_camera_that_never_starts_costs_the_allowance_once(node, monkeypatch):
     """The allowance is counted from the subscription: with no camera at all, the first view
     waits it out and the next ones only their own timeout (a hand-eye capture skips such views
     one after the other)."""
-    import rclpy
-    from rclpy.context import Context
-
     monkeypatch.setattr(image_watch, 'WAKE_ALLOWANCE', 3.0)
-    context = Context()
-    rclpy.init(context=context)
-    node = rclpy.create_node('landmark_watch_dead_camera_test', context=context)
-    try:
-        watch = LandmarkWatch(lambda: 0, node)
-        waits = []
-        for _ in range(2):
-            start = time.monotonic()
-            with pytest.raises(CaptureFailed, match='no landmarks message'):
-                watch.landmarks_after(0, lambda im: True, 1, 0.05)
-            waits.append(time.monotonic() - start)
-        assert waits[0] >= 3.0 and waits[1] < 2.5, waits
-    finally:
-        node.destroy_node()
-        rclpy.shutdown(context=context)
+    watch = LandmarkWatch(lambda: 0, node)
+    waits = []
+    for _ in range(2):
+        start = time.monotonic()
+        with pytest.raises(CaptureFailed, match='no landmarks message'):
+            watch.landmarks_after(0, lambda im: True, 1, 0.05)
+        waits.append(time.monotonic() - start)
+    assert waits[0] >= 3.0 and waits[1] < 2.5, waits
