@@ -22,10 +22,13 @@ from cobot_calib_ros.nodes import DRIVER_NODES, NODES
 from cobot_calib_ros.api.dds_profile import large_data_env
 from cobot_calib_ros.api.fastdds_shm import remove_stale_segments
 from cobot_calib_ros.ros.action_client import ASK_AGAIN
-from cobot_calib_ros.ros.spin import LAUNCHER_PID_ENV
+from cobot_calib_ros.ros.spin import LAUNCHER_PID_ENV, STOP_BOUND
 
 SUITE = tuple(n for n in NODES if n not in DRIVER_NODES)   # the suite, in launch order
 ROBOT_INTERFACES = ('move_to', 'driver')    # mock_robot's own move_to, or through robot_adapter
+# [s] from a stop's SIGINT to the SIGTERM: a node ends by itself within spin.STOP_BOUND
+# (its teardown cut short by its watchdog at worst), so a SIGTERM means it did not
+STOP_WAIT = STOP_BOUND + 1.0
 
 
 @dataclass
@@ -108,8 +111,9 @@ class Suite:
         path = self.log_path(name)
         return '\n'.join(path.read_text(errors='replace').splitlines()[-lines:])
 
-    def stop(self, timeout: float = 5.0) -> dict[str, int]:
-        """SIGINT every node, then SIGTERM, then SIGKILL; returns the exit codes."""
+    def stop(self, timeout: float = STOP_WAIT) -> dict[str, int]:
+        """SIGINT every node, then SIGTERM ``timeout`` s later, then SIGKILL 2 s after that;
+        returns the exit codes."""
         for sig, wait in ((signal.SIGINT, timeout), (signal.SIGTERM, 2.0), (signal.SIGKILL, 2.0)):
             alive = [p for p in self.processes.values() if p.poll() is None]
             for p in alive:

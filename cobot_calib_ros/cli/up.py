@@ -18,7 +18,6 @@ CHECK_MIN_WAIT = 2.5     # [s]
 CHECK_MAX_WAIT = 3.0     # [s]
 READY_TIMEOUT = 120.0    # [s] for every node to answer after the start (11 processes, 2 cores)
 WATCH_PERIOD = 0.2       # [s] between looks at the node processes
-STOP_TIMEOUT = 6.0       # [s] after the SIGINT before SIGTERM, 2 s, SIGKILL: down in 10 s
 QUICK_EXIT = 10.0        # [s] an exit this soon after the start counts as a failed start
 QUICK_EXITS = 3          # failed starts in a row before a node is left down
 
@@ -217,7 +216,7 @@ def _serve(suite, specs, env: dict[str, str] | None = None, namespace: str = '')
 
 def _stop(suite) -> None:
     started = time.monotonic()
-    codes = suite.stop(timeout=STOP_TIMEOUT)
+    codes = suite.stop()
     print(f'stopped in {time.monotonic() - started:.1f} s: '
           + ', '.join(f'{n} ({c})' for n, c in codes.items()), flush=True)
 

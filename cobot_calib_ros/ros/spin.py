@@ -59,8 +59,10 @@ STOP_GRACE = 3.0      # [s] for callbacks in flight to end after a stop, before 
 TEARDOWN_DUMP = 4.0   # [s] a teardown still running this long prints every thread's stack
 # [s] a teardown still running this long ends the process (exit 0, said in its log): rclpy's
 # Node.destroy_node hung in it (seen once more at load ~4, a camera suite's
-# joint_state_monitor: SIGKILLed 32 s after its SIGINT), after the node's work had ended
-TEARDOWN_EXIT = 10.0
+# joint_state_monitor: SIGKILLed 32 s after its SIGINT), after the node's work had ended.
+# Short enough that STOP_BOUND ends before a launcher's SIGTERM (a healthy teardown takes
+# well under a second; one cut short leaves only Fast DDS files, removed at the next start)
+TEARDOWN_EXIT = 5.0
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 LAUNCHER_PID_ENV = 'COBOT_CALIB_LAUNCHER_PID'   # set by api.launcher for the nodes it starts
 PR_SET_PDEATHSIG = 1
@@ -264,12 +266,12 @@ def _queued(executor) -> bool:
 
 def _teardown(node: Node | None) -> None:
     """Destroy the node and shut rclpy down, deaf to Ctrl-C meanwhile; a teardown that hangs
-    is ended by the TeardownWatchdog, or sooner by a SIGTERM: from here on SIGTERM has its
-    default action (the process ends at once, -15). A Python handler would never run while
-    rclpy's C++ destroy holds the GIL: that hang (Fast DDS deleting the node) outlasted `up`'s
-    SIGTERM 6 s after its Ctrl-C, and its SIGKILL 2 s later ended the node with -9 (fresh-clone
-    run 19, user_frame_solver, load 9). The node's work has ended by then: what it stores is
-    stored.
+    is ended by the TeardownWatchdog (within STOP_BOUND of the stop, before a launcher's
+    SIGTERM), or sooner by a SIGTERM: from here on SIGTERM has its default action (the process
+    ends at once, -15). A Python handler would never run while rclpy's C++ destroy holds the
+    GIL: that hang (Fast DDS deleting the node) outlasted `up`'s SIGTERM when it came 6 s after
+    its Ctrl-C, and its SIGKILL 2 s later ended the node with -9 (fresh-clone run 19,
+    user_frame_solver, load 9). The node's work has ended by then: what it stores is stored.
 
     The EventsExecutor stops on SIGINT by itself, so the KeyboardInterrupt Python raises for
     the same signal can come later, in the middle of destroy_node (exit code 130 instead of 0,
@@ -324,6 +326,12 @@ class TeardownWatchdog:
     def cancel(self) -> None:
         self._timer.cancel()
         self._native.cancel()
+
+
+# [s] the longest a node takes from a stop signal to its exit: its work's grace, then a
+# teardown that the watchdog's native timer ends at worst. A launcher waits longer than this
+# before its SIGTERM, so a node whose rclpy teardown hangs still ends by itself, with exit 0.
+STOP_BOUND = STOP_GRACE + TEARDOWN_EXIT + TeardownWatchdog.EXIT_BACKSTOP
 
 
 def _teardown_hung() -> None:

@@ -22,6 +22,7 @@ from rclpy.context import Context
 from rclpy.executors import MultiThreadedExecutor, SingleThreadedExecutor
 from rclpy.node import Node
 
+from cobot_calib_ros.api.launcher import STOP_WAIT
 from cobot_calib_ros.ros import spin
 from cobot_calib_ros.ros.action_client import ActionClient
 
@@ -30,6 +31,7 @@ NODE_SCRIPT = '''
 import sys
 from rclpy.node import Node
 from std_msgs.msg import String
+from cobot_calib_ros.api.launcher import STOP_WAIT
 from cobot_calib_ros.ros import spin
 
 # idle waits longer than the test's TIMEOUT: a stop must not wait for one to end
@@ -223,6 +225,7 @@ def test_a_bad_parameter_value_at_start_ends_the_node_with_one_line(domain, valu
 
 NATIVE_EXIT = '''
 import ctypes, sys, time
+from cobot_calib_ros.api.launcher import STOP_WAIT
 from cobot_calib_ros.ros import spin
 timer = spin.NativeExitTimer(0.3)
 if sys.argv[1] == 'cancel':
@@ -247,6 +250,7 @@ def test_a_cancelled_native_exit_timer_leaves_the_process_alone():
 HUNG_TEARDOWN = '''
 import ctypes, sys
 from rclpy.node import Node
+from cobot_calib_ros.api.launcher import STOP_WAIT
 from cobot_calib_ros.ros import spin
 
 
@@ -266,18 +270,38 @@ spin.run(Hangs, sys.argv)
 '''
 
 
-def test_a_sigterm_ends_a_teardown_hung_in_c_at_once(domain):
-    """`up` stops a node with SIGINT, then SIGTERM 6 s later: a teardown hung in rclpy's C++
-    destroy (GIL held, no Python handler can run) ends on that SIGTERM (-15), long before the
-    TeardownWatchdog (exit 0 at TEARDOWN_EXIT) and before `up`'s SIGKILL (-9)."""
+def _hung_teardown(domain) -> subprocess.Popen:
+    """A node process stopped by SIGINT, now in a teardown hung in C (HUNG_TEARDOWN)."""
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
     proc = subprocess.Popen([sys.executable, '-c', HUNG_TEARDOWN], stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True, env=env,
                             cwd=Path(__file__).resolve().parents[2])
+    assert _printed(proc, 'up', TIMEOUT)
+    proc.send_signal(signal.SIGINT)
+    assert _printed(proc, 'tearing down', TIMEOUT)
+    return proc
+
+
+def test_a_teardown_hung_in_c_ends_with_exit_0_before_the_launchers_sigterm(domain):
+    """A teardown hung in rclpy's C++ destroy (GIL held, no Python handler can run) is ended
+    by the node's own watchdog (exit 0) within spin.STOP_BOUND of the stop, before the
+    launcher's SIGTERM (STOP_WAIT after its SIGINT; it was 6 s, before the watchdog's 11 s,
+    and such a node ended -15 in a test of `up`'s Ctrl-C)."""
+    proc = _hung_teardown(domain)
     try:
-        assert _printed(proc, 'up', TIMEOUT)
-        proc.send_signal(signal.SIGINT)
-        assert _printed(proc, 'tearing down', TIMEOUT)
+        proc.wait(timeout=STOP_WAIT)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        out, _ = proc.communicate()
+    assert proc.returncode == 0, out
+
+
+def test_a_sigterm_ends_a_teardown_hung_in_c_at_once(domain):
+    """From its teardown on a node takes SIGTERM's default action: a launcher's SIGTERM ends a
+    hung teardown at once (-15), not after the watchdog."""
+    proc = _hung_teardown(domain)
+    try:
         proc.send_signal(signal.SIGTERM)
         proc.wait(timeout=spin.TEARDOWN_EXIT / 2)
     finally:
