@@ -30,7 +30,7 @@ from cobot_calib_ros.ros.image_watch import image_wait, wake_deadline
 from cobot_calib_ros.ros.time import stamp_to_ns
 
 KEEP = 60           # images kept (2 s at 30 fps): more than arrive during one capture
-LINGER = 10.0       # [s] subscribed after the last capture ended
+LINGER = 10.0       # [s] subscribed after the last capture ended (released within 2 LINGER)
 KINDS = {Landmark.KIND_MARKER: 'marker', Landmark.KIND_BOARD: 'board'}
 
 
@@ -57,8 +57,9 @@ class LandmarkWatch:
         self._woken_by = 0.0                # image_watch.wake_deadline() until a message came
         self._idle_since = time.monotonic()
         if node is not None:
-            node.create_timer(1.0, self._release_when_idle,    # steady: LINGER is wall time
-                              clock=Clock(clock_type=ClockType.STEADY_TIME))
+            # a look every LINGER s, not every second (robot_calls.MOVE_CLIENT_LINGER: why)
+            node.create_timer(LINGER, self._release_when_idle,
+                              clock=Clock(clock_type=ClockType.STEADY_TIME))    # wall time
 
     def _subscribe(self) -> None:
         with self._cond:

@@ -49,7 +49,7 @@ MOVE_RESULT_KEEP = 15
 # [s] the move_to client is kept after the last call that used it. An action client takes every
 # status and feedback message of the server, whoever's goal they are about: with one from start
 # to stop, each idle job node spent ~4 % of a core on another node's collection (UR10e
-# `identify --planned`, 5 idle job nodes: ~20 % of a core)
+# `identify --planned`, 5 idle job nodes: ~20 % of a core); the client goes 1-2 LINGER after
 MOVE_CLIENT_LINGER = 10.0
 TOUCH_TIMEOUT = 600.0   # [s] for the operator to guide the tool onto a point and confirm
 HAND_GUIDE = 'mock_robot/hand_guide'
@@ -80,8 +80,11 @@ class RobotCalls:
         self._move_users = 0
         self._move_idle_since = time.monotonic()
         self._move_lock = threading.Lock()
-        answers.node.create_timer(1.0, self._release_move_client,    # steady: LINGER is wall time
-                                  clock=Clock(clock_type=ClockType.STEADY_TIME))
+        # a look every LINGER s (the client goes 1-2 LINGER after its last call): each wake of
+        # an executor costs ~1-10 ms of Python here, and a 1 s look was a job node's most
+        # frequent wake at rest, beside the 1 Hz diagnostics
+        answers.node.create_timer(MOVE_CLIENT_LINGER, self._release_move_client,
+                                  clock=Clock(clock_type=ClockType.STEADY_TIME))    # wall time
         self.capture_client = answers.node.create_client(CaptureJoints, 'capture_joints')
         self.probe_client = answers.node.create_client(AverageProximity, 'probe/average')
         self._hand_guide = answers.node.create_client(HandGuide, HAND_GUIDE)

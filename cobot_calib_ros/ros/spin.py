@@ -53,8 +53,10 @@ DEFAULT_EXECUTOR = 'single'
 WAKE_PERIOD = 0.1     # [s] longest wait of one spin_once of a loop that checks for a stop
 # [s] longest wait of an idle executor's spin_once (a node's own, a companion's): a stop ends
 # it at once (Wake: a signal through SignalWaker, a companion's destroy), so this only bounds a
-# missed wake; at WAKE_PERIOD an idle node's 10 Hz wait-set rebuilds were most of its CPU
-IDLE_WAKE = 2.0
+# missed wake; at WAKE_PERIOD an idle node's 10 Hz wait-set rebuilds were most of its CPU, and
+# at 2 s a job node's three or four executors still woke ~2 times a second between them (an
+# idle wake of rclpy's executor: 1 ms of CPU in a loop here, up to ~10 ms when it comes cold)
+IDLE_WAKE = 10.0
 STOP_GRACE = 3.0      # [s] for callbacks in flight to end after a stop, before the teardown
 TEARDOWN_DUMP = 4.0   # [s] a teardown still running this long prints every thread's stack
 # [s] a teardown still running this long ends the process (exit 0, said in its log): rclpy's
