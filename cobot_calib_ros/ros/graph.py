@@ -9,7 +9,11 @@ from rclpy.node import Node
 from cobot_calib_ros.ros.calls import spin_until
 
 GRAPH_POLL = 0.1          # [s] between graph snapshots
-GRAPH_SETTLE = 0.5        # [s] unchanged graph that ends a discovery wait
+# [s] unchanged graph that ends a discovery wait (after its minimum): a participant whose
+# discovery traffic was missed shows at its next periodic announcement (Fast DDS: every 3 s),
+# so a graph that changed within the last period may still grow: a `list` ended 0.5 s after
+# its 6 s minimum without /mock_robot (fresh-clone run U, 3 test workers)
+GRAPH_SETTLE = 3.5
 # Fast DDS finds most remote nodes within 0.1 s, but often one or two only when their next
 # periodic discovery traffic comes (every 3 s): measured here (2 CPUs under load), the last
 # suite node showed up as late as 3.5 s after start, after gaps of up to 2.4 s with no change
