@@ -10,9 +10,9 @@ def add_parser(subparsers):
     p = subparsers.add_parser(
         'list', help='nodes, topics, services and actions with types',
         description='Discover the graph on the exported ROS_DOMAIN_ID, then list it once it '
-                    'has stopped changing: at least 6 s, and 3.5 s after the last node or interface '
-                    'found (a node whose discovery traffic was missed shows at its next 3 s '
-                    'announcement).')
+                    'has stopped changing: at least 6 s, and 3.5 s after the last node or '
+                    'interface found (a node whose discovery traffic was missed shows at its '
+                    'next 3 s announcement).')
     p.add_argument('--wait', type=float, default=10.0,
                    help='longest discovery time [s] (default 10)')
     p.add_argument('--json', action='store_true')
