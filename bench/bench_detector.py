@@ -29,7 +29,9 @@ driver), BENCH_DETECTOR_SECONDS (default 5) after a warm-up, and takes the landm
 Every process runs with the product's Fast DDS profile (api.dds_profile.large_data_env:
 config/fastdds_large_images.xml, shared-memory segments large enough for a 1 MB frame).
 BENCH_DETECTOR_FASTDDS_PROFILE=<file> publishes with that profile instead ('' without one);
-the node keeps the product's.
+the node keeps the product's. Fast DDS reads the profile at a process's first participant:
+the variable applies to ``python bench/bench_detector.py`` alone, not in run_all's process
+(which takes the product's from its start).
 """
 from __future__ import annotations
 
