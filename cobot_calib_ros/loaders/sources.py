@@ -17,7 +17,7 @@ MEASUREMENT_FILE, MUKCA, BAG, COLLECTION = 'measurement file', 'MUKCa folder', '
 KINDS = (MEASUREMENT_FILE, MUKCA, BAG, COLLECTION)
 LOOKED_FOR = ('a measurement CSV with its sidecar (NAME.csv + NAME.yaml)',
               'a MUKCa folder (<location>/hole_0.csv)', 'a bag (metadata.yaml or *.mcap)',
-              'a collection folder (collection.yaml)')
+              'a collection folder (collection.json, or collection.yaml of older versions)')
 
 
 def recognise(path: str | Path) -> str:
@@ -30,7 +30,7 @@ def recognise(path: str | Path) -> str:
             return MUKCA
         if (path / 'metadata.yaml').is_file() or any(path.glob('*.mcap')):
             return BAG
-        if (path / 'collection.yaml').is_file():
+        if _is_collection(path):
             return COLLECTION
         what = 'a folder that is none of the sources'
     else:
@@ -141,12 +141,18 @@ def partial_note(collection) -> str:
             f'({planned - visited} missing; {len(collection.q)} measured); resume it with {how}')
 
 
+def _is_collection(path: Path) -> bool:
+    """Whether folder ``path`` holds a collection's metadata (store.collections' file)."""
+    from cobot_calib_ros.store.collections import CollectionStore
+    return CollectionStore.of_folder(path.parent).meta_path(path).is_file()
+
+
 def load_collection_folder(folder: str | Path):
-    """A collection folder given by path (one with collection.yaml and rows.csv)."""
+    """A collection folder given by path (one with collection.json and rows.csv)."""
     from cobot_calib_ros.store.collections import CollectionStore
     path = Path(folder).expanduser().resolve()
-    if not (path / 'collection.yaml').is_file():
-        raise ValueError(f'{path}: not a collection folder (no collection.yaml); give a folder '
+    if not _is_collection(path):
+        raise ValueError(f'{path}: not a collection folder (no collection.json); give a folder '
                          'written by collect_sphere_data')
     folder_store = CollectionStore.of_folder(path.parent)
     data = folder_store.load(path.name)

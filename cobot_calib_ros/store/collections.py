@@ -2,8 +2,14 @@
 
 Layout under a root directory::
 
-    <root>/kinematic_data/<id>/collection.yaml   metadata and the plan, rewritten atomically
+    <root>/kinematic_data/<id>/collection.json   metadata and the plan, rewritten atomically
     <root>/kinematic_data/<id>/rows.csv          one line per planned pose, appended + fsynced
+
+The metadata is JSON: a planned collection keeps its whole candidate pool for a resume (the
+iiwa 7's: 22,614 steps, 5.8 MB), which libyaml read in 4.5 s and wrote in 2.8 s on a quiet
+machine (three writes and two reads per collection; a Ctrl-C'd collection must end its goal
+within spin.STOP_GRACE), JSON in 0.07 and 0.14 s. Collections of older versions
+(collection.yaml) are read, and written back as JSON.
 
 A row is a pose the robot was sent to: ``ok`` with the averaged joints [rad] (and, for a laser
 tracker collection, the measured position [m] in the tracker frame), or ``skipped`` with why
@@ -69,7 +75,8 @@ def _problem(meta: Mapping[str, Any], collection_id: str) -> Failure | None:
 
 
 class CollectionStore(FolderStore):
-    META_FILE, LOG_FILE, LOG_HEADER = 'collection.yaml', 'rows.csv', CSV_HEADER
+    META_FILE, LOG_FILE, LOG_HEADER = 'collection.json', 'rows.csv', CSV_HEADER
+    OLD_META_FILES = ('collection.yaml',)
 
     def __init__(self, root: Path) -> None:
         super().__init__(Path(root) / 'kinematic_data')

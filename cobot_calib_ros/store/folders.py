@@ -1,12 +1,16 @@
 """One folder per record: the half that trials and kinematic-data collections share.
 
-``<directory>/<id>/<meta file>`` holds the record's metadata (YAML, rewritten atomically) beside
-the append-only log the subclass keeps (store.files). A folder without its metadata file is an
-aborted create (the metadata is written last) and is skipped.
+``<directory>/<id>/<meta file>`` holds the record's metadata (YAML, or JSON by the file's suffix,
+rewritten atomically) beside the append-only log the subclass keeps (store.files). A folder
+without its metadata file is an aborted create (the metadata is written last) and is skipped.
+A store whose metadata file changed name reads the old one where the new one is not (written
+by an older version) and replaces it at the next write.
 """
 from __future__ import annotations
 
 from collections.abc import Mapping
+import contextlib
+import json
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -19,6 +23,7 @@ class FolderStore(WarningLog):
     """Records as folders under ``directory``; subclasses name the files and check the meta."""
 
     META_FILE: ClassVar[str]    # e.g. 'trial.yaml'
+    OLD_META_FILES: ClassVar[tuple[str, ...]] = ()     # read where META_FILE is not
     LOG_FILE: ClassVar[str]     # e.g. 'distances.csv'
     LOG_HEADER: ClassVar[str]   # the log's first line
 
@@ -43,8 +48,15 @@ class FolderStore(WarningLog):
         self._write_meta(meta)
 
     def _write_meta(self, meta: dict[str, Any]) -> None:
-        atomic_write_text(self.directory / meta['id'] / self.META_FILE,
-                          dump_yaml(to_plain(meta), sort_keys=False, allow_unicode=True))
+        folder = self.directory / meta['id']
+        plain = to_plain(meta)
+        atomic_write_text(folder / self.META_FILE,
+                          json.dumps(plain, indent=1, ensure_ascii=False) + '\n'
+                          if self.META_FILE.endswith('.json') else
+                          dump_yaml(plain, sort_keys=False, allow_unicode=True))
+        for old in self.OLD_META_FILES:
+            with contextlib.suppress(FileNotFoundError):
+                (folder / old).unlink()
         self._meta[meta['id']] = meta
 
     def meta_problem(self, record_id: str) -> str:
@@ -61,8 +73,16 @@ class FolderStore(WarningLog):
         self._meta[record_id] = meta
         return meta
 
+    def meta_path(self, folder: Path) -> Path:
+        """The metadata file of the record in ``folder``: META_FILE, or an older name it was
+        written under where there is no META_FILE (the name META_FILE when neither exists)."""
+        for name in (self.META_FILE, *self.OLD_META_FILES):
+            if (folder / name).exists():
+                return folder / name
+        return folder / self.META_FILE
+
     def _load_meta(self, record_id: str) -> tuple[dict[str, Any] | None, str]:
-        path = self.directory / record_id / self.META_FILE
+        path = self.meta_path(self.directory / record_id)
         if not path.exists():
             return None, (f'{path.parent}: skipped, no {self.META_FILE} (missing or aborted '
                           'create)')

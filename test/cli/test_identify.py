@@ -27,7 +27,8 @@ def test_real_mukca_data_held_out_error_falls_on_every_location(capsys):
 
 LOOKED_FOR = ('looked for a measurement CSV with its sidecar (NAME.csv + NAME.yaml), a MUKCa '
               'folder (<location>/hole_0.csv), a bag (metadata.yaml or *.mcap) or a collection '
-              'folder (collection.yaml); or mock (collect now)')
+              'folder (collection.json, or collection.yaml of older versions); or mock '
+              '(collect now)')
 
 
 def test_wrong_sources_say_what_is_accepted(capsys, tmp_path):

@@ -62,7 +62,7 @@ def test_the_four_sources_are_recognised(collection):
 def test_anything_else_is_named_with_what_was_looked_for(tmp_path):
     looked_for = ('looked for a measurement CSV with its sidecar (NAME.csv + NAME.yaml), a '
                   'MUKCa folder (<location>/hole_0.csv), a bag (metadata.yaml or *.mcap) or a '
-                  'collection folder (collection.yaml)')
+                  'collection folder (collection.json, or collection.yaml of older versions)')
     (tmp_path / 'notes.txt').mkdir()
     with pytest.raises(ValueError) as e:
         identify_source(tmp_path / 'notes.txt', cell=CELL)
