@@ -144,7 +144,7 @@ def partial_note(collection) -> str:
 def _is_collection(path: Path) -> bool:
     """Whether folder ``path`` holds a collection's metadata (store.collections' file)."""
     from cobot_calib_ros.store.collections import CollectionStore
-    return CollectionStore.of_folder(path.parent).meta_path(path).is_file()
+    return CollectionStore.meta_path(path).is_file()
 
 
 def load_collection_folder(folder: str | Path):

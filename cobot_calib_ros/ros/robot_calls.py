@@ -49,7 +49,7 @@ MOVE_RESULT_KEEP = 15
 # [s] the move_to client is kept after the last call that used it. An action client takes every
 # status and feedback message of the server, whoever's goal they are about: with one from start
 # to stop, each idle job node spent ~4 % of a core on another node's collection (UR10e
-# `identify --planned`, 5 idle job nodes: ~20 % of a core); the client goes 1-2 LINGER after
+# `identify --planned`, 5 idle job nodes: ~20 % of a core)
 MOVE_CLIENT_LINGER = 10.0
 TOUCH_TIMEOUT = 600.0   # [s] for the operator to guide the tool onto a point and confirm
 HAND_GUIDE = 'mock_robot/hand_guide'

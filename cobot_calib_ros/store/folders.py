@@ -51,7 +51,7 @@ class FolderStore(WarningLog):
         folder = self.directory / meta['id']
         plain = to_plain(meta)
         atomic_write_text(folder / self.META_FILE,
-                          json.dumps(plain, indent=1, ensure_ascii=False) + '\n'
+                          json.dumps(plain) + '\n'     # no indent=: that is the slow encoder
                           if self.META_FILE.endswith('.json') else
                           dump_yaml(plain, sort_keys=False, allow_unicode=True))
         for old in self.OLD_META_FILES:
@@ -73,13 +73,14 @@ class FolderStore(WarningLog):
         self._meta[record_id] = meta
         return meta
 
-    def meta_path(self, folder: Path) -> Path:
+    @classmethod
+    def meta_path(cls, folder: Path) -> Path:
         """The metadata file of the record in ``folder``: META_FILE, or an older name it was
         written under where there is no META_FILE (the name META_FILE when neither exists)."""
-        for name in (self.META_FILE, *self.OLD_META_FILES):
+        for name in (cls.META_FILE, *cls.OLD_META_FILES):
             if (folder / name).exists():
                 return folder / name
-        return folder / self.META_FILE
+        return folder / cls.META_FILE
 
     def _load_meta(self, record_id: str) -> tuple[dict[str, Any] | None, str]:
         path = self.meta_path(self.directory / record_id)
