@@ -9,6 +9,7 @@ from __future__ import annotations
 import contextlib
 import time
 
+from action_msgs.msg import GoalStatus
 import rclpy
 from rclpy.node import Node
 
@@ -110,10 +111,11 @@ def run_action(node: Node, client: ActionClient, goal, timeout: float = 60.0,
         if not handle.accepted:
             raise CallError(f'action {client._action_name} rejected the goal (busy?)')
         watch = ServerWatch(node, client, sent)
-        result = handle.get_result_async()
+        result = ResultWait(handle)
         deadline = time.monotonic() + timeout
         while not spin_until(node, result.done, min(WATCH_PERIOD, deadline - time.monotonic()),
                              executor):
+            result.ask_again_if_ended()
             ended = watch.ended()
             if ended:
                 raise CallError(ended)
@@ -127,6 +129,49 @@ def run_action(node: Node, client: ActionClient, goal, timeout: float = 60.0,
 
 
 WATCH_PERIOD = 0.25       # [s] between two looks at the graph while a goal runs
+
+
+class ResultWait:
+    """A goal's result, asked for again when the server's status says the goal ended and
+    its answer has not come WATCH_PERIOD s later: the answer to the first request was lost
+    where the status got through (a node stopped by Ctrl-C during a collection; it answers
+    for spin.RESULT_LINGER s more). Asking again is safe: a server answers each result
+    request of a goal with the same result."""
+
+    ASKS = 4          # result requests at most (the first included)
+
+    def __init__(self, handle) -> None:
+        self._handle = handle
+        self._futures = [handle.get_result_async()]
+        self._ended_at = None     # time.monotonic() when the status said the goal ended
+
+    def done(self) -> bool:
+        return any(f.done() for f in self._futures)
+
+    def result(self):
+        return next(f for f in self._futures if f.done()).result()
+
+    def wait(self, node: Node, timeout: float, executor=None) -> bool:
+        """Spin until the result came or ``timeout`` [s] passed; whether it came."""
+        deadline = time.monotonic() + timeout
+        while not spin_until(node, self.done, min(WATCH_PERIOD, deadline - time.monotonic()),
+                             executor):
+            if time.monotonic() >= deadline:
+                return False
+            self.ask_again_if_ended()
+        return True
+
+    def ask_again_if_ended(self) -> None:
+        if self._handle.status not in ENDED or len(self._futures) >= self.ASKS:
+            return
+        now = time.monotonic()
+        if self._ended_at is None:
+            self._ended_at = now
+        elif now - self._ended_at >= WATCH_PERIOD * len(self._futures):
+            self._futures.append(self._handle.get_result_async())
+
+
+ENDED = (GoalStatus.STATUS_SUCCEEDED, GoalStatus.STATUS_CANCELED, GoalStatus.STATUS_ABORTED)
 UNKNOWN_NODE = '_NODE_NAME_UNKNOWN_'    # rmw's node name of an endpoint before its node's info
 
 
@@ -281,13 +326,12 @@ def _cancelled(node: Node, client: ActionClient, send, executor,
                watch: ServerWatch | None = None) -> Interrupted:
     """After a Ctrl-C: cancel the goal sent by ``send`` and wait for its end (CANCEL_WAIT).
     ``watch``: the ServerWatch of the accepted goal, to say when its server restarted."""
-    from action_msgs.msg import GoalStatus
     name = client._action_name
     if not spin_until(node, send.done, CANCEL_WAIT, executor) or not send.result().accepted:
         return Interrupted(f'{name}: interrupted before the goal was accepted')
     handle = send.result()
-    cancel, result = handle.cancel_goal_async(), handle.get_result_async()
-    if not spin_until(node, result.done, CANCEL_WAIT, executor):
+    cancel, result = handle.cancel_goal_async(), ResultWait(handle)
+    if not result.wait(node, CANCEL_WAIT, executor):
         if watch is not None and watch.restarted():
             return Interrupted(watch.lost_line())
         answered = cancel.done() and bool(cancel.result().goals_canceling)

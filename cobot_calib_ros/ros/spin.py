@@ -58,6 +58,15 @@ WAKE_PERIOD = 0.1     # [s] longest wait of one spin_once of a loop that checks 
 # idle wake of rclpy's executor: 1 ms of CPU in a loop here, up to ~10 ms when it comes cold)
 IDLE_WAKE = 10.0
 STOP_GRACE = 3.0      # [s] for callbacks in flight to end after a stop, before the teardown
+# [s] a node that had work in flight at a stop goes on spinning this long before its
+# teardown, so its last answers are taken before its writers go. Destroying a writer is
+# announced to peers on DDS's discovery traffic, which a loaded client can handle before the
+# data that writer sent just before (another port, another thread of Fast DDS): that data is
+# then dropped as coming from an unknown writer. A Ctrl-C'd `up` during a collection lost the
+# goal's result so (the client said "node is gone"), once also its status: 3 of 38 runs at
+# load ~6, the node torn down 0.1-0.2 s after sending; a result asked for again meanwhile is
+# answered too (ros.calls.ResultWait).
+RESULT_LINGER = 1.5
 TEARDOWN_DUMP = 4.0   # [s] a teardown still running this long prints every thread's stack
 # [s] a teardown still running this long ends the process (exit 0, said in its log): rclpy's
 # Node.destroy_node hung in it (seen once more at load ~4, a camera suite's
@@ -238,7 +247,8 @@ def _finish_work_in_flight(executor, context) -> None:
     """Every wait for an answer gives up now (Stopping), so a callback that waits on the robot
     ends the way a lost robot makes it end (store what it has, abort its goal). The executor
     keeps spinning, so goal states, results and responses still go out, until none of that
-    work is left or STOP_GRACE s have passed."""
+    work is left or STOP_GRACE s have passed; a node that had work in flight then goes on
+    answering for RESULT_LINGER s (a result asked for again)."""
     _stopping.set()
     # the callbacks a MultiThreadedExecutor is running now (a single-threaded one runs its
     # callbacks inside spin_once: none is running between two calls); later timer and
@@ -249,8 +259,13 @@ def _finish_work_in_flight(executor, context) -> None:
     def busy() -> bool:
         return not all(f.done() for f in in_flight) or _queued(executor)
 
+    worked = busy()
     while context.ok() and time.monotonic() < deadline and busy():
         executor.spin_once(timeout_sec=WAKE_PERIOD)
+    if worked:              # a goal it ended may have its result asked for again
+        linger = time.monotonic() + RESULT_LINGER
+        while context.ok() and time.monotonic() < linger:
+            executor.spin_once(timeout_sec=WAKE_PERIOD)
     if context.ok() and busy():     # where it waits, in the node's log
         print(f'work still in flight {STOP_GRACE:.0f} s after the stop, torn down under it; '
               'every thread:', file=sys.stderr, flush=True)
@@ -333,7 +348,7 @@ class TeardownWatchdog:
 # [s] the longest a node takes from a stop signal to its exit: its work's grace, then a
 # teardown that the watchdog's native timer ends at worst. A launcher waits longer than this
 # before its SIGTERM, so a node whose rclpy teardown hangs still ends by itself, with exit 0.
-STOP_BOUND = STOP_GRACE + TEARDOWN_EXIT + TeardownWatchdog.EXIT_BACKSTOP
+STOP_BOUND = STOP_GRACE + RESULT_LINGER + TEARDOWN_EXIT + TeardownWatchdog.EXIT_BACKSTOP
 
 
 def _teardown_hung() -> None:

@@ -17,7 +17,7 @@ from rclpy.executors import SingleThreadedExecutor
 from cobot_calib_msgs.action import CalibrateIntrinsics
 from cobot_calib_ros.ros import action_client
 from cobot_calib_ros.ros.action_client import ActionClient
-from cobot_calib_ros.ros.calls import spin_until
+from cobot_calib_ros.ros.calls import run_action, spin_until
 
 ACTION = 'action_client_test'
 TOTAL = 3
@@ -91,16 +91,18 @@ def test_rclpys_own_client_loses_it(server):
     assert views[-1:] != [TOTAL], views         # measured: [1], the other two dropped
 
 
-def _losing_first_acceptance(client_class):
-    """``client_class`` whose first goal answer is lost on the way, as rmw_fastrtps drops it
-    when the server has not matched a new client's reply reader yet."""
+def _losing_first(client_class, answer: str = 'goal'):
+    """``client_class`` whose first ``answer`` ('goal': the goal's acceptance, 'result') is
+    lost on the way: rmw_fastrtps drops a goal answer when the server has not matched a new
+    client's reply reader yet, and a server torn down right after sending a result lost it
+    (spin.RESULT_LINGER)."""
     class Losing(client_class):
         lost = 0
 
         async def execute(self, taken_data):
-            if 'goal' in taken_data and not self.lost:
+            if answer in taken_data and not self.lost:
                 self.lost += 1
-                taken_data.pop('goal')
+                taken_data.pop(answer)
             await super().execute(taken_data)
     return Losing
 
@@ -143,7 +145,7 @@ def _send_with_the_first_answer_lost(client_class, context, wait: float):
     node = rclpy.create_node('action_client_losing_client', context=context)
     executor = SingleThreadedExecutor(context=context)
     executor.add_node(node)
-    client = _losing_first_acceptance(client_class)(node, CalibrateIntrinsics, ACTION)
+    client = _losing_first(client_class)(node, CalibrateIntrinsics, ACTION)
     try:
         assert spin_until(node, client.server_is_ready, 30.0, executor)
         send = client.send_goal_async(CalibrateIntrinsics.Goal())
@@ -182,3 +184,25 @@ def test_a_rejection_whose_answer_was_lost_is_still_a_rejection(counting_server,
     context, runs = counting_server
     handle, _ = _send_with_the_first_answer_lost(ActionClient, context, 10.0)
     assert handle is not None and not handle.accepted and runs == []
+
+
+def _run_with_the_first_result_lost(context, timeout: float):
+    node = rclpy.create_node('action_client_losing_result', context=context)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    client = _losing_first(ActionClient, 'result')(node, CalibrateIntrinsics, ACTION)
+    try:
+        return run_action(node, client, CalibrateIntrinsics.Goal(), timeout, executor=executor)
+    finally:
+        client.destroy()
+        node.destroy_node()
+
+
+def test_a_result_whose_answer_was_lost_is_asked_for_again(counting_server):
+    """The status says the goal ended, the answer does not come: run_action asks again
+    (calls.ResultWait) and gets it, where it waited out its whole timeout."""
+    context, runs = counting_server
+    started = time.monotonic()
+    status, result = _run_with_the_first_result_lost(context, 20.0)
+    assert status == GoalStatus.STATUS_SUCCEEDED and result.views_used == 1 and len(runs) == 1
+    assert time.monotonic() - started < 10.0

@@ -25,6 +25,7 @@ from rclpy.node import Node
 from cobot_calib_ros.api.launcher import STOP_WAIT
 from cobot_calib_ros.ros import spin
 from cobot_calib_ros.ros.action_client import ActionClient
+from cobot_calib_ros.ros.calls import spin_until
 
 TIMEOUT = 30.0          # [s] for a node process to start (cold imports on a loaded machine)
 NODE_SCRIPT = '''
@@ -295,6 +296,72 @@ def test_a_teardown_hung_in_c_ends_with_exit_0_before_the_launchers_sigterm(doma
             proc.kill()
         out, _ = proc.communicate()
     assert proc.returncode == 0, out
+
+
+GOAL_AT_STOP = '''
+import sys, time
+from rclpy.action import ActionServer
+from rclpy.node import Node
+from cobot_calib_msgs.action import MoveTo
+from cobot_calib_ros.ros import spin
+
+
+class Working(Node):
+    """A goal that runs until the node is stopped, then ends aborted."""
+
+    def __init__(self):
+        super().__init__('spin_test_working')
+        ActionServer(self, MoveTo, 'spin_test_work', self._work)
+        print('up', flush=True)
+
+    def _work(self, goal_handle):
+        print('working', flush=True)
+        while not spin.stopping():
+            time.sleep(0.01)
+        goal_handle.abort()
+        return MoveTo.Result(error_code=MoveTo.Result.CANCELED, message='stopped')
+
+
+spin.run(Working, sys.argv, threads=2)
+'''
+
+
+def test_a_node_stopped_with_a_goal_running_answers_on_for_result_linger(domain):
+    """The goal ends aborted for its client, and the node goes on spinning RESULT_LINGER s
+    after its work ended: torn down ~0.1 s after sending the result, a loaded client handled
+    the result writer's end (DDS discovery) before its data and lost the result (a Ctrl-C'd
+    `up` during a collection: the client said "node is gone"). A lower bound on the exit."""
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
+    proc = subprocess.Popen([sys.executable, '-c', GOAL_AT_STOP], stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True, env=env,
+                            cwd=Path(__file__).resolve().parents[2])
+    context = Context()
+    rclpy.init(context=context, domain_id=domain)
+    node = Node('spin_test_work_client', context=context)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    client = ActionClient(node, MoveTo, 'spin_test_work')
+    try:
+        assert _printed(proc, 'up', TIMEOUT)
+        assert spin_until(node, client.server_is_ready, TIMEOUT, executor)
+        send = client.send_goal_async(MoveTo.Goal())
+        assert spin_until(node, send.done, TIMEOUT, executor) and send.result().accepted
+        result = send.result().get_result_async()
+        assert _printed(proc, 'working', TIMEOUT)
+        proc.send_signal(signal.SIGINT)
+        stopped = time.monotonic()
+        assert spin_until(node, result.done, TIMEOUT, executor)
+        proc.wait(timeout=STOP_WAIT)
+        exited = time.monotonic()
+    finally:
+        client.destroy()
+        node.destroy_node()
+        rclpy.try_shutdown(context=context)
+        if proc.poll() is None:
+            proc.kill()
+        out, _ = proc.communicate()
+    assert result.result().result.message == 'stopped' and proc.returncode == 0, out
+    assert exited - stopped >= spin.RESULT_LINGER, out
 
 
 def test_a_sigterm_ends_a_teardown_hung_in_c_at_once(domain):
