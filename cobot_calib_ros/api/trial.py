@@ -148,14 +148,15 @@ class TrialClient:
                 raise CallError('run_trial did not answer the goal within 10 s')
 
     def _follow(self, handle, trial_id: str, timeout: float | None):
-        from cobot_calib_ros.ros.calls import CallError, ServerWatch
+        from cobot_calib_ros.ros.calls import CallError, ResultWait, ServerWatch
         watch = ServerWatch(self.node, self._client, self._sent)   # exited, gone: goal lost
-        result = handle.get_result_async()
+        result = ResultWait(handle)
         deadline = None if timeout is None else time.monotonic() + timeout
         resume = f'resume it with: cobot-calib trial --trial-id {trial_id}'
         while not self._spin(result.done, 0.25):
             if self._interrupts:
                 return self._stop(handle, result, trial_id, watch)
+            result.ask_again_if_ended()
             ended = watch.ended()
             if ended:
                 raise CallError(f'{ended}; trial {trial_id} is stored up to its last '
