@@ -3,14 +3,13 @@ SHELL := /bin/bash
 PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
-# pytest-xdist workers for `make test`: 4 on 2 cores, since a 3-worker run still waits a
-# quarter of its time (fresh-clone run of 45f439a: 14.4 min of CPU in 9.4 min on 2 cores);
-# the same tree with 4 workers: 8 min 16 s, 14.0 min of CPU, green. Earlier, with more idle
-# CPU per suite: 2 workers 13 min 2 s beside a bench, 3 workers 8 min 37 s to 10 min 2 s
-# quiet, 4 workers 8 min 41 s (no faster then). The load failures more workers once had (a
-# hand-eye view without the board, a node past its stop grace, a result lost to a node's
-# teardown) were fixed at their causes.
-TEST_WORKERS ?= 4
+# pytest-xdist workers for `make test`: 3 on 2 cores, since about half of a 2-worker run's
+# time was waiting (fresh-clone run 17: 12 min of CPU in 10.7 min). The load failures 3 once
+# had (a hand-eye view without the board, a node past its stop grace) were fixed at their
+# causes. Fresh-clone runs beside a CPU-heavy bench (load 8-9): 3 workers 10 min 28 s and
+# 10 min 50 s, both green, 2 workers 13 min 2 s; quiet: 3 workers 8 min 37 s to 10 min 2 s,
+# 4 workers 8 min 41 s (no faster, more CPU)
+TEST_WORKERS ?= 3
 STAMP := $(VENV)/.stamps
 
 # Keep DDS traffic on this machine (ros2-from-pypi notes).
