@@ -58,7 +58,7 @@ WAKE_PERIOD = 0.1     # [s] longest wait of one spin_once of a loop that checks 
 # idle wake of rclpy's executor: 1 ms of CPU in a loop here, up to ~10 ms when it comes cold)
 IDLE_WAKE = 10.0
 STOP_GRACE = 3.0      # [s] for callbacks in flight to end after a stop, before the teardown
-# [s] a node that had work in flight at a stop goes on spinning this long before its
+# [s] a node that had a goal running at a stop goes on spinning this long before its
 # teardown, so its last answers are taken before its writers go. Destroying a writer is
 # announced to peers on DDS's discovery traffic, which a loaded client can handle before the
 # data that writer sent just before (another port, another thread of Fast DDS): that data is
@@ -247,7 +247,7 @@ def _finish_work_in_flight(executor, context) -> None:
     """Every wait for an answer gives up now (Stopping), so a callback that waits on the robot
     ends the way a lost robot makes it end (store what it has, abort its goal). The executor
     keeps spinning, so goal states, results and responses still go out, until none of that
-    work is left or STOP_GRACE s have passed; a node that had work in flight then goes on
+    work is left or STOP_GRACE s have passed; a node that had a goal running then goes on
     answering for RESULT_LINGER s (a result asked for again)."""
     _stopping.set()
     # the callbacks a MultiThreadedExecutor is running now (a single-threaded one runs its
@@ -259,10 +259,10 @@ def _finish_work_in_flight(executor, context) -> None:
     def busy() -> bool:
         return not all(f.done() for f in in_flight) or _queued(executor)
 
-    worked = busy()
+    goal_running = _queued(executor)       # not a timer or message callback in flight
     while context.ok() and time.monotonic() < deadline and busy():
         executor.spin_once(timeout_sec=WAKE_PERIOD)
-    if worked:              # a goal it ended may have its result asked for again
+    if goal_running:        # its result may be asked for again
         linger = time.monotonic() + RESULT_LINGER
         while context.ok() and time.monotonic() < linger:
             executor.spin_once(timeout_sec=WAKE_PERIOD)
