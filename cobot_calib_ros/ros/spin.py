@@ -64,7 +64,7 @@ STOP_GRACE = 3.0      # [s] for callbacks in flight to end after a stop, before 
 # data that writer sent just before (another port, another thread of Fast DDS): that data is
 # then dropped as coming from an unknown writer. A Ctrl-C'd `up` during a collection lost the
 # goal's result so (the client said "node is gone"), once also its status: 5 of 29 runs at
-# load ~6, the node torn down 0.1-0.2 s after sending (none of 20 with this); a result asked
+# load ~6, the node torn down 0.1-0.2 s after sending (none of 32 with this); a result asked
 # for again meanwhile is answered too (ros.calls.ResultWait).
 RESULT_LINGER = 1.5
 TEARDOWN_DUMP = 4.0   # [s] a teardown still running this long prints every thread's stack
