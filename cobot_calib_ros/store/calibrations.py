@@ -13,14 +13,13 @@ from collections.abc import Callable, Iterator, Mapping
 import contextlib
 from dataclasses import dataclass
 import fcntl
-import json
 from pathlib import Path
 from typing import Any
 
 from cobot_calib_ros.core.errors import ErrorCode, Failure
 from cobot_calib_ros.store.cells import foreign_result, LEGACY_CELL, legacy_note, ResultsCell
-from cobot_calib_ros.store.files import (atomic_write_text, check_id, ensure_dir, ID_PATTERN,
-                                         is_int, read_mapping, to_plain, WarningLog)
+from cobot_calib_ros.store.files import (check_id, ensure_dir, ID_PATTERN, is_int, read_mapping,
+                                         to_plain, WarningLog, write_mapping)
 from cobot_calib_ros.store.renamed import with_current_names
 
 RECORD_KEYS = ('id', 'stamp_ns', 'method', 'inputs', 'result')
@@ -178,7 +177,7 @@ class CalibrationStore(WarningLog):
         plain = self._keyed(plain)
         ensure_dir(self.directory)
         path = self._path(plain['id'])
-        atomic_write_text(path, json.dumps(plain) + '\n')  # indent= is the slow encoder
+        write_mapping(path, plain)
         self._index()[plain['id']] = plain
         return path
 
@@ -341,7 +340,7 @@ class CalibrationStore(WarningLog):
                 data = {'active_id': kept.get(''), **({'active_ids': scoped} if scoped else {}),
                         'retired': sorted(retired),
                         **({'cells': data['cells']} if data.get('cells') else {})}
-            atomic_write_text(self.selection_path, json.dumps(data) + '\n')
+            write_mapping(self.selection_path, data)
 
     def _read_selection_file(self) -> tuple[dict[str, Any] | None, str]:
         if not self.selection_path.exists():

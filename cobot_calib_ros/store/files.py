@@ -120,6 +120,14 @@ def dump_yaml(data: Any, **options: Any) -> str:
     return yaml.dump(data, Dumper=_DUMPER, **options)
 
 
+def write_mapping(path: Path, data: Mapping[str, Any]) -> None:
+    """``data`` (plain values) atomically as YAML or (by suffix) JSON, read_mapping's formats.
+    JSON is written compact: ``indent=`` takes json's pure-Python encoder (0.24 s against 0.10 s
+    for a 5.8 MB collection)."""
+    atomic_write_text(path, json.dumps(data) + '\n' if path.suffix == '.json' else
+                      dump_yaml(data, sort_keys=False, allow_unicode=True))
+
+
 def read_mapping(path: Path) -> tuple[dict[str, Any] | None, str]:
     """A YAML or (by suffix) JSON file's top-level mapping and '', or None and why not."""
     try:

@@ -10,13 +10,12 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 import contextlib
-import json
 from pathlib import Path
 from typing import Any, ClassVar
 
 from cobot_calib_ros.core.errors import Failure
-from cobot_calib_ros.store.files import (atomic_write_text, check_id, dump_yaml, ensure_dir,
-                                         fsync_dir, read_mapping, to_plain, WarningLog)
+from cobot_calib_ros.store.files import (atomic_write_text, check_id, ensure_dir, fsync_dir,
+                                         read_mapping, to_plain, WarningLog, write_mapping)
 
 
 class FolderStore(WarningLog):
@@ -49,11 +48,7 @@ class FolderStore(WarningLog):
 
     def _write_meta(self, meta: dict[str, Any]) -> None:
         folder = self.directory / meta['id']
-        plain = to_plain(meta)
-        atomic_write_text(folder / self.META_FILE,
-                          json.dumps(plain) + '\n'     # no indent=: that is the slow encoder
-                          if self.META_FILE.endswith('.json') else
-                          dump_yaml(plain, sort_keys=False, allow_unicode=True))
+        write_mapping(folder / self.META_FILE, to_plain(meta))
         for old in self.OLD_META_FILES:
             with contextlib.suppress(FileNotFoundError):
                 (folder / old).unlink()
