@@ -30,9 +30,10 @@ def call(node, srv_type, name, timeout=10.0, ready_timeout=0.0, **fields):
     client = _client(node, srv_type, name)
     spin_until(node, client.service_is_ready, max(ready_timeout, min(timeout, 10.0)),
                node.executor_for_tests)
-    if not getattr(client, 'settled', False) and client.service_is_ready():
+    settled = node.__dict__.setdefault('_rosutil_settled', set())
+    if (srv_type, name) not in settled and client.service_is_ready():
         spin_until(node, lambda: False, NEW_CLIENT_SETTLE, node.executor_for_tests)
-        client.settled = True
+        settled.add((srv_type, name))
     return call_service(node, client, srv_type.Request(**fields), timeout,
                         node.executor_for_tests, idempotent=srv_type.__name__ in QUERIES)
 
