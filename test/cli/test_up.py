@@ -32,7 +32,9 @@ class Up:
 
     def __init__(self, env: dict[str, str]) -> None:
         self.env = env
-        self.proc = subprocess.Popen(_cli('up'), stdout=subprocess.PIPE,
+        # --force: not the ~3 s look for a suite already on the domain (a domain of its own;
+        # the refusal of a second suite: test_cli_against_suite)
+        self.proc = subprocess.Popen(_cli('up', '--force'), stdout=subprocess.PIPE,
                                      stderr=subprocess.STDOUT, text=True, env=env,
                                      start_new_session=True)     # a group, as in a terminal
         self.output = Lines(self.proc.stdout)

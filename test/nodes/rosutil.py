@@ -19,23 +19,38 @@ QUERIES = ('GetGroundTruth', 'ListCalibrations', 'CaptureJoints', 'ConvertPoints
 # same way (fresh-clone run Y, load ~10: a calibrate_user_frame refusal, the server's log saying
 # "failed to send response (timeout): client will not receive response"). So a test node keeps
 # one client per service, matched once, and a new one waits NEW_CLIENT_SETTLE s after its
-# server shows, for the server's side of the match, before its first request.
+# server shows, for the server's side of the match, before its first request (a query's first
+# request goes at once: a lost answer costs it one re-send).
 NEW_CLIENT_SETTLE = 1.0     # [s]
 
 
-def call(node, srv_type, name, timeout=10.0, ready_timeout=0.0, **fields):
+def call(node, srv_type, name, timeout=10.0, ready_timeout=0.0, resend=None, **fields):
     """One service call with the request fields given; the response. ``ready_timeout`` [s]: a
     longer wait for the service to appear than call_service's 10 s (a node process a test just
-    started: 10 s was not enough at load 15; STARTUP_TIMEOUT)."""
+    started: 10 s was not enough at load 15; STARTUP_TIMEOUT). ``resend``: ask again while
+    unanswered (default: for QUERIES); False for a query whose answer is known to take long
+    (each copy is served in turn, and a node stopping after it first serves the copies)."""
+    resend = srv_type.__name__ in QUERIES if resend is None else resend
     client = _client(node, srv_type, name)
     spin_until(node, client.service_is_ready, max(ready_timeout, min(timeout, 10.0)),
                node.executor_for_tests)
     settled = node.__dict__.setdefault('_rosutil_settled', set())
-    if (srv_type, name) not in settled and client.service_is_ready():
+    if not resend and (srv_type, name) not in settled and client.service_is_ready():
         spin_until(node, lambda: False, NEW_CLIENT_SETTLE, node.executor_for_tests)
         settled.add((srv_type, name))
     return call_service(node, client, srv_type.Request(**fields), timeout,
-                        node.executor_for_tests, idempotent=srv_type.__name__ in QUERIES)
+                        node.executor_for_tests, idempotent=resend)
+
+
+def set_parameter(node, target: str, name: str, value: str | float):
+    """SetParameters on node ``target`` (a string or a double value); its SetParametersResult."""
+    from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+    from rcl_interfaces.srv import SetParameters
+    param = Parameter(name=name, value=ParameterValue(type=ParameterType.PARAMETER_STRING,
+                                                      string_value=value)
+                      if isinstance(value, str) else
+                      ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=value))
+    return call(node, SetParameters, f'{target}/set_parameters', parameters=[param]).results[0]
 
 
 def _client(node, srv_type, name):

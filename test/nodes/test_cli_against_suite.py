@@ -91,7 +91,9 @@ def test_a_starved_stream_is_no_data_naming_the_window(ros, tmp_path):
     starved = launcher.Suite(tmp_path / 'logs')
     starved.start([launcher.NodeSpec('joint_state_monitor', namespace='starved')])
     try:
-        res = call(ros, CaptureJoints, '/starved/capture_joints', timeout=30.0, duration=0.2)
+        # not asked again: each copy would wait out the first-sample wait before the stop
+        res = call(ros, CaptureJoints, '/starved/capture_joints', timeout=30.0, resend=False,
+                   duration=0.2)
     finally:
         assert starved.stop(STOP_TIMEOUT) == {'starved.joint_state_monitor': 0}
     assert res.error_code == CaptureJoints.Response.NO_DATA

@@ -5,8 +5,7 @@ from cobot_calib_msgs.msg import UserFrameCalibration
 from cobot_calib_msgs.srv import CalibrateUserFrame, ConvertPoints, ListCalibrations
 import numpy as np
 import pytest
-from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
-from rcl_interfaces.srv import GetParameters, SetParameters
+from rcl_interfaces.srv import GetParameters
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from scipy.spatial.transform import Rotation
 from tf2_msgs.msg import TFMessage
@@ -16,7 +15,7 @@ from cobot_calib_ros.ros import convert
 from cobot_calib_ros.ros.calls import spin_until
 from cobot_calib_ros.core import frames
 from cobot_calib_ros.paths import cell_file
-from rosutil import call, listen_late, STARTUP_TIMEOUT, STOP_TIMEOUT
+from rosutil import call, listen_late, set_parameter, STARTUP_TIMEOUT, STOP_TIMEOUT
 
 Res = CalibrateUserFrame.Response
 Conv = ConvertPoints.Response
@@ -172,13 +171,6 @@ def test_implausible_fit_is_neither_stored_nor_published(ros, suite):
     assert conv.error_code == Conv.SUCCESS and good.id in conv.message, conv.message
 
 
-def _set_parameter(ros, node, name, value: str):
-    """SetParameters on ``node`` (a string value); its SetParametersResult."""
-    param = Parameter(name=name, value=ParameterValue(type=ParameterType.PARAMETER_STRING,
-                                                      string_value=value))
-    return call(ros, SetParameters, f'{node}/set_parameters', parameters=[param]).results[0]
-
-
 def _get_parameter(ros, node, name) -> str:
     return call(ros, GetParameters, f'{node}/get_parameters', names=[name]).values[0].string_value
 
@@ -195,25 +187,19 @@ def test_invalid_frame_parameter_refuses_calibrations_until_it_is_set_right(ros,
     for name, value, words in [('user_frame', 'still bad!', ['user_frame', "'still bad!'"]),
                                ('base_frame', '/world', ['base_frame', 'no leading /']),
                                ('base_frame', '', ['base_frame', 'must not be empty'])]:
-        result = _set_parameter(ros, node, name, value)
+        result = set_parameter(ros, node, name, value)
         assert not result.successful, (name, value)
         assert all(w in result.reason for w in words), result.reason
     assert _get_parameter(ros, node, 'base_frame') == 'base_link'     # nothing changed
-    same = _set_parameter(ros, node, 'user_frame', 'base_link')
+    same = set_parameter(ros, node, 'user_frame', 'base_link')
     assert not same.successful and 'both' in same.reason, same.reason
-    fixed = _set_parameter(ros, node, 'user_frame', 'work_table')
+    fixed = set_parameter(ros, node, 'user_frame', 'work_table')
     assert fixed.successful, fixed.reason
     res = _calibrate(ros, '/frames/calibrate_user_frame')
     assert res.error_code == Res.SUCCESS, res.message
     assert (res.calibration.transform.header.frame_id,
             res.calibration.transform.child_frame_id) == ('base_link', 'work_table')
     assert 'frames.user_frame_solver' not in spare.failed()
-
-
-def _set_double(ros, node, name, value: float):
-    param = Parameter(name=name, value=ParameterValue(type=ParameterType.PARAMETER_DOUBLE,
-                                                      double_value=value))
-    return call(ros, SetParameters, f'{node}/set_parameters', parameters=[param]).results[0]
 
 
 def test_plausibility_limits_are_the_node_parameters(ros, spare):
@@ -226,10 +212,10 @@ def test_plausibility_limits_are_the_node_parameters(ros, spare):
         refused = _calibrate(ros, service, user_frame='table', **fields)
         assert refused.error_code == Res.IMPLAUSIBLE_FIT and name in refused.message, \
             refused.message
-        assert _set_double(ros, node, name, looser).successful
+        assert set_parameter(ros, node, name, looser).successful
         accepted = _calibrate(ros, service, user_frame='table', **fields)
         assert accepted.error_code == Res.SUCCESS, accepted.message
-    out_of_range = _set_double(ros, node, 'max_rms_error', 0.5)
+    out_of_range = set_parameter(ros, node, 'max_rms_error', 0.5)
     assert not out_of_range.successful
 
 
@@ -400,7 +386,7 @@ def test_parameters_read_once_refuse_set_parameters_with_the_reason(ros):
     for node, name in [('/user_frame_solver', 'data_dir'), ('/user_frame_solver', 'cell_file'),
                        ('/repeatability_trial', 'data_dir'), ('/mock_robot', 'cell_file')]:
         before = _get_parameter(ros, node, name)
-        result = _set_parameter(ros, node, name, '/tmp/elsewhere')
+        result = set_parameter(ros, node, name, '/tmp/elsewhere')
         assert not result.successful, (node, name)
         assert 'read-only' in result.reason, result.reason
         assert _get_parameter(ros, node, name) == before

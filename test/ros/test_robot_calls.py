@@ -37,11 +37,18 @@ def starved():
     caller = rclpy.create_node('caller', namespace=NS, context=context)
     joints = caller.create_publisher(JointState, 'joint_states', 10)
 
+    stop = threading.Event()
+
     def publish() -> None:
-        msg = JointState(name=['j0', 'j1'], position=[0.1, 0.2])
-        msg.header.stamp = caller.get_clock().now().to_msg()
-        joints.publish(msg)
-    caller.create_timer(1.0 / SLOW_RATE, publish)
+        """On its own thread, not a timer of the executor that the monitor's capture blocks:
+        the stream goes on thinly during a hold (starved), it does not stop (a stopped stream
+        is refused only after the monitor's STALL_TIMEOUT, each of the 4 tries)."""
+        while not stop.wait(1.0 / SLOW_RATE):
+            msg = JointState(name=['j0', 'j1'], position=[0.1, 0.2])
+            msg.header.stamp = caller.get_clock().now().to_msg()
+            joints.publish(msg)
+    publisher = threading.Thread(target=publish, daemon=True)
+    publisher.start()
     executor = SingleThreadedExecutor(context=context)
     executor.add_node(monitor)
     executor.add_node(caller)
@@ -57,7 +64,9 @@ def starved():
         yield caller, answers
     finally:
         running = False
+        stop.set()
         thread.join(timeout=5)
+        publisher.join(timeout=5)
         answers.destroy()
         executor.shutdown(timeout_sec=1)
         monitor.destroy_node()
