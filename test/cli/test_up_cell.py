@@ -70,8 +70,10 @@ CHECKING = 'mock_robot,joint_state_monitor,proximity_sensor,' + SERVING
 @contextlib.contextmanager
 def _up(env: dict[str, str], cell: str, nodes: str):
     """`cobot-calib up --cell CELL --nodes NODES` as a user runs it, until 'ready'; Ctrl-C
-    (SIGINT to its process group) at the end, and it has stopped."""
-    proc = subprocess.Popen(_cli('up', '--cell', cell, '--nodes', nodes), stdout=subprocess.PIPE,
+    (SIGINT to its process group) at the end, and it has stopped. (--force: a domain of its
+    own; not up's ~3 s look for a suite already there.)"""
+    proc = subprocess.Popen(_cli('up', '--cell', cell, '--nodes', nodes, '--force'),
+                            stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True, env=env,
                             start_new_session=True)
     lines = Lines(proc.stdout)
@@ -122,7 +124,6 @@ def test_a_second_cell_on_the_same_data_dir_activates_none_of_the_first_s_result
             x = json.loads(he.stdout)['transform']['translation']['x']
             assert x == pytest.approx(hand_eye['result']['T_flange_optical'][0][3], abs=1e-12)
         with _up(env, 'iiwa7_close', CHECKING):
-            # side by side: the echoes wait out their 5 s whatever the others do
             # side by side: the echoes wait out their 5 s whatever the others do
             listed, user_frame, hand_eye_topic, refused, check = cli_side_by_side(
                 ('call', 'list_calibrations', '{}', '--json'),
