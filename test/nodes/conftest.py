@@ -27,7 +27,9 @@ def suite(domain_id, trial_data, tmp_path_factory):
     nodes = tuple(n for n in launcher.SUITE if n not in ('hand_eye_calibrator',
                                                          'tcp_calibrator', 'camera_calibrator'))
     specs = launcher.suite_specs('sawyer_close', nodes, overrides={
-        'mock_robot': {'time_scale': '0.2'},
+        # motions 2.5 times as long as at the cells' time_scale (0.02): a slow move can be
+        # caught moving (test_ingestion); 0.2 took ~25 s more of the node tests' time
+        'mock_robot': {'time_scale': '0.05'},
         # images at 5 Hz, not 10: rendering, 0.4 MB messages and detection load the 2 cores
         # the 1 kHz joint_states timing tests share (test_sim_time, test_teach)
         'mock_camera': {'rate_hz': '5.0'},

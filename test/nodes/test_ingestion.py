@@ -68,8 +68,9 @@ def test_capture_refuses_while_the_arm_moves(ros):
     ex = ros.executor_for_tests
     spin_until(ros, client.server_is_ready, 10.0, ex)
     target = CELL.home + np.array([0.6, 0, 0, 0, 0, 0, 0])
+    # 0.6 rad at 0.025 rad/s: 24 s of robot time, 1.2 s at the session suite's time_scale
     send = client.send_goal_async(MoveTo.Goal(target_type=MoveTo.Goal.TARGET_JOINTS,
-                                              positions=target.tolist(), speed_scale=0.1))
+                                              positions=target.tolist(), speed_scale=0.025))
     spin_until(ros, send.done, 10.0, ex)
     res = call(ros, CaptureJoints, 'capture_joints', duration=0.2)
     assert res.error_code == CaptureJoints.Response.MOVING, res.message
