@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import math
 import sys
+import threading
 
 from cobot_calib_msgs.action import CollectSphereData, IdentifyKinematics
 from cobot_calib_msgs.msg import CaptureMark, CollectionProgress, ErrorStats
@@ -75,6 +76,7 @@ class KinematicIdentifier(JobNode):
                                f'{self._collections.directory}, kinematic calibrations in '
                                f'{self._calibrations.directory}')
         self._description = None
+        self._description_lock = threading.Lock()
         if self._p('publish_robot_description'):
             self._description = self.create_publisher(String, 'robot_description', qos.LATCHED)
             self._described = None
@@ -239,7 +241,12 @@ class KinematicIdentifier(JobNode):
 
     def _publish_description(self) -> None:
         """robot_description from the active calibration, again whenever that changes (a new
-        identification here, or `cobot-calib history --activate` from another process)."""
+        identification here, or `cobot-calib history --activate` from another process). One
+        caller at a time: the timer's check and the end of an identification (its thread)."""
+        with self._description_lock:
+            self._describe()
+
+    def _describe(self) -> None:
         try:
             active = self._calibrations.active(self._model.name)
         except OSError as e:
@@ -249,13 +256,18 @@ class KinematicIdentifier(JobNode):
         key = active['id'] if active is not None else ''
         if key == self._described:
             return
-        self._described = key
         if active is not None:
             path = self._calibrations.directory / f'{key}.urdf'
             try:
                 text, what = path.read_text(), f'kinematic calibration {key} ({path})'
             except OSError as e:
-                self.get_logger().error(f'robot_description: {e}; not published')
+                # not marked as described: tried again at the next check. (The timer's check
+                # can see a new record as the newest while the identification still writes
+                # its URDF: a fresh-clone run's robot_description then stayed nominal.)
+                self.get_logger().warning(f'robot_description: {e}; not published yet, '
+                                          'trying again in '
+                                          f'{DESCRIPTION_CHECK_PERIOD:g} s',
+                                          throttle_duration_sec=60.0)
                 return
         elif self._cell.urdf_robot is not None and self._cell.urdf_robot.urdf:
             text = self._cell.urdf_robot.urdf
@@ -264,8 +276,10 @@ class KinematicIdentifier(JobNode):
             self.get_logger().warning(
                 f'robot_description: no kinematic calibration active and cell '
                 f'"{self._cell.name}" gives no URDF (robot: {{urdf: ...}}); not published')
+            self._described = key       # said once
             return
         self._description.publish(String(data=text))
+        self._described = key
         self.get_logger().info(f'robot_description: {what}')
 
 def _fill(result, got) -> None:
