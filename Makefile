@@ -11,7 +11,7 @@ PY := $(VENV)/bin/python
 # 4 workers 8 min 41 s (no faster, more CPU). Session 25, with less waiting in the tests:
 # 3 workers 7 min 57 s to 8 min 27 s (four runs), 4 workers 7 min 28 s and 7 min 38 s, both
 # green; but a 4-worker run of session 24 failed test_up's restart tests (a restarted node
-# that never answered, not understood), so 4 waits until that is
+# that never answered, not understood), so 4 waits until that is understood
 TEST_WORKERS ?= 3
 STAMP := $(VENV)/.stamps
 

@@ -7,9 +7,9 @@ and the tool `move` sends over the layout's centre lands there: the mock's TRUE 
 the target in the frame the TRUE marker tops define.
 
 Nothing but the mock's defaults is changed (the verbs' and the nodes' own defaults), except
-that the mock moves four times faster than its cell's time_scale (TIME_SCALE). Slow by nature: the planned identification dominates (the
-candidate poses' IK and 50 planned poses, then two 125-pose validation collections); each
-step's wall time is printed.
+that the mock moves four times faster than its cell's time_scale (TIME_SCALE). Slow by
+nature: the planned identification dominates (the candidate poses' IK and 50 planned poses,
+then two 125-pose validation collections); each step's wall time is printed.
 """
 import json
 import os
