@@ -61,7 +61,7 @@ class KinematicIdentifier(JobNode):
         self._declare_parameters()
         repository = self._repository()
         self._collections = repository.collections
-        self._calibrations = repository.kinematics
+        calibrations = repository.kinematics.directory
         self._robot = RobotCalls(self._answers)
         self._health.watch(capture_retries=lambda: self._robot.capture_retries)
         self._health.set(OK, 'idle', job='')
@@ -74,7 +74,7 @@ class KinematicIdentifier(JobNode):
                                       (Identify, 'identify_kinematics', self._on_identify))]
         self.get_logger().info(f'{self._cell.robot} cell "{self._cell.name}": collections in '
                                f'{self._collections.directory}, kinematic calibrations in '
-                               f'{self._calibrations.directory}')
+                               f'{calibrations}')
         self._description = None
         self._description_lock = threading.Lock()
         if self._p('publish_robot_description'):
@@ -227,7 +227,7 @@ class KinematicIdentifier(JobNode):
                 goal.solver or 'lm', goal.loss or 'soft_l1', goal.objective or None,
                 goal.max_configs, DeviationBounds(self._p('max_deviation_length'),
                                                   self._p('max_deviation_angle'))),
-            None if goal.dry_run else self._calibrations,
+            None if goal.dry_run else self._repository().kinematics,
             cancelled=lambda: goal_handle.is_cancel_requested,
             progress=lambda i, cost, rms: goal_handle.publish_feedback(
                 Identify.Feedback(iteration=i, cost=cost, rms=rms)))
@@ -241,14 +241,16 @@ class KinematicIdentifier(JobNode):
 
     def _publish_description(self) -> None:
         """robot_description from the active calibration, again whenever that changes (a new
-        identification here, or `cobot-calib history --activate` from another process). One
-        caller at a time: the timer's check and the end of an identification (its thread)."""
+        identification here, or one stored or retired by another process with the same data:
+        `cobot-calib identify --source FILE`). One caller at a time: the timer's check and the end of
+        an identification (its thread)."""
         with self._description_lock:
             self._describe()
 
     def _describe(self) -> None:
         try:
-            active = self._calibrations.active(self._model.name)
+            calibrations = self._repository().kinematics   # read afresh: other writers
+            active = calibrations.active(self._model.name)
         except OSError as e:
             self.get_logger().warning(f'robot_description: cannot read the active kinematic '
                                       f'calibration: {e}', throttle_duration_sec=60.0)
@@ -257,7 +259,7 @@ class KinematicIdentifier(JobNode):
         if key == self._described:
             return
         if active is not None:
-            path = self._calibrations.directory / f'{key}.urdf'
+            path = calibrations.directory / f'{key}.urdf'
             try:
                 text, what = path.read_text(), f'kinematic calibration {key} ({path})'
             except OSError as e:

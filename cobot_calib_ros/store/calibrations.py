@@ -170,11 +170,20 @@ class CalibrationStore(WarningLog):
     def save(self, record) -> Path:
         """Write ``record`` (a mapping or a store.records record) atomically and durably;
         returns its path."""
+        return self._put(self._checked(record))
+
+    def _checked(self, record) -> dict[str, Any]:
+        """``record`` as stored: plain, with this store's cell and robot (ValueError if it is
+        not a valid record, a FOREIGN_RESULT Refusal if it is another cell's). Nothing
+        written."""
         plain = to_plain(record.to_dict() if hasattr(record, 'to_dict') else record)
         problem = _record_problem(plain)
         if problem is not None:
             raise ValueError(f'invalid calibration record: {problem.message}')
-        plain = self._keyed(plain)
+        return self._keyed(plain)
+
+    def _put(self, plain: dict[str, Any]) -> Path:
+        """Write a :meth:`_checked` record: from here on other readers see it."""
         ensure_dir(self.directory)
         path = self._path(plain['id'])
         write_mapping(path, plain)

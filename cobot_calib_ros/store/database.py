@@ -321,13 +321,9 @@ class DbCalibrationHistory(CalibrationStore):
     def __str__(self) -> str:
         return f'{_hide_password(self.database.url)} (cell {self.cell_name}, {self.kind})'
 
-    def save(self, record) -> str:
-        """Write ``record`` in one transaction; returns where: '<url>#<cell>/<kind>/<id>'."""
-        plain = to_plain(record.to_dict() if hasattr(record, 'to_dict') else record)
-        problem = _record_problem(plain)
-        if problem is not None:
-            raise ValueError(f'invalid calibration record: {problem.message}')
-        plain = self._keyed(plain)
+    def _put(self, plain: dict[str, Any]) -> str:
+        """Write a checked record in one transaction; returns where:
+        '<url>#<cell>/<kind>/<id>'."""
         self.database.put(self.cell_name, self.kind, plain, self.scope_of(plain))
         self._index()[plain['id']] = plain
         return f'{_hide_password(self.database.url)}#{self.cell_name}/{self.kind}/{plain["id"]}'

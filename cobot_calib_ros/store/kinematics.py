@@ -71,17 +71,19 @@ class KinematicHistory:
         """Write a kinematic record (JSON), its YAML and URDF (and a UR arm's kinematics
         YAML), whatever made it (a CalibrationJob outcome, a measurement file's
         identification); make it its robot's active one if ``activate`` (and it passes its
-        gate). ``description``: the robot's URDF (with its text), written back into."""
-        record = typed.to_dict()
-        paths = {'yaml': self.directory / f'{typed.id}.yaml'}
+        gate). ``description``: the robot's URDF (with its text), written back into. The
+        files come first: a reader that sees the record finds them (a record refused, invalid
+        or another cell's, writes nothing)."""
         texts = calibrated_descriptions(typed, model, description)  # before any write
-        stored = self.save(record)       # a path, or where in a database
+        record = self._checked(typed)
+        paths = {'yaml': self.directory / f'{typed.id}.yaml'}
         ensure_dir(self.directory)
         atomic_write_text(paths['yaml'], yaml.safe_dump(_readable(record), sort_keys=False,
                                                         width=100))
         for kind, text in texts.items():
             paths[kind] = self.directory / f'{typed.id}{SUFFIXES[kind]}'
             atomic_write_text(paths[kind], text)
+        stored = self._put(record)       # a path, or where in a database
         activation = self.activate(typed.id) if activate else None
         return SavedKinematics(typed, {'json': stored, **paths}, activation)
 

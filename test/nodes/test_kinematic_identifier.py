@@ -165,6 +165,12 @@ def test_identification_is_validated_stored_and_exported_as_urdf(ros, actions, c
                                    atol=1e-9)
         # robot_description (the suite's publish_robot_description) follows the new one
         assert _robot_description(ros, f'calibration {result.calibration_id}') == text
+        # and a change by another process (here this one, on the same data): retired, the
+        # one active before comes back (it read its store once and kept the new one)
+        kinematic_store.retire(result.calibration_id)
+        back = (cell_file('sawyer_close').with_name('sawyer.urdf') if before is None else
+                kinematic_store.directory / f'{before["id"]}.urdf').read_text()
+        assert _robot_description(ros, equal=back) == back
         # the solver maps joint captures through the named model
         named = call(ros, CalibrateUserFrame, 'calibrate_user_frame', 30.0, method='rigid',
                      point_names=['P1', 'P2', 'P3'], kinematics='no_such_id')

@@ -71,3 +71,41 @@ def test_an_active_json_written_before_scopes_still_reads(tmp_path):
     assert fresh.resolve(LATEST, 'sawyer')['id'] == 'sawyer-1'
     assert fresh.resolve(LATEST, 'iiwa7')['id'] == 'iiwa-1'
     assert fresh.warnings == []
+
+
+def _typed_record(robot: str, record_id: str):
+    from cobot_calib_ros.store.records import KinematicInputs, KinematicRecord, KinematicResult
+    model = model_by_name(robot)
+    return model, KinematicRecord(
+        id=record_id, stamp_ns=1_795_774_500_000_000_000, method='relative-lm', robot=robot,
+        inputs=KinematicInputs(source='test'),
+        result=KinematicResult(parameter_names=list(model.parameter_names),
+                               params=list(model.nominal), p_flange_tool=[0.0, 0.0, 0.1],
+                               free=[], values=[]))
+
+
+def test_a_record_is_seen_only_with_its_urdf_and_a_refused_one_writes_nothing(tmp_path):
+    """A reader that sees a new kinematic record finds its URDF and YAML (kinematic_identifier's
+    robot_description check once found the record first: 'No such file'); a record of another
+    robot is refused with no file left behind."""
+    from cobot_calib_ros.core.errors import Refusal
+    from cobot_calib_ros.store.cells import ResultsCell
+    store = KinematicStore(tmp_path, cell=ResultsCell('cell_a', 'sawyer'))
+    model, typed = _typed_record('sawyer', 'k-1')
+    seen_with = []
+    put = store._put
+
+    def recording_put(plain):       # the moment the record becomes visible to readers
+        seen_with.extend(sorted(p.name for p in store.directory.iterdir()))
+        return put(plain)
+
+    store._put = recording_put
+    saved = store.save_record(typed, model)
+    assert seen_with == ['k-1.urdf', 'k-1.yaml']
+    assert KinematicStore(tmp_path, cell=ResultsCell('cell_a', 'sawyer')).active('sawyer')[
+        'id'] == 'k-1' and saved.paths['urdf'].is_file()
+    before = sorted(p.name for p in store.directory.iterdir())
+    model, foreign = _typed_record('iiwa7', 'k-2')
+    with pytest.raises(Refusal, match='made on the iiwa7; this is cell'):
+        store.save_record(foreign, model)
+    assert sorted(p.name for p in store.directory.iterdir()) == before
