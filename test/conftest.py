@@ -99,13 +99,10 @@ def domain_id():
 SLOWEST_FILES = (
     'test/nodes/test_first_day_iiwa7.py',
     'test/nodes/test_first_day_sawyer.py',
+    'test/nodes/test_first_day_ur10e.py',
     'test/cli/test_up.py',
     'test/cli/test_identify_faults.py',
 )
-# Long files that run where a directory's files begin instead: the three first days at once
-# kept the 2 cores saturated for their ~100 s (three suites, three candidate pools' IK) while
-# later files mostly wait on DDS and the mock's motions
-LATER_FILES = {'test/nodes/test_first_day_ur10e.py': 'test/core/'}
 # test/nodes' session suite (its conftest) stops when a worker's next test does not use it, and
 # starts again for the next one that does: 9 node processes, ~10 s of CPU and 15-40 s of the
 # worker's time on a loaded machine. Fresh-clone run G started it 10 times, once because
@@ -122,20 +119,15 @@ def _uses_session_suite(item) -> bool:
 
 
 def pytest_collection_modifyitems(session, config, items):
-    """SLOWEST_FILES first; then every other file in collection order (LATER_FILES where
-    their directory's files begin), except that the files with tests of test/nodes' session
-    suite come as one block where the first of them is, each with those tests first: a worker
-    then runs them one after the other on one suite."""
+    """SLOWEST_FILES first; then every other file in collection order, except that the files
+    with tests of test/nodes' session suite come as one block where the first of them is, each
+    with those tests first: a worker then runs them one after the other on one suite."""
     slow = {path: i for i, path in enumerate(SLOWEST_FILES)}
     suite_files = {_file(item) for item in items if _uses_session_suite(item)}
     first: dict[str, int] = {}
     for item in items:
         first.setdefault(_file(item), len(first))
     block = min((first[path] for path in suite_files), default=0)
-    for path, before in LATER_FILES.items():
-        if path in first:
-            first[path] = min((i for p, i in first.items() if p.startswith(before)),
-                              default=first[path]) - 0.5
 
     def key(item) -> tuple:
         path = _file(item)
