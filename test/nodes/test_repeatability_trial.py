@@ -407,7 +407,8 @@ def _latched(ros, spec: launcher.NodeSpec, log_dir) -> Repeatability:
     return got[-1]
 
 
-def test_a_landmark_multi_trial_runs_over_ros_with_its_calibration_time(ros, trial_data):
+def test_a_landmark_multi_trial_runs_over_ros_with_its_calibration_time(ros, trial_data,
+                                                                        suite):
     """Each cycle's frame from the wrist camera (18 views of the six fiducials through
     mock_camera and landmark_detector), then the probe pass; the stored calibration time is the
     robot time of those views (moves as mock_robot reports them, and the holds)."""
@@ -426,5 +427,6 @@ def test_a_landmark_multi_trial_runs_over_ros_with_its_calibration_time(ros, tri
     times = meta['calibration_s']
     assert len(times) == 2 and all(t is not None and t > 0 for t in times)
     assert result.calibration_seconds == pytest.approx(sum(times) / 2)
-    # 18 holds of capture_duration (0.3 s) and 18 moves of at least a few degrees each
-    assert result.calibration_seconds > 18 * 0.3
+    # 18 holds of capture_duration and 18 moves of at least a few degrees each
+    hold = float(suite.specs['repeatability_trial'].params['capture_duration'])
+    assert result.calibration_seconds > 18 * hold
