@@ -26,6 +26,7 @@ from cobot_calib_ros.core import frames
 from cobot_calib_ros.core.errors import ErrorCode, Failure
 from cobot_calib_ros.core.kinematics.robots import ROBOTS, UrdfRobot
 from cobot_calib_ros.core.units import MAX_CELL_LENGTH
+from cobot_calib_ros.core.yaml_c import compose_and_load
 
 Array = NDArray[np.float64]
 FRAME_ID_CHARS = frozenset('abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_/')
@@ -240,8 +241,7 @@ class CellReader:
     def __init__(self, path: Path, text: str, section: str) -> None:
         self.path, self.section = path, section
         try:
-            self._root = yaml.compose(text)
-            doc = yaml.safe_load(text)
+            self._root, doc = compose_and_load(text)
         except yaml.YAMLError as e:
             raise CellFileError(f'{path}: not valid YAML: {" ".join(str(e).split())}') from None
         if not isinstance(doc, dict) or not isinstance(doc.get(section), dict):

@@ -30,6 +30,8 @@ from typing import Any
 import numpy as np
 import yaml
 
+from cobot_calib_ros.core.yaml_c import DUMPER, LOADER
+
 FILE_MODE = 0o644
 TEMP_SUFFIX = '.tmp'
 ID_PATTERN = re.compile(r'[A-Za-z0-9][A-Za-z0-9_.-]{0,127}')
@@ -107,17 +109,9 @@ class WarningLog:
         return data
 
 
-# libyaml's loader and dumper where PyYAML has it (the venv's does): the same documents, 4-6x
-# faster. A grid collection's metadata holds its plan (1,839 poses, 400 kB): the pure-Python
-# loader took 9.9 s for it on a loaded machine (1.6 s with libyaml), at the end of every goal,
-# so a collection stopped by Ctrl-C could not end its goal within spin.STOP_GRACE.
-_LOADER = getattr(yaml, 'CSafeLoader', yaml.SafeLoader)
-_DUMPER = getattr(yaml, 'CSafeDumper', yaml.SafeDumper)
-
-
 def dump_yaml(data: Any, **options: Any) -> str:
     """yaml.safe_dump(data, **options), by libyaml where there is one."""
-    return yaml.dump(data, Dumper=_DUMPER, **options)
+    return yaml.dump(data, Dumper=DUMPER, **options)
 
 
 def write_mapping(path: Path, data: Mapping[str, Any]) -> None:
@@ -132,7 +126,7 @@ def read_mapping(path: Path) -> tuple[dict[str, Any] | None, str]:
     """A YAML or (by suffix) JSON file's top-level mapping and '', or None and why not."""
     try:
         text = path.read_text(encoding='utf-8')
-        data = json.loads(text) if path.suffix == '.json' else yaml.load(text, _LOADER)
+        data = json.loads(text) if path.suffix == '.json' else yaml.load(text, LOADER)
     except (OSError, UnicodeDecodeError, ValueError, yaml.YAMLError) as exc:
         return None, f'unreadable ({" ".join(str(exc).split())})'
     if not isinstance(data, dict):
