@@ -279,17 +279,26 @@ class _Respawn:
         self._quick = dict.fromkeys(suite.processes, 0)
         self._restarts = dict.fromkeys(suite.processes, 0)
         self._down: set[str] = set()
-        self._coming_back: dict = {}     # restarted, not answering yet: key -> AnswerCheck
+        # restarted, not answering yet: key -> (AnswerCheck, when restarted, said so late)
+        self._coming_back: dict[str, list] = {}
 
     def check(self) -> list[str]:
-        """Restart the nodes that exited; the keys of those restarted."""
+        """Restart the nodes that exited; the keys of those restarted. A restarted node that
+        answers is said so; one that does not within READY_TIMEOUT is named with its log,
+        once (it runs: not restarted again)."""
         restarted = [key for key, code in self._suite.failed().items()
                      if key not in self._down and self._exited(key, code)]
-        for key, answer in list(self._coming_back.items()):
+        for key, waiting in list(self._coming_back.items()):
+            answer, since, late = waiting
             if answer.answered():
                 answer.close()
                 del self._coming_back[key]
                 print(f'{key}: restarted and answering again', flush=True)
+            elif not late and time.monotonic() - since > READY_TIMEOUT:
+                waiting[2] = True
+                print(f'{key}: restarted {READY_TIMEOUT:.0f} s ago and does not answer yet '
+                      f'(its process runs; log: {self._suite.log_path(key)})',
+                      file=sys.stderr, flush=True)
         return restarted
 
     def forget_all(self) -> None:
@@ -298,7 +307,7 @@ class _Respawn:
 
     def _forget(self, key: str) -> None:
         if key in self._coming_back:
-            self._coming_back.pop(key).close()
+            self._coming_back.pop(key)[0].close()
 
     def _exited(self, key: str, code: int) -> bool:
         quick = time.monotonic() - self._started[key] < QUICK_EXIT
@@ -320,7 +329,8 @@ class _Respawn:
         self._suite.restart(key)
         self._news.started(full_name, self._suite.processes[key].pid)
         self._started[key] = time.monotonic()
-        self._coming_back[key] = AnswerCheck(self._node, self._suite.specs[key].full_name)
+        self._coming_back[key] = [AnswerCheck(self._node, self._suite.specs[key].full_name),
+                                  time.monotonic(), False]
         print(f'{key}: restarting (restart {self._restarts[key]}); the other nodes keep '
               'running', file=sys.stderr, flush=True)
         return True
