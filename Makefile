@@ -3,16 +3,14 @@ SHELL := /bin/bash
 PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
-# pytest-xdist workers for `make test`: 3 on 2 cores, since about half of a 2-worker run's
-# time was waiting (fresh-clone run 17: 12 min of CPU in 10.7 min). The load failures 3 once
-# had (a hand-eye view without the board, a node past its stop grace) were fixed at their
-# causes. Fresh-clone runs beside a CPU-heavy bench (load 8-9): 3 workers 10 min 28 s and
-# 10 min 50 s, both green, 2 workers 13 min 2 s; quiet: 3 workers 8 min 37 s to 10 min 2 s,
-# 4 workers 8 min 41 s (no faster, more CPU). Session 25, with less waiting in the tests:
-# 3 workers 7 min 57 s to 8 min 27 s (four runs), 4 workers 7 min 28 s and 7 min 38 s, both
-# green; but a 4-worker run of session 24 failed test_up's restart tests (a restarted node
-# that never answered, not understood), so 4 waits until that is understood
-TEST_WORKERS ?= 3
+# pytest-xdist workers for `make test`: 4 on 2 cores, since about half of a run's worker time is
+# waiting (motion, holds, DDS discovery, timeouts the tests provoke). Fresh clones, session 26:
+# 3 workers 8 min 8 s and 8 min 23 s, 4 workers 7 min 45 s; session 25: 3 workers 7 min 57 s to
+# 8 min 27 s, 4 workers 7 min 28 s and 7 min 38 s. 4 waited for session 24's one 4-worker failure
+# (two nodes `up` restarted in test_up that never answered in 120 s): not seen again in four
+# 4-worker runs nor in 50 kill-and-restart scenarios with 4-6 test_up sessions at once on the
+# 2 cores; `up` now names such a node with its log (cli/up.py)
+TEST_WORKERS ?= 4
 STAMP := $(VENV)/.stamps
 
 # Keep DDS traffic on this machine (ros2-from-pypi notes).
