@@ -61,7 +61,7 @@ class KinematicIdentifier(JobNode):
         self._declare_parameters()
         repository = self._repository()
         self._collections = repository.collections
-        calibrations = repository.kinematics.directory
+        kinematics_dir = repository.kinematics.directory
         self._robot = RobotCalls(self._answers)
         self._health.watch(capture_retries=lambda: self._robot.capture_retries)
         self._health.set(OK, 'idle', job='')
@@ -74,7 +74,7 @@ class KinematicIdentifier(JobNode):
                                       (Identify, 'identify_kinematics', self._on_identify))]
         self.get_logger().info(f'{self._cell.robot} cell "{self._cell.name}": collections in '
                                f'{self._collections.directory}, kinematic calibrations in '
-                               f'{calibrations}')
+                               f'{kinematics_dir}')
         self._description = None
         self._description_lock = threading.Lock()
         if self._p('publish_robot_description'):
@@ -242,8 +242,8 @@ class KinematicIdentifier(JobNode):
     def _publish_description(self) -> None:
         """robot_description from the active calibration, again whenever that changes (a new
         identification here, or one stored or retired by another process with the same data:
-        `cobot-calib identify --source FILE`). One caller at a time: the timer's check and the end of
-        an identification (its thread)."""
+        `cobot-calib identify --source FILE`). One caller at a time: the timer's check and the
+        end of an identification (its thread)."""
         with self._description_lock:
             self._describe()
 

@@ -2,7 +2,6 @@
 is named with its log (session 24: a node `up` restarted did not answer for 120 s, and `up`
 said nothing)."""
 import sys
-import time
 
 from cobot_calib_ros.api import launcher
 from cobot_calib_ros.cli import up
