@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 from dataclasses import replace
+import math
 import os
 import re
 import signal
@@ -279,8 +280,8 @@ class _Respawn:
         self._quick = dict.fromkeys(suite.processes, 0)
         self._restarts = dict.fromkeys(suite.processes, 0)
         self._down: set[str] = set()
-        # restarted, not answering yet: key -> (AnswerCheck, when restarted, said so late)
-        self._coming_back: dict[str, list] = {}
+        self._coming_back: dict = {}     # restarted, not answering yet: key -> AnswerCheck
+        self._answer_by: dict[str, float] = {}  # of those, not yet said late: key -> deadline
 
     def check(self) -> list[str]:
         """Restart the nodes that exited; the keys of those restarted. A restarted node that
@@ -288,14 +289,12 @@ class _Respawn:
         once (it runs: not restarted again)."""
         restarted = [key for key, code in self._suite.failed().items()
                      if key not in self._down and self._exited(key, code)]
-        for key, waiting in list(self._coming_back.items()):
-            answer, since, late = waiting
+        for key, answer in list(self._coming_back.items()):
             if answer.answered():
-                answer.close()
-                del self._coming_back[key]
+                self._forget(key)
                 print(f'{key}: restarted and answering again', flush=True)
-            elif not late and time.monotonic() - since > READY_TIMEOUT:
-                waiting[2] = True
+            elif time.monotonic() > self._answer_by.get(key, math.inf):
+                del self._answer_by[key]
                 print(f'{key}: restarted {READY_TIMEOUT:.0f} s ago and does not answer yet '
                       f'(its process runs; log: {self._suite.log_path(key)})',
                       file=sys.stderr, flush=True)
@@ -307,7 +306,8 @@ class _Respawn:
 
     def _forget(self, key: str) -> None:
         if key in self._coming_back:
-            self._coming_back.pop(key)[0].close()
+            self._coming_back.pop(key).close()
+        self._answer_by.pop(key, None)
 
     def _exited(self, key: str, code: int) -> bool:
         quick = time.monotonic() - self._started[key] < QUICK_EXIT
@@ -329,8 +329,8 @@ class _Respawn:
         self._suite.restart(key)
         self._news.started(full_name, self._suite.processes[key].pid)
         self._started[key] = time.monotonic()
-        self._coming_back[key] = [AnswerCheck(self._node, self._suite.specs[key].full_name),
-                                  time.monotonic(), False]
+        self._coming_back[key] = AnswerCheck(self._node, self._suite.specs[key].full_name)
+        self._answer_by[key] = time.monotonic() + READY_TIMEOUT
         print(f'{key}: restarting (restart {self._restarts[key]}); the other nodes keep '
               'running', file=sys.stderr, flush=True)
         return True

@@ -43,8 +43,12 @@ def test_a_restarted_node_that_does_not_answer_is_named_once_with_its_log(
                 said.append(capsys.readouterr().err)
                 return 'does not answer' in said[-1]
 
+            def checked_on() -> bool:       # `up`'s loop going on: said only once
+                respawn.check()
+                return False
+
             assert spin_until(node, named, 15.0)
-            spin_until(node, lambda: bool(respawn.check()) and False, 1.5)   # said once
+            spin_until(node, checked_on, 1.5)
             err = ''.join(said) + capsys.readouterr().err
             respawn.forget_all()
     finally:

@@ -11,6 +11,8 @@ from cobot_calib_ros.core.rig import model_chain
 from cobot_calib_ros.store.rigs import kinematics_of
 from cobot_calib_ros.store.kinematics import KinematicStore, LATEST, NOMINAL
 
+from test_kinematics_writeback import record_of
+
 
 def _kinematic_record(robot: str, record_id: str, stamp_ns: int, offset: float = 0.0) -> dict:
     """A stored kinematic calibration of ``robot``: its nominal parameters + ``offset`` [m/rad]."""
@@ -73,17 +75,6 @@ def test_an_active_json_written_before_scopes_still_reads(tmp_path):
     assert fresh.warnings == []
 
 
-def _typed_record(robot: str, record_id: str):
-    from cobot_calib_ros.store.records import KinematicInputs, KinematicRecord, KinematicResult
-    model = model_by_name(robot)
-    return model, KinematicRecord(
-        id=record_id, stamp_ns=1_795_774_500_000_000_000, method='relative-lm', robot=robot,
-        inputs=KinematicInputs(source='test'),
-        result=KinematicResult(parameter_names=list(model.parameter_names),
-                               params=list(model.nominal), p_flange_tool=[0.0, 0.0, 0.1],
-                               free=[], values=[]))
-
-
 def test_a_record_is_seen_only_with_its_urdf_and_a_refused_one_writes_nothing(tmp_path):
     """A reader that sees a new kinematic record finds its URDF and YAML (kinematic_identifier's
     robot_description check once found the record first: 'No such file'); a record of another
@@ -91,7 +82,8 @@ def test_a_record_is_seen_only_with_its_urdf_and_a_refused_one_writes_nothing(tm
     from cobot_calib_ros.core.errors import Refusal
     from cobot_calib_ros.store.cells import ResultsCell
     store = KinematicStore(tmp_path, cell=ResultsCell('cell_a', 'sawyer'))
-    model, typed = _typed_record('sawyer', 'k-1')
+    model = model_by_name('sawyer')
+    typed = record_of(model, model.nominal, 'k-1')
     seen_with = []
     put = store._put
 
@@ -105,7 +97,8 @@ def test_a_record_is_seen_only_with_its_urdf_and_a_refused_one_writes_nothing(tm
     assert KinematicStore(tmp_path, cell=ResultsCell('cell_a', 'sawyer')).active('sawyer')[
         'id'] == 'k-1' and saved.paths['urdf'].is_file()
     before = sorted(p.name for p in store.directory.iterdir())
-    model, foreign = _typed_record('iiwa7', 'k-2')
+    model = model_by_name('iiwa7')
+    foreign = record_of(model, model.nominal, 'k-2')
     with pytest.raises(Refusal, match='made on the iiwa7; this is cell'):
         store.save_record(foreign, model)
     assert sorted(p.name for p in store.directory.iterdir()) == before

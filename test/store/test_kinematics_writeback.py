@@ -17,12 +17,14 @@ from cobot_calib_ros.store.kinematics import calibrated_descriptions
 from cobot_calib_ros.store.records import KinematicInputs, KinematicRecord, KinematicResult
 
 
-def record_of(model, params) -> KinematicRecord:
+def record_of(model, params, record_id: str = 'k-20261127-101500') -> KinematicRecord:
+    """A kinematic record of ``model`` at ``params`` (none of them identified: free empty)."""
     return KinematicRecord(
-        id='k-20261127-101500', stamp_ns=1_795_774_500_000_000_000, method='relative-lm',
+        id=record_id, stamp_ns=1_795_774_500_000_000_000, method='relative-lm',
         robot=model.name, inputs=KinematicInputs(source='collection-7'),
         result=KinematicResult(parameter_names=list(model.parameter_names),
-                               params=list(params), p_flange_tool=[0.02, 0.0, 0.1]))
+                               params=list(params), p_flange_tool=[0.02, 0.0, 0.1],
+                               free=[], values=[]))
 
 
 @pytest.mark.parametrize('cell_name, base, tip, files', [
