@@ -3,14 +3,14 @@ SHELL := /bin/bash
 PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
-# pytest-xdist workers for `make test`: 4 on 2 cores, since about half of a run's worker time is
+# pytest-xdist workers for `make test`: 3 on 2 cores, since about half of a run's worker time is
 # waiting (motion, holds, DDS discovery, timeouts the tests provoke). Fresh clones, session 26:
-# 3 workers 8 min 8 s and 8 min 23 s, 4 workers 7 min 19 s to 7 min 52 s (five runs); session 25:
-# 3 workers 7 min 57 s to 8 min 27 s, 4 workers 7 min 28 s and 7 min 38 s. 4 waited for session
-# 24's one 4-worker failure (two nodes `up` restarted in test_up that never answered in 120 s):
-# not seen again in eight 4-worker runs nor in 50 kill-and-restart scenarios with 4-6 test_up
-# sessions at once on the 2 cores; `up` now names such a node with its log (cli/up.py)
-TEST_WORKERS ?= 4
+# 3 workers 8 min 8 s to 8 min 38 s (six runs, green), 4 workers 7 min 19 s to 7 min 52 s (five
+# green runs), then a sixth 4-worker run red: test_up's hand-eye skipped 2 of 4 views, "no
+# landmarks message of an image stamped after ... within 5 s" (the camera, detector and client
+# chain lagging 5 s on the saturated cores). 4 waits until that check gives the same verdict
+# on a busy machine
+TEST_WORKERS ?= 3
 STAMP := $(VENV)/.stamps
 
 # Keep DDS traffic on this machine (ros2-from-pypi notes).
