@@ -165,6 +165,9 @@ class TrialClient:
             if late:
                 raise CallError(f'{late}; trial {trial_id} {self._cancel(handle)}: check the '
                                 f'node log, then {resume}')
+        if result.lost():
+            raise CallError(f'{watch.lost_line()}; trial {trial_id} is stored up to its last '
+                            f'reading: {resume}')
         return result.result().result
 
     def _gone(self) -> bool:
@@ -207,9 +210,10 @@ class TrialClient:
             cancel.result().goals_canceling)
         if acknowledged:
             self._spin(result.done, self.CANCEL_WAIT)
-        if result.done() and result.result().status != GoalStatus.STATUS_CANCELED:
+        lost = result.done() and result.lost()
+        if result.done() and not lost and result.result().status != GoalStatus.STATUS_CANCELED:
             return result.result().result                # it ended before the cancel came
-        if not acknowledged and watch.restarted():
+        if lost or (not acknowledged and watch.restarted()):
             raise self.Stopped(f'{watch.lost_line()}; trial {trial_id} is stored up to its '
                                f'last reading: resume it with: cobot-calib trial --trial-id '
                                f'{trial_id}')

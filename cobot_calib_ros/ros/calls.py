@@ -123,6 +123,8 @@ def run_action(node: Node, client: ActionClient, goal, timeout: float = 60.0,
                 handle.cancel_goal_async()
                 raise CallError(f'action {client._action_name} did not finish within '
                                 f'{timeout:.0f} s')
+        if result.lost():
+            raise CallError(watch.lost_line())
     except KeyboardInterrupt:
         raise _cancelled(node, client, send, executor, watch) from None
     return result.result().status, result.result().result
@@ -150,6 +152,12 @@ class ResultWait:
 
     def result(self):
         return next(f for f in self._futures if f.done()).result()
+
+    def lost(self) -> bool:
+        """The answer says the server does not know the goal (STATUS_UNKNOWN, a default
+        result, error code 0 included): a restarted server answered the result request, or
+        one that kept the result less long than the wait. The goal is lost, not done."""
+        return self.result().status == GoalStatus.STATUS_UNKNOWN
 
     def wait(self, node: Node, timeout: float, executor=None) -> bool:
         """Spin until the result came or ``timeout`` [s] passed; whether it came."""
@@ -340,7 +348,7 @@ def _cancelled(node: Node, client: ActionClient, send, executor,
                            'complete (see the node log)')
     status, done = result.result().status, result.result().result
     message = getattr(done, 'message', '') or ''
-    if status == GoalStatus.STATUS_UNKNOWN:     # asked again: a server that never had it
+    if result.lost():
         return Interrupted(watch.lost_line() if watch is not None else
                            f'{name}: the server does not know the goal (restarted?): goal '
                            'lost', None)

@@ -17,7 +17,7 @@ from rclpy.executors import SingleThreadedExecutor
 from cobot_calib_msgs.action import CalibrateIntrinsics
 from cobot_calib_ros.ros import action_client
 from cobot_calib_ros.ros.action_client import ActionClient
-from cobot_calib_ros.ros.calls import run_action, spin_until
+from cobot_calib_ros.ros.calls import CallError, run_action, spin_until
 
 ACTION = 'action_client_test'
 TOTAL = 3
@@ -110,7 +110,9 @@ def _losing_first(client_class, answer: str = 'goal'):
 @pytest.fixture
 def counting_server(request):
     """A server that runs each goal it accepts at once (counted) or rejects every goal
-    (request.param == 'reject'); its own executor in a thread."""
+    (request.param == 'reject'), or forgets each goal as soon as it ended ('forgets': no
+    result kept, as a restarted server knows no goal of the old one); its own executor in a
+    thread."""
     context = Context()
     rclpy.init(context=context, domain_id=int(os.environ['ROS_DOMAIN_ID']))
     node = rclpy.create_node('action_client_counting_server', context=context)
@@ -122,9 +124,11 @@ def counting_server(request):
         return CalibrateIntrinsics.Result(views_used=len(runs))
 
     reject = getattr(request, 'param', '') == 'reject'
+    kept = 0 if getattr(request, 'param', '') == 'forgets' else 900     # [s] rclpy's default
     action_server = ActionServer(node, CalibrateIntrinsics, ACTION, execute,
                                  goal_callback=lambda goal: (GoalResponse.REJECT if reject
-                                                             else GoalResponse.ACCEPT))
+                                                             else GoalResponse.ACCEPT),
+                                 result_timeout=kept)
     executor = SingleThreadedExecutor(context=context)
     executor.add_node(node)
     thread = threading.Thread(target=executor.spin, daemon=True)
@@ -206,3 +210,14 @@ def test_a_result_whose_answer_was_lost_is_asked_for_again(counting_server):
     status, result = _run_with_the_first_result_lost(context, 20.0)
     assert status == GoalStatus.STATUS_SUCCEEDED and result.views_used == 1 and len(runs) == 1
     assert time.monotonic() - started < 10.0
+
+
+@pytest.mark.parametrize('counting_server', ['forgets'], indirect=True)
+def test_a_server_that_does_not_know_the_goal_is_a_lost_goal_not_a_result(counting_server):
+    """Asked again, the server answers STATUS_UNKNOWN with a default result (error code 0):
+    run_action says the goal is lost. Taken as the result, `cobot-calib trial` once exited 0
+    after its node was killed and restarted (the new one answered the result request)."""
+    context, runs = counting_server
+    with pytest.raises(CallError, match='goal lost'):
+        _run_with_the_first_result_lost(context, 20.0)
+    assert len(runs) == 1
