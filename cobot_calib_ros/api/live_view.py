@@ -9,12 +9,13 @@ connect through api.ws_protocol_bridge, which accepts both names of the subproto
 A topic is subscribed on ROS only while a window subscribes to its channel, so the view alone
 does not make mock_camera render. A latched topic (every publisher transient local) is the
 exception: it stays subscribed and keeps its last messages, which a window that subscribes
-later gets once, as a late ROS subscriber would.
+later gets once, as a late ROS subscriber would (_Latched).
 """
 from __future__ import annotations
 
 from collections import deque
 import queue
+import threading
 import time
 from typing import Callable, Iterable
 
@@ -31,27 +32,71 @@ SCAN_PERIOD = 1.0        # [s] between looks for new topics
 DISCOVERY_WAIT = 5.0     # [s] at most, for the topics on the graph before the server listens
 DISCOVERY_QUIET = 1.5    # [s] of no new topic: discovery is taken as done
 SERVE_PERIOD = 0.05      # [s] between looks at the windows' (un)subscriptions
-# [s] after a window subscribes, its latched messages are sent, once the channel has a
-# subscriber at all: the server tells of a subscription before it routes the channel's
-# messages to it (foxglove-sdk 0.30.3 calls on_subscribe, then subscribes the client in its
-# context; has_sinks() tells when that happened for the first window, not for a second one).
-# 0.3 s, then 1 s: with either, a second window got nothing once (test_live_view, 1 run in ~10;
-# cause not found)
-REPLAY_AFTER = 1.0
 LATCHED_KEPT = 8         # last messages kept per latched topic (one per publisher, typically)
 
 
-class _Subscriptions(ServerListener):
-    """Hands the server's (un)subscribe events (its own thread) to the node's thread as
-    (topic, +1 or -1); a client that disconnects is unsubscribed from all its channels."""
+class _Latched:
+    """A latched topic's last LATCHED_KEPT messages, and the windows subscribed to its channel:
+    each window gets each message once, the kept ones when it subscribes, later ones as they
+    come.
+
+    foxglove-sdk 0.30.3 routes a channel to a window before it calls on_subscribe, so a message
+    logged to all sinks then would reach the window twice (live and kept) and the other windows
+    again; each message goes to each window alone (Channel.log's sink_id). The Python API names
+    a window by its client id, not its sink id: both come from process-wide counters that move
+    together while the process opens no other foxglove sink (an MCAP writer, remote access),
+    and this module opens none. (A replay 1 s after on_subscribe, to every sink once the
+    channel had one, reached nothing once in a loaded test run.)"""
 
     def __init__(self) -> None:
+        self._channel: foxglove.Channel | None = None
+        self._kept: deque[bytes] = deque(maxlen=LATCHED_KEPT)
+        self._windows: set[int] = set()
+        self._lock = threading.Lock()       # the server's threads and the node's
+
+    def open(self, make: Callable[[], foxglove.Channel]) -> foxglove.Channel:
+        """The channel ``make()`` creates (and advertises): a window that subscribes at once
+        waits for it here."""
+        with self._lock:
+            self._channel = make()
+        return self._channel
+
+    def add_window(self, client_id: int) -> None:
+        with self._lock:
+            for data in self._kept:
+                self._channel.log(data, log_time=time.time_ns(), sink_id=client_id)
+            self._windows.add(client_id)
+
+    def remove_window(self, client_id: int) -> None:
+        with self._lock:
+            self._windows.discard(client_id)
+
+    def on_message(self, data: bytes) -> None:
+        with self._lock:
+            self._kept.append(data)
+            for client_id in self._windows:
+                self._channel.log(data, log_time=time.time_ns(), sink_id=client_id)
+
+
+class _Subscriptions(ServerListener):
+    """The server's (un)subscribe events (its own threads): a latched topic's window is served
+    at once (_Latched); every event goes on to the node's thread as (topic, +1 or -1). A
+    client that disconnects is unsubscribed from all its channels."""
+
+    def __init__(self, latched: dict[str, _Latched]) -> None:
         self.events: queue.SimpleQueue[tuple[str, int]] = queue.SimpleQueue()
+        self._latched = latched
 
     def on_subscribe(self, client, channel) -> None:
+        latched = self._latched.get(channel.topic)
+        if latched is not None:
+            latched.add_window(client.id)
         self.events.put((channel.topic, 1))
 
     def on_unsubscribe(self, client, channel) -> None:
+        latched = self._latched.get(channel.topic)
+        if latched is not None:
+            latched.remove_window(client.id)
         self.events.put((channel.topic, -1))
 
 
@@ -64,17 +109,13 @@ class LiveView(Node):
         super().__init__('cobot_calib_view', **kwargs)
         self.report = report
         self.wanted = {t if t.startswith('/') else '/' + t for t in topics} or None
-        self._listener = _Subscriptions()
+        self._latched: dict[str, _Latched] = {}
+        self._listener = _Subscriptions(self._latched)
         self.channels: dict[str, foxglove.Channel] = {}
         self._types: dict[str, tuple[type, object]] = {}    # topic: (message class, QoS)
-        # topic: (sequence number, message, whether a window was routed when it came)
-        self._latched: dict[str, deque[tuple[int, bytes, bool]]] = {}
-        self._sequence = 0
         self._skipped: set[str] = set()
         self.viewers: dict[str, int] = {}       # topic: windows subscribed to its channel
         self.ros_subscriptions: dict[str, object] = {}
-        # replays: (monotonic time, topic, sequence number of the last message kept before)
-        self._due: list[tuple[float, str, int]] = []
         self._discover()
         self.server = foxglove.start_server(name='cobot_calib_ros', host='127.0.0.1', port=0,
                                             server_listener=self._listener)
@@ -125,15 +166,18 @@ class LiveView(Node):
         except Exception as e:  # noqa: BLE001 - an unknown type or definition: skip, say so
             self._skip(topic, str(e))
             return
-        self.channels[topic] = foxglove.Channel(
-            topic, message_encoding='cdr',
-            schema=foxglove.Schema(name=types[0], encoding='ros2msg', data=schema.encode()))
         qos = subscription_qos(publishers, depth=LATCHED_KEPT)
         self._types[topic] = (msg_class, qos)
+        described = foxglove.Schema(name=types[0], encoding='ros2msg', data=schema.encode())
+
+        def channel() -> foxglove.Channel:      # advertised to the windows at once
+            return foxglove.Channel(topic, message_encoding='cdr', schema=described)
         if qos.durability == DurabilityPolicy.TRANSIENT_LOCAL:
-            self._latched[topic] = deque(maxlen=LATCHED_KEPT)
-            self._subscribe(topic)
-        elif self.viewers.get(topic, 0) > 0:
+            self._latched[topic] = _Latched()
+            self.channels[topic] = self._latched[topic].open(channel)
+        else:
+            self.channels[topic] = channel()
+        if topic in self._latched or self.viewers.get(topic, 0) > 0:
             self._subscribe(topic)
         self.report(f'streaming {topic} ({types[0]})')
 
@@ -147,19 +191,14 @@ class LiveView(Node):
             msg_class, topic, self._forward(topic), qos, raw=True)
 
     def _forward(self, topic: str):
-        channel, kept = self.channels[topic], self._latched.get(topic)
-
-        def on_message(data: bytes) -> None:
-            reached_a_window = channel.has_sinks()
-            channel.log(data, log_time=time.time_ns())
-            if kept is not None:
-                self._sequence += 1
-                kept.append((self._sequence, data, reached_a_window))
-        return on_message
+        latched = self._latched.get(topic)
+        if latched is not None:
+            return latched.on_message
+        channel = self.channels[topic]
+        return lambda data: channel.log(data, log_time=time.time_ns())
 
     def _serve(self) -> None:
-        """Subscribes a topic on ROS while a window subscribes to it (latched ones always),
-        and sends a latched topic's last messages to a window that subscribes to it."""
+        """Subscribes a topic on ROS while a window subscribes to it (latched ones always)."""
         while True:
             try:
                 topic, change = self._listener.events.get_nowait()
@@ -167,31 +206,11 @@ class LiveView(Node):
                 break
             self.viewers[topic] = self.viewers.get(topic, 0) + change
             if topic in self._latched:
-                if change > 0:
-                    self._due.append((time.monotonic() + REPLAY_AFTER, topic, self._sequence))
-            elif self.viewers[topic] > 0 and topic not in self.ros_subscriptions:
+                continue
+            if self.viewers[topic] > 0 and topic not in self.ros_subscriptions:
                 self._subscribe(topic)
             elif self.viewers[topic] <= 0 and topic in self.ros_subscriptions:
                 self.destroy_subscription(self.ros_subscriptions.pop(topic))
-        now, sent = time.monotonic(), set()
-        for entry in [d for d in self._due if d[0] <= now]:
-            _, topic, before = entry
-            if self.viewers[topic] <= 0:            # the window left before: nobody to send to
-                self._due.remove(entry)
-            elif self.channels[topic].has_sinks():
-                self._due.remove(entry)
-                if topic not in sent:               # windows that came together: once
-                    sent.add(topic)
-                    self._replay(topic, before)
-
-    def _replay(self, topic: str, before: int) -> None:
-        """The latched messages a new window has not had: those kept before it subscribed,
-        and those that came after while no window was routed (their live send reached
-        nobody). One that came after with a window routed went to it live: sending it again
-        showed it twice (a latched message arriving late, on a loaded machine)."""
-        for sequence, data, reached_a_window in self._latched.get(topic, ()):
-            if sequence <= before or not reached_a_window:
-                self.channels[topic].log(data, log_time=time.time_ns())
 
     def destroy_node(self):
         self.bridge.stop()

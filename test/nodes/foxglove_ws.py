@@ -36,6 +36,7 @@ class FoxgloveClient:
                               for line in head.split(b'\r\n')
                               if line.lower().startswith(b'sec-websocket-protocol:')), None)
         self.channels: dict[int, dict] = {}
+        self.subscribed: dict[str, dict] = {}     # topic: its channel, with our subscription id
 
     def _exact(self, n: int) -> bytes:
         data = b''
@@ -83,9 +84,18 @@ class FoxgloveClient:
 
     def messages(self, topic: str, timeout: float, enough: int | None = None
                  ) -> tuple[dict, list[bytes]]:
-        """Subscribe to ``topic`` once it is advertised; (its channel, the payloads that came
-        within ``timeout`` s, or the first ``enough`` of them). TimeoutError if none came."""
-        deadline, wanted, payloads = time.monotonic() + timeout, None, []
+        """Subscribe to ``topic`` once it is advertised (once per connection); (its channel,
+        the payloads that came within ``timeout`` s, or the first ``enough`` of them).
+        TimeoutError if none came."""
+        payloads = self.collect(topic, timeout, enough)
+        if not payloads:
+            raise TimeoutError(f'no message on {topic} within {timeout} s '
+                               f'(advertised: {[c["topic"] for c in self.channels.values()]})')
+        return self.subscribed[topic], payloads
+
+    def collect(self, topic: str, timeout: float, enough: int | None = None) -> list[bytes]:
+        """:meth:`messages`' payloads, [] if none came."""
+        deadline, payloads = time.monotonic() + timeout, []
         while time.monotonic() < deadline and (enough is None or len(payloads) < enough):
             self.sock.settimeout(max(0.1, deadline - time.monotonic()))
             try:
@@ -97,18 +107,19 @@ class FoxgloveClient:
                 if msg.get('op') == 'advertise':
                     for channel in msg['channels']:
                         self.channels[channel['id']] = channel
-                        if channel['topic'] == topic and wanted is None:
-                            wanted = channel
-                            self.send_json({'op': 'subscribe', 'subscriptions': [
-                                {'id': 1, 'channelId': channel['id']}]})
-            elif opcode == 0x2 and payload[0] == MESSAGE_DATA and wanted is not None:
+                        if channel['topic'] == topic and topic not in self.subscribed:
+                            self._subscribe(channel)
+            elif opcode == 0x2 and payload[0] == MESSAGE_DATA and topic in self.subscribed:
                 subscription, _stamp = struct.unpack('<IQ', payload[1:13])
-                if subscription == 1:
+                if subscription == self.subscribed[topic]['subscription']:
                     payloads.append(payload[13:])
-        if not payloads:
-            raise TimeoutError(f'no message on {topic} within {timeout} s '
-                               f'(advertised: {[c["topic"] for c in self.channels.values()]})')
-        return wanted, payloads
+        return payloads
+
+    def _subscribe(self, channel: dict) -> None:
+        number = len(self.subscribed) + 1
+        self.subscribed[channel['topic']] = {**channel, 'subscription': number}
+        self.send_json({'op': 'subscribe', 'subscriptions': [
+            {'id': number, 'channelId': channel['id']}]})
 
     def close(self) -> None:
         """The closing handshake, as a browser closing its window does (RFC 6455 5.5.1): a
