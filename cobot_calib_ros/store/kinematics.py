@@ -17,7 +17,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
 from cobot_calib_ros.core.ids import utc_text
 from cobot_calib_ros.core.kinematics.model import KinematicModel
@@ -26,7 +25,7 @@ from cobot_calib_ros.core.kinematics.ur_description import (is_ur, ur_kinematics
                                                             ur_kinematics_yaml)
 from cobot_calib_ros.core.kinematics.urdf import calibrated_urdf, rewrite_urdf
 from cobot_calib_ros.store.calibrations import Activation, CalibrationStore
-from cobot_calib_ros.store.files import atomic_write_text, ensure_dir
+from cobot_calib_ros.store.files import atomic_write_text, dump_yaml, ensure_dir
 from cobot_calib_ros.store.records import KinematicRecord
 
 NOMINAL = 'nominal'
@@ -78,8 +77,8 @@ class KinematicHistory:
         record = self._checked(typed)
         paths = {'yaml': self.directory / f'{typed.id}.yaml'}
         ensure_dir(self.directory)
-        atomic_write_text(paths['yaml'], yaml.safe_dump(_readable(record), sort_keys=False,
-                                                        width=100))
+        atomic_write_text(paths['yaml'], dump_yaml(_readable(record), sort_keys=False,
+                                                   width=100))
         for kind, text in texts.items():
             paths[kind] = self.directory / f'{typed.id}{SUFFIXES[kind]}'
             atomic_write_text(paths[kind], text)
