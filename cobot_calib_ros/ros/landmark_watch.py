@@ -11,7 +11,9 @@ one, so the views of one capture follow each other without a new subscription): 
 and the camera rest while nobody subscribes (issue 23). Waking them (discovery matches the new
 subscription, the detector subscribes to the images, the camera starts) can take seconds on a
 loaded machine: the first image after subscribing gets image_watch.WAKE_ALLOWANCE s more,
-counted from the subscription (image_watch.image_wait).
+counted from the subscription (image_watch.image_wait). A wait for an image stamped after a
+time goes on past its timeout while messages keep coming stamped before it (image_watch.behind:
+the chain is behind, not silent).
 """
 from __future__ import annotations
 
@@ -26,18 +28,12 @@ from rclpy.clock import Clock, ClockType
 
 from cobot_calib_ros.core.robot_port import CaptureFailed, LandmarkImage, Sighting
 from cobot_calib_ros.ros import convert
-from cobot_calib_ros.ros.image_watch import image_wait, wake_deadline
+from cobot_calib_ros.ros.image_watch import (behind, image_wait, LAG_ALLOWANCE, LAG_LOOK,
+                                             wake_deadline)
 from cobot_calib_ros.ros.time import stamp_to_ns
 
 KEEP = 60           # images kept (2 s at 30 fps): more than arrive during one capture
 LINGER = 10.0       # [s] subscribed after the last capture ended (released within 2 LINGER)
-# [s] a wait for an image stamped after a time goes on up to this much longer while messages
-# keep coming (one within LAG_LOOK s), all stamped before it: the camera, the detector and DDS
-# are behind on a busy machine, the images are not missing. A hand-eye capture skipped two views
-# in a row ("no landmarks message of an image stamped after ... within 5 s") in a test run on
-# two saturated cores; views before and after saw the board.
-LAG_ALLOWANCE = 15.0
-LAG_LOOK = 1.0
 KINDS = {Landmark.KIND_MARKER: 'marker', Landmark.KIND_BOARD: 'board'}
 
 
@@ -122,7 +118,8 @@ class LandmarkWatch:
             deadline, lag_end = start + timeout, start + timeout + LAG_ALLOWANCE
             while seen < max_images:
                 now = time.monotonic()
-                if now >= deadline and (last is not None or not self._behind(now, lag_end)):
+                if now >= deadline and (last is not None
+                                        or not behind(now, lag_end, self._arrived)):
                     break
                 image = next((im for im in self._images if im.stamp_ns > after), None)
                 if image is None:
@@ -137,10 +134,6 @@ class LandmarkWatch:
                     f'{time.monotonic() - start:.0f} s ({self._newest(t_ns)}); are mock_camera / '
                     'the camera driver and landmark_detector up?')
         return last
-
-    def _behind(self, now: float, lag_end: float) -> bool:
-        """Messages keep coming, none stamped late enough yet, and LAG_ALLOWANCE is not over."""
-        return now < lag_end and self._arrived is not None and now - self._arrived <= LAG_LOOK
 
     def _newest(self, t_ns: int) -> str:
         """What came: nothing, or how late the newest message was stamped."""

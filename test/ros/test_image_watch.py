@@ -1,6 +1,7 @@
 """ros.image_watch.ImageWatch, the image port over ``wrist_camera/image_raw``: the first image
 after subscribing may take WAKE_ALLOWANCE s more (a camera that streams only to subscribers
-starts when discovery has matched the new subscription), later ones only their own timeout."""
+starts when discovery has matched the new subscription), later ones only their own timeout, and
+LAG_ALLOWANCE s more while images keep coming stamped too early (a camera that is behind)."""
 import threading
 import time
 
@@ -41,3 +42,25 @@ def test_the_first_image_after_subscribing_may_take_the_wake_allowance(monkeypat
             late.cancel()
         node.destroy_node()
         rclpy.shutdown(context=context)
+
+
+def test_a_camera_that_is_behind_is_waited_for():
+    """Images keep coming stamped before the time asked for: the wait goes on past its 0.2 s
+    (LAG_ALLOWANCE) and takes the first image stamped after it."""
+    watch = ImageWatch(lambda: 0, node=None)
+    watch._sub = object()                   # subscribed: image_after does not subscribe
+    stamps, stop = iter(range(1, 100)), threading.Event()
+
+    def behind_by_two_seconds() -> None:   # 20 images a second, one second later each
+        while not stop.wait(0.05):
+            watch._on_image(_image(next(stamps)))
+    feeder = threading.Thread(target=behind_by_two_seconds, daemon=True)
+    feeder.start()
+    try:
+        started = time.monotonic()
+        stamp, _ = watch.image_after(12_000_000_000, 0.2)          # 0.6 s after its start
+        waited = time.monotonic() - started
+    finally:
+        stop.set()
+        feeder.join()
+    assert stamp == 13_000_000_000 and 0.3 < waited < 5.0, (stamp, waited)
