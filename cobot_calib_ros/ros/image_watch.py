@@ -51,10 +51,35 @@ def image_wait(timeout: float, woken_by: float) -> float:
     return max(timeout, woken_by + timeout - time.monotonic())
 
 
-def behind(now: float, lag_end: float, arrived: float | None) -> bool:
-    """Whether a wait past its timeout goes on: a message came within LAG_LOOK s (``arrived``,
-    monotonic [s]; None: none yet) and ``lag_end`` (the timeout plus LAG_ALLOWANCE) is ahead."""
-    return now < lag_end and arrived is not None and now - arrived <= LAG_LOOK
+class StampedWait:
+    """One wait, under its watch's condition, for a message stamped after a time: ``timeout``
+    s (longer for a new subscription's first message: image_wait), and up to LAG_ALLOWANCE s
+    more while messages keep coming (one within LAG_LOOK s), all stamped before that time."""
+
+    def __init__(self, timeout: float, woken_by: float) -> None:
+        timeout = image_wait(timeout, woken_by)
+        self.start = time.monotonic()
+        self._deadline = self.start + timeout
+        self._lag_end = self._deadline + LAG_ALLOWANCE
+
+    def over(self, arrived: float | None, found: bool = False) -> bool:
+        """Whether to stop looking: the timeout has passed and something was ``found``, or
+        the chain is not behind (``arrived``: time.monotonic() of the newest message, None
+        if none came)."""
+        now = time.monotonic()
+        behind = now < self._lag_end and arrived is not None and now - arrived <= LAG_LOOK
+        return now >= self._deadline and (found or not behind)
+
+    def pause(self, cond: threading.Condition) -> None:
+        """Until a message comes (notified), the timeout, or the next look while behind."""
+        remaining = self._deadline - time.monotonic()
+        cond.wait(remaining if remaining > 0 else LAG_LOOK / 4)
+
+    def said(self, arrived: float | None, more: str = '') -> str:
+        """How long it waited and what came (and ``more`` on that), for a failure message."""
+        now = time.monotonic()
+        came = 'none came' if arrived is None else f'the newest came {now - arrived:.1f} s ago'
+        return f'within {now - self.start:.0f} s ({came}{more})'
 
 
 class ImageWatch:
@@ -93,23 +118,17 @@ class ImageWatch:
             self._sub = self._node.create_subscription(Image, TOPIC, self._on_image,
                                                        qos_profile_sensor_data)
         with self._cond:
-            timeout = image_wait(timeout, self._woken_by)
-            start = time.monotonic()
-            deadline, lag_end = start + timeout, start + timeout + LAG_ALLOWANCE
+            wait = StampedWait(timeout, self._woken_by)
             while True:
                 msg = next((m for m in self._images if stamp_to_ns(m.header.stamp) > t_ns),
                            None)
-                now = time.monotonic()
-                if msg is not None or (now >= deadline
-                                       and not behind(now, lag_end, self._arrived)):
+                if msg is not None or wait.over(self._arrived):
                     break
-                self._cond.wait(deadline - now if now < deadline else LAG_LOOK / 4)
+                wait.pause(self._cond)
             if msg is None:
-                came = 'none came' if self._arrived is None else (
-                    f'the newest came {time.monotonic() - self._arrived:.1f} s ago')
                 raise CaptureFailed(f'no image on {TOPIC} stamped after {t_ns * 1e-9:.3f} s '
-                                    f'within {time.monotonic() - start:.0f} s ({came}); is the '
-                                    'camera driver (mock_camera) up?')
+                                    f'{wait.said(self._arrived)}; is the camera driver '
+                                    '(mock_camera) up?')
         try:
             return stamp_to_ns(msg.header.stamp), np.ascontiguousarray(image_to_gray(msg))
         except ImageMessageError as e:

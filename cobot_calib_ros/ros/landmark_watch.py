@@ -12,8 +12,8 @@ and the camera rest while nobody subscribes (issue 23). Waking them (discovery m
 subscription, the detector subscribes to the images, the camera starts) can take seconds on a
 loaded machine: the first image after subscribing gets image_watch.WAKE_ALLOWANCE s more,
 counted from the subscription (image_watch.image_wait). A wait for an image stamped after a
-time goes on past its timeout while messages keep coming stamped before it (image_watch.behind:
-the chain is behind, not silent).
+time goes on past its timeout while messages keep coming stamped before it (the chain is behind,
+not silent): both rules are image_watch.StampedWait's.
 """
 from __future__ import annotations
 
@@ -28,8 +28,7 @@ from rclpy.clock import Clock, ClockType
 
 from cobot_calib_ros.core.robot_port import CaptureFailed, LandmarkImage, Sighting
 from cobot_calib_ros.ros import convert
-from cobot_calib_ros.ros.image_watch import (behind, image_wait, LAG_ALLOWANCE, LAG_LOOK,
-                                             wake_deadline)
+from cobot_calib_ros.ros.image_watch import StampedWait, wake_deadline
 from cobot_calib_ros.ros.time import stamp_to_ns
 
 KEEP = 60           # images kept (2 s at 30 fps): more than arrive during one capture
@@ -113,32 +112,23 @@ class LandmarkWatch:
                          max_images: int, timeout: float) -> LandmarkImage:
         seen, last, after = 0, None, t_ns
         with self._cond:
-            timeout = image_wait(timeout, self._woken_by)
-            start = time.monotonic()
-            deadline, lag_end = start + timeout, start + timeout + LAG_ALLOWANCE
+            wait = StampedWait(timeout, self._woken_by)
             while seen < max_images:
-                now = time.monotonic()
-                if now >= deadline and (last is not None
-                                        or not behind(now, lag_end, self._arrived)):
+                if wait.over(self._arrived, found=last is not None):
                     break
                 image = next((im for im in self._images if im.stamp_ns > after), None)
                 if image is None:
-                    self._cond.wait(deadline - now if now < deadline else LAG_LOOK / 4)
+                    wait.pause(self._cond)
                     continue
                 seen, last, after = seen + 1, image, image.stamp_ns
                 if wanted(image):
                     break
             if last is None:
+                stamped = '' if not self._images else (
+                    f', stamped {(t_ns - self._images[-1].stamp_ns) * 1e-9:.3f} s before that '
+                    'time')
                 raise CaptureFailed(
-                    f'no landmarks message of an image stamped after {t_ns * 1e-9:.3f} s within '
-                    f'{time.monotonic() - start:.0f} s ({self._newest(t_ns)}); are mock_camera / '
-                    'the camera driver and landmark_detector up?')
+                    f'no landmarks message of an image stamped after {t_ns * 1e-9:.3f} s '
+                    f'{wait.said(self._arrived, stamped)}; are mock_camera / the camera driver '
+                    'and landmark_detector up?')
         return last
-
-    def _newest(self, t_ns: int) -> str:
-        """What came: nothing, or how late the newest message was stamped."""
-        if not self._images:
-            return 'none came'
-        gap = (t_ns - self._images[-1].stamp_ns) * 1e-9
-        return (f'the newest came {time.monotonic() - self._arrived:.1f} s ago, stamped '
-                f'{gap:.3f} s before that time')
