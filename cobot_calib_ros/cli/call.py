@@ -157,6 +157,11 @@ def _call(node, service: str, type_name: str | None, data, args) -> int:
     from cobot_calib_ros.ros.calls import CallError
     from cobot_calib_ros.ros.fields import FieldError, set_fields
     from cobot_calib_ros.ros.types import to_dict
+    # subscribed before discovery: the server's node learns of this reader while the service
+    # is looked for, so the first mark of the call reaches it (a mark published before the
+    # server had matched a reader made after discovery was lost: 17 views of 18 printed, a
+    # loaded test run); _answer closes it, or the node's end
+    progress = _Progress(node)
     advertised, others = _advertised(node, service, args.timeout)
     if not advertised and others:
         return fail(f'no server for {service}: {others} other node(s) are on the graph and '
@@ -173,7 +178,7 @@ def _call(node, service: str, type_name: str | None, data, args) -> int:
     except (UsageError, FieldError) as e:
         return fail(f'bad request: {e}', EXIT_USAGE)
     try:
-        response = _answer(node, node.create_client(srv, service), request, args,
+        response = _answer(node, node.create_client(srv, service), request, args, progress,
                            query=(_srv(type_name) if type_name else advertised[0]) in QUERY_TYPES)
     except CallError as e:
         return fail(str(e))
@@ -201,15 +206,15 @@ def refusal(response) -> str:
     return ''
 
 
-def _answer(node, client, request, args, query: bool = False):
+def _answer(node, client, request, args, progress: _Progress, query: bool = False):
     """Call once the server is there; wait for the answer (args.answer_timeout [s], None: until
-    it comes), printing the suite's capture marks meanwhile. CallError if no server or no
-    answer in time (the message says the call may still complete)."""
+    it comes), printing the suite's capture marks meanwhile (``progress``). CallError if no
+    server or no answer in time (the message says the call may still complete)."""
     from cobot_calib_ros.ros.calls import CallError, spin_until
     if not spin_until(node, client.service_is_ready, args.timeout):
         raise CallError(f'service {client.srv_name} is not available; is the node suite up '
                         '(cobot-calib up) and ROS_DOMAIN_ID the same?')
-    progress, server = _Progress(node), _ServerWatch(node, client.srv_name)
+    server = _ServerWatch(node, client.srv_name)
     # so the first view shows too, and the server's node is named if it dies (a node's name
     # comes from its own publication, after its services: never, once it is killed)
     spin_until(node, lambda: progress.matched() and server.named(), MATCH_WAIT)

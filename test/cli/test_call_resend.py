@@ -41,7 +41,7 @@ def node(monkeypatch):
 
 def _answer(node, srv_type, name: str, args) -> tuple[LosesTheFirstAnswer, object]:
     client = LosesTheFirstAnswer(node.create_client(srv_type, name))
-    return client, call._answer(node, client, srv_type.Request(), args,
+    return client, call._answer(node, client, srv_type.Request(), args, call._Progress(node),
                                 query=call._srv(f'cobot_calib_msgs/{srv_type.__name__}')
                                 in call.QUERY_TYPES)
 
@@ -63,5 +63,5 @@ def test_a_calibration_is_never_sent_twice(node):
     client = LosesTheFirstAnswer(node.create_client(CalibrateUserFrame, 'calibrate_user_frame'))
     with pytest.raises(CallError, match='no answer from calibrate_user_frame within 3 s'):
         call._answer(node, client, CalibrateUserFrame.Request(),
-                     SimpleNamespace(timeout=10.0, answer_timeout=3.0))
+                     SimpleNamespace(timeout=10.0, answer_timeout=3.0), call._Progress(node))
     assert client.sent == 1
