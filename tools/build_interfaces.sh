@@ -53,6 +53,14 @@ key=$({ echo "$pkg"; "$py" -c 'import sys, platform; print(sys.version, platform
         (cd "$src" && find . -type f | LC_ALL=C sort | xargs sha256sum); } | sha256sum | cut -c1-20)
 cached="$cache_dir/$pkg-$key.tar.gz"
 
+# The installed package's bytecode, written once here: `make test` sets PYTHONDONTWRITEBYTECODE, so
+# without it every node and command process compiles the generated message modules again (0.14 s
+# of CPU a process for cobot_calib_msgs, session 28).
+compile_installed() {
+  "$py" -c "import compileall, os, sys, $pkg
+sys.exit(not compileall.compile_dir(os.path.dirname($pkg.__file__), quiet=1))"
+}
+
 # The build's files, as `make install` wrote them into the venv, with the venv's path in its text
 # files (cmake exports, local_setup.sh) put back as this venv's.
 if [ -n "$cache_dir" ] && [ -f "$cached" ]; then
@@ -65,6 +73,7 @@ if [ -n "$cache_dir" ] && [ -f "$cached" ]; then
     cp -a "$restore/venv/." "$venv/"
     rm -rf "$restore"
     if "$py" -c "import $pkg.msg" 2>/dev/null; then
+      compile_installed
       echo "$pkg installed into $venv from the build cache ($cached)"
       exit 0
     fi
@@ -80,6 +89,7 @@ PATH="$venv/bin:$PATH" cmake "$src" -DCMAKE_INSTALL_PREFIX="$venv" \
   || { cat cmake.log; exit 1; }
 PATH="$venv/bin:$PATH" make -j2 install >make.log 2>&1 || { tail -50 make.log; exit 1; }
 "$py" -c "import $pkg.msg; print('$pkg installed into $venv')"
+compile_installed
 
 if [ -n "$cache_dir" ] && mkdir -p "$cache_dir" 2>/dev/null; then
   stage=$(mktemp -d)
