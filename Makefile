@@ -12,8 +12,8 @@ PY := $(VENV)/bin/python
 # image_watch.StampedWait). Session 27: a 4-worker run (9 min 30 s) failed test_up after its
 # kill -9 of joint_state_monitor (the suite stalled for seconds, README "A killed node can
 # stall its peers"), seen only with 4 workers; 3 workers 8 min 2 s to 8 min 44 s, green.
-# Session 28, 3 workers: 7 min 24 s to 7 min 57 s once the interface packages were byte-compiled and DDS
-# participants announce every second (config/fastdds_large_images.xml)
+# Session 28, 3 workers: 7 min 24 s to 7 min 57 s once the interface packages were
+# byte-compiled and DDS participants announce every second (config/fastdds_large_images.xml)
 TEST_WORKERS ?= 3
 STAMP := $(VENV)/.stamps
 
